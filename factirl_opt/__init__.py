@@ -1,0 +1,45 @@
+"""factirl-opt: multi-task inverse reinforcement learning (Mangin & Oudeyer 2014).
+
+The data path: MDP + demonstrations -> empirical statistics -> eq. (5) loss and its adjoint
+gradient -> a registered step solver -> learnt rewards -> eq. (13) score.
+"""
+
+from .demonstrations import empirical_statistics, sample_demonstrations
+from .evaluation import deviation, optimal_score, score
+from .exceptions import FactIRLError, NotFittedError, SolverError, UnknownSolverError, ValidationError
+from .factirl import FactIRL, pca_dictionary
+from .gradirl import GradIRL
+from .ground_truth import random_coefficients, random_dictionary, task_rewards
+from .mdp import GridWorld, TabularMDP
+from .objective import policy_matching_grad_reference, policy_matching_loss, residual_jacobian
+from .planning import boltzmann_policy, optimal_q, policy_evaluation, value_iteration
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "TabularMDP",
+    "GridWorld",
+    "optimal_q",
+    "policy_evaluation",
+    "value_iteration",
+    "boltzmann_policy",
+    "sample_demonstrations",
+    "empirical_statistics",
+    "policy_matching_loss",
+    "policy_matching_grad_reference",
+    "residual_jacobian",
+    "GradIRL",
+    "FactIRL",
+    "pca_dictionary",
+    "score",
+    "optimal_score",
+    "deviation",
+    "random_dictionary",
+    "random_coefficients",
+    "task_rewards",
+    "FactIRLError",
+    "ValidationError",
+    "NotFittedError",
+    "SolverError",
+    "UnknownSolverError",
+]

@@ -1,0 +1,165 @@
+"""Expert demonstrations: sampling a greedy expert and the empirical statistics of eq. (5).
+
+A demonstration (episode) is a sequence of (state, action) pairs. The demonstrations of one
+task are either an int array of shape (m, L, 2) (m episodes of equal length L), or a list of
+episodes of any lengths, each array-like of shape (L_j, 2). ``demos_per_task`` is a list with
+one such entry per task (one task is a list of one).
+"""
+
+import numpy as np
+
+from ._validation import check_mdp, check_positive, check_rewards
+from .exceptions import ValidationError
+from .planning import _optimal_q
+
+__all__ = ["sample_demonstrations", "empirical_statistics", "task_steps", "as_rng"]
+
+
+def as_rng(rng):
+    """A ``numpy.random.Generator`` from a Generator, a seed, a SeedSequence or None."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is None or isinstance(rng, (int, np.integer, np.random.SeedSequence)) and not isinstance(rng, bool):
+        return np.random.default_rng(rng)
+    raise ValidationError(f"rng must be a numpy Generator, a SeedSequence, an int seed or None; got {type(rng).__name__}")
+
+
+def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
+    """Sample demonstrations of a greedy expert (DESIGN section 2).
+
+    For each task the expert acts greedily on its true ``Q*``; each demonstration starts in a
+    uniformly random state and follows the MDP's dynamics for ``length`` steps.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    rewards : array_like, shape (S, A) or (n, S, A)
+        The tasks' true rewards.
+    n_demos : int
+        Demonstrations per task, m >= 1.
+    length : int
+        Steps per demonstration, L >= 1.
+    rng : numpy.random.Generator or int or None
+
+    Returns
+    -------
+    demos_per_task : list of n ndarrays of int64, each of shape (m, L, 2)
+        ``demos[i][j, t] = (state, action)`` at step t of demonstration j of task i.
+    """
+    check_mdp(mdp)
+    R, _ = check_rewards(mdp, rewards)
+    check_positive(n_demos, "n_demos", integer=True)
+    check_positive(length, "length", integer=True)
+    rng = as_rng(rng)
+    n, S, A = R.shape
+    _, policy, _ = _optimal_q(mdp, R)
+    cdf = np.cumsum(mdp.transitions, axis=2)
+    out = np.empty((n, n_demos, length, 2), dtype=np.int64)
+    states = rng.integers(0, S, size=(n, n_demos))
+    task = np.arange(n)[:, None]
+    for t in range(length):
+        actions = policy[task, states]
+        out[:, :, t, 0] = states
+        out[:, :, t, 1] = actions
+        u = rng.random((n, n_demos, 1))
+        nxt = (u > cdf[states, actions]).sum(axis=2)
+        states = np.minimum(nxt, S - 1)  # guard against a cdf ending just below 1
+    return [out[i] for i in range(n)]
+
+
+def task_steps(mdp, task_demos, task=0):
+    """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    task_demos : ndarray (m, L, 2) or (L, 2), or list of episodes each array-like (L_j, 2)
+    task : int
+        Index used in error messages.
+
+    Returns
+    -------
+    steps : ndarray of intp, shape (N, 2)
+    """
+    where = f"demonstrations of task {task}"
+    if isinstance(task_demos, np.ndarray) and task_demos.ndim in (2, 3):
+        episodes = [task_demos] if task_demos.ndim == 2 else list(task_demos)
+    elif isinstance(task_demos, (list, tuple)):
+        episodes = list(task_demos)
+    else:
+        raise ValidationError(
+            f"{where} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
+            f"got {type(task_demos).__name__} with shape {np.shape(task_demos)}"
+        )
+    if len(episodes) == 0:
+        raise ValidationError(f"{where} are empty: give at least one episode")
+    parts = []
+    for j, ep in enumerate(episodes):
+        arr = np.asarray(ep)
+        if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
+            raise ValidationError(f"episode {j} of {where} must have shape (L, 2) with L >= 1; got {arr.shape}")
+        if arr.dtype.kind not in "iu":
+            if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+                arr = arr.astype(np.int64)
+            else:
+                raise ValidationError(f"episode {j} of {where} must hold integer (state, action) pairs; got dtype {arr.dtype}")
+        parts.append(arr)
+    steps = np.concatenate(parts).astype(np.intp)
+    S, A = mdp.n_states, mdp.n_actions
+    bad_s = (steps[:, 0] < 0) | (steps[:, 0] >= S)
+    if bad_s.any():
+        raise ValidationError(f"{where}: state {steps[bad_s][0, 0]} is out of range [0, {S})")
+    bad_a = (steps[:, 1] < 0) | (steps[:, 1] >= A)
+    if bad_a.any():
+        raise ValidationError(f"{where}: action {steps[bad_a][0, 1]} is out of range [0, {A})")
+    return steps
+
+
+def _check_task_list(demos_per_task):
+    if isinstance(demos_per_task, np.ndarray):
+        if demos_per_task.ndim == 4:
+            return list(demos_per_task)
+        raise ValidationError(
+            "demos_per_task must be a list with one entry per task (one task is a list of one), "
+            f"or a 4-d array (n, m, L, 2); got an array of shape {demos_per_task.shape}"
+        )
+    if not isinstance(demos_per_task, (list, tuple)):
+        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
+    if len(demos_per_task) == 0:
+        raise ValidationError("demos_per_task is empty: give the demonstrations of at least one task")
+    return list(demos_per_task)
+
+
+def empirical_statistics(mdp, demos_per_task):
+    """Empirical state frequencies and policies of each task (the hats of eq. 5).
+
+    ``mu_hat(s)`` is the visit frequency of state s over all steps of the task's demonstrations;
+    ``pi_hat(a|s)`` is the frequency of action a among the visits of s, and 0 in unvisited
+    states (which carry weight ``mu_hat(s) = 0``).
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    demos_per_task : list of n task demonstrations
+        Each an int array (m, L, 2) or a list of episodes (L_j, 2).
+
+    Returns
+    -------
+    mu_hat : ndarray, shape (n, S)
+        Rows sum to 1.
+    pi_hat : ndarray, shape (n, S, A)
+        Rows of visited states sum to 1; rows of unvisited states are 0.
+    """
+    check_mdp(mdp)
+    tasks = _check_task_list(demos_per_task)
+    S, A = mdp.n_states, mdp.n_actions
+    n = len(tasks)
+    counts = np.zeros((n, S * A))
+    for i, td in enumerate(tasks):
+        steps = task_steps(mdp, td, task=i)
+        counts[i] = np.bincount(steps[:, 0] * A + steps[:, 1], minlength=S * A)
+    counts = counts.reshape(n, S, A)
+    visits = counts.sum(axis=2)
+    mu_hat = visits / visits.sum(axis=1, keepdims=True)
+    pi_hat = np.divide(counts, visits[:, :, None], out=np.zeros_like(counts), where=visits[:, :, None] > 0)
+    return mu_hat, pi_hat

@@ -1,0 +1,110 @@
+"""GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1)."""
+
+import numpy as np
+
+import solvers
+
+from ._validation import check_mdp, check_positive
+from .demonstrations import empirical_statistics
+from .exceptions import NotFittedError, ValidationError
+from .objective import PolicyMatchingObjective, _check_beta
+from .problems import weights_problem
+
+__all__ = ["GradIRL"]
+
+
+def _check_features(mdp, features, name="features"):
+    if features is None:
+        return None
+    F = np.asarray(features, dtype=np.float64)
+    if F.ndim != 2 or F.shape[0] != mdp.n_params or F.shape[1] == 0:
+        raise ValidationError(f"{name} must have shape (S*A, k) = ({mdp.n_params}, k) with k >= 1; got {F.shape}")
+    if not np.all(np.isfinite(F)):
+        raise ValidationError(f"{name} must be finite")
+    return F
+
+
+class GradIRL:
+    """Flat learner: one reward per task whose Boltzmann policy on Q* matches the expert's.
+
+    Minimises eq. (5) for every task (batched over the task axis) by gradient descent with
+    Armijo step-size adaptation (or any registered step solver), from zero weights.
+
+    Parameters
+    ----------
+    beta : float, default=5.0
+        Boltzmann inverse temperature (eq. 7).
+    features : array_like, shape (S*A, k), optional
+        Linear reward features ``R = F w``; None learns tabular rewards (``theta = R``, d = S*A).
+    max_iter : int, default=100
+        Maximum descent iterations.
+    tol : float, default=1e-5
+        Stop when the relative decrease of the total loss over an iteration is below tol.
+    solver : str or solvers.StepSolver, default="armijo"
+        Step solver (see ``solvers.available_solvers()``).
+    solver_options : dict, optional
+        Options for a solver given by name.
+
+    Attributes
+    ----------
+    weights_ : ndarray, shape (n, p)
+        Learnt parameters (tabular theta, p = S*A, or feature weights, p = k).
+    rewards_ : ndarray, shape (n, S, A)
+    loss_ : ndarray, shape (n,)
+        Final loss of each task.
+    loss_history_ : list of float
+        Total loss (sum over tasks) before the first step and after each iteration.
+    n_evaluations_ : int
+        Batched Q* evaluations used.
+    n_iter_ : int
+    status_ : str
+    """
+
+    def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None):
+        self.beta = beta
+        self.features = features
+        self.max_iter = max_iter
+        self.tol = tol
+        self.solver = solver
+        self.solver_options = solver_options
+
+    def fit(self, mdp, demos_per_task):
+        """Learn one reward per task.
+
+        Parameters
+        ----------
+        mdp : TabularMDP
+        demos_per_task : list of n task demonstrations
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes.
+
+        Returns
+        -------
+        self
+        """
+        check_mdp(mdp)
+        beta = _check_beta(self.beta)
+        check_positive(self.max_iter, "max_iter", allow_zero=True, integer=True)
+        check_positive(self.tol, "tol", allow_zero=True)
+        F = _check_features(mdp, self.features)
+        solver = solvers.resolve_solver(self.solver, **(self.solver_options or {}))
+        mu, pi_hat = empirical_statistics(mdp, demos_per_task)
+        objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
+        problem = weights_problem(objective, F)
+        x0 = np.zeros((problem.n_rows, problem.n_params))
+        res = solver.run(problem, x0, int(self.max_iter), tol=self.tol)
+        S, A = mdp.n_states, mdp.n_actions
+        self.weights_ = res.coefficients
+        self.rewards_ = (res.coefficients if F is None else res.coefficients @ F.T).reshape(-1, S, A)
+        self.loss_ = res.loss
+        self.loss_history_ = res.loss_history
+        self.n_evaluations_ = int(objective.n_evaluations)
+        self.n_iter_ = res.iterations
+        self.status_ = res.status
+        return self
+
+    def _check_fitted(self):
+        if not hasattr(self, "rewards_"):
+            raise NotFittedError("this GradIRL is not fitted yet: call fit(mdp, demos_per_task) first")
+
+    def __repr__(self):
+        return f"GradIRL(beta={self.beta}, features={'None' if self.features is None else np.shape(self.features)}, max_iter={self.max_iter})"
