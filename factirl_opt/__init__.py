@@ -6,12 +6,22 @@ gradient -> a registered step solver -> learnt rewards -> eq. (13) score.
 
 from .demonstrations import empirical_statistics, sample_demonstrations
 from .evaluation import deviation, optimal_score, score
-from .exceptions import FactIRLError, NotFittedError, SolverError, UnknownSolverError, ValidationError
+from .exceptions import (
+    FactIRLError,
+    MissingDependencyError,
+    NotFittedError,
+    PersistenceError,
+    SolverError,
+    UnknownSolverError,
+    ValidationError,
+)
 from .factirl import FactIRL, pca_dictionary
 from .gradirl import GradIRL
+from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .ground_truth import random_coefficients, random_dictionary, task_rewards
 from .mdp import GridWorld, TabularMDP
 from .objective import policy_matching_grad_reference, policy_matching_loss, residual_jacobian
+from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
 from .planning import boltzmann_policy, optimal_q, policy_evaluation, value_iteration
 
 __version__ = "0.1.0"
@@ -37,9 +47,17 @@ __all__ = [
     "random_dictionary",
     "random_coefficients",
     "task_rewards",
+    "from_gymnasium",
+    "gymnasium_rewards",
+    "save_model",
+    "load_model",
+    "save_demonstrations",
+    "load_demonstrations",
     "FactIRLError",
     "ValidationError",
     "NotFittedError",
     "SolverError",
     "UnknownSolverError",
+    "PersistenceError",
+    "MissingDependencyError",
 ]

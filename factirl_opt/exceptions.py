@@ -6,7 +6,15 @@ the library's errors without catching unrelated ones. Validation errors also der
 conventions keeps working.
 """
 
-__all__ = ["FactIRLError", "ValidationError", "NotFittedError", "SolverError", "UnknownSolverError"]
+__all__ = [
+    "FactIRLError",
+    "ValidationError",
+    "NotFittedError",
+    "SolverError",
+    "UnknownSolverError",
+    "PersistenceError",
+    "MissingDependencyError",
+]
 
 
 class FactIRLError(Exception):
@@ -30,3 +38,12 @@ class UnknownSolverError(FactIRLError, KeyError):
 
     def __str__(self):  # KeyError quotes its argument; keep the message readable
         return str(self.args[0]) if self.args else ""
+
+
+class PersistenceError(FactIRLError, ValueError):
+    """A saved file is corrupt, of the wrong kind, incomplete or from a newer format version,
+    or an object cannot be saved; the message says which."""
+
+
+class MissingDependencyError(FactIRLError, ImportError):
+    """An optional dependency (an extra such as ``gymnasium``) is needed but not installed."""
