@@ -95,7 +95,10 @@ def task_steps(mdp, task_demos, task=0):
         raise ValidationError(f"{where} are empty: give at least one episode")
     parts = []
     for j, ep in enumerate(episodes):
-        arr = np.asarray(ep)
+        try:
+            arr = np.asarray(ep)
+        except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
+            raise ValidationError(f"episode {j} of {where} must be an array of (state, action) pairs of shape (L, 2)") from None
         if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
             raise ValidationError(f"episode {j} of {where} must have shape (L, 2) with L >= 1; got {arr.shape}")
         if arr.dtype.kind not in "iu":

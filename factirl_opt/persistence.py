@@ -304,8 +304,11 @@ def load_model(path):
 # ----------------------------------------------------------------------------- demonstrations
 
 
-def _episode(arr, where):
-    arr = np.asarray(arr)
+def _episode(ep, where):
+    try:
+        arr = np.asarray(ep)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
         raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
     if arr.dtype.kind not in "iu":
