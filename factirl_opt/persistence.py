@@ -295,7 +295,7 @@ def load_model(path):
     for key in array_attributes:
         attributes[key] = _require(contents, f"attr/{key}", label, "the archive")
     for key, value in attributes.items():
-        if not (isinstance(key, str) and key.endswith("_") and key.isidentifier()):
+        if not (isinstance(key, str) and key.isidentifier() and key.endswith("_") and not key.startswith("_")):
             raise PersistenceError(f"{label} is malformed: {key!r} is not a learnt attribute name")
         setattr(model, key, value)
     return model

@@ -1,0 +1,322 @@
+"""Saving and loading models and demonstrations: exact round trips and every error path."""
+
+import io
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+import solvers
+from factirl_opt.exceptions import PersistenceError, ValidationError
+from factirl_opt.persistence import FORMAT_VERSION
+
+
+@pytest.fixture(scope="module")
+def setting():
+    mdp = fo.GridWorld(size=4)
+    rng = np.random.default_rng(11)
+    D = fo.random_dictionary(mdp.n_params, 2, rng=rng)
+    rewards = fo.task_rewards(D, fo.random_coefficients(5, 2, rng=rng), mdp.n_states, mdp.n_actions)
+    demos = fo.sample_demonstrations(mdp, rewards, n_demos=3, length=6, rng=rng)
+    new_rewards = fo.task_rewards(D, fo.random_coefficients(3, 2, rng=rng), mdp.n_states, mdp.n_actions)
+    new_demos = fo.sample_demonstrations(mdp, new_rewards, n_demos=1, length=10, rng=rng)
+    return mdp, rewards, demos, new_rewards, new_demos
+
+
+@pytest.fixture(scope="module")
+def fitted(setting):
+    mdp, _, demos, _, _ = setting
+    return fo.FactIRL(n_primitives=2, max_iter=5, inner_steps=3, flat_max_iter=10, transfer_max_iter=15,
+                      rng=np.random.default_rng(5)).fit(mdp, demos)
+
+
+def _header(path):
+    with np.load(path, allow_pickle=False) as npz:
+        return json.loads(str(npz["__header__"][()])), {k: npz[k] for k in npz.files if k != "__header__"}
+
+
+def _rewrite(src, dst, edit_header=None, drop=(), extra=None):
+    header, arrays = _header(src)
+    if edit_header:
+        edit_header(header)
+    for key in drop:
+        arrays.pop(key)
+    arrays.update(extra or {})
+    np.savez(dst, __header__=np.array(json.dumps(header)), **arrays)
+    return dst
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+def test_factirl_round_trip_transfers_bit_identically(setting, fitted, tmp_path):
+    mdp, _, _, new_rewards, new_demos = setting
+    path = fo.save_model(fitted, tmp_path / "model")  # no suffix added
+    assert path == str(tmp_path / "model") and (tmp_path / "model").exists()
+    loaded = fo.load_model(path)
+    assert type(loaded) is fo.FactIRL
+    for name in ("n_primitives", "beta", "init", "max_iter", "inner_steps", "tol", "h_solver", "h_solver_options",
+                 "flat_max_iter", "transfer_max_iter"):
+        assert getattr(loaded, name) == getattr(fitted, name)
+    for name in ("dictionary_", "coefficients_", "rewards_", "loss_"):
+        a, b = getattr(fitted, name), getattr(loaded, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert loaded.loss_history_ == fitted.loss_history_
+    assert (loaded.n_iter_, loaded.n_evaluations_) == (fitted.n_iter_, fitted.n_evaluations_)
+    h_orig = fitted.transfer(mdp, new_demos)
+    h_load = loaded.transfer(mdp, new_demos)
+    assert h_orig.tobytes() == h_load.tobytes()
+    learnt = fo.task_rewards(loaded.dictionary_, h_load, mdp.n_states, mdp.n_actions)
+    np.testing.assert_array_equal(fo.score(mdp, new_rewards, learnt), fo.score(mdp, new_rewards, fitted.transfer_rewards_))
+    assert loaded.transfer_loss_history_ == fitted.transfer_loss_history_
+
+
+def test_header_records_versions_and_parameters(fitted, tmp_path):
+    header, arrays = _header(fo.save_model(fitted, tmp_path / "m.npz"))
+    assert header["format"] == "factirl-opt" and header["format_version"] == FORMAT_VERSION
+    assert header["kind"] == "model" and header["class"] == "FactIRL"
+    assert header["library_version"] == fo.__version__ and header["numpy_version"] == np.__version__
+    assert header["params"]["n_primitives"] == 2 and header["params"]["h_solver"] == "armijo"
+    assert {"attr/dictionary_", "attr/coefficients_"} <= set(arrays)
+    assert all(a.dtype != object for a in arrays.values())
+
+
+def test_rng_generator_state_is_restored(setting, tmp_path):
+    mdp, _, demos, _, _ = setting
+    model = fo.FactIRL(n_primitives=2, init="random", max_iter=2, rng=np.random.default_rng(3))
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+    assert isinstance(loaded.rng, np.random.Generator) and loaded.rng is not model.rng
+    assert loaded.rng.bit_generator.state == model.rng.bit_generator.state
+    np.testing.assert_array_equal(loaded.fit(mdp, demos).dictionary_, model.fit(mdp, demos).dictionary_)
+    for rng in (None, 42, np.random.SeedSequence(9, spawn_key=(1, 2))):
+        back = fo.load_model(fo.save_model(fo.FactIRL(rng=rng), tmp_path / "r.npz")).rng
+        if isinstance(rng, np.random.SeedSequence):
+            assert (back.entropy, back.spawn_key) == (rng.entropy, rng.spawn_key)
+            assert np.array_equal(back.generate_state(4), rng.generate_state(4))
+        else:
+            assert back == rng
+
+
+def test_gradirl_with_features_and_options_round_trip(setting, tmp_path):
+    mdp, rewards, demos, _, _ = setting
+    F = np.random.default_rng(0).standard_normal((mdp.n_params, 3))
+    model = fo.GradIRL(beta=np.float64(4.0), features=F, max_iter=np.int64(10), solver="armijo",
+                       solver_options={"initial_step": 0.5}).fit(mdp, demos)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
+    assert type(loaded) is fo.GradIRL
+    np.testing.assert_array_equal(loaded.features, F)
+    assert loaded.solver_options == {"initial_step": 0.5} and loaded.max_iter == 10 and loaded.beta == 4.0
+    np.testing.assert_array_equal(loaded.weights_, model.weights_)
+    np.testing.assert_array_equal(fo.score(mdp, rewards, loaded.rewards_), fo.score(mdp, rewards, model.rewards_))
+    assert loaded.status_ == model.status_
+    refit = loaded.fit(mdp, demos)
+    np.testing.assert_array_equal(refit.weights_, model.weights_)
+
+
+def test_tuple_init_unfitted_model_and_file_objects(setting):
+    mdp, _, demos, _, _ = setting
+    D0 = np.random.default_rng(1).standard_normal((mdp.n_params, 2))
+    H0 = np.ones((5, 2))
+    model = fo.FactIRL(n_primitives=2, init=(D0, H0), max_iter=2)
+    buf = io.BytesIO()
+    fo.save_model(model, buf)
+    buf.seek(0)
+    loaded = fo.load_model(buf)
+    assert not hasattr(loaded, "dictionary_")
+    assert isinstance(loaded.init, tuple)
+    np.testing.assert_array_equal(loaded.init[0], D0)
+    np.testing.assert_array_equal(loaded.fit(mdp, demos).rewards_, model.fit(mdp, demos).rewards_)
+
+
+def test_ragged_demonstrations_round_trip(setting, tmp_path):
+    mdp, _, demos, _, _ = setting
+    ragged = [
+        demos[0],  # (m, L, 2) array
+        [demos[1][0][:2], demos[1][1], [[0, 1], [4, 2], [5, 3]]],  # list of episodes, lengths 2, 6, 3
+        demos[2][0],  # one (L, 2) episode
+        (np.array([[3, 1]], dtype=np.int32),),
+        demos[3].astype(np.float64),
+    ]
+    path = fo.save_demonstrations(ragged, tmp_path / "demos.npz")
+    back = fo.load_demonstrations(path)
+    assert len(back) == 5
+    assert isinstance(back[0], np.ndarray) and back[0].shape == (3, 6, 2)
+    assert isinstance(back[1], list) and [len(ep) for ep in back[1]] == [2, 6, 3]
+    assert isinstance(back[2], np.ndarray) and back[2].shape == (6, 2)
+    assert isinstance(back[3], list) and back[3][0].tolist() == [[3, 1]]
+    assert all(np.asarray(ep).dtype == np.int64 for task in back for ep in (task if isinstance(task, list) else [task]))
+    np.testing.assert_array_equal(back[1][2], [[0, 1], [4, 2], [5, 3]])
+    for a, b in zip(fo.empirical_statistics(mdp, ragged), fo.empirical_statistics(mdp, back)):
+        np.testing.assert_array_equal(a, b)
+    stacked = fo.load_demonstrations(fo.save_demonstrations(np.stack(demos), tmp_path / "stacked.npz"))
+    assert all(np.array_equal(a, b) for a, b in zip(stacked, demos))
+
+
+# ----------------------------------------------------------------------------- errors on save
+
+
+def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
+    with pytest.raises(ValidationError, match="model must be a GradIRL or FactIRL; got dict"):
+        fo.save_model({}, tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="h_solver given as a ArmijoSolver object.*registry name"):
+        fo.save_model(fo.FactIRL(h_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object"):
+        fo.save_model(fo.GradIRL(solver=solvers.get_solver("armijo")), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="parameter solver_options"):
+        fo.save_model(fo.GradIRL(solver_options={"callback": print}), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="cannot save rng of type RandomState"):
+        fo.save_model(fo.FactIRL(rng=np.random.RandomState(0)), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="init a tuple of length 3"):
+        fo.save_model(fo.FactIRL(init=(1, 2, 3)), tmp_path / "x.npz")
+    odd = fo.load_model(fo.save_model(fitted, tmp_path / "ok.npz"))
+    odd.extra_ = object()
+    with pytest.raises(PersistenceError, match="attribute extra_"):
+        fo.save_model(odd, tmp_path / "x.npz")
+    odd.extra_ = np.array([None])
+    with pytest.raises(PersistenceError, match="extra_: it is an object array"):
+        fo.save_model(odd, tmp_path / "x.npz")
+
+
+@pytest.mark.parametrize(
+    "demos, match",
+    [
+        ([], "non-empty list"),
+        ("abc", "non-empty list"),
+        ([None], "task 0 must be an int array"),
+        ([[]], "task 0 are empty"),
+        ([[np.zeros((2, 3), int)]], r"episode 0 of demonstrations of task 0 must have shape \(L, 2\)"),
+        ([[[[0, 1], [2]]]], r"must be an array of \(state, action\) pairs"),
+        ([[np.array([[0.5, 1.0]])]], "must hold integer"),
+        ([[np.array([[0, 1]])], [np.array([[2, -1]])]], r"task 1 holds a negative state or action: \[2, -1\]"),
+    ],
+)
+def test_save_demonstrations_validates(demos, match, tmp_path):
+    with pytest.raises(ValidationError, match=match):
+        fo.save_demonstrations(demos, tmp_path / "d.npz")
+
+
+# ----------------------------------------------------------------------------- errors on load
+
+
+@pytest.fixture()
+def model_file(fitted, tmp_path):
+    return fo.save_model(fitted, tmp_path / "model.npz")
+
+
+@pytest.fixture()
+def demos_file(setting, tmp_path):
+    return fo.save_demonstrations([setting[2][0], list(setting[2][1])], tmp_path / "demos.npz")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        fo.load_model(tmp_path / "nope.npz")
+
+
+def test_corrupt_and_foreign_files(model_file, tmp_path):
+    cases = {
+        "random.npz": np.random.default_rng(0).bytes(300),
+        "empty.npz": b"",
+        "text.npz": b"this is not an archive\n",
+        "truncated.npz": open(model_file, "rb").read()[:200],
+        "pickle.npz": pickle.dumps({"dictionary_": [1, 2]}),
+    }
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(PersistenceError, match="not a readable factirl-opt file"):
+            fo.load_model(tmp_path / name)
+        with pytest.raises(PersistenceError, match="not a readable factirl-opt file"):
+            fo.load_demonstrations(tmp_path / name)
+    np.save(tmp_path / "single.npy", np.arange(3))
+    with pytest.raises(PersistenceError, match="single .npy array"):
+        fo.load_model(tmp_path / "single.npy")
+    np.savez(tmp_path / "plain.npz", a=np.arange(3))
+    with pytest.raises(PersistenceError, match="no __header__ member"):
+        fo.load_model(tmp_path / "plain.npz")
+    np.savez(tmp_path / "objects.npz", __header__=np.array("{}"), a=np.array([None, 1], dtype=object))
+    with pytest.raises(PersistenceError, match="not a readable factirl-opt file"):
+        fo.load_model(tmp_path / "objects.npz")
+    np.savez(tmp_path / "badjson.npz", __header__=np.array("{not json"))
+    with pytest.raises(PersistenceError, match="not valid JSON"):
+        fo.load_model(tmp_path / "badjson.npz")
+    np.savez(tmp_path / "other.npz", __header__=np.array(json.dumps({"format": "something-else"})))
+    with pytest.raises(PersistenceError, match="header does not say format 'factirl-opt'"):
+        fo.load_model(tmp_path / "other.npz")
+
+
+def test_format_versions(model_file, tmp_path):
+    def future(h):
+        h["format_version"] = FORMAT_VERSION + 1
+        h["library_version"] = "9.0.0"
+
+    with pytest.raises(PersistenceError, match=rf"format version {FORMAT_VERSION + 1}, written by factirl-opt 9.0.0.*upgrade"):
+        fo.load_model(_rewrite(model_file, tmp_path / "future.npz", future))
+    with pytest.raises(PersistenceError, match="format_version is missing"):
+        fo.load_model(_rewrite(model_file, tmp_path / "nov.npz", lambda h: h.pop("format_version")))
+    with pytest.raises(PersistenceError, match="format_version is missing or not an integer: '1'"):
+        fo.load_model(_rewrite(model_file, tmp_path / "strv.npz", lambda h: h.update(format_version="1")))
+
+
+def test_wrong_kind(model_file, demos_file):
+    with pytest.raises(PersistenceError, match="holds 'model' data, not 'demonstrations'; use load_model"):
+        fo.load_demonstrations(model_file)
+    with pytest.raises(PersistenceError, match="holds 'demonstrations' data, not 'model'; use load_demonstrations"):
+        fo.load_model(demos_file)
+
+
+@pytest.mark.parametrize(
+    "edit, drop, match",
+    [
+        (lambda h: h.pop("class"), (), "the header lacks 'class'"),
+        (lambda h: h.pop("params"), (), "the header lacks 'params'"),
+        (lambda h: h.pop("attributes"), (), "the header lacks 'attributes'"),
+        (lambda h: h.pop("array_attributes"), (), "the header lacks 'array_attributes'"),
+        (lambda h: h.pop("array_params"), (), "the header lacks 'array_params'"),
+        (None, ("attr/dictionary_",), "the archive lacks 'attr/dictionary_'"),
+        (lambda h: h.update({"class": "PCA"}), (), "unknown class 'PCA'"),
+        (lambda h: h.update({"class": 3}), (), "'class' in the header must be a str"),
+        (lambda h: h.update({"params": []}), (), "'params' in the header must be a dict"),
+        (lambda h: h["params"].update({"n_components": 3}), (), "stored parameters do not fit FactIRL.*n_components"),
+        (lambda h: h["params"].update({"rng": {"type": "generator", "bit_generator": "NoSuchBitGen"}}), (), "rng parameter is malformed"),
+        (lambda h: h["params"].update({"rng": 7}), (), "rng parameter is malformed"),
+        (lambda h: h["attributes"].update({"__class__": 1}), (), "not a learnt attribute name"),
+        (lambda h: h.update({"kind": None}), (), "holds None data, not 'model'"),
+    ],
+)
+def test_incomplete_or_malformed_model_files(model_file, tmp_path, edit, drop, match):
+    with pytest.raises(PersistenceError, match=match):
+        fo.load_model(_rewrite(model_file, tmp_path / "bad.npz", edit, drop))
+
+
+def test_missing_array_parameter(tmp_path):
+    path = fo.save_model(fo.GradIRL(features=np.eye(64, 2)), tmp_path / "f.npz")
+    with pytest.raises(PersistenceError, match="lacks 'param/features'"):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", drop=("param/features",)))
+    path = fo.save_model(fo.FactIRL(init=(np.eye(64, 2), np.ones((3, 2)))), tmp_path / "t.npz")
+    with pytest.raises(PersistenceError, match="lacks 'param/init/1'"):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", drop=("param/init/1",)))
+
+
+@pytest.mark.parametrize(
+    "edit, drop, extra, match",
+    [
+        (lambda h: h.pop("task_forms"), (), None, "the header lacks 'task_forms'"),
+        (None, ("steps",), None, "the archive lacks 'steps'"),
+        (None, ("episode_lengths",), None, "the archive lacks 'episode_lengths'"),
+        (None, ("task_n_episodes",), None, "the archive lacks 'task_n_episodes'"),
+        (None, (), {"steps": np.zeros((5, 2))}, "'steps' must be a 2-d integer array"),
+        (None, (), {"episode_lengths": np.array([[3]])}, "'episode_lengths' must be a 1-d integer array"),
+        (None, (), {"steps": np.zeros((5, 2), dtype=np.int64)}, "inconsistent"),
+        (None, (), {"task_n_episodes": np.array([3, 2])}, "inconsistent"),
+        (lambda h: h.update(task_forms=["array"]), (), None, "inconsistent"),
+        (lambda h: h.update(task_forms=["array", "episode"]), (), None, "task 1 has form 'episode'"),
+        (lambda h: h.update(task_forms=["array", "array"]), (), {"episode_lengths": np.array([6, 6, 6, 6, 8, 4])},
+         r"task 1 has form 'array' with episode lengths \[6, 8, 4\]"),
+        (lambda h: h.update(task_forms=["array", "tensor"]), (), None, "task 1 has form 'tensor'"),
+    ],
+)
+def test_incomplete_or_inconsistent_demonstration_files(demos_file, tmp_path, edit, drop, extra, match):
+    with pytest.raises(PersistenceError, match=match):
+        fo.load_demonstrations(_rewrite(demos_file, tmp_path / "bad.npz", edit, drop, extra))
