@@ -8,7 +8,7 @@
 
 import numpy as np
 
-from solvers import StepProblem
+from solvers._base import StepProblem  # the submodule: `import solvers` first must not cycle
 
 __all__ = ["weights_problem", "dictionary_problem"]
 

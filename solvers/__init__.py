@@ -12,6 +12,23 @@ Register your own solver (a :class:`StepSolver` subclass or any factory returnin
 
 An unknown name raises :class:`factirl_opt.exceptions.UnknownSolverError` listing what is
 available.
+
+Built-in solvers
+----------------
+``armijo``, ``armijo-nonneg``
+    The paper's Armijo gradient descent (projected onto ``x >= 0`` for the second).
+``gn-qp-{osqp,clarabel}``
+    Gauss-Newton / Levenberg-Marquardt steps, each a QP solved through cvxpy with the named
+    backend (:class:`GaussNewtonSolver`; needs ``residual_jacobian``).
+``gn-qp-{osqp,clarabel}-nonneg``
+    The same with ``h >= 0`` (``constraint="nonneg"``).
+``gn-qp-{osqp,clarabel}-sparse``
+    The same with an L1 penalty ``alpha ||h||_1`` (``constraint="sparse"``, option ``alpha``,
+    default 0.01).
+
+Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.g.
+``get_solver("gn-qp-osqp", interface="direct")`` calls OSQP without cvxpy. A name is only
+*available* when its backend (and cvxpy) is installed.
 """
 
 import importlib.util
@@ -20,12 +37,15 @@ from factirl_opt.exceptions import UnknownSolverError, ValidationError
 
 from ._base import SolverResult, StepProblem, StepSolver
 from .armijo import ArmijoSolver
+from .gauss_newton import GaussNewtonSolver, QPFallbackWarning
 
 __all__ = [
     "StepProblem",
     "StepSolver",
     "SolverResult",
     "ArmijoSolver",
+    "GaussNewtonSolver",
+    "QPFallbackWarning",
     "register_solver",
     "unregister_solver",
     "available_solvers",
@@ -115,3 +135,13 @@ def resolve_solver(solver, **options):
 
 register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
+for _backend in ("osqp", "clarabel"):
+    for _constraint in ("none", "nonneg", "sparse"):
+        register_solver(
+            f"gn-qp-{_backend}" + ("" if _constraint == "none" else f"-{_constraint}"),
+            GaussNewtonSolver,
+            requires=("cvxpy", _backend),
+            backend=_backend,
+            constraint=_constraint,
+        )
+del _backend, _constraint

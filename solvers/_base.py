@@ -89,10 +89,15 @@ class StepSolver:
         Registry name.
     needs_jacobian : bool
         Whether the solver calls ``problem.residual_jacobian``.
+    constraint : str
+        ``"none"``, ``"nonneg"`` (:meth:`project` keeps ``x >= 0``) or ``"sparse"``
+        (:meth:`penalty` adds an L1 term); learners use it to keep the constraint in their
+        initialisation.
     """
 
     name = "base"
     needs_jacobian = False
+    constraint = "none"
 
     def project(self, x):
         """Map parameters to the solver's feasible set (identity when unconstrained)."""

@@ -70,6 +70,7 @@ class ArmijoSolver(StepSolver):
             raise ValidationError(f"max_backtracks must be >= 1; got {self.max_backtracks!r}")
         if self.nonneg:
             self.name = "armijo-nonneg"
+            self.constraint = "nonneg"
 
     def project(self, x):
         x = np.asarray(x, dtype=np.float64)

@@ -1,0 +1,95 @@
+"""The block-separable QP of one Gauss-Newton H-step, shared by every backend.
+
+After the per-task QR reduction (see :func:`solvers.gauss_newton.reduce_least_squares`) the
+subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is
+
+    minimise  ||R_i z_i - b_i||^2  [+ alpha ||z_i||_1]     subject to  [z_i >= 0]
+
+with ``R_i`` (k, k) upper triangular. All tasks of an H-step are solved together as one
+problem over ``z`` (n, k) whose objective is the sum of the tasks' objectives; the problem is
+block-separable, so its solution is each task's solution. Every backend module takes the
+stacked data ``R`` (n, k, k), ``b`` (n, k) and returns a :class:`BlockQPResult`.
+
+Backends pose the least squares with an auxiliary ``t = R z - b`` (objective ``||t||^2``), the
+form cvxpy's QP canonicalisation produces, so the direct and the cvxpy routes solve the same
+problem and neither forms ``R^T R`` (which would square the condition number).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from factirl_opt.exceptions import ValidationError
+
+__all__ = ["CONSTRAINTS", "BACKENDS", "BlockQPResult", "check_constraint", "check_backend", "check_block_data"]
+
+#: constraint variants of the H-step
+CONSTRAINTS = ("none", "nonneg", "sparse")
+#: QP backends and the module each needs
+BACKENDS = {"osqp": "osqp", "clarabel": "clarabel"}
+#: cvxpy solver names of the backends
+CVXPY_NAMES = {"osqp": "OSQP", "clarabel": "CLARABEL"}
+
+
+@dataclass
+class BlockQPResult:
+    """Solution of one block QP.
+
+    Attributes
+    ----------
+    z : ndarray, shape (n, k) or None
+        New coefficients (None when the backend returned no point).
+    status : str
+        The backend's status, mapped to cvxpy's vocabulary (``"optimal"``,
+        ``"optimal_inaccurate"``, ``"user_limit"``, ``"solver_error"``, ...).
+    ok : bool
+        Whether ``z`` may be used: only an ``"optimal"`` status counts. Inaccurate solutions
+        and iteration limits fill ``z`` in anyway; they are failures all the same.
+    solve_time : float
+        Wall time of the call, seconds (parameter update, backend solve, retrieval).
+    backend : str
+        ``"osqp"`` or ``"clarabel"``.
+    """
+
+    z: np.ndarray | None
+    status: str
+    ok: bool
+    solve_time: float
+    backend: str
+
+
+def check_constraint(constraint):
+    if constraint not in CONSTRAINTS:
+        raise ValidationError(f"constraint must be one of {CONSTRAINTS}; got {constraint!r}")
+    return constraint
+
+
+def check_backend(backend):
+    if backend not in BACKENDS:
+        raise ValidationError(f"backend must be one of {tuple(BACKENDS)}; got {backend!r}")
+    return backend
+
+
+def check_block_data(R, b, n, k):
+    """Validate stacked subproblem data against the compiled shape (n, k)."""
+    R = np.asarray(R, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if R.shape != (n, k, k) or b.shape != (n, k):
+        raise ValidationError(f"block QP data must have shapes R ({n}, {k}, {k}) and b ({n}, {k}); got {R.shape} and {b.shape}")
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(b))):
+        raise ValidationError("block QP data R and b must be finite")
+    if np.any(np.tril(R, -1) != 0):
+        raise ValidationError("block QP factors R must be upper triangular (from the QR reduction)")
+    return R, b
+
+
+def block_structure(n, k):
+    """Index arrays of the upper-triangular entries of every task's ``R_i`` in a stacked layout.
+
+    Returns
+    -------
+    task, row, col : ndarray of intp, shape (n * k (k + 1) / 2,)
+    """
+    r, c = np.triu_indices(k)
+    task = np.repeat(np.arange(n), r.size)
+    return task, np.tile(r, n), np.tile(c, n)
