@@ -62,6 +62,20 @@ def pca_dictionary(parameters, n_components, rng=None):
     return D, X @ D
 
 
+def _orient_nonneg(D, H, fold=False):
+    """Prepare an initialisation for a nonnegative H-step (the model ``H D^T`` is unchanged).
+
+    The sign of each primitive is arbitrary (``D[:, l] -> -D[:, l]``, ``H[:, l] -> -H[:, l]``);
+    flip the primitives whose coefficients sum to a negative value, so that projecting H onto
+    ``H >= 0`` keeps most of each primitive's mass instead of zeroing it. With ``fold`` (the
+    random initialisation, whose H is a fresh draw) take ``|H|`` instead.
+    """
+    if fold:
+        return D, np.abs(H)
+    sign = np.where(H.sum(axis=0) < 0, -1.0, 1.0)
+    return D * sign, H * sign
+
+
 class FactIRL:
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
 
@@ -83,8 +97,12 @@ class FactIRL:
     tol : float, default=1e-5
         Stop when the relative decrease of the total loss over an outer iteration is below tol.
     h_solver : str or solvers.StepSolver, default="armijo"
-        H-step solver; ``transfer`` uses it too. A constrained solver (e.g. nonnegative) keeps
-        its constraint in the initialisation (H0 projected) and in transfer.
+        H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
+        ``transfer`` uses it too. A constrained solver keeps its constraint in the
+        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
+        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one
+        uses ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H
+        objective and of ``loss_history_``. The D-step is always Armijo descent.
     h_solver_options : dict, optional
         Options for an ``h_solver`` given by name.
     flat_max_iter : int, default=100
@@ -194,6 +212,8 @@ class FactIRL:
         mu, pi_hat = empirical_statistics(mdp, demos_per_task)
         n = mu.shape[0]
         D, H, init_evals = self._initial(mdp, demos_per_task, n, flat_rewards, rng)
+        if getattr(h_solver, "constraint", "none") == "nonneg" and not isinstance(self.init, tuple):
+            D, H = _orient_nonneg(D, H, self.init == "random")
         H = h_solver.project(H)
         objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
         d_solver = solvers.ArmijoSolver()

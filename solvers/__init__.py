@@ -32,6 +32,7 @@ Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.
 """
 
 import importlib.util
+import inspect
 
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
 
@@ -119,7 +120,19 @@ def get_solver(name, **options):
         raise UnknownSolverError(
             f"solver {name!r} needs {', '.join(requires)}, which is not installed; available: {', '.join(available_solvers())}"
         )
-    return factory(**{**defaults, **options})
+    kwargs = {**defaults, **options}
+    try:
+        signature = inspect.signature(factory)
+    except (TypeError, ValueError):  # a builtin without a signature: let the call decide
+        signature = None
+    if signature is not None:
+        try:
+            signature.bind(**kwargs)
+        except TypeError:
+            accepted = [p for p in signature.parameters if not p.startswith("_")]
+            bad = sorted(set(options) - set(accepted)) or sorted(options)
+            raise ValidationError(f"solver {name!r} does not accept option(s) {', '.join(bad)}; its options are: {', '.join(accepted)}") from None
+    return factory(**kwargs)
 
 
 def resolve_solver(solver, **options):

@@ -13,7 +13,9 @@ Before any QP solver sees it, the (m + k, k) least squares is reduced to a k x k
 ``||R_i z - b_i||^2 + const`` over the new coefficients ``z = h_i + delta``, where
 ``b_i = R_i h_i - c_i``. All tasks' reduced subproblems of one step are solved together as one
 block-separable QP (:mod:`solvers.qp_cvxpy`, compiled once per shape; or
-:mod:`solvers.qp_direct`).
+:mod:`solvers.qp_direct`). For the constrained variants the backend's solution is then made
+exact on its active set (:func:`solvers._blockqp.refine_active_set`: exact zeros, checked
+against the KKT conditions), so the sparse variant reports true zeros whatever the backend.
 
 Levenberg-Marquardt: a task's step is accepted if its true objective (loss plus penalty)
 drops; then ``lam_i`` shrinks by ``lam_down``; otherwise the step is rejected and ``lam_i``
@@ -41,7 +43,7 @@ import numpy as np
 from factirl_opt.exceptions import SolverError, ValidationError
 
 from ._base import StepSolver
-from ._blockqp import BACKENDS, CONSTRAINTS, check_backend, check_constraint
+from ._blockqp import BACKENDS, check_backend, check_constraint, refine_active_set
 
 __all__ = ["GaussNewtonSolver", "GaussNewtonState", "QPFallbackWarning", "reduce_least_squares", "safe_step"]
 
@@ -302,13 +304,14 @@ class GaussNewtonSolver(StepSolver):
             if state is not None:
                 state.qp_time += res.solve_time
             if res.ok:
+                z, _ = refine_active_set(R, b, res.z, self.constraint, self.alpha)
                 if failures:
                     warnings.warn(
                         f"{self.name}: {'; '.join(failures)}; used the {backend} solution instead",
                         QPFallbackWarning,
                         stacklevel=4,
                     )
-                return res.z
+                return z
             failures.append(f"{backend} returned status {res.status!r}")
             if state is not None and len(failures) == 1:
                 state.qp_failures += 1

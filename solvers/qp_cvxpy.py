@@ -17,6 +17,7 @@ task (see ``python -m factirl_opt.bench solvers``).
 """
 
 import time
+import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -121,7 +122,9 @@ class CvxpyBlockQP:
         self.r_entries.value = R[:, self._triu[0], self._triu[1]].ravel()
         self.b.value = b.ravel()
         self.alpha.value = float(alpha)
-        self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, **backend_options(backend, tolerance, max_iter))
+        with warnings.catch_warnings():  # the status is checked below and reported by the caller
+            warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
+            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, **backend_options(backend, tolerance, max_iter))
         status = str(self.problem.status)
         value = self.z.value
         z = None if value is None else np.asarray(value, dtype=np.float64).reshape(self.n, self.k)

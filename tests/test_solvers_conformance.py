@@ -1,0 +1,179 @@
+"""Conformance suite run over every registered step solver.
+
+Exact references: on a linear least-squares problem ``r_i(h) = A_i h - y_i`` the Gauss-Newton
+model is exact, so the first step of a GN solver must equal the damped subproblem's exact
+solution: closed form (unconstrained), ``scipy.optimize.nnls`` (nonneg), and an enumeration of
+all sign patterns (sparse). Every solver, GN or not, must keep its constraint after every
+step and never increase its objective across an accepted step, on the linear problem and on
+the real eq. (5) H-step problem.
+"""
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.optimize import nnls
+
+import factirl_opt as fo
+import solvers
+from factirl_opt.objective import PolicyMatchingObjective
+from factirl_opt.problems import weights_problem
+from solvers.gauss_newton import reduce_least_squares
+
+ALL = solvers.available_solvers()
+GN = [name for name in ALL if name.startswith("gn-qp-")]
+N, M, K = 6, 9, 4
+
+
+def linear_problem(rng, n=N, m=M, k=K):
+    """A StepProblem with ``r_i = A_i h_i - y_i``, loss ``||r_i||^2``; counts evaluations."""
+    A = rng.standard_normal((n, m, k))
+    y = rng.standard_normal((n, m))
+    y[: n // 2] += 3.0 * np.einsum("nmk,nk->nm", A[: n // 2], np.abs(rng.standard_normal((n // 2, k))))
+    count = [0]
+
+    def residual(x, rows):
+        return np.einsum("nmk,nk->nm", A[rows], x) - y[rows]
+
+    def loss_and_grad(x, rows):
+        count[0] += 1
+        r = residual(x, rows)
+        return np.sum(r * r, axis=1), 2.0 * np.einsum("nmk,nm->nk", A[rows], r)
+
+    def residual_jacobian(x, rows):
+        count[0] += 1
+        r = residual(x, rows)
+        return np.sum(r * r, axis=1), r, A[rows].copy()
+
+    return solvers.StepProblem(
+        loss_and_grad=loss_and_grad,
+        residual_jacobian=residual_jacobian,
+        n_evaluations=lambda: count[0],
+        n_rows=n,
+        n_params=k,
+    ), A, y
+
+
+def sparse_reference(Mx, c, alpha):
+    """``argmin_z ||Mx z - c||^2 + alpha ||z||_1`` by enumerating all 3^k sign patterns.
+
+    For a pattern s in {-1, 0, 1}^k the stationary point with ``z_j = 0`` where ``s_j = 0`` is
+    a least-squares solve; it is a candidate if its signs match s. The objective is strictly
+    convex, so the optimum is the best candidate.
+    """
+    k = Mx.shape[1]
+    best, best_val = None, np.inf
+    for signs in itertools.product((-1.0, 0.0, 1.0), repeat=k):
+        s = np.array(signs)
+        free = s != 0
+        z = np.zeros(k)
+        if free.any():
+            Mf = Mx[:, free]
+            z[free] = np.linalg.solve(Mf.T @ Mf, Mf.T @ c - 0.5 * alpha * s[free])
+            if np.any(np.sign(z[free]) != s[free]):
+                continue
+        val = np.sum((Mx @ z - c) ** 2) + alpha * np.abs(z).sum()
+        if val < best_val:
+            best, best_val = z, val
+    return best
+
+
+def exact_step(A, y, h, lam, constraint, alpha):
+    """Exact solution z of the damped subproblem of every row (the reference)."""
+    out = np.empty_like(h)
+    for i in range(h.shape[0]):
+        r = A[i] @ h[i] - y[i]
+        Mx = np.vstack([A[i], np.sqrt(lam[i]) * np.eye(h.shape[1])])
+        c = Mx @ h[i] - np.concatenate([r, np.zeros(h.shape[1])])
+        if constraint == "none":
+            out[i] = np.linalg.lstsq(Mx, c, rcond=None)[0]
+        elif constraint == "nonneg":
+            out[i] = nnls(Mx, c)[0]
+        else:
+            out[i] = sparse_reference(Mx, c, alpha)
+    return out
+
+
+def feasible(solver, x):
+    if solver.constraint == "nonneg":
+        return np.min(x) >= -1e-8
+    return np.all(np.isfinite(x))
+
+
+@pytest.mark.parametrize("interface", ["cvxpy", "direct"])
+@pytest.mark.parametrize("name", GN)
+def test_gn_step_matches_exact_reference(name, interface, rng):
+    problem, A, y = linear_problem(rng)
+    solver = solvers.get_solver(name, interface=interface, alpha=0.3, damping=0.05)
+    x0 = solver.project(rng.standard_normal((N, K)))
+    state = solver.init_state(problem, x0)
+    lam = state.lam.copy()
+    ref = exact_step(A, y, x0, lam, solver.constraint, solver.alpha)
+    # the QP step itself, on the reduced data
+    R, b = reduce_least_squares(state.jacobian, state.residual, x0, lam)
+    z = solver.solve_subproblems(R, b, x0)
+    np.testing.assert_allclose(z, ref, atol=1e-6, rtol=0)
+    # one whole LM step: the model is exact on a linear problem, so every row is accepted
+    x1, state, progressed = solver.update(problem, x0, state)
+    assert progressed
+    np.testing.assert_allclose(x1, ref, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(state.lam, lam * solver.lam_down)
+    if solver.constraint == "nonneg":
+        assert np.min(x1) >= -1e-8
+        assert np.any(ref == 0.0), "the reference should have active constraints"
+    if solver.constraint == "sparse":
+        assert np.sum(np.abs(x1) < 1e-9) == np.sum(ref == 0.0) > 0
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_linear_problem_monotone_and_feasible(name, rng):
+    problem, A, y = linear_problem(rng)
+    solver = solvers.get_solver(name)
+    x0 = rng.standard_normal((N, K))
+    seen = []
+
+    def objective(x):
+        r = np.einsum("nmk,nk->nm", A, x) - y
+        return np.sum(r * r, axis=1) + solver.penalty(x)
+
+    x = solver.project(x0)
+    state = solver.init_state(problem, x)
+    np.testing.assert_allclose(state.loss, objective(x), rtol=1e-12)
+    for _ in range(8):
+        x_new, state, _ = solver.update(problem, x, state)
+        assert feasible(solver, x_new)
+        before, after = objective(x), objective(x_new)
+        assert np.all(after <= before + 1e-12), "a step increased a row's objective"
+        np.testing.assert_allclose(state.loss, after, rtol=1e-10, atol=1e-12)
+        seen.append(after.sum())
+        x = x_new
+    assert seen[-1] < objective(solver.project(x0)).sum()
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_irl_h_step_monotone_and_feasible(name, rng, grid4):
+    """The real H-step problem (eq. 5 with a fixed dictionary) on a 4x4 grid."""
+    k = 3
+    D = fo.random_dictionary(grid4.n_params, k, rng)
+    H = fo.random_coefficients(5, k, kind="nonneg", rng=rng)
+    demos = fo.sample_demonstrations(grid4, fo.task_rewards(D, H, 16, 4), 2, 6, rng)
+    mu, pi_hat = fo.empirical_statistics(grid4, demos)
+    problem = weights_problem(PolicyMatchingObjective(grid4, mu, pi_hat, 5.0), D)
+    solver = solvers.get_solver(name)
+    res = solver.run(problem, 0.3 * np.abs(rng.standard_normal((5, k))), 10)
+    hist = np.array(res.loss_history)
+    assert np.all(np.diff(hist) <= 1e-12), hist
+    assert hist[-1] < hist[0]
+    assert feasible(solver, res.coefficients)
+    assert res.coefficients.shape == (5, k) and res.status in ("converged", "max_iter", "stalled")
+    assert res.n_evaluations >= res.iterations
+
+
+@pytest.mark.parametrize("name", [n for n in GN if n.endswith("-sparse")])
+def test_sparse_zeros_grow_with_alpha(name, rng):
+    problem, A, y = linear_problem(rng)
+    zeros = []
+    for alpha in (0.0, 1.0, 10.0, 1e4):
+        res = solvers.get_solver(name, alpha=alpha).run(problem, np.zeros((N, K)), 15)
+        zeros.append(int(np.sum(res.coefficients == 0.0)))
+    assert zeros == sorted(zeros) and zeros[0] == 0 and zeros[-1] == N * K, zeros
