@@ -1,0 +1,179 @@
+"""Time per gradient of eq. (5), Q* included: adjoint vs eq. (9) fixed point vs forward mode.
+
+Three routes are timed side by side in one run, for one task per timing, on grids of several
+sizes (d = S*A = 4 * size^2 parameters):
+
+- ``adjoint``: :func:`factirl_opt.policy_matching_loss` (one S x S solve, DESIGN section 3);
+- ``fixed_point``: the paper's eq. (9), ``phi = dQ*/dtheta`` (S*A x d) by fixed-point
+  iteration "similar to dynamic programming" (:func:`policy_matching_grad_reference`,
+  ``route="fixed_point"``), then ``g^T phi``;
+- ``forward_direct``: forward mode, ``phi`` by one direct solve with d right-hand sides
+  (``route="direct"``), then ``g^T phi``.
+
+Every route starts from scratch (cold Q* by policy iteration from the immediate-reward policy)
+and is timed as the best of ``--repeats`` runs (a route whose first run exceeds
+``--budget`` seconds is run once). The breakdown shows where the time goes: Q* planning alone,
+the adjoint's gradient part, the time to build ``phi`` for each reference route, and the
+reference routes' agreement with the adjoint (max abs difference).
+
+BLAS threads are limited to ``--blas-threads`` (default 1) for the run: the solves here are
+batches of small matrices, for which multi-threaded OpenBLAS only adds overhead (and, on a
+shared machine, spin-wait contention that can slow it down by an order of magnitude).
+"""
+
+import ctypes
+import time
+
+import numpy as np
+
+from ..demonstrations import empirical_statistics, sample_demonstrations
+from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..mdp import GridWorld
+from ..objective import _adjoint, _dj_dq, _forward, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
+from ..planning import optimal_q
+
+__all__ = ["add_arguments", "run", "limit_blas_threads"]
+
+_SET_NAMES = (
+    "scipy_openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+    "openblas_set_num_threads",
+)
+_GET_NAMES = tuple(n.replace("set_", "get_") for n in _SET_NAMES)
+
+
+def _loaded_blas_libraries():
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and line.split()[-1].startswith("/")}
+    except OSError:  # not Linux: leave the BLAS alone
+        return []
+    libs = []
+    for path in sorted(paths):
+        try:
+            libs.append(ctypes.CDLL(path))
+        except OSError:
+            pass
+    return libs
+
+
+def limit_blas_threads(n_threads):
+    """Set the thread count of every loaded OpenBLAS (numpy's, scipy's); return the counts set.
+
+    ``n_threads=None`` or 0 leaves them as they are. Returns the list of thread counts read
+    back from each library (empty when no OpenBLAS could be found, e.g. another BLAS).
+    """
+    libs = _loaded_blas_libraries()
+    counts = []
+    for lib in libs:
+        setter = next((getattr(lib, n) for n in _SET_NAMES if hasattr(lib, n)), None)
+        getter = next((getattr(lib, n) for n in _GET_NAMES if hasattr(lib, n)), None)
+        if n_threads and setter is not None:
+            setter.argtypes = [ctypes.c_int]
+            setter(int(n_threads))
+        if getter is not None:
+            getter.restype = ctypes.c_int
+            counts.append(int(getter()))
+    return counts
+
+
+def add_arguments(parser):
+    parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per route; the best is kept (default 5)")
+    parser.add_argument("--budget", type=float, default=5.0, help="a route whose first run takes longer is run once (s)")
+    parser.add_argument("--beta", type=float, default=5.0)
+    parser.add_argument("--n-demos", type=int, default=10, help="demonstrations of the task (default 10)")
+    parser.add_argument("--length", type=int, default=10, help="steps per demonstration (default 10)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--blas-threads", type=int, default=1, help="OpenBLAS threads (0: leave as is; default 1)")
+
+
+def _best_time(fn, repeats, budget):
+    """Best wall time of ``fn()`` over ``repeats`` runs (one run if the first exceeds budget)."""
+    times, out = [], None
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+        if times[0] > budget:
+            break
+    return min(times), len(times), out
+
+
+def _one_size(size, args, rng):
+    mdp = GridWorld(size=size)
+    S, A = mdp.n_states, mdp.n_actions
+    D = random_dictionary(mdp.n_params, 5, rng)
+    R = task_rewards(D, random_coefficients(1, 5, rng=rng), S, A)[0]
+    demos = sample_demonstrations(mdp, R, args.n_demos, args.length, rng)
+    mu, pi_hat = empirical_statistics(mdp, demos)
+    # the learner differentiates at its current estimate, not at the truth
+    theta = R + 0.5 * rng.standard_normal(R.shape)
+    beta, rep, budget = args.beta, args.repeats, args.budget
+
+    t_plan, _, (_, pol) = _best_time(lambda: optimal_q(mdp, theta), rep, budget)
+    t_adj, n_adj, (loss, g_adj) = _best_time(lambda: policy_matching_loss(mdp, theta, mu, pi_hat, beta), rep, budget)
+    # the gradient parts alone, at the greedy policy found above
+    _, _, diff, _ = _forward(mdp, theta[None], mu, pi_hat, beta)
+    pi = diff + pi_hat
+    g = _dj_dq(pi, diff, mu, beta)
+    t_adj_part, _, _ = _best_time(lambda: _adjoint(mdp, pol[None], g), rep, budget)
+    t_fp, n_fp, (_, g_fp) = _best_time(
+        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="fixed_point"), rep, budget
+    )
+    t_fp_phi, _, _ = _best_time(lambda: dq_dtheta(mdp, pol, route="fixed_point"), 1, budget)
+    t_dir, n_dir, (_, g_dir) = _best_time(
+        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="direct"), rep, budget
+    )
+    t_dir_phi, _, _ = _best_time(lambda: dq_dtheta(mdp, pol, route="direct"), rep, budget)
+    g_adj = g_adj.reshape(1, -1)
+    return {
+        "n_states": S,
+        "n_params": mdp.n_params,
+        "loss": float(loss[0]),
+        "adjoint_s": t_adj,
+        "fixed_point_s": t_fp,
+        "forward_direct_s": t_dir,
+        "ratio_fixed_point": t_fp / t_adj,
+        "ratio_forward_direct": t_dir / t_adj,
+        "runs": {"adjoint": n_adj, "fixed_point": n_fp, "forward_direct": n_dir},
+        "breakdown": {
+            "planning_q_star_s": t_plan,
+            "adjoint_gradient_part_s": t_adj_part,
+            "fixed_point_phi_s": t_fp_phi,
+            "forward_direct_phi_s": t_dir_phi,
+            "planning_share_of_adjoint": min(t_plan / t_adj, 1.0),
+            "planning_share_of_forward_direct": min(t_plan / t_dir, 1.0),
+        },
+        "max_abs_diff_vs_adjoint": {
+            "fixed_point": float(np.max(np.abs(g_fp - g_adj))),
+            "forward_direct": float(np.max(np.abs(g_dir - g_adj))),
+        },
+    }
+
+
+def run(args):
+    threads = limit_blas_threads(args.blas_threads)
+    rng = np.random.default_rng(args.seed)
+    per_size = {}
+    for size in args.sizes:
+        per_size[f"{size}x{size}"] = _one_size(size, args, rng)
+    key = "10x10" if "10x10" in per_size else next(iter(per_size))
+    return {
+        "benchmark": "gradient",
+        "grid": key,
+        "ratio_fixed_point": per_size[key]["ratio_fixed_point"],
+        "ratio_forward_direct": per_size[key]["ratio_forward_direct"],
+        "sizes": per_size,
+        "settings": {
+            "sizes": list(args.sizes),
+            "repeats": args.repeats,
+            "timer": "best of repeats, one task, Q* included (cold policy iteration)",
+            "beta": args.beta,
+            "n_demos": args.n_demos,
+            "length": args.length,
+            "seed": args.seed,
+            "blas_threads": threads,
+        },
+    }

@@ -1,0 +1,90 @@
+"""Shared fixtures: a seeded ``rng`` and the ``--runslow`` option for ``@pytest.mark.slow``."""
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+
+
+def pytest_addoption(parser):
+    parser.addoption("--runslow", action="store_true", default=False, help="also run tests marked slow")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: long-running checks, opt-in with --runslow")
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--runslow"):
+        return
+    skip = pytest.mark.skip(reason="slow: pass --runslow to run")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture
+def rng():
+    """A seeded Generator: every test sees the same stream, independent of test order."""
+    return np.random.default_rng(20140601)
+
+
+@pytest.fixture
+def grid3():
+    return fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+
+
+@pytest.fixture
+def grid4():
+    return fo.GridWorld(size=4, p_success=0.7, gamma=0.9)
+
+
+@pytest.fixture
+def random_mdp(rng):
+    """A random dense TabularMDP (6 states, 3 actions; rows drawn from a Dirichlet)."""
+    P = rng.dirichlet(np.ones(6), size=(6, 3))
+    return fo.TabularMDP(P, 0.85)
+
+
+@pytest.fixture
+def make_statistics():
+    """Factory ``(rng, mdp, n) -> (mu_hat, pi_hat)`` of random empirical statistics.
+
+    ``mu_hat`` rows on the simplex with state 0 unvisited; ``pi_hat`` rows on the simplex,
+    zero in the unvisited state (as :func:`empirical_statistics` produces).
+    """
+
+    def make(rng, mdp, n):
+        S, A = mdp.n_states, mdp.n_actions
+        mu = rng.random((n, S))
+        mu[:, 0] = 0.0
+        mu /= mu.sum(axis=1, keepdims=True)
+        pi = rng.dirichlet(np.ones(A), size=(n, S))
+        pi[:, 0] = 0.0
+        return mu, pi
+
+    return make
+
+
+def greedy_gap(mdp, rewards):
+    """Smallest gap between the best and second-best Q* over all states (and tasks)."""
+    Q, _ = fo.optimal_q(mdp, rewards)
+    Qs = np.sort(np.asarray(Q), axis=-1)
+    return float(np.min(Qs[..., -1] - Qs[..., -2]))
+
+
+@pytest.fixture
+def tie_free_rewards():
+    """Factory ``(rng, mdp, shape, sample=None) -> R`` of random rewards whose greedy policy has no
+    near-ties (gap > 1e-3, i.e. 1000x the finite-difference step), so Q* is differentiable
+    there and a central difference with step 1e-6 never crosses a policy switch."""
+
+    def make(rng, mdp, shape, sample=None):
+        for _ in range(200):
+            R = rng.standard_normal(shape) if sample is None else sample()
+            R = np.asarray(R)
+            if greedy_gap(mdp, R.reshape(-1, mdp.n_states, mdp.n_actions)) > 1e-3:
+                return R
+        raise RuntimeError("no tie-free reward found")
+
+    return make
