@@ -125,7 +125,9 @@ class FactIRL:
         Batched Q* evaluations used by ``fit`` (including the flat learner of the PCA init).
     n_iter_ : int
     transfer_loss_history_, transfer_n_evaluations_, transfer_status_
-        The same records for the last ``transfer`` call.
+        The same records for the last ``transfer`` call (``transfer_loss_`` is the eq. (5)
+        loss per new task, without a solver's penalty; the history includes it, as
+        ``loss_history_`` does).
     """
 
     def __init__(
@@ -291,7 +293,7 @@ class FactIRL:
         res = h_solver.run(problem, h0, int(max_iter), tol=self.tol)
         self.transfer_coefficients_ = res.coefficients
         self.transfer_rewards_ = (res.coefficients @ D.T).reshape(-1, mdp.n_states, mdp.n_actions)
-        self.transfer_loss_ = res.loss
+        self.transfer_loss_ = res.loss - h_solver.penalty(res.coefficients)  # eq. (5) only, like loss_
         self.transfer_loss_history_ = res.loss_history
         self.transfer_n_evaluations_ = int(objective.n_evaluations)
         self.transfer_status_ = res.status
