@@ -75,14 +75,13 @@ def greedy_gap(mdp, rewards):
 
 @pytest.fixture
 def tie_free_rewards():
-    """Factory ``(rng, mdp, shape, sample=None) -> R`` of random rewards whose greedy policy has no
+    """Factory ``(rng, mdp, shape) -> R`` of random rewards whose greedy policy has no
     near-ties (gap > 1e-3, i.e. 1000x the finite-difference step), so Q* is differentiable
     there and a central difference with step 1e-6 never crosses a policy switch."""
 
-    def make(rng, mdp, shape, sample=None):
+    def make(rng, mdp, shape):
         for _ in range(200):
-            R = rng.standard_normal(shape) if sample is None else sample()
-            R = np.asarray(R)
+            R = rng.standard_normal(shape)
             if greedy_gap(mdp, R.reshape(-1, mdp.n_states, mdp.n_actions)) > 1e-3:
                 return R
         raise RuntimeError("no tie-free reward found")
