@@ -64,7 +64,7 @@ class TabularMDP:
         if np.any(err > _ROW_SUM_TOL):
             s, a = np.unravel_index(np.argmax(err), err.shape)
             raise ValidationError(
-                f"each row transitions[s, a, :] must sum to 1 (within {_ROW_SUM_TOL}); row (s={s}, a={a}) sums to {sums[s, a]!r}"
+                f"each row transitions[s, a, :] must sum to 1 (within {_ROW_SUM_TOL}); row (s={s}, a={a}) sums to {float(sums[s, a])!r}"
             )
         try:
             gamma = float(gamma)
