@@ -20,6 +20,7 @@ all measured in the same run on the same data (a random ground-truth dictionary 
   data from a real Gauss-Newton state) through cvxpy (compiled once, DPP re-solve with new
   parameter values) vs the same problem handed to the backend directly (OSQP workspace
   updated in place; Clarabel set up per call), and a fresh ``cp.Problem`` per task for scale.
+  The data are those of ``--repeats`` successive LM steps of a transfer (median time kept).
 
 ``--quick`` shrinks everything (5x5 grid, a few tasks, short budgets) so a test can run it in
 seconds. BLAS threads are limited to ``--blas-threads`` (default 1) when the gradient
@@ -260,8 +261,12 @@ def _part_sparse(mdp, s, rng, D):
     }
 
 
-def _gn_data(mdp, s, rng, D):
-    """Realistic block-QP data: the reduced subproblems of the 2nd GN step of a transfer."""
+def _gn_data(mdp, s, rng, D, n_steps):
+    """Realistic block-QP data: the reduced subproblems of successive GN steps of a transfer.
+
+    Returns a list of ``n_steps`` pairs ``(R (n, k, k), b (n, k))``, one per LM step (the data
+    a real H-step hands to the QP, changing from one solve to the next).
+    """
     from solvers.gauss_newton import reduce_least_squares
 
     _, _, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], D=D)
@@ -270,9 +275,11 @@ def _gn_data(mdp, s, rng, D):
     solver = solvers.get_solver("gn-qp-osqp")
     x = np.zeros((problem.n_rows, problem.n_params))
     state = solver.init_state(problem, x)
-    x, state, _ = solver.update(problem, x, state)
-    Rf, b = reduce_least_squares(state.jacobian, state.residual, x, state.lam)
-    return Rf, b, x
+    data = []
+    for _ in range(n_steps):
+        data.append(reduce_least_squares(state.jacobian, state.residual, x, state.lam))
+        x, state, _ = solver.update(problem, x, state)
+    return data
 
 
 def _median_time(fn, repeats):
@@ -290,12 +297,10 @@ def _part_timing(mdp, s, rng, D):
     from solvers.qp_cvxpy import CVXPY_NAMES, CvxpyBlockQP, backend_options
     from solvers.qp_direct import DirectBlockQP
 
-    Rf, b, x = _gn_data(mdp, s, rng, D)
-    n, k = b.shape
-    rng_local = np.random.default_rng(s["seed"] + 1)
     reps = max(int(s["repeats"]), 1)
-    # each re-solve gets new parameter values (as in a real step): perturbed copies of the data
-    variants = [(Rf * (1 + 1e-3 * rng_local.standard_normal()), b + 1e-3 * rng_local.standard_normal(b.shape)) for _ in range(reps + 1)]
+    variants = _gn_data(mdp, s, rng, D, reps + 1)  # each re-solve gets the next step's data
+    Rf, b = variants[0]
+    n, k = b.shape
     out = {"tasks": n, "k": k, "repeats": reps, "routes": {}}
     for constraint in ("none", "nonneg", "sparse"):
         t0 = time.perf_counter()
