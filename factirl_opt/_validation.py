@@ -25,7 +25,7 @@ def check_rewards(mdp, rewards, name="rewards"):
     if R.ndim != 3 or R.shape[1:] != (S, A):
         raise ValidationError(f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)}")
     if not np.all(np.isfinite(R)):
-        raise ValidationError(f"{name} must be finite; found {R[~np.isfinite(R)][0]!r}")
+        raise ValidationError(f"{name} must be finite; found {float(R[~np.isfinite(R)][0])!r}")
     return R, single
 
 

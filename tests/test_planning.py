@@ -1,0 +1,163 @@
+"""Exact planning: Q* by policy iteration vs value iteration, policy evaluation, Boltzmann."""
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError
+
+
+@pytest.fixture(params=["grid", "random"])
+def mdp(request, grid4, random_mdp):
+    return grid4 if request.param == "grid" else random_mdp
+
+
+def test_optimal_q_single_matches_value_iteration(rng, mdp):
+    R = rng.standard_normal((mdp.n_states, mdp.n_actions))
+    Q, pol = fo.optimal_q(mdp, R)
+    Q_vi = fo.value_iteration(mdp, R, tol=1e-13)
+    assert Q.shape == R.shape and pol.shape == (mdp.n_states,)
+    assert np.max(np.abs(Q - Q_vi)) < 1e-9
+    np.testing.assert_array_equal(pol, np.argmax(Q, axis=1))
+    # Bellman optimality: Q = R + gamma P max_a Q
+    np.testing.assert_allclose(Q, R + mdp.gamma * mdp.transitions @ Q.max(axis=1), atol=1e-12)
+
+
+def test_optimal_q_batched_matches_value_iteration_and_single(rng, mdp):
+    R = rng.standard_normal((5, mdp.n_states, mdp.n_actions))
+    Q, pol = fo.optimal_q(mdp, R)
+    assert Q.shape == R.shape and pol.shape == (5, mdp.n_states) and pol.dtype == np.intp
+    assert np.max(np.abs(Q - fo.value_iteration(mdp, R, tol=1e-13))) < 1e-9
+    for i in range(5):
+        Qi, _ = fo.optimal_q(mdp, R[i])
+        np.testing.assert_allclose(Qi, Q[i], atol=1e-12)
+
+
+@pytest.mark.parametrize("start", ["right", "wrong", "random"])
+def test_warm_start_is_exact_from_any_policy(rng, mdp, start):
+    R = rng.standard_normal((3, mdp.n_states, mdp.n_actions))
+    Q_ref, pol_ref = fo.optimal_q(mdp, R)
+    warm = {
+        "right": pol_ref,
+        "wrong": np.argmin(Q_ref, axis=2),
+        "random": rng.integers(0, mdp.n_actions, size=(3, mdp.n_states)),
+    }[start]
+    Q, pol = fo.optimal_q(mdp, R, policy=warm)
+    assert np.max(np.abs(Q - Q_ref)) < 1e-10
+    np.testing.assert_array_equal(np.take_along_axis(Q, pol[..., None], 2)[..., 0], Q.max(axis=2))
+    # single reward with a single (S,) warm start
+    Q1, _ = fo.optimal_q(mdp, R[0], policy=warm[0])
+    assert np.max(np.abs(Q1 - Q_ref[0])) < 1e-10
+
+
+def test_optimal_q_ties_do_not_cycle(grid4):
+    R = np.zeros((grid4.n_states, grid4.n_actions))  # every policy is optimal
+    Q, pol = fo.optimal_q(grid4, R, policy=np.full(grid4.n_states, 2))
+    np.testing.assert_array_equal(Q, 0.0)
+    np.testing.assert_array_equal(pol, 2)  # ties keep the current action
+
+
+def test_policy_evaluation_matches_direct_solve(rng, mdp):
+    S = mdp.n_states
+    R = rng.standard_normal((2, S, mdp.n_actions))
+    policy = rng.integers(0, mdp.n_actions, size=(2, S))
+    V = fo.policy_evaluation(mdp, R, policy)
+    for i in range(2):
+        P_pi = np.array([mdp.transitions[s, policy[i, s]] for s in range(S)])
+        R_pi = np.array([R[i, s, policy[i, s]] for s in range(S)])
+        np.testing.assert_allclose(V[i], np.linalg.solve(np.eye(S) - mdp.gamma * P_pi, R_pi), rtol=1e-12, atol=1e-12)
+    V0 = fo.policy_evaluation(mdp, R[0], policy[0])
+    assert V0.shape == (S,)
+    np.testing.assert_allclose(V0, V[0], atol=1e-13)
+
+
+def test_policy_evaluation_of_greedy_policy_is_v_star(rng, mdp):
+    R = rng.standard_normal((mdp.n_states, mdp.n_actions))
+    Q, pol = fo.optimal_q(mdp, R)
+    np.testing.assert_allclose(fo.policy_evaluation(mdp, R, pol), Q.max(axis=1), atol=1e-12)
+
+
+def test_boltzmann_matches_softmax_and_sums_to_one(rng):
+    Q = rng.standard_normal((3, 5, 4))
+    pi = fo.boltzmann_policy(Q, 2.5)
+    e = np.exp(2.5 * Q)
+    np.testing.assert_allclose(pi, e / e.sum(axis=-1, keepdims=True), rtol=1e-13)
+    np.testing.assert_allclose(pi.sum(axis=-1), 1.0, atol=1e-15)
+
+
+def test_boltzmann_is_stable_for_huge_beta_q():
+    """beta * Q up to 1e16: a naive exp overflows beyond ~709."""
+    Q = np.array([[1e10, -1e10, 0.5e10, 0.0], [1e5, 1e5, -1e5, 1e5 - 1e-3]])
+    with np.errstate(over="raise", invalid="raise", divide="raise"):
+        pi = fo.boltzmann_policy(Q, 1e6)
+    assert np.all(np.isfinite(pi))
+    np.testing.assert_allclose(pi.sum(axis=-1), 1.0)
+    np.testing.assert_allclose(pi[0], [1, 0, 0, 0])
+    np.testing.assert_allclose(pi[1], [0.5, 0.5, 0, 0])  # exact ties share the mass
+
+
+def test_boltzmann_beta_zero_is_uniform(rng):
+    np.testing.assert_allclose(fo.boltzmann_policy(rng.standard_normal((4, 3)), 0.0), 1 / 3)
+
+
+@pytest.mark.parametrize("beta", [-1.0, np.nan, np.inf])
+def test_boltzmann_bad_beta(beta):
+    with pytest.raises(ValidationError, match=r"beta must be a finite number >= 0; got " + repr(float(beta))):
+        fo.boltzmann_policy(np.zeros((2, 2)), beta)
+
+
+def test_boltzmann_needs_an_action_axis():
+    with pytest.raises(ValidationError, match=r"action axis; got shape \(\)"):
+        fo.boltzmann_policy(3.0, 1.0)
+
+
+# --- validation -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "shape, fragment",
+    [((16, 3), r"got \(16, 3\)"), ((16,), r"got \(16,\)"), ((2, 15, 4), r"got \(2, 15, 4\)"), ((1, 2, 16, 4), r"got \(1, 2, 16, 4\)")],
+)
+def test_bad_reward_shapes(grid4, shape, fragment):
+    with pytest.raises(ValidationError, match=r"rewards must have shape \(S, A\) = \(16, 4\) or \(n, 16, 4\); " + fragment):
+        fo.optimal_q(grid4, np.zeros(shape))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_nonfinite_rewards(grid4, bad):
+    R = np.zeros((16, 4))
+    R[3, 1] = bad
+    with pytest.raises(ValidationError, match=rf"rewards must be finite; found {bad!r}"):
+        fo.optimal_q(grid4, R)
+
+
+def test_non_numeric_rewards(grid4):
+    with pytest.raises(ValidationError, match="rewards must be a numeric array"):
+        fo.optimal_q(grid4, [["a"] * 4] * 16)
+
+
+@pytest.mark.parametrize(
+    "policy, fragment",
+    [
+        (np.zeros(15, dtype=int), r"policy must have shape \(1, 16\).*got \(15,\)"),
+        (np.zeros((2, 16), dtype=int), r"policy must have shape \(1, 16\).*got \(2, 16\)"),
+        (np.full(16, 4), r"integer actions in \[0, 4\); got"),
+        (np.full(16, -1), r"integer actions in \[0, 4\); got"),
+        (np.zeros(16), r"integer actions in \[0, 4\); got"),
+    ],
+)
+def test_bad_policies(grid4, policy, fragment):
+    with pytest.raises(ValidationError, match=fragment):
+        fo.optimal_q(grid4, np.zeros((16, 4)), policy=policy)
+    with pytest.raises(ValidationError, match=fragment):
+        fo.policy_evaluation(grid4, np.zeros((16, 4)), policy)
+
+
+def test_policy_evaluation_needs_a_policy(grid4):
+    with pytest.raises(ValidationError, match="policy must be given"):
+        fo.policy_evaluation(grid4, np.zeros((16, 4)), None)
+
+
+def test_not_an_mdp():
+    with pytest.raises(ValidationError, match="mdp must be a TabularMDP; got ndarray"):
+        fo.optimal_q(np.zeros((2, 2, 2)), np.zeros((2, 2)))
