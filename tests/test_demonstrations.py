@@ -1,0 +1,142 @@
+"""Sampling the greedy expert and the empirical statistics of eq. (5)."""
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError
+
+
+def test_sample_shapes_dtypes_and_greedy_expert(rng, grid4):
+    R = rng.standard_normal((3, 16, 4))
+    demos = fo.sample_demonstrations(grid4, R, 7, 5, rng)
+    assert isinstance(demos, list) and len(demos) == 3
+    _, pol = fo.optimal_q(grid4, R)
+    for i, d in enumerate(demos):
+        assert d.shape == (7, 5, 2) and d.dtype == np.int64
+        states, actions = d[..., 0], d[..., 1]
+        assert states.min() >= 0 and states.max() < 16
+        np.testing.assert_array_equal(actions, pol[i][states])
+        # every step follows a transition of positive probability
+        P = grid4.transitions
+        assert np.all(P[states[:, :-1], actions[:, :-1], states[:, 1:]] > 0)
+
+
+def test_single_reward_gives_one_task(rng, grid4):
+    demos = fo.sample_demonstrations(grid4, rng.standard_normal((16, 4)), 2, 3, rng)
+    assert len(demos) == 1 and demos[0].shape == (2, 3, 2)
+
+
+def test_same_seed_same_demos(grid4):
+    R = np.random.default_rng(1).standard_normal((2, 16, 4))
+    a = fo.sample_demonstrations(grid4, R, 4, 6, 123)
+    b = fo.sample_demonstrations(grid4, R, 4, 6, np.random.default_rng(123))
+    c = fo.sample_demonstrations(grid4, R, 4, 6, 124)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+    assert any(not np.array_equal(x, z) for x, z in zip(a, c))
+
+
+def test_starts_are_uniform_and_dynamics_followed(rng, grid3):
+    R = rng.standard_normal((9, 4))
+    n = 9000
+    demos = fo.sample_demonstrations(grid3, R, n, 2, rng)[0]
+    counts = np.bincount(demos[:, 0, 0], minlength=9)
+    expected = n / 9
+    # chi-square with 8 dof: P(X > 26.1) = 0.001
+    assert np.sum((counts - expected) ** 2 / expected) < 26.1
+    # empirical next-state distribution of state 4 matches P
+    s4 = demos[:, 0, 0] == 4
+    a4 = demos[s4, 0, 1][0]
+    freq = np.bincount(demos[s4, 1, 0], minlength=9) / s4.sum()
+    np.testing.assert_allclose(freq, grid3.transitions[4, a4], atol=0.06)
+
+
+def test_empirical_statistics_hand_computed(grid3):
+    episodes = np.array([[[0, 1], [3, 3], [4, 3]], [[0, 3], [1, 1], [4, 3]]])
+    mu, pi = fo.empirical_statistics(grid3, [episodes])
+    assert mu.shape == (1, 9) and pi.shape == (1, 9, 4)
+    np.testing.assert_allclose(mu[0], [2 / 6, 1 / 6, 0, 1 / 6, 2 / 6, 0, 0, 0, 0])
+    np.testing.assert_allclose(pi[0, 0], [0, 0.5, 0, 0.5])
+    np.testing.assert_allclose(pi[0, 4], [0, 0, 0, 1])
+    np.testing.assert_allclose(pi[0, 1], [0, 1, 0, 0])
+    for s in (2, 5, 6, 7, 8):  # unvisited
+        np.testing.assert_array_equal(pi[0, s], 0.0)
+
+
+def test_empirical_statistics_ragged_and_float_integral_episodes(grid3):
+    task = [np.array([[0, 1], [3, 3]]), [[4, 2]], np.array([[4.0, 2.0], [3.0, 0.0], [0.0, 1.0]])]
+    mu, pi = fo.empirical_statistics(grid3, [task, np.array([[[8, 0]]])])
+    np.testing.assert_allclose(mu[0, [0, 3, 4]], [2 / 6, 2 / 6, 2 / 6])
+    np.testing.assert_allclose(pi[0, 3], [0.5, 0, 0, 0.5])
+    np.testing.assert_allclose(mu[1], np.eye(9)[8])
+
+
+def test_empirical_statistics_properties(rng, grid4):
+    demos = fo.sample_demonstrations(grid4, rng.standard_normal((5, 16, 4)), 3, 4, rng)
+    mu, pi = fo.empirical_statistics(grid4, demos)
+    np.testing.assert_allclose(mu.sum(axis=1), 1.0)
+    visited = mu > 0
+    np.testing.assert_allclose(pi.sum(axis=2)[visited], 1.0)
+    np.testing.assert_array_equal(pi[~visited], 0.0)
+    # a 4-d array (n, m, L, 2) is accepted as n tasks
+    mu4, pi4 = fo.empirical_statistics(grid4, np.stack(demos))
+    np.testing.assert_array_equal(mu4, mu)
+    np.testing.assert_array_equal(pi4, pi)
+
+
+# --- validation -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "demos, fragment",
+    [
+        ([np.array([[[9, 0]]])], r"task 0: state 9 is out of range \[0, 9\)"),
+        ([np.array([[[0, 0]]]), np.array([[[-1, 0]]])], r"task 1: state -1 is out of range"),
+        ([np.array([[[0, 4]]])], r"task 0: action 4 is out of range \[0, 4\)"),
+        ([np.array([[[0, -2]]])], r"action -2 is out of range"),
+        ([np.zeros((2, 3, 3), dtype=int)], r"episode 0 of demonstrations of task 0 must have shape \(L, 2\).*got \(3, 3\)"),
+        ([np.zeros((2, 0, 2), dtype=int)], r"must have shape \(L, 2\) with L >= 1; got \(0, 2\)"),
+        ([[]], r"demonstrations of task 0 are empty"),
+        ([np.zeros((0, 3, 2), dtype=int)], r"demonstrations of task 0 are empty"),
+        ([], r"demos_per_task is empty"),
+        ([np.array([[[0.5, 1.0]]])], r"must hold integer \(state, action\) pairs; got dtype float64"),
+        ([[[["a", "b"]]]], r"must hold integer \(state, action\) pairs; got dtype <U1"),
+        ([np.zeros(5, dtype=int)], r"must be an int array of shape \(m, L, 2\).*shape \(5,\)"),
+        ([3], r"got int"),
+        (np.zeros((2, 3, 2), dtype=int), r"got an array of shape \(2, 3, 2\)"),
+        ("demos", r"demos_per_task must be a list with one entry per task; got str"),
+    ],
+)
+def test_bad_demonstrations(grid3, demos, fragment):
+    with pytest.raises(ValidationError, match=fragment):
+        fo.empirical_statistics(grid3, demos)
+
+
+def test_3d_array_as_demos_per_task_is_rejected_by_learners(rng, grid3):
+    demos = fo.sample_demonstrations(grid3, rng.standard_normal((9, 4)), 2, 3, rng)[0]  # (m, L, 2)
+    with pytest.raises(ValidationError, match=r"got an array of shape \(2, 3, 2\)"):
+        fo.GradIRL(max_iter=1).fit(grid3, demos)
+    with pytest.raises(ValidationError, match=r"got an array of shape \(2, 3, 2\)"):
+        fo.FactIRL(n_primitives=2, max_iter=1).fit(grid3, demos)
+
+
+@pytest.mark.parametrize(
+    "kwargs, fragment",
+    [
+        (dict(n_demos=0, length=3), r"n_demos must be > 0; got 0"),
+        (dict(n_demos=2.0, length=3), r"n_demos must be an integer; got 2\.0"),
+        (dict(n_demos=2, length=-1), r"length must be > 0; got -1"),
+        (dict(n_demos=2, length=True), r"length must be an integer; got True"),
+    ],
+)
+def test_bad_sampling_arguments(rng, grid3, kwargs, fragment):
+    with pytest.raises(ValidationError, match=fragment):
+        fo.sample_demonstrations(grid3, np.zeros((9, 4)), rng=rng, **kwargs)
+
+
+def test_bad_rng_and_rewards(grid3):
+    with pytest.raises(ValidationError, match="rng must be a numpy Generator.*got str"):
+        fo.sample_demonstrations(grid3, np.zeros((9, 4)), 1, 1, rng="seed")
+    with pytest.raises(ValidationError, match=r"rewards must have shape .*got \(8, 4\)"):
+        fo.sample_demonstrations(grid3, np.zeros((8, 4)), 1, 1, rng=0)
