@@ -1,0 +1,165 @@
+"""FactIRL, the factorial learner: fit, initialisations, transfer."""
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import NotFittedError, UnknownSolverError, ValidationError
+
+K = 2
+
+
+@pytest.fixture
+def data(rng, grid3):
+    D = fo.random_dictionary(36, K, rng)
+    H = fo.random_coefficients(5, K, rng=rng)
+    R = fo.task_rewards(D, H, 9, 4)
+    return grid3, R, fo.sample_demonstrations(grid3, R, 4, 6, rng)
+
+
+def assert_non_increasing(history):
+    h = np.asarray(history)
+    assert np.all(np.diff(h) <= 1e-10 * np.abs(h[:-1])), h
+
+
+@pytest.mark.parametrize("init", ["pca", "random"])
+def test_fit_shapes_and_history(data, init):
+    mdp, _, demos = data
+    model = fo.FactIRL(n_primitives=K, init=init, max_iter=8, flat_max_iter=10, rng=0)
+    assert model.fit(mdp, demos) is model
+    assert model.dictionary_.shape == (36, K)
+    assert model.coefficients_.shape == (5, K)
+    assert model.rewards_.shape == (5, 9, 4)
+    np.testing.assert_allclose(model.rewards_.reshape(5, -1), model.coefficients_ @ model.dictionary_.T)
+    assert model.loss_.shape == (5,)
+    assert len(model.loss_history_) == model.n_iter_ + 1
+    assert_non_increasing(model.loss_history_)
+    assert model.loss_history_[-1] < model.loss_history_[0]
+    assert isinstance(model.n_evaluations_, int) and model.n_evaluations_ > 0
+    mu, pi = fo.empirical_statistics(mdp, demos)
+    np.testing.assert_allclose(model.loss_, fo.policy_matching_loss(mdp, model.rewards_, mu, pi, 5.0)[0], rtol=1e-9)
+
+
+def test_pca_init_counts_the_flat_fit_and_reuses_flat_rewards(data):
+    mdp, _, demos = data
+    flat = fo.GradIRL(max_iter=10).fit(mdp, demos)
+    own = fo.FactIRL(n_primitives=K, max_iter=3, flat_max_iter=10).fit(mdp, demos)
+    given = fo.FactIRL(n_primitives=K, max_iter=3).fit(mdp, demos, flat_rewards=flat.rewards_)
+    np.testing.assert_allclose(own.rewards_, given.rewards_, rtol=1e-12, atol=1e-14)
+    assert own.n_evaluations_ == given.n_evaluations_ + flat.n_evaluations_
+
+
+def test_pca_init_starts_from_the_pca_of_flat_rewards(data):
+    mdp, _, demos = data
+    flat = fo.GradIRL(max_iter=10).fit(mdp, demos)
+    model = fo.FactIRL(n_primitives=K, max_iter=0).fit(mdp, demos, flat_rewards=flat.rewards_)
+    D, H = fo.pca_dictionary(flat.rewards_.reshape(5, -1), K)
+    np.testing.assert_allclose(model.coefficients_ @ model.dictionary_.T, H @ D.T, atol=1e-12)
+
+
+def test_tuple_init(rng, data):
+    mdp, _, demos = data
+    D0, H0 = rng.standard_normal((36, K)), rng.standard_normal((5, K))
+    model = fo.FactIRL(n_primitives=K, init=(D0, H0), max_iter=0).fit(mdp, demos)
+    np.testing.assert_allclose(model.rewards_.reshape(5, -1), H0 @ D0.T, rtol=1e-12)
+    assert model.n_evaluations_ == 1
+    fitted = fo.FactIRL(n_primitives=K, init=(D0, H0), max_iter=5).fit(mdp, demos)
+    assert fitted.loss_history_[-1] < fitted.loss_history_[0]
+
+
+def test_same_seed_same_result(data):
+    mdp, _, demos = data
+    a = fo.FactIRL(n_primitives=K, init="random", max_iter=4, rng=7).fit(mdp, demos)
+    b = fo.FactIRL(n_primitives=K, init="random", max_iter=4, rng=7).fit(mdp, demos)
+    c = fo.FactIRL(n_primitives=K, init="random", max_iter=4, rng=8).fit(mdp, demos)
+    np.testing.assert_array_equal(a.dictionary_, b.dictionary_)
+    np.testing.assert_array_equal(a.coefficients_, b.coefficients_)
+    assert not np.allclose(a.dictionary_, c.dictionary_)
+
+
+def test_transfer_after_fit(rng, data):
+    mdp, R, demos = data
+    model = fo.FactIRL(n_primitives=K, max_iter=5, flat_max_iter=10).fit(mdp, demos)
+    new = fo.sample_demonstrations(mdp, R[:3], 1, 8, rng)
+    h = model.transfer(mdp, new, max_iter=20)
+    assert h.shape == (3, K)
+    np.testing.assert_array_equal(h, model.transfer_coefficients_)
+    np.testing.assert_allclose(model.transfer_rewards_.reshape(3, -1), h @ model.dictionary_.T)
+    assert_non_increasing(model.transfer_loss_history_)
+    assert model.transfer_loss_history_[-1] < model.transfer_loss_history_[0]
+    assert isinstance(model.transfer_n_evaluations_, int)
+    assert model.transfer_loss_.shape == (3,)
+
+
+def test_transfer_with_a_hand_set_dictionary_recovers_the_task(rng, grid3):
+    """With the true dictionary fixed, one long demonstration pins down a near-optimal reward."""
+    D = fo.random_dictionary(36, K, rng)
+    R = fo.task_rewards(D, fo.random_coefficients(4, K, rng=rng), 9, 4)
+    demos = fo.sample_demonstrations(grid3, R, 5, 10, rng)
+    model = fo.FactIRL(n_primitives=K)
+    model.dictionary_ = D
+    h = model.transfer(grid3, demos, max_iter=50)
+    assert h.shape == (4, K)
+    learnt = fo.task_rewards(D, h, 9, 4)
+    assert fo.deviation(grid3, R, learnt).mean() < fo.deviation(grid3, R, -learnt).mean()
+    assert model.transfer_loss_history_[-1] < 0.5 * model.transfer_loss_history_[0]
+
+
+def test_transfer_before_fit_raises(data):
+    mdp, _, demos = data
+    with pytest.raises(NotFittedError, match="no dictionary_: call fit first"):
+        fo.FactIRL(n_primitives=K).transfer(mdp, demos)
+
+
+def test_transfer_validation(data):
+    mdp, _, demos = data
+    model = fo.FactIRL(n_primitives=K)
+    model.dictionary_ = np.ones((35, K))
+    with pytest.raises(ValidationError, match=r"dictionary_ must have shape \(S\*A, k\) = \(36, k\).*got \(35, 2\)"):
+        model.transfer(mdp, demos)
+    model.dictionary_ = np.ones((36, K))
+    with pytest.raises(ValidationError, match=r"max_iter must be >= 0; got -3"):
+        model.transfer(mdp, demos, max_iter=-3)
+
+
+def test_pca_dictionary(rng):
+    W = rng.standard_normal((6, 2)) @ rng.standard_normal((2, 10))  # rank 2
+    D, H = fo.pca_dictionary(W, 2)
+    np.testing.assert_allclose(D.T @ D, np.eye(2), atol=1e-12)
+    np.testing.assert_allclose(H @ D.T, W, atol=1e-10)
+    D4, _ = fo.pca_dictionary(W, 4, rng=0)  # rank-deficient: completed orthonormally
+    np.testing.assert_allclose(D4.T @ D4, np.eye(4), atol=1e-12)
+    with pytest.raises(ValidationError, match=r"n_components=11 exceeds the parameter dimension d=10"):
+        fo.pca_dictionary(W, 11)
+    with pytest.raises(ValidationError, match=r"parameters must have shape \(n, d\) with n >= 1; got \(10,\)"):
+        fo.pca_dictionary(W[0], 1)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, fragment",
+    [
+        (dict(init="kmeans"), ValidationError, r"init must be one of \('pca', 'random'\) or a tuple \(D0, H0\); got 'kmeans'"),
+        (dict(init=(np.ones((36, K)),)), ValidationError, r"init given as a tuple must be \(D0, H0\)"),
+        (dict(init=(np.ones((36, K)), np.ones((4, K)))), ValidationError, r"init \(D0, H0\) must have shapes \(36, 2\) and \(5, 2\); got \(36, 2\) and \(4, 2\)"),
+        (dict(init=(np.ones((30, K)), np.ones((5, K)))), ValidationError, r"init D0 must have shape .*got \(30, 2\)"),
+        (dict(n_primitives=0), ValidationError, r"n_primitives must be > 0; got 0"),
+        (dict(n_primitives=37), ValidationError, r"n_primitives=37 exceeds S\*A=36"),
+        (dict(beta=-1.0), ValidationError, r"beta must be a finite number > 0; got -1\.0"),
+        (dict(max_iter=-1), ValidationError, r"max_iter must be >= 0; got -1"),
+        (dict(inner_steps=0), ValidationError, r"inner_steps must be > 0; got 0"),
+        (dict(flat_max_iter=1.5), ValidationError, r"flat_max_iter must be an integer; got 1\.5"),
+        (dict(tol=-1.0), ValidationError, r"tol must be >= 0; got -1\.0"),
+        (dict(h_solver="nope"), UnknownSolverError, r"unknown solver 'nope'; available: .*armijo"),
+        (dict(rng="seed"), ValidationError, r"rng must be a numpy Generator.*got str"),
+    ],
+)
+def test_validation(data, kwargs, error, fragment):
+    mdp, _, demos = data
+    with pytest.raises(error, match=fragment):
+        fo.FactIRL(**{"n_primitives": K, "max_iter": 1, "flat_max_iter": 2, **kwargs}).fit(mdp, demos)
+
+
+def test_bad_flat_rewards_shape(data):
+    mdp, _, demos = data
+    with pytest.raises(ValidationError, match=r"flat_rewards must have shape \(n, S, A\) = \(5, 9, 4\); got \(4, 9, 4\)"):
+        fo.FactIRL(n_primitives=K, max_iter=1).fit(mdp, demos, flat_rewards=np.zeros((4, 9, 4)))
