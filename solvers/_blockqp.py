@@ -3,7 +3,7 @@
 After the per-task QR reduction (see :func:`solvers.gauss_newton.reduce_least_squares`) the
 subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is
 
-    minimise  ||R_i z_i - b_i||^2  [+ alpha ||z_i||_1]     subject to  [z_i >= 0]
+    minimise  ||R_i z_i - b_i||^2  [+ alpha_i ||z_i||_1]     subject to  [z_i >= 0]
 
 with ``R_i`` (k, k) upper triangular. All tasks of an H-step are solved together as one
 problem over ``z`` (n, k) whose objective is the sum of the tasks' objectives; the problem is
@@ -21,7 +21,7 @@ import numpy as np
 
 from factirl_opt.exceptions import ValidationError
 
-__all__ = ["CONSTRAINTS", "BACKENDS", "BlockQPResult", "check_constraint", "check_backend", "check_block_data"]
+__all__ = ["CONSTRAINTS", "BACKENDS", "BlockQPResult", "check_constraint", "check_backend", "check_block_data", "check_alpha", "refine_active_set"]
 
 #: constraint variants of the H-step
 CONSTRAINTS = ("none", "nonneg", "sparse")
@@ -83,6 +83,16 @@ def check_block_data(R, b, n, k):
     return R, b
 
 
+def check_alpha(alpha, n):
+    """The L1 weight of every row, shape (n,), from a scalar or an (n,) array (>= 0)."""
+    a = np.asarray(alpha, dtype=np.float64)
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise ValidationError(f"alpha must be a finite number >= 0 or one per task, shape ({n},); got {alpha!r}")
+    return a
+
+
 def block_structure(n, k):
     """Index arrays of the upper-triangular entries of every task's ``R_i`` in a stacked layout.
 
@@ -116,6 +126,8 @@ def refine_active_set(R, b, z, constraint, alpha=0.0, snap=1e-6, kkt_tol=1e-7):
         A backend's solution.
     constraint : {"nonneg", "sparse"}
         Any other value returns ``z`` unchanged.
+    alpha : float or ndarray, shape (n,)
+        L1 weight (sparse), one per row or shared.
 
     Returns
     -------
@@ -128,7 +140,7 @@ def refine_active_set(R, b, z, constraint, alpha=0.0, snap=1e-6, kkt_tol=1e-7):
     if constraint not in ("nonneg", "sparse"):
         return z, refined
     z = z.copy()
-    lin = alpha if constraint == "sparse" else 0.0
+    lin_all = check_alpha(alpha, n) if constraint == "sparse" else np.zeros(n)
     scale = 1.0 + np.max(np.abs(z), axis=1, keepdims=True)
     signs = np.where(np.abs(z) <= snap * scale, 0.0, np.sign(z))
     if constraint == "nonneg":
@@ -143,15 +155,16 @@ def refine_active_set(R, b, z, constraint, alpha=0.0, snap=1e-6, kkt_tol=1e-7):
             Rf = R[rows][:, :, free]  # (g, k, f)
             Q, T = np.linalg.qr(Rf)
             rhs = np.einsum("gkf,gk->gf", Q, b[rows])
-            if lin:  # T z = Q^T b - (lin / 2) T^{-T} s_F
-                rhs = rhs - 0.5 * lin * np.linalg.solve(np.swapaxes(T, 1, 2), np.broadcast_to(s[free], (rows.size, free.sum()))[..., None])[..., 0]
+            if constraint == "sparse":  # T z = Q^T b - (alpha / 2) T^{-T} s_F
+                sF = np.broadcast_to(s[free], (rows.size, free.sum()))[..., None]
+                rhs = rhs - 0.5 * lin_all[rows, None] * np.linalg.solve(np.swapaxes(T, 1, 2), sF)[..., 0]
             cand[:, free] = np.linalg.solve(T, rhs[..., None])[..., 0]
         grad = 2.0 * np.einsum("gji,gj->gi", R[rows], np.einsum("gij,gj->gi", R[rows], cand) - b[rows])
         tol = kkt_tol * (1.0 + np.max(np.abs(grad), axis=1))
         ok = np.all(np.sign(cand[:, free]) == s[free], axis=1)
         if (~free).any():
             gz = grad[:, ~free]
-            bound = (gz >= -tol[:, None]) if constraint == "nonneg" else (np.abs(gz) <= lin + tol[:, None])
+            bound = (gz >= -tol[:, None]) if constraint == "nonneg" else (np.abs(gz) <= lin_all[rows, None] + tol[:, None])
             ok &= np.all(bound, axis=1)
         ok &= np.all(np.isfinite(cand), axis=1)
         z[rows[ok]] = cand[ok]

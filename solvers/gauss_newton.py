@@ -68,6 +68,9 @@ class GaussNewtonState:
         At the current coefficients.
     lam : ndarray, shape (n,)
         Damping per row.
+    scale : ndarray, shape (n,)
+        ``max(diag(J_i^T J_i))`` at the start of the run (1 where zero); ``lam`` bounds are
+        relative to it.
     qp_time : float
         Total wall time spent in QP solves (backend calls included), seconds.
     qp_solves : int
@@ -80,6 +83,7 @@ class GaussNewtonState:
     residual: np.ndarray
     jacobian: np.ndarray
     lam: np.ndarray
+    scale: np.ndarray = None
     qp_time: float = 0.0
     qp_solves: int = 0
     qp_failures: int = 0
@@ -177,8 +181,11 @@ class GaussNewtonSolver(StepSolver):
         Initial ``lam_i = damping * max(diag(J_i^T J_i))`` (Marquardt's scale-free start), > 0.
     lam_down, lam_up : float, default=1/3 and 4
         Damping factor after an accepted (in (0, 1)) and a rejected step (> 1).
-    lam_min, lam_max : float, default=1e-12 and 1e12
-        Bounds on ``lam``.
+    lam_min, lam_max : float, default=1e-10 and 1e10
+        Bounds on ``lam_i``, relative to the row's scale ``max(diag(J_i^T J_i))`` at the start of
+        a run: the floor keeps the reduced factor ``R_i`` well conditioned (cond <= ~1e5) when
+        some directions have no data (e.g. unvisited states of tabular rewards), which the
+        backends need to certify optimality.
     max_retries : int, default=10
         Extra trials within one step when no row was accepted.
     xtol : float, default=1e-12
@@ -198,8 +205,8 @@ class GaussNewtonSolver(StepSolver):
     damping: float = 1e-3
     lam_down: float = 1.0 / 3.0
     lam_up: float = 4.0
-    lam_min: float = 1e-12
-    lam_max: float = 1e12
+    lam_min: float = 1e-10
+    lam_max: float = 1e10
     max_retries: int = 10
     xtol: float = 1e-12
     tolerance: dict = None
@@ -287,10 +294,15 @@ class GaussNewtonSolver(StepSolver):
         """
         n, k = x.shape
         qp = self._block_qp(n, k)
+        # rescale every task to unit size: same minimiser (alpha / s^2 for the L1 term), and the
+        # backends' absolute tolerances mean the same thing for a tiny Jacobian (near a fit)
+        s = np.max(np.abs(R), axis=(1, 2))
+        s[~(s > 0)] = 1.0
+        Rs, bs, alphas = R / s[:, None, None], b / s[:, None], self.alpha / s**2
         failures = []
         for backend in self._backends():
             try:
-                res = qp.solve(R, b, backend, alpha=self.alpha, tolerance=self.tolerance.get(backend), max_iter=self.max_qp_iter)
+                res = qp.solve(Rs, bs, backend, alpha=alphas, tolerance=self.tolerance.get(backend), max_iter=self.max_qp_iter)
             except ValidationError:
                 raise
             except Exception as exc:  # any backend crash: recover below or re-raise as ours
@@ -335,10 +347,15 @@ class GaussNewtonSolver(StepSolver):
         if previous is not None and np.shape(getattr(previous, "lam", None)) == (problem.n_rows,):
             lam = previous.lam.copy()
         else:
-            scale = np.max(np.einsum("nmk,nmk->nk", J, J), axis=1)
-            lam = np.clip(self.damping * scale, self.lam_min, self.lam_max)
-            lam[scale == 0] = 1.0
-        return GaussNewtonState(loss=loss, residual=np.asarray(r, dtype=np.float64), jacobian=np.asarray(J, dtype=np.float64), lam=lam)
+            lam = None
+        scale = np.max(np.einsum("nmk,nmk->nk", J, J), axis=1)
+        scale[~(scale > 0)] = 1.0
+        if lam is None:
+            lam = self.damping * scale
+        lam = np.clip(lam, self.lam_min * scale, self.lam_max * scale)
+        return GaussNewtonState(
+            loss=loss, residual=np.asarray(r, dtype=np.float64), jacobian=np.asarray(J, dtype=np.float64), lam=lam, scale=scale
+        )
 
     def update(self, problem, x, state):
         n, k = x.shape
@@ -349,7 +366,7 @@ class GaussNewtonSolver(StepSolver):
             R, b = reduce_least_squares(state.jacobian, state.residual, x, state.lam)
             z = self.solve_subproblems(R, b, x, state)
             if z is None:  # failed status with fallback="none": reject every trying row
-                state.lam[retry] = np.minimum(state.lam[retry] * self.lam_up, self.lam_max)
+                state.lam[retry] = np.minimum(state.lam[retry] * self.lam_up, self.lam_max * state.scale[retry])
                 break
             z = self.project(z)  # removes round-off below zero of a nonneg solution
             step = np.linalg.norm(z - x, axis=1)
@@ -367,13 +384,13 @@ class GaussNewtonSolver(StepSolver):
             state.loss[acc] = trial[ok]
             state.residual[acc] = r[ok]
             state.jacobian[acc] = J[ok]
-            state.lam[acc] = np.maximum(state.lam[acc] * self.lam_down, self.lam_min)
-            state.lam[rej] = np.minimum(state.lam[rej] * self.lam_up, self.lam_max)
+            state.lam[acc] = np.maximum(state.lam[acc] * self.lam_down, self.lam_min * state.scale[acc])
+            state.lam[rej] = np.minimum(state.lam[rej] * self.lam_up, self.lam_max * state.scale[rej])
             if ok.any():
                 accepted_any = True
                 break
             retry = np.zeros(n, dtype=bool)
-            retry[rej[state.lam[rej] < self.lam_max]] = True
+            retry[rej[state.lam[rej] < self.lam_max * state.scale[rej]]] = True
             if not retry.any():
                 break
         return x, state, bool(accepted_any or converged_all)

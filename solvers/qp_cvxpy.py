@@ -5,7 +5,8 @@ One :class:`CvxpyBlockQP` holds a ``cp.Problem`` over ``z`` (n*k,) for a fixed n
 
 - ``r_entries`` (n k (k+1)/2,): the upper-triangular entries of every task's ``R_i``;
 - ``b`` (n k,): the stacked right-hand sides;
-- ``alpha`` (scalar, nonnegative): the L1 weight of the sparse variant.
+- ``alpha`` (n k,), nonnegative: the L1 weight of each coefficient (the sparse variant; one
+  weight per task, repeated k times, so that tasks can be rescaled independently).
 
 ``R z`` is written ``G @ multiply(r_entries, E @ z)`` with constant 0/1 matrices ``E`` (picks
 ``z_i[col]`` for each entry) and ``G`` (sums each entry into ``row`` of its task): a
@@ -24,7 +25,7 @@ import scipy.sparse as sp
 
 from factirl_opt.exceptions import ValidationError
 
-from ._blockqp import CVXPY_NAMES, BlockQPResult, block_structure, check_backend, check_block_data, check_constraint
+from ._blockqp import CVXPY_NAMES, BlockQPResult, block_structure, check_alpha, check_backend, check_block_data, check_constraint
 
 __all__ = ["CvxpyBlockQP", "backend_options", "DEFAULT_TOLERANCE"]
 
@@ -81,13 +82,13 @@ class CvxpyBlockQP:
         self.z = cp.Variable(n * k, name="z")
         self.r_entries = cp.Parameter(m, name="r_entries")
         self.b = cp.Parameter(n * k, name="b")
-        self.alpha = cp.Parameter(nonneg=True, name="alpha", value=0.0)
+        self.alpha = cp.Parameter(n * k, nonneg=True, name="alpha", value=np.zeros(n * k))
         objective = cp.sum_squares(G @ cp.multiply(self.r_entries, E @ self.z) - self.b)
         constraints = []
         if self.constraint == "nonneg":
             constraints.append(self.z >= 0)
         elif self.constraint == "sparse":
-            objective = objective + self.alpha * cp.norm1(self.z)
+            objective = objective + self.alpha @ cp.abs(self.z)
         self.problem = cp.Problem(cp.Minimize(objective), constraints)
         if not self.problem.is_dcp(dpp=True):  # pragma: no cover - a construction invariant
             raise ValidationError("the Gauss-Newton block QP is not DPP")
@@ -101,8 +102,8 @@ class CvxpyBlockQP:
             Upper-triangular factors.
         b : ndarray, shape (n, k)
         backend : {"osqp", "clarabel"}
-        alpha : float
-            L1 weight (sparse variant only).
+        alpha : float or ndarray, shape (n,)
+            L1 weight (sparse variant only), shared or one per task.
         tolerance : float, optional
             Backend accuracy (see :func:`backend_options`).
         max_iter : int
@@ -121,7 +122,7 @@ class CvxpyBlockQP:
         t0 = time.perf_counter()
         self.r_entries.value = R[:, self._triu[0], self._triu[1]].ravel()
         self.b.value = b.ravel()
-        self.alpha.value = float(alpha)
+        self.alpha.value = np.repeat(check_alpha(alpha, self.n), self.k)
         with warnings.catch_warnings():  # the status is checked below and reported by the caller
             warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
             self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, **backend_options(backend, tolerance, max_iter))

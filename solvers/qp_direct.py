@@ -3,7 +3,7 @@
 Same problem as :mod:`solvers.qp_cvxpy` (see :mod:`solvers._blockqp`), in the same
 auxiliary-variable form cvxpy produces, over ``x = [z (nk), t (nk), u (nk, sparse only)]``:
 
-    minimise   ||t||^2 [+ alpha sum(u)]
+    minimise   ||t||^2 [+ sum_i alpha_i sum(u_i)]
     subject to R z - t = b,   [z >= 0]   [u - z >= 0, u + z >= 0]
 
 The sparsity pattern depends only on (n, k, constraint); OSQP is set up once and later calls
@@ -18,7 +18,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ._blockqp import BlockQPResult, block_structure, check_backend, check_block_data, check_constraint
+from ._blockqp import BlockQPResult, block_structure, check_alpha, check_backend, check_block_data, check_constraint
 from .qp_cvxpy import backend_options
 
 __all__ = ["DirectBlockQP"]
@@ -104,7 +104,7 @@ class DirectBlockQP:
     def _q(self, alpha):
         q = np.zeros(self.nx)
         if self.constraint == "sparse":
-            q[2 * self.n * self.k :] = alpha
+            q[2 * self.n * self.k :] = np.repeat(alpha, self.k)
         return q
 
     def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000):
@@ -120,9 +120,9 @@ class DirectBlockQP:
         t0 = time.perf_counter()
         Ax = self._matrix(R)
         if backend == "osqp":
-            z, status = self._solve_osqp(Ax, b.ravel(), float(alpha), tolerance, max_iter)
+            z, status = self._solve_osqp(Ax, b.ravel(), check_alpha(alpha, self.n), tolerance, max_iter)
         else:
-            z, status = self._solve_clarabel(Ax, b.ravel(), float(alpha), tolerance, max_iter)
+            z, status = self._solve_clarabel(Ax, b.ravel(), check_alpha(alpha, self.n), tolerance, max_iter)
         if z is not None:
             z = z[: self.n * self.k].reshape(self.n, self.k)
         ok = status == "optimal" and z is not None and bool(np.all(np.isfinite(z)))
