@@ -49,34 +49,34 @@ def run(args):
     if args.quick:
         for key, value in QUICK.items():
             setattr(args, key, value)
-    threads = limit_blas_threads(args.blas_threads)
-    rng = np.random.default_rng(args.seed)
-    k = args.n_primitives
+    with limit_blas_threads(args.blas_threads) as threads:
+        rng = np.random.default_rng(args.seed)
+        k = args.n_primitives
 
-    t0 = time.perf_counter()
-    mdp = GridWorld(size=args.size)
-    D = random_dictionary(mdp.n_params, k, rng)
-    H = random_coefficients(args.n_tasks, k, rng=rng)
-    R = task_rewards(D, H, mdp.n_states, mdp.n_actions)
-    demos = sample_demonstrations(mdp, R, args.n_demos, args.length, rng)
-    t_data = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        mdp = GridWorld(size=args.size)
+        D = random_dictionary(mdp.n_params, k, rng)
+        H = random_coefficients(args.n_tasks, k, rng=rng)
+        R = task_rewards(D, H, mdp.n_states, mdp.n_actions)
+        demos = sample_demonstrations(mdp, R, args.n_demos, args.length, rng)
+        t_data = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    flat = GradIRL(beta=args.beta, max_iter=args.flat_max_iter, tol=args.tol).fit(mdp, demos)
-    t_flat = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        flat = GradIRL(beta=args.beta, max_iter=args.flat_max_iter, tol=args.tol).fit(mdp, demos)
+        t_flat = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    fact = FactIRL(
-        n_primitives=k,
-        beta=args.beta,
-        init="pca",
-        max_iter=args.max_iter,
-        inner_steps=args.inner_steps,
-        tol=args.tol,
-        h_solver=args.h_solver,
-        rng=np.random.default_rng(args.seed + 1),
-    ).fit(mdp, demos, flat_rewards=flat.rewards_)
-    t_fact = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        fact = FactIRL(
+            n_primitives=k,
+            beta=args.beta,
+            init="pca",
+            max_iter=args.max_iter,
+            inner_steps=args.inner_steps,
+            tol=args.tol,
+            h_solver=args.h_solver,
+            rng=np.random.default_rng(args.seed + 1),
+        ).fit(mdp, demos, flat_rewards=flat.rewards_)
+        t_fact = time.perf_counter() - t0
 
     dev_flat = float(np.mean(deviation(mdp, R, flat.rewards_)))
     dev_fact = float(np.mean(deviation(mdp, R, fact.rewards_)))

@@ -21,6 +21,7 @@ batches of small matrices, for which multi-threaded OpenBLAS only adds overhead 
 shared machine, spin-wait contention that can slow it down by an order of magnitude).
 """
 
+import contextlib
 import ctypes
 import time
 
@@ -58,24 +59,37 @@ def _loaded_blas_libraries():
     return libs
 
 
-def limit_blas_threads(n_threads):
-    """Set the thread count of every loaded OpenBLAS (numpy's, scipy's); return the counts set.
-
-    ``n_threads=None`` or 0 leaves them as they are. Returns the list of thread counts read
-    back from each library (empty when no OpenBLAS could be found, e.g. another BLAS).
-    """
-    libs = _loaded_blas_libraries()
-    counts = []
-    for lib in libs:
+def _blas_functions():
+    """(setter, getter) pairs of every loaded OpenBLAS (numpy's, scipy's)."""
+    pairs = []
+    for lib in _loaded_blas_libraries():
         setter = next((getattr(lib, n) for n in _SET_NAMES if hasattr(lib, n)), None)
         getter = next((getattr(lib, n) for n in _GET_NAMES if hasattr(lib, n)), None)
-        if n_threads and setter is not None:
-            setter.argtypes = [ctypes.c_int]
-            setter(int(n_threads))
-        if getter is not None:
-            getter.restype = ctypes.c_int
-            counts.append(int(getter()))
-    return counts
+        if setter is not None and getter is not None:
+            setter.argtypes, setter.restype = [ctypes.c_int], None
+            getter.argtypes, getter.restype = [], ctypes.c_int
+            pairs.append((setter, getter))
+    return pairs
+
+
+@contextlib.contextmanager
+def limit_blas_threads(n_threads):
+    """Context manager: run with every loaded OpenBLAS limited to ``n_threads`` threads.
+
+    Yields the thread counts in effect (one per library found; empty when no OpenBLAS is
+    loaded, e.g. another BLAS). ``n_threads`` None or 0 leaves the libraries as they are.
+    The previous counts are restored on exit.
+    """
+    pairs = _blas_functions()
+    previous = [get() for _, get in pairs]
+    if n_threads:
+        for set_, _ in pairs:
+            set_(int(n_threads))
+    try:
+        yield [get() for _, get in pairs]
+    finally:
+        for (set_, _), n in zip(pairs, previous):
+            set_(n)
 
 
 def add_arguments(parser):
@@ -154,11 +168,11 @@ def _one_size(size, args, rng):
 
 
 def run(args):
-    threads = limit_blas_threads(args.blas_threads)
     rng = np.random.default_rng(args.seed)
     per_size = {}
-    for size in args.sizes:
-        per_size[f"{size}x{size}"] = _one_size(size, args, rng)
+    with limit_blas_threads(args.blas_threads) as threads:
+        for size in args.sizes:
+            per_size[f"{size}x{size}"] = _one_size(size, args, rng)
     key = "10x10" if "10x10" in per_size else next(iter(per_size))
     return {
         "benchmark": "gradient",
