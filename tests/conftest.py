@@ -23,6 +23,20 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _single_threaded_blas():
+    """Run the tests with one OpenBLAS thread.
+
+    The library's batched solves are of small matrices; on a loaded 2-core machine a
+    multi-threaded OpenBLAS makes them 10-200x slower (spin-wait contention), which only
+    adds noise to the test runtime. Restored at the end of the session.
+    """
+    from factirl_opt.benchmarks.gradient import limit_blas_threads
+
+    with limit_blas_threads(1):
+        yield
+
+
 @pytest.fixture
 def rng():
     """A seeded Generator: every test sees the same stream, independent of test order."""

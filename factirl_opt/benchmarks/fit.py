@@ -78,8 +78,8 @@ def run(args):
         ).fit(mdp, demos, flat_rewards=flat.rewards_)
         t_fact = time.perf_counter() - t0
 
-    dev_flat = float(np.mean(deviation(mdp, R, flat.rewards_)))
-    dev_fact = float(np.mean(deviation(mdp, R, fact.rewards_)))
+        dev_flat = float(np.mean(deviation(mdp, R, flat.rewards_)))
+        dev_fact = float(np.mean(deviation(mdp, R, fact.rewards_)))
     total = t_flat + t_fact
     return {
         "benchmark": "fit",
