@@ -21,7 +21,6 @@ batches of small matrices, for which multi-threaded OpenBLAS only adds overhead 
 shared machine, spin-wait contention that can slow it down by an order of magnitude).
 """
 
-import contextlib
 import ctypes
 import time
 
@@ -72,24 +71,31 @@ def _blas_functions():
     return pairs
 
 
-@contextlib.contextmanager
-def limit_blas_threads(n_threads):
-    """Context manager: run with every loaded OpenBLAS limited to ``n_threads`` threads.
+class limit_blas_threads(list):
+    """Limit every loaded OpenBLAS (numpy's, scipy's) to ``n_threads`` threads.
 
-    Yields the thread counts in effect (one per library found; empty when no OpenBLAS is
-    loaded, e.g. another BLAS). ``n_threads`` None or 0 leaves the libraries as they are.
-    The previous counts are restored on exit.
+    Called as a function it sets the limit for the rest of the process; used as a context
+    manager (``with limit_blas_threads(1) as counts:``) it restores the previous counts on
+    exit. Either way the object is the list of thread counts now in effect, one per library
+    found (empty when no OpenBLAS is loaded, e.g. another BLAS). ``n_threads`` None or 0
+    leaves the libraries as they are.
     """
-    pairs = _blas_functions()
-    previous = [get() for _, get in pairs]
-    if n_threads:
-        for set_, _ in pairs:
-            set_(int(n_threads))
-    try:
-        yield [get() for _, get in pairs]
-    finally:
-        for (set_, _), n in zip(pairs, previous):
+
+    def __init__(self, n_threads):
+        self._pairs = _blas_functions()
+        self._previous = [get() for _, get in self._pairs]
+        if n_threads:
+            for set_, _ in self._pairs:
+                set_(int(n_threads))
+        super().__init__(get() for _, get in self._pairs)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        for (set_, _), n in zip(self._pairs, self._previous):
             set_(n)
+        return False
 
 
 def add_arguments(parser):
