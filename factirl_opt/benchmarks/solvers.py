@@ -23,10 +23,12 @@ all measured in the same run on the same data (a random ground-truth dictionary 
   The data are those of ``--repeats`` successive LM steps of a transfer (median time kept).
 
 ``--quick`` shrinks everything (5x5 grid, a few tasks, short budgets) so a test can run it in
-seconds. BLAS threads are limited to ``--blas-threads`` (default 1) when the gradient
-benchmark's helper is available: the solves are batches of small matrices.
+seconds. For stable timings on a shared machine run it with ``OPENBLAS_NUM_THREADS=1`` (the
+solves are batches of small matrices; multi-threaded BLAS only adds contention); the
+environment's BLAS settings are recorded in the output.
 """
 
+import os
 import time
 import warnings
 
@@ -82,7 +84,6 @@ def add_arguments(parser):
     parser.add_argument("--sparsity", type=float, default=0.4, help="zero probability of the sparse ground truth")
     parser.add_argument("--repeats", type=int, default=20, help="timed re-solves per route (median kept)")
     parser.add_argument("--fresh-tasks", type=int, default=10, help="tasks timed with a fresh cp.Problem each")
-    parser.add_argument("--blas-threads", type=int, default=1)
     parser.add_argument(
         "--parts",
         nargs="+",
@@ -343,12 +344,6 @@ def _part_timing(mdp, s, rng, D):
 def run(args):
     """Run the selected parts; returns the JSON-serialisable measurements."""
     s = _settings(args)
-    try:  # the gradient benchmark's helper; optional
-        from .gradient import limit_blas_threads
-
-        blas = limit_blas_threads(s["blas_threads"])
-    except ImportError:
-        blas = []
     mdp = GridWorld(size=s["size"])
     seeds = np.random.SeedSequence(s["seed"]).spawn(6)
     D = random_dictionary(mdp.n_params, s["n_primitives"], np.random.default_rng(seeds[0]))
@@ -357,7 +352,7 @@ def run(args):
         "benchmark": "solvers",
         "settings": {k: v for k, v in s.items() if k != "parts"},
         "available_solvers": solvers.available_solvers(),
-        "blas_threads": blas,
+        "blas_threads_env": {v: os.environ.get(v) for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")},
     }
     for i, name in enumerate(parts, start=1):
         if name in s["parts"]:
