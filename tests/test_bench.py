@@ -19,7 +19,7 @@ def run_bench(capsys, argv):
 
 
 def test_gradient_benchmark(capsys):
-    out = run_bench(capsys, ["gradient", "--sizes", "3", "4", "--repeats", "1", "--n-demos", "2", "--length", "3"])
+    out = run_bench(capsys, ["gradient", "--sizes", "3", "4", "--repeats", "1", "--min-time", "0", "--n-demos", "2", "--length", "3"])
     assert out["benchmark"] == "gradient" and out["grid"] == "3x3"
     assert set(out["sizes"]) == {"3x3", "4x4"}
     for key in ("ratio_fixed_point", "ratio_forward_direct"):
@@ -37,7 +37,7 @@ def test_gradient_benchmark(capsys):
 
 
 def test_gradient_benchmark_defaults_to_10x10_when_present(capsys):
-    out = run_bench(capsys, ["gradient", "--sizes", "4", "10", "--repeats", "1", "--budget", "0"])
+    out = run_bench(capsys, ["gradient", "--sizes", "4", "10", "--repeats", "1", "--min-time", "0", "--budget", "0"])
     assert out["grid"] == "10x10"
     assert out["ratio_fixed_point"] == out["sizes"]["10x10"]["ratio_fixed_point"]
     assert out["sizes"]["10x10"]["runs"]["fixed_point"] == 1

@@ -11,8 +11,9 @@ sizes (d = S*A = 4 * size^2 parameters):
   (``route="direct"``), then ``g^T phi``.
 
 Every route starts from scratch (cold Q* by policy iteration from the immediate-reward policy)
-and is timed as the best of ``--repeats`` runs (a route whose first run exceeds
-``--budget`` seconds is run once). The breakdown shows where the time goes: Q* planning alone,
+and is timed as the best of at least ``--repeats`` runs, repeated until ``--min-time`` seconds
+were spent (so fast routes get many samples on a busy machine); a route whose first run exceeds
+``--budget`` seconds is run once. The breakdown shows where the time goes: Q* planning alone,
 the adjoint's gradient part, the time to build ``phi`` for each reference route, and the
 reference routes' agreement with the adjoint (max abs difference).
 
@@ -101,6 +102,8 @@ class limit_blas_threads(list):
 def add_arguments(parser):
     parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per route; the best is kept (default 5)")
+    parser.add_argument("--min-time", type=float, default=0.5,
+                        help="keep repeating a route until this many seconds were spent (default 0.5)")
     parser.add_argument("--budget", type=float, default=5.0, help="a route whose first run takes longer is run once (s)")
     parser.add_argument("--beta", type=float, default=5.0)
     parser.add_argument("--n-demos", type=int, default=10, help="demonstrations of the task (default 10)")
@@ -109,14 +112,18 @@ def add_arguments(parser):
     parser.add_argument("--blas-threads", type=int, default=1, help="OpenBLAS threads (0: leave as is; default 1)")
 
 
-def _best_time(fn, repeats, budget):
-    """Best wall time of ``fn()`` over ``repeats`` runs (one run if the first exceeds budget)."""
+def _best_time(fn, repeats, budget, min_time=0.0, max_runs=2000):
+    """Best wall time of ``fn()``: at least ``repeats`` runs, and more (up to ``max_runs``)
+    until ``min_time`` seconds were spent, so that fast routes get enough samples for the
+    minimum to be robust on a busy machine; one run only if the first exceeds ``budget``."""
     times, out = [], None
-    for _ in range(max(1, repeats)):
+    while True:
         t0 = time.perf_counter()
         out = fn()
         times.append(time.perf_counter() - t0)
-        if times[0] > budget:
+        if times[0] > budget or len(times) >= max_runs:
+            break
+        if len(times) >= max(1, repeats) and sum(times) >= min_time:
             break
     return min(times), len(times), out
 
@@ -130,23 +137,26 @@ def _one_size(size, args, rng):
     mu, pi_hat = empirical_statistics(mdp, demos)
     # the learner differentiates at its current estimate, not at the truth
     theta = R + 0.5 * rng.standard_normal(R.shape)
-    beta, rep, budget = args.beta, args.repeats, args.budget
+    beta = args.beta
 
-    t_plan, _, (_, pol) = _best_time(lambda: optimal_q(mdp, theta), rep, budget)
-    t_adj, n_adj, (loss, g_adj) = _best_time(lambda: policy_matching_loss(mdp, theta, mu, pi_hat, beta), rep, budget)
+    def timed(fn, repeats=args.repeats):
+        return _best_time(fn, repeats, args.budget, args.min_time)
+
+    t_plan, _, (_, pol) = timed(lambda: optimal_q(mdp, theta))
+    t_adj, n_adj, (loss, g_adj) = timed(lambda: policy_matching_loss(mdp, theta, mu, pi_hat, beta))
     # the gradient parts alone, at the greedy policy found above
     _, _, diff, _ = _forward(mdp, theta[None], mu, pi_hat, beta)
     pi = diff + pi_hat
     g = _dj_dq(pi, diff, mu, beta)
-    t_adj_part, _, _ = _best_time(lambda: _adjoint(mdp, pol[None], g), rep, budget)
-    t_fp, n_fp, (_, g_fp) = _best_time(
-        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="fixed_point"), rep, budget
+    t_adj_part, _, _ = timed(lambda: _adjoint(mdp, pol[None], g))
+    t_fp, n_fp, (_, g_fp) = timed(
+        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="fixed_point")
     )
-    t_fp_phi, _, _ = _best_time(lambda: dq_dtheta(mdp, pol, route="fixed_point"), 1, budget)
-    t_dir, n_dir, (_, g_dir) = _best_time(
-        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="direct"), rep, budget
+    t_fp_phi, _, _ = timed(lambda: dq_dtheta(mdp, pol, route="fixed_point"), repeats=1)
+    t_dir, n_dir, (_, g_dir) = timed(
+        lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="direct")
     )
-    t_dir_phi, _, _ = _best_time(lambda: dq_dtheta(mdp, pol, route="direct"), rep, budget)
+    t_dir_phi, _, _ = timed(lambda: dq_dtheta(mdp, pol, route="direct"))
     g_adj = g_adj.reshape(1, -1)
     return {
         "n_states": S,
@@ -189,7 +199,8 @@ def run(args):
         "settings": {
             "sizes": list(args.sizes),
             "repeats": args.repeats,
-            "timer": "best of repeats, one task, Q* included (cold policy iteration)",
+            "min_time": args.min_time,
+            "timer": "best of >= repeats runs (more until min_time s spent), one task, Q* included (cold policy iteration)",
             "beta": args.beta,
             "n_demos": args.n_demos,
             "length": args.length,
