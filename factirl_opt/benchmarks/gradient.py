@@ -173,6 +173,9 @@ def _one_size(size, args, rng):
             "adjoint_gradient_part_s": t_adj_part,
             "fixed_point_phi_s": t_fp_phi,
             "forward_direct_phi_s": t_dir_phi,
+            # the gradient parts alone (Q* excluded): how the routes compare without planning
+            "gradient_part_ratio_fixed_point": t_fp_phi / t_adj_part,
+            "gradient_part_ratio_forward_direct": t_dir_phi / t_adj_part,
             "planning_share_of_adjoint": min(t_plan / t_adj, 1.0),
             "planning_share_of_forward_direct": min(t_plan / t_dir, 1.0),
         },
