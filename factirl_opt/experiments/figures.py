@@ -1,0 +1,197 @@
+"""Figures 1-3 of the paper, drawn from the tables the runner writes (matplotlib, Agg).
+
+- Figure 1 (train tasks) and figure 2 (test tasks): two panels each, mean deviation from the
+  optimal score against demos per training task (at the preset's default number of tasks) and
+  against the number of training tasks (at its default demos per task); markers at the mean
+  over seeds, error bars one standard deviation over seeds (when there are several).
+- Figure 3: optimal value functions of 4 test tasks (default point, first seed): the true task
+  with its single demonstration drawn on it, then the flat and the factorial learners' models.
+  Each map has its own colour scale (learnt rewards are defined up to scale); blue is high, as
+  in the paper.
+"""
+
+import json
+import os
+
+import numpy as np
+
+from .runner import TEST_LEARNERS, TRAIN_LEARNERS, load_preset_from_manifest, read_csv
+from ..exceptions import ValidationError
+
+__all__ = ["plot_sweeps", "plot_value_functions", "plot_all"]
+
+#: one fixed style per learner name, shared by figures 1 and 2
+STYLES = {
+    "flat": dict(color="#d62728", marker="o", linestyle="-"),
+    "factorial": dict(color="#1f77b4", marker="s", linestyle="-", linewidth=2.2),
+    "factorial, random init": dict(color="#17becf", marker="D", linestyle="--"),
+    "flat, ground truth": dict(color="#2ca02c", marker="^", linestyle=":"),
+    "flat, PCA features": dict(color="#ff7f0e", marker="v", linestyle="-."),
+    "flat, features from ex.": dict(color="#9467bd", marker="P", linestyle="--"),
+}
+ACTION_DELTAS = ((-1, 0), (1, 0), (0, -1), (0, 1))  # GridWorld: up, down, left, right as (row, col)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _series(rows, learner, x_name, fixed_name, fixed_value):
+    pts = {}
+    for r in rows:
+        if r["learner"] == learner and r[fixed_name] == fixed_value:
+            pts.setdefault(r[x_name], []).append(r["deviation"])
+    xs = sorted(pts)
+    mean = np.array([np.mean(pts[x]) for x in xs])
+    std = np.array([np.std(pts[x], ddof=1) if len(pts[x]) > 1 else 0.0 for x in xs])
+    return np.array(xs), mean, std, [len(pts[x]) for x in xs]
+
+
+def plot_sweeps(rows, preset, split, path_base, h_solver=None):
+    """Figure 1 (``split="train"``) or 2 (``"test"``): deviation along both sweeps.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Rows of results.csv.
+    preset : Preset
+        Gives the default point that fixes the other variable of each panel.
+    split : {"train", "test"}
+    path_base : str
+        Written as ``path_base + ".png"`` and ``".svg"``.
+    h_solver : str, optional
+        Keep the rows of this solver only (default: the first one found).
+
+    Returns
+    -------
+    list of str
+        The files written.
+    """
+    if split not in ("train", "test"):
+        raise ValidationError(f"split must be 'train' or 'test'; got {split!r}")
+    rows = [r for r in rows if r["split"] == split]
+    if not rows:
+        raise ValidationError(f"no {split} rows to plot")
+    h_solver = h_solver or sorted({r["h_solver"] for r in rows})[0]
+    rows = [r for r in rows if r["h_solver"] == h_solver]
+    n_seeds = len({r["seed"] for r in rows})
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharey=True)
+    panels = (
+        ("demos_per_task", "n_tasks", preset.default_tasks, "demonstrations per training task",
+         f"{preset.default_tasks} training tasks"),
+        ("n_tasks", "demos_per_task", preset.default_demos, "number of training tasks",
+         f"{preset.default_demos} demonstrations per training task"),
+    )
+    learners = TRAIN_LEARNERS if split == "train" else TEST_LEARNERS
+    for ax, (x_name, fixed_name, fixed_value, xlabel, title) in zip(axes, panels):
+        for learner in learners:
+            xs, mean, std, _ = _series(rows, learner, x_name, fixed_name, fixed_value)
+            if xs.size == 0:
+                continue
+            style = STYLES.get(learner, {})
+            ax.errorbar(xs, mean, yerr=std if n_seeds > 1 else None, label=learner, capsize=3, markersize=6, **style)
+        ax.set_xscale("log")
+        xticks = sorted({r[x_name] for r in rows if r[fixed_name] == fixed_value})
+        ax.set_xticks(xticks)
+        ax.set_xticklabels([str(x) for x in xticks])
+        ax.minorticks_off()
+        ax.set_xlabel(xlabel)
+        ax.set_title(title, fontsize=10)
+        ax.grid(True, alpha=0.3)
+        # deviations span two decades (ground truth ~0.1, a failed fit ~20): log above 0.1, linear below
+        ax.set_yscale("symlog", linthresh=0.1, linscale=0.3)
+        ax.set_ylim(bottom=0)
+    axes[0].set_ylabel("deviation from optimal score\n(mean over tasks; lower is better; log scale)")
+    what = "training tasks" if split == "train" else "test tasks (one demonstration each)"
+    spread = f"mean ± std over {n_seeds} seeds" if n_seeds > 1 else "1 seed"
+    fig.suptitle(f"Figure {1 if split == 'train' else 2}: performance on {what} ({spread}; H-step: {h_solver})", fontsize=11)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    written = []
+    for ext in ("png", "svg"):
+        fig.savefig(f"{path_base}.{ext}", dpi=130)
+        written.append(f"{path_base}.{ext}")
+    plt.close(fig)
+    return written
+
+
+def _draw_demo(ax, demo, size):
+    """The demonstration's path: a line through the visited cells, arrows for the actions."""
+    steps = np.asarray(demo)
+    rows, cols = np.divmod(steps[:, 0], size)
+    ax.plot(cols, rows, color="#d62728", linewidth=1.5, alpha=0.8)
+    for r, c, a in zip(rows, cols, steps[:, 1]):
+        dr, dc = ACTION_DELTAS[a]
+        ax.annotate("", xy=(c + 0.4 * dc, r + 0.4 * dr), xytext=(c, r),
+                    arrowprops=dict(arrowstyle="->", color="#d62728", lw=1.2))
+    ax.plot(cols[0], rows[0], "o", color="#d62728", markersize=7, markeredgecolor="white")
+
+
+def plot_value_functions(data, path_base):
+    """Figure 3: value-function heat maps of 4 test tasks (rows: true, flat, factorial).
+
+    Parameters
+    ----------
+    data : dict
+        Contents of figure3.json (``grid_size``, ``true``, ``flat``, ``factorial``, ``demos``,
+        ``deviation_flat``, ``deviation_factorial``).
+    path_base : str
+
+    Returns
+    -------
+    list of str
+    """
+    size = int(data["grid_size"])
+    plt = _pyplot()
+    n = len(data["true"])
+    fig, axes = plt.subplots(3, n, figsize=(2.7 * n + 0.6, 8.4), squeeze=False)
+    row_names = (("true", "true task (V*) + demonstration"), ("flat", "flat learner"), ("factorial", "factorial learner"))
+    for i, (key, name) in enumerate(row_names):
+        for j in range(n):
+            ax = axes[i, j]
+            V = np.asarray(data[key][j]).reshape(size, size)
+            ax.imshow(V, cmap="Blues", interpolation="nearest")
+            if key == "true":
+                _draw_demo(ax, data["demos"][j], size)
+                ax.set_title(f"test task {j + 1}", fontsize=10)
+            else:
+                ax.set_title(f"deviation {data['deviation_' + key][j]:.2f}", fontsize=9)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(name, fontsize=10)
+    fig.suptitle(f"Figure 3: optimal value functions of 4 test tasks (blue is high; each map its own scale; "
+                 f"seed {data.get('seed', '?')})", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    written = []
+    for ext in ("png", "svg"):
+        fig.savefig(f"{path_base}.{ext}", dpi=110)
+        written.append(f"{path_base}.{ext}")
+    plt.close(fig)
+    return written
+
+
+def plot_all(out):
+    """Draw figures 1-3 from a reproduce directory into ``out/figures``; returns the files."""
+    out = os.fspath(out)
+    path = os.path.join(out, "results.csv")
+    if not os.path.exists(path):
+        raise ValidationError(f"{path} not found; run `factirl-opt reproduce --out {out}` first")
+    preset = load_preset_from_manifest(out)
+    rows = read_csv(path)
+    fig_dir = os.path.join(out, "figures")
+    os.makedirs(fig_dir, exist_ok=True)
+    written = plot_sweeps(rows, preset, "train", os.path.join(fig_dir, "figure1"))
+    written += plot_sweeps(rows, preset, "test", os.path.join(fig_dir, "figure2"))
+    f3 = os.path.join(out, "figure3.json")
+    if os.path.exists(f3):
+        with open(f3) as fh:
+            written += plot_value_functions(json.load(fh), os.path.join(fig_dir, "figure3"))
+    return written

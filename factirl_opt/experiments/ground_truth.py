@@ -1,0 +1,79 @@
+"""The ground truth of one run: a world, a true dictionary, train and test tasks, demonstrations.
+
+Randomness: the run's seed makes a ``numpy.random.SeedSequence`` whose spawned children feed
+independent streams, in this order: dictionary, training coefficients, test coefficients,
+training demonstrations, test demonstrations, learners (random initialisation, choice of the
+``features from ex.``). So, for one seed, every point of a sweep shares the same dictionary and
+the same test tasks (with the same demonstrations), and the training tasks of a smaller point
+are the first ones of a larger point (paired comparisons across the sweep); nothing depends on
+which process runs what.
+
+Distributions are those of :mod:`factirl_opt.ground_truth` (``D ~ N(0, 1)``; coefficients
+``N(0, 1)`` or ``|N(0, 1)|``).
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..demonstrations import sample_demonstrations
+from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..mdp import GridWorld
+
+__all__ = ["GroundTruth", "make_ground_truth", "N_STREAMS"]
+
+#: children spawned from a run's SeedSequence (see the module docstring for their order)
+N_STREAMS = 6
+
+
+@dataclasses.dataclass
+class GroundTruth:
+    """Everything a run's learners see or are scored against.
+
+    Attributes
+    ----------
+    mdp : GridWorld
+    dictionary : ndarray, shape (S*A, k)
+    train_rewards : ndarray, shape (n_tasks, S, A)
+    train_demos : list of n_tasks int arrays, each (demos_per_task, L, 2)
+    test_rewards : ndarray, shape (n_test_tasks, S, A)
+    test_demos : list of n_test_tasks int arrays, each (1, L, 2)
+    learner_rng : numpy.random.Generator
+    """
+
+    mdp: GridWorld
+    dictionary: np.ndarray
+    train_rewards: np.ndarray
+    train_demos: list
+    test_rewards: np.ndarray
+    test_demos: list
+    learner_rng: np.random.Generator
+
+
+def make_ground_truth(preset, n_tasks, demos_per_task, seed):
+    """Generate the ground truth of the run ``(preset, n_tasks, demos_per_task, seed)``.
+
+    Parameters
+    ----------
+    preset : Preset
+    n_tasks : int
+        Training tasks.
+    demos_per_task : int
+        Demonstrations of each training task (test tasks get one each).
+    seed : int
+        Entropy of the run's SeedSequence.
+
+    Returns
+    -------
+    GroundTruth
+    """
+    mdp = GridWorld(size=preset.grid_size, p_success=preset.p_success, gamma=preset.gamma)
+    S, A, k = mdp.n_states, mdp.n_actions, preset.n_primitives
+    s_dict, s_train, s_test, s_train_demo, s_test_demo, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
+    D = random_dictionary(S * A, k, rng=np.random.default_rng(s_dict))
+    H = random_coefficients(n_tasks, k, kind=preset.coefficient_kind, rng=np.random.default_rng(s_train))
+    Ht = random_coefficients(preset.n_test_tasks, k, kind=preset.coefficient_kind, rng=np.random.default_rng(s_test))
+    R, Rt = task_rewards(D, H, S, A), task_rewards(D, Ht, S, A)
+    demos = sample_demonstrations(mdp, R, demos_per_task, preset.demo_length, rng=np.random.default_rng(s_train_demo))
+    test_demos = sample_demonstrations(mdp, Rt, 1, preset.demo_length, rng=np.random.default_rng(s_test_demo))
+    return GroundTruth(mdp, D, R, demos, Rt, test_demos, np.random.default_rng(s_learn))

@@ -1,0 +1,196 @@
+"""Experiment presets: the paper's section 4 as data, run by :mod:`.runner`.
+
+A preset fixes the world (grid, dynamics, discount), the ground truth (number of primitives,
+coefficient distribution), the demonstrations, the learners' iteration budgets and the two
+sweeps of figures 1 and 2:
+
+- demos per task (``demos_sweep``) at ``default_tasks`` training tasks;
+- number of training tasks (``tasks_sweep``) at ``default_demos`` demos per task.
+
+The default point ``(default_tasks, default_demos)`` belongs to both sweeps and is run once.
+Every point is run for ``n_seeds`` seeds (``--seed BASE`` gives seeds BASE, BASE+1, ...).
+
+Presets
+-------
+``paper``
+    The paper's setting: 10x10 grid, k = 5 primitives, demonstrations of 10 steps, 100
+    training tasks with 10 demos each at the default point, sweeps (1, 2, 5, 10, 20) demos and
+    (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 5 seeds.
+``quick``
+    The same world and learners on a small sweep (2 and 10 demos at 50 tasks; 10 and 50 tasks
+    at 10 demos; 50 test tasks; 1 seed): a smoke run of every learner and figure in about a
+    minute on two cores.
+``test``
+    The default point of ``quick`` only (50 tasks, 10 demos, 50 test tasks, 1 seed): what the
+    regression tests run to check the paper's orderings.
+``tiny``
+    A 5x5 grid with a handful of tasks and few iterations: seconds, for tests of the machinery
+    (resume, ``--jobs`` invariance, command line); its scores mean nothing.
+"""
+
+import dataclasses
+import hashlib
+import json
+
+from ..exceptions import ValidationError
+
+__all__ = ["Preset", "PRESETS", "get_preset"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """One experiment configuration (see the module docstring for the presets).
+
+    Parameters
+    ----------
+    name : str
+    grid_size : int
+        Side of the grid world.
+    p_success : float
+        Probability that a feasible move succeeds.
+    gamma : float
+        Discount factor.
+    beta : float
+        Boltzmann inverse temperature of every learner.
+    n_primitives : int
+        k, the size of the true dictionary and of the learnt ones.
+    coefficient_kind : {"gaussian", "nonneg"}
+        Distribution of the true mixing coefficients (:func:`factirl_opt.random_coefficients`).
+    demo_length : int
+        Steps per demonstration (train and test).
+    demos_sweep : tuple of int
+        Demos per training task, swept at ``default_tasks`` tasks.
+    tasks_sweep : tuple of int
+        Numbers of training tasks, swept at ``default_demos`` demos per task.
+    default_tasks, default_demos : int
+        The paper's default point; figure 3 shows its first seed.
+    n_test_tasks : int
+        New tasks (one demonstration each) scored in the transfer experiment.
+    n_features_from_examples : int
+        Learnt training rewards used as features by ``flat, features from ex.`` (all of them
+        when there are fewer training tasks).
+    n_pca_components : int
+        Components of ``flat, PCA features``.
+    flat_max_iter : int
+        Iterations of every GradIRL fit (flat learner, with or without features).
+    fact_max_iter : int
+        Outer iterations of FactIRL.
+    inner_steps : int
+        Solver steps per FactIRL sub-problem.
+    transfer_max_iter : int
+        H-step solver steps of ``FactIRL.transfer``.
+    n_seeds : int
+        Default number of seeds.
+    """
+
+    name: str
+    grid_size: int = 10
+    p_success: float = 0.7
+    gamma: float = 0.9
+    beta: float = 5.0
+    n_primitives: int = 5
+    coefficient_kind: str = "gaussian"
+    demo_length: int = 10
+    demos_sweep: tuple = (1, 2, 5, 10, 20)
+    tasks_sweep: tuple = (5, 10, 20, 50, 100)
+    default_tasks: int = 100
+    default_demos: int = 10
+    n_test_tasks: int = 100
+    n_features_from_examples: int = 15
+    n_pca_components: int = 5
+    flat_max_iter: int = 100
+    fact_max_iter: int = 100
+    inner_steps: int = 5
+    transfer_max_iter: int = 100
+    n_seeds: int = 5
+
+    def __post_init__(self):
+        for f in ("grid_size", "n_primitives", "demo_length", "default_tasks", "default_demos", "n_test_tasks",
+                  "n_features_from_examples", "n_pca_components", "flat_max_iter", "fact_max_iter",
+                  "inner_steps", "transfer_max_iter", "n_seeds"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValidationError(f"preset {self.name!r}: {f} must be an integer >= 1; got {v!r}")
+        for f in ("demos_sweep", "tasks_sweep"):
+            v = getattr(self, f)
+            if not isinstance(v, tuple) or not v or any(isinstance(x, bool) or not isinstance(x, int) or x < 1 for x in v):
+                raise ValidationError(f"preset {self.name!r}: {f} must be a non-empty tuple of integers >= 1; got {v!r}")
+        if self.coefficient_kind not in ("gaussian", "nonneg"):
+            raise ValidationError(f"preset {self.name!r}: coefficient_kind must be 'gaussian' or 'nonneg'; got {self.coefficient_kind!r}")
+
+    def points(self):
+        """Sorted unique ``(n_tasks, demos_per_task)`` points of both sweeps."""
+        pts = {(self.default_tasks, m) for m in self.demos_sweep}
+        pts |= {(n, self.default_demos) for n in self.tasks_sweep}
+        return sorted(pts)
+
+    def to_dict(self):
+        """Plain JSON-able dict of every field."""
+        d = dataclasses.asdict(self)
+        d["demos_sweep"], d["tasks_sweep"] = list(self.demos_sweep), list(self.tasks_sweep)
+        return d
+
+    def fingerprint(self):
+        """Short hash of every field that changes a run's result (all but name and n_seeds)."""
+        d = self.to_dict()
+        del d["name"], d["n_seeds"]
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:10]
+
+    @classmethod
+    def from_dict(cls, d):
+        """Inverse of :meth:`to_dict`."""
+        d = dict(d)
+        for f in ("demos_sweep", "tasks_sweep"):
+            if f in d:
+                d[f] = tuple(d[f])
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ValidationError(f"not a preset: {exc}") from None
+
+
+PRESETS = {
+    "paper": Preset(name="paper"),
+    "quick": Preset(
+        name="quick",
+        demos_sweep=(2, 10),
+        tasks_sweep=(10, 50),
+        default_tasks=50,
+        default_demos=10,
+        n_test_tasks=50,
+        n_seeds=1,
+    ),
+    "test": Preset(
+        name="test",
+        demos_sweep=(10,),
+        tasks_sweep=(50,),
+        default_tasks=50,
+        default_demos=10,
+        n_test_tasks=50,
+        n_seeds=1,
+    ),
+    "tiny": Preset(
+        name="tiny",
+        grid_size=5,
+        demos_sweep=(2, 5),
+        tasks_sweep=(4, 8),
+        default_tasks=8,
+        default_demos=5,
+        n_test_tasks=6,
+        n_features_from_examples=4,
+        flat_max_iter=10,
+        fact_max_iter=5,
+        inner_steps=2,
+        transfer_max_iter=10,
+        n_seeds=2,
+    ),
+}
+
+
+def get_preset(preset):
+    """A :class:`Preset` from its name (or a Preset, returned as is)."""
+    if isinstance(preset, Preset):
+        return preset
+    if isinstance(preset, str) and preset in PRESETS:
+        return PRESETS[preset]
+    raise ValidationError(f"unknown preset {preset!r}; available: {', '.join(PRESETS)}")

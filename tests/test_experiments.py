@@ -1,0 +1,271 @@
+"""The experiment runner's machinery: presets, ground truth, resume, --jobs invariance, dask."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from factirl_opt.exceptions import UnknownSolverError, ValidationError
+from factirl_opt.experiments import (
+    PRESETS,
+    TEST_LEARNERS,
+    TRAIN_LEARNERS,
+    Preset,
+    get_preset,
+    make_ground_truth,
+    plan_runs,
+    read_csv,
+    run_one,
+    run_sweep,
+)
+from factirl_opt.experiments import runner as runner_mod
+from factirl_opt.experiments.figures import plot_all
+
+TABLES = ("results.csv", "summary.csv")
+
+
+def _read(path):
+    with open(path) as fh:
+        return fh.read()
+
+
+@pytest.fixture(scope="module")
+def tiny_sweep(tmp_path_factory):
+    """The tiny preset, run sequentially once for the module (about a second)."""
+    out = tmp_path_factory.mktemp("tiny") / "seq"
+    res = run_sweep("tiny", out, jobs=1, progress=False)
+    return out, res
+
+
+# --- presets -----------------------------------------------------------------------------
+
+
+def test_paper_preset_is_the_papers_setting():
+    p = PRESETS["paper"]
+    assert (p.grid_size, p.n_primitives, p.demo_length) == (10, 5, 10)
+    assert (p.default_tasks, p.default_demos, p.n_test_tasks) == (100, 10, 100)
+    assert p.demos_sweep == (1, 2, 5, 10, 20) and p.tasks_sweep == (5, 10, 20, 50, 100)
+    assert p.n_seeds >= 3 and p.n_features_from_examples == 15 and p.n_pca_components == 5
+    # the default point is shared by both sweeps and planned once
+    assert len(p.points()) == 9 and p.points().count((100, 10)) == 1
+
+
+def test_plan_runs_sorted_and_complete():
+    specs = plan_runs("tiny", [3, 4])
+    assert specs == sorted(specs)
+    assert len(specs) == len(PRESETS["tiny"].points()) * 2
+    assert len({s.key(PRESETS["tiny"]) for s in specs}) == len(specs)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(grid_size=0), "grid_size"),
+    (dict(demos_sweep=()), "demos_sweep"),
+    (dict(tasks_sweep=(5, -1)), "tasks_sweep"),
+    (dict(coefficient_kind="uniform"), "coefficient_kind"),
+    (dict(n_seeds=1.5), "n_seeds"),
+])
+def test_preset_validation_names_the_field(bad, match):
+    with pytest.raises(ValidationError, match=match):
+        Preset(name="bad", **bad)
+
+
+def test_preset_roundtrip_and_unknown_name():
+    p = PRESETS["quick"]
+    assert Preset.from_dict(json.loads(json.dumps(p.to_dict()))) == p
+    with pytest.raises(ValidationError, match="unknown preset 'nope'"):
+        get_preset("nope")
+
+
+def test_plan_rejects_bad_seeds():
+    with pytest.raises(ValidationError, match="seed"):
+        plan_runs("tiny", [-1])
+    with pytest.raises(ValidationError, match="distinct"):
+        plan_runs("tiny", [1, 1])
+
+
+# --- ground truth ------------------------------------------------------------------------
+
+
+def test_ground_truth_streams_are_shared_across_points():
+    p = PRESETS["tiny"]
+    a = make_ground_truth(p, 4, 2, seed=7)
+    b = make_ground_truth(p, 8, 5, seed=7)
+    c = make_ground_truth(p, 4, 2, seed=8)
+    np.testing.assert_array_equal(a.dictionary, b.dictionary)  # same dictionary for one seed
+    np.testing.assert_array_equal(a.train_rewards, b.train_rewards[:4])  # nested training tasks
+    np.testing.assert_array_equal(a.test_rewards, b.test_rewards)  # same test tasks and demos
+    np.testing.assert_array_equal(np.stack(a.test_demos), np.stack(b.test_demos))
+    assert a.train_demos[0].shape == (2, p.demo_length, 2) and b.train_demos[0].shape == (5, p.demo_length, 2)
+    assert a.test_demos[0].shape == (1, p.demo_length, 2) and len(a.test_demos) == p.n_test_tasks
+    assert not np.allclose(a.dictionary, c.dictionary)
+    again = make_ground_truth(p, 4, 2, seed=7)
+    np.testing.assert_array_equal(np.stack(a.train_demos), np.stack(again.train_demos))
+
+
+def test_nonneg_ground_truth():
+    p = Preset(name="nn", grid_size=3, coefficient_kind="nonneg", n_test_tasks=3)
+    gt = make_ground_truth(p, 5, 1, seed=0)
+    H = np.linalg.lstsq(gt.dictionary, gt.train_rewards.reshape(5, -1).T, rcond=None)[0]
+    assert np.all(H >= -1e-9)
+
+
+# --- one run -----------------------------------------------------------------------------
+
+
+def test_run_one_scores_every_learner(tiny_sweep):
+    p = PRESETS["tiny"]
+    spec = plan_runs(p, [0])[-1]  # the default point: records figure 3
+    assert (spec.n_tasks, spec.demos_per_task) == (p.default_tasks, p.default_demos)
+    labels = []
+    rec = run_one(p, spec, progress=labels.append)
+    assert labels == [f"train: {x}" for x in TRAIN_LEARNERS] + [f"test: {x}" for x in TEST_LEARNERS]
+    assert [(r["split"], r["learner"]) for r in rec["rows"]] == (
+        [("train", x) for x in TRAIN_LEARNERS] + [("test", x) for x in TEST_LEARNERS])
+    for r in rec["rows"]:
+        assert r["deviation"] >= 0 and np.isfinite(r["deviation"]) and r["n_evaluations"] > 0
+        assert r["n_scored_tasks"] == (spec.n_tasks if r["split"] == "train" else p.n_test_tasks)
+    f3 = rec["figure3"]
+    assert np.shape(f3["true"]) == (4, p.grid_size ** 2) == np.shape(f3["flat"]) == np.shape(f3["factorial"])
+    # same run, same record, also when computed by the sweep
+    out, _ = tiny_sweep
+    with open(out / "runs" / f"{spec.key(p)}.json") as fh:
+        assert json.load(fh)["rows"] == rec["rows"]
+
+
+def test_unknown_h_solver_is_rejected_before_running(tmp_path):
+    with pytest.raises(UnknownSolverError, match="armijo"):
+        run_sweep("tiny", tmp_path, h_solver="no-such-solver", progress=False)
+    assert not (tmp_path / "runs").exists() or not os.listdir(tmp_path / "runs")
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(jobs=0), "jobs"), (dict(seeds=0), "seeds"), (dict(base_seed=-2), "base seed"),
+    (dict(backend="threads"), "backend"), (dict(scheduler="tcp://x:1"), "scheduler"),
+])
+def test_run_sweep_validation(tmp_path, kw, match):
+    with pytest.raises(ValidationError, match=match):
+        run_sweep("tiny", tmp_path, progress=False, **kw)
+
+
+def test_out_must_be_a_directory(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(ValidationError, match="not a directory"):
+        run_sweep("tiny", f, progress=False)
+
+
+# --- tables, resume, --jobs invariance --------------------------------------------------
+
+
+def test_tables_are_tidy(tiny_sweep):
+    out, res = tiny_sweep
+    p = PRESETS["tiny"]
+    rows = read_csv(out / "results.csv")
+    assert res["n_runs"] == res["n_computed"] == len(p.points()) * p.n_seeds
+    assert len(rows) == res["n_runs"] * (len(TRAIN_LEARNERS) + len(TEST_LEARNERS))
+    for col in ("split", "learner", "n_tasks", "demos_per_task", "seed", "deviation", "h_solver"):
+        assert col in rows[0]
+    summary = read_csv(out / "summary.csv")
+    assert all(r["n_seeds"] == p.n_seeds for r in summary)
+    r0 = next(r for r in summary if r["split"] == "train" and r["learner"] == "flat" and r["n_tasks"] == 8 and r["demos_per_task"] == 5)
+    devs = [r["deviation"] for r in rows if r["split"] == "train" and r["learner"] == "flat" and r["n_tasks"] == 8 and r["demos_per_task"] == 5]
+    assert r0["deviation_mean"] == pytest.approx(np.mean(devs))
+    manifest = json.loads(_read(out / "manifest.json"))
+    assert manifest["seeds"] == [0, 1] and manifest["versions"]["numpy"] == np.__version__
+
+
+def test_resume_computes_only_missing_runs(tiny_sweep, tmp_path):
+    import shutil
+
+    ref, _ = tiny_sweep
+    out = tmp_path / "resumed"
+    shutil.copytree(ref / "runs", out / "runs")
+    files = sorted(os.listdir(out / "runs"))
+    os.remove(out / "runs" / files[0])
+    os.remove(out / "runs" / files[3])
+    (out / "runs" / files[1]).write_text('{"key": "truncated')  # a run killed mid-write elsewhere
+    computed = []
+    original = runner_mod.run_one
+
+    def spy(preset, spec, progress=None):
+        computed.append(spec.key(preset))
+        return original(preset, spec, progress)
+
+    runner_mod.run_one = spy
+    try:
+        res = run_sweep("tiny", out, jobs=1, progress=False)
+    finally:
+        runner_mod.run_one = original
+    assert sorted(computed) == sorted(f[:-5] for f in (files[0], files[1], files[3]))
+    assert res["n_computed"] == 3
+    for t in TABLES:
+        assert _read(out / t) == _read(ref / t)
+    res = run_sweep("tiny", out, jobs=1, progress=False)  # nothing left to do
+    assert res["n_computed"] == 0
+
+
+def test_interrupted_sweep_resumes_with_identical_tables(tiny_sweep, tmp_path, monkeypatch):
+    ref, _ = tiny_sweep
+    out = tmp_path / "interrupted"
+    original = runner_mod.run_one
+    calls = []
+
+    def dies_on_third(preset, spec, progress=None):
+        calls.append(spec)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return original(preset, spec, progress)
+
+    monkeypatch.setattr(runner_mod, "run_one", dies_on_third)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep("tiny", out, jobs=1, progress=False)
+    assert len(os.listdir(out / "runs")) == 2 and not (out / "results.csv").exists()
+    monkeypatch.setattr(runner_mod, "run_one", original)
+    res = run_sweep("tiny", out, jobs=1, progress=False)
+    assert res["n_computed"] == res["n_runs"] - 2
+    for t in TABLES:
+        assert _read(out / t) == _read(ref / t)
+
+
+def test_results_do_not_depend_on_jobs(tiny_sweep, tmp_path):
+    ref, _ = tiny_sweep
+    out = tmp_path / "jobs2"
+    res = run_sweep("tiny", out, jobs=2, progress=False)
+    assert res["n_computed"] == res["n_runs"]
+    for t in TABLES:
+        assert _read(out / t) == _read(ref / t)
+    assert _read(out / "figure3.json") == _read(ref / "figure3.json")
+
+
+def test_dask_backend_on_a_local_cluster(tiny_sweep, tmp_path):
+    pytest.importorskip("dask")
+    distributed = pytest.importorskip("distributed")
+    ref, _ = tiny_sweep
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        res = run_sweep("tiny", out, jobs=2, backend="dask", scheduler=cluster.scheduler_address, progress=False)
+    assert res["n_computed"] == res["n_runs"]
+    for t in TABLES:
+        assert _read(out / t) == _read(ref / t)
+
+
+# --- figures -----------------------------------------------------------------------------
+
+
+def test_plot_all_writes_png_and_svg(tiny_sweep):
+    out, _ = tiny_sweep
+    written = plot_all(out)
+    names = sorted(os.path.basename(w) for w in written)
+    assert names == sorted(f"figure{i}.{e}" for i in (1, 2, 3) for e in ("png", "svg"))
+    for w in written:
+        assert os.path.getsize(w) > 5000
+    with open(os.path.join(out, "figures", "figure1.svg")) as fh:
+        svg = fh.read()
+    for learner in TRAIN_LEARNERS:  # the legend uses the paper's names
+        assert learner in svg
+
+
+def test_plot_all_without_results(tmp_path):
+    with pytest.raises(ValidationError, match="results.csv"):
+        plot_all(tmp_path)
