@@ -128,7 +128,7 @@ def _reproduce(args, argv):
         from .experiments.figures import plot_all
 
         for path in plot_all(out):
-            print(f"figure: {path}")
+            print(f"wrote: {path}")
     return 0
 
 
@@ -138,7 +138,7 @@ def _plot(args, argv):
     if not os.path.isdir(args.dir):
         raise FactIRLError(f"{args.dir!r} is not a directory; give the --out directory of `factirl-opt reproduce`")
     for path in plot_all(args.dir):
-        print(f"figure: {path}")
+        print(f"wrote: {path}")
     return 0
 
 

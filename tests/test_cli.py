@@ -33,7 +33,7 @@ def test_reproduce_then_plot(tmp_path, capsys):
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "3 runs (3 computed, 0 reused)" in printed
-    for name in ("results.csv", "summary.csv", "timings.csv", "manifest.json", "figure3.json"):
+    for name in ("results.csv", "summary.csv", "timings.csv", "manifest.json", "figure3.json", "claims.md"):
         assert (out / name).exists()
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["command"] == f"factirl-opt reproduce --preset tiny --seeds 1 --out {out} --quiet"

@@ -257,9 +257,10 @@ def test_plot_all_writes_png_and_svg(tiny_sweep):
     out, _ = tiny_sweep
     written = plot_all(out)
     names = sorted(os.path.basename(w) for w in written)
-    assert names == sorted(f"figure{i}.{e}" for i in (1, 2, 3) for e in ("png", "svg"))
+    assert names == sorted(["claims.md"] + [f"figure{i}.{e}" for i in (1, 2, 3) for e in ("png", "svg")])
     for w in written:
-        assert os.path.getsize(w) > 5000
+        if not w.endswith(".md"):
+            assert os.path.getsize(w) > 5000
     with open(os.path.join(out, "figures", "figure1.svg")) as fh:
         svg = fh.read()
     for learner in TRAIN_LEARNERS:  # the legend uses the paper's names
@@ -269,3 +270,23 @@ def test_plot_all_writes_png_and_svg(tiny_sweep):
 def test_plot_all_without_results(tmp_path):
     with pytest.raises(ValidationError, match="results.csv"):
         plot_all(tmp_path)
+
+
+def test_claims_are_computed_from_the_rows(tiny_sweep):
+    from factirl_opt.experiments.claims import claims_markdown, evaluate_claims
+
+    out, _ = tiny_sweep
+    p = PRESETS["tiny"]
+    rows = read_csv(out / "results.csv")
+    claims = evaluate_claims(rows, p)
+    first = claims[0]
+    assert first["claim"] == "train: factorial beats flat" and first["point"] == "8 tasks, 5 demos"
+    fact = [r["deviation"] for r in rows if r["split"] == "train" and r["learner"] == "factorial" and (r["n_tasks"], r["demos_per_task"]) == (8, 5)]
+    flat = [r["deviation"] for r in rows if r["split"] == "train" and r["learner"] == "flat" and (r["n_tasks"], r["demos_per_task"]) == (8, 5)]
+    assert first["holds"] == (np.mean(fact) < np.mean(flat))
+    assert first["seeds"] == f"{sum(a < b for a, b in zip(fact, flat))}/2"
+    # flip the data: the claim must flip too
+    swapped = [dict(r, learner={"flat": "factorial", "factorial": "flat"}.get(r["learner"], r["learner"])) for r in rows]
+    assert evaluate_claims(swapped, p)[0]["holds"] != first["holds"]
+    table = claims_markdown(claims)
+    assert table.count("\n") == len(claims) + 2 and "| train: factorial beats flat |" in table

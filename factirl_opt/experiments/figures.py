@@ -179,7 +179,7 @@ def plot_value_functions(data, path_base):
 
 
 def plot_all(out):
-    """Draw figures 1-3 from a reproduce directory into ``out/figures``; returns the files."""
+    """Draw figures 1-3 into ``out/figures`` and the claims table ``out/claims.md``; returns the files."""
     out = os.fspath(out)
     path = os.path.join(out, "results.csv")
     if not os.path.exists(path):
@@ -190,6 +190,9 @@ def plot_all(out):
     os.makedirs(fig_dir, exist_ok=True)
     written = plot_sweeps(rows, preset, "train", os.path.join(fig_dir, "figure1"))
     written += plot_sweeps(rows, preset, "test", os.path.join(fig_dir, "figure2"))
+    from .claims import write_claims
+
+    written.append(write_claims(out, preset))
     f3 = os.path.join(out, "figure3.json")
     if os.path.exists(f3):
         with open(f3) as fh:

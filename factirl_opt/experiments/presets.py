@@ -15,7 +15,7 @@ Presets
 ``paper``
     The paper's setting: 10x10 grid, k = 5 primitives, demonstrations of 10 steps, 100
     training tasks with 10 demos each at the default point, sweeps (1, 2, 5, 10, 20) demos and
-    (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 5 seeds.
+    (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 3 seeds.
 ``quick``
     The same world and learners on a small sweep (2 and 10 demos at 50 tasks; 10 and 50 tasks
     at 10 demos; 50 test tasks; 1 seed): a smoke run of every learner and figure in about a
@@ -102,7 +102,7 @@ class Preset:
     fact_max_iter: int = 100
     inner_steps: int = 5
     transfer_max_iter: int = 100
-    n_seeds: int = 5
+    n_seeds: int = 3
 
     def __post_init__(self):
         for f in ("grid_size", "n_primitives", "demo_length", "default_tasks", "default_demos", "n_test_tasks",
