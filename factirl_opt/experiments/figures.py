@@ -89,12 +89,15 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
          f"{preset.default_demos} demonstrations per training task"),
     )
     learners = TRAIN_LEARNERS if split == "train" else TEST_LEARNERS
+    lows, highs = [], []
     for ax, (x_name, fixed_name, fixed_value, xlabel, title) in zip(axes, panels):
         for learner in learners:
             xs, mean, std, _ = _series(rows, learner, x_name, fixed_name, fixed_value)
             if xs.size == 0:
                 continue
             style = STYLES.get(learner, {})
+            lows.extend(mean[mean > 0])
+            highs.extend(mean + std)
             ax.errorbar(xs, mean, yerr=std if n_seeds > 1 else None, label=learner, capsize=3, markersize=6, **style)
         ax.set_xscale("log")
         xticks = sorted({r[x_name] for r in rows if r[fixed_name] == fixed_value})
@@ -104,13 +107,15 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
         ax.set_xlabel(xlabel)
         ax.set_title(title, fontsize=10)
         ax.grid(True, alpha=0.3)
-        # deviations span two decades (ground truth ~0.1, a failed fit ~20): log above 0.1, linear below
-        ax.set_yscale("symlog", linthresh=0.1, linscale=0.3)
-        ax.set_ylim(bottom=0)
+        # deviations span two decades (ground truth ~0.1, a failed fit ~20): log scale
+        ax.set_yscale("log", nonpositive="clip")
+    if lows:
+        axes[0].set_ylim(min(lows) / 1.6, max(highs) * 1.4)
     axes[0].set_ylabel("deviation from optimal score\n(mean over tasks; lower is better; log scale)")
-    what = "training tasks" if split == "train" else "test tasks (one demonstration each)"
+    what = "training tasks" if split == "train" else "test tasks, one demonstration each"
     spread = f"mean ± std over {n_seeds} seeds" if n_seeds > 1 else "1 seed"
-    fig.suptitle(f"Figure {1 if split == 'train' else 2}: performance on {what} ({spread}; H-step: {h_solver})", fontsize=11)
+    fig.suptitle(f"Figure {1 if split == 'train' else 2}: performance on {what}  [{spread}; H-step solver: {h_solver}]",
+                 fontsize=11)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.08, 1, 0.95))
@@ -134,7 +139,7 @@ def _draw_demo(ax, demo, size):
     ax.plot(cols[0], rows[0], "o", color="#d62728", markersize=7, markeredgecolor="white")
 
 
-def plot_value_functions(data, path_base):
+def plot_value_functions(data, path_base, point=None):
     """Figure 3: value-function heat maps of 4 test tasks (rows: true, flat, factorial).
 
     Parameters
@@ -143,6 +148,8 @@ def plot_value_functions(data, path_base):
         Contents of figure3.json (``grid_size``, ``true``, ``flat``, ``factorial``, ``demos``,
         ``deviation_flat``, ``deviation_factorial``).
     path_base : str
+    point : tuple (n_tasks, demos_per_task), optional
+        The training point the learners come from (shown in the title).
 
     Returns
     -------
@@ -167,9 +174,10 @@ def plot_value_functions(data, path_base):
             ax.set_yticks([])
             if j == 0:
                 ax.set_ylabel(name, fontsize=10)
-    fig.suptitle(f"Figure 3: optimal value functions of 4 test tasks (blue is high; each map its own scale; "
-                 f"seed {data.get('seed', '?')})", fontsize=10)
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    trained = f"learners trained on {point[0]} tasks x {point[1]} demos, " if point else ""
+    fig.suptitle(f"Figure 3: optimal value functions of 4 test tasks, one demonstration each\n"
+                 f"({trained}seed {data.get('seed', '?')}; blue is high; each map has its own colour scale)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     written = []
     for ext in ("png", "svg"):
         fig.savefig(f"{path_base}.{ext}", dpi=110)
@@ -196,5 +204,6 @@ def plot_all(out):
     f3 = os.path.join(out, "figure3.json")
     if os.path.exists(f3):
         with open(f3) as fh:
-            written += plot_value_functions(json.load(fh), os.path.join(fig_dir, "figure3"))
+            written += plot_value_functions(json.load(fh), os.path.join(fig_dir, "figure3"),
+                                            point=(preset.default_tasks, preset.default_demos))
     return written
