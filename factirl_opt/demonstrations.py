@@ -8,6 +8,7 @@ one such entry per task (one task is a list of one).
 
 import numpy as np
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_positive, check_rewards
 from .exceptions import ValidationError
 from .planning import _optimal_q
@@ -24,6 +25,7 @@ def as_rng(rng):
     raise ValidationError(f"rng must be a numpy Generator, a SeedSequence, an int seed or None; got {type(rng).__name__}")
 
 
+@blas_limited
 def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
     """Sample demonstrations of a greedy expert (DESIGN section 2).
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_rewards
 from .exceptions import ValidationError
 from .planning import _optimal_q, _solve_policy_values
@@ -18,6 +19,7 @@ def _pair(mdp, true_rewards, learnt_rewards):
     return Rt, Rl, single_t and single_l
 
 
+@blas_limited
 def score(mdp, true_rewards, learnt_rewards):
     """Score of learnt rewards on the true tasks (eq. 13).
 
@@ -39,6 +41,7 @@ def score(mdp, true_rewards, learnt_rewards):
     return float(s[0]) if single else s
 
 
+@blas_limited
 def optimal_score(mdp, true_rewards):
     """The best possible score, ``mean_s V*_{R_true}(s)``; float or (n,)."""
     check_mdp(mdp)
@@ -48,6 +51,7 @@ def optimal_score(mdp, true_rewards):
     return float(s[0]) if single else s
 
 
+@blas_limited
 def deviation(mdp, true_rewards, learnt_rewards):
     """Deviation from the optimal score: ``optimal_score - score`` (>= 0; lower is better).
 

@@ -11,6 +11,7 @@ import numpy as np
 
 import solvers
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_positive
 from .demonstrations import as_rng, empirical_statistics
 from .exceptions import NotFittedError, ValidationError
@@ -185,6 +186,7 @@ class FactIRL:
             return D, H, evals
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
+    @blas_limited
     def fit(self, mdp, demos_per_task, flat_rewards=None):
         """Learn the dictionary and the coefficients of every task.
 
@@ -259,6 +261,7 @@ class FactIRL:
         norms[norms == 0] = 1.0
         return D / norms, H * norms
 
+    @blas_limited
     def transfer(self, mdp, demos_per_task, max_iter=None):
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 

@@ -4,6 +4,7 @@ import numpy as np
 
 import solvers
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_positive
 from .demonstrations import empirical_statistics
 from .exceptions import NotFittedError, ValidationError
@@ -68,6 +69,7 @@ class GradIRL:
         self.solver = solver
         self.solver_options = solver_options
 
+    @blas_limited
     def fit(self, mdp, demos_per_task):
         """Learn one reward per task.
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_policy, check_rewards, check_statistics
 from .exceptions import FactIRLError, ValidationError
 from .planning import _optimal_q, boltzmann_policy
@@ -72,6 +73,7 @@ def _adjoint(mdp, policy, g):
     return y
 
 
+@blas_limited
 def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None):
     """Policy-matching loss (eq. 5) per task and its gradient dJ/dR by the adjoint method.
 
@@ -152,6 +154,7 @@ def dq_dtheta(mdp, policy, features=None, route="direct", tol=1e-13, max_iter=10
     raise ValidationError(f"route must be 'direct' or 'fixed_point'; got {route!r}")
 
 
+@blas_limited
 def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, features=None, route="fixed_point"):
     """Gradient of eq. (5) through the explicit ``dQ*/dtheta`` of eq. (9) (reference route).
 
@@ -196,6 +199,7 @@ def _jacobian(mdp, policy, pi, mu, beta, features):
     return (np.sqrt(mu)[:, :, None, None] * dpi).reshape(n, S * A, k)
 
 
+@blas_limited
 def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None):
     """Residuals of eq. (5) and their Jacobian for rewards linear in parameters.
 

@@ -7,6 +7,7 @@ documented and gives unbatched outputs.
 
 import numpy as np
 
+from ._threads import blas_limited
 from ._validation import check_mdp, check_policy, check_rewards
 from .exceptions import FactIRLError, ValidationError
 
@@ -32,6 +33,7 @@ def q_from_values(mdp, R, V):
     return R + mdp.gamma * (V @ mdp.transitions_flat.T).reshape(n, S, A)
 
 
+@blas_limited
 def policy_evaluation(mdp, rewards, policy):
     """Exact value of deterministic policies (Bellman equation, paper eq. 1).
 
@@ -56,6 +58,7 @@ def policy_evaluation(mdp, rewards, policy):
     return V[0] if single else V
 
 
+@blas_limited
 def optimal_q(mdp, rewards, policy=None, max_iter=1000):
     """Exact optimal action values Q* and a greedy policy, by policy iteration.
 
@@ -147,6 +150,7 @@ def boltzmann_policy(Q, beta):
     return z
 
 
+@blas_limited
 def value_iteration(mdp, rewards, tol=1e-12, max_iter=100000):
     """Q* by value iteration (paper eq. 3): a slow, simple reference for tests.
 
