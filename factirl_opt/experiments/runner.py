@@ -313,10 +313,26 @@ def write_tables(out, records):
     return rows
 
 
+def _git_commit():
+    """The source tree's git commit (``+dirty`` if modified), or None outside a git checkout."""
+    import subprocess
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "../.."], cwd=here, capture_output=True,
+                               text=True, timeout=10).stdout.strip()
+        return head.stdout.strip() + ("+dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def _versions():
     import importlib.metadata as md
 
-    v = {"python": platform.python_version()}
+    v = {"python": platform.python_version(), "git_commit": _git_commit()}
     for dist in ("numpy", "scipy", "cvxpy", "joblib", "matplotlib", "factirl-opt"):
         try:
             v[dist] = md.version(dist)
