@@ -139,6 +139,8 @@ def _ground_truth(mdp, s, rng, n_tasks, n_demos, kind="gaussian", sparsity=0.0, 
 
 def _part_transfer(mdp, s, rng, D):
     _, _, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], D=D)
+    for name in _gn_names():  # warm-up, untimed: cvxpy's and the backends' one-off import costs
+        _transfer(mdp, D, demos[:2], R[:2], name, 1, s["beta"])
     rows = {"armijo": _transfer(mdp, D, demos, R, "armijo", s["armijo_iter"], s["beta"])[0]}
     for name in _gn_names():
         rows[name] = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"])[0]
