@@ -9,12 +9,13 @@ vs 0.20 s with 1). The public entry points therefore run with BLAS limited to
 positive integer, or to ``0`` to leave the BLAS configuration untouched.
 """
 
+import contextlib
 import functools
 import os
 
 from .exceptions import ValidationError
 
-__all__ = ["blas_limited", "blas_thread_limit"]
+__all__ = ["blas_limited", "blas_thread_limit", "limit_blas_threads"]
 
 _controller = None
 
@@ -31,16 +32,35 @@ def blas_thread_limit():
     return value or None
 
 
-def _limit():
+def _get_controller():
     global _controller
-    limit = blas_thread_limit()
-    if limit is None:
-        return None
     if _controller is None:
         from threadpoolctl import ThreadpoolController
 
         _controller = ThreadpoolController()  # built once: inspecting the loaded libraries is slow
-    return _controller.limit(limits=limit, user_api="blas")
+    return _controller
+
+
+def _limit():
+    limit = blas_thread_limit()
+    return None if limit is None else _get_controller().limit(limits=limit, user_api="blas")
+
+
+@contextlib.contextmanager
+def limit_blas_threads(n_threads=1):
+    """Context manager: BLAS limited to ``n_threads`` threads, restored on exit.
+
+    Used by the experiment runner and the benchmarks around whole runs. ``n_threads`` None or
+    0 leaves BLAS as it is. Yields the thread counts now in effect, one per BLAS library
+    loaded (empty when none is found).
+    """
+    controller = _get_controller()
+    libs = controller.select(user_api="blas").lib_controllers
+    if not n_threads:
+        yield [lib.num_threads for lib in libs]
+        return
+    with controller.limit(limits=int(n_threads), user_api="blas"):
+        yield [lib.num_threads for lib in libs]
 
 
 def blas_limited(func):

@@ -31,7 +31,7 @@ def _single_threaded_blas():
     multi-threaded OpenBLAS makes them 10-200x slower (spin-wait contention), which only
     adds noise to the test runtime. Restored at the end of the session.
     """
-    from factirl_opt.benchmarks.gradient import limit_blas_threads
+    from factirl_opt._threads import limit_blas_threads
 
     with limit_blas_threads(1):
         yield

@@ -66,9 +66,14 @@ def test_fit_benchmark_options(capsys):
 
 
 def test_blas_thread_limit_is_restored():
-    from factirl_opt.benchmarks.gradient import _blas_functions, limit_blas_threads
+    from threadpoolctl import threadpool_info
 
-    before = [get() for _, get in _blas_functions()]
+    from factirl_opt._threads import limit_blas_threads
+
+    def counts():
+        return [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+
+    before = counts()
     with limit_blas_threads(1) as inside:
-        assert all(n == 1 for n in inside)
-    assert [get() for _, get in _blas_functions()] == before
+        assert all(n == 1 for n in inside) and counts() == inside
+    assert counts() == before

@@ -21,7 +21,7 @@ from ..factirl import FactIRL
 from ..ground_truth import random_coefficients, random_dictionary, task_rewards
 from ..gradirl import GradIRL
 from ..mdp import GridWorld
-from .gradient import limit_blas_threads
+from .._threads import limit_blas_threads
 
 __all__ = ["add_arguments", "run"]
 

@@ -22,82 +22,18 @@ batches of small matrices, for which multi-threaded OpenBLAS only adds overhead 
 shared machine, spin-wait contention that can slow it down by an order of magnitude).
 """
 
-import ctypes
 import time
 
 import numpy as np
 
+from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
 from ..ground_truth import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
 from ..objective import _adjoint, _dj_dq, _forward, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
 from ..planning import optimal_q
 
-__all__ = ["add_arguments", "run", "limit_blas_threads"]
-
-_SET_NAMES = (
-    "scipy_openblas_set_num_threads64_",
-    "scipy_openblas_set_num_threads",
-    "openblas_set_num_threads64_",
-    "openblas_set_num_threads",
-)
-_GET_NAMES = tuple(n.replace("set_", "get_") for n in _SET_NAMES)
-
-
-def _loaded_blas_libraries():
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and line.split()[-1].startswith("/")}
-    except OSError:  # not Linux: leave the BLAS alone
-        return []
-    libs = []
-    for path in sorted(paths):
-        try:
-            libs.append(ctypes.CDLL(path))
-        except OSError:
-            pass
-    return libs
-
-
-def _blas_functions():
-    """(setter, getter) pairs of every loaded OpenBLAS (numpy's, scipy's)."""
-    pairs = []
-    for lib in _loaded_blas_libraries():
-        setter = next((getattr(lib, n) for n in _SET_NAMES if hasattr(lib, n)), None)
-        getter = next((getattr(lib, n) for n in _GET_NAMES if hasattr(lib, n)), None)
-        if setter is not None and getter is not None:
-            setter.argtypes, setter.restype = [ctypes.c_int], None
-            getter.argtypes, getter.restype = [], ctypes.c_int
-            pairs.append((setter, getter))
-    return pairs
-
-
-class limit_blas_threads(list):
-    """Limit every loaded OpenBLAS (numpy's, scipy's) to ``n_threads`` threads.
-
-    Called as a function it sets the limit for the rest of the process; used as a context
-    manager (``with limit_blas_threads(1) as counts:``) it restores the previous counts on
-    exit. Either way the object is the list of thread counts now in effect, one per library
-    found (empty when no OpenBLAS is loaded, e.g. another BLAS). ``n_threads`` None or 0
-    leaves the libraries as they are.
-    """
-
-    def __init__(self, n_threads):
-        self._pairs = _blas_functions()
-        self._previous = [get() for _, get in self._pairs]
-        if n_threads:
-            for set_, _ in self._pairs:
-                set_(int(n_threads))
-        super().__init__(get() for _, get in self._pairs)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        for (set_, _), n in zip(self._pairs, self._previous):
-            set_(n)
-        return False
-
+__all__ = ["add_arguments", "run"]
 
 def add_arguments(parser):
     parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")

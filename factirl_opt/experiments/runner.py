@@ -51,7 +51,7 @@ from ..exceptions import ValidationError
 from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL
 from ..planning import optimal_q
-from ._blas import limit_blas_threads
+from .._threads import limit_blas_threads
 from .ground_truth import make_ground_truth
 from .presets import Preset, get_preset
 
