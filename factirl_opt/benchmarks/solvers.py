@@ -53,6 +53,7 @@ QUICK = {
     "transfer_tasks": 8,
     "armijo_iter": 20,
     "gn_iter": 6,
+    "sparse_gn_iter": 6,
     "fit_tasks": 6,
     "fit_demos": 3,
     "fit_iter": 2,
@@ -80,6 +81,8 @@ def add_arguments(parser):
     parser.add_argument("--fit-iter", type=int, default=10, help="FactIRL outer iterations")
     parser.add_argument("--flat-iter", type=int, default=100, help="GradIRL iterations of the PCA init")
     parser.add_argument("--inner-steps", type=int, default=5)
+    parser.add_argument("--sparse-gn-iter", type=int, default=100,
+                        help="GN steps of the sparse sweep: zero counts are compared near convergence (default 100)")
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0])
     parser.add_argument("--sparsity", type=float, default=0.4, help="zero probability of the sparse ground truth")
     parser.add_argument("--repeats", type=int, default=20, help="timed re-solves per route (median kept)")
@@ -240,7 +243,7 @@ def _part_sparse(mdp, s, rng, D):
     for name in _gn_names("sparse"):
         sweep = []
         for alpha in s["alphas"]:
-            row, Hl = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"], alpha=float(alpha))
+            row, Hl = _transfer(mdp, D, demos, R, name, s["sparse_gn_iter"], s["beta"], alpha=float(alpha))
             sweep.append(
                 {
                     "alpha": float(alpha),
@@ -259,6 +262,7 @@ def _part_sparse(mdp, s, rng, D):
             "coefficients": f"half-normal, each zero with probability {s['sparsity']}",
             "true_zeros": int(np.sum(H == 0.0)),
             "coefficients_total": int(H.size),
+            "gn_steps": s["sparse_gn_iter"],
         },
         "variants": out,
     }
