@@ -1,0 +1,25 @@
+"""The user guide's code runs as written: every python block of docs/guide.md, in order."""
+
+import pathlib
+import re
+
+import pytest
+
+GUIDE = pathlib.Path(__file__).resolve().parents[1] / "docs" / "guide.md"
+
+
+def test_guide_code_blocks_run_in_order(capsys):
+    pytest.importorskip("gymnasium")
+    blocks = re.findall(r"```python\n(.*?)```", GUIDE.read_text(), flags=re.S)
+    assert len(blocks) >= 6, "the guide lost its examples"
+    namespace = {}
+    for i, block in enumerate(blocks):
+        exec(compile(block, f"docs/guide.md (python block {i})", "exec"), namespace)
+    out = capsys.readouterr().out
+    assert "FrozenLake 8x8 train deviation" in out
+    flat_dev, fact_dev = map(float, re.search(r"train deviation: flat ([\d.]+), factorial ([\d.]+)", out).groups())
+    assert fact_dev < flat_dev  # the guide's first example shows the factorial learner winning
+    lake = namespace["lake"]
+    assert (lake.n_states, lake.n_actions) == (64, 4)
+    assert namespace["fact_lake"].dictionary_.shape == (256, 3)
+    assert namespace["h_new"].shape == (5, 3)
