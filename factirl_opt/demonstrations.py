@@ -69,6 +69,25 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
     return [out[i] for i in range(n)]
 
 
+def check_episode(episode, where="episode"):
+    """One episode as an integer array of shape (L, 2), L >= 1 (ranges are not checked here).
+
+    Float arrays holding whole numbers are accepted; ``where`` names the episode in errors.
+    """
+    try:
+        arr = np.asarray(episode)
+    except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
+        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
+        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        else:
+            raise ValidationError(f"{where} must hold integer (state, action) pairs; got dtype {arr.dtype}")
+    return arr
+
+
 def task_steps(mdp, task_demos, task=0):
     """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
 
@@ -95,20 +114,7 @@ def task_steps(mdp, task_demos, task=0):
         )
     if len(episodes) == 0:
         raise ValidationError(f"{where} are empty: give at least one episode")
-    parts = []
-    for j, ep in enumerate(episodes):
-        try:
-            arr = np.asarray(ep)
-        except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
-            raise ValidationError(f"episode {j} of {where} must be an array of (state, action) pairs of shape (L, 2)") from None
-        if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-            raise ValidationError(f"episode {j} of {where} must have shape (L, 2) with L >= 1; got {arr.shape}")
-        if arr.dtype.kind not in "iu":
-            if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-                arr = arr.astype(np.int64)
-            else:
-                raise ValidationError(f"episode {j} of {where} must hold integer (state, action) pairs; got dtype {arr.dtype}")
-        parts.append(arr)
+    parts = [check_episode(ep, f"episode {j} of {where}") for j, ep in enumerate(episodes)]
     steps = np.concatenate(parts).astype(np.intp)
     S, A = mdp.n_states, mdp.n_actions
     bad_s = (steps[:, 0] < 0) | (steps[:, 0] >= S)

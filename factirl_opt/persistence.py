@@ -40,6 +40,7 @@ import numpy as np
 
 import solvers
 
+from .demonstrations import check_episode
 from .exceptions import PersistenceError, ValidationError
 from .factirl import FactIRL
 from .gradirl import GradIRL
@@ -305,17 +306,7 @@ def load_model(path):
 
 
 def _episode(ep, where):
-    try:
-        arr = np.asarray(ep)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
-    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise ValidationError(f"{where} must hold integer (state, action) pairs; got dtype {arr.dtype}")
+    arr = check_episode(ep, where)
     if np.any(arr < 0):
         raise ValidationError(f"{where} holds a negative state or action: {arr[np.any(arr < 0, axis=1)][0].tolist()}")
     return arr.astype(np.int64)
