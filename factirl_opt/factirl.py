@@ -270,7 +270,7 @@ class FactIRL:
         return D / norms, H * norms
 
     @blas_limited
-    def transfer(self, mdp, demos_per_task, max_iter=None):
+    def transfer(self, mdp, demos_per_task, max_iter=None, h_solver=None, h_solver_options=None):
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
@@ -283,6 +283,11 @@ class FactIRL:
         demos_per_task : list of n_new task demonstrations
         max_iter : int, optional
             Default ``transfer_max_iter``.
+        h_solver : str or solvers.StepSolver, optional
+            Solver for this call only (e.g. fit with ``"armijo"``, transfer with
+            ``"gn-qp-clarabel"``); default the model's ``h_solver``.
+        h_solver_options : dict, optional
+            Options for an ``h_solver`` given by name here.
 
         Returns
         -------
@@ -296,7 +301,12 @@ class FactIRL:
         max_iter = self.transfer_max_iter if max_iter is None else max_iter
         check_positive(max_iter, "max_iter", allow_zero=True, integer=True)
         check_positive(self.tol, "tol", allow_zero=True)
-        h_solver = self._solver()
+        if h_solver is None:
+            if h_solver_options is not None:
+                raise ValidationError("h_solver_options given without h_solver")
+            h_solver = self._solver()
+        else:
+            h_solver = solvers.resolve_solver(h_solver, **(h_solver_options or {}))
         mu, pi_hat = empirical_statistics(mdp, demos_per_task)
         objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
         problem = weights_problem(objective, D)

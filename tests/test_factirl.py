@@ -191,3 +191,19 @@ def test_factorial_beats_flat_at_paper_scale():
     # 10x10 grid, 100 tasks, 10 demos of 10 steps (python -m factirl_opt.bench fit); ~0.15
     flat, fact = train_deviations(0, size=10, n_tasks=100, n_demos=10, length=10)
     assert fact < 0.5 * flat, (flat, fact)
+
+
+def test_transfer_with_a_per_call_solver(data):
+    mdp, _, demos = data
+    model = fo.FactIRL(n_primitives=K, max_iter=3, rng=0).fit(mdp, demos)
+    h_default = model.transfer(mdp, demos[:2])
+    h_gn = model.transfer(mdp, demos[:2], h_solver="gn-qp-clarabel", max_iter=10)
+    assert h_gn.shape == h_default.shape == (2, K)
+    assert model.h_solver == "armijo"  # the model's own solver is unchanged
+    assert np.array_equal(model.transfer(mdp, demos[:2]), h_default)
+    h_nonneg = model.transfer(mdp, demos[:2], h_solver="gn-qp-clarabel-nonneg")
+    assert np.all(h_nonneg >= 0)
+    with pytest.raises(ValidationError, match="h_solver_options given without h_solver"):
+        model.transfer(mdp, demos[:2], h_solver_options={"alpha": 0.1})
+    with pytest.raises(UnknownSolverError, match="available"):
+        model.transfer(mdp, demos[:2], h_solver="no-such-solver")
