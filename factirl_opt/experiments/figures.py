@@ -119,9 +119,14 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    return _save(plt, fig, path_base, dpi=130)
+
+
+def _save(plt, fig, path_base, dpi):
+    """Write ``fig`` as PNG and SVG next to each other, close it, return the two paths."""
     written = []
     for ext in ("png", "svg"):
-        fig.savefig(f"{path_base}.{ext}", dpi=130)
+        fig.savefig(f"{path_base}.{ext}", dpi=dpi)
         written.append(f"{path_base}.{ext}")
     plt.close(fig)
     return written
@@ -178,12 +183,7 @@ def plot_value_functions(data, path_base, point=None):
     fig.suptitle(f"Figure 3: optimal value functions of 4 test tasks, one demonstration each\n"
                  f"({trained}seed {data.get('seed', '?')}; blue is high; each map has its own colour scale)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
-    written = []
-    for ext in ("png", "svg"):
-        fig.savefig(f"{path_base}.{ext}", dpi=110)
-        written.append(f"{path_base}.{ext}")
-    plt.close(fig)
-    return written
+    return _save(plt, fig, path_base, dpi=110)
 
 
 def plot_all(out):
