@@ -133,6 +133,13 @@ def test_run_one_scores_every_learner(tiny_sweep):
         assert json.load(fh)["rows"] == rec["rows"]
 
 
+def test_sweep_with_a_gauss_newton_h_step(tmp_path):
+    result = run_sweep("tiny", tmp_path, h_solver="gn-qp-clarabel", seeds=1, progress=False)
+    assert result["rows"] and all(row["h_solver"] == "gn-qp-clarabel" for row in result["rows"])
+    learners = {row["learner"] for row in result["rows"]}
+    assert {"factorial", "factorial, random init"} <= learners
+
+
 def test_unknown_h_solver_is_rejected_before_running(tmp_path):
     with pytest.raises(UnknownSolverError, match="armijo"):
         run_sweep("tiny", tmp_path, h_solver="no-such-solver", progress=False)
