@@ -219,7 +219,7 @@ class FactIRL:
         for name in ("max_iter", "inner_steps", "flat_max_iter"):
             check_positive(getattr(self, name), name, allow_zero=name != "inner_steps", integer=True)
         check_positive(self.tol, "tol", allow_zero=True)
-        h_solver = self._solver()
+        h_solver = self._solver().for_alternating()  # the H-step is one block of an alternating scheme
         rng = as_rng(self.rng)
         mu, pi_hat = empirical_statistics(mdp, demos_per_task)
         n = mu.shape[0]

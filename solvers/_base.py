@@ -107,6 +107,15 @@ class StepSolver:
         """Per-row penalty the solver adds to the loss (zero when there is none), shape (n,)."""
         return np.zeros(np.shape(x)[0])
 
+    def for_alternating(self):
+        """The solver to use as one block of an alternating scheme (FactIRL's H-step in fit).
+
+        In alternating minimisation the sub-problem over H need not (and, while D is still
+        poor, should not) be solved accurately. The default is the solver itself; a solver
+        whose steps solve their sub-problem aggressively returns a more conservative copy.
+        """
+        return self
+
     def init_state(self, problem, x, previous=None):  # pragma: no cover - interface
         raise NotImplementedError
 

@@ -36,7 +36,7 @@ exception is re-raised as :class:`factirl_opt.exceptions.SolverError`.
 import importlib.util
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -195,6 +195,22 @@ class GaussNewtonSolver(StepSolver):
         <= 1e-5; it always polishes). Defaults: :data:`solvers.qp_cvxpy.DEFAULT_TOLERANCE`.
     max_qp_iter : int, default=10000
         Backend iteration limit (reaching it counts as a failure).
+    alternating_damping : float or None, default=1.0
+        ``damping`` of the copy returned by :meth:`for_alternating`, i.e. of the H-step inside
+        ``FactIRL.fit``; None keeps this solver's own damping there.
+    alternating_lam_down : float, default=0.99
+        ``lam_down`` of that copy.
+
+    Notes
+    -----
+    In ``FactIRL.fit`` the H-step is one block of an alternating scheme. Plain LM (damping
+    decreasing by 3x per accepted step) solves each task's coefficients almost exactly for the
+    current, still poor dictionary: ``|h|`` grows until the Boltzmann policies saturate and
+    the D-step's gradient vanishes (30 tasks, 10 outer iterations: loss 1.17 vs Armijo's
+    0.18). The copy used there keeps the damping near ``1 * max(diag(J^T J))``: a proximal
+    Gauss-Newton step that moves H gradually, as Armijo does, but along the Gauss-Newton
+    direction (50 tasks, 40 outer iterations: loss 0.035 vs Armijo's 0.218, half the Q*
+    evaluations). ``transfer`` (D fixed) uses the solver as configured.
     """
 
     backend: str = "osqp"
@@ -211,6 +227,8 @@ class GaussNewtonSolver(StepSolver):
     xtol: float = 1e-12
     tolerance: dict = None
     max_qp_iter: int = 10000
+    alternating_damping: float = 1.0
+    alternating_lam_down: float = 0.99
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     needs_jacobian = True
@@ -233,6 +251,11 @@ class GaussNewtonSolver(StepSolver):
         _check_number(self.max_retries, "max_retries", low=0, low_open=False, integer=True)
         _check_number(self.xtol, "xtol", low=0.0, low_open=False)
         _check_number(self.max_qp_iter, "max_qp_iter", low=0, integer=True)
+        if self.alternating_damping is not None:
+            _check_number(self.alternating_damping, "alternating_damping", low=0.0)
+        _check_number(self.alternating_lam_down, "alternating_lam_down", low=0.0, high=1.0)
+        if self.alternating_lam_down == 1.0:
+            raise ValidationError(f"alternating_lam_down must be in (0, 1); got {self.alternating_lam_down!r}")
         tol = {} if self.tolerance is None else self.tolerance
         if not isinstance(tol, dict):
             raise ValidationError(f"tolerance must be a dict such as {{'osqp': 1e-6}}; got {type(tol).__name__}")
@@ -243,6 +266,12 @@ class GaussNewtonSolver(StepSolver):
         self.name = f"gn-qp-{self.backend}" + ("" if self.constraint == "none" else f"-{self.constraint}")
         if self.interface == "direct":
             self.name += "-direct"
+
+    def for_alternating(self):
+        """A proximal copy (``alternating_damping``, ``alternating_lam_down``) for FactIRL's fit."""
+        if self.alternating_damping is None:
+            return self
+        return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
 
     # -- constraint handling shared with the learners ---------------------------------------
     def project(self, x):

@@ -8,6 +8,7 @@ import pytest
 
 import factirl_opt as fo
 import solvers
+from factirl_opt.exceptions import ValidationError
 from factirl_opt.benchmarks import solvers as bench_solvers
 
 
@@ -120,3 +121,28 @@ def test_benchmark_quick_mode():
     for route in timing.values():
         assert route["cvxpy_block_dpp_per_task_us"] > 0 and route["direct_backend_per_task_us"] > 0
         assert route["max_abs_difference"] < 1e-5
+
+
+def test_fit_uses_a_proximal_gauss_newton_copy(transfer_data, monkeypatch):
+    grid, D, H, R, demos = transfer_data
+    solver = solvers.get_solver("gn-qp-clarabel")
+    prox = solver.for_alternating()
+    assert (prox.damping, prox.lam_down) == (1.0, 0.99) and (solver.damping, solver.lam_down) == (1e-3, 1.0 / 3.0)
+    assert solvers.get_solver("gn-qp-clarabel", alternating_damping=None).for_alternating().damping == 1e-3
+    assert solvers.get_solver("armijo").for_alternating().name == "armijo"
+    with pytest.raises(ValidationError, match="alternating_lam_down"):
+        solvers.get_solver("gn-qp-clarabel", alternating_lam_down=1.0)
+
+    seen = []
+    original = type(solver).for_alternating
+
+    def spy(self):
+        seen.append(self)
+        return original(self)
+
+    monkeypatch.setattr(type(solver), "for_alternating", spy)
+    train = fo.sample_demonstrations(grid, R, 4, 8, np.random.default_rng(3))
+    model = fo.FactIRL(n_primitives=3, max_iter=2, inner_steps=2, h_solver="gn-qp-clarabel", flat_max_iter=5).fit(grid, train)
+    assert len(seen) == 1  # fit asked for the alternating copy once
+    model.transfer(grid, demos[:2], max_iter=2)
+    assert len(seen) == 1  # transfer (D fixed) uses the solver as configured
