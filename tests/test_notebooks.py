@@ -1,7 +1,8 @@
 """Every notebook in notebooks/ executes top to bottom (issue 5): a broken notebook fails the suite.
 
 Each notebook runs in a fresh ``python3`` kernel with its own folder as the working directory
-(as Jupyter runs it), so relative paths such as ``../results`` resolve as they do for a reader.
+(as Jupyter runs it), so relative paths such as ``../results`` resolve as they do for a reader,
+and with ``MPLBACKEND=Agg`` so figures never need a display.
 A cell that raises (including a failed ``assert`` in a notebook) fails the test.
 """
 
@@ -31,7 +32,8 @@ def test_notebook_is_committed_clean(path):
 
 
 @pytest.mark.parametrize("path", PATHS, ids=[p.stem for p in PATHS])
-def test_notebook_executes(path):
+def test_notebook_executes(path, monkeypatch):
+    monkeypatch.setenv("MPLBACKEND", "Agg")  # inherited by the kernel process
     nb = nbformat.read(path, as_version=4)
     client = NotebookClient(nb, timeout=CELL_TIMEOUT, kernel_name="python3",
                             resources={"metadata": {"path": str(path.parent)}})
