@@ -290,8 +290,10 @@ class PolicyMatchingObjective:
             Rewards of the tasks ``rows``.
         rows : ndarray of int, shape (r,), optional
             Which tasks (default all).
-        grad : bool
-            Also compute ``dJ/dR`` (adjoint).
+        grad : bool, default=True
+            With ``features``: also compute ``dJ/dR`` (adjoint). Without ``features`` the
+            gradient is always computed (one extra S x S solve per task) and cached, since
+            every caller of a loss-only evaluation goes on to need it.
         features : ndarray, shape (S*A, p), optional
             Also compute the Gauss-Newton residuals and Jacobian for ``R = F w``.
 
