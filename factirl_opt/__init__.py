@@ -18,11 +18,11 @@ from .exceptions import (
 from .factirl import FactIRL, pca_dictionary
 from .gradirl import GradIRL
 from .gym_adapter import from_gymnasium, gymnasium_rewards
-from .ground_truth import random_coefficients, random_dictionary, task_rewards
 from .mdp import GridWorld, TabularMDP
 from .objective import policy_matching_grad_reference, policy_matching_loss, residual_jacobian
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
 from .planning import boltzmann_policy, optimal_q, policy_evaluation, value_iteration
+from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
 
 __version__ = "0.1.0"
 
@@ -47,6 +47,8 @@ __all__ = [
     "random_dictionary",
     "random_coefficients",
     "task_rewards",
+    "synthetic_tasks",
+    "SyntheticTasks",
     "from_gymnasium",
     "gymnasium_rewards",
     "save_model",

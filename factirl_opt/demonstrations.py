@@ -9,20 +9,11 @@ one such entry per task (one task is a list of one).
 import numpy as np
 
 from ._threads import blas_limited
-from ._validation import check_mdp, check_positive, check_rewards
+from ._validation import as_rng, check_int, check_mdp, check_rewards
 from .exceptions import ValidationError
 from .planning import _optimal_q
 
-__all__ = ["sample_demonstrations", "empirical_statistics", "task_steps", "as_rng"]
-
-
-def as_rng(rng):
-    """A ``numpy.random.Generator`` from a Generator, a seed, a SeedSequence or None."""
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if rng is None or isinstance(rng, (int, np.integer, np.random.SeedSequence)) and not isinstance(rng, bool):
-        return np.random.default_rng(rng)
-    raise ValidationError(f"rng must be a numpy Generator, a SeedSequence, an int seed or None; got {type(rng).__name__}")
+__all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
 
 
 @blas_limited
@@ -50,8 +41,8 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
     """
     check_mdp(mdp)
     R, _ = check_rewards(mdp, rewards)
-    check_positive(n_demos, "n_demos", integer=True)
-    check_positive(length, "length", integer=True)
+    n_demos = check_int(n_demos, "n_demos", minimum=1)
+    length = check_int(length, "length", minimum=1)
     rng = as_rng(rng)
     n, S, A = R.shape
     _, policy, _ = _optimal_q(mdp, R)

@@ -12,11 +12,11 @@ import numpy as np
 import solvers
 
 from ._threads import blas_limited
-from ._validation import check_mdp, check_positive
-from .demonstrations import as_rng, empirical_statistics
+from ._validation import as_rng, check_beta, check_features, check_int, check_mdp, check_tol
+from .demonstrations import empirical_statistics
 from .exceptions import NotFittedError, ValidationError
-from .gradirl import GradIRL, _check_features
-from .objective import PolicyMatchingObjective, _check_beta
+from .gradirl import GradIRL
+from .objective import PolicyMatchingObjective
 from .problems import dictionary_problem, weights_problem
 
 __all__ = ["FactIRL", "pca_dictionary"]
@@ -52,7 +52,7 @@ def pca_dictionary(parameters, n_components, rng=None):
     X = np.asarray(parameters, dtype=np.float64)
     if X.ndim != 2 or X.shape[0] == 0:
         raise ValidationError(f"parameters must have shape (n, d) with n >= 1; got {X.shape}")
-    check_positive(n_components, "n_components", integer=True)
+    n_components = check_int(n_components, "n_components", minimum=1)
     n, d = X.shape
     if n_components > d:
         raise ValidationError(f"n_components={n_components} exceeds the parameter dimension d={d}")
@@ -171,7 +171,7 @@ class FactIRL:
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
-            D0 = _check_features(mdp, self.init[0], "init D0")
+            D0 = check_features(self.init[0], mdp.n_params, name="init D0")
             H0 = np.asarray(self.init[1], dtype=np.float64)
             if D0.shape != (d, k) or H0.shape != (n, k):
                 raise ValidationError(f"init (D0, H0) must have shapes ({d}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
@@ -212,13 +212,13 @@ class FactIRL:
         self
         """
         check_mdp(mdp)
-        beta = _check_beta(self.beta)
-        check_positive(self.n_primitives, "n_primitives", integer=True)
+        beta = check_beta(self.beta)
+        check_int(self.n_primitives, "n_primitives", minimum=1)
         if self.n_primitives > mdp.n_params:
             raise ValidationError(f"n_primitives={self.n_primitives} exceeds S*A={mdp.n_params}")
         for name in ("max_iter", "inner_steps", "flat_max_iter"):
-            check_positive(getattr(self, name), name, allow_zero=name != "inner_steps", integer=True)
-        check_positive(self.tol, "tol", allow_zero=True)
+            check_int(getattr(self, name), name, minimum=1 if name == "inner_steps" else 0)
+        check_tol(self.tol)
         h_solver = self._solver().for_alternating()  # the H-step is one block of an alternating scheme
         rng = as_rng(self.rng)
         mu, pi_hat = empirical_statistics(mdp, demos_per_task)
@@ -296,11 +296,11 @@ class FactIRL:
         if not hasattr(self, "dictionary_"):
             raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
         check_mdp(mdp)
-        D = _check_features(mdp, self.dictionary_, "dictionary_")
-        beta = _check_beta(self.beta)
+        D = check_features(self.dictionary_, mdp.n_params, name="dictionary_")
+        beta = check_beta(self.beta)
         max_iter = self.transfer_max_iter if max_iter is None else max_iter
-        check_positive(max_iter, "max_iter", allow_zero=True, integer=True)
-        check_positive(self.tol, "tol", allow_zero=True)
+        check_int(max_iter, "max_iter", minimum=0)
+        check_tol(self.tol)
         if h_solver is None:
             if h_solver_options is not None:
                 raise ValidationError("h_solver_options given without h_solver")

@@ -5,24 +5,12 @@ import numpy as np
 import solvers
 
 from ._threads import blas_limited
-from ._validation import check_mdp, check_positive
+from ._validation import check_beta, check_features, check_int, check_mdp, check_tol
 from .demonstrations import empirical_statistics
-from .exceptions import NotFittedError, ValidationError
-from .objective import PolicyMatchingObjective, _check_beta
+from .objective import PolicyMatchingObjective
 from .problems import weights_problem
 
 __all__ = ["GradIRL"]
-
-
-def _check_features(mdp, features, name="features"):
-    if features is None:
-        return None
-    F = np.asarray(features, dtype=np.float64)
-    if F.ndim != 2 or F.shape[0] != mdp.n_params or F.shape[1] == 0:
-        raise ValidationError(f"{name} must have shape (S*A, k) = ({mdp.n_params}, k) with k >= 1; got {F.shape}")
-    if not np.all(np.isfinite(F)):
-        raise ValidationError(f"{name} must be finite")
-    return F
 
 
 class GradIRL:
@@ -84,10 +72,10 @@ class GradIRL:
         self
         """
         check_mdp(mdp)
-        beta = _check_beta(self.beta)
-        check_positive(self.max_iter, "max_iter", allow_zero=True, integer=True)
-        check_positive(self.tol, "tol", allow_zero=True)
-        F = _check_features(mdp, self.features)
+        beta = check_beta(self.beta)
+        check_int(self.max_iter, "max_iter", minimum=0)
+        check_tol(self.tol)
+        F = None if self.features is None else check_features(self.features, mdp.n_params, mdp.n_states)
         solver = solvers.resolve_solver(self.solver, **(self.solver_options or {}))
         mu, pi_hat = empirical_statistics(mdp, demos_per_task)
         objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
@@ -103,10 +91,6 @@ class GradIRL:
         self.n_iter_ = res.iterations
         self.status_ = res.status
         return self
-
-    def _check_fitted(self):
-        if not hasattr(self, "rewards_"):
-            raise NotFittedError("this GradIRL is not fitted yet: call fit(mdp, demos_per_task) first")
 
     def __repr__(self):
         return f"GradIRL(beta={self.beta}, features={'None' if self.features is None else np.shape(self.features)}, max_iter={self.max_iter})"

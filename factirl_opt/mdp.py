@@ -7,6 +7,7 @@ C order, so ``d = S * A`` and index ``s * A + a``.
 
 import numpy as np
 
+from ._validation import check_int, check_probability, check_real
 from .exceptions import ValidationError
 
 __all__ = ["TabularMDP", "GridWorld"]
@@ -66,12 +67,7 @@ class TabularMDP:
             raise ValidationError(
                 f"each row transitions[s, a, :] must sum to 1 (within {_ROW_SUM_TOL}); row (s={s}, a={a}) sums to {float(sums[s, a])!r}"
             )
-        try:
-            gamma = float(gamma)
-        except (TypeError, ValueError):
-            raise ValidationError(f"gamma must be a real number in [0, 1); got {gamma!r}") from None
-        if not (0.0 <= gamma < 1.0):
-            raise ValidationError(f"gamma must satisfy 0 <= gamma < 1; got {gamma!r}")
+        gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
         P.setflags(write=False)
         self.transitions = P
         self.gamma = gamma
@@ -120,18 +116,12 @@ class GridWorld(TabularMDP):
     """
 
     ACTIONS = ("up", "down", "left", "right")
-    _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
+    #: (row, column) displacement of each action, in the order of ``ACTIONS``
+    MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 
     def __init__(self, size=10, p_success=0.7, gamma=0.9):
-        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
-            raise ValidationError(f"size must be an integer >= 2; got {size!r}")
-        try:
-            p = float(p_success)
-        except (TypeError, ValueError):
-            raise ValidationError(f"p_success must be a probability in [0, 1]; got {p_success!r}") from None
-        if not (0.0 <= p <= 1.0):
-            raise ValidationError(f"p_success must be a probability in [0, 1]; got {p_success!r}")
-        self.size = int(size)
+        self.size = check_int(size, "size", minimum=2)
+        p = check_probability(p_success, "p_success")
         self.p_success = p
         super().__init__(self._build(self.size, p), gamma)
 
@@ -142,7 +132,7 @@ class GridWorld(TabularMDP):
         for s in range(S):
             r, c = divmod(s, size)
             targets = {}
-            for a, (dr, dc) in enumerate(cls._MOVES):
+            for a, (dr, dc) in enumerate(cls.MOVES):
                 rr, cc = r + dr, c + dc
                 if 0 <= rr < size and 0 <= cc < size:
                     targets[a] = rr * size + cc

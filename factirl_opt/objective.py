@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._threads import blas_limited
-from ._validation import check_mdp, check_policy, check_rewards, check_statistics
+from ._validation import check_beta, check_mdp, check_policy, check_rewards, check_statistics
 from .exceptions import FactIRLError, ValidationError
 from .planning import _optimal_q, boltzmann_policy
 
@@ -30,16 +30,6 @@ __all__ = [
     "residual_jacobian",
     "PolicyMatchingObjective",
 ]
-
-
-def _check_beta(beta):
-    try:
-        b = float(beta)
-    except (TypeError, ValueError):
-        raise ValidationError(f"beta must be a finite number > 0; got {beta!r}") from None
-    if not np.isfinite(b) or b <= 0:
-        raise ValidationError(f"beta must be a finite number > 0; got {beta!r}")
-    return b
 
 
 def _policy_matrix(mdp, policy):
@@ -101,7 +91,7 @@ def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None):
     check_mdp(mdp)
     R, _ = check_rewards(mdp, rewards)
     mu, pi_hat = check_statistics(mdp, mu_hat, pi_hat, n=R.shape[0])
-    beta = _check_beta(beta)
+    beta = check_beta(beta)
     pol = check_policy(mdp, policy, R.shape[0])
     pol, pi, diff, loss = _forward(mdp, R, mu, pi_hat, beta, pol)
     return loss, _adjoint(mdp, pol, _dj_dq(pi, diff, mu, beta))
@@ -179,7 +169,7 @@ def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, featu
     check_mdp(mdp)
     R, _ = check_rewards(mdp, rewards)
     mu, pi_hat = check_statistics(mdp, mu_hat, pi_hat, n=R.shape[0])
-    beta = _check_beta(beta)
+    beta = check_beta(beta)
     pol, pi, diff, loss = _forward(mdp, R, mu, pi_hat, beta)
     g = _dj_dq(pi, diff, mu, beta).reshape(R.shape[0], -1)
     grads = [g[i] @ dq_dtheta(mdp, pol[i], features, route=route) for i in range(R.shape[0])]
@@ -225,7 +215,7 @@ def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None)
     check_mdp(mdp)
     R, _ = check_rewards(mdp, rewards)
     mu, pi_hat = check_statistics(mdp, mu_hat, pi_hat, n=R.shape[0])
-    beta = _check_beta(beta)
+    beta = check_beta(beta)
     F = np.asarray(features, dtype=np.float64)
     if F.ndim != 2 or F.shape[0] != mdp.n_params:
         raise ValidationError(f"features must have shape (S*A, p) = ({mdp.n_params}, p); got {F.shape}")
@@ -271,7 +261,7 @@ class PolicyMatchingObjective:
     def __init__(self, mdp, mu_hat, pi_hat, beta):
         self.mdp = check_mdp(mdp)
         self.mu, self.pi_hat = check_statistics(mdp, mu_hat, pi_hat)
-        self.beta = _check_beta(beta)
+        self.beta = check_beta(beta)
         self.n_tasks = self.mu.shape[0]
         self.n_evaluations = 0
         self.policy = np.zeros((self.n_tasks, mdp.n_states), dtype=np.intp)

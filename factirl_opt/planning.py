@@ -8,7 +8,7 @@ documented and gives unbatched outputs.
 import numpy as np
 
 from ._threads import blas_limited
-from ._validation import check_mdp, check_policy, check_rewards
+from ._validation import check_beta, check_mdp, check_policy, check_rewards
 from .exceptions import FactIRLError, ValidationError
 
 __all__ = ["optimal_q", "policy_evaluation", "boltzmann_policy", "value_iteration", "q_from_values"]
@@ -141,9 +141,7 @@ def boltzmann_policy(Q, beta):
     Q = np.asarray(Q, dtype=np.float64)
     if Q.ndim < 1:
         raise ValidationError(f"Q must have an action axis; got shape {Q.shape}")
-    beta = float(beta)
-    if not np.isfinite(beta) or beta < 0:
-        raise ValidationError(f"beta must be a finite number >= 0; got {beta!r}")
+    beta = check_beta(beta)
     z = beta * (Q - Q.max(axis=-1, keepdims=True))
     np.exp(z, out=z)
     z /= z.sum(axis=-1, keepdims=True)

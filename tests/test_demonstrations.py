@@ -124,10 +124,10 @@ def test_3d_array_as_demos_per_task_is_rejected_by_learners(rng, grid3):
 @pytest.mark.parametrize(
     "kwargs, fragment",
     [
-        (dict(n_demos=0, length=3), r"n_demos must be > 0; got 0"),
-        (dict(n_demos=2.0, length=3), r"n_demos must be an integer; got 2\.0"),
-        (dict(n_demos=2, length=-1), r"length must be > 0; got -1"),
-        (dict(n_demos=2, length=True), r"length must be an integer; got True"),
+        (dict(n_demos=0, length=3), r"n_demos must be an integer >= 1; got 0"),
+        (dict(n_demos=2.0, length=3), r"n_demos must be an integer >= \d; got 2\.0"),
+        (dict(n_demos=2, length=-1), r"length must be an integer >= 1; got -1"),
+        (dict(n_demos=2, length=True), r"length must be an integer >= 1; got True"),
     ],
 )
 def test_bad_sampling_arguments(rng, grid3, kwargs, fragment):

@@ -115,10 +115,10 @@ def test_transfer_validation(data):
     mdp, _, demos = data
     model = fo.FactIRL(n_primitives=K)
     model.dictionary_ = np.ones((35, K))
-    with pytest.raises(ValidationError, match=r"dictionary_ must have shape \(S\*A, k\) = \(36, k\).*got \(35, 2\)"):
+    with pytest.raises(ValidationError, match=r"dictionary_ must have shape \(S\*A = 36, p\).*got \(35, 2\)"):
         model.transfer(mdp, demos)
     model.dictionary_ = np.ones((36, K))
-    with pytest.raises(ValidationError, match=r"max_iter must be >= 0; got -3"):
+    with pytest.raises(ValidationError, match=r"max_iter must be an integer >= 0; got -3"):
         model.transfer(mdp, demos, max_iter=-3)
 
 
@@ -142,13 +142,13 @@ def test_pca_dictionary(rng):
         (dict(init=(np.ones((36, K)),)), ValidationError, r"init given as a tuple must be \(D0, H0\)"),
         (dict(init=(np.ones((36, K)), np.ones((4, K)))), ValidationError, r"init \(D0, H0\) must have shapes \(36, 2\) and \(5, 2\); got \(36, 2\) and \(4, 2\)"),
         (dict(init=(np.ones((30, K)), np.ones((5, K)))), ValidationError, r"init D0 must have shape .*got \(30, 2\)"),
-        (dict(n_primitives=0), ValidationError, r"n_primitives must be > 0; got 0"),
+        (dict(n_primitives=0), ValidationError, r"n_primitives must be an integer >= 1; got 0"),
         (dict(n_primitives=37), ValidationError, r"n_primitives=37 exceeds S\*A=36"),
         (dict(beta=-1.0), ValidationError, r"beta must be a finite number > 0; got -1\.0"),
-        (dict(max_iter=-1), ValidationError, r"max_iter must be >= 0; got -1"),
-        (dict(inner_steps=0), ValidationError, r"inner_steps must be > 0; got 0"),
-        (dict(flat_max_iter=1.5), ValidationError, r"flat_max_iter must be an integer; got 1\.5"),
-        (dict(tol=-1.0), ValidationError, r"tol must be >= 0; got -1\.0"),
+        (dict(max_iter=-1), ValidationError, r"max_iter must be an integer >= 0; got -1"),
+        (dict(inner_steps=0), ValidationError, r"inner_steps must be an integer >= 1; got 0"),
+        (dict(flat_max_iter=1.5), ValidationError, r"flat_max_iter must be an integer >= \d; got 1\.5"),
+        (dict(tol=-1.0), ValidationError, r"tol must be a finite number >= 0; got -1\.0"),
         (dict(h_solver="nope"), UnknownSolverError, r"unknown solver 'nope'; available: .*armijo"),
         (dict(rng="seed"), ValidationError, r"rng must be a numpy Generator.*got str"),
     ],

@@ -153,7 +153,7 @@ def test_grid_bad_p_success(p):
 
 
 def test_grid_bad_gamma():
-    with pytest.raises(ValidationError, match=r"gamma must satisfy 0 <= gamma < 1; got 1\.0"):
+    with pytest.raises(ValidationError, match=r"gamma must be a finite number in \[0, 1\); got 1\.0"):
         fo.GridWorld(size=3, gamma=1.0)
 
 

@@ -96,13 +96,9 @@ def test_boltzmann_is_stable_for_huge_beta_q():
     np.testing.assert_allclose(pi[1], [0.5, 0.5, 0, 0])  # exact ties share the mass
 
 
-def test_boltzmann_beta_zero_is_uniform(rng):
-    np.testing.assert_allclose(fo.boltzmann_policy(rng.standard_normal((4, 3)), 0.0), 1 / 3)
-
-
-@pytest.mark.parametrize("beta", [-1.0, np.nan, np.inf])
+@pytest.mark.parametrize("beta", [0.0, -1.0, np.nan, np.inf])
 def test_boltzmann_bad_beta(beta):
-    with pytest.raises(ValidationError, match=r"beta must be a finite number >= 0; got " + repr(float(beta))):
+    with pytest.raises(ValidationError, match=r"beta must be a finite number > 0; got " + repr(float(beta))):
         fo.boltzmann_policy(np.zeros((2, 2)), beta)
 
 

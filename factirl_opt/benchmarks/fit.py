@@ -18,7 +18,7 @@ import numpy as np
 from ..demonstrations import sample_demonstrations
 from ..evaluation import deviation
 from ..factirl import FactIRL
-from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..gradirl import GradIRL
 from ..mdp import GridWorld
 from .._threads import limit_blas_threads

@@ -28,7 +28,7 @@ import numpy as np
 
 from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
-from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
 from ..objective import _adjoint, _dj_dq, _forward, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
 from ..planning import optimal_q

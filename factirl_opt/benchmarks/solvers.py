@@ -40,7 +40,7 @@ from ..demonstrations import sample_demonstrations
 from ..evaluation import deviation
 from ..factirl import FactIRL
 from ..gradirl import GradIRL
-from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
 from ..objective import PolicyMatchingObjective
 from ..demonstrations import empirical_statistics

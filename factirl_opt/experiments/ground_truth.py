@@ -8,7 +8,7 @@ the same test tasks (with the same demonstrations), and the training tasks of a 
 are the first ones of a larger point (paired comparisons across the sweep); nothing depends on
 which process runs what.
 
-Distributions are those of :mod:`factirl_opt.ground_truth` (``D ~ N(0, 1)``; coefficients
+Distributions are those of :mod:`factirl_opt.synthetic` (``D ~ N(0, 1)``; coefficients
 ``N(0, 1)`` or ``|N(0, 1)|``).
 """
 
@@ -16,8 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from ..demonstrations import sample_demonstrations
-from ..ground_truth import random_coefficients, random_dictionary, task_rewards
+from ..synthetic import random_dictionary, synthetic_tasks
 from ..mdp import GridWorld
 
 __all__ = ["GroundTruth", "make_ground_truth", "N_STREAMS"]
@@ -71,9 +70,7 @@ def make_ground_truth(preset, n_tasks, demos_per_task, seed):
     S, A, k = mdp.n_states, mdp.n_actions, preset.n_primitives
     s_dict, s_train, s_test, s_train_demo, s_test_demo, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
     D = random_dictionary(S * A, k, rng=np.random.default_rng(s_dict))
-    H = random_coefficients(n_tasks, k, kind=preset.coefficient_kind, rng=np.random.default_rng(s_train))
-    Ht = random_coefficients(preset.n_test_tasks, k, kind=preset.coefficient_kind, rng=np.random.default_rng(s_test))
-    R, Rt = task_rewards(D, H, S, A), task_rewards(D, Ht, S, A)
-    demos = sample_demonstrations(mdp, R, demos_per_task, preset.demo_length, rng=np.random.default_rng(s_train_demo))
-    test_demos = sample_demonstrations(mdp, Rt, 1, preset.demo_length, rng=np.random.default_rng(s_test_demo))
-    return GroundTruth(mdp, D, R, demos, Rt, test_demos, np.random.default_rng(s_learn))
+    kw = dict(dictionary=D, kind=preset.coefficient_kind)
+    train = synthetic_tasks(mdp, n_tasks, demos_per_task, preset.demo_length, rng=s_train, demo_rng=s_train_demo, **kw)
+    test = synthetic_tasks(mdp, preset.n_test_tasks, 1, preset.demo_length, rng=s_test, demo_rng=s_test_demo, **kw)
+    return GroundTruth(mdp, D, train.rewards, train.demos, test.rewards, test.demos, np.random.default_rng(s_learn))
