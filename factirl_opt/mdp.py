@@ -10,7 +10,7 @@ import numpy as np
 from ._validation import check_int, check_probability, check_real
 from .exceptions import ValidationError
 
-__all__ = ["TabularMDP", "GridWorld"]
+__all__ = ["TabularMDP", "GridWorld", "check_signature"]
 
 _ROW_SUM_TOL = 1e-9
 
@@ -89,8 +89,50 @@ class TabularMDP:
         """Transitions reshaped to (S * A, S), rows indexed by ``s * A + a``."""
         return self.transitions.reshape(self.n_states * self.n_actions, self.n_states)
 
+    def signature(self):
+        """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics.
+
+        Learners record it at ``fit`` (``mdp_signature_``), saved models carry it, and a model
+        refuses an MDP whose signature differs (:func:`check_signature`). The digest is the
+        SHA-256 of the transitions as a canonical CSR matrix (float64, sorted indices, explicit
+        zeros removed), so a dense and a sparse copy of the same dynamics share it.
+        """
+        import hashlib
+
+        import scipy.sparse as sp
+
+        P = sp.csr_matrix(self.transitions_flat, dtype=np.float64)
+        P.eliminate_zeros()
+        P.sort_indices()
+        h = hashlib.sha256()
+        for part in (np.asarray(P.shape, dtype=np.int64), P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data):
+            h.update(np.ascontiguousarray(part).tobytes())
+        return {"n_states": int(self.n_states), "n_actions": int(self.n_actions), "gamma": float(self.gamma),
+                "transitions_sha256": h.hexdigest()}
+
     def __repr__(self):
         return f"{type(self).__name__}(n_states={self.n_states}, n_actions={self.n_actions}, gamma={self.gamma})"
+
+
+def check_signature(expected, mdp, what="this model"):
+    """Raise :class:`ValidationError` unless ``mdp`` has the signature ``expected``.
+
+    Parameters
+    ----------
+    expected : dict
+        A :meth:`TabularMDP.signature` (e.g. a learner's ``mdp_signature_``).
+    mdp : TabularMDP
+    what : str
+        Names the owner of ``expected`` in the message.
+    """
+    got = mdp.signature()
+    if not isinstance(expected, dict) or set(expected) != set(got):
+        raise ValidationError(f"{what} carries no valid MDP signature (got {expected!r})")
+    diffs = [k for k in ("n_states", "n_actions", "gamma", "transitions_sha256") if expected[k] != got[k]]
+    if diffs:
+        detail = ", ".join("the transitions differ" if k == "transitions_sha256" else f"{k}: fitted {expected[k]!r}, given {got[k]!r}"
+                           for k in diffs)
+        raise ValidationError(f"{what} was fitted on another MDP ({detail}); use the MDP it was fitted on")
 
 
 class GridWorld(TabularMDP):
