@@ -7,6 +7,7 @@ gradient -> a registered step solver -> learnt rewards -> eq. (13) score.
 from .demonstrations import empirical_statistics, sample_demonstrations
 from .evaluation import deviation, optimal_score, score
 from .exceptions import (
+    ConvergenceWarning,
     FactIRLError,
     MissingDependencyError,
     NotFittedError,
@@ -15,13 +16,25 @@ from .exceptions import (
     UnknownSolverError,
     ValidationError,
 )
-from .factirl import FactIRL, pca_dictionary
+from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
 from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
-from .objective import policy_matching_grad_reference, policy_matching_loss, residual_jacobian
+from .objectives import available_objectives, policy_matching_grad_reference, policy_matching_loss, residual_jacobian
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
-from .planning import boltzmann_policy, optimal_q, policy_evaluation, value_iteration
+from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
+from .objectworld import (
+    ObjectWorld,
+    levine_reward,
+    make_objectworld,
+    multitask_primitives,
+    multitask_rewards,
+    objectworld_distances,
+    objectworld_features,
+    objectworld_transitions,
+    plot_objectworld,
+    state_action_rewards,
+)
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
 
 __version__ = "0.1.0"
@@ -30,17 +43,21 @@ __all__ = [
     "TabularMDP",
     "GridWorld",
     "optimal_q",
+    "available_planners",
     "policy_evaluation",
     "value_iteration",
     "boltzmann_policy",
     "sample_demonstrations",
     "empirical_statistics",
     "policy_matching_loss",
+    "available_objectives",
     "policy_matching_grad_reference",
     "residual_jacobian",
     "GradIRL",
     "FactIRL",
     "pca_dictionary",
+    "fit_factorial",
+    "transfer_coefficients",
     "score",
     "optimal_score",
     "deviation",
@@ -55,7 +72,18 @@ __all__ = [
     "load_model",
     "save_demonstrations",
     "load_demonstrations",
+    "ObjectWorld",
+    "make_objectworld",
+    "objectworld_transitions",
+    "objectworld_distances",
+    "objectworld_features",
+    "levine_reward",
+    "multitask_primitives",
+    "multitask_rewards",
+    "state_action_rewards",
+    "plot_objectworld",
     "FactIRLError",
+    "ConvergenceWarning",
     "ValidationError",
     "NotFittedError",
     "SolverError",

@@ -11,6 +11,9 @@ import numpy as np
 
 from .exceptions import ValidationError
 
+#: largest ``|R| / (1 - gamma)`` accepted: values (and their differences) stay finite in float64
+REWARD_LIMIT = 1e300
+
 __all__ = [
     "as_rng",
     "check_int",
@@ -57,7 +60,7 @@ def _interval(low, high, low_open, high_open):
     if low is None and high is not None:
         return f"{'<' if high_open else '<='} {high:g}"
     if low is None:
-        return "(any value)"
+        return ""
     return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
 
 
@@ -75,7 +78,7 @@ def check_real(value, name, low=None, high=None, low_open=False, high_open=False
     if ok and high is not None:
         ok = v < high if high_open else v <= high
     if not ok:
-        raise ValidationError(f"{name} must be {what} {_interval(low, high, low_open, high_open)}; got {value!r}")
+        raise ValidationError(f"{name} must be {' '.join(filter(None, (what, _interval(low, high, low_open, high_open))))}; got {value!r}")
     return v
 
 
@@ -128,6 +131,11 @@ def check_rewards(mdp, rewards, name="rewards"):
         R = R[None]
     if R.ndim != 3 or R.shape[1:] != (S, A):
         raise ValidationError(f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)}")
+    if R.size and np.max(np.abs(R)) > REWARD_LIMIT * (1.0 - mdp.gamma):
+        raise ValidationError(
+            f"{name} reach {np.max(np.abs(R)):.3g}: values beyond {REWARD_LIMIT:.0e} * (1 - gamma) overflow the "
+            "Bellman equation in float64; rescale the rewards"
+        )
     return R, single
 
 

@@ -11,13 +11,36 @@ import numpy as np
 from ._threads import blas_limited
 from ._validation import as_rng, check_int, check_mdp, check_rewards
 from .exceptions import ValidationError
-from .planning import _optimal_q
+from .planning import get_planner, plan
 
 __all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
 
 
+def _row_cdfs(mdp):
+    """Cumulative successor probabilities of every (s, a) row, padded, cached on the MDP.
+
+    Returns ``cum`` (S*A, K) and ``succ`` (S*A, K): row ``s * A + a`` lists the K (at most)
+    successors of (s, a) in increasing state order with their cumulative probabilities, padded
+    with the row's last successor and cumulative value. Summing only the nonzero entries in
+    state order gives exactly the dense cumulative sums (adding a zero is exact), so sampling
+    is the same for a dense and a sparse copy of a model. Memory is (S*A, K): linear in S for
+    sparse dynamics with few successors per row.
+    """
+    cache = mdp.__dict__.get("_row_cdfs")
+    if cache is None:
+        P = mdp.csr()
+        nnz = np.diff(P.indptr)
+        K = int(nnz.max())
+        pos = np.arange(K)[None, :]
+        take = P.indptr[:-1, None] + np.minimum(pos, nnz[:, None] - 1)
+        vals = np.where(pos < nnz[:, None], P.data[take], 0.0)
+        cache = (np.cumsum(vals, axis=1), P.indices[take].astype(np.int64))
+        mdp.__dict__["_row_cdfs"] = cache
+    return cache
+
+
 @blas_limited
-def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
+def sample_demonstrations(mdp, rewards, n_demos, length, rng=None, planner="auto"):
     """Sample demonstrations of a greedy expert (DESIGN section 2).
 
     For each task the expert acts greedily on its true ``Q*``; each demonstration starts in a
@@ -33,6 +56,8 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
     length : int
         Steps per demonstration, L >= 1.
     rng : numpy.random.Generator or int or None
+    planner : str, default="auto"
+        Planner of the expert's ``Q*`` (see :func:`factirl_opt.available_planners`).
 
     Returns
     -------
@@ -45,8 +70,8 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
     length = check_int(length, "length", minimum=1)
     rng = as_rng(rng)
     n, S, A = R.shape
-    _, policy, _ = _optimal_q(mdp, R)
-    cdf = np.cumsum(mdp.transitions, axis=2)
+    policy = plan(get_planner(mdp, planner), R).policy
+    cum, nxt_state = _row_cdfs(mdp)
     out = np.empty((n, n_demos, length, 2), dtype=np.int64)
     states = rng.integers(0, S, size=(n, n_demos))
     task = np.arange(n)[:, None]
@@ -55,8 +80,9 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None):
         out[:, :, t, 0] = states
         out[:, :, t, 1] = actions
         u = rng.random((n, n_demos, 1))
-        nxt = (u > cdf[states, actions]).sum(axis=2)
-        states = np.minimum(nxt, S - 1)  # guard against a cdf ending just below 1
+        rows = states * A + actions
+        k = (u > cum[rows]).sum(axis=2)  # successors whose cumulative probability is below u
+        states = nxt_state[rows, np.minimum(k, cum.shape[1] - 1)]  # guard: a cdf ending just below 1
     return [out[i] for i in range(n)]
 
 

@@ -14,6 +14,7 @@ __all__ = [
     "UnknownSolverError",
     "PersistenceError",
     "MissingDependencyError",
+    "ConvergenceWarning",
 ]
 
 
@@ -47,3 +48,19 @@ class PersistenceError(FactIRLError, ValueError):
 
 class MissingDependencyError(FactIRLError, ImportError):
     """An optional dependency (an extra such as ``gymnasium``) is needed but not installed."""
+
+
+class ConvergenceWarning(UserWarning):
+    """A fit stopped without making progress (stalled at its start, or only on worse points);
+    the message says what to check (scaling of features or initialisation, beta)."""
+
+
+def translate_solver_errors():
+    """Context manager re-raising a ``solvers`` registry error as this library's (interim).
+
+    Until the registry owns its exceptions, its errors already are this library's; this keeps
+    the learners' call sites in their final form.
+    """
+    import contextlib
+
+    return contextlib.nullcontext()

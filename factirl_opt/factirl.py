@@ -1,25 +1,34 @@
 """FactIRL, the factorial learner (paper section 3.2): a shared dictionary of primitive rewards.
 
-Every task's reward is ``theta_i = D h_i`` (D: (d, k), H: (n, k), tasks on the leading axis).
-``fit`` minimises ``J_Xi(D, H) = sum_i J_i(D h_i)`` (eq. 10) by alternating a fixed number of
-steps on H with D fixed (the H-step, gradient eq. 12; any registered step solver) and on D
-with H fixed (the D-step, gradient eq. 11; Armijo descent). ``transfer`` fits the coefficients
-of new tasks with the dictionary fixed (section 4.2).
+Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
+tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
+leading axis (DESIGN section 8).
+
+- :func:`fit_factorial` minimises ``J_Xi(D, H) = sum_i J_i(Phi D h_i)`` (eq. 10) from a given
+  start by alternating a fixed number of steps on H with D fixed (the H-step, gradient eq. 12)
+  and on D with H fixed (the D-step, gradient eq. 11), each with any registered step solver;
+- :func:`transfer_coefficients` fits the coefficients of new tasks with the dictionary fixed
+  (section 4.2);
+- :class:`FactIRL` is the estimator on top: it validates, initialises (PCA of the flat
+  learner's parameters, or random) and stores the learnt attributes.
 """
+
+import dataclasses
 
 import numpy as np
 
 import solvers
 
+from ._progress import fit_progress
 from ._threads import blas_limited
-from ._validation import as_rng, check_beta, check_features, check_int, check_mdp, check_tol
-from .demonstrations import empirical_statistics
-from .exceptions import NotFittedError, ValidationError
-from .gradirl import GradIRL
-from .objective import PolicyMatchingObjective
+from ._validation import as_rng, check_array, check_features, check_int, check_mdp, check_tol
+from .exceptions import NotFittedError, ValidationError, translate_solver_errors
+from .gradirl import GradIRL, make_objective, warn_if_stalled
+from .mdp import check_signature
 from .problems import dictionary_problem, weights_problem
+from .synthetic import task_rewards
 
-__all__ = ["FactIRL", "pca_dictionary"]
+__all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit"]
 
 INITS = ("pca", "random")
 
@@ -49,8 +58,8 @@ def pca_dictionary(parameters, n_components, rng=None):
     dictionary : ndarray, shape (d, k)
     coefficients : ndarray, shape (n, k)
     """
-    X = np.asarray(parameters, dtype=np.float64)
-    if X.ndim != 2 or X.shape[0] == 0:
+    X = check_array(parameters, "parameters", ndim=2)
+    if X.shape[0] == 0:
         raise ValidationError(f"parameters must have shape (n, d) with n >= 1; got {X.shape}")
     n_components = check_int(n_components, "n_components", minimum=1)
     n, d = X.shape
@@ -80,6 +89,212 @@ def _orient_nonneg(D, H, fold=False):
     return D * sign, H * sign
 
 
+
+
+def normalise_dictionary(D, H, band=2.0):
+    """Rescale the primitives to unit norm (H rescaled to match) once one leaves a band.
+
+    The model is invariant to ``D -> D diag(c), H -> H diag(1/c)``; keeping the columns of D
+    near unit norm keeps the two sub-problems balanced. Rescaling only when a norm leaves
+    ``[1/band, band]`` avoids perturbing the product (in floating point) at every iteration;
+    ``band=1`` rescales always (a sparse H-step's L1 penalty is only meaningful for primitives
+    of fixed norm, so its fits keep ``||D[:, l]|| = 1``).
+    """
+    norms = np.linalg.norm(D, axis=0)
+    if band > 1 and np.all((norms >= 1.0 / band) & (norms <= band)):
+        return D, H
+    norms[norms == 0] = 1.0
+    return D / norms, H * norms
+
+
+def _resolve(solver, options, what):
+    if options is not None and not isinstance(options, dict):
+        raise ValidationError(f"{what}_options must be a dict of solver options; got {type(options).__name__}")
+    return solvers.resolve_solver(solver, **(options or {}))
+
+
+def has_converged(previous, current, tol):
+    """The outer loop's stop rule: ``0 <= previous - current <= tol * |previous|``.
+
+    A rise of the total objective is not convergence (the fit goes on, and keeps its best point).
+    """
+    decrease = previous - current
+    return 0.0 <= decrease <= tol * max(abs(previous), np.finfo(float).tiny)
+
+
+@dataclasses.dataclass
+class FactorialFit:
+    """Result of :func:`fit_factorial` (the best point seen).
+
+    Attributes
+    ----------
+    dictionary : ndarray, shape (p, k)
+    coefficients : ndarray, shape (n, k)
+    loss : ndarray, shape (n,)
+        Per-task objective (without a solver's penalty).
+    loss_history : list of float
+        Total objective (with the H-solver's penalty) at the start and after each outer iteration.
+    n_iter : int
+    n_evaluations : int
+    status : str
+        ``"converged"`` (relative decrease below ``tol``) or ``"max_iter"``.
+    """
+
+    dictionary: np.ndarray
+    coefficients: np.ndarray
+    loss: np.ndarray
+    loss_history: list
+    n_iter: int
+    n_evaluations: int
+    status: str
+
+
+def _rewards(mdp, Phi, D, H):
+    return task_rewards(D if Phi is None else Phi @ D, H, mdp.n_states, mdp.n_actions)
+
+
+def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, tol, report):
+    """The alternating loop of eqs. (10)-(12); returns the best point seen and the history."""
+    band = 1.0 if h_solver.constraint == "sparse" else 2.0
+    D, H = normalise_dictionary(D, H, band)
+    loss = objective.loss_and_grad(_rewards(objective.mdp, Phi, D, H))[0]
+    history = [float(loss.sum() + h_solver.penalty(H).sum())]
+    best = (history[0], D, H, loss)
+    h_state = d_state = None
+    status, it = "max_iter", 0
+    for it in range(1, max_iter + 1):
+        F = D if Phi is None else Phi @ D
+        rh = h_solver.run(weights_problem(objective, F), H, inner_steps, state=h_state)
+        H, h_state = rh.coefficients, rh.state
+        rd = d_solver.run(dictionary_problem(objective, H, Phi), D.reshape(1, -1), inner_steps, state=d_state)
+        D, d_state = rd.coefficients.reshape(D.shape), rd.state
+        loss = objective.loss_and_grad(_rewards(objective.mdp, Phi, D, H))[0]  # cached: the D-step's last point
+        D, H = normalise_dictionary(D, H, band)
+        history.append(float(loss.sum() + h_solver.penalty(H).sum()))
+        report(it, history[-1])
+        if history[-1] <= best[0]:
+            best = (history[-1], D, H, loss)
+        if has_converged(history[-2], history[-1], tol):
+            status = "converged"
+            break
+    return best, history, it, status
+
+
+@blas_limited
+def fit_factorial(mdp, demos_per_task, dictionary, coefficients, *, beta=5.0, base_features=None, h_solver="armijo",
+                  h_solver_options=None, d_solver="armijo", d_solver_options=None, max_iter=100, inner_steps=5,
+                  tol=1e-5, objective="policy-matching", planner="auto", callback=None, verbose=False):
+    """Learn a dictionary and coefficients from a starting point by alternating minimisation.
+
+    Each outer iteration runs ``inner_steps`` steps of the H-solver on the coefficients (D
+    fixed; eq. 12) and of the D-solver on ``vec(D)`` (H fixed; eq. 11). Stops when the
+    relative decrease of the total objective over an iteration is below ``tol`` (a rise is not
+    convergence), or after ``max_iter`` iterations; returns the best point seen, so a fit never
+    ends on a worse point than one it visited.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    demos_per_task : list of n task demonstrations
+    dictionary : array_like, shape (p, k)
+        Initial ``D``; p = S*A (tabular) or the number of base features.
+    coefficients : array_like, shape (n, k)
+        Initial ``H``.
+    beta : float
+    base_features : array_like, shape (S*A, p) or (S, p), optional
+        ``Phi``; None for tabular rewards.
+    h_solver, d_solver : str or solvers.StepSolver
+        Step solvers of the two blocks (``solvers.available_solvers()``); the H-solver is used
+        in its alternating form (``solver.for_alternating()``).
+    h_solver_options, d_solver_options : dict, optional
+    max_iter, inner_steps : int
+    tol : float
+    objective : str
+        See ``factirl_opt.available_objectives()``.
+    planner : str
+    callback : callable, optional
+        ``callback(iteration, total_objective)`` after each outer iteration.
+    verbose : bool
+        Progress bar on stderr.
+
+    Returns
+    -------
+    FactorialFit
+    """
+    check_mdp(mdp)
+    Phi = None if base_features is None else check_features(base_features, mdp.n_params, mdp.n_states)
+    p = mdp.n_params if Phi is None else Phi.shape[1]
+    D = check_array(dictionary, "dictionary", ndim=2)
+    H = check_array(coefficients, "coefficients", ndim=2)
+    if D.shape[0] != p or H.shape[1] != D.shape[1]:
+        raise ValidationError(f"dictionary (p, k) and coefficients (n, k) must have p = {p} and equal k; got {D.shape} and {H.shape}")
+    max_iter, inner_steps = check_int(max_iter, "max_iter", minimum=0), check_int(inner_steps, "inner_steps", minimum=1)
+    tol = check_tol(tol)
+    obj = make_objective(mdp, demos_per_task, beta, objective, planner)
+    if H.shape[0] != obj.n_tasks:
+        raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
+        h = _resolve(h_solver, h_solver_options, "h_solver").for_alternating()
+        d = _resolve(d_solver, d_solver_options, "d_solver")
+        best, history, it, status = _alternate(obj, Phi, D, h.project(H), h, d, max_iter, inner_steps, tol, report)
+    _, D, H, loss = best
+    return FactorialFit(D, H, loss, history, it, int(obj.n_evaluations), status)
+
+
+@dataclasses.dataclass
+class TransferFit:
+    """Result of :func:`transfer_coefficients`.
+
+    Attributes
+    ----------
+    coefficients : ndarray, shape (n_new, k)
+    rewards : ndarray, shape (n_new, S, A)
+    loss : ndarray, shape (n_new,)
+        Per-task objective, without a solver's penalty.
+    loss_history : list of float
+        Total objective (with the penalty) at the start and after each step.
+    n_iter, n_evaluations : int
+    status : str
+    """
+
+    coefficients: np.ndarray
+    rewards: np.ndarray
+    loss: np.ndarray
+    loss_history: list
+    n_iter: int
+    n_evaluations: int
+    status: str
+
+
+@blas_limited
+def transfer_coefficients(mdp, demos_per_task, dictionary, *, beta=5.0, base_features=None, h_solver="armijo",
+                          h_solver_options=None, max_iter=100, tol=1e-5, objective="policy-matching", planner="auto",
+                          callback=None, verbose=False):
+    """Coefficients of new tasks with the dictionary fixed (section 4.2).
+
+    Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
+    up to ``max_iter`` steps. Parameters as in :func:`fit_factorial`; ``dictionary`` is (p, k).
+
+    Returns
+    -------
+    TransferFit
+    """
+    check_mdp(mdp)
+    Phi = None if base_features is None else check_features(base_features, mdp.n_params, mdp.n_states)
+    D = check_features(dictionary, mdp.n_params if Phi is None else Phi.shape[1], name="dictionary")
+    F = D if Phi is None else Phi @ D
+    max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
+    obj = make_objective(mdp, demos_per_task, beta, objective, planner)
+    problem = weights_problem(obj, F)
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
+        solver = _resolve(h_solver, h_solver_options, "h_solver")
+        res = solver.run(problem, solver.project(np.zeros((problem.n_rows, problem.n_params))), max_iter, tol=tol,
+                         callback=report)
+    rewards = task_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
+    loss = res.loss - solver.penalty(res.coefficients)
+    return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(obj.n_evaluations), res.status)
+
+
 class FactIRL:
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
 
@@ -92,65 +307,77 @@ class FactIRL:
     init : {"pca", "random"} or tuple (D0, H0), default="pca"
         ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
         or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
-        rewards (:func:`pca_dictionary`), as the paper recommends. ``"random"``: Gaussian
-        primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are
-        small (RMS ~0.03 on the 10x10 grid) and the Boltzmann policies start far from
-        saturation, where the gradients are informative (a unit-scale random start saturates
-        them and the descent stalls). A tuple gives the initial arrays D0 (d, k) and H0 (n, k).
+        parameters (:func:`pca_dictionary`; with ``features``, of the flat learner's feature
+        weights), as the paper recommends. ``"random"``: Gaussian primitives normalised to unit
+        norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
+        grid) and the Boltzmann policies start far from saturation, where the gradients are
+        informative (a unit-scale random start saturates them and the descent stalls). A tuple
+        gives the initial arrays D0 (p, k) and H0 (n, k).
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
         Fixed number of solver steps per sub-problem.
     tol : float, default=1e-5
-        Stop when the relative decrease of the total loss over an outer iteration is below tol.
+        Stop when the relative decrease of the total loss over an outer iteration is below tol
+        (a rise is not convergence; the best point seen is kept).
     h_solver : str or solvers.StepSolver, default="armijo"
         H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
         ``transfer`` uses it too. A constrained solver keeps its constraint in the
         initialisation and in transfer: for a nonnegative one the primitives of a "pca"
         initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one
         uses ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H
-        objective and of ``loss_history_``. The D-step is always Armijo descent.
+        objective and of ``loss_history_``, and its fits keep unit-norm primitives.
     h_solver_options : dict, optional
         Options for an ``h_solver`` given by name.
+    d_solver : str or solvers.StepSolver, default="armijo"
+        D-step solver (same registry; ``"armijo"`` is the paper's).
+    d_solver_options : dict, optional
+    features : array_like, shape (S*A, p) or (S, p), optional
+        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
+        (state features are repeated over actions). None: tabular, p = S*A.
+    objective : str, default="policy-matching"
+        Per-task loss (``factirl_opt.available_objectives()``).
+    planner : str, default="auto"
+        Planning engine (``factirl_opt.available_planners()``).
     flat_max_iter : int, default=100
         Iterations of the flat learner used by ``init="pca"``.
     transfer_max_iter : int, default=100
         Maximum solver steps in ``transfer``.
     rng : numpy.random.Generator or int or None
         Randomness of the "random" initialisation (and of completing a rank-deficient PCA).
+    verbose : bool, default=False
+        Progress bars on stderr.
+    callback : callable, optional
+        ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
+        of ``transfer``.
 
     Attributes
     ----------
-    dictionary_ : ndarray, shape (S*A, k)
+    dictionary_ : ndarray, shape (p, k)
     coefficients_ : ndarray, shape (n, k)
     rewards_ : ndarray, shape (n, S, A)
-        ``D h_i`` reshaped.
+        ``Phi D h_i`` reshaped.
     loss_ : ndarray, shape (n,)
     loss_history_ : list of float
-        Total loss (eq. 10) after the initialisation and after each outer iteration.
+        Total loss (eq. 10, plus a sparse solver's penalty) after the initialisation and after
+        each outer iteration.
     n_evaluations_ : int
-        Batched Q* evaluations used by ``fit`` (including the flat learner of the PCA init).
+        Batched planning evaluations used by ``fit`` (including the flat learner of the PCA init).
     n_iter_ : int
-    transfer_loss_history_, transfer_n_evaluations_, transfer_status_
-        The same records for the last ``transfer`` call (``transfer_loss_`` is the eq. (5)
-        loss per new task, without a solver's penalty; the history includes it, as
-        ``loss_history_`` does).
+    status_ : str
+        ``"converged"`` or ``"max_iter"``.
+    mdp_signature_ : dict
+        Signature of the MDP of ``fit``; ``transfer`` refuses another MDP.
+    transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
+    transfer_n_evaluations_, transfer_status_
+        The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
+        task without a solver's penalty; the history includes it, as ``loss_history_`` does).
     """
 
-    def __init__(
-        self,
-        n_primitives=5,
-        beta=5.0,
-        init="pca",
-        max_iter=100,
-        inner_steps=5,
-        tol=1e-5,
-        h_solver="armijo",
-        h_solver_options=None,
-        flat_max_iter=100,
-        transfer_max_iter=100,
-        rng=None,
-    ):
+    def __init__(self, n_primitives=5, beta=5.0, init="pca", max_iter=100, inner_steps=5, tol=1e-5, h_solver="armijo",
+                 h_solver_options=None, d_solver="armijo", d_solver_options=None, features=None,
+                 objective="policy-matching", planner="auto", flat_max_iter=100, transfer_max_iter=100, rng=None,
+                 verbose=False, callback=None):
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
@@ -159,39 +386,51 @@ class FactIRL:
         self.tol = tol
         self.h_solver = h_solver
         self.h_solver_options = h_solver_options
+        self.d_solver = d_solver
+        self.d_solver_options = d_solver_options
+        self.features = features
+        self.objective = objective
+        self.planner = planner
         self.flat_max_iter = flat_max_iter
         self.transfer_max_iter = transfer_max_iter
         self.rng = rng
+        self.verbose = verbose
+        self.callback = callback
 
-    def _solver(self):
-        return solvers.resolve_solver(self.h_solver, **(self.h_solver_options or {}))
+    def _features(self, mdp):
+        if self.features is None:
+            return None
+        return check_features(self.features, mdp.n_params, mdp.n_states, min_columns=self.n_primitives)
 
-    def _initial(self, mdp, demos_per_task, n, flat_rewards, rng):
-        k, d = self.n_primitives, mdp.n_params
+    def _pca_init(self, mdp, demos_per_task, n, Phi, flat_rewards, rng):
+        evals = 0
+        if flat_rewards is None:
+            flat = GradIRL(beta=self.beta, features=Phi, max_iter=self.flat_max_iter, objective=self.objective,
+                           planner=self.planner).fit(mdp, demos_per_task)
+            W, evals = flat.weights_, flat.n_evaluations_
+        else:
+            Theta = check_array(flat_rewards, "flat_rewards")
+            if Theta.shape != (n, mdp.n_states, mdp.n_actions):
+                raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
+            W = Theta.reshape(n, -1) if Phi is None else np.linalg.lstsq(Phi, Theta.reshape(n, -1).T, rcond=None)[0].T
+        D, H = pca_dictionary(W, self.n_primitives, rng)
+        return D, H, evals
+
+    def _initial(self, mdp, demos_per_task, n, Phi, flat_rewards, rng):
+        k, p = self.n_primitives, mdp.n_params if Phi is None else Phi.shape[1]
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
-            D0 = check_features(self.init[0], mdp.n_params, name="init D0")
-            H0 = np.asarray(self.init[1], dtype=np.float64)
-            if D0.shape != (d, k) or H0.shape != (n, k):
-                raise ValidationError(f"init (D0, H0) must have shapes ({d}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
+            D0, H0 = check_array(self.init[0], "init D0"), check_array(self.init[1], "init H0")
+            if D0.shape != (p, k) or H0.shape != (n, k):
+                raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
             return D0.copy(), H0.copy(), 0
-        if self.init == "random":
-            D0 = rng.standard_normal((d, k))
+        if isinstance(self.init, str) and self.init == "random":
+            D0 = rng.standard_normal((p, k))
             D0 /= np.linalg.norm(D0, axis=0)
             return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
-        if self.init == "pca":
-            evals = 0
-            if flat_rewards is None:
-                flat = GradIRL(beta=self.beta, max_iter=self.flat_max_iter).fit(mdp, demos_per_task)
-                flat_rewards, evals = flat.rewards_, flat.n_evaluations_
-            Theta = np.asarray(flat_rewards, dtype=np.float64)
-            if Theta.shape != (n, mdp.n_states, mdp.n_actions):
-                raise ValidationError(
-                    f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}"
-                )
-            D, H = pca_dictionary(Theta.reshape(n, d), k, rng)
-            return D, H, evals
+        if isinstance(self.init, str) and self.init == "pca":
+            return self._pca_init(mdp, demos_per_task, n, Phi, flat_rewards, rng)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
     @blas_limited
@@ -205,81 +444,49 @@ class FactIRL:
             Each an int array (m, L, 2) or a list of (L_j, 2) episodes.
         flat_rewards : array_like, shape (n, S, A), optional
             Rewards already learnt by the flat learner on these demonstrations; with
-            ``init="pca"`` they are used instead of fitting the flat learner again.
+            ``init="pca"`` they are used instead of fitting the flat learner again (with
+            ``features``, their least-squares feature weights are).
 
         Returns
         -------
         self
         """
         check_mdp(mdp)
-        beta = check_beta(self.beta)
-        check_int(self.n_primitives, "n_primitives", minimum=1)
-        if self.n_primitives > mdp.n_params:
-            raise ValidationError(f"n_primitives={self.n_primitives} exceeds S*A={mdp.n_params}")
-        for name in ("max_iter", "inner_steps", "flat_max_iter"):
-            check_int(getattr(self, name), name, minimum=1 if name == "inner_steps" else 0)
-        check_tol(self.tol)
-        h_solver = self._solver().for_alternating()  # the H-step is one block of an alternating scheme
-        rng = as_rng(self.rng)
-        mu, pi_hat = empirical_statistics(mdp, demos_per_task)
-        n = mu.shape[0]
-        D, H, init_evals = self._initial(mdp, demos_per_task, n, flat_rewards, rng)
-        if getattr(h_solver, "constraint", "none") == "nonneg" and not isinstance(self.init, tuple):
+        k = check_int(self.n_primitives, "n_primitives", minimum=1)
+        Phi = self._features(mdp)
+        p = mdp.n_params if Phi is None else Phi.shape[1]
+        if k > p:
+            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
+        check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
+        with translate_solver_errors():
+            h_solver = _resolve(self.h_solver, self.h_solver_options, "h_solver")
+        n = len(make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner).mu)
+        D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng))
+        if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
             D, H = _orient_nonneg(D, H, self.init == "random")
-        H = h_solver.project(H)
-        objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
-        d_solver = solvers.ArmijoSolver()
-        h_state = d_state = None
-        S, A = mdp.n_states, mdp.n_actions
-        D, H = self._normalise(D, H)
-        loss = objective.evaluate((H @ D.T).reshape(n, S, A)).loss
-        history = [float(loss.sum() + h_solver.penalty(H).sum())]
-        it = 0
-        for it in range(1, int(self.max_iter) + 1):
-            rh = h_solver.run(weights_problem(objective, D), H, int(self.inner_steps), state=h_state)
-            H, h_state = rh.coefficients, rh.state
-            rd = d_solver.run(dictionary_problem(objective, H), D.reshape(1, -1), int(self.inner_steps), state=d_state)
-            D, d_state = rd.coefficients.reshape(mdp.n_params, -1), rd.state
-            loss = objective.evaluate((H @ D.T).reshape(n, S, A)).loss  # cached: the D-step's last point
-            D, H = self._normalise(D, H)
-            history.append(float(loss.sum() + h_solver.penalty(H).sum()))
-            if history[-2] - history[-1] <= self.tol * max(abs(history[-2]), np.finfo(float).tiny):
-                break
-        self.dictionary_ = D
-        self.coefficients_ = H
-        self.rewards_ = (H @ D.T).reshape(n, S, A)
-        self.loss_ = loss
-        self.loss_history_ = history
-        self.n_evaluations_ = int(objective.n_evaluations + init_evals)
-        self.n_iter_ = it
+        fit = fit_factorial(mdp, demos_per_task, D, H, beta=self.beta, base_features=Phi, h_solver=h_solver,
+                            d_solver=self.d_solver, d_solver_options=self.d_solver_options, max_iter=self.max_iter,
+                            inner_steps=self.inner_steps, tol=self.tol, objective=self.objective, planner=self.planner,
+                            callback=self.callback, verbose=self.verbose)
+        self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
+        self.rewards_ = _rewards(mdp, Phi, fit.dictionary, fit.coefficients)
+        self.loss_, self.loss_history_ = fit.loss, fit.loss_history
+        self.n_evaluations_ = int(fit.n_evaluations + init_evals)
+        self.n_iter_, self.status_ = fit.n_iter, fit.status
+        self.mdp_signature_ = mdp.signature()
         return self
-
-    @staticmethod
-    def _normalise(D, H, band=2.0):
-        """Rescale the primitives to unit norm (H rescaled to match) once one leaves a band.
-
-        The model is invariant to ``D -> D diag(c), H -> H diag(1/c)``; keeping the columns
-        of D near unit norm keeps penalties on H (sparse H-steps) meaningful and the two
-        sub-problems balanced. Rescaling only when a norm leaves ``[1/band, band]`` avoids
-        perturbing the product (in floating point) at every iteration.
-        """
-        norms = np.linalg.norm(D, axis=0)
-        if np.all((norms >= 1.0 / band) & (norms <= band)):
-            return D, H
-        norms[norms == 0] = 1.0
-        return D / norms, H * norms
 
     @blas_limited
     def transfer(self, mdp, demos_per_task, max_iter=None, h_solver=None, h_solver_options=None):
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
-        solver for up to ``max_iter`` steps.
+        solver for up to ``max_iter`` steps (:func:`transfer_coefficients`).
 
         Parameters
         ----------
         mdp : TabularMDP
-            Must have S*A equal to the dictionary's first dimension.
+            The MDP of ``fit`` (checked against ``mdp_signature_`` when the model has one).
         demos_per_task : list of n_new task demonstrations
         max_iter : int, optional
             Default ``transfer_max_iter``.
@@ -296,32 +503,30 @@ class FactIRL:
         if not hasattr(self, "dictionary_"):
             raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
         check_mdp(mdp)
-        D = check_features(self.dictionary_, mdp.n_params, name="dictionary_")
-        beta = check_beta(self.beta)
-        max_iter = self.transfer_max_iter if max_iter is None else max_iter
-        check_int(max_iter, "max_iter", minimum=0)
-        check_tol(self.tol)
+        if getattr(self, "mdp_signature_", None) is not None:
+            check_signature(self.mdp_signature_, mdp, "this FactIRL model")
+        Phi = self._features(mdp)
+        D = check_features(self.dictionary_, mdp.n_params if Phi is None else Phi.shape[1], name="dictionary_")
+        if D.shape[1] != self.n_primitives:
+            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
         if h_solver is None:
             if h_solver_options is not None:
                 raise ValidationError("h_solver_options given without h_solver")
-            h_solver = self._solver()
-        else:
-            h_solver = solvers.resolve_solver(h_solver, **(h_solver_options or {}))
-        mu, pi_hat = empirical_statistics(mdp, demos_per_task)
-        objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
-        problem = weights_problem(objective, D)
-        h0 = h_solver.project(np.zeros((problem.n_rows, problem.n_params)))
-        res = h_solver.run(problem, h0, int(max_iter), tol=self.tol)
-        self.transfer_coefficients_ = res.coefficients
-        self.transfer_rewards_ = (res.coefficients @ D.T).reshape(-1, mdp.n_states, mdp.n_actions)
-        self.transfer_loss_ = res.loss - h_solver.penalty(res.coefficients)  # eq. (5) only, like loss_
-        self.transfer_loss_history_ = res.loss_history
-        self.transfer_n_evaluations_ = int(objective.n_evaluations)
-        self.transfer_status_ = res.status
+            h_solver, h_solver_options = self.h_solver, self.h_solver_options
+        res = transfer_coefficients(mdp, demos_per_task, D, beta=self.beta, base_features=Phi, h_solver=h_solver,
+                                    h_solver_options=h_solver_options,
+                                    max_iter=self.transfer_max_iter if max_iter is None else max_iter, tol=self.tol,
+                                    objective=self.objective, planner=self.planner, callback=self.callback,
+                                    verbose=self.verbose)
+        self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
+        self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
+        self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
+        warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients
 
     def __repr__(self):
         return (
             f"FactIRL(n_primitives={self.n_primitives}, beta={self.beta}, init={self.init!r}, "
-            f"h_solver={self.h_solver!r}, max_iter={self.max_iter}, inner_steps={self.inner_steps})"
+            f"h_solver={self.h_solver!r}, d_solver={self.d_solver!r}, objective={self.objective!r}, "
+            f"max_iter={self.max_iter}, inner_steps={self.inner_steps})"
         )

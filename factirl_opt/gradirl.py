@@ -1,30 +1,55 @@
 """GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1)."""
 
+import warnings
+
 import numpy as np
 
 import solvers
 
+from ._progress import fit_progress
 from ._threads import blas_limited
 from ._validation import check_beta, check_features, check_int, check_mdp, check_tol
 from .demonstrations import empirical_statistics
-from .objective import PolicyMatchingObjective
+from .exceptions import ConvergenceWarning, translate_solver_errors
+from .objectives import get_objective
 from .problems import weights_problem
+from .synthetic import task_rewards
 
-__all__ = ["GradIRL"]
+__all__ = ["GradIRL", "make_objective", "warn_if_stalled"]
+
+
+def make_objective(mdp, demos_per_task, beta, objective="policy-matching", planner="auto"):
+    """The named objective bound to the empirical statistics of ``demos_per_task``."""
+    mu, pi_hat = empirical_statistics(mdp, demos_per_task)
+    return get_objective(objective)(mdp, mu, pi_hat, check_beta(beta), planner=planner)
+
+
+def warn_if_stalled(status, iterations, what):
+    """A :class:`ConvergenceWarning` when a fit stalled before its second step."""
+    if status == "stalled" and iterations <= 1:
+        warnings.warn(
+            f"{what} stalled at its first step: no step decreased the loss. The rewards are probably far "
+            "from the scale where the Boltzmann policy is informative (check the scale of the features or of "
+            "the initialisation, and beta)",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
 
 
 class GradIRL:
     """Flat learner: one reward per task whose Boltzmann policy on Q* matches the expert's.
 
-    Minimises eq. (5) for every task (batched over the task axis) by gradient descent with
-    Armijo step-size adaptation (or any registered step solver), from zero weights.
+    Minimises eq. (5) (or another registered objective) for every task, batched over the task
+    axis, by gradient descent with Armijo step-size adaptation (or any registered step solver),
+    from zero weights.
 
     Parameters
     ----------
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
-    features : array_like, shape (S*A, k), optional
-        Linear reward features ``R = F w``; None learns tabular rewards (``theta = R``, d = S*A).
+    features : array_like, shape (S*A, p) or (S, p), optional
+        Linear reward features ``R = F w`` (state features are repeated over actions); None
+        learns tabular rewards (``theta = R``, d = S*A).
     max_iter : int, default=100
         Maximum descent iterations.
     tol : float, default=1e-5
@@ -33,29 +58,46 @@ class GradIRL:
         Step solver (see ``solvers.available_solvers()``).
     solver_options : dict, optional
         Options for a solver given by name.
+    objective : str, default="policy-matching"
+        Per-task loss (see ``factirl_opt.available_objectives()``).
+    planner : str, default="auto"
+        Planning engine (see ``factirl_opt.available_planners()``).
+    verbose : bool, default=False
+        Show a progress bar (iterations, loss) on stderr.
+    callback : callable, optional
+        Called as ``callback(iteration, total_loss)`` after each iteration.
 
     Attributes
     ----------
     weights_ : ndarray, shape (n, p)
-        Learnt parameters (tabular theta, p = S*A, or feature weights, p = k).
+        Learnt parameters (tabular theta, p = S*A, or feature weights).
     rewards_ : ndarray, shape (n, S, A)
     loss_ : ndarray, shape (n,)
         Final loss of each task.
     loss_history_ : list of float
         Total loss (sum over tasks) before the first step and after each iteration.
     n_evaluations_ : int
-        Batched Q* evaluations used.
+        Batched planning evaluations used.
     n_iter_ : int
     status_ : str
+        ``"converged"``, ``"max_iter"`` or ``"stalled"`` (a :class:`ConvergenceWarning` is
+        issued when it stalls at its first step).
+    mdp_signature_ : dict
+        The signature of the MDP it was fitted on.
     """
 
-    def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None):
+    def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None,
+                 objective="policy-matching", planner="auto", verbose=False, callback=None):
         self.beta = beta
         self.features = features
         self.max_iter = max_iter
         self.tol = tol
         self.solver = solver
         self.solver_options = solver_options
+        self.objective = objective
+        self.planner = planner
+        self.verbose = verbose
+        self.callback = callback
 
     @blas_limited
     def fit(self, mdp, demos_per_task):
@@ -72,25 +114,26 @@ class GradIRL:
         self
         """
         check_mdp(mdp)
-        beta = check_beta(self.beta)
-        check_int(self.max_iter, "max_iter", minimum=0)
-        check_tol(self.tol)
+        max_iter = check_int(self.max_iter, "max_iter", minimum=0)
+        tol = check_tol(self.tol)
         F = None if self.features is None else check_features(self.features, mdp.n_params, mdp.n_states)
-        solver = solvers.resolve_solver(self.solver, **(self.solver_options or {}))
-        mu, pi_hat = empirical_statistics(mdp, demos_per_task)
-        objective = PolicyMatchingObjective(mdp, mu, pi_hat, beta)
+        objective = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
         problem = weights_problem(objective, F)
-        x0 = np.zeros((problem.n_rows, problem.n_params))
-        res = solver.run(problem, x0, int(self.max_iter), tol=self.tol)
+        with translate_solver_errors(), fit_progress(self.callback, self.verbose, max_iter, "GradIRL") as report:
+            solver = solvers.resolve_solver(self.solver, **(self.solver_options or {}))
+            res = solver.run(problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, tol=tol, callback=report)
         S, A = mdp.n_states, mdp.n_actions
         self.weights_ = res.coefficients
-        self.rewards_ = (res.coefficients if F is None else res.coefficients @ F.T).reshape(-1, S, A)
+        self.rewards_ = res.coefficients.reshape(-1, S, A) if F is None else task_rewards(F, res.coefficients, S, A)
         self.loss_ = res.loss
         self.loss_history_ = res.loss_history
         self.n_evaluations_ = int(objective.n_evaluations)
         self.n_iter_ = res.iterations
         self.status_ = res.status
+        self.mdp_signature_ = mdp.signature()
+        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         return self
 
     def __repr__(self):
-        return f"GradIRL(beta={self.beta}, features={'None' if self.features is None else np.shape(self.features)}, max_iter={self.max_iter})"
+        features = "None" if self.features is None else np.shape(self.features)
+        return f"GradIRL(beta={self.beta}, features={features}, max_iter={self.max_iter}, objective={self.objective!r})"

@@ -1,11 +1,13 @@
 """Tabular Markov decision processes: :class:`TabularMDP` and the paper's :class:`GridWorld`.
 
-Conventions (DESIGN section 2): transitions ``P[s, a, s']`` of shape (S, A, S) whose rows sum
-to one; rewards ``R[..., s, a]``; a tabular reward parameter ``theta`` is ``R`` flattened in
-C order, so ``d = S * A`` and index ``s * A + a``.
+Conventions (DESIGN sections 2 and 7): dynamics ``P(s' | s, a)`` either dense, an array
+``P[s, a, s']`` of shape (S, A, S), or sparse, a ``scipy.sparse`` matrix of shape (S*A, S) whose
+row ``s * A + a`` is ``P(. | s, a)``; rows sum to one. Rewards ``R[..., s, a]``; a tabular reward
+parameter ``theta`` is ``R`` flattened in C order, so ``d = S * A`` and index ``s * A + a``.
 """
 
 import numpy as np
+import scipy.sparse as sp
 
 from ._validation import check_int, check_probability, check_real
 from .exceptions import ValidationError
@@ -13,6 +15,61 @@ from .exceptions import ValidationError
 __all__ = ["TabularMDP", "GridWorld", "check_signature"]
 
 _ROW_SUM_TOL = 1e-9
+#: largest dense (S, A, S) copy that ``transitions`` builds for a sparse model, in bytes
+DENSE_COPY_LIMIT = 512 * 2**20
+
+
+def _check_dense(transitions):
+    try:
+        P = np.array(transitions, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"transitions must be a numeric array of shape (S, A, S) or a scipy.sparse (S*A, S) matrix: {exc}") from None
+    if P.ndim != 3:
+        raise ValidationError(f"transitions must have shape (S, A, S) (or be a scipy.sparse (S*A, S) matrix); got ndim={P.ndim}, shape {P.shape}")
+    S, A, S2 = P.shape
+    if S == 0 or A == 0:
+        raise ValidationError(f"transitions must have at least one state and one action; got shape {P.shape}")
+    if S2 != S:
+        raise ValidationError(f"transitions must have shape (S, A, S); got {P.shape} (last axis {S2} != {S} states)")
+    for bad, what in ((~np.isfinite(P), "finite"), (P < 0, "nonnegative")):
+        if np.any(bad):
+            idx = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise ValidationError(f"transitions must be {what}; found {P[idx]} at index {idx}")
+    err = np.abs(P.sum(axis=2) - 1.0)
+    if np.any(err > _ROW_SUM_TOL):
+        s, a = np.unravel_index(np.argmax(err), err.shape)
+        raise ValidationError(
+            f"each row transitions[s, a, :] must sum to 1 (within {_ROW_SUM_TOL}); row (s={s}, a={a}) sums to {float(P[s, a].sum())!r}"
+        )
+    P.setflags(write=False)
+    return P
+
+
+def _check_sparse(transitions):
+    """A validated canonical CSR copy (S*A, S) of a scipy.sparse matrix, never densified."""
+    P = sp.csr_matrix(transitions, dtype=np.float64, copy=True)
+    P.sum_duplicates()
+    P.eliminate_zeros()
+    P.sort_indices()
+    rows, S = P.shape
+    if S == 0 or rows == 0 or rows % S:
+        raise ValidationError(f"sparse transitions must have shape (S*A, S) with S, A >= 1; got {P.shape}")
+    A = rows // S
+    row_of = np.repeat(np.arange(rows), np.diff(P.indptr))
+    for bad, what in ((~np.isfinite(P.data), "finite"), (P.data < 0, "nonnegative")):
+        if np.any(bad):
+            j = int(np.argmax(bad))
+            r = int(row_of[j])
+            raise ValidationError(f"transitions must be {what}; found {P.data[j]} in row {r} (s={r // A}, a={r % A}), column {P.indices[j]}")
+    sums = np.asarray(P.sum(axis=1)).ravel()
+    err = np.abs(sums - 1.0)
+    if np.any(err > _ROW_SUM_TOL):
+        r = int(np.argmax(err > _ROW_SUM_TOL))
+        raise ValidationError(f"each row of the (S*A, S) transitions must sum to 1 (within {_ROW_SUM_TOL}); "
+                              f"row {r} (s={r // A}, a={r % A}) sums to {float(sums[r])!r}")
+    for arr in (P.data, P.indices, P.indptr):
+        arr.setflags(write=False)
+    return P, A
 
 
 class TabularMDP:
@@ -20,17 +77,23 @@ class TabularMDP:
 
     Parameters
     ----------
-    transitions : array_like, shape (S, A, S)
-        ``transitions[s, a, s']`` is the probability of reaching ``s'`` after taking action
-        ``a`` in state ``s``. Must be finite, nonnegative, and each row ``[s, a, :]`` must sum
-        to 1 within 1e-9.
+    transitions : array_like of shape (S, A, S), or scipy.sparse matrix of shape (S*A, S)
+        Dense: ``transitions[s, a, s']`` is the probability of reaching ``s'`` after taking
+        action ``a`` in state ``s``. Sparse: row ``s * A + a`` holds ``P(. | s, a)``; it is
+        kept sparse (CSR) and validated without densifying. Entries must be finite and
+        nonnegative, and each row must sum to 1 within 1e-9 (errors name the first bad row).
     gamma : float
         Discount factor, ``0 <= gamma < 1``.
 
     Attributes
     ----------
+    transition_matrix : ndarray or scipy.sparse.csr_matrix, shape (S*A, S)
+        The dynamics as one (S*A, S) matrix, row ``s * A + a``: a read-only dense array for a
+        dense model, a CSR matrix for a sparse one. This is what the planning engine uses.
     transitions : ndarray of float64, shape (S, A, S)
-        A read-only copy of the transitions.
+        Dense models: a read-only copy of the transitions. Sparse models: a dense copy built on
+        request (for inspection of small models), refused above 512 MiB; the library never uses it.
+    is_sparse : bool
     gamma : float
     n_states, n_actions : int
     n_params : int
@@ -43,51 +106,67 @@ class TabularMDP:
     """
 
     def __init__(self, transitions, gamma):
-        try:
-            P = np.array(transitions, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValidationError(f"transitions must be a numeric array of shape (S, A, S): {exc}") from None
-        if P.ndim != 3:
-            raise ValidationError(f"transitions must have shape (S, A, S); got ndim={P.ndim}, shape {P.shape}")
-        S, A, S2 = P.shape
-        if S == 0 or A == 0:
-            raise ValidationError(f"transitions must have at least one state and one action; got shape {P.shape}")
-        if S2 != S:
-            raise ValidationError(f"transitions must have shape (S, A, S); got {P.shape} (last axis {S2} != {S} states)")
-        if not np.all(np.isfinite(P)):
-            bad = np.argwhere(~np.isfinite(P))[0]
-            raise ValidationError(f"transitions must be finite; found {P[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
-        if np.any(P < 0):
-            bad = np.argwhere(P < 0)[0]
-            raise ValidationError(f"transitions must be nonnegative; found {P[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
-        sums = P.sum(axis=2)
-        err = np.abs(sums - 1.0)
-        if np.any(err > _ROW_SUM_TOL):
-            s, a = np.unravel_index(np.argmax(err), err.shape)
-            raise ValidationError(
-                f"each row transitions[s, a, :] must sum to 1 (within {_ROW_SUM_TOL}); row (s={s}, a={a}) sums to {float(sums[s, a])!r}"
-            )
-        gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
-        P.setflags(write=False)
-        self.transitions = P
-        self.gamma = gamma
+        if sp.issparse(transitions):
+            self._P, A = _check_sparse(transitions)
+            self._shape = (self._P.shape[1], A)
+        else:
+            self._dense = _check_dense(transitions)
+            self._shape = self._dense.shape[:2]
+        self.gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
+
+    @property
+    def is_sparse(self):
+        return hasattr(self, "_P")
 
     @property
     def n_states(self):
-        return self.transitions.shape[0]
+        return self._shape[0]
 
     @property
     def n_actions(self):
-        return self.transitions.shape[1]
+        return self._shape[1]
 
     @property
     def n_params(self):
-        return self.transitions.shape[0] * self.transitions.shape[1]
+        return self._shape[0] * self._shape[1]
+
+    @property
+    def transitions(self):
+        if not self.is_sparse:
+            return self._dense
+        size = self.n_states * self.n_params * 8
+        if size > DENSE_COPY_LIMIT:
+            raise ValidationError(
+                f"this sparse model's dense (S, A, S) transitions would take {size / 2**30:.1f} GiB; "
+                "use mdp.transition_matrix (CSR, (S*A, S))"
+            )
+        if not hasattr(self, "_dense_cache"):
+            dense = self._P.toarray().reshape(self.n_states, self.n_actions, self.n_states)
+            dense.setflags(write=False)
+            self._dense_cache = dense
+        return self._dense_cache
+
+    @property
+    def transition_matrix(self):
+        return self._P if self.is_sparse else self._dense.reshape(self.n_params, self.n_states)
 
     @property
     def transitions_flat(self):
-        """Transitions reshaped to (S * A, S), rows indexed by ``s * A + a``."""
-        return self.transitions.reshape(self.n_states * self.n_actions, self.n_states)
+        """Dense models: transitions reshaped to (S * A, S), rows indexed by ``s * A + a``."""
+        if self.is_sparse:
+            raise ValidationError("transitions_flat is for dense models; a sparse model's (S*A, S) matrix is mdp.transition_matrix")
+        return self.transition_matrix
+
+    def csr(self):
+        """The dynamics as a CSR (S*A, S) matrix (built once and cached for a dense model)."""
+        if self.is_sparse:
+            return self._P
+        if not hasattr(self, "_csr_cache"):
+            P = sp.csr_matrix(self.transition_matrix)
+            P.eliminate_zeros()
+            P.sort_indices()
+            self._csr_cache = P
+        return self._csr_cache
 
     def signature(self):
         """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics.
@@ -99,11 +178,7 @@ class TabularMDP:
         """
         import hashlib
 
-        import scipy.sparse as sp
-
-        P = sp.csr_matrix(self.transitions_flat, dtype=np.float64)
-        P.eliminate_zeros()
-        P.sort_indices()
+        P = self.csr()
         h = hashlib.sha256()
         for part in (np.asarray(P.shape, dtype=np.int64), P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data):
             h.update(np.ascontiguousarray(part).tobytes())
@@ -169,22 +244,25 @@ class GridWorld(TabularMDP):
 
     @classmethod
     def _build(cls, size, p):
-        S = size * size
-        P = np.zeros((S, 4, S))
-        for s in range(S):
-            r, c = divmod(s, size)
-            targets = {}
-            for a, (dr, dc) in enumerate(cls.MOVES):
-                rr, cc = r + dr, c + dc
-                if 0 <= rr < size and 0 <= cc < size:
-                    targets[a] = rr * size + cc
-            nf = len(targets)
-            for a in range(4):
-                for t in targets.values():  # the uniform part over feasible moves
-                    P[s, a, t] += (1.0 - p) / nf if a in targets else 1.0 / nf
-                if a in targets:
-                    P[s, a, targets[a]] += p
-        return P
+        """Sparse (S*A, S) dynamics, vectorised over cells (time and memory linear in S)."""
+        S, A = size * size, len(cls.MOVES)
+        r, c = np.divmod(np.arange(S), size)
+        moves = np.array(cls.MOVES)
+        tr, tc = r[:, None] + moves[:, 0], c[:, None] + moves[:, 1]  # (S, A) target cells
+        feasible = (tr >= 0) & (tr < size) & (tc >= 0) & (tc < size)
+        target = np.where(feasible, tr * size + tc, -1)
+        nf = feasible.sum(axis=1)  # >= 2 on a grid of side >= 2
+        # uniform part: request a, land on every feasible move m; (1 - p)/nf if a is feasible, else 1/nf
+        uniform = np.where(feasible, (1.0 - p) / nf[:, None], 1.0 / nf[:, None])  # (S, a)
+        rows = np.broadcast_to((np.arange(S)[:, None] * A + np.arange(A))[:, :, None], (S, A, A))
+        cols = np.broadcast_to(target[:, None, :], (S, A, A))
+        vals = np.broadcast_to(uniform[:, :, None], (S, A, A))
+        keep = np.broadcast_to(feasible[:, None, :], (S, A, A))
+        succ = feasible  # the requested feasible move also succeeds with probability p
+        row = np.concatenate([rows[keep], (np.arange(S)[:, None] * A + np.arange(A))[succ]])
+        col = np.concatenate([cols[keep], target[succ]])
+        val = np.concatenate([vals[keep], np.full(int(succ.sum()), p)])
+        return sp.csr_matrix((val, (row, col)), shape=(S * A, S))
 
     def state_to_cell(self, state):
         """(row, col) of a state index, or arrays of them for an array of states."""

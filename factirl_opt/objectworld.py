@@ -47,8 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._validation import check_positive
-from .demonstrations import as_rng
+from ._validation import as_rng, check_int, check_real
 from .exceptions import ValidationError
 from .mdp import TabularMDP
 
@@ -130,23 +129,6 @@ class ObjectWorld:
         )
 
 
-def _check_size(size):
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
-        raise ValidationError(f"size must be an integer >= 2 (the side of the grid); got {size!r}")
-    return int(size)
-
-
-def _check_unit(value, name, low_open=False, high_open=False):
-    """A real number in [0, 1] (either end open on request), as float."""
-    lo, hi = "(" if low_open else "[", ")" if high_open else "]"
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValidationError(f"{name} must be a real number in {lo}0, 1{hi}; got {value!r}")
-    v = float(value)
-    if not (np.isfinite(v) and (v > 0 if low_open else v >= 0) and (v < 1 if high_open else v <= 1)):
-        raise ValidationError(f"{name} must be in {lo}0, 1{hi}; got {value!r}")
-    return v
-
-
 def objectworld_transitions(size, determinism=0.7):
     """Sparse Objectworld dynamics, built vectorised in time and memory linear in ``S``.
 
@@ -165,8 +147,8 @@ def objectworld_transitions(size, determinism=0.7):
         Duplicate landings (e.g. "stay" and a move into a wall) are summed, explicit zeros
         removed, indices sorted; every row sums to 1 up to rounding (<= 1e-15).
     """
-    size = _check_size(size)
-    p = _check_unit(determinism, "determinism")
+    size = check_int(size, "size", minimum=2)
+    p = check_real(determinism, "determinism", 0.0, 1.0)
     S, A = size * size, N_ACTIONS
     rows, cols = np.divmod(np.arange(S), size)
     land_r = np.clip(rows[:, None] + _MOVES[:, 0], 0, size - 1)
@@ -278,15 +260,15 @@ def make_objectworld(size=32, n_inner=5, n_outer=2, object_density=0.05, determi
     ValidationError
         Naming the bad argument and value.
     """
-    size = _check_size(size)
+    size = check_int(size, "size", minimum=2)
     for name, value in (("n_inner", n_inner), ("n_outer", n_outer)):
-        check_positive(value, name, integer=True)
+        check_int(value, name, minimum=1)
         if value > size * size:
             raise ValidationError(f"{name} must be at most the number of cells {size * size}; got {value}")
     n_inner, n_outer = int(n_inner), int(n_outer)
-    density = _check_unit(object_density, "object_density", low_open=True)
-    det = _check_unit(determinism, "determinism")
-    gamma = _check_unit(gamma, "gamma", high_open=True)
+    density = check_real(object_density, "object_density", 0.0, 1.0, low_open=True)
+    det = check_real(determinism, "determinism", 0.0, 1.0)
+    gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
     rng = as_rng(rng)
     if objects is None:
         objs = _place_objects(size, n_inner, n_outer, density, rng)
@@ -378,12 +360,6 @@ def objectworld_features(world, continuous=False, dtype=np.float64):
     return binary.reshape(N * N, -1).astype(dtype)
 
 
-def _check_real(value, name):
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value):
-        raise ValidationError(f"{name} must be a finite real number; got {value!r}")
-    return float(value)
-
-
 def levine_reward(world, positive=1.0, negative=-1.0):
     """Levine et al.'s single-task reward, as a state reward.
 
@@ -412,7 +388,7 @@ def levine_reward(world, positive=1.0, negative=-1.0):
     world = _check_world(world)
     if world.n_inner < 2:
         raise ValidationError(f"levine_reward needs at least 2 inner colours; the world has n_inner={world.n_inner}")
-    pos, neg = _check_real(positive, "positive"), _check_real(negative, "negative")
+    pos, neg = check_real(positive, "positive"), check_real(negative, "negative")
     dsq = _squared_distances(world)
     near0, near1 = dsq[:, 0] < 9.0, dsq[:, 1] < 4.0
     return np.where(near0 & near1, pos, np.where(near0, neg, 0.0))
@@ -462,7 +438,7 @@ def multitask_rewards(world, n_tasks, rng=None):
         :func:`multitask_primitives`, the "ground truth features".
     """
     world = _check_world(world)
-    check_positive(n_tasks, "n_tasks", integer=True)
+    check_int(n_tasks, "n_tasks", minimum=1)
     rng = as_rng(rng)
     c1 = world.n_inner
     H = np.zeros((int(n_tasks), c1))
@@ -482,7 +458,7 @@ def state_action_rewards(rewards, n_actions=N_ACTIONS):
     r = np.asarray(rewards, dtype=np.float64)
     if r.ndim == 0:
         raise ValidationError(f"rewards must have shape (S,) or (n, S); got a scalar {rewards!r}")
-    check_positive(n_actions, "n_actions", integer=True)
+    check_int(n_actions, "n_actions", minimum=1)
     return np.repeat(r[..., None], int(n_actions), axis=-1)
 
 

@@ -1,14 +1,21 @@
-"""Step problems built on eq. (5): what the learners hand to a step solver.
+"""Step problems: what the learners hand to a step solver, built on any objective.
 
 - :func:`weights_problem`: rows are tasks, ``x_i = w_i`` with ``R_i = F w_i`` (tabular when
-  ``F`` is None); used by GradIRL, FactIRL's H-step (``F = D``, eq. 12) and transfer.
-- :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = D h_i``,
-  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``sum_i y_i h_i^T`` (eq. 11).
+  ``F`` is None); used by GradIRL, FactIRL's H-step (``F = Phi D``, eq. 12) and transfer.
+- :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi D h_i``,
+  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11; DESIGN
+  section 8).
+
+Gradients come from the objective's ``dJ/dR`` (``y_i``) by the chain rule; least-squares
+objectives also provide residuals, Jacobians (for the QP steps, k columns) and Jacobian-vector
+products (for matrix-free Gauss-Newton on the dictionary).
 """
 
 import numpy as np
 
-from solvers._base import StepProblem  # the submodule: `import solvers` first must not cycle
+from solvers import StepProblem
+
+from .synthetic import task_rewards
 
 __all__ = ["weights_problem", "dictionary_problem"]
 
@@ -18,9 +25,9 @@ def weights_problem(objective, features=None):
 
     Parameters
     ----------
-    objective : PolicyMatchingObjective
+    objective : Objective
     features : ndarray, shape (S*A, p), optional
-        Shared features (the dictionary). None: tabular rewards, p = S*A.
+        Shared features (``Phi D`` in FactIRL's H-step). None: tabular rewards, p = S*A.
     """
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
@@ -28,51 +35,53 @@ def weights_problem(objective, features=None):
     p = S * A if F is None else F.shape[1]
 
     def rewards(x):
-        return (x if F is None else x @ F.T).reshape(-1, S, A)
+        return x.reshape(-1, S, A) if F is None else task_rewards(F, x, S, A)
 
     def loss_and_grad(x, rows):
-        ev = objective.evaluate(rewards(x), rows)
-        y = ev.grad.reshape(len(rows), S * A)
-        return ev.loss, (y if F is None else y @ F)
+        loss, y = objective.loss_and_grad(rewards(x), rows)
+        y = y.reshape(len(rows), S * A)
+        return loss, (y if F is None else y @ F)
 
     def residual_jacobian(x, rows):
-        feats = np.eye(S * A) if F is None else F
-        ev = objective.evaluate(rewards(x), rows, grad=False, features=feats)
-        return ev.loss, ev.residual, ev.jacobian
+        return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else F)
 
     return StepProblem(
         loss_and_grad=loss_and_grad,
-        residual_jacobian=residual_jacobian,
+        residual_jacobian=residual_jacobian if objective.least_squares else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
         n_params=p,
     )
 
 
-def dictionary_problem(objective, coefficients):
-    """One-row problem over the dictionary ``vec(D)`` (1, S*A*k) with ``H`` fixed (eqs. 10-11).
+def dictionary_problem(objective, coefficients, base_features=None):
+    """One-row problem over the dictionary ``vec(D)`` (1, p*k) with ``H`` fixed (eqs. 10-11).
 
     Parameters
     ----------
-    objective : PolicyMatchingObjective
+    objective : Objective
     coefficients : ndarray, shape (n, k)
         ``H``, tasks on the leading axis.
+    base_features : ndarray, shape (S*A, p), optional
+        ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k). None: tabular, p = S*A.
     """
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     H = np.asarray(coefficients, dtype=np.float64)
     n, k = H.shape
+    Phi = None if base_features is None else np.asarray(base_features, dtype=np.float64)
+    p = S * A if Phi is None else Phi.shape[1]
     all_rows = np.arange(n)
 
     def loss_and_grad(x, rows):
-        D = x.reshape(S * A, k)
-        ev = objective.evaluate((H @ D.T).reshape(n, S, A), all_rows)
-        g = ev.grad.reshape(n, S * A).T @ H  # (S*A, k): sum_i y_i h_i^T, eq. (11)
-        return np.array([ev.loss.sum()]), g.reshape(1, -1)
+        D = x.reshape(p, k)
+        loss, y = objective.loss_and_grad(task_rewards(D if Phi is None else Phi @ D, H, S, A), all_rows)
+        g = y.reshape(n, S * A).T @ H  # (S*A, k): sum_i y_i h_i^T, eq. (11)
+        return np.array([loss.sum()]), (g if Phi is None else Phi.T @ g).reshape(1, -1)
 
     return StepProblem(
         loss_and_grad=loss_and_grad,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=1,
-        n_params=S * A * k,
+        n_params=p * k,
     )

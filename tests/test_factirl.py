@@ -131,7 +131,7 @@ def test_pca_dictionary(rng):
     np.testing.assert_allclose(D4.T @ D4, np.eye(4), atol=1e-12)
     with pytest.raises(ValidationError, match=r"n_components=11 exceeds the parameter dimension d=10"):
         fo.pca_dictionary(W, 11)
-    with pytest.raises(ValidationError, match=r"parameters must have shape \(n, d\) with n >= 1; got \(10,\)"):
+    with pytest.raises(ValidationError, match=r"parameters must be a 2-d array; got shape \(10,\)"):
         fo.pca_dictionary(W[0], 1)
 
 
@@ -141,9 +141,9 @@ def test_pca_dictionary(rng):
         (dict(init="kmeans"), ValidationError, r"init must be one of \('pca', 'random'\) or a tuple \(D0, H0\); got 'kmeans'"),
         (dict(init=(np.ones((36, K)),)), ValidationError, r"init given as a tuple must be \(D0, H0\)"),
         (dict(init=(np.ones((36, K)), np.ones((4, K)))), ValidationError, r"init \(D0, H0\) must have shapes \(36, 2\) and \(5, 2\); got \(36, 2\) and \(4, 2\)"),
-        (dict(init=(np.ones((30, K)), np.ones((5, K)))), ValidationError, r"init D0 must have shape .*got \(30, 2\)"),
+        (dict(init=(np.ones((30, K)), np.ones((5, K)))), ValidationError, r"init \(D0, H0\) must have shapes \(36, 2\) and \(5, 2\); got \(30, 2\)"),
         (dict(n_primitives=0), ValidationError, r"n_primitives must be an integer >= 1; got 0"),
-        (dict(n_primitives=37), ValidationError, r"n_primitives=37 exceeds S\*A=36"),
+        (dict(n_primitives=37), ValidationError, r"n_primitives=37 exceeds the reward dimension p=36"),
         (dict(beta=-1.0), ValidationError, r"beta must be a finite number > 0; got -1\.0"),
         (dict(max_iter=-1), ValidationError, r"max_iter must be an integer >= 0; got -1"),
         (dict(inner_steps=0), ValidationError, r"inner_steps must be an integer >= 1; got 0"),

@@ -109,7 +109,7 @@ def _valid(rng):
 @pytest.mark.parametrize(
     "make, fragment",
     [
-        (lambda P: P[0], r"shape \(S, A, S\); got ndim=2, shape \(2, 3\)"),
+        (lambda P: P[0], r"shape \(S, A, S\) \(or be a scipy.sparse \(S\*A, S\) matrix\); got ndim=2, shape \(2, 3\)"),
         (lambda P: P[None], r"got ndim=4"),
         (lambda P: np.ones((3, 2, 4)) / 4, r"got \(3, 2, 4\) \(last axis 4 != 3 states\)"),
         (lambda P: np.zeros((0, 2, 0)), r"at least one state and one action; got shape \(0, 2, 0\)"),

@@ -16,7 +16,7 @@ from scipy.optimize import nnls
 
 import factirl_opt as fo
 import solvers
-from factirl_opt.objective import PolicyMatchingObjective
+from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.problems import weights_problem
 from solvers.gauss_newton import reduce_least_squares
 

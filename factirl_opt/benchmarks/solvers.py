@@ -42,7 +42,7 @@ from ..factirl import FactIRL
 from ..gradirl import GradIRL
 from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
-from ..objective import PolicyMatchingObjective
+from ..objectives import PolicyMatchingObjective
 from ..demonstrations import empirical_statistics
 from ..problems import weights_problem
 

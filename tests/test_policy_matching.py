@@ -10,7 +10,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.objective import PolicyMatchingObjective, dq_dtheta
+from factirl_opt.objectives import PolicyMatchingObjective, dq_dtheta
 from factirl_opt.problems import dictionary_problem, weights_problem
 
 from conftest import greedy_gap
@@ -268,13 +268,13 @@ def test_residual_jacobian_through_weights_problem(rng, grid3, make_statistics):
 def test_objective_counts_evaluations_and_caches_repeats(rng, grid3, make_statistics):
     obj, mu, pi_hat = _objective(rng, grid3, make_statistics, 2)
     R = rng.standard_normal((2, grid3.n_states, grid3.n_actions))
-    first = obj.evaluate(R)
+    first = obj.loss_and_grad(R)
     assert obj.n_evaluations == 1
-    again = obj.evaluate(R.copy())
+    again = obj.loss_and_grad(R.copy())
     assert obj.n_evaluations == 1  # served from the cache
-    np.testing.assert_array_equal(again.loss, first.loss)
-    np.testing.assert_array_equal(again.grad, first.grad)
-    obj.evaluate(R[1:] + 1.0, rows=np.array([1]))
+    np.testing.assert_array_equal(again[0], first[0])
+    np.testing.assert_array_equal(again[1], first[1])
+    obj.loss_and_grad(R[1:] + 1.0, rows=np.array([1]))
     assert obj.n_evaluations == 2
     assert isinstance(obj.n_evaluations, int)
 
@@ -319,5 +319,5 @@ def test_bad_reward_shape_for_loss(grid3):
 
 
 def test_bad_features_for_residual_jacobian(grid3):
-    with pytest.raises(ValidationError, match=r"features must have shape \(S\*A, p\) = \(36, p\); got \(35, 2\)"):
+    with pytest.raises(ValidationError, match=r"features must have shape \(S\*A = 36, p\) with p >= 1; got \(35, 2\)"):
         fo.residual_jacobian(grid3, np.zeros((1, 9, 4)), np.full(9, 1 / 9), np.full((9, 4), 0.25), BETA, np.ones((35, 2)))

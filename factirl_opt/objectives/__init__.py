@@ -1,0 +1,64 @@
+"""Objectives: registered per-task losses over rewards (DESIGN section 9).
+
+An objective maps (MDP, empirical statistics, beta) to a batched loss per task and ``dJ/dR``;
+the learners take one by name (``objective=``), and the step solvers and the factorial scheme
+never know which one runs.
+
+``"policy-matching"`` (default)
+    The paper's eq. (5): squared distance between the Boltzmann policy on ``Q*`` and the
+    demonstrated policy (:class:`PolicyMatchingObjective`; least squares, so the Gauss-Newton
+    solvers apply).
+"""
+
+from ..exceptions import ValidationError
+from ._base import Linearization, Objective
+from .policy_matching import (
+    PolicyMatchingObjective,
+    dq_dtheta,
+    policy_matching_grad_reference,
+    policy_matching_loss,
+    residual_jacobian,
+)
+
+__all__ = [
+    "Objective",
+    "Linearization",
+    "PolicyMatchingObjective",
+    "policy_matching_loss",
+    "policy_matching_grad_reference",
+    "residual_jacobian",
+    "dq_dtheta",
+    "register_objective",
+    "available_objectives",
+    "get_objective",
+]
+
+_REGISTRY = {}
+
+
+def register_objective(name, cls, overwrite=False):
+    """Register an :class:`Objective` subclass under ``name``."""
+    if not isinstance(name, str) or not name:
+        raise ValidationError(f"objective name must be a non-empty string; got {name!r}")
+    if not (isinstance(cls, type) and issubclass(cls, Objective)):
+        raise ValidationError(f"objective {name!r} must be an Objective subclass; got {cls!r}")
+    if name in _REGISTRY and not overwrite:
+        raise ValidationError(f"an objective named {name!r} is already registered (pass overwrite=True to replace it)")
+    _REGISTRY[name] = cls
+
+
+def available_objectives():
+    """Registered objective names (sorted)."""
+    return sorted(_REGISTRY)
+
+
+def get_objective(name):
+    """The :class:`Objective` subclass registered as ``name`` (a subclass is returned as is)."""
+    if isinstance(name, type) and issubclass(name, Objective):
+        return name
+    if not isinstance(name, str) or name not in _REGISTRY:
+        raise ValidationError(f"unknown objective {name!r}; available: {', '.join(available_objectives())}")
+    return _REGISTRY[name]
+
+
+register_objective("policy-matching", PolicyMatchingObjective)

@@ -1,0 +1,271 @@
+"""The policy-matching loss of eq. (5), its gradient, and its Gauss-Newton derivatives.
+
+Notation (DESIGN section 3), batched over tasks on the leading axis:
+
+- ``Q = Q*_R`` (n, S, A) and a greedy policy ``pi*`` (n, S); ``pi = softmax(beta Q)``;
+- loss per task ``J = sum_s mu(s) sum_a (pi(a|s) - pi_hat(a|s))^2`` (eq. 5), i.e.
+  ``J = ||r||^2`` with residuals ``r = sqrt(mu) (pi - pi_hat)`` flattened to (S*A,);
+- ``g = dJ/dQ = beta pi (e - sum_a pi e)`` with ``e = 2 mu (pi - pi_hat)`` (eqs. 7-8, with the
+  factor ``beta`` that eq. 8 leaves out);
+- ``y = dJ/dR`` by the adjoint (:func:`factirl_opt.planning.adjoint`): one transposed
+  S x S solve per task.
+
+The paper's own route, eq. (9), builds ``phi = dQ*/dtheta`` explicitly (d right-hand sides);
+:func:`dq_dtheta` and :func:`policy_matching_grad_reference` keep it as the dense reference
+that the tests and the benchmark compare the adjoint with.
+"""
+
+import numpy as np
+
+from .._threads import blas_limited
+from .._validation import check_beta, check_features, check_mdp, check_policy, check_rewards, check_statistics
+from ..exceptions import FactIRLError, ValidationError
+from ..planning import adjoint, boltzmann_policy, get_planner, plan, tangent
+from ._base import Linearization, Objective
+
+__all__ = [
+    "PolicyMatchingObjective",
+    "policy_matching_loss",
+    "policy_matching_grad_reference",
+    "residual_jacobian",
+    "dq_dtheta",
+]
+
+#: largest S*A for which the dense eq. (9) reference routes build their (S*A, d) matrices
+REFERENCE_MAX_PARAMS = 5_000
+
+
+def softmax_vjp(pi, E, beta):
+    """``(dpi/dQ)^T E`` of the Boltzmann policy, per state: ``beta pi (E - sum_a pi E)``.
+
+    The softmax Jacobian is symmetric, so this is also the forward product ``(dpi/dQ) dQ``
+    with ``E = dQ``. ``E`` is (n, S, A) or (n, S, A, k).
+    """
+    if E.ndim == pi.ndim + 1:
+        pi = pi[..., None]
+    return beta * pi * (E - np.sum(pi * E, axis=2, keepdims=True))
+
+
+class _Point:
+    """Forward pass of eq. (5) at some rewards (internal)."""
+
+    def __init__(self, plan_result, pi, diff, mu, beta):
+        self.plan, self.pi, self.diff, self.mu, self.beta = plan_result, pi, diff, mu, beta
+        self.loss = np.einsum("ns,nsa->n", mu, diff * diff)
+
+
+def _forward(planner, R, mu, pi_hat, beta, policy=None):
+    res = plan(planner, R, policy)
+    pi = boltzmann_policy(res.Q, beta)
+    return _Point(res, pi, pi - pi_hat, mu, beta)
+
+
+def _gradient(planner, point):
+    """``dJ/dR`` (n, S, A) by the adjoint route."""
+    g = softmax_vjp(point.pi, 2.0 * point.mu[:, :, None] * point.diff, point.beta)
+    return adjoint(planner, point.plan.system, point.plan.policy, g)
+
+
+def _residual(point):
+    return (np.sqrt(point.mu)[:, :, None] * point.diff).reshape(point.diff.shape[0], -1)
+
+
+def _jvp(planner, point, dR):
+    """``dr = sqrt(mu) dpi/dQ dQ`` along dR (n, S, A) or k directions (n, S, A, k); rows flattened."""
+    dQ = tangent(planner, point.plan.system, point.plan.policy, dR)
+    sq = np.sqrt(point.mu)[:, :, None]
+    dr = (sq[..., None] if dQ.ndim == 4 else sq) * softmax_vjp(point.pi, dQ, point.beta)
+    n, S, A = point.pi.shape
+    return dr.reshape(n, S * A, *dQ.shape[3:])
+
+
+def _vjp(planner, point, U):
+    """``J^T U`` (n, S, A) for U (n, S*A): the adjoint route with ``e = sqrt(mu) U``."""
+    n, S, A = point.pi.shape
+    e = np.sqrt(point.mu)[:, :, None] * U.reshape(n, S, A)
+    return adjoint(planner, point.plan.system, point.plan.policy, softmax_vjp(point.pi, e, point.beta))
+
+
+def _features_jacobian(planner, point, F):
+    """Gauss-Newton Jacobian ``dr/dw`` (n, S*A, p) for ``R = F w`` (forward mode, p RHS)."""
+    n, S, A = point.pi.shape
+    dR = np.broadcast_to(F.reshape(1, S, A, -1), (n, S, A, F.shape[1]))
+    return _jvp(planner, point, dR)
+
+
+class PolicyMatchingObjective(Objective):
+    """Eq. (5) over a fixed set of tasks, with warm-started policy iteration (see :class:`Objective`).
+
+    Warm start: each task's last greedy policy starts its next policy iteration.
+    """
+
+    name = "policy-matching"
+    least_squares = True
+
+    def _point(self, R, rows):
+        warm = None if self._warm is None else self._warm[rows]
+        point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
+        if self._warm is None:
+            self._warm = np.zeros((self.n_tasks, self.mdp.n_states), dtype=np.intp)
+        self._warm[rows] = point.plan.policy
+        return point
+
+    def _grad(self, point):
+        return _gradient(self.planner, point)
+
+    def _linearize(self, point):
+        return Linearization(point.loss, _residual(point), lambda dR: _jvp(self.planner, point, dR),
+                             lambda U: _vjp(self.planner, point, U))
+
+    def _jacobian(self, point, features):
+        return _features_jacobian(self.planner, point, features)
+
+
+def _validated(mdp, rewards, mu_hat, pi_hat, beta):
+    check_mdp(mdp)
+    R, _ = check_rewards(mdp, rewards)
+    mu, pi_hat = check_statistics(mdp, mu_hat, pi_hat, n=R.shape[0])
+    return R, mu, pi_hat, check_beta(beta)
+
+
+@blas_limited
+def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None, planner="auto"):
+    """Policy-matching loss (eq. 5) per task and its gradient dJ/dR by the adjoint method.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    rewards : array_like, shape (S, A) or (n, S, A)
+        Rewards ``R[i, s, a]`` (a tabular ``theta`` reshaped).
+    mu_hat : array_like, shape (S,) or (n, S)
+        Empirical state frequencies (see :func:`empirical_statistics`).
+    pi_hat : array_like, shape (S, A) or (n, S, A)
+        Empirical policies.
+    beta : float, default=5.0
+        Boltzmann inverse temperature (eq. 7).
+    policy : array_like of int, shape (n, S), optional
+        Warm start for the policy iteration computing Q*.
+    planner : str, default="auto"
+        See :func:`factirl_opt.available_planners`.
+
+    Returns
+    -------
+    loss : ndarray, shape (n,)
+        ``J_i`` (eq. 5) for each task.
+    grad : ndarray, shape (n, S, A)
+        ``dJ_i / dR_i`` (eqs. 8-9, computed by the adjoint route of DESIGN section 3).
+    """
+    R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
+    pl = get_planner(mdp, planner)
+    point = _forward(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
+    return point.loss, _gradient(pl, point)
+
+
+@blas_limited
+def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None, planner="auto"):
+    """Residuals of eq. (5) and their Jacobian for rewards linear in parameters.
+
+    With ``r_i = sqrt(mu_i) (pi_i - pi_hat_i)`` flattened, ``J_i = ||r_i||^2``. For
+    ``R_i = F w_i`` the Jacobian ``dr_i/dw_i = sqrt(mu_i) dpi_i/dw`` comes from forward mode
+    with p right-hand sides: ``Phi_V = (I - gamma P_pi)^-1 F[greedy rows]``,
+    ``dQ*/dw = F + gamma P Phi_V``, ``dpi/dw = beta pi (dQ/dw - sum_a pi dQ/dw)``
+    (DESIGN section 3, Gauss-Newton H-step).
+
+    Parameters
+    ----------
+    rewards : array_like, shape (n, S, A)
+        Current rewards ``F w_i`` reshaped.
+    features : array_like, shape (S*A, p)
+        ``F`` (the dictionary D in FactIRL's H-step).
+
+    Returns
+    -------
+    loss : ndarray, shape (n,)
+    residual : ndarray, shape (n, S*A)
+    jacobian : ndarray, shape (n, S*A, p)
+    """
+    R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
+    F = check_features(features, mdp.n_params)
+    pl = get_planner(mdp, planner)
+    point = _forward(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
+    return point.loss, _residual(point), _features_jacobian(pl, point, F)
+
+
+def dq_dtheta(mdp, policy, features=None, route="direct", tol=1e-13, max_iter=100000):
+    """``phi = dQ*/dtheta`` of one task, the fixed point of eq. (9) (dense reference route).
+
+    ``phi(x, a) = dR(x, a)/dtheta + gamma sum_y P(y|x, a) phi(y, pi*(y))`` for the greedy
+    policy ``pi*``. This builds the whole (S*A, p) matrix; it refuses models with more than
+    ``REFERENCE_MAX_PARAMS`` state-action pairs instead of running out of memory.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    policy : array_like of int, shape (S,)
+        Greedy policy on Q*.
+    features : array_like, shape (S*A, p), optional
+        ``dR/dtheta`` for rewards ``R = F w``; default the identity (tabular, p = S*A).
+    route : {"direct", "fixed_point"}
+        ``"fixed_point"`` iterates eq. (9) like dynamic programming, as the paper describes;
+        ``"direct"`` solves ``(I - gamma P_pi) Phi_V = F[greedy rows]`` with p right-hand sides
+        (forward mode).
+    tol : float
+        Sup-norm stopping tolerance of the fixed-point iteration.
+
+    Returns
+    -------
+    phi : ndarray, shape (S*A, p)
+    """
+    check_mdp(mdp)
+    S, A = mdp.n_states, mdp.n_actions
+    if mdp.n_params > REFERENCE_MAX_PARAMS:
+        raise ValidationError(
+            f"the eq. (9) reference route builds dense (S*A, d) matrices; S*A = {mdp.n_params} exceeds "
+            f"{REFERENCE_MAX_PARAMS}: use policy_matching_loss (adjoint route)"
+        )
+    pol = check_policy(mdp, policy, 1)[0]
+    F = np.eye(S * A) if features is None else check_features(features, mdp.n_params)
+    greedy_rows = np.arange(S) * A + pol
+    P2 = mdp.transitions.reshape(S * A, S)
+    if route == "direct":
+        M = np.eye(S) - mdp.gamma * P2[greedy_rows]
+        return F + mdp.gamma * (P2 @ np.linalg.solve(M, F[greedy_rows]))
+    if route == "fixed_point":
+        phi = F.copy()
+        for _ in range(max_iter):
+            new = F + mdp.gamma * (P2 @ phi[greedy_rows])
+            delta = np.max(np.abs(new - phi))
+            phi = new
+            if delta < tol:
+                return phi
+        raise FactIRLError(f"eq. (9) fixed-point iteration did not converge in {max_iter} sweeps")
+    raise ValidationError(f"route must be 'direct' or 'fixed_point'; got {route!r}")
+
+
+@blas_limited
+def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, features=None, route="fixed_point"):
+    """Gradient of eq. (5) through the explicit ``dQ*/dtheta`` of eq. (9) (reference route).
+
+    Computes ``phi`` for each task with :func:`dq_dtheta`, then
+    ``dJ/dtheta = sum_{s,a} g(s, a) phi(s, a, :)`` with ``g = dJ/dQ``. Slow by design:
+    it is what the adjoint route (:func:`policy_matching_loss`) is checked against.
+
+    Parameters
+    ----------
+    rewards : array_like, shape (S, A) or (n, S, A)
+        The rewards at which to differentiate (for features, ``R = F w`` already formed).
+    features : array_like, shape (S*A, p), optional
+        Differentiate with respect to feature weights ``w``; default tabular ``theta``.
+    route : {"fixed_point", "direct"}
+
+    Returns
+    -------
+    loss : ndarray, shape (n,)
+    grad : ndarray, shape (n, p)
+        ``p = S*A`` for tabular rewards.
+    """
+    R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
+    point = _forward(get_planner(mdp), R, mu, pi_hat, beta)
+    g = softmax_vjp(point.pi, 2.0 * mu[:, :, None] * point.diff, beta).reshape(R.shape[0], -1)
+    grads = [g[i] @ dq_dtheta(mdp, point.plan.policy[i], features, route=route) for i in range(R.shape[0])]
+    return point.loss, np.array(grads)
