@@ -137,7 +137,8 @@ class FactorialFit:
     n_iter : int
     n_evaluations : int
     status : str
-        ``"converged"`` (relative decrease below ``tol``) or ``"max_iter"``.
+        ``"converged"`` (relative decrease below ``tol``), ``"max_iter"``, or ``"stalled"``
+        (the first outer iteration changed nothing).
     """
 
     dictionary: np.ndarray
@@ -155,7 +156,8 @@ def _rewards(mdp, Phi, D, H):
 
 def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, tol, report):
     """The alternating loop of eqs. (10)-(12); returns the best point seen and the history."""
-    band = 1.0 if h_solver.constraint == "sparse" else 2.0
+    penalised = h_solver.constraint == "sparse"
+    band = 1.0 if penalised else 2.0
     D, H = normalise_dictionary(D, H, band)
     loss = objective.loss_and_grad(_rewards(objective.mdp, Phi, D, H))[0]
     history = [float(loss.sum() + h_solver.penalty(H).sum())]
@@ -166,7 +168,8 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
         F = D if Phi is None else Phi @ D
         rh = h_solver.run(weights_problem(objective, F), H, inner_steps, state=h_state)
         H, h_state = rh.coefficients, rh.state
-        rd = d_solver.run(dictionary_problem(objective, H, Phi), D.reshape(1, -1), inner_steps, state=d_state)
+        rd = d_solver.run(dictionary_problem(objective, H, Phi, unit_norm=penalised), D.reshape(1, -1), inner_steps,
+                          state=d_state)
         D, d_state = rd.coefficients.reshape(D.shape), rd.state
         loss = objective.loss_and_grad(_rewards(objective.mdp, Phi, D, H))[0]  # cached: the D-step's last point
         D, H = normalise_dictionary(D, H, band)
@@ -174,6 +177,9 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
         report(it, history[-1])
         if history[-1] <= best[0]:
             best = (history[-1], D, H, loss)
+        if it == 1 and history[1] == history[0]:
+            status = "stalled"  # neither block moved: nothing will
+            break
         if has_converged(history[-2], history[-1], tol):
             status = "converged"
             break
@@ -365,7 +371,7 @@ class FactIRL:
         Batched planning evaluations used by ``fit`` (including the flat learner of the PCA init).
     n_iter_ : int
     status_ : str
-        ``"converged"`` or ``"max_iter"``.
+        ``"converged"``, ``"max_iter"`` or ``"stalled"`` (with a :class:`ConvergenceWarning`).
     mdp_signature_ : dict
         Signature of the MDP of ``fit``; ``transfer`` refuses another MDP.
     transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
@@ -474,6 +480,7 @@ class FactIRL:
         self.n_evaluations_ = int(fit.n_evaluations + init_evals)
         self.n_iter_, self.status_ = fit.n_iter, fit.status
         self.mdp_signature_ = mdp.signature()
+        warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
     @blas_limited

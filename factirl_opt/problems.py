@@ -54,7 +54,7 @@ def weights_problem(objective, features=None):
     )
 
 
-def dictionary_problem(objective, coefficients, base_features=None):
+def dictionary_problem(objective, coefficients, base_features=None, unit_norm=False):
     """One-row problem over the dictionary ``vec(D)`` (1, p*k) with ``H`` fixed (eqs. 10-11).
 
     Parameters
@@ -64,6 +64,11 @@ def dictionary_problem(objective, coefficients, base_features=None):
         ``H``, tasks on the leading axis.
     base_features : ndarray, shape (S*A, p), optional
         ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k). None: tabular, p = S*A.
+    unit_norm : bool, default=False
+        Use the primitives at unit norm: rewards ``R_i = Phi D~ h_i`` with
+        ``D~ = D diag(1 / ||D[:, l]||)``, so the step cannot trade the scale of D against that
+        of H (needed when H carries a penalty such as L1). The gradient is then
+        ``(G - D~ diag(sum_j D~_jl G_jl)) diag(1 / ||D[:, l]||)`` with ``G`` the gradient at ``D~``.
     """
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
@@ -75,9 +80,15 @@ def dictionary_problem(objective, coefficients, base_features=None):
 
     def loss_and_grad(x, rows):
         D = x.reshape(p, k)
+        norms = np.linalg.norm(D, axis=0) if unit_norm else None
+        if unit_norm:
+            D = D / np.where(norms > 0, norms, 1.0)
         loss, y = objective.loss_and_grad(task_rewards(D if Phi is None else Phi @ D, H, S, A), all_rows)
         g = y.reshape(n, S * A).T @ H  # (S*A, k): sum_i y_i h_i^T, eq. (11)
-        return np.array([loss.sum()]), (g if Phi is None else Phi.T @ g).reshape(1, -1)
+        g = g if Phi is None else Phi.T @ g
+        if unit_norm:
+            g = (g - D * np.sum(D * g, axis=0)) / np.where(norms > 0, norms, 1.0)
+        return np.array([loss.sum()]), g.reshape(1, -1)
 
     return StepProblem(
         loss_and_grad=loss_and_grad,
