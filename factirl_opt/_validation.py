@@ -203,9 +203,10 @@ def check_features(features, n_params, n_states=None, name="features", min_colum
         Smallest accepted p.
     """
     F = check_array(features, name, ndim=2)
+    given = F.shape
     if n_states is not None and F.shape[0] == n_states and n_states != n_params:
         F = np.repeat(F, n_params // n_states, axis=0)
     if F.shape[0] != n_params or F.shape[1] < min_columns:
         rows = f"S*A = {n_params}" + (f" or S = {n_states}" if n_states is not None else "")
-        raise ValidationError(f"{name} must have shape ({rows}, p) with p >= {min_columns}; got {F.shape}")
+        raise ValidationError(f"{name} must have shape ({rows}, p) with p >= {min_columns}; got {given}")
     return F
