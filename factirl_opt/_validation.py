@@ -97,15 +97,27 @@ def check_tol(value, name="tol"):
     return check_real(value, name, low=0.0)
 
 
+def _refuse_non_real(raw):
+    """TypeError for complex, string and non-numeric object arrays (numpy would cast or warn)."""
+    if raw.dtype.kind in "cSUV":
+        raise TypeError(f"got an array of dtype {raw.dtype}")
+    if raw.dtype.kind == "O":
+        bad = next((v for v in raw.flat if not isinstance(v, numbers.Real)), None)
+        if bad is not None:
+            raise TypeError(f"got an object array holding {type(bad).__name__} {bad!r}")
+
+
 def check_array(value, name, ndim=None, dtype=np.float64):
     """``value`` as a finite numeric array (float64 by default) of the given ndim.
 
     The message names the first non-finite entry and its index.
     """
     try:
-        arr = np.asarray(value, dtype=dtype)
+        raw = np.asarray(value)
+        _refuse_non_real(raw)
+        arr = np.asarray(raw, dtype=dtype)
     except (TypeError, ValueError, OverflowError) as exc:
-        raise ValidationError(f"{name} must be a numeric array: {exc}") from None
+        raise ValidationError(f"{name} must be a real numeric array: {exc}") from None
     if ndim is not None and arr.ndim != ndim:
         raise ValidationError(f"{name} must be a {ndim}-d array; got shape {arr.shape}")
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._threads import blas_limited
-from ._validation import check_beta, check_int, check_mdp, check_policy, check_real, check_rewards
+from ._validation import check_array, check_beta, check_int, check_mdp, check_policy, check_real, check_rewards
 from .exceptions import FactIRLError, ValidationError
 
 __all__ = [
@@ -471,11 +471,9 @@ def boltzmann_policy(Q, beta):
     pi : ndarray, shape (..., S, A)
         Rows sum to 1.
     """
-    Q = np.asarray(Q, dtype=np.float64)
+    Q = check_array(Q, "Q")
     if Q.ndim < 1:
         raise ValidationError(f"Q must have an action axis; got shape {Q.shape}")
-    if not np.all(np.isfinite(Q)):
-        raise ValidationError("Q must be finite")
     beta = check_beta(beta)
     z = beta * (Q - Q.max(axis=-1, keepdims=True))
     np.exp(z, out=z)

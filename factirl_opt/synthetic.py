@@ -73,7 +73,11 @@ def task_rewards(dictionary, coefficients, n_states, n_actions):
         raise ValidationError(f"dictionary must have shape (S*A, k) = ({n_states * n_actions}, k); got {D.shape}")
     if H.shape[1] != D.shape[1]:
         raise ValidationError(f"coefficients must have shape (n, {D.shape[1]}); got {H.shape}")
-    return (H @ D.T).reshape(-1, n_states, n_actions)
+    with np.errstate(over="ignore", invalid="ignore"):
+        R = (H @ D.T).reshape(-1, n_states, n_actions)
+    if not np.all(np.isfinite(R)):
+        raise ValidationError("the rewards D h_i overflow float64: rescale the dictionary or the coefficients")
+    return R
 
 
 @dataclasses.dataclass

@@ -128,7 +128,7 @@ def test_nonfinite_rewards(grid4, bad):
 
 
 def test_non_numeric_rewards(grid4):
-    with pytest.raises(ValidationError, match="rewards must be a numeric array"):
+    with pytest.raises(ValidationError, match="rewards must be a real numeric array"):
         fo.optimal_q(grid4, [["a"] * 4] * 16)
 
 
