@@ -135,7 +135,7 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
     ragged = [
         demos[0],  # (m, L, 2) array
         [demos[1][0][:2], demos[1][1], [[0, 1], [4, 2], [5, 3]]],  # list of episodes, lengths 2, 6, 3
-        demos[2][0],  # one (L, 2) episode
+        [demos[2][0]],  # a list of one (L, 2) episode
         (np.array([[3, 1]], dtype=np.int32),),
         demos[3].astype(np.float64),
     ]
@@ -144,7 +144,7 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
     assert len(back) == 5
     assert isinstance(back[0], np.ndarray) and back[0].shape == (3, 6, 2)
     assert isinstance(back[1], list) and [len(ep) for ep in back[1]] == [2, 6, 3]
-    assert isinstance(back[2], np.ndarray) and back[2].shape == (6, 2)
+    assert isinstance(back[2], list) and len(back[2]) == 1 and back[2][0].shape == (6, 2)
     assert isinstance(back[3], list) and back[3][0].tolist() == [[3, 1]]
     assert all(np.asarray(ep).dtype == np.int64 for task in back for ep in (task if isinstance(task, list) else [task]))
     np.testing.assert_array_equal(back[1][2], [[0, 1], [4, 2], [5, 3]])
@@ -182,14 +182,16 @@ def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
 @pytest.mark.parametrize(
     "demos, match",
     [
-        ([], "non-empty list"),
-        ("abc", "non-empty list"),
+        ([], "demos_per_task is empty"),
+        ("abc", "demos_per_task must be a list with one entry per task"),
         ([None], "task 0 must be an int array"),
         ([[]], "task 0 are empty"),
-        ([[np.zeros((2, 3), int)]], r"episode 0 of demonstrations of task 0 must have shape \(L, 2\)"),
+        ([[np.zeros((2, 3), int)]], r"demonstrations of task 0, episode 0 must have shape \(L, 2\)"),
         ([[[[0, 1], [2]]]], r"must be an array of \(state, action\) pairs"),
-        ([[np.array([[0.5, 1.0]])]], "must hold integer"),
-        ([[np.array([[0, 1]])], [np.array([[2, -1]])]], r"task 1 holds a negative state or action: \[2, -1\]"),
+        ([[np.array([[0.5, 1.0]])]], r"task 0, episode 0, step 0: state 0.5 is not an integer"),
+        ([[np.array([[0, 1]])], [np.array([[0, 0], [2, -1]])]], r"task 1, episode 0, step 1: action -1 is not a valid index"),
+        ([np.array([[0, 1]]), np.array([[2, 3]])], r"demos_per_task\[0\] is a single episode"),
+        ([["demos.npz"]], r"task 0, episode 0 is a file name"),
     ],
 )
 def test_save_demonstrations_validates(demos, match, tmp_path):
@@ -255,7 +257,7 @@ def test_format_versions(model_file, tmp_path):
         fo.load_model(_rewrite(model_file, tmp_path / "future.npz", future))
     with pytest.raises(PersistenceError, match="format_version is missing"):
         fo.load_model(_rewrite(model_file, tmp_path / "nov.npz", lambda h: h.pop("format_version")))
-    with pytest.raises(PersistenceError, match="format_version is missing or not an integer: '1'"):
+    with pytest.raises(PersistenceError, match="format_version is missing or not an integer >= 1: '1'"):
         fo.load_model(_rewrite(model_file, tmp_path / "strv.npz", lambda h: h.update(format_version="1")))
 
 
@@ -311,7 +313,6 @@ def test_missing_array_parameter(tmp_path):
         (None, (), {"steps": np.zeros((5, 2), dtype=np.int64)}, "inconsistent"),
         (None, (), {"task_n_episodes": np.array([3, 2])}, "inconsistent"),
         (lambda h: h.update(task_forms=["array"]), (), None, "inconsistent"),
-        (lambda h: h.update(task_forms=["array", "episode"]), (), None, "task 1 has form 'episode'"),
         (lambda h: h.update(task_forms=["array", "array"]), (), {"episode_lengths": np.array([6, 6, 6, 6, 8, 4])},
          r"task 1 has form 'array' with episode lengths \[6, 8, 4\]"),
         (lambda h: h.update(task_forms=["array", "tensor"]), (), None, "task 1 has form 'tensor'"),
