@@ -51,9 +51,6 @@ there is one, the member or attribute.
 
 import json
 import os
-import struct
-import zipfile
-import zlib
 
 import numpy as np
 
@@ -77,9 +74,6 @@ _SOLVER_PARAMS = ("solver", "h_solver")
 _ARRAY_PARAMS = ("features", "init")
 _TASK_FORMS = ("array", "list", "episode")
 
-#: What reading a damaged .npz archive or member can raise (zip, zlib and .npy layers).
-_READ_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, MemoryError,
-                NotImplementedError, RuntimeError, OverflowError, struct.error)
 
 
 def _library_version():
@@ -164,13 +158,20 @@ def _write(path, header, arrays):
 
 
 def _members(path, label):
-    """Every member of the .npz archive at ``path``, each read (and decompressed) on its own."""
+    """Every member of the .npz archive at ``path``, each read (and decompressed) on its own.
+
+    numpy's .npz/.npy readers raise many types on damaged bytes (zipfile.BadZipFile,
+    zlib.error, EOFError, NotImplementedError for a flipped compression method, RuntimeError
+    for a flipped encryption flag, SyntaxError or tokenize.TokenError from the .npy header
+    parser, MemoryError for a huge declared shape, ...): every one of them means the file is
+    damaged, so both reading steps catch them all and name the file (and the member).
+    """
     unreadable = f"{label} is not a readable factirl-opt file"
     try:
         loaded = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise
-    except _READ_ERRORS as exc:
+    except Exception as exc:  # damaged bytes, see the docstring
         raise PersistenceError(f"{unreadable} (corrupt or not an .npz archive): {type(exc).__name__}: {exc}") from None
     if not isinstance(loaded, np.lib.npyio.NpzFile):
         raise PersistenceError(f"{label} is not a factirl-opt file: it holds a single .npy array, not an .npz archive")
@@ -179,7 +180,7 @@ def _members(path, label):
         for name in npz.files:
             try:
                 contents[name] = npz[name]
-            except _READ_ERRORS as exc:
+            except Exception as exc:  # damaged bytes, see the docstring
                 raise PersistenceError(
                     f"{unreadable}: member {name!r} is corrupt or unreadable ({type(exc).__name__}: {exc})"
                 ) from None
@@ -421,6 +422,8 @@ def _load_attributes(header, contents, label):
     for key in _require(header, "array_attributes", label, "the header", list):
         if not isinstance(key, str):
             raise PersistenceError(f"{label} is malformed: array attribute names must be strings; got {key!r:.40}")
+        if key in attributes:
+            raise PersistenceError(f"{label} is malformed: attribute {key} is stored twice (in the header and as an array)")
         attributes[key] = _require(contents, f"attr/{key}", label, "the archive")
     _check_attributes(attributes, f"{label} is malformed")
     return attributes

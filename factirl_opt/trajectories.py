@@ -44,7 +44,6 @@ import collections.abc
 import numbers
 import os
 import typing
-import zipfile
 
 import numpy as np
 
@@ -199,15 +198,19 @@ def _open_rollout(path, where):
         loaded = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise PersistenceError(f"{label} is not a readable .npz rollout: {exc}") from None
+    except Exception as exc:  # damaged bytes: numpy's readers raise many types (see persistence._members)
+        raise PersistenceError(f"{label} is not a readable .npz rollout: {type(exc).__name__}: {exc}") from None
     if not isinstance(loaded, np.lib.npyio.NpzFile):
         raise PersistenceError(f"{label} holds a single array, not an .npz rollout with observations and actions")
     with loaded as npz:
         if "__header__" in npz.files:
             raise PersistenceError(f"{label} is a factirl-opt file, not a rollout: read it with fo.load_demonstrations")
-        obs, acts = _trajectory_fields(npz, label)
-    return {"obs": obs, "acts": acts}
+        keys = [k for k in _OBS_KEYS + _ACT_KEYS if k in npz.files]
+        try:
+            arrays = {k: npz[k] for k in keys}
+        except Exception as exc:  # a damaged member
+            raise PersistenceError(f"{label}: a member is corrupt or unreadable: {type(exc).__name__}: {exc}") from None
+    return arrays
 
 
 def _episode(ep, i, j, bounds, load_files):
