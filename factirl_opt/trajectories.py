@@ -171,6 +171,8 @@ def _trajectory_pairs(x, where):
         obs, acts = np.asarray(obs), np.asarray(acts)
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"{where}: its observations and actions must be arrays: {exc}") from None
+    if acts.size == 0:
+        raise ValidationError(f"{where} has {len(obs)} observations and 0 actions; expected L >= 1 actions")
     if obs.ndim != 1 or obs.dtype.kind not in "iu":
         hint = " (one row per step: one-hot or feature vectors? np.argmax(obs, axis=1) gives the states of one-hot rows)" if obs.ndim == 2 else ""
         raise ValidationError(
