@@ -55,7 +55,7 @@ __all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "task_ste
 _COLUMNS = ("state", "action")
 _OBS_KEYS = ("obs", "observations")
 _ACT_KEYS = ("acts", "actions")
-_INT64_MAX = np.iinfo(np.int64).max
+_INT64_LIMIT = 2**63  # states and actions must fit in int64
 
 
 class TaskDemonstrations(typing.NamedTuple):
@@ -129,7 +129,7 @@ def _as_indices(arr, where, n_states=None, n_actions=None):
     for col in (0, 1):
         values = arr[..., col]
         hi = bounds[col]
-        bad = (values < 0) | (values > _INT64_MAX) if hi is None else (values < 0) | (values >= hi)
+        bad = (values < 0) | (values >= (_INT64_LIMIT if hi is None else hi))
         if np.any(bad):
             index = _first(np.asarray(bad, dtype=bool)) + (col,)
             problem = f"is out of range [0, {hi})" if hi is not None else "is not a valid index (states and actions are integers >= 0)"
@@ -160,8 +160,8 @@ def _trajectory_fields(x, where):
         )
     try:
         return x[obs[0]], x[acts[0]]
-    except ValueError as exc:  # an .npz member holding objects, read with allow_pickle=False
-        raise ValidationError(f"{where}: cannot read its observations or actions: {exc}") from None
+    except Exception as exc:  # e.g. an opened .npz with a damaged member, or one holding objects
+        raise ValidationError(f"{where}: cannot read its observations or actions: {type(exc).__name__}: {exc}") from None
 
 
 def _trajectory_pairs(x, where):
@@ -172,7 +172,7 @@ def _trajectory_pairs(x, where):
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"{where}: its observations and actions must be arrays: {exc}") from None
     if acts.size == 0:
-        raise ValidationError(f"{where} has {len(obs)} observations and 0 actions; expected L >= 1 actions")
+        raise ValidationError(f"{where} has no actions (observations of shape {obs.shape}); expected L >= 1 actions")
     if obs.ndim != 1 or obs.dtype.kind not in "iu":
         hint = " (one row per step: one-hot or feature vectors? np.argmax(obs, axis=1) gives the states of one-hot rows)" if obs.ndim == 2 else ""
         raise ValidationError(
@@ -185,9 +185,9 @@ def _trajectory_pairs(x, where):
             f"{where}: actions must be integers, one per step (a Discrete action space); got {acts.dtype} actions of shape {acts.shape}"
         )
     L = len(acts)
-    if L == 0 or len(obs) not in (L, L + 1):
+    if len(obs) not in (L, L + 1):
         raise ValidationError(
-            f"{where} has {len(obs)} observations and {L} actions; expected L >= 1 actions and L + 1 observations "
+            f"{where} has {len(obs)} observations and {L} actions; expected L + 1 observations "
             "(the last one reached after the final action, as in imitation's Trajectory) or L"
         )
     return np.column_stack((obs[:L], acts))
@@ -222,7 +222,7 @@ def _episode(ep, i, j, bounds, load_files):
         if not load_files:
             raise ValidationError(f"{where} is a file name ({ep!r}): read .npz rollout files with fo.demonstrations_from_trajectories")
         ep = _open_rollout(ep, where)
-    if _is_trajectory(ep) and not isinstance(ep, np.ndarray):
+    if _is_trajectory(ep):
         arr = _trajectory_pairs(ep, where)
     else:
         try:
