@@ -25,9 +25,12 @@ check the MDP it is used on.
 
 Parameters that do not fit in JSON:
 
-- a solver given as an object rather than a registry name (``solver``, ``h_solver``) is
-  refused with a :class:`PersistenceError`: give the solver by name with its options
+- a solver, objective or planner given as an object rather than a registry name (``solver``,
+  ``h_solver``, ``d_solver``, ``objective``, ``planner``) is refused with a
+  :class:`PersistenceError`: give it by name, a solver with its options
   (``solver="armijo", solver_options={...}``), which are stored;
+- ``callback``, a function called during ``fit``, is not part of the model and is not saved:
+  the loaded model has ``callback=None``;
 - ``rng`` given as a ``numpy.random.Generator`` is stored as its bit generator's state (the
   loaded model gets a new Generator in that state); a ``SeedSequence`` by its entropy and
   spawn key; an int or None as is;
@@ -70,7 +73,16 @@ FORMAT_VERSION = 2
 _FORMAT = "factirl-opt"
 _HEADER = "__header__"
 _MODEL_CLASSES = {"GradIRL": GradIRL, "FactIRL": FactIRL}
-_SOLVER_PARAMS = ("solver", "h_solver")
+#: Parameters given by registry name or as an object: only names can be saved (how to name one).
+_NAMED_PARAMS = {
+    "solver": "the solver's registry name and options",
+    "h_solver": "the solver's registry name and options",
+    "d_solver": "the solver's registry name and options",
+    "objective": "a registered objective name (factirl_opt.objectives.register_objective, fo.available_objectives())",
+    "planner": "a planner name (fo.available_planners())",
+}
+#: Parameters that are not part of the model and are not saved (the loaded model has the default).
+_RUNTIME_PARAMS = ("callback",)
 _ARRAY_PARAMS = ("features", "init")
 _TASK_FORMS = ("array", "list", "episode")
 
@@ -314,18 +326,22 @@ def _check_attributes(attributes, context):
 # ----------------------------------------------------------------------------- models
 
 
+def _named_param_error(name, key, value):
+    what = value.__name__ if isinstance(value, type) else type(value).__name__
+    hint = _NAMED_PARAMS[key]
+    if key.endswith("solver"):
+        hint += f", e.g. {key}={getattr(value, 'name', 'armijo')!r} (registered: {', '.join(solvers.registered_solvers())})"
+    return PersistenceError(f"cannot save {name} with {key} given as a {what} object: construct it with {hint} instead")
+
+
 def _model_params(model, name):
     """The constructor parameters: JSON values, arrays, and the names of the array ones."""
     params, arrays, array_params = {}, {}, []
     for key, value in vars(model).items():
-        if key.startswith("_") or key.endswith("_"):
+        if key.startswith("_") or key.endswith("_") or key in _RUNTIME_PARAMS:
             continue
-        if key in _SOLVER_PARAMS and not isinstance(value, str):
-            raise PersistenceError(
-                f"cannot save {name} with {key} given as a {type(value).__name__} object: construct it with the "
-                f"solver's registry name and options instead, e.g. {key}={getattr(value, 'name', 'armijo')!r} "
-                f"(registered: {', '.join(solvers.registered_solvers())})"
-            )
+        if key in _NAMED_PARAMS and not isinstance(value, str):
+            raise _named_param_error(name, key, value)
         if key == "rng":
             params[key] = _encode_rng(value)
         elif key == "features" and value is not None:
@@ -360,9 +376,9 @@ def _model_attributes(model, name):
 def save_model(model, path):
     """Save a :class:`GradIRL` or :class:`FactIRL` (fitted or not) to an ``.npz`` file.
 
-    Stores the constructor parameters and every learnt attribute (names ending in ``_``,
-    including ``mdp_signature_``, the signature of the MDP the model was fitted on), arrays
-    exactly; see the module docstring for the format.
+    Stores the constructor parameters (except ``callback``, which is not saved) and every learnt
+    attribute (names ending in ``_``, including ``mdp_signature_``, the signature of the MDP the
+    model was fitted on), arrays exactly; see the module docstring for the format.
 
     Parameters
     ----------
@@ -378,7 +394,8 @@ def save_model(model, path):
     Raises
     ------
     PersistenceError
-        The model has a solver given as an object, a parameter or attribute that is neither
+        The model has a solver, objective or planner given as an object, a parameter or
+        attribute that is neither
         an array nor JSON-serialisable, or a learnt attribute of the wrong type, shape or with
         non-finite values (the message names it).
     ValidationError
@@ -399,6 +416,9 @@ def save_model(model, path):
 def _load_params(header, contents, label):
     params = dict(_require(header, "params", label, "the header", dict))
     context = f"{label} is malformed"
+    for key in _RUNTIME_PARAMS:
+        if key in params:
+            raise PersistenceError(f"{context}: {key!r} is never saved, yet the header's parameters hold it")
     for key in _require(header, "array_params", label, "the header", list):
         if key not in _ARRAY_PARAMS:
             raise PersistenceError(f"{context}: {key!r} is not an array parameter (known: {', '.join(_ARRAY_PARAMS)})")

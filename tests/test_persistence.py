@@ -15,6 +15,7 @@ import factirl_opt as fo
 import solvers
 from factirl_opt.exceptions import PersistenceError, ValidationError
 from factirl_opt.mdp import check_signature
+from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.persistence import FORMAT_VERSION
 from factirl_opt.trajectories import parse_demonstrations
 
@@ -160,6 +161,43 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
     assert all(np.array_equal(a, b) for a, b in zip(stacked, demos))
 
 
+def test_learners_record_their_mdp_and_loaded_models_refuse_another(setting, fitted, tmp_path):
+    mdp, _, demos, _, new_demos = setting
+    flat = fo.GradIRL(max_iter=5).fit(mdp, demos)
+    for model in (flat, fitted):
+        loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+        assert loaded.mdp_signature_ == model.mdp_signature_ == mdp.signature()
+    other = fo.TabularMDP(np.full((32, 2, 32), 1 / 32), 0.9)  # S*A = 64 as well
+    loaded = fo.load_model(fo.save_model(fitted, tmp_path / "f.npz"))
+    np.testing.assert_array_equal(loaded.transfer(mdp, new_demos), fitted.transfer(mdp, new_demos))
+    with pytest.raises(ValidationError, match="fitted on another MDP"):
+        loaded.transfer(other, [[[0, 1]]])
+
+
+def test_factirl_with_state_features_round_trip(setting, tmp_path):
+    mdp, _, demos, _, new_demos = setting
+    Phi = np.random.default_rng(4).standard_normal((mdp.n_states, 5))  # state features (S, p)
+    model = fo.FactIRL(n_primitives=2, features=Phi, max_iter=3, flat_max_iter=5, transfer_max_iter=5, rng=0).fit(mdp, demos)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "phi.npz"))
+    np.testing.assert_array_equal(loaded.features, Phi)
+    assert loaded.dictionary_.shape == model.dictionary_.shape
+    assert loaded.transfer(mdp, new_demos).tobytes() == model.transfer(mdp, new_demos).tobytes()
+
+
+def test_callback_is_not_saved(setting, tmp_path):
+    mdp, _, demos, _, _ = setting
+    seen = []
+    model = fo.GradIRL(max_iter=3, callback=lambda *args: seen.append(args)).fit(mdp, demos)
+    assert seen
+    header, _ = _header(fo.save_model(model, tmp_path / "cb.npz"))
+    assert "callback" not in header["params"]
+    loaded = fo.load_model(tmp_path / "cb.npz")
+    assert loaded.callback is None
+    np.testing.assert_array_equal(loaded.weights_, model.weights_)
+    with pytest.raises(PersistenceError, match="'callback' is never saved"):
+        fo.load_model(_rewrite(tmp_path / "cb.npz", tmp_path / "bad.npz", lambda h: h["params"].update(callback="print")))
+
+
 # ----------------------------------------------------------------------------- errors on save
 
 
@@ -170,6 +208,10 @@ def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
         fo.save_model(fo.FactIRL(h_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object"):
         fo.save_model(fo.GradIRL(solver=solvers.get_solver("armijo")), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="d_solver given as a ArmijoSolver object"):
+        fo.save_model(fo.FactIRL(d_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="objective given as a PolicyMatchingObjective object.*register_objective"):
+        fo.save_model(fo.GradIRL(objective=PolicyMatchingObjective), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="parameter solver_options"):
         fo.save_model(fo.GradIRL(solver_options={"callback": print}), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="cannot save rng of type RandomState"):
@@ -384,7 +426,7 @@ def test_crafted_header_values(model_file, tmp_path):
         (lambda h: (h["attributes"].update(dictionary_="abc"), h["array_attributes"].remove("dictionary_")), None,
          "attribute dictionary_ must be a 2-d float array; got str 'abc'"),
         (lambda h: h["attributes"].update(dictionary_="abc"), None, "attribute dictionary_ is stored twice"),
-        (lambda h: h["array_attributes"].append("status_"), {"attr/status_": np.array("abc")}, "attribute status_ must be a numeric array; got <U3"),
+        (lambda h: h["array_attributes"].append("extra_"), {"attr/extra_": np.array("abc")}, "attribute extra_ must be a numeric array; got <U3"),
         (None, {"attr/dictionary_": np.array(["abc"])}, r"attribute dictionary_ must be a 2-d float array; got <U3 of shape \(1,\)"),
         (None, {"attr/dictionary_": np.ones(64)}, r"attribute dictionary_ must be a 2-d float array; got float64 of shape \(64,\)"),
         (None, {"attr/dictionary_": np.ones((64, 2), dtype=np.int64)}, "attribute dictionary_ must be a 2-d float array; got int64"),
