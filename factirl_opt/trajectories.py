@@ -215,23 +215,43 @@ def _open_rollout(path, where):
     return arrays
 
 
-def _episode(ep, i, j, bounds, load_files):
-    """Episode j of task i (any accepted form) as validated int64 (L, 2) steps."""
+def _episode(ep, i, j, load_files):
+    """Episode j of task i (any accepted form) as an (L, 2) array, L >= 1; values not checked yet."""
+    if isinstance(ep, np.ndarray) and ep.ndim == 2 and ep.shape[1] == 2 and ep.shape[0] > 0:
+        return ep  # the common case, first
     where = f"demonstrations of task {i}, episode {j}"
     if isinstance(ep, (str, os.PathLike)):
         if not load_files:
             raise ValidationError(f"{where} is a file name ({ep!r}): read .npz rollout files with fo.demonstrations_from_trajectories")
         ep = _open_rollout(ep, where)
     if _is_trajectory(ep):
-        arr = _trajectory_pairs(ep, where)
-    else:
-        try:
-            arr = np.asarray(ep)
-        except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
-            raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
-        if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-            raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
-    return _as_indices(arr, lambda t: f"{where}, step {t}", *bounds)
+        return _trajectory_pairs(ep, where)
+    try:
+        arr = np.asarray(ep)
+    except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
+        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
+        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
+    return arr
+
+
+def _episodes_steps(episodes, i, bounds):
+    """The checked int64 steps of task i's (L_j, 2) episodes, concatenated.
+
+    Integer episodes are checked at once on their concatenation (a located error maps the
+    step back to its episode); others one by one, so that each is read in its own dtype.
+    """
+    if all(ep.dtype.kind in "iu" for ep in episodes):
+        starts = np.cumsum([0] + [len(ep) for ep in episodes])
+
+        def where(g):
+            j = int(np.searchsorted(starts, g, side="right")) - 1
+            return f"demonstrations of task {i}, episode {j}, step {g - starts[j]}"
+
+        return _as_indices(np.concatenate(episodes), where, *bounds)
+    parts = [_as_indices(ep, lambda t, j=j: f"demonstrations of task {i}, episode {j}, step {t}", *bounds)
+             for j, ep in enumerate(episodes)]
+    return np.concatenate(parts)
 
 
 # ----------------------------------------------------------------------------- tasks
@@ -306,8 +326,8 @@ def _parse_task(entry, i, bounds, load_files):
     if isinstance(entry, (list, tuple)):
         if len(entry) == 0:
             raise ValidationError(f"demonstrations of task {i} are empty: give at least one episode")
-        episodes = [_episode(ep, i, j, bounds, load_files) for j, ep in enumerate(entry)]
-        return TaskDemonstrations(np.concatenate(episodes), np.array([len(e) for e in episodes], dtype=np.int64), "list")
+        episodes = [_episode(ep, i, j, load_files) for j, ep in enumerate(entry)]
+        return TaskDemonstrations(_episodes_steps(episodes, i, bounds), np.array([len(e) for e in episodes], dtype=np.int64), "list")
     shape = f" of shape {entry.shape}" if isinstance(entry, np.ndarray) else ""
     raise ValidationError(
         f"demonstrations of task {i} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
