@@ -36,6 +36,7 @@ from .objectworld import (
     state_action_rewards,
 )
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
+from .trajectories import demonstrations_from_trajectories
 
 __version__ = "0.1.0"
 
@@ -49,6 +50,7 @@ __all__ = [
     "boltzmann_policy",
     "sample_demonstrations",
     "empirical_statistics",
+    "demonstrations_from_trajectories",
     "policy_matching_loss",
     "available_objectives",
     "policy_matching_grad_reference",

@@ -2,16 +2,18 @@
 
 A demonstration (episode) is a sequence of (state, action) pairs. The demonstrations of one
 task are either an int array of shape (m, L, 2) (m episodes of equal length L), or a list of
-episodes of any lengths, each array-like of shape (L_j, 2). ``demos_per_task`` is a list with
-one such entry per task (one task is a list of one).
+episodes of any lengths, each array-like of shape (L_j, 2) or a trajectory from another
+library (``obs``/``acts``). ``demos_per_task`` is a list with one such entry per task (one
+task is a list of one), never a list of episodes; the layouts and their one parser are in
+:mod:`factirl_opt.trajectories`.
 """
 
 import numpy as np
 
 from ._threads import blas_limited
 from ._validation import as_rng, check_int, check_mdp, check_rewards
-from .exceptions import ValidationError
 from .planning import get_planner, plan
+from .trajectories import parse_demonstrations, task_steps
 
 __all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
 
@@ -86,78 +88,6 @@ def sample_demonstrations(mdp, rewards, n_demos, length, rng=None, planner="auto
     return [out[i] for i in range(n)]
 
 
-def check_episode(episode, where="episode"):
-    """One episode as an integer array of shape (L, 2), L >= 1 (ranges are not checked here).
-
-    Float arrays holding whole numbers are accepted; ``where`` names the episode in errors.
-    """
-    try:
-        arr = np.asarray(episode)
-    except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
-        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
-    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        else:
-            raise ValidationError(f"{where} must hold integer (state, action) pairs; got dtype {arr.dtype}")
-    return arr
-
-
-def task_steps(mdp, task_demos, task=0):
-    """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
-
-    Parameters
-    ----------
-    mdp : TabularMDP
-    task_demos : ndarray (m, L, 2) or (L, 2), or list of episodes each array-like (L_j, 2)
-    task : int
-        Index used in error messages.
-
-    Returns
-    -------
-    steps : ndarray of intp, shape (N, 2)
-    """
-    where = f"demonstrations of task {task}"
-    if isinstance(task_demos, np.ndarray) and task_demos.ndim in (2, 3):
-        episodes = [task_demos] if task_demos.ndim == 2 else list(task_demos)
-    elif isinstance(task_demos, (list, tuple)):
-        episodes = list(task_demos)
-    else:
-        raise ValidationError(
-            f"{where} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
-            f"got {type(task_demos).__name__} with shape {np.shape(task_demos)}"
-        )
-    if len(episodes) == 0:
-        raise ValidationError(f"{where} are empty: give at least one episode")
-    parts = [check_episode(ep, f"episode {j} of {where}") for j, ep in enumerate(episodes)]
-    steps = np.concatenate(parts).astype(np.intp)
-    S, A = mdp.n_states, mdp.n_actions
-    bad_s = (steps[:, 0] < 0) | (steps[:, 0] >= S)
-    if bad_s.any():
-        raise ValidationError(f"{where}: state {steps[bad_s][0, 0]} is out of range [0, {S})")
-    bad_a = (steps[:, 1] < 0) | (steps[:, 1] >= A)
-    if bad_a.any():
-        raise ValidationError(f"{where}: action {steps[bad_a][0, 1]} is out of range [0, {A})")
-    return steps
-
-
-def _check_task_list(demos_per_task):
-    if isinstance(demos_per_task, np.ndarray):
-        if demos_per_task.ndim == 4:
-            return list(demos_per_task)
-        raise ValidationError(
-            "demos_per_task must be a list with one entry per task (one task is a list of one), "
-            f"or a 4-d array (n, m, L, 2); got an array of shape {demos_per_task.shape}"
-        )
-    if not isinstance(demos_per_task, (list, tuple)):
-        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
-    if len(demos_per_task) == 0:
-        raise ValidationError("demos_per_task is empty: give the demonstrations of at least one task")
-    return list(demos_per_task)
-
-
 def empirical_statistics(mdp, demos_per_task):
     """Empirical state frequencies and policies of each task (the hats of eq. 5).
 
@@ -168,8 +98,11 @@ def empirical_statistics(mdp, demos_per_task):
     Parameters
     ----------
     mdp : TabularMDP
-    demos_per_task : list of n task demonstrations
-        Each an int array (m, L, 2) or a list of episodes (L_j, 2).
+    demos_per_task : list of n task demonstrations, or ndarray (n, m, L, 2)
+        Each an int array (m, L, 2) or a list of episodes, each (L_j, 2) (state, action)
+        pairs or a trajectory with integer ``obs`` and ``acts`` (see
+        :mod:`factirl_opt.trajectories`; a list of episodes without the task wrapper is
+        refused, the message shows the two layouts it could mean).
 
     Returns
     -------
@@ -179,12 +112,12 @@ def empirical_statistics(mdp, demos_per_task):
         Rows of visited states sum to 1; rows of unvisited states are 0.
     """
     check_mdp(mdp)
-    tasks = _check_task_list(demos_per_task)
     S, A = mdp.n_states, mdp.n_actions
+    tasks = parse_demonstrations(demos_per_task, S, A)
     n = len(tasks)
     counts = np.zeros((n, S * A))
-    for i, td in enumerate(tasks):
-        steps = task_steps(mdp, td, task=i)
+    for i, task in enumerate(tasks):
+        steps = task.steps
         counts[i] = np.bincount(steps[:, 0] * A + steps[:, 1], minlength=S * A)
     counts = counts.reshape(n, S, A)
     visits = counts.sum(axis=2)

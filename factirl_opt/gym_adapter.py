@@ -22,15 +22,22 @@ as they are and drops the flag.
 The reward listed in ``P`` is not part of a :class:`TabularMDP`: in inverse reinforcement
 learning rewards are learnt, or given separately (e.g. from :func:`task_rewards`).
 
-Gymnasium is an optional dependency (``pip install "factirl-opt[gymnasium]"``). It is only
-imported to create an environment from its id; an environment object is read by duck
-typing (anything whose ``unwrapped`` has such a ``P``).
+The dynamics are read into a sparse (S * A, S) CSR matrix, row ``s * A + a`` (toy-text
+environments list a few outcomes per state and action), before they become a
+:class:`TabularMDP`.
+
+Gymnasium is an optional dependency: ``pip install "gymnasium>=0.29"``, or from a clone of
+factirl-opt ``pip install -e ".[gymnasium]"``. It is only imported to create an environment
+from its id; an environment object is read by duck typing (anything whose ``unwrapped`` has
+such a ``P``).
 """
 
 import importlib
 
 import numpy as np
+import scipy.sparse as sp
 
+from ._validation import check_real
 from .exceptions import MissingDependencyError, ValidationError
 from .mdp import TabularMDP
 
@@ -40,13 +47,16 @@ __all__ = ["from_gymnasium", "gymnasium_rewards", "TERMINAL_MODES"]
 TERMINAL_MODES = ("absorbing", "ignore")
 
 
+#: The install hint of the ``gymnasium`` extra: works for any install of factirl-opt, and from a clone.
+INSTALL_HINT = 'pip install "gymnasium>=0.29" (or, in a clone of factirl-opt: pip install -e ".[gymnasium]")'
+
+
 def _import_gymnasium():
     try:
         return importlib.import_module("gymnasium")
     except ImportError as exc:
         raise MissingDependencyError(
-            "creating an environment from its id needs gymnasium, which is not installed: "
-            'pip install "factirl-opt[gymnasium]"'
+            f"creating an environment from its id needs gymnasium, which is not installed: {INSTALL_HINT}"
         ) from exc
 
 
@@ -55,8 +65,8 @@ def _tabular_model(env, terminal, make_kwargs):
 
     Returns
     -------
-    P : ndarray, shape (S, A, S)
-        Next-state probabilities, duplicates merged by summing.
+    P : scipy.sparse.csr_matrix, shape (S * A, S)
+        Next-state probabilities, row ``s * A + a``; duplicates merged by summing.
     R : ndarray, shape (S, A)
         Expected immediate reward.
     absorbing : ndarray of bool, shape (S,)
@@ -88,6 +98,40 @@ def _space_size(space, name):
     return int(n)
 
 
+def _outcome(item, s, a, S):
+    """One listed outcome ``(probability, next_state, reward, terminated)``, checked."""
+    if not isinstance(item, (list, tuple)) or len(item) != 4:
+        raise ValidationError(f"P[{s}][{a}] holds {item!r:.100}; expected (probability, next_state, reward, terminated)")
+    prob, nxt, reward, done = item
+    if isinstance(nxt, (bool, np.bool_)) or not isinstance(nxt, (int, np.integer)) or not 0 <= nxt < S:
+        raise ValidationError(f"P[{s}][{a}] has next_state {nxt!r}; expected an integer in [0, {S})")
+    prob = check_real(prob, f"the probability in P[{s}][{a}]", low=0.0)
+    reward = check_real(reward, f"the reward in P[{s}][{a}]")
+    return prob, int(nxt), reward, bool(done)
+
+
+def _outcomes(table, S, A):
+    """Every listed outcome as flat arrays: row ``s * A + a``, next state, probability, reward."""
+    rows, cols, probs, rewards = [], [], [], []
+    entered_terminal = np.zeros(S, dtype=bool)
+    for s in range(S):
+        row = table[s]
+        if not isinstance(row, dict) or sorted(row) != list(range(A)):
+            raise ValidationError(f"P[{s}] must have one entry per action 0..{A - 1}; got {row!r:.200}")
+        for a in range(A):
+            outcomes = row[a]
+            if not isinstance(outcomes, (list, tuple)) or len(outcomes) == 0:
+                raise ValidationError(f"P[{s}][{a}] must be a non-empty list of (probability, next_state, reward, terminated)")
+            for item in outcomes:
+                prob, nxt, reward, done = _outcome(item, s, a, S)
+                rows.append(s * A + a)
+                cols.append(nxt)
+                probs.append(prob)
+                rewards.append(reward)
+                entered_terminal[nxt] |= done
+    return np.array(rows, dtype=np.int64), np.array(cols, dtype=np.int64), np.array(probs), np.array(rewards), entered_terminal
+
+
 def _read_model(env, terminal):
     base = getattr(env, "unwrapped", env)
     table = getattr(base, "P", None)
@@ -103,34 +147,28 @@ def _read_model(env, terminal):
         raise ValidationError(f"P must have one entry per state 0..{S - 1}; got keys {sorted(table)[:10]}...")
     first = table[0]
     A = len(first) if A is None else A
-    P = np.zeros((S, A, S))
-    R = np.zeros((S, A))
-    entered_terminal = np.zeros(S, dtype=bool)
-    for s in range(S):
-        row = table[s]
-        if not isinstance(row, dict) or sorted(row) != list(range(A)):
-            raise ValidationError(f"P[{s}] must have one entry per action 0..{A - 1}; got {row!r:.200}")
-        for a in range(A):
-            outcomes = row[a]
-            if not isinstance(outcomes, (list, tuple)) or len(outcomes) == 0:
-                raise ValidationError(f"P[{s}][{a}] must be a non-empty list of (probability, next_state, reward, terminated)")
-            for item in outcomes:
-                if not isinstance(item, (list, tuple)) or len(item) != 4:
-                    raise ValidationError(f"P[{s}][{a}] holds {item!r}; expected (probability, next_state, reward, terminated)")
-                prob, nxt, reward, done = item
-                if isinstance(nxt, (bool, np.bool_)) or not isinstance(nxt, (int, np.integer)) or not 0 <= nxt < S:
-                    raise ValidationError(f"P[{s}][{a}] has next_state {nxt!r}; expected an integer in [0, {S})")
-                prob, reward = float(prob), float(reward)
-                P[s, a, nxt] += prob  # several outcomes may lead to the same state: merge them
-                R[s, a] += prob * reward
-                if done:
-                    entered_terminal[nxt] = True
+    rows, cols, probs, rewards, entered_terminal = _outcomes(table, S, A)
     absorbing = entered_terminal if terminal == "absorbing" else np.zeros(S, dtype=bool)
-    idx = np.flatnonzero(absorbing)
-    P[idx] = 0.0
-    P[idx, :, idx] = 1.0
-    R[idx] = 0.0
+    keep = ~absorbing[rows // A]  # the outcomes of absorbing states are replaced by self-loops
+    R = np.bincount(rows[keep], weights=probs[keep] * rewards[keep], minlength=S * A).reshape(S, A)
+    loops = np.flatnonzero(absorbing)
+    loop_rows = (loops[:, None] * A + np.arange(A)).ravel()
+    P = sp.csr_matrix(
+        (np.concatenate([probs[keep], np.ones(loop_rows.size)]),
+         (np.concatenate([rows[keep], loop_rows]), np.concatenate([cols[keep], np.repeat(loops, A)]))),
+        shape=(S * A, S),
+    )  # duplicates (several outcomes leading to the same state) are summed
     return P, R, absorbing
+
+
+def _mdp_from_csr(P, gamma):
+    """A :class:`TabularMDP` from (S * A, S) CSR dynamics, row ``s * A + a``.
+
+    The one place where the adapter hands its sparse dynamics to :class:`TabularMDP`; they are
+    densified to (S, A, S) here for a TabularMDP that takes dense transitions.
+    """
+    S = P.shape[1]
+    return TabularMDP(P.toarray().reshape(S, P.shape[0] // S, S), gamma)
 
 
 def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
@@ -174,7 +212,7 @@ def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
     (16, 4)
     """
     P, _, _ = _tabular_model(env, terminal, make_kwargs)
-    return TabularMDP(P, gamma)
+    return _mdp_from_csr(P, gamma)
 
 
 def gymnasium_rewards(env, terminal="absorbing", **make_kwargs):

@@ -23,3 +23,10 @@ def test_guide_code_blocks_run_in_order(capsys):
     assert (lake.n_states, lake.n_actions) == (64, 4)
     assert namespace["fact_lake"].dictionary_.shape == (256, 3)
     assert namespace["h_new"].shape == (5, 3)
+    # demonstrations from other libraries: the rollouts read back exactly, in the library's layout
+    assert "is a single episode" in out and "pass [demos_per_task] (1 task of 2 episodes)" in out
+    demos_task0, rollouts = namespace["demos_task0"], namespace["rollouts"]
+    assert len(demos_task0) == 1 and len(demos_task0[0]) == len(rollouts)
+    for ep, rec in zip(demos_task0[0], rollouts):
+        assert ep.dtype.kind == "i" and ep[:, 0].tolist() == rec["obs"][:-1] and ep[:, 1].tolist() == rec["acts"]
+    assert namespace["h_rollouts"].shape == (1, 3)

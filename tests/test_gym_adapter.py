@@ -1,14 +1,16 @@
 """The Gymnasium toy-text adapter, checked against the environments' documented dynamics."""
 
+import pathlib
 import sys
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import factirl_opt as fo
 from factirl_opt.exceptions import MissingDependencyError, ValidationError
-from factirl_opt.gym_adapter import from_gymnasium, gymnasium_rewards
+from factirl_opt.gym_adapter import _tabular_model, from_gymnasium, gymnasium_rewards
 
 gym = pytest.importorskip("gymnasium")
 
@@ -138,9 +140,29 @@ def test_duck_typed_env_merges_duplicates_and_needs_no_gymnasium(monkeypatch):
 
 def test_missing_gymnasium_gives_library_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "gymnasium", None)
-    with pytest.raises(MissingDependencyError, match=r"factirl-opt\[gymnasium\]") as info:
+    with pytest.raises(MissingDependencyError) as info:
         from_gymnasium("FrozenLake-v1")
     assert isinstance(info.value, ImportError) and isinstance(info.value, fo.FactIRLError)
+    # the commands of the documented installs: any install, and the editable install from a clone (README)
+    assert 'pip install "gymnasium>=0.29"' in str(info.value)
+    assert 'pip install -e ".[gymnasium]"' in str(info.value)
+    readme = (pathlib.Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "pip install -e ." in readme and "`.[gymnasium]`" in readme
+    pyproject = (pathlib.Path(__file__).resolve().parents[1] / "pyproject.toml").read_text()
+    assert 'gymnasium = ["gymnasium>=0.29"]' in pyproject
+
+
+def test_dynamics_are_read_as_sparse_csr():
+    env = gym.make("Taxi-v4")
+    P, R, absorbing = _tabular_model(env, "absorbing", {})
+    assert sp.issparse(P) and P.format == "csr" and P.shape == (500 * 6, 500)
+    assert P.nnz <= 500 * 6  # Taxi is deterministic: one entry per row
+    np.testing.assert_allclose(np.asarray(P.sum(axis=1)).ravel(), 1.0)
+    np.testing.assert_array_equal(P.toarray().reshape(500, 6, 500), from_gymnasium(env).transitions)
+    assert R.shape == (500, 6) and absorbing.sum() == 4
+    lake, _, _ = _tabular_model("FrozenLake-v1", "absorbing", {"is_slippery": True})
+    assert lake.has_canonical_format  # duplicate outcomes merged into one entry
+    assert lake[0 * 4 + 0, 0] == pytest.approx(2 / 3)  # top-left, "left": two outcomes stay in place
 
 
 @pytest.mark.parametrize(
@@ -155,6 +177,11 @@ def test_missing_gymnasium_gives_library_error(monkeypatch):
         (_fake_env({0: {0: [(1.0, 0, 0, False)]}, 1: {1: [(1.0, 0, 0, False)]}}), r"P\[1\] must have one entry per action"),
         (_fake_env({0: {0: [(0.5, 0, 0, False)]}}), "must sum to 1"),
         (_fake_env({0: {0: [(1.0, 0, 0, False)]}}, n_states=2, n_actions=1), "one entry per state 0..1"),
+        (_fake_env({0: {0: [("1.0", 0, 0, False)]}}), r"the probability in P\[0\]\[0\] must be a finite number >= 0; got '1.0'"),
+        (_fake_env({0: {0: [(-0.5, 0, 0, False), (1.5, 0, 0, False)]}}), r"the probability in P\[0\]\[0\] must be .* got -0.5"),
+        (_fake_env({0: {0: [(float("nan"), 0, 0, False)]}}), r"the probability in P\[0\]\[0\] must be a finite number"),
+        (_fake_env({0: {0: [(1.0, 0, float("inf"), False)]}}), r"the reward in P\[0\]\[0\] must be a finite number"),
+        (_fake_env({0: {0: [(1.0, 0, None, False)]}}), r"the reward in P\[0\]\[0\] must be a finite number"),
     ],
 )
 def test_malformed_models_are_rejected(env, match):

@@ -1,8 +1,12 @@
 """Saving and loading models and demonstrations: exact round trips and every error path."""
 
+import contextlib
 import io
 import json
 import pickle
+import signal
+import struct
+import zipfile
 
 import numpy as np
 import pytest
@@ -10,7 +14,10 @@ import pytest
 import factirl_opt as fo
 import solvers
 from factirl_opt.exceptions import PersistenceError, ValidationError
+from factirl_opt.mdp import check_signature
+from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.persistence import FORMAT_VERSION
+from factirl_opt.trajectories import parse_demonstrations
 
 
 @pytest.fixture(scope="module")
@@ -135,7 +142,7 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
     ragged = [
         demos[0],  # (m, L, 2) array
         [demos[1][0][:2], demos[1][1], [[0, 1], [4, 2], [5, 3]]],  # list of episodes, lengths 2, 6, 3
-        demos[2][0],  # one (L, 2) episode
+        [demos[2][0]],  # a list of one (L, 2) episode
         (np.array([[3, 1]], dtype=np.int32),),
         demos[3].astype(np.float64),
     ]
@@ -144,7 +151,7 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
     assert len(back) == 5
     assert isinstance(back[0], np.ndarray) and back[0].shape == (3, 6, 2)
     assert isinstance(back[1], list) and [len(ep) for ep in back[1]] == [2, 6, 3]
-    assert isinstance(back[2], np.ndarray) and back[2].shape == (6, 2)
+    assert isinstance(back[2], list) and len(back[2]) == 1 and back[2][0].shape == (6, 2)
     assert isinstance(back[3], list) and back[3][0].tolist() == [[3, 1]]
     assert all(np.asarray(ep).dtype == np.int64 for task in back for ep in (task if isinstance(task, list) else [task]))
     np.testing.assert_array_equal(back[1][2], [[0, 1], [4, 2], [5, 3]])
@@ -152,6 +159,43 @@ def test_ragged_demonstrations_round_trip(setting, tmp_path):
         np.testing.assert_array_equal(a, b)
     stacked = fo.load_demonstrations(fo.save_demonstrations(np.stack(demos), tmp_path / "stacked.npz"))
     assert all(np.array_equal(a, b) for a, b in zip(stacked, demos))
+
+
+def test_learners_record_their_mdp_and_loaded_models_refuse_another(setting, fitted, tmp_path):
+    mdp, _, demos, _, new_demos = setting
+    flat = fo.GradIRL(max_iter=5).fit(mdp, demos)
+    for model in (flat, fitted):
+        loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+        assert loaded.mdp_signature_ == model.mdp_signature_ == mdp.signature()
+    other = fo.TabularMDP(np.full((32, 2, 32), 1 / 32), 0.9)  # S*A = 64 as well
+    loaded = fo.load_model(fo.save_model(fitted, tmp_path / "f.npz"))
+    np.testing.assert_array_equal(loaded.transfer(mdp, new_demos), fitted.transfer(mdp, new_demos))
+    with pytest.raises(ValidationError, match="fitted on another MDP"):
+        loaded.transfer(other, [[[0, 1]]])
+
+
+def test_factirl_with_state_features_round_trip(setting, tmp_path):
+    mdp, _, demos, _, new_demos = setting
+    Phi = np.random.default_rng(4).standard_normal((mdp.n_states, 5))  # state features (S, p)
+    model = fo.FactIRL(n_primitives=2, features=Phi, max_iter=3, flat_max_iter=5, transfer_max_iter=5, rng=0).fit(mdp, demos)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "phi.npz"))
+    np.testing.assert_array_equal(loaded.features, Phi)
+    assert loaded.dictionary_.shape == model.dictionary_.shape
+    assert loaded.transfer(mdp, new_demos).tobytes() == model.transfer(mdp, new_demos).tobytes()
+
+
+def test_callback_is_not_saved(setting, tmp_path):
+    mdp, _, demos, _, _ = setting
+    seen = []
+    model = fo.GradIRL(max_iter=3, callback=lambda *args: seen.append(args)).fit(mdp, demos)
+    assert seen
+    header, _ = _header(fo.save_model(model, tmp_path / "cb.npz"))
+    assert "callback" not in header["params"]
+    loaded = fo.load_model(tmp_path / "cb.npz")
+    assert loaded.callback is None
+    np.testing.assert_array_equal(loaded.weights_, model.weights_)
+    with pytest.raises(PersistenceError, match="'callback' is never saved"):
+        fo.load_model(_rewrite(tmp_path / "cb.npz", tmp_path / "bad.npz", lambda h: h["params"].update(callback="print")))
 
 
 # ----------------------------------------------------------------------------- errors on save
@@ -164,6 +208,10 @@ def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
         fo.save_model(fo.FactIRL(h_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object"):
         fo.save_model(fo.GradIRL(solver=solvers.get_solver("armijo")), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="d_solver given as a ArmijoSolver object"):
+        fo.save_model(fo.FactIRL(d_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="objective given as a PolicyMatchingObjective object.*register_objective"):
+        fo.save_model(fo.GradIRL(objective=PolicyMatchingObjective), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="parameter solver_options"):
         fo.save_model(fo.GradIRL(solver_options={"callback": print}), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="cannot save rng of type RandomState"):
@@ -182,14 +230,16 @@ def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
 @pytest.mark.parametrize(
     "demos, match",
     [
-        ([], "non-empty list"),
-        ("abc", "non-empty list"),
+        ([], "demos_per_task is empty"),
+        ("abc", "demos_per_task must be a list with one entry per task"),
         ([None], "task 0 must be an int array"),
         ([[]], "task 0 are empty"),
-        ([[np.zeros((2, 3), int)]], r"episode 0 of demonstrations of task 0 must have shape \(L, 2\)"),
+        ([[np.zeros((2, 3), int)]], r"demonstrations of task 0, episode 0 must have shape \(L, 2\)"),
         ([[[[0, 1], [2]]]], r"must be an array of \(state, action\) pairs"),
-        ([[np.array([[0.5, 1.0]])]], "must hold integer"),
-        ([[np.array([[0, 1]])], [np.array([[2, -1]])]], r"task 1 holds a negative state or action: \[2, -1\]"),
+        ([[np.array([[0.5, 1.0]])]], r"task 0, episode 0, step 0: state 0.5 is not an integer"),
+        ([[np.array([[0, 1]])], [np.array([[0, 0], [2, -1]])]], r"task 1, episode 0, step 1: action -1 is not a valid index"),
+        ([np.array([[0, 1]]), np.array([[2, 3]])], r"demos_per_task\[0\] is a single episode"),
+        ([["demos.npz"]], r"task 0, episode 0 is a file name"),
     ],
 )
 def test_save_demonstrations_validates(demos, match, tmp_path):
@@ -255,7 +305,7 @@ def test_format_versions(model_file, tmp_path):
         fo.load_model(_rewrite(model_file, tmp_path / "future.npz", future))
     with pytest.raises(PersistenceError, match="format_version is missing"):
         fo.load_model(_rewrite(model_file, tmp_path / "nov.npz", lambda h: h.pop("format_version")))
-    with pytest.raises(PersistenceError, match="format_version is missing or not an integer: '1'"):
+    with pytest.raises(PersistenceError, match="format_version is missing or not an integer >= 1: '1'"):
         fo.load_model(_rewrite(model_file, tmp_path / "strv.npz", lambda h: h.update(format_version="1")))
 
 
@@ -311,7 +361,6 @@ def test_missing_array_parameter(tmp_path):
         (None, (), {"steps": np.zeros((5, 2), dtype=np.int64)}, "inconsistent"),
         (None, (), {"task_n_episodes": np.array([3, 2])}, "inconsistent"),
         (lambda h: h.update(task_forms=["array"]), (), None, "inconsistent"),
-        (lambda h: h.update(task_forms=["array", "episode"]), (), None, "task 1 has form 'episode'"),
         (lambda h: h.update(task_forms=["array", "array"]), (), {"episode_lengths": np.array([6, 6, 6, 6, 8, 4])},
          r"task 1 has form 'array' with episode lengths \[6, 8, 4\]"),
         (lambda h: h.update(task_forms=["array", "tensor"]), (), None, "task 1 has form 'tensor'"),
@@ -320,3 +369,278 @@ def test_missing_array_parameter(tmp_path):
 def test_incomplete_or_inconsistent_demonstration_files(demos_file, tmp_path, edit, drop, extra, match):
     with pytest.raises(PersistenceError, match=match):
         fo.load_demonstrations(_rewrite(demos_file, tmp_path / "bad.npz", edit, drop, extra))
+
+
+# ----------------------------------------------------------------------------- damaged members and contents
+
+
+def _member_data_span(data, member):
+    """Start and length of a member's (compressed) bytes inside a zip archive."""
+    with zipfile.ZipFile(io.BytesIO(data)) as z:
+        info = z.getinfo(member)
+    off = info.header_offset
+    name_len, extra_len = struct.unpack("<HH", data[off + 26:off + 30])
+    return off + 30 + name_len + extra_len, info.compress_size
+
+
+@pytest.mark.parametrize("loader, member", [("model", "attr/dictionary_.npy"), ("demonstrations", "steps.npy")])
+def test_corrupt_compressed_member_names_file_and_member(model_file, demos_file, tmp_path, loader, member):
+    src = model_file if loader == "model" else demos_file
+    data = bytearray(open(src, "rb").read())
+    start, size = _member_data_span(bytes(data), member)
+    data[start:start + size] = b"\xff" * size  # an invalid deflate block: zlib.error when decompressed
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(bytes(data))
+    load = fo.load_model if loader == "model" else fo.load_demonstrations
+    with pytest.raises(PersistenceError, match=rf"corrupt.npz is not a readable factirl-opt file: member '{member[:-4]}' is corrupt"):
+        load(bad)
+
+
+def test_truncated_files_at_every_tenth_byte(model_file, demos_file):
+    for src, load in ((model_file, fo.load_model), (demos_file, fo.load_demonstrations)):
+        data = open(src, "rb").read()
+        for cut in range(0, len(data), max(1, len(data) // 40)):
+            with pytest.raises(PersistenceError):
+                load(io.BytesIO(data[:cut]))
+
+
+def test_crafted_header_values(model_file, tmp_path):
+    with pytest.raises(PersistenceError, match="format_version is missing or not an integer >= 1: 0"):
+        fo.load_model(_rewrite(model_file, tmp_path / "v0.npz", lambda h: h.update(format_version=0)))
+    with pytest.raises(PersistenceError, match="format_version is missing or not an integer >= 1: True"):
+        fo.load_model(_rewrite(model_file, tmp_path / "vb.npz", lambda h: h.update(format_version=True)))
+    np.savez(tmp_path / "list.npz", __header__=np.array(json.dumps([1, 2])))
+    with pytest.raises(PersistenceError, match="header does not say format"):
+        fo.load_model(tmp_path / "list.npz")
+    np.savez(tmp_path / "deep.npz", __header__=np.array("[" * 100000 + "]" * 100000))
+    with pytest.raises(PersistenceError, match="not valid JSON"):
+        fo.load_model(tmp_path / "deep.npz")
+    np.savez(tmp_path / "numeric.npz", __header__=np.arange(3))
+    with pytest.raises(PersistenceError, match="not valid JSON"):
+        fo.load_model(tmp_path / "numeric.npz")
+
+
+@pytest.mark.parametrize(
+    "edit, extra, match",
+    [
+        (lambda h: (h["attributes"].update(dictionary_="abc"), h["array_attributes"].remove("dictionary_")), None,
+         "attribute dictionary_ must be a 2-d float array; got str 'abc'"),
+        (lambda h: h["attributes"].update(dictionary_="abc"), None, "attribute dictionary_ is stored twice"),
+        (lambda h: h["array_attributes"].append("extra_"), {"attr/extra_": np.array("abc")}, "attribute extra_ must be a numeric array; got <U3"),
+        (None, {"attr/dictionary_": np.array(["abc"])}, r"attribute dictionary_ must be a 2-d float array; got <U3 of shape \(1,\)"),
+        (None, {"attr/dictionary_": np.ones(64)}, r"attribute dictionary_ must be a 2-d float array; got float64 of shape \(64,\)"),
+        (None, {"attr/dictionary_": np.ones((64, 2), dtype=np.int64)}, "attribute dictionary_ must be a 2-d float array; got int64"),
+        (None, {"attr/dictionary_": np.full((64, 2), np.nan)}, r"attribute dictionary_ must be finite; found nan at index \(0, 0\)"),
+        (None, {"attr/rewards_": np.full((5, 16, 4), np.inf)}, "attribute rewards_ must be finite; found inf"),
+        (None, {"attr/coefficients_": np.ones((5, 3))}, r"dictionary_ of shape \(64, 2\) and coefficients_ of shape \(5, 3\) disagree"),
+        (None, {"attr/loss_": np.ones(4)}, r"rewards_ of shape \(5, 16, 4\) and loss_ of shape \(4,\) disagree"),
+        (lambda h: h["attributes"].update(n_iter_=-1), None, "attribute n_iter_ must be an integer >= 0; got -1"),
+        (lambda h: h["attributes"].update(n_evaluations_="7"), None, "attribute n_evaluations_ must be an integer >= 0; got '7'"),
+        (lambda h: h["attributes"].update(loss_history_=[1.0, "x"]), None, r"attribute loss_history_\[1\] must be a finite number"),
+        (lambda h: h["attributes"].update(loss_history_=[1.0, float("nan")]), None, r"loss_history_\[1\] must be a finite number"),
+        (lambda h: h["attributes"].update(loss_history_=3.0), None, "loss_history_ must be a list of finite numbers; got float"),
+        (lambda h: h["array_attributes"].append(3), None, "array attribute names must be strings"),
+        (lambda h: h["array_params"].append("beta"), None, "'beta' is not an array parameter"),
+    ],
+)
+def test_crafted_model_contents(model_file, tmp_path, edit, extra, match):
+    with pytest.raises(PersistenceError, match=match):
+        fo.load_model(_rewrite(model_file, tmp_path / "crafted.npz", edit, extra=extra))
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [
+        (np.array([[1.0, np.inf]]), r"parameter features must be finite; found inf at index \(0, 1\)"),
+        (np.array(["a", "b"]), "parameter features must be a 2-d numeric array; got <U1"),
+        (np.ones(3), r"parameter features must be a 2-d numeric array; got float64 of shape \(3,\)"),
+    ],
+)
+def test_crafted_array_parameters(tmp_path, value, match):
+    path = fo.save_model(fo.GradIRL(features=np.eye(64, 2)), tmp_path / "f.npz")
+    with pytest.raises(PersistenceError, match=match):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", extra={"param/features": value}))
+    path = fo.save_model(fo.FactIRL(init=(np.eye(64, 2), np.ones((3, 2)))), tmp_path / "t.npz")
+    with pytest.raises(PersistenceError, match=r"parameter init\[1\] must be"):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", extra={"param/init/1": np.array([np.nan])}))
+
+
+def test_crafted_rng_cannot_call_other_numpy_functions(model_file, tmp_path):
+    def crafted(h):
+        h["params"]["rng"] = {"type": "generator", "bit_generator": "seed", "state": {}}
+
+    with pytest.raises(PersistenceError, match="'seed' is not a numpy bit generator"):
+        fo.load_model(_rewrite(model_file, tmp_path / "bad.npz", crafted))
+    with pytest.raises(PersistenceError, match="rng parameter is malformed.*the seed must be an integer >= 0"):
+        fo.load_model(_rewrite(model_file, tmp_path / "bad.npz", lambda h: h["params"].update(rng={"type": "seed", "value": "x"})))
+
+
+def test_save_model_checks_learnt_attributes(fitted, tmp_path):
+    odd = fo.load_model(fo.save_model(fitted, tmp_path / "ok.npz"))
+    odd.dictionary_ = "abc"
+    with pytest.raises(PersistenceError, match="cannot save FactIRL: attribute dictionary_ must be a 2-d float array"):
+        fo.save_model(odd, tmp_path / "x.npz")
+    odd.dictionary_ = np.full((64, 2), np.nan)
+    with pytest.raises(PersistenceError, match="cannot save FactIRL: attribute dictionary_ must be finite"):
+        fo.save_model(odd, tmp_path / "x.npz")
+
+
+# ----------------------------------------------------------------------------- the MDP signature
+
+
+def test_mdp_signature_round_trips_and_checks_the_mdp(setting, fitted, tmp_path):
+    mdp = setting[0]
+    model = fo.load_model(fo.save_model(fitted, tmp_path / "m.npz"))
+    model.mdp_signature_ = mdp.signature()  # the learners record it at fit; set by hand here
+    header, _ = _header(fo.save_model(model, tmp_path / "signed.npz"))
+    assert header["attributes"]["mdp_signature_"] == mdp.signature()
+    loaded = fo.load_model(tmp_path / "signed.npz")
+    assert loaded.mdp_signature_ == mdp.signature()
+    check_signature(loaded.mdp_signature_, mdp)
+    with pytest.raises(ValidationError, match="fitted on another MDP"):
+        check_signature(loaded.mdp_signature_, fo.GridWorld(size=4, gamma=0.8))
+
+
+def test_files_without_signature_load_with_none(setting, fitted, tmp_path):
+    path = fo.save_model(fitted, tmp_path / "m.npz")
+
+    def version_1(h):
+        h["format_version"] = 1
+        h["attributes"].pop("mdp_signature_", None)
+
+    old = fo.load_model(_rewrite(path, tmp_path / "v1.npz", version_1))
+    assert old.mdp_signature_ is None
+    np.testing.assert_array_equal(old.dictionary_, fitted.dictionary_)
+    unfitted = fo.load_model(fo.save_model(fo.FactIRL(n_primitives=2), tmp_path / "u.npz"))
+    assert not hasattr(unfitted, "mdp_signature_")
+
+
+@pytest.mark.parametrize(
+    "signature, match",
+    [
+        ({"n_states": 16}, "mdp_signature_ must be None or a dict with keys"),
+        ("abc", "mdp_signature_ must be None or a dict"),
+        ({"n_states": 0, "n_actions": 4, "gamma": 0.9, "transitions_sha256": "0" * 64}, "n_states must be an integer >= 1; got 0"),
+        ({"n_states": 16, "n_actions": 4, "gamma": 1.5, "transitions_sha256": "0" * 64}, "gamma must be a finite number"),
+        ({"n_states": 16, "n_actions": 4, "gamma": 0.9, "transitions_sha256": "xyz"}, "transitions_sha256 must be 64 hexadecimal digits"),
+        ({"n_states": 32, "n_actions": 2, "gamma": 0.9, "transitions_sha256": "0" * 64},
+         r"rewards_ of shape \(5, 16, 4\) do not fit the MDP of mdp_signature_ \(S, A\) = \(32, 2\)"),
+    ],
+)
+def test_malformed_signatures_are_refused(model_file, tmp_path, signature, match):
+    with pytest.raises(PersistenceError, match=match):
+        fo.load_model(_rewrite(model_file, tmp_path / "bad.npz", lambda h: h["attributes"].update(mdp_signature_=signature)))
+
+
+# ----------------------------------------------------------------------------- demonstrations contents
+
+
+@pytest.mark.parametrize(
+    "dtype, column, value, match",
+    [
+        (np.int64, 0, -1, r"task 1, episode 1, step 2: state -1 is not a valid index"),
+        (np.uint64, 1, 2**63, r"task 1, episode 1, step 2: action 9223372036854775808 is not a valid index"),
+    ],
+)
+def test_negative_or_huge_states_in_a_file_are_refused(demos_file, tmp_path, dtype, column, value, match):
+    # demos_file: task 0 an array (3, 6, 2), task 1 a list of 3 episodes of 6 steps; step 26 is task 1, episode 1, step 2
+    _, arrays = _header(demos_file)
+    assert arrays["episode_lengths"].tolist() == [6] * 6
+    steps = arrays["steps"].astype(dtype)
+    steps[26, column] = value
+    with pytest.raises(PersistenceError, match=rf"bad.npz holds invalid demonstrations: demonstrations of {match}"):
+        fo.load_demonstrations(_rewrite(demos_file, tmp_path / "bad.npz", extra={"steps": steps}))
+
+
+def test_version_1_single_episode_task_loads_as_a_list(demos_file, tmp_path):
+    def version_1(h):
+        h["format_version"] = 1
+        h["task_forms"] = ["episode", "list"]
+
+    _, arrays = _header(demos_file)
+    old = {"steps": arrays["steps"][:12], "episode_lengths": np.array([6, 6]), "task_n_episodes": np.array([1, 1])}
+    back = fo.load_demonstrations(_rewrite(demos_file, tmp_path / "v1.npz", version_1, extra=old))
+    assert isinstance(back[0], list) and len(back[0]) == 1 and back[0][0].shape == (6, 2)
+    np.testing.assert_array_equal(back[0][0], arrays["steps"][:6])
+    parse_demonstrations(back)  # accepted by the learners as it is
+
+
+def test_inconsistent_lengths_cannot_overflow(demos_file, tmp_path):
+    big = np.array([2**62, 2**62, 2**62, 2**62, 18, 18], dtype=np.int64)  # sums to 36 modulo 2**64
+    with pytest.raises(PersistenceError, match="is inconsistent: 2 task forms, 2 tasks with 6 episodes, 6 episode lengths"):
+        fo.load_demonstrations(_rewrite(demos_file, tmp_path / "bad.npz", extra={"episode_lengths": big}))
+
+
+# ----------------------------------------------------------------------------- fuzzing
+
+
+class _Hang(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def _hang_guard(seconds):
+    """Turn a hang into a test failure (SIGALRM after ``seconds``): a bound, not a speed test."""
+    def _raise(signum, frame):
+        raise _Hang(f"a load did not return within {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, _raise)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _mutate(data, rng):
+    buf = bytearray(data)
+    op = rng.integers(3)
+    if op == 0:  # flip a few bits
+        for pos in rng.integers(0, len(buf), size=rng.integers(1, 4)):
+            buf[pos] ^= 1 << int(rng.integers(8))
+    elif op == 1:  # truncate
+        del buf[rng.integers(0, len(buf)):]
+    else:  # overwrite a run with random bytes
+        pos = int(rng.integers(0, len(buf)))
+        buf[pos:pos + int(rng.integers(1, 16))] = rng.bytes(int(rng.integers(1, 16)))
+    return bytes(buf)
+
+
+def _uncompressed(path):
+    """The same file written with np.savez: the .npy headers and the JSON header in clear."""
+    header, arrays = _header(path)
+    buf = io.BytesIO()
+    np.savez(buf, __header__=np.array(json.dumps(header)), **arrays)
+    return buf.getvalue()
+
+
+def _valid_model(model):
+    assert type(model) in (fo.GradIRL, fo.FactIRL)
+    for value in vars(model).values():
+        if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+            assert np.all(np.isfinite(value))
+
+
+def _valid_demos(demos):
+    for task in parse_demonstrations(demos):
+        assert task.steps.dtype == np.int64 and task.steps.min() >= 0
+
+
+@pytest.mark.parametrize("kind", ["model", "demonstrations"])
+@pytest.mark.parametrize("compressed", [True, False])
+def test_fuzzed_files_load_or_raise_persistence_error(model_file, demos_file, kind, compressed):
+    src, load, valid = (model_file, fo.load_model, _valid_model) if kind == "model" else (demos_file, fo.load_demonstrations, _valid_demos)
+    data = open(src, "rb").read() if compressed else _uncompressed(src)
+    rng = np.random.default_rng(2024)
+    outcomes = {"refused": 0, "loaded": 0}
+    with _hang_guard(60):
+        for _ in range(300):
+            try:
+                result = load(io.BytesIO(_mutate(data, rng)))
+            except PersistenceError:
+                outcomes["refused"] += 1
+                continue
+            valid(result)
+            outcomes["loaded"] += 1
+    assert outcomes["refused"] > 100  # most mutations damage the file, and every damage is reported

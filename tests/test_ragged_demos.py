@@ -86,7 +86,7 @@ def test_ragged_fit_and_transfer_equal_concatenated_steps(setting):
 
 def test_tasks_may_mix_forms(setting):
     mdp, _, demos = setting
-    mixed = [demos[0], list(demos[1]), demos[2][0], [ep[:5] for ep in demos[3]] + [demos[3][0][5:]]]
+    mixed = [demos[0], list(demos[1]), [demos[2][0]], [ep[:5] for ep in demos[3]] + [demos[3][0][5:]]]
     same = [demos[0], demos[1], demos[2][:1], demos[3]]
     mu_m, pi_m = fo.empirical_statistics(mdp, mixed)
     mu_s, pi_s = fo.empirical_statistics(mdp, same)
@@ -114,14 +114,14 @@ def test_integral_floats_are_accepted():
         ([[]], "demonstrations of task 0 are empty"),
         ([None], "demonstrations of task 0 must be an int array"),
         ([np.zeros((2, 3, 2, 1), dtype=int)], "demonstrations of task 0 must be an int array"),
-        ([[np.zeros((3, 2), int)], [np.zeros((3, 3), int)]], r"episode 0 of demonstrations of task 1 must have shape \(L, 2\).*\(3, 3\)"),
-        ([[np.zeros((2, 2), int), np.zeros((0, 2), int)]], r"episode 1 of demonstrations of task 0 .*got \(0, 2\)"),
-        ([[[0, 1]]], r"episode 0 .*got \(2,\)"),
-        ([[[[0, 1], [2]]]], r"episode 0 of demonstrations of task 0 must be an array of \(state, action\) pairs"),
-        ([[np.array([[0.5, 1.0]])]], "must hold integer"),
-        ([[np.array([[np.nan, 1.0]])]], "must hold integer"),
-        ([[np.array([[True, False]])]], "must hold integer"),
-        ([[np.array([[0, 1]]), np.array([[16, 0]])]], r"state 16 is out of range \[0, 16\)"),
+        ([[np.zeros((3, 2), int)], [np.zeros((3, 3), int)]], r"task 1, episode 0 must have shape \(L, 2\).*\(3, 3\)"),
+        ([[np.zeros((2, 2), int), np.zeros((0, 2), int)]], r"task 0, episode 1 must have shape .*got \(0, 2\)"),
+        ([[[0, 1]]], r"demos_per_task\[0\] is a single episode \(a list of \(state, action\) pairs\)"),
+        ([[[[0, 1], [2]]]], r"task 0, episode 0 must be an array of \(state, action\) pairs"),
+        ([[np.array([[0.5, 1.0]])]], r"task 0, episode 0, step 0: state 0.5 is not an integer"),
+        ([[np.array([[0, 1], [np.nan, 1.0]])]], r"task 0, episode 0, step 1: state nan is not an integer"),
+        ([[np.array([[True, False]])]], r"state True is not an integer \(the pairs have dtype bool\)"),
+        ([[np.array([[0, 1]]), np.array([[16, 0]])]], r"task 0, episode 1, step 0: state 16 is out of range \[0, 16\)"),
         ([[np.array([[0, 4]])]], r"action 4 is out of range \[0, 4\)"),
         ([[np.array([[-1, 0]])]], r"state -1 is out of range"),
     ],
@@ -137,5 +137,5 @@ def test_bad_episodes_give_clear_errors(demos, match):
 def test_bad_episodes_in_transfer(setting):
     mdp, _, demos = setting
     model = _fact().fit(mdp, demos)
-    with pytest.raises(ValidationError, match=r"episode 1 of demonstrations of task 0"):
+    with pytest.raises(ValidationError, match=r"demonstrations of task 0, episode 1"):
         model.transfer(mdp, [[demos[0][0], demos[0][1][:, :1]]])
