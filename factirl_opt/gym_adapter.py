@@ -161,16 +161,6 @@ def _read_model(env, terminal):
     return P, R, absorbing
 
 
-def _mdp_from_csr(P, gamma):
-    """A :class:`TabularMDP` from (S * A, S) CSR dynamics, row ``s * A + a``.
-
-    The one place where the adapter hands its sparse dynamics to :class:`TabularMDP`; they are
-    densified to (S, A, S) here for a TabularMDP that takes dense transitions.
-    """
-    S = P.shape[1]
-    return TabularMDP(P.toarray().reshape(S, P.shape[0] // S, S), gamma)
-
-
 def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
     """A :class:`TabularMDP` from a Gymnasium toy-text environment's ``env.unwrapped.P``.
 
@@ -212,7 +202,7 @@ def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
     (16, 4)
     """
     P, _, _ = _tabular_model(env, terminal, make_kwargs)
-    return _mdp_from_csr(P, gamma)
+    return TabularMDP(P, gamma)  # kept sparse: (S * A, S) CSR, row s * A + a
 
 
 def gymnasium_rewards(env, terminal="absorbing", **make_kwargs):
