@@ -2,6 +2,10 @@
 
 The data path: MDP + demonstrations -> empirical statistics -> eq. (5) loss and its adjoint
 gradient -> a registered step solver -> learnt rewards -> eq. (13) score.
+
+Internal modules (not public API; any module of the package may import their names):
+``_validation`` (every boundary check), ``_threads`` (BLAS thread limits), ``_progress``
+(progress bars and callbacks of long fits).
 """
 
 from .demonstrations import empirical_statistics, sample_demonstrations

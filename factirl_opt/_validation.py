@@ -22,6 +22,7 @@ __all__ = [
     "check_probability",
     "check_tol",
     "check_array",
+    "check_real_dtype",
     "check_mdp",
     "check_rewards",
     "check_policy",
@@ -97,8 +98,8 @@ def check_tol(value, name="tol"):
     return check_real(value, name, low=0.0)
 
 
-def _refuse_non_real(raw):
-    """TypeError for complex, string and non-numeric object arrays (numpy would cast or warn)."""
+def check_real_dtype(raw):
+    """Raise TypeError for complex, string and non-numeric object arrays (numpy would cast or warn)."""
     if raw.dtype.kind in "cSUV":
         raise TypeError(f"got an array of dtype {raw.dtype}")
     if raw.dtype.kind == "O":
@@ -114,7 +115,7 @@ def check_array(value, name, ndim=None, dtype=np.float64):
     """
     try:
         raw = np.asarray(value)
-        _refuse_non_real(raw)
+        check_real_dtype(raw)
         arr = np.asarray(raw, dtype=dtype)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValidationError(f"{name} must be a real numeric array: {exc}") from None

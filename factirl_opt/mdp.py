@@ -9,7 +9,7 @@ parameter ``theta`` is ``R`` flattened in C order, so ``d = S * A`` and index ``
 import numpy as np
 import scipy.sparse as sp
 
-from ._validation import _refuse_non_real, check_int, check_probability, check_real
+from ._validation import check_real_dtype, check_int, check_probability, check_real
 from .exceptions import ValidationError
 
 __all__ = ["TabularMDP", "GridWorld", "check_signature"]
@@ -22,7 +22,7 @@ DENSE_COPY_LIMIT = 512 * 2**20
 def _check_dense(transitions):
     try:
         raw = np.asarray(transitions)
-        _refuse_non_real(raw)
+        check_real_dtype(raw)
         P = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"transitions must be a numeric array of shape (S, A, S) or a scipy.sparse (S*A, S) matrix: {exc}") from None

@@ -30,7 +30,7 @@ from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
 from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
-from ..objectives.policy_matching import _forward, _gradient, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
+from ..objectives.policy_matching import forward_point, gradient_at, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
 from ..planning import get_planner
 from ..planning import optimal_q
 
@@ -83,8 +83,8 @@ def _one_size(size, args, rng):
     t_adj, n_adj, (loss, g_adj) = timed(lambda: policy_matching_loss(mdp, theta, mu, pi_hat, beta))
     # the gradient parts alone, at the greedy policy found above
     planner = get_planner(mdp)
-    point = _forward(planner, theta[None], mu, pi_hat, beta)
-    t_adj_part, _, _ = timed(lambda: _gradient(planner, point))
+    point = forward_point(planner, theta[None], mu, pi_hat, beta)
+    t_adj_part, _, _ = timed(lambda: gradient_at(planner, point))
     t_fp, n_fp, (_, g_fp) = timed(
         lambda: policy_matching_grad_reference(mdp, theta, mu, pi_hat, beta, route="fixed_point")
     )

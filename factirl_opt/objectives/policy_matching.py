@@ -54,14 +54,15 @@ class _Point:
         self.loss = np.einsum("ns,nsa->n", mu, diff * diff)
 
 
-def _forward(planner, R, mu, pi_hat, beta, policy=None):
+def forward_point(planner, R, mu, pi_hat, beta, policy=None):
+    """Exact Q*, Boltzmann policy and eq. (5) loss at rewards R (n, S, A): a point to differentiate at."""
     res = plan(planner, R, policy)
     pi = boltzmann_policy(res.Q, beta)
     return _Point(res, pi, pi - pi_hat, mu, beta)
 
 
-def _gradient(planner, point):
-    """``dJ/dR`` (n, S, A) by the adjoint route."""
+def gradient_at(planner, point):
+    """``dJ/dR`` (n, S, A) at a :func:`forward_point`, by the adjoint route."""
     g = softmax_vjp(point.pi, 2.0 * point.mu[:, :, None] * point.diff, point.beta)
     return adjoint(planner, point.plan.system, point.plan.policy, g)
 
@@ -104,14 +105,14 @@ class PolicyMatchingObjective(Objective):
 
     def _point(self, R, rows):
         warm = None if self._warm is None else self._warm[rows]
-        point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
+        point = forward_point(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
         if self._warm is None:
             self._warm = np.zeros((self.n_tasks, self.mdp.n_states), dtype=np.intp)
         self._warm[rows] = point.plan.policy
         return point
 
     def _grad(self, point):
-        return _gradient(self.planner, point)
+        return gradient_at(self.planner, point)
 
     def _linearize(self, point):
         return Linearization(point.loss, _residual(point), lambda dR: _jvp(self.planner, point, dR),
@@ -157,8 +158,8 @@ def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None, pl
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
     pl = get_planner(mdp, planner)
-    point = _forward(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
-    return point.loss, _gradient(pl, point)
+    point = forward_point(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
+    return point.loss, gradient_at(pl, point)
 
 
 @blas_limited
@@ -187,7 +188,7 @@ def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None,
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
     F = check_features(features, mdp.n_params)
     pl = get_planner(mdp, planner)
-    point = _forward(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
+    point = forward_point(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
     return point.loss, _residual(point), _features_jacobian(pl, point, F)
 
 
@@ -225,11 +226,12 @@ def dq_dtheta(mdp, policy, features=None, route="direct", tol=1e-13, max_iter=10
         )
     pol = check_policy(mdp, policy, 1)[0]
     F = np.eye(S * A) if features is None else check_features(features, mdp.n_params)
+    if route == "direct":  # forward mode with p right-hand sides: the engine's tangent kernel
+        planner = get_planner(mdp)
+        dQ = tangent(planner, planner.system(pol[None]), pol[None], F.reshape(1, S, A, -1))
+        return dQ.reshape(S * A, -1)
     greedy_rows = np.arange(S) * A + pol
     P2 = mdp.transitions.reshape(S * A, S)
-    if route == "direct":
-        M = np.eye(S) - mdp.gamma * P2[greedy_rows]
-        return F + mdp.gamma * (P2 @ np.linalg.solve(M, F[greedy_rows]))
     if route == "fixed_point":
         phi = F.copy()
         for _ in range(max_iter):
@@ -265,7 +267,7 @@ def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, featu
         ``p = S*A`` for tabular rewards.
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
-    point = _forward(get_planner(mdp), R, mu, pi_hat, beta)
+    point = forward_point(get_planner(mdp), R, mu, pi_hat, beta)
     g = softmax_vjp(point.pi, 2.0 * mu[:, :, None] * point.diff, beta).reshape(R.shape[0], -1)
     grads = [g[i] @ dq_dtheta(mdp, point.plan.policy[i], features, route=route) for i in range(R.shape[0])]
     return point.loss, np.array(grads)
