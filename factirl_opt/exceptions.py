@@ -4,7 +4,17 @@ Every error raised on bad user input derives from :class:`FactIRLError`, so a ca
 the library's errors without catching unrelated ones. Validation errors also derive from
 ``ValueError`` (and type errors from ``TypeError``) so code written against plain Python
 conventions keeps working.
+
+The step-solver registry (the leaf package ``solvers``) has its own family, rooted at
+:class:`solvers.SolversError`. The solver exceptions below derive from both families, and
+:func:`translate_solver_errors` re-raises any ``solvers`` exception as the matching one of
+this module, so code that calls the registry inside it gives users one family to catch
+(``except factirl_opt.FactIRLError``) while ``except solvers.SolversError`` keeps working.
 """
+
+import contextlib
+
+from solvers import exceptions as _solvers
 
 __all__ = [
     "FactIRLError",
@@ -12,9 +22,12 @@ __all__ = [
     "NotFittedError",
     "SolverError",
     "UnknownSolverError",
+    "SolverOptionError",
     "PersistenceError",
     "MissingDependencyError",
+    "MissingSolverBackendError",
     "ConvergenceWarning",
+    "translate_solver_errors",
 ]
 
 
@@ -30,15 +43,16 @@ class NotFittedError(FactIRLError, AttributeError):
     """A learnt attribute was used before ``fit`` was called."""
 
 
-class SolverError(FactIRLError, RuntimeError):
+class SolverError(FactIRLError, _solvers.SolverError):
     """A step solver or its backend failed in a way the caller must know about."""
 
 
-class UnknownSolverError(FactIRLError, KeyError):
+class UnknownSolverError(FactIRLError, _solvers.UnknownSolverError):
     """A solver name is not in the registry; the message lists the available ones."""
 
-    def __str__(self):  # KeyError quotes its argument; keep the message readable
-        return str(self.args[0]) if self.args else ""
+
+class SolverOptionError(ValidationError, _solvers.SolverOptionError):
+    """A solver option or argument has the wrong type or value (a :class:`ValidationError`)."""
 
 
 class PersistenceError(FactIRLError, ValueError):
@@ -55,12 +69,47 @@ class ConvergenceWarning(UserWarning):
     the message says what to check (scaling of features or initialisation, beta)."""
 
 
+class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):
+    """A solver's backend module is not installed (a :class:`MissingDependencyError`)."""
+
+
+#: solvers exception -> the library's exception it becomes (most specific first)
+_TRANSLATION = (
+    (_solvers.MissingBackendError, MissingSolverBackendError),
+    (_solvers.SolverOptionError, SolverOptionError),
+    (_solvers.UnknownSolverError, UnknownSolverError),
+    (_solvers.SolversError, SolverError),
+)
+
+
+@contextlib.contextmanager
 def translate_solver_errors():
-    """Context manager re-raising a ``solvers`` registry error as this library's (interim).
+    """Re-raise any ``solvers.SolversError`` as the matching exception of this module.
 
-    Until the registry owns its exceptions, its errors already are this library's; this keeps
-    the learners' call sites in their final form.
+    Usable as a context manager or as a decorator (``@translate_solver_errors()``). The new
+    exception has the same message and is raised ``from`` the original; it derives from both
+    families, so ``except solvers.SolverOptionError`` still catches a translated option
+    error. Exceptions already in this module's family, and every other exception, pass
+    through unchanged.
+
+    ============================== ==================================
+    ``solvers``                    ``factirl_opt.exceptions``
+    ============================== ==================================
+    ``MissingBackendError``        :class:`MissingSolverBackendError`
+    ``SolverOptionError``          :class:`SolverOptionError`
+    ``UnknownSolverError``         :class:`UnknownSolverError`
+    ``SolverError`` (and the base) :class:`SolverError`
+    ============================== ==================================
+
+    Examples
+    --------
+    >>> with translate_solver_errors():
+    ...     solver = solvers.resolve_solver(name, options)
     """
-    import contextlib
-
-    return contextlib.nullcontext()
+    try:
+        yield
+    except _solvers.SolversError as exc:
+        if isinstance(exc, FactIRLError):
+            raise
+        cls = next(ours for theirs, ours in _TRANSLATION if isinstance(exc, theirs))
+        raise cls(*exc.args) from exc

@@ -10,8 +10,13 @@ Register your own solver (a :class:`StepSolver` subclass or any factory returnin
     class MySolver(solvers.StepSolver):
         ...
 
-An unknown name raises :class:`factirl_opt.exceptions.UnknownSolverError` listing what is
-available.
+Errors derive from :class:`SolversError` (module :mod:`solvers.exceptions`): an unknown name
+raises :class:`UnknownSolverError` listing what is available; a registered name whose backend
+module is not installed raises :class:`MissingBackendError` with the ``pip install`` command;
+a bad option (wrong name, type or value; options given as anything but a mapping) raises
+:class:`SolverOptionError` naming the option and the value; a run that fails raises
+:class:`SolverError`. ``solvers`` imports nothing from ``factirl_opt`` (a leaf package);
+``factirl_opt.exceptions.translate_solver_errors`` maps these to the library's family.
 
 Built-in solvers
 ----------------
@@ -34,19 +39,30 @@ Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.
 import importlib.util
 import inspect
 
-from factirl_opt.exceptions import UnknownSolverError, ValidationError
-
-from ._base import SolverResult, StepProblem, StepSolver
+from ._base import Linearization, SolverResult, StepProblem, StepSolver
+from ._blockqp import BACKENDS, CONSTRAINTS
+from ._validation import check_options
 from .armijo import ArmijoSolver
-from .gauss_newton import GaussNewtonSolver, QPFallbackWarning
+from .exceptions import MissingBackendError, SolverError, SolverOptionError, SolversError, UnknownSolverError
+from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
+from .stopping import has_converged, relative_decrease
 
 __all__ = [
     "StepProblem",
+    "Linearization",
     "StepSolver",
     "SolverResult",
     "ArmijoSolver",
     "GaussNewtonSolver",
     "QPFallbackWarning",
+    "qp_solver_name",
+    "relative_decrease",
+    "has_converged",
+    "SolversError",
+    "SolverError",
+    "UnknownSolverError",
+    "SolverOptionError",
+    "MissingBackendError",
     "register_solver",
     "unregister_solver",
     "available_solvers",
@@ -70,20 +86,29 @@ def register_solver(name, factory=None, *, requires=(), overwrite=False, **defau
         Called as ``factory(**defaults, **options)``; must return a :class:`StepSolver`.
         Omit it to use ``register_solver(name)`` as a class decorator.
     requires : tuple of str
-        Modules that must be importable for the solver to be available (its backend).
+        Modules that must be importable for the solver to be available (its backend); each
+        is also the name of the package ``pip`` installs it from.
     overwrite : bool
         Allow replacing an existing name.
     **defaults
         Default options passed to the factory.
+
+    Raises
+    ------
+    SolverOptionError
+        When the name is not a non-empty string, the factory is not callable, ``requires``
+        is not a tuple of strings, or the name is taken (and ``overwrite`` is False).
     """
     if not isinstance(name, str) or not name:
-        raise ValidationError(f"solver name must be a non-empty string; got {name!r}")
+        raise SolverOptionError(f"solver name must be a non-empty string; got {name!r}")
+    if isinstance(requires, str) or not all(isinstance(m, str) and m for m in requires):
+        raise SolverOptionError(f"requires of solver {name!r} must be a tuple of module names; got {requires!r}")
 
     def decorate(f):
         if not callable(f):
-            raise ValidationError(f"solver factory for {name!r} must be callable; got {type(f).__name__}")
+            raise SolverOptionError(f"solver factory for {name!r} must be callable; got {type(f).__name__}")
         if name in _REGISTRY and not overwrite:
-            raise ValidationError(f"a solver named {name!r} is already registered (pass overwrite=True to replace it)")
+            raise SolverOptionError(f"a solver named {name!r} is already registered (pass overwrite=True to replace it)")
         _REGISTRY[name] = (f, dict(defaults), tuple(requires))
         return f
 
@@ -92,13 +117,13 @@ def register_solver(name, factory=None, *, requires=(), overwrite=False, **defau
 
 def unregister_solver(name):
     """Remove ``name`` from the registry."""
-    if name not in _REGISTRY:
+    if not isinstance(name, str) or name not in _REGISTRY:
         raise UnknownSolverError(f"unknown solver {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
     del _REGISTRY[name]
 
 
-def _installed(requires):
-    return all(importlib.util.find_spec(m) is not None for m in requires)
+def _missing(requires):
+    return [m for m in requires if importlib.util.find_spec(m) is None]
 
 
 def registered_solvers():
@@ -108,50 +133,111 @@ def registered_solvers():
 
 def available_solvers():
     """Registered names whose backend is installed (sorted)."""
-    return sorted(n for n, (_, _, req) in _REGISTRY.items() if _installed(req))
+    return sorted(n for n, (_, _, req) in _REGISTRY.items() if not _missing(req))
 
 
-def get_solver(name, **options):
-    """A new solver instance for a registered ``name``, with ``options`` over its defaults."""
-    if name not in _REGISTRY:
-        raise UnknownSolverError(f"unknown solver {name!r}; available: {', '.join(available_solvers())}")
-    factory, defaults, requires = _REGISTRY[name]
-    if not _installed(requires):
-        raise UnknownSolverError(
-            f"solver {name!r} needs {', '.join(requires)}, which is not installed; available: {', '.join(available_solvers())}"
-        )
-    kwargs = {**defaults, **options}
+def _factory_name(factory):
+    return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', repr(factory))}"
+
+
+def _check_accepted(name, factory, kwargs, options):
+    """Raise SolverOptionError when ``factory`` cannot take the options ``kwargs``."""
     try:
         signature = inspect.signature(factory)
     except (TypeError, ValueError):  # a builtin without a signature: let the call decide
-        signature = None
-    if signature is not None:
-        try:
-            signature.bind(**kwargs)
-        except TypeError:
-            accepted = [p for p in signature.parameters if not p.startswith("_")]
-            bad = sorted(set(options) - set(accepted)) or sorted(options)
-            raise ValidationError(f"solver {name!r} does not accept option(s) {', '.join(bad)}; its options are: {', '.join(accepted)}") from None
-    return factory(**kwargs)
+        return
+    try:
+        signature.bind(**kwargs)
+    except TypeError:
+        accepted = [p for p in signature.parameters if not p.startswith("_")]
+        bad = sorted(set(options) - set(accepted)) or sorted(options)
+        raise SolverOptionError(f"solver {name!r} does not accept option(s) {', '.join(bad)}; its options are: {', '.join(accepted)}") from None
 
 
-def resolve_solver(solver, **options):
-    """A solver from a registered name or a :class:`StepSolver` instance (returned as is)."""
+def get_solver(name, **options):
+    """A new solver instance for a registered ``name``, with ``options`` over its defaults.
+
+    Raises
+    ------
+    UnknownSolverError
+        ``name`` is not registered (the message lists the available names).
+    MissingBackendError
+        ``name`` is registered but a module it needs is not installed.
+    SolverOptionError
+        An option is unknown to the solver or has a bad type or value.
+    SolverError
+        The factory failed otherwise, or returned something that is not a :class:`StepSolver`.
+    """
+    if not isinstance(name, str):
+        raise SolverOptionError(f"solver name must be a string; got {name!r} ({type(name).__name__})")
+    if name not in _REGISTRY:
+        raise UnknownSolverError(f"unknown solver {name!r}; available: {', '.join(available_solvers())}")
+    factory, defaults, requires = _REGISTRY[name]
+    missing = _missing(requires)
+    if missing:
+        raise MissingBackendError(
+            f"solver {name!r} needs the module(s) {', '.join(missing)}, which are not installed; "
+            f"install them with: pip install {' '.join(missing)}",
+            name=missing[0],
+        )
+    kwargs = {**defaults, **options}
+    _check_accepted(name, factory, kwargs, options)
+    try:
+        solver = factory(**kwargs)
+    except SolversError:
+        raise
+    except (TypeError, ValueError) as exc:
+        raise SolverOptionError(f"solver {name!r}: invalid options {options!r}: {type(exc).__name__}: {exc}") from exc
+    except Exception as exc:
+        raise SolverError(f"solver {name!r}: its factory {_factory_name(factory)} failed: {type(exc).__name__}: {exc}") from exc
+    if not isinstance(solver, StepSolver):
+        raise SolverError(
+            f"solver {name!r}: its factory {_factory_name(factory)} returned {type(solver).__name__} "
+            f"{solver!r:.80}, not a solvers.StepSolver"
+        )
+    return solver
+
+
+def resolve_solver(solver, options=None, /, **kwargs):
+    """A solver from a registered name or a :class:`StepSolver` instance (returned as is).
+
+    Parameters
+    ----------
+    solver : str or StepSolver
+    options : mapping, optional
+        Options of a named solver, e.g. ``{"shrink": 0.3}`` (a dict; a list or any other
+        non-mapping is an error). Keyword arguments are merged in (they may not repeat a key).
+    **kwargs
+        More options.
+
+    Raises
+    ------
+    SolverOptionError
+        When ``options`` is not a mapping, a key is repeated, options are given with a solver
+        object, or ``solver`` is neither a name nor a :class:`StepSolver`.
+    UnknownSolverError, MissingBackendError, SolverError
+        As :func:`get_solver`.
+    """
+    opts = check_options(options, "resolve_solver")
+    repeated = sorted(set(opts) & set(kwargs))
+    if repeated:
+        raise SolverOptionError(f"resolve_solver: option(s) {', '.join(repeated)} given both in options and as keywords")
+    opts.update(kwargs)
     if isinstance(solver, StepSolver):
-        if options:
-            raise ValidationError("options can only be given with a solver name, not a solver object")
+        if opts:
+            raise SolverOptionError("options can only be given with a solver name, not a solver object")
         return solver
     if isinstance(solver, str):
-        return get_solver(solver, **options)
-    raise ValidationError(f"solver must be a registered name or a StepSolver; got {type(solver).__name__}")
+        return get_solver(solver, **opts)
+    raise SolverOptionError(f"solver must be a registered name or a StepSolver; got {type(solver).__name__}")
 
 
 register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
-for _backend in ("osqp", "clarabel"):
-    for _constraint in ("none", "nonneg", "sparse"):
+for _backend in BACKENDS:
+    for _constraint in CONSTRAINTS:
         register_solver(
-            f"gn-qp-{_backend}" + ("" if _constraint == "none" else f"-{_constraint}"),
+            qp_solver_name(_backend, _constraint),
             GaussNewtonSolver,
             requires=("cvxpy", _backend),
             backend=_backend,

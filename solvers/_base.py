@@ -2,8 +2,9 @@
 
 A step solver never sees an MDP. It sees a :class:`StepProblem`: a smooth objective that is a
 sum of independent rows (tasks), over parameters ``x`` of shape (n, p), given as callables.
-Solvers follow the init/update pattern (as in jaxopt) so Armijo descent and Gauss-Newton steps
-share one outer loop, :meth:`StepSolver.run`.
+Solvers follow the init/update pattern (as in jaxopt) so Armijo descent, L-BFGS and the
+Gauss-Newton steps share one outer loop, :meth:`StepSolver.run`, and one stopping rule,
+:func:`solvers.stopping.has_converged`.
 """
 
 import time
@@ -12,9 +13,11 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from factirl_opt.exceptions import ValidationError
+from .exceptions import SolverError, SolverOptionError
+from ._validation import check_number
+from .stopping import has_converged
 
-__all__ = ["StepProblem", "SolverResult", "StepSolver"]
+__all__ = ["StepProblem", "Linearization", "SolverResult", "StepSolver", "limit_step"]
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,15 @@ class StepProblem:
         ``() -> int``, the objective's count of (batched) Q* evaluations so far.
     n_rows, n_params : int
         ``n`` and ``p``.
+    linearize : callable or None
+        ``(x_rows, rows) -> Linearization``: loss, residual and matrix-free products with the
+        Jacobian of the residual at ``x_rows`` (see :class:`Linearization`); None when the
+        problem has no least-squares form or no matrix-free derivative. Used by ``gn-cg``.
+
+    Raises
+    ------
+    SolverOptionError
+        When a callable is not callable or a size is not a positive integer.
     """
 
     loss_and_grad: Callable
@@ -43,6 +55,45 @@ class StepProblem:
     n_rows: int
     n_params: int
     residual_jacobian: Optional[Callable] = None
+    linearize: Optional[Callable] = None
+
+    def __post_init__(self):
+        for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize"):
+            value = getattr(self, name)
+            if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize")):
+                raise SolverOptionError(f"StepProblem: {name} must be callable; got {value!r} ({type(value).__name__})")
+        check_number(self.n_rows, "n_rows", "StepProblem", low=1, integer=True)
+        check_number(self.n_params, "n_params", "StepProblem", low=1, integer=True)
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """A least-squares problem linearised at some rows: residuals and matrix-free Jacobian products.
+
+    What ``StepProblem.linearize(x_rows, rows)`` returns for ``r`` rows with residuals
+    ``r_i(x_i)`` of size ``m`` and Jacobians ``J_i = dr_i/dx_i`` (m, p) that are never formed.
+
+    Attributes
+    ----------
+    loss : ndarray, shape (r,)
+        ``||r_i||^2`` per row (the row's objective, as for ``residual_jacobian``).
+    residual : ndarray, shape (r, m)
+    jvp : callable
+        ``V (r, p) -> (r, m)``: ``J_i v_i`` for every row (forward mode; for the IRL
+        objective one batched linear solve through Q*).
+    vjp : callable
+        ``U (r, m) -> (r, p)``: ``J_i^T u_i`` for every row (the adjoint).
+
+    Notes
+    -----
+    The two products must be consistent, ``<J_i v, u> = <v, J_i^T u>`` for every row; the
+    gradient of the loss is ``2 J_i^T r_i = 2 vjp(residual)``.
+    """
+
+    loss: np.ndarray
+    residual: np.ndarray
+    jvp: Callable
+    vjp: Callable
 
 
 @dataclass
@@ -142,29 +193,31 @@ class StepSolver:
         Returns
         -------
         SolverResult
+
+        Raises
+        ------
+        SolverOptionError
+            When an argument is malformed (``x0`` of the wrong shape or not finite, ...).
+        SolverError
+            When the objective is not finite at ``x0`` or the solver fails.
         """
-        x = self.project(np.array(x0, dtype=np.float64))
-        if x.shape != (problem.n_rows, problem.n_params):
-            raise ValidationError(f"x0 must have shape ({problem.n_rows}, {problem.n_params}); got {x.shape}")
-        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
-            raise ValidationError(f"max_iter must be an integer >= 0; got {max_iter!r}")
+        x = self._check_run(problem, x0, max_iter, tol, callback)
         t0 = time.perf_counter()
         ev0 = problem.n_evaluations()
         state = self.init_state(problem, x, previous=state)
-        history = [float(np.sum(state.loss))]
+        history = [self._total(state)]
         status = "max_iter"
         it = 0
         for it in range(1, max_iter + 1):
             x, state, progressed = self.update(problem, x, state)
-            total = float(np.sum(state.loss))
+            total = self._total(state)
             history.append(total)
             if callback is not None:
                 callback(it, total)
             if not progressed:
                 status = "stalled"
                 break
-            prev = history[-2]
-            if prev - total <= tol * max(abs(prev), np.finfo(float).tiny):
+            if has_converged(history[-2], total, tol):
                 status = "converged"
                 break
         return SolverResult(
@@ -177,3 +230,63 @@ class StepSolver:
             loss_history=history,
             state=state,
         )
+
+    def _check_run(self, problem, x0, max_iter, tol, callback):
+        """Validate the arguments of :meth:`run`; the projected starting point."""
+        if not isinstance(problem, StepProblem):
+            raise SolverOptionError(f"{self.name}: problem must be a StepProblem; got {type(problem).__name__}")
+        try:
+            x = np.array(x0, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise SolverOptionError(f"{self.name}: x0 must be a numeric array: {exc}") from None
+        if x.shape != (problem.n_rows, problem.n_params):
+            raise SolverOptionError(f"{self.name}: x0 must have shape ({problem.n_rows}, {problem.n_params}); got {x.shape}")
+        if not np.all(np.isfinite(x)):
+            bad = np.unique(np.nonzero(~np.isfinite(x))[0])
+            raise SolverOptionError(f"{self.name}: x0 must be finite; rows {bad[:10].tolist()} hold NaN or inf")
+        check_number(max_iter, "max_iter", self.name, low=0, integer=True)
+        check_number(tol, "tol", self.name, low=0.0)
+        if callback is not None and not callable(callback):
+            raise SolverOptionError(f"{self.name}: callback must be callable; got {type(callback).__name__}")
+        return self.project(x)
+
+    def _total(self, state):
+        total = float(np.sum(state.loss))
+        if not np.isfinite(total):
+            raise SolverError(f"{self.name}: the total objective is not finite ({total}); the solver must reject such points")
+        return total
+
+
+def limit_step(x, z, max_step_norm):
+    """Shorten every row's step ``z_i - x_i`` to at most ``max_step_norm * max(1, ||x_i||)``.
+
+    A trust-region-like cap shared by the solvers: rows within the radius are returned
+    unchanged (bit for bit); longer steps keep their direction. The shortened point lies on
+    the segment from ``x_i`` to ``z_i``, so it stays feasible for a convex constraint that
+    both satisfy, and it cannot increase a convex model that decreases from ``x_i`` to ``z_i``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, p)
+        Current parameters.
+    z : ndarray, shape (n, p)
+        Proposed parameters (finite).
+    max_step_norm : float or None
+        Relative radius (> 0); None: no cap.
+
+    Returns
+    -------
+    z : ndarray, shape (n, p)
+        A new array when a row was shortened, else ``z`` itself.
+    shortened : ndarray of bool, shape (n,)
+    """
+    if max_step_norm is None:
+        return z, np.zeros(x.shape[0], dtype=bool)
+    delta = z - x
+    norm = np.linalg.norm(delta, axis=1)
+    radius = max_step_norm * np.maximum(1.0, np.linalg.norm(x, axis=1))
+    shortened = norm > radius
+    if shortened.any():
+        z = z.copy()
+        z[shortened] = x[shortened] + delta[shortened] * (radius[shortened] / norm[shortened])[:, None]
+    return z, shortened

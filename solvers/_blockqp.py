@@ -19,16 +19,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factirl_opt.exceptions import ValidationError
+from .exceptions import SolverOptionError
 
-__all__ = ["CONSTRAINTS", "BACKENDS", "BlockQPResult", "check_constraint", "check_backend", "check_block_data", "check_alpha", "refine_active_set"]
+__all__ = [
+    "CONSTRAINTS",
+    "BACKENDS",
+    "DATA_LIMIT",
+    "BlockQPResult",
+    "check_constraint",
+    "check_backend",
+    "check_block_data",
+    "check_alpha",
+    "refine_active_set",
+]
 
 #: constraint variants of the H-step
 CONSTRAINTS = ("none", "nonneg", "sparse")
-#: QP backends and the module each needs
-BACKENDS = {"osqp": "osqp", "clarabel": "clarabel"}
+#: QP backends; each is also the name of the module (and pip package) it needs
+BACKENDS = ("osqp", "clarabel")
 #: cvxpy solver names of the backends
 CVXPY_NAMES = {"osqp": "OSQP", "clarabel": "CLARABEL"}
+#: largest magnitude of block QP data: OSQP takes bounds beyond 1e30 for infinite (and prints
+#: an error when an equality bound is beyond it), so data must stay far below
+DATA_LIMIT = 1e20
 
 
 @dataclass
@@ -59,27 +72,37 @@ class BlockQPResult:
 
 
 def check_constraint(constraint):
-    if constraint not in CONSTRAINTS:
-        raise ValidationError(f"constraint must be one of {CONSTRAINTS}; got {constraint!r}")
+    if not isinstance(constraint, str) or constraint not in CONSTRAINTS:
+        raise SolverOptionError(f"constraint must be one of {CONSTRAINTS}; got {constraint!r}")
     return constraint
 
 
 def check_backend(backend):
-    if backend not in BACKENDS:
-        raise ValidationError(f"backend must be one of {tuple(BACKENDS)}; got {backend!r}")
+    if not isinstance(backend, str) or backend not in BACKENDS:
+        raise SolverOptionError(f"backend must be one of {BACKENDS}; got {backend!r}")
     return backend
 
 
 def check_block_data(R, b, n, k):
-    """Validate stacked subproblem data against the compiled shape (n, k)."""
+    """Validate stacked subproblem data against the compiled shape (n, k).
+
+    Raises
+    ------
+    SolverOptionError
+        When a shape is wrong, an entry is not finite or exceeds :data:`DATA_LIMIT` in
+        magnitude, or ``R`` is not upper triangular.
+    """
     R = np.asarray(R, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if R.shape != (n, k, k) or b.shape != (n, k):
-        raise ValidationError(f"block QP data must have shapes R ({n}, {k}, {k}) and b ({n}, {k}); got {R.shape} and {b.shape}")
+        raise SolverOptionError(f"block QP data must have shapes R ({n}, {k}, {k}) and b ({n}, {k}); got {R.shape} and {b.shape}")
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(b))):
-        raise ValidationError("block QP data R and b must be finite")
+        raise SolverOptionError("block QP data R and b must be finite")
+    big = max(float(np.max(np.abs(R), initial=0.0)), float(np.max(np.abs(b), initial=0.0)))
+    if big > DATA_LIMIT:
+        raise SolverOptionError(f"block QP data must be at most {DATA_LIMIT:g} in magnitude (rescale them); got {big:.3g}")
     if np.any(np.tril(R, -1) != 0):
-        raise ValidationError("block QP factors R must be upper triangular (from the QR reduction)")
+        raise SolverOptionError("block QP factors R must be upper triangular (from the QR reduction)")
     return R, b
 
 
@@ -88,8 +111,8 @@ def check_alpha(alpha, n):
     a = np.asarray(alpha, dtype=np.float64)
     if a.ndim == 0:
         a = np.full(n, float(a))
-    if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0):
-        raise ValidationError(f"alpha must be a finite number >= 0 or one per task, shape ({n},); got {alpha!r}")
+    if a.shape != (n,) or not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > DATA_LIMIT):
+        raise SolverOptionError(f"the block QP's L1 weights must be finite, in [0, {DATA_LIMIT:g}], one per task (shape ({n},)); got {alpha!r}")
     return a
 
 

@@ -11,9 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factirl_opt.exceptions import ValidationError
-
 from ._base import StepSolver
+from ._validation import boolean, check_evaluation, integer, number, option, validate_fields
 
 __all__ = ["ArmijoSolver", "ArmijoState"]
 
@@ -32,7 +31,7 @@ class ArmijoSolver(StepSolver):
     Parameters
     ----------
     initial_step : float, default=1.0
-        Step size of a row that has none yet.
+        Step size of a row that has none yet, > 0.
     shrink : float, default=0.5
         Backtracking factor, in (0, 1).
     grow : float, default=2.0
@@ -40,34 +39,36 @@ class ArmijoSolver(StepSolver):
     c : float, default=1e-4
         Sufficient-decrease constant of the Armijo condition, in (0, 1).
     max_backtracks : int, default=30
-        Trials per iteration before a row is declared stalled for this iteration.
+        Trials per iteration before a row is declared stalled for this iteration, >= 1.
     max_step : float, default=1e8
-        Upper bound on a step size.
+        Upper bound on a step size, > 0.
     nonneg : bool, default=False
         Project onto ``x >= 0`` (projected gradient).
+
+    Raises
+    ------
+    SolverOptionError
+        When an option has the wrong type or value (every option is checked; numbers must be
+        finite, ``bool`` is not a number, ``max_backtracks`` must be an ``int``).
+
+    Notes
+    -----
+    A trial point where the objective or its gradient is not finite is never accepted: it
+    counts as a failed Armijo test (the step shrinks).
     """
 
-    initial_step: float = 1.0
-    shrink: float = 0.5
-    grow: float = 2.0
-    c: float = 1e-4
-    max_backtracks: int = 30
-    max_step: float = 1e8
-    nonneg: bool = False
+    initial_step: float = option(1.0, number(low=0.0, low_open=True))
+    shrink: float = option(0.5, number(0.0, 1.0, low_open=True, high_open=True))
+    grow: float = option(2.0, number(low=1.0))
+    c: float = option(1e-4, number(0.0, 1.0, low_open=True, high_open=True))
+    max_backtracks: int = option(30, integer(low=1))
+    max_step: float = option(1e8, number(low=0.0, low_open=True))
+    nonneg: bool = option(False, boolean())
 
     name = "armijo"
 
     def __post_init__(self):
-        if not (0 < self.shrink < 1):
-            raise ValidationError(f"shrink must be in (0, 1); got {self.shrink!r}")
-        if not (self.grow >= 1):
-            raise ValidationError(f"grow must be >= 1; got {self.grow!r}")
-        if not (0 < self.c < 1):
-            raise ValidationError(f"c must be in (0, 1); got {self.c!r}")
-        if not (self.initial_step > 0 and np.isfinite(self.initial_step)):
-            raise ValidationError(f"initial_step must be a finite number > 0; got {self.initial_step!r}")
-        if int(self.max_backtracks) < 1:
-            raise ValidationError(f"max_backtracks must be >= 1; got {self.max_backtracks!r}")
+        validate_fields(self, "armijo-nonneg" if self.nonneg is True else "armijo")
         if self.nonneg:
             self.name = "armijo-nonneg"
             self.constraint = "nonneg"
@@ -76,13 +77,18 @@ class ArmijoSolver(StepSolver):
         x = np.asarray(x, dtype=np.float64)
         return np.maximum(x, 0.0) if self.nonneg else x
 
+    def _evaluate(self, problem, x, rows, start=False):
+        loss, grad = problem.loss_and_grad(x, rows)
+        loss, (grad,), finite = check_evaluation(self.name, "loss_and_grad", rows, loss, grad, shapes=[(problem.n_params,)], start=start)
+        return loss, grad, finite
+
     def init_state(self, problem, x, previous=None):
-        loss, grad = problem.loss_and_grad(x, np.arange(problem.n_rows))
-        if previous is not None and np.shape(previous.step) == (problem.n_rows,):
+        loss, grad, _ = self._evaluate(problem, x, np.arange(problem.n_rows), start=True)
+        if previous is not None and np.shape(getattr(previous, "step", None)) == (problem.n_rows,):
             step = previous.step.copy()
         else:
             step = np.full(problem.n_rows, float(self.initial_step))
-        return ArmijoState(loss=np.asarray(loss, dtype=float), grad=np.asarray(grad, dtype=float), step=step)
+        return ArmijoState(loss=loss, grad=grad, step=step)
 
     def update(self, problem, x, state):
         x_new = x.copy()
@@ -91,9 +97,10 @@ class ArmijoSolver(StepSolver):
         t = step.copy()
         for b in range(int(self.max_backtracks)):
             trial = self.project(x[rows] - t[rows, None] * grad[rows])
-            lt, gt = problem.loss_and_grad(trial, rows)
+            lt, gt, finite = self._evaluate(problem, trial, rows)
             decrease = np.sum(grad[rows] * (x[rows] - trial), axis=1)
-            ok = lt <= loss[rows] - self.c * decrease
+            with np.errstate(invalid="ignore"):
+                ok = finite & (lt <= loss[rows] - self.c * decrease)
             acc = rows[ok]
             x_new[acc] = trial[ok]
             loss[acc], grad[acc] = lt[ok], gt[ok]

@@ -18,8 +18,8 @@ exact on its active set (:func:`solvers._blockqp.refine_active_set`: exact zeros
 against the KKT conditions), so the sparse variant reports true zeros whatever the backend.
 
 Levenberg-Marquardt: a task's step is accepted if its true objective (loss plus penalty)
-drops; then ``lam_i`` shrinks by ``lam_down``; otherwise the step is rejected and ``lam_i``
-grows by ``lam_up``. Every task keeps its own ``lam_i``; all tasks are stepped together, so one
+drops and is finite; then ``lam_i`` shrinks by ``lam_down``; otherwise the step is rejected and
+``lam_i`` grows by ``lam_up``. Every task keeps its own ``lam_i``; all tasks are stepped together, so one
 step costs one batched Q* evaluation (which also yields the Jacobian at the trial point, so
 an accepted step needs no further evaluation). A step in which no task is accepted is retried
 for the rejected tasks with their larger ``lam`` (up to ``max_retries`` times) before the solver
@@ -30,7 +30,18 @@ accepted silently: with ``fallback="backend"`` the QP is re-solved with the othe
 then, if that fails too, a safe step is taken (one proximal-gradient step on the reduced
 model, which cannot increase it), each time with a :class:`QPFallbackWarning`. With
 ``fallback="none"`` a failed status rejects the step (``lam`` up, with a warning) and a backend
-exception is re-raised as :class:`factirl_opt.exceptions.SolverError`.
+exception is re-raised as :class:`solvers.SolverError`.
+
+Step bound (a trust-region-like cap): no row moves further than ``Delta_i = max_step_norm *
+max(1, ||h_i||)`` in one step. Where the unconstrained step (``R_i^{-1} b_i - h_i``) would be
+longer, ``lam_i`` is first raised to ``(2 ||J_i^T r_i|| + alpha sqrt(k)) / Delta_i``, which
+bounds the damped subproblem's minimiser by ``Delta_i`` for every variant (the damped model is
+``2 lam_i``-strongly convex); a constrained solution still longer than ``Delta_i`` is shortened
+along its direction (:func:`solvers._base.limit_step`). This keeps the QP data bounded when a
+row's Jacobian vanishes (saturated Boltzmann policies at large ``beta``: the undamped step
+would be ``~ r / J``) and only acts on such steps: the default radius, 100, is 5x the longest
+relative step seen in the well-behaved runs of the tests. A row whose Jacobian or residual is
+exactly zero has a zero step: it makes no progress (and is not evaluated).
 """
 
 import importlib.util
@@ -40,15 +51,41 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from factirl_opt.exceptions import SolverError, ValidationError
+from ._base import StepSolver, limit_step
+from ._blockqp import BACKENDS, CONSTRAINTS, DATA_LIMIT, check_backend, check_constraint, refine_active_set
+from ._validation import check_evaluation, check_number, choice, integer, number, option, optional, validate_fields
+from .exceptions import SolverError, SolverOptionError
 
-from ._base import StepSolver
-from ._blockqp import BACKENDS, check_backend, check_constraint, refine_active_set
-
-__all__ = ["GaussNewtonSolver", "GaussNewtonState", "QPFallbackWarning", "reduce_least_squares", "safe_step"]
+__all__ = [
+    "GaussNewtonSolver",
+    "GaussNewtonState",
+    "QPFallbackWarning",
+    "qp_solver_name",
+    "reduce_least_squares",
+    "rescale_subproblems",
+    "safe_step",
+]
 
 INTERFACES = ("cvxpy", "direct")
 FALLBACKS = ("backend", "safe-step", "none")
+
+
+def qp_solver_name(backend, constraint="none", interface="cvxpy"):
+    """The name of a Gauss-Newton QP solver: ``gn-qp-{backend}[-{constraint}][-direct]``.
+
+    The one place the pattern is built: the registry registers ``qp_solver_name(b, c)`` for
+    every backend and constraint; a solver with ``interface="direct"`` reports the same name
+    with ``-direct`` appended (that name is not registered: pass ``interface="direct"``).
+
+    Examples
+    --------
+    >>> qp_solver_name("osqp"), qp_solver_name("clarabel", "nonneg")
+    ('gn-qp-osqp', 'gn-qp-clarabel-nonneg')
+    """
+    check_backend(backend)
+    check_constraint(constraint)
+    name = f"gn-qp-{backend}" + ("" if constraint == "none" else f"-{constraint}")
+    return name + ("-direct" if interface == "direct" else "")
 
 
 class QPFallbackWarning(RuntimeWarning):
@@ -77,6 +114,8 @@ class GaussNewtonState:
         Number of block QP solves.
     qp_failures : int
         Block QP solves whose first backend failed.
+    bounded_steps : int
+        Row steps the step bound acted on (damping raised or step shortened).
     """
 
     loss: np.ndarray
@@ -87,6 +126,7 @@ class GaussNewtonState:
     qp_time: float = 0.0
     qp_solves: int = 0
     qp_failures: int = 0
+    bounded_steps: int = 0
 
 
 def reduce_least_squares(jacobian, residual, coefficients, lam):
@@ -141,23 +181,6 @@ def safe_step(R, b, coefficients, constraint="none", alpha=0.0):
     return z
 
 
-def _check_number(value, name, low=None, high=None, low_open=True, integer=False):
-    ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
-    if integer:
-        ok = ok and float(value) == int(value)
-    ok = ok and np.isfinite(float(value))
-    if ok and low is not None:
-        ok = value > low if low_open else value >= low
-    if ok and high is not None:
-        ok = value <= high
-    if not ok:
-        lo = "" if low is None else f"{'>' if low_open else '>='} {low}"
-        hi = "" if high is None else f"<= {high}"
-        bounds = " and ".join(b for b in (lo, hi) if b)
-        kind = "an integer" if integer else "a finite number"
-        raise ValidationError(f"{name} must be {kind}{' ' + bounds if bounds else ''}; got {value!r}")
-
-
 @dataclass
 class GaussNewtonSolver(StepSolver):
     """Levenberg-Marquardt steps with a QP subproblem per row, solved as one block QP.
@@ -182,24 +205,33 @@ class GaussNewtonSolver(StepSolver):
     lam_down, lam_up : float, default=1/3 and 4
         Damping factor after an accepted (in (0, 1)) and a rejected step (> 1).
     lam_min, lam_max : float, default=1e-10 and 1e10
-        Bounds on ``lam_i``, relative to the row's scale ``max(diag(J_i^T J_i))`` at the start of
+        Bounds (``0 < lam_min < lam_max``) of the adaptation of ``lam_i``, relative to the row's scale ``max(diag(J_i^T J_i))`` at the start of
         a run: the floor keeps the reduced factor ``R_i`` well conditioned (cond <= ~1e5) when
         some directions have no data (e.g. unvisited states of tabular rewards), which the
         backends need to certify optimality.
     max_retries : int, default=10
-        Extra trials within one step when no row was accepted.
+        Extra trials within one step when no row was accepted, >= 0.
     xtol : float, default=1e-12
-        A row whose step is below ``xtol * (||h|| + xtol)`` has converged: it is not evaluated.
+        A row whose step is below ``xtol * (||h|| + xtol)`` has converged: it is not evaluated
+        (>= 0).
     tolerance : dict, optional
         Per-backend accuracy, e.g. ``{"osqp": 1e-6, "clarabel": 1e-12}`` (OSQP's eps must be
         <= 1e-5; it always polishes). Defaults: :data:`solvers.qp_cvxpy.DEFAULT_TOLERANCE`.
     max_qp_iter : int, default=10000
-        Backend iteration limit (reaching it counts as a failure).
+        Backend iteration limit (reaching it counts as a failure), >= 1.
     alternating_damping : float or None, default=1.0
         ``damping`` of the copy returned by :meth:`for_alternating`, i.e. of the H-step inside
         ``FactIRL.fit``; None keeps this solver's own damping there.
     alternating_lam_down : float, default=0.99
-        ``lam_down`` of that copy.
+        ``lam_down`` of that copy, in (0, 1).
+    max_step_norm : float, default=100.0
+        Step bound: no row moves further than ``max_step_norm * max(1, ||h_i||)`` in one step
+        (see the module docstring), > 0.
+
+    Raises
+    ------
+    SolverOptionError
+        When an option has the wrong type or value (every option is checked).
 
     Notes
     -----
@@ -213,59 +245,33 @@ class GaussNewtonSolver(StepSolver):
     evaluations). ``transfer`` (D fixed) uses the solver as configured.
     """
 
-    backend: str = "osqp"
-    constraint: str = "none"
-    alpha: float = 0.01
-    interface: str = "cvxpy"
-    fallback: str = "backend"
-    damping: float = 1e-3
-    lam_down: float = 1.0 / 3.0
-    lam_up: float = 4.0
-    lam_min: float = 1e-10
-    lam_max: float = 1e10
-    max_retries: int = 10
-    xtol: float = 1e-12
-    tolerance: dict = None
-    max_qp_iter: int = 10000
-    alternating_damping: float = 1.0
-    alternating_lam_down: float = 0.99
+    backend: str = option("osqp", choice(*BACKENDS))
+    constraint: str = option("none", choice(*CONSTRAINTS))
+    alpha: float = option(0.01, number(low=0.0))
+    interface: str = option("cvxpy", choice(*INTERFACES))
+    fallback: str = option("backend", choice(*FALLBACKS))
+    damping: float = option(1e-3, number(low=0.0, low_open=True))
+    lam_down: float = option(1.0 / 3.0, number(0.0, 1.0, low_open=True, high_open=True))
+    lam_up: float = option(4.0, number(low=1.0, low_open=True))
+    lam_min: float = option(1e-10, number(low=0.0, low_open=True))
+    lam_max: float = option(1e10, number(low=0.0, low_open=True))
+    max_retries: int = option(10, integer(low=0))
+    xtol: float = option(1e-12, number(low=0.0))
+    tolerance: dict = option(None, lambda value, name, owner: _check_tolerance(value, owner))
+    max_qp_iter: int = option(10000, integer(low=1))
+    alternating_damping: float = option(1.0, optional(number(low=0.0, low_open=True)))
+    alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
+    max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     needs_jacobian = True
 
     def __post_init__(self):
-        check_backend(self.backend)
-        check_constraint(self.constraint)
-        if self.interface not in INTERFACES:
-            raise ValidationError(f"interface must be one of {INTERFACES}; got {self.interface!r}")
-        if self.fallback not in FALLBACKS:
-            raise ValidationError(f"fallback must be one of {FALLBACKS}; got {self.fallback!r}")
-        _check_number(self.alpha, "alpha", low=0.0, low_open=False)
-        _check_number(self.damping, "damping", low=0.0)
-        _check_number(self.lam_down, "lam_down", low=0.0, high=1.0)
-        if self.lam_down == 1.0:
-            raise ValidationError(f"lam_down must be in (0, 1); got {self.lam_down!r}")
-        _check_number(self.lam_up, "lam_up", low=1.0)
-        _check_number(self.lam_min, "lam_min", low=0.0)
-        _check_number(self.lam_max, "lam_max", low=self.lam_min)
-        _check_number(self.max_retries, "max_retries", low=0, low_open=False, integer=True)
-        _check_number(self.xtol, "xtol", low=0.0, low_open=False)
-        _check_number(self.max_qp_iter, "max_qp_iter", low=0, integer=True)
-        if self.alternating_damping is not None:
-            _check_number(self.alternating_damping, "alternating_damping", low=0.0)
-        _check_number(self.alternating_lam_down, "alternating_lam_down", low=0.0, high=1.0)
-        if self.alternating_lam_down == 1.0:
-            raise ValidationError(f"alternating_lam_down must be in (0, 1); got {self.alternating_lam_down!r}")
-        tol = {} if self.tolerance is None else self.tolerance
-        if not isinstance(tol, dict):
-            raise ValidationError(f"tolerance must be a dict such as {{'osqp': 1e-6}}; got {type(tol).__name__}")
-        for key, value in tol.items():
-            check_backend(key)
-            _check_number(value, f"tolerance[{key!r}]", low=0.0, high=1e-5 if key == "osqp" else 1e-6)
-        self.tolerance = dict(tol)
-        self.name = f"gn-qp-{self.backend}" + ("" if self.constraint == "none" else f"-{self.constraint}")
-        if self.interface == "direct":
-            self.name += "-direct"
+        valid = self.backend in BACKENDS and self.constraint in CONSTRAINTS
+        validate_fields(self, qp_solver_name(self.backend, self.constraint) if valid else "gn-qp")
+        self.name = qp_solver_name(self.backend, self.constraint, self.interface)
+        if not self.lam_min < self.lam_max:
+            raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
 
     def for_alternating(self):
         """A proximal copy (``alternating_damping``, ``alternating_lam_down``) for FactIRL's fit."""
@@ -300,7 +306,7 @@ class GaussNewtonSolver(StepSolver):
     def _backends(self):
         order = [self.backend]
         if self.fallback == "backend":
-            order += [b for b in BACKENDS if b != self.backend and importlib.util.find_spec(BACKENDS[b]) is not None]
+            order += [b for b in BACKENDS if b != self.backend and importlib.util.find_spec(b) is not None]
         return order if self.fallback != "safe-step" else order[:1]
 
     def solve_subproblems(self, R, b, x, state=None):
@@ -323,17 +329,16 @@ class GaussNewtonSolver(StepSolver):
         """
         n, k = x.shape
         qp = self._block_qp(n, k)
-        # rescale every task to unit size: same minimiser (alpha / s^2 for the L1 term), and the
-        # backends' absolute tolerances mean the same thing for a tiny Jacobian (near a fit)
-        s = np.max(np.abs(R), axis=(1, 2))
-        s[~(s > 0)] = 1.0
-        Rs, bs, alphas = R / s[:, None, None], b / s[:, None], self.alpha / s**2
-        failures = []
-        for backend in self._backends():
+        Rs, bs, alphas = rescale_subproblems(R, b, self.alpha if self.constraint == "sparse" else 0.0)
+        failures, backends = [], self._backends()
+        big = max(np.max(np.abs(bs), initial=0.0), np.max(alphas, initial=0.0))
+        if not big <= DATA_LIMIT:  # cannot happen after the step bound; never feed it to a backend
+            failures, backends = [f"the rescaled QP data reach {big:.3g} (limit {DATA_LIMIT:g})"], []
+        for backend in backends:
             try:
                 res = qp.solve(Rs, bs, backend, alpha=alphas, tolerance=self.tolerance.get(backend), max_iter=self.max_qp_iter)
-            except ValidationError:
-                raise
+            except SolverOptionError as exc:  # our own data check: a bug, not the user's option
+                raise SolverError(f"{self.name}: the block QP rejected its data: {exc}") from exc
             except Exception as exc:  # any backend crash: recover below or re-raise as ours
                 if self.fallback == "none":
                     raise SolverError(f"{self.name}: QP backend {backend!r} failed: {type(exc).__name__}: {exc}") from exc
@@ -347,44 +352,70 @@ class GaussNewtonSolver(StepSolver):
             if res.ok:
                 z, _ = refine_active_set(R, b, res.z, self.constraint, self.alpha)
                 if failures:
-                    warnings.warn(
-                        f"{self.name}: {'; '.join(failures)}; used the {backend} solution instead",
-                        QPFallbackWarning,
-                        stacklevel=4,
-                    )
+                    warnings.warn(f"{self.name}: {'; '.join(failures)}; used the {backend} solution instead", QPFallbackWarning, stacklevel=4)
                 return z
             failures.append(f"{backend} returned status {res.status!r}")
             if state is not None and len(failures) == 1:
                 state.qp_failures += 1
+        return self._after_failures(R, b, x, failures)
+
+    def _after_failures(self, R, b, x, failures):
+        """Every backend failed: reject the step (``fallback="none"``) or take a safe step."""
         if self.fallback == "none":
-            warnings.warn(f"{self.name}: {'; '.join(failures)}; step rejected (damping increased)", QPFallbackWarning, stacklevel=4)
+            warnings.warn(f"{self.name}: {'; '.join(failures)}; step rejected (damping increased)", QPFallbackWarning, stacklevel=5)
             return None
         reason = "; ".join(failures) if failures else "safe-step fallback requested"
-        warnings.warn(f"{self.name}: {reason}; took a safe proximal-gradient step instead", QPFallbackWarning, stacklevel=4)
+        warnings.warn(f"{self.name}: {reason}; took a safe proximal-gradient step instead", QPFallbackWarning, stacklevel=5)
         z = safe_step(R, b, x, self.constraint, self.alpha)
         if not np.all(np.isfinite(z)):
             raise SolverError(f"{self.name}: every QP backend failed ({reason}) and the safe step is not finite")
         return z
 
     # -- init / update ------------------------------------------------------------------------
+    def _evaluate(self, problem, x, rows, start=False):
+        """``residual_jacobian`` at ``x`` (rows ``rows``), checked; plus the penalty."""
+        out = problem.residual_jacobian(x, rows)
+        if not (isinstance(out, tuple) and len(out) == 3):
+            raise SolverError(f"{self.name}: problem.residual_jacobian must return (loss, residual, jacobian)")
+        k = problem.n_params
+        loss, (r, J), finite = check_evaluation(self.name, "residual_jacobian", rows, *out, shapes=[(None,), (None, k)], start=start)
+        if J.shape[1] != r.shape[1]:
+            raise SolverError(f"{self.name}: problem.residual_jacobian returned residuals {r.shape} and a Jacobian {J.shape}")
+        return loss + self.penalty(x), r, J, finite
+
     def init_state(self, problem, x, previous=None):
         if problem.residual_jacobian is None:
-            raise ValidationError(f"solver {self.name!r} needs a least-squares problem (StepProblem.residual_jacobian is None)")
+            raise SolverOptionError(f"solver {self.name!r} needs a least-squares problem (StepProblem.residual_jacobian is None)")
         rows = np.arange(problem.n_rows)
-        loss, r, J = problem.residual_jacobian(x, rows)
-        loss = np.asarray(loss, dtype=np.float64) + self.penalty(x)
-        if previous is not None and np.shape(getattr(previous, "lam", None)) == (problem.n_rows,):
-            lam = previous.lam.copy()
-        else:
-            lam = None
-        scale = np.max(np.einsum("nmk,nmk->nk", J, J), axis=1)
+        loss, r, J, _ = self._evaluate(problem, x, rows, start=True)
+        with np.errstate(over="ignore"):
+            scale = np.max(np.einsum("nmk,nmk->nk", J, J), axis=1)
+        if not np.all(np.isfinite(scale)):
+            bad = np.flatnonzero(~np.isfinite(scale))
+            raise SolverError(
+                f"{self.name}: the Jacobian of rows {bad[:10].tolist()} is too large to square (max |J| = "
+                f"{np.max(np.abs(J[bad])):.3g}); rescale the problem"
+            )
         scale[~(scale > 0)] = 1.0
-        if lam is None:
+        lam = getattr(previous, "lam", None)
+        if not (np.shape(lam) == (problem.n_rows,) and np.all(np.isfinite(lam)) and np.all(lam > 0)):
             lam = self.damping * scale
-        lam = np.clip(lam, self.lam_min * scale, self.lam_max * scale)
-        return GaussNewtonState(
-            loss=loss, residual=np.asarray(r, dtype=np.float64), jacobian=np.asarray(J, dtype=np.float64), lam=lam, scale=scale
-        )
+        lam = np.maximum(np.clip(lam, self.lam_min * scale, self.lam_max * scale), np.finfo(np.float64).tiny)
+        return GaussNewtonState(loss=loss, residual=r, jacobian=J, lam=lam.copy(), scale=scale)
+
+    def _factors(self, x, state):
+        """The reduced factors of every row, after enforcing the step bound on ``lam``."""
+        R, b = reduce_least_squares(state.jacobian, state.residual, x, state.lam)
+        radius = self.max_step_norm * np.maximum(1.0, np.linalg.norm(x, axis=1))
+        far = ~(_unconstrained_step_norm(R, b, x) <= radius)  # too long, or not finite
+        if far.any():
+            J, r = state.jacobian[far], state.residual[far]
+            g = np.linalg.norm(np.einsum("nmk,nm->nk", J, r), axis=1)
+            extra = self.alpha * np.sqrt(x.shape[1]) if self.constraint == "sparse" else 0.0
+            state.lam[far] = np.maximum(state.lam[far], (2.0 * g + extra) / radius[far])
+            R[far], b[far] = reduce_least_squares(J, r, x[far], state.lam[far])
+            state.bounded_steps += int(far.sum())
+        return R, b
 
     def update(self, problem, x, state):
         n, k = x.shape
@@ -392,12 +423,14 @@ class GaussNewtonSolver(StepSolver):
         retry = np.ones(n, dtype=bool)  # rows allowed to try in this round
         accepted_any = converged_all = False
         for _ in range(int(self.max_retries) + 1):
-            R, b = reduce_least_squares(state.jacobian, state.residual, x, state.lam)
+            R, b = self._factors(x, state)
             z = self.solve_subproblems(R, b, x, state)
             if z is None:  # failed status with fallback="none": reject every trying row
                 state.lam[retry] = np.minimum(state.lam[retry] * self.lam_up, self.lam_max * state.scale[retry])
                 break
             z = self.project(z)  # removes round-off below zero of a nonneg solution
+            z, shortened = limit_step(x, z, self.max_step_norm)
+            state.bounded_steps += int(shortened.sum())
             step = np.linalg.norm(z - x, axis=1)
             moving = step > self.xtol * (np.linalg.norm(x, axis=1) + self.xtol)
             trying = retry & moving
@@ -405,9 +438,9 @@ class GaussNewtonSolver(StepSolver):
                 converged_all = True  # every row still allowed to move has a negligible step
                 break
             rows = np.flatnonzero(trying)
-            loss, r, J = problem.residual_jacobian(z[rows], rows)
-            trial = np.asarray(loss, dtype=np.float64) + self.penalty(z[rows])
-            ok = np.isfinite(trial) & (trial < state.loss[rows])
+            trial, r, J, finite = self._evaluate(problem, z[rows], rows)
+            with np.errstate(invalid="ignore"):
+                ok = finite & (trial < state.loss[rows])
             acc, rej = rows[ok], rows[~ok]
             x[acc] = z[acc]
             state.loss[acc] = trial[ok]
@@ -423,3 +456,66 @@ class GaussNewtonSolver(StepSolver):
             if not retry.any():
                 break
         return x, state, bool(accepted_any or converged_all)
+
+
+def _check_tolerance(value, owner):
+    """The ``tolerance`` option: None or a dict from backend names to accuracies."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise SolverOptionError(f"{owner}: tolerance must be a dict such as {{'osqp': 1e-6}}; got {value!r} ({type(value).__name__})")
+    for key, tol in value.items():
+        if key not in BACKENDS:
+            raise SolverOptionError(f"{owner}: tolerance keys must be QP backends {BACKENDS}; got {key!r}")
+        check_number(tol, f"tolerance[{key!r}]", owner, low=0.0, high=1e-5 if key == "osqp" else 1e-6, low_open=True)
+    return dict(value)
+
+
+def _unconstrained_step_norm(R, b, x):
+    """``||R_i^{-1} b_i - x_i||`` per row: the length of the unconstrained damped step (inf
+    where it cannot be computed)."""
+    with np.errstate(all="ignore"):
+        try:
+            z = np.linalg.solve(R, b[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # an exactly singular row: solve row by row
+            z = np.full_like(x, np.inf)
+            for i in range(x.shape[0]):
+                try:
+                    z[i] = np.linalg.solve(R[i], b[i])
+                except np.linalg.LinAlgError:
+                    pass
+        norm = np.linalg.norm(z - x, axis=1)
+    return np.where(np.isfinite(norm), norm, np.inf)
+
+
+def rescale_subproblems(R, b, alpha=0.0):
+    """Scale every row's reduced subproblem to unit size, without changing its minimiser.
+
+    With ``s_i = max|R_i|`` (1 where zero), ``||R_i z - b_i||^2 + a_i ||z||_1 = s_i^2 (||R_i z / s_i
+    - b_i / s_i||^2 + (a_i / s_i^2) ||z||_1)``, so the backends' absolute tolerances mean the
+    same thing for a tiny Jacobian (near a fit). The scaled L1 weight is capped at
+    ``2 ||(R_i / s_i)^T (b_i / s_i)||_inf``, the smallest weight for which ``z = 0`` is the
+    minimiser: every larger weight has the same minimiser (zero), so the cap changes nothing
+    but keeps the weight finite when ``s_i`` is tiny.
+
+    Parameters
+    ----------
+    R : ndarray, shape (n, k, k)
+    b : ndarray, shape (n, k)
+    alpha : float or ndarray, shape (n,)
+        L1 weight (0 for the smooth variants).
+
+    Returns
+    -------
+    Rs : ndarray, shape (n, k, k)
+    bs : ndarray, shape (n, k)
+    alphas : ndarray, shape (n,)
+    """
+    s = np.max(np.abs(R), axis=(1, 2))
+    s[~(s > 0)] = 1.0
+    Rs, bs = R / s[:, None, None], b / s[:, None]
+    a = np.broadcast_to(np.asarray(alpha, dtype=np.float64), s.shape)
+    zero_at = 2.0 * np.max(np.abs(np.einsum("nji,nj->ni", Rs, bs)), axis=1)
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        alphas = np.where(a > 0, np.minimum(a / s**2, zero_at), 0.0)
+    return Rs, bs, alphas

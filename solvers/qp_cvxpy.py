@@ -23,7 +23,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from factirl_opt.exceptions import ValidationError
+from .exceptions import SolverError
 
 from ._blockqp import CVXPY_NAMES, BlockQPResult, block_structure, check_alpha, check_backend, check_block_data, check_constraint
 
@@ -91,7 +91,7 @@ class CvxpyBlockQP:
             objective = objective + self.alpha @ cp.abs(self.z)
         self.problem = cp.Problem(cp.Minimize(objective), constraints)
         if not self.problem.is_dcp(dpp=True):  # pragma: no cover - a construction invariant
-            raise ValidationError("the Gauss-Newton block QP is not DPP")
+            raise SolverError("the Gauss-Newton block QP is not DPP")
 
     def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000):
         """Solve every task's subproblem with new data (re-using the compiled problem).
@@ -125,7 +125,7 @@ class CvxpyBlockQP:
         self.alpha.value = np.repeat(check_alpha(alpha, self.n), self.k)
         with warnings.catch_warnings():  # the status is checked below and reported by the caller
             warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, **backend_options(backend, tolerance, max_iter))
+            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, verbose=False, **backend_options(backend, tolerance, max_iter))
         status = str(self.problem.status)
         value = self.z.value
         z = None if value is None else np.asarray(value, dtype=np.float64).reshape(self.n, self.k)

@@ -8,7 +8,7 @@ import pytest
 
 import factirl_opt as fo
 import solvers
-from factirl_opt.exceptions import ValidationError
+from solvers import SolverOptionError
 from factirl_opt.benchmarks import solvers as bench_solvers
 
 
@@ -130,7 +130,7 @@ def test_fit_uses_a_proximal_gauss_newton_copy(transfer_data, monkeypatch):
     assert (prox.damping, prox.lam_down) == (1.0, 0.99) and (solver.damping, solver.lam_down) == (1e-3, 1.0 / 3.0)
     assert solvers.get_solver("gn-qp-clarabel", alternating_damping=None).for_alternating().damping == 1e-3
     assert solvers.get_solver("armijo").for_alternating().name == "armijo"
-    with pytest.raises(ValidationError, match="alternating_lam_down"):
+    with pytest.raises(SolverOptionError, match="alternating_lam_down"):
         solvers.get_solver("gn-qp-clarabel", alternating_lam_down=1.0)
 
     seen = []

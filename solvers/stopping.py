@@ -1,0 +1,76 @@
+"""The one stopping rule of the step solvers and of the learners' outer loops.
+
+A run stops early when the *relative decrease* of its total objective over one step,
+
+    (f_prev - f_curr) / max(|f_prev|, tiny),
+
+is at most ``tol``, where ``tiny`` is the smallest positive float (so ``f_prev = 0`` divides by
+``tiny``, not by zero). The rule is written multiplied out, ``f_prev - f_curr <= tol *
+max(|f_prev|, tiny)``, so that no division can overflow. With ``tol = 0`` a run never stops
+early unless the objective increases or stays equal. The total objective is the sum over rows
+(tasks) of each row's loss plus any penalty of the solver.
+"""
+
+import numpy as np
+
+from ._validation import check_number
+
+__all__ = ["relative_decrease", "has_converged"]
+
+_TINY = np.finfo(np.float64).tiny
+
+
+def _check_values(prev, current):
+    prev = check_number(prev, "prev", "relative decrease")
+    current = check_number(current, "current", "relative decrease")
+    return float(prev), float(current)
+
+
+def relative_decrease(prev, current):
+    """Relative decrease ``(prev - current) / max(|prev|, tiny)`` of a total objective.
+
+    Parameters
+    ----------
+    prev, current : float
+        Total objective before and after a step; finite.
+
+    Returns
+    -------
+    float
+        Positive when the objective went down, 0 when it stayed equal, negative when it went
+        up (``-current / tiny`` when ``prev`` is 0; +-inf if that overflows).
+
+    Raises
+    ------
+    SolverOptionError
+        When a value is not a finite number.
+    """
+    prev, current = _check_values(prev, current)
+    with np.errstate(over="ignore"):
+        return float((prev - current) / max(abs(prev), _TINY))
+
+
+def has_converged(prev, current, tol):
+    """Whether a step from ``prev`` to ``current`` decreased the objective by at most ``tol``
+    relatively: ``prev - current <= tol * max(|prev|, tiny)``.
+
+    Parameters
+    ----------
+    prev, current : float
+        Total objective before and after a step; finite.
+    tol : float
+        ``>= 0``. ``tol = 0`` only stops when the objective does not decrease.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    SolverOptionError
+        When a value is not a finite number or ``tol < 0``.
+    """
+    prev, current = _check_values(prev, current)
+    tol = check_number(tol, "tol", "relative decrease", low=0.0)
+    with np.errstate(over="ignore"):
+        return bool(prev - current <= tol * max(abs(prev), _TINY))
