@@ -107,7 +107,7 @@ def boolean():
 
     def check(value, name, owner):
         if not isinstance(value, (bool, np.bool_)):
-            raise SolverOptionError(f"{owner}: {name} must be True or False; got {_got(value)}")
+            raise SolverOptionError(f"{owner}: {name} must be True or False; got {value!r} ({type(value).__name__})")
         return bool(value)
 
     return check
