@@ -30,6 +30,19 @@ Built-in solvers
 ``gn-qp-{osqp,clarabel}-sparse``
     The same with an L1 penalty ``alpha ||h||_1`` (``constraint="sparse"``, option ``alpha``,
     default 0.01).
+``lbfgs``
+    Limited-memory BFGS with an Armijo line search, one memory per row
+    (:class:`LBFGSSolver`; options ``memory``, ``initial_step``, ...). Its memory is kept
+    across runs given the previous ``state`` and reset with ``state=None``. Unconstrained.
+``gn-cg``
+    Matrix-free Gauss-Newton / Levenberg-Marquardt steps, ``(J^T J + lam I) delta = -J^T r``
+    solved by truncated conjugate gradients, each iteration one batched Jacobian-vector
+    product and one vector-Jacobian product (:class:`GaussNewtonCGSolver`; needs
+    ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained.
+
+Every solver's run stops early by one rule, :func:`has_converged` (relative decrease of the
+total objective, :mod:`solvers.stopping`), and bounds its steps relative to ``max(1, ||x_i||)``
+(``max_step_norm``) where it takes Newton-like steps.
 
 Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.g.
 ``get_solver("gn-qp-osqp", interface="direct")`` calls OSQP without cvxpy. A name is only
@@ -45,6 +58,8 @@ from ._validation import check_options
 from .armijo import ArmijoSolver
 from .exceptions import MissingBackendError, SolverError, SolverOptionError, SolversError, UnknownSolverError
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
+from .gn_cg import GaussNewtonCGSolver
+from .lbfgs import LBFGSSolver
 from .stopping import has_converged, relative_decrease
 
 __all__ = [
@@ -54,6 +69,8 @@ __all__ = [
     "SolverResult",
     "ArmijoSolver",
     "GaussNewtonSolver",
+    "LBFGSSolver",
+    "GaussNewtonCGSolver",
     "QPFallbackWarning",
     "qp_solver_name",
     "relative_decrease",
@@ -234,6 +251,8 @@ def resolve_solver(solver, options=None, /, **kwargs):
 
 register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
+register_solver("lbfgs", LBFGSSolver)
+register_solver("gn-cg", GaussNewtonCGSolver)
 for _backend in BACKENDS:
     for _constraint in CONSTRAINTS:
         register_solver(

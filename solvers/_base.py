@@ -140,6 +140,8 @@ class StepSolver:
         Registry name.
     needs_jacobian : bool
         Whether the solver calls ``problem.residual_jacobian``.
+    needs_linearization : bool
+        Whether the solver calls ``problem.linearize``.
     constraint : str
         ``"none"``, ``"nonneg"`` (:meth:`project` keeps ``x >= 0``) or ``"sparse"``
         (:meth:`penalty` adds an L1 term); learners use it to keep the constraint in their
@@ -148,6 +150,7 @@ class StepSolver:
 
     name = "base"
     needs_jacobian = False
+    needs_linearization = False
     constraint = "none"
 
     def project(self, x):

@@ -4,8 +4,8 @@ Exact references: on a linear least-squares problem ``r_i(h) = A_i h - y_i`` the
 model is exact, so the first step of a GN solver must equal the damped subproblem's exact
 solution: closed form (unconstrained), ``scipy.optimize.nnls`` (nonneg), and an enumeration of
 all sign patterns (sparse). Every solver, GN or not, must keep its constraint after every
-step and never increase its objective across an accepted step, on the linear problem and on
-the real eq. (5) H-step problem.
+step and never increase its objective across an accepted step, on the linear problem, on a
+nonlinear least squares ``r_i = exp(A_i h) - y_i`` and on the real eq. (5) H-step problem.
 """
 
 import itertools
@@ -25,33 +25,59 @@ GN = [name for name in ALL if name.startswith("gn-qp-")]
 N, M, K = 6, 9, 4
 
 
+def least_squares_problem(residual, jacobian, n, k):
+    """A StepProblem from ``residual(x, rows) (r, m)`` and an explicit ``jacobian(x, rows)
+    (r, m, k)``, loss ``||r_i||^2``, with all three derivative callables (``linearize``'s
+    products use the explicit Jacobian); counts evaluations (one per call)."""
+    count = [0]
+
+    def residual_jacobian(x, rows):
+        count[0] += 1
+        r = residual(x, rows)
+        return np.sum(r * r, axis=1), r, jacobian(x, rows)
+
+    def loss_and_grad(x, rows):
+        loss, r, J = residual_jacobian(x, rows)
+        return loss, 2.0 * np.einsum("nmk,nm->nk", J, r)
+
+    def linearize(x, rows):
+        loss, r, J = residual_jacobian(x, rows)
+        return solvers.Linearization(
+            loss=loss, residual=r, jvp=lambda V: np.einsum("nmk,nk->nm", J, V), vjp=lambda U: np.einsum("nmk,nm->nk", J, U)
+        )
+
+    return solvers.StepProblem(
+        loss_and_grad=loss_and_grad,
+        residual_jacobian=residual_jacobian,
+        linearize=linearize,
+        n_evaluations=lambda: count[0],
+        n_rows=n,
+        n_params=k,
+    )
+
+
 def linear_problem(rng, n=N, m=M, k=K):
     """A StepProblem with ``r_i = A_i h_i - y_i``, loss ``||r_i||^2``; counts evaluations."""
     A = rng.standard_normal((n, m, k))
     y = rng.standard_normal((n, m))
     y[: n // 2] += 3.0 * np.einsum("nmk,nk->nm", A[: n // 2], np.abs(rng.standard_normal((n // 2, k))))
-    count = [0]
+    problem = least_squares_problem(lambda x, rows: np.einsum("nmk,nk->nm", A[rows], x) - y[rows], lambda x, rows: A[rows].copy(), n, k)
+    return problem, A, y
+
+
+def exp_problem(rng, n=N, m=M, k=K):
+    """A nonlinear least squares ``r_i = exp(A_i h_i) - y_i`` (y > 0 reachable for half the rows)."""
+    A = 0.5 * rng.standard_normal((n, m, k))
+    y = np.exp(np.einsum("nmk,nk->nm", A, rng.standard_normal((n, k))))
+    y[n // 2 :] *= rng.uniform(0.5, 2.0, size=(n - n // 2, m))
 
     def residual(x, rows):
-        return np.einsum("nmk,nk->nm", A[rows], x) - y[rows]
+        return np.exp(np.einsum("nmk,nk->nm", A[rows], x)) - y[rows]
 
-    def loss_and_grad(x, rows):
-        count[0] += 1
-        r = residual(x, rows)
-        return np.sum(r * r, axis=1), 2.0 * np.einsum("nmk,nm->nk", A[rows], r)
+    def jacobian(x, rows):
+        return np.exp(np.einsum("nmk,nk->nm", A[rows], x))[:, :, None] * A[rows]
 
-    def residual_jacobian(x, rows):
-        count[0] += 1
-        r = residual(x, rows)
-        return np.sum(r * r, axis=1), r, A[rows].copy()
-
-    return solvers.StepProblem(
-        loss_and_grad=loss_and_grad,
-        residual_jacobian=residual_jacobian,
-        n_evaluations=lambda: count[0],
-        n_rows=n,
-        n_params=k,
-    ), A, y
+    return least_squares_problem(residual, jacobian, n, k), A, y
 
 
 def sparse_reference(Mx, c, alpha):
@@ -151,6 +177,21 @@ def test_linear_problem_monotone_and_feasible(name, rng):
 
 
 @pytest.mark.parametrize("name", ALL)
+def test_nonlinear_problem_monotone(name, rng):
+    problem, A, y = exp_problem(rng)
+    solver = solvers.get_solver(name)
+    x0 = solver.project(0.3 * rng.standard_normal((N, K)))
+    res = solver.run(problem, x0, 15)
+    hist = np.array(res.loss_history)
+    assert np.all(np.diff(hist) <= 1e-12 * hist[0]), hist
+    assert hist[-1] < (0.5 if solver.constraint == "none" else 1.0) * hist[0]
+    assert np.all(np.isfinite(res.coefficients)) and feasible(solver, res.coefficients)
+    rows = np.arange(N)
+    np.testing.assert_allclose(res.loss, problem.residual_jacobian(res.coefficients, rows)[0] + solver.penalty(res.coefficients), rtol=1e-12)
+    assert res.n_evaluations >= res.iterations
+
+
+@pytest.mark.parametrize("name", ALL)
 def test_irl_h_step_monotone_and_feasible(name, rng, grid4):
     """The real H-step problem (eq. 5 with a fixed dictionary) on a 4x4 grid."""
     k = 3
@@ -160,7 +201,12 @@ def test_irl_h_step_monotone_and_feasible(name, rng, grid4):
     mu, pi_hat = fo.empirical_statistics(grid4, demos)
     problem = weights_problem(PolicyMatchingObjective(grid4, mu, pi_hat, 5.0), D)
     solver = solvers.get_solver(name)
-    res = solver.run(problem, 0.3 * np.abs(rng.standard_normal((5, k))), 10)
+    x0 = 0.3 * np.abs(rng.standard_normal((5, k)))
+    if solver.needs_linearization and problem.linearize is None:
+        with pytest.raises(solvers.SolverOptionError, match="needs problem.linearize"):
+            solver.run(problem, x0, 10)
+        return
+    res = solver.run(problem, x0, 10)
     hist = np.array(res.loss_history)
     assert np.all(np.diff(hist) <= 1e-12), hist
     assert hist[-1] < hist[0]

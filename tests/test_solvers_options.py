@@ -9,8 +9,7 @@ import pytest
 import solvers
 from solvers import SolverError, SolverOptionError, UnknownSolverError
 
-CLASSES = [solvers.ArmijoSolver, solvers.GaussNewtonSolver]
-CLASSES += [getattr(solvers, name) for name in ("LBFGSSolver", "GaussNewtonCGSolver") if hasattr(solvers, name)]
+CLASSES = [solvers.ArmijoSolver, solvers.GaussNewtonSolver, solvers.LBFGSSolver, solvers.GaussNewtonCGSolver]
 
 
 def _fields(cls):

@@ -23,15 +23,31 @@ EXPECTED = {
     "gn-qp-clarabel-nonneg",
     "gn-qp-osqp-sparse",
     "gn-qp-clarabel-sparse",
+    "lbfgs",
+    "gn-cg",
 }
 
 
 def test_builtin_names_available():
     assert EXPECTED <= set(solvers.available_solvers())
-    for name in EXPECTED - {"armijo", "armijo-nonneg"}:
+    for name in {n for n in EXPECTED if n.startswith("gn-qp-")}:
         solver = solvers.get_solver(name)
         assert isinstance(solver, solvers.GaussNewtonSolver) and solver.name == name
         assert solver.needs_jacobian
+    assert isinstance(solvers.get_solver("lbfgs"), solvers.LBFGSSolver)
+    assert isinstance(solvers.get_solver("gn-cg"), solvers.GaussNewtonCGSolver)
+    for name in EXPECTED:
+        assert solvers.get_solver(name).name == name
+
+
+def test_gauss_newton_names_come_from_one_builder():
+    gn = {n for n in solvers.registered_solvers() if n.startswith("gn-qp-")}
+    assert gn == {solvers.qp_solver_name(b, c) for b in ("osqp", "clarabel") for c in ("none", "nonneg", "sparse")}
+    assert solvers.qp_solver_name("osqp", "sparse", "direct") == solvers.get_solver("gn-qp-osqp-sparse", interface="direct").name
+    with pytest.raises(SolverOptionError, match="backend must be one of"):
+        solvers.qp_solver_name("mosek")
+    with pytest.raises(SolverOptionError, match="constraint must be one of"):
+        solvers.qp_solver_name("osqp", "l2")
 
 
 def test_unknown_name_lists_available():

@@ -1,0 +1,324 @@
+"""Matrix-free Gauss-Newton / Levenberg-Marquardt steps solved by truncated conjugate gradients.
+
+For each row ``i`` with residuals ``r_i`` (m,) and Jacobian ``J_i`` (m, p), never formed, the
+step solves the damped normal equations
+
+    (J_i^T J_i + lam_i I) delta_i = -J_i^T r_i
+
+by conjugate gradients (Hestenes-Stiefel; Nocedal & Wright, *Numerical Optimization*, 2nd ed.,
+Algorithm 5.2) from ``delta = 0``, batched over rows with per-row scalars: every CG iteration
+is one batched ``jvp`` (``J v``: for the IRL objective a forward-mode solve through Q*) and one
+batched ``vjp`` (``J^T u``: the adjoint) of the problem's :class:`~solvers.Linearization`. A row
+stops after ``cg_max_iter`` iterations or when its residual ``||(J^T J + lam I) delta + J^T r||``
+falls below ``cg_tol ||J^T r||``. Truncated CG from zero decreases the damped model at every
+iteration, so ``delta`` is a descent direction even when truncated (Steihaug, 1983).
+
+Levenberg-Marquardt as in :class:`~solvers.GaussNewtonSolver`: a row's step is accepted if its
+loss ``||r_i||^2`` drops and is finite (``lam_i *= lam_down``), else rejected
+(``lam_i *= lam_up``) and retried, up to ``max_retries`` times, while no row was accepted. The
+initial ``lam_i = damping * scale_i`` with ``scale_i = ||J_i g_i||^2 / ||g_i||^2``, ``g_i = J_i^T
+r_i``: the Rayleigh quotient of ``J_i^T J_i`` along the gradient (one ``jvp``), a matrix-free
+stand-in for Marquardt's ``max diag(J^T J)``; ``lam`` stays within ``[lam_min, lam_max] *
+scale_i``. Steps are bounded as in the QP solvers (``max_step_norm``).
+
+Rows accepted at different steps hold linearisations from different calls of
+``problem.linearize``; the products are then one batched call per such group (one call in a
+one-row D-step, and in any step where every row moved together).
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ._base import StepSolver, limit_step
+from ._validation import check_evaluation, integer, number, option, optional, validate_fields
+from .exceptions import SolverError, SolverOptionError
+
+__all__ = ["GaussNewtonCGSolver", "GaussNewtonCGState", "cg_normal_equations"]
+
+
+class _Linearizations:
+    """The linearisations of all rows, from possibly several ``linearize`` calls (internal).
+
+    ``owner[i]`` is the call (piece) that holds row ``i``, ``local[i]`` its index there. The
+    products of a set of rows call each piece once, padding the rows it holds but the set does
+    not need with zeros (the products are linear).
+    """
+
+    def __init__(self, lin, n, owner_name):
+        self.pieces = [lin]
+        self.sizes = [n]
+        self.owner = np.zeros(n, dtype=np.intp)
+        self.local = np.arange(n)
+        self.name = owner_name
+
+    def replace(self, rows, lin, local, size):
+        """Rows ``rows`` are now held by ``lin``, a call over ``size`` rows, at ``local``."""
+        self.pieces.append(lin)
+        self.sizes.append(int(size))
+        self.owner[rows] = len(self.pieces) - 1
+        self.local[rows] = local
+        for u in range(len(self.pieces)):  # free pieces no row refers to any more
+            if self.pieces[u] is not None and not np.any(self.owner == u):
+                self.pieces[u] = None
+
+    def _apply(self, kind, V, rows, width):
+        out = np.empty((len(rows), width))
+        owners = self.owner[rows]
+        for u in np.unique(owners):
+            sel = np.flatnonzero(owners == u)
+            W = np.zeros((self.sizes[u],) + V.shape[1:])
+            W[self.local[rows[sel]]] = V[sel]
+            out[sel] = product(self.name, self.pieces[u], kind, W, width)[self.local[rows[sel]]]
+        return out
+
+    def jvp(self, V, rows, m):
+        """``J_i v_i`` for rows ``rows``; V (len(rows), p) -> (len(rows), m)."""
+        return self._apply("jvp", V, rows, m)
+
+    def vjp(self, U, rows, p):
+        """``J_i^T u_i`` for rows ``rows``; U (len(rows), m) -> (len(rows), p)."""
+        return self._apply("vjp", U, rows, p)
+
+
+def product(owner, lin, kind, V, width):
+    """``lin.jvp(V)`` or ``lin.vjp(V)`` as float64 of shape (len(V), width), checked."""
+    out = np.asarray(getattr(lin, kind)(V), dtype=np.float64)
+    if out.shape != (len(V), width):
+        raise SolverError(f"{owner}: Linearization.{kind} returned shape {out.shape}; expected {(len(V), width)}")
+    return out
+
+
+def cg_normal_equations(jvp, vjp, grad, lam, max_iter, tol):
+    """Solve ``(J_i^T J_i + lam_i I) delta_i = -g_i`` for every row by conjugate gradients.
+
+    Parameters
+    ----------
+    jvp : callable
+        ``V (r, p) -> (r, m)``, ``J_i v_i``.
+    vjp : callable
+        ``U (r, m) -> (r, p)``, ``J_i^T u_i``.
+    grad : ndarray, shape (r, p)
+        ``g_i = J_i^T r_i``.
+    lam : ndarray, shape (r,)
+        Damping (> 0 makes every system positive definite).
+    max_iter : int
+        Iterations at most (each one ``jvp`` and one ``vjp`` of all rows still iterating).
+    tol : float
+        A row stops when its residual norm is ``<= tol * ||g_i||``.
+
+    Returns
+    -------
+    delta : ndarray, shape (r, p)
+    iterations : ndarray of int, shape (r,)
+        CG iterations of each row.
+    breakdowns : int
+        Rows stopped because a product was not finite (their last finite iterate is kept).
+    """
+    delta = np.zeros_like(grad)
+    res = -grad.copy()
+    d = res.copy()
+    rr = np.einsum("np,np->n", res, res)
+    target = (tol**2) * rr
+    active = rr > target
+    iterations = np.zeros(len(grad), dtype=np.intp)
+    breakdowns = 0
+    for _ in range(int(max_iter)):
+        if not active.any():
+            break
+        Ad = vjp(jvp(d)) + lam[:, None] * d
+        dAd = np.einsum("np,np->n", d, Ad)
+        finite = np.all(np.isfinite(Ad), axis=1) & np.isfinite(dAd)
+        breakdowns += int(np.sum(active & ~finite))
+        ok = active & finite & (dAd > 0)
+        a = np.where(ok, rr / np.where(ok, dAd, 1.0), 0.0)
+        delta += a[:, None] * d
+        res -= a[:, None] * np.where(ok[:, None], Ad, 0.0)
+        rr_new = np.einsum("np,np->n", res, res)
+        b = np.where(ok, rr_new / np.where(rr > 0, rr, 1.0), 0.0)
+        d = np.where(ok[:, None], res + b[:, None] * d, d)
+        rr = np.where(ok, rr_new, rr)
+        iterations += ok
+        active = ok & (rr > target)
+    return delta, iterations, breakdowns
+
+
+@dataclass
+class GaussNewtonCGState:
+    """Levenberg-Marquardt state of every row (matrix-free).
+
+    Attributes
+    ----------
+    loss : ndarray, shape (n,)
+    residual : ndarray, shape (n, m)
+    grad : ndarray, shape (n, p)
+        ``J_i^T r_i`` (half the gradient of the loss).
+    lam, scale : ndarray, shape (n,)
+    n_jvp, n_vjp : int
+        Batched product calls over the run (jvp: ``J v``; vjp: ``J^T u``).
+    cg_iterations : int
+        CG iterations summed over steps (the largest of the rows in each solve).
+    cg_breakdowns : int
+        Rows whose CG stopped on a non-finite product.
+    """
+
+    loss: np.ndarray
+    residual: np.ndarray
+    grad: np.ndarray
+    lam: np.ndarray
+    scale: np.ndarray
+    lin: _Linearizations = field(repr=False)
+    n_jvp: int = 0
+    n_vjp: int = 0
+    cg_iterations: int = 0
+    cg_breakdowns: int = 0
+
+
+@dataclass
+class GaussNewtonCGSolver(StepSolver):
+    """Matrix-free Levenberg-Marquardt steps by truncated CG (needs ``problem.linearize``).
+
+    Parameters
+    ----------
+    damping : float, default=1e-3
+        Initial ``lam_i = damping * scale_i`` (see the module docstring), > 0.
+    lam_down, lam_up : float, default=1/3 and 4
+        Damping factor after an accepted (in (0, 1)) and a rejected step (> 1).
+    lam_min, lam_max : float, default=1e-10 and 1e10
+        Bounds of ``lam_i`` relative to ``scale_i`` (``0 < lam_min < lam_max``).
+    cg_max_iter : int, default=20
+        CG iterations per step at most (each one batched jvp + one batched vjp), >= 1.
+    cg_tol : float, default=1e-3
+        Relative residual at which CG stops, >= 0.
+    max_retries : int, default=10
+        Extra trials within one step when no row was accepted, >= 0.
+    xtol : float, default=1e-12
+        A row whose step is below ``xtol * (||x|| + xtol)`` has converged (not evaluated).
+    max_step_norm : float, default=100.0
+        Step bound relative to ``max(1, ||x_i||)``, > 0.
+    alternating_damping : float or None, default=None
+        ``damping`` of the copy :meth:`for_alternating` returns, for a block of an alternating
+        scheme (FactIRL's fit): a large value (e.g. 1.0 with ``alternating_lam_down=0.99``)
+        makes proximal steps that move the block gradually, as the QP H-step's copy does.
+        None (the default, until measured on the D-step) uses this solver as configured.
+    alternating_lam_down : float, default=0.99
+        ``lam_down`` of that copy, in (0, 1).
+
+    Raises
+    ------
+    SolverOptionError
+        When an option has the wrong type or value, or (at run time) when the problem has no
+        ``linearize``.
+    """
+
+    damping: float = option(1e-3, number(low=0.0, low_open=True))
+    lam_down: float = option(1.0 / 3.0, number(0.0, 1.0, low_open=True, high_open=True))
+    lam_up: float = option(4.0, number(low=1.0, low_open=True))
+    lam_min: float = option(1e-10, number(low=0.0, low_open=True))
+    lam_max: float = option(1e10, number(low=0.0, low_open=True))
+    cg_max_iter: int = option(20, integer(low=1))
+    cg_tol: float = option(1e-3, number(low=0.0))
+    max_retries: int = option(10, integer(low=0))
+    xtol: float = option(1e-12, number(low=0.0))
+    max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
+    alternating_damping: float = option(None, optional(number(low=0.0, low_open=True)))
+    alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
+
+    name = "gn-cg"
+    needs_linearization = True
+
+    def __post_init__(self):
+        validate_fields(self, self.name)
+        if not self.lam_min < self.lam_max:
+            raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
+
+    def for_alternating(self):
+        """A proximal copy (``alternating_damping``, ``alternating_lam_down``), or ``self``."""
+        if self.alternating_damping is None:
+            return self
+        return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
+
+    def _linearize(self, problem, x, rows, start=False):
+        """``problem.linearize`` at ``x`` (rows ``rows``), checked."""
+        lin = problem.linearize(x, rows)
+        if not all(hasattr(lin, a) for a in ("loss", "residual", "jvp", "vjp")) or not (callable(lin.jvp) and callable(lin.vjp)):
+            raise SolverError(f"{self.name}: problem.linearize must return a Linearization (loss, residual, jvp, vjp); got {type(lin).__name__}")
+        loss, (r,), finite = check_evaluation(self.name, "linearize", rows, lin.loss, lin.residual, shapes=[(None,)], start=start)
+        return lin, loss, r, finite
+
+    def init_state(self, problem, x, previous=None):
+        if problem.linearize is None:
+            raise SolverOptionError(f"solver {self.name!r} needs problem.linearize (a StepProblem built with linearize=...)")
+        n, p = problem.n_rows, problem.n_params
+        rows = np.arange(n)
+        lin, loss, r, _ = self._linearize(problem, x, rows, start=True)
+        stack = _Linearizations(lin, n, self.name)
+        grad = stack.vjp(r, rows, p)
+        state = GaussNewtonCGState(loss=loss, residual=r, grad=grad, lam=None, scale=None, lin=stack, n_vjp=1)
+        if not np.all(np.isfinite(grad)):
+            bad = np.flatnonzero(~np.all(np.isfinite(grad), axis=1))
+            raise SolverError(f"{self.name}: the objective returned a non-finite derivative at the starting point, rows {bad[:10].tolist()}")
+        gg = np.einsum("np,np->n", grad, grad)
+        Jg = stack.jvp(grad, rows, r.shape[1])
+        state.n_jvp += 1
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            scale = np.einsum("nm,nm->n", Jg, Jg) / gg
+        scale[~(np.isfinite(scale) & (scale > 0))] = 1.0
+        lam = getattr(previous, "lam", None)
+        if not (np.shape(lam) == (n,) and np.all(np.isfinite(lam)) and np.all(lam > 0)):
+            lam = self.damping * scale
+        state.scale = scale
+        state.lam = np.maximum(np.clip(lam, self.lam_min * scale, self.lam_max * scale), np.finfo(np.float64).tiny)
+        return state
+
+    def _steps(self, x, state, rows):
+        """Truncated-CG steps of rows ``rows``, bounded; the trial points."""
+        m, p = state.residual.shape[1], x.shape[1]
+        counts = [0]
+
+        def jvp(V):
+            counts[0] += 1
+            return state.lin.jvp(V, rows, m)
+
+        def vjp(U):
+            return state.lin.vjp(U, rows, p)
+
+        delta, its, broken = cg_normal_equations(jvp, vjp, state.grad[rows], state.lam[rows], self.cg_max_iter, self.cg_tol)
+        state.n_jvp += counts[0]
+        state.n_vjp += counts[0]
+        state.cg_iterations += int(np.max(its, initial=0))
+        state.cg_breakdowns += broken
+        return limit_step(x[rows], x[rows] + delta, self.max_step_norm)[0]
+
+    def update(self, problem, x, state):
+        n, p = x.shape
+        x = x.copy()
+        retry = np.ones(n, dtype=bool)
+        accepted_any = converged_all = False
+        for _ in range(int(self.max_retries) + 1):
+            rows = np.flatnonzero(retry)
+            z = self._steps(x, state, rows)
+            moving = np.linalg.norm(z - x[rows], axis=1) > self.xtol * (np.linalg.norm(x[rows], axis=1) + self.xtol)
+            if not moving.any():
+                converged_all = True  # every row still allowed to move has a negligible step
+                break
+            rows, z = rows[moving], z[moving]
+            lin, loss, r, finite = self._linearize(problem, z, rows)
+            grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
+            state.n_vjp += 1
+            with np.errstate(invalid="ignore"):
+                ok = finite & np.all(np.isfinite(grad), axis=1) & (loss < state.loss[rows])
+            acc, rej = rows[ok], rows[~ok]
+            if acc.size:
+                x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
+                state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
+            state.lam[acc] = np.maximum(state.lam[acc] * self.lam_down, self.lam_min * state.scale[acc])
+            state.lam[rej] = np.minimum(state.lam[rej] * self.lam_up, self.lam_max * state.scale[rej])
+            if acc.size:
+                accepted_any = True
+                break
+            retry = np.zeros(n, dtype=bool)
+            retry[rej[state.lam[rej] < self.lam_max * state.scale[rej]]] = True
+            if not retry.any():
+                break
+        return x, state, bool(accepted_any or converged_all)

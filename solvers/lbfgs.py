@@ -1,0 +1,203 @@
+"""Limited-memory BFGS, batched over rows, with an Armijo backtracking line search.
+
+Each row (a task for an H-step; the single row ``vec(D)`` of a D-step) keeps its own memory of
+the last ``memory`` curvature pairs ``s = x_new - x``, ``y = g_new - g`` and its own line
+search. The direction is ``d = -H g`` with ``H`` the L-BFGS inverse-Hessian approximation
+(the two-loop recursion, Nocedal & Wright, *Numerical Optimization*, 2nd ed., Algorithm 7.4),
+scaled by ``gamma = s^T y / y^T y`` of the newest pair (eq. 7.20). A row without memory takes
+the gradient direction, of length at most ``initial_step``.
+
+The line search is the one of :class:`~solvers.armijo.ArmijoSolver`: from the full step
+``t = 1``, ``t`` shrinks by ``shrink`` until ``f(x + t d) <= f(x) + c t g^T d``, so a row's
+loss never increases; a trial point whose loss or gradient is not finite fails the test. A
+pair is stored only if ``s^T y > curvature_eps ||s|| ||y||`` (positive curvature, so the
+approximation stays positive definite); otherwise it is skipped. A direction that is not a
+descent direction (round-off) resets the row's memory, as does a line search that fails.
+
+The memory is part of the solver state: ``run(..., state=previous.state)`` keeps it when
+the shapes match (FactIRL keeps it across the inner steps of one outer iteration); it is
+reset when the run is given ``state=None``. Steps are bounded like the Gauss-Newton ones:
+``||t d|| <= max_step_norm * max(1, ||x||)`` (:func:`solvers._base.limit_step`).
+Unconstrained only (``constraint = "none"``).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._base import StepSolver, limit_step
+from ._validation import check_evaluation, integer, number, option, validate_fields
+
+__all__ = ["LBFGSSolver", "LBFGSState", "lbfgs_direction"]
+
+
+@dataclass
+class LBFGSState:
+    """L-BFGS state of every row.
+
+    Attributes
+    ----------
+    loss : ndarray, shape (n,)
+    grad : ndarray, shape (n, p)
+    s, y : ndarray, shape (n, memory, p)
+        Curvature pairs, oldest first; row ``i`` holds ``count[i]`` valid pairs, in the last
+        slots.
+    rho : ndarray, shape (n, memory)
+        ``1 / (s^T y)`` of each pair (0 for empty slots).
+    count : ndarray of int, shape (n,)
+    n_skipped : int
+        Pairs skipped for lack of positive curvature.
+    n_resets : int
+        Memories reset (non-descent direction or failed line search).
+    """
+
+    loss: np.ndarray
+    grad: np.ndarray
+    s: np.ndarray
+    y: np.ndarray
+    rho: np.ndarray
+    count: np.ndarray
+    n_skipped: int = 0
+    n_resets: int = 0
+
+
+def lbfgs_direction(grad, s, y, rho, count):
+    """The L-BFGS direction ``-H g`` of every row (two-loop recursion, batched).
+
+    Parameters
+    ----------
+    grad : ndarray, shape (n, p)
+    s, y : ndarray, shape (n, m, p)
+        Pairs, oldest first; the valid ones of row ``i`` are the last ``count[i]``.
+    rho : ndarray, shape (n, m)
+    count : ndarray of int, shape (n,)
+
+    Returns
+    -------
+    d : ndarray, shape (n, p)
+        ``-gamma g`` for a row without pairs (``gamma = 1``).
+    """
+    n, m, _ = s.shape
+    valid = np.arange(m)[None, :] >= (m - count)[:, None]  # (n, m)
+    q = grad.copy()
+    alpha = np.zeros((n, m))
+    for j in range(m - 1, -1, -1):
+        alpha[:, j] = np.where(valid[:, j], rho[:, j] * np.einsum("np,np->n", s[:, j], q), 0.0)
+        q -= alpha[:, j, None] * y[:, j]
+    sy = np.einsum("np,np->n", s[:, -1], y[:, -1])
+    yy = np.einsum("np,np->n", y[:, -1], y[:, -1])
+    gamma = np.where(count > 0, sy / np.where(yy > 0, yy, 1.0), 1.0)
+    r = gamma[:, None] * q
+    for j in range(m):
+        beta = np.where(valid[:, j], rho[:, j] * np.einsum("np,np->n", y[:, j], r), 0.0)
+        r += (np.where(valid[:, j], alpha[:, j] - beta, 0.0))[:, None] * s[:, j]
+    return -r
+
+
+@dataclass
+class LBFGSSolver(StepSolver):
+    """L-BFGS with an Armijo line search, batched over rows (one memory per row).
+
+    Parameters
+    ----------
+    memory : int, default=10
+        Curvature pairs kept per row, >= 1.
+    initial_step : float, default=1.0
+        Longest first step of a row without memory (its gradient step ``-g`` is shortened to
+        this length), > 0.
+    shrink : float, default=0.5
+        Backtracking factor, in (0, 1).
+    c : float, default=1e-4
+        Sufficient-decrease constant, in (0, 1).
+    max_backtracks : int, default=30
+        Trials per iteration before a row's line search fails (its memory is reset), >= 1.
+    curvature_eps : float, default=1e-10
+        A pair is stored only if ``s^T y > curvature_eps ||s|| ||y||``, >= 0.
+    max_step_norm : float, default=100.0
+        Step bound relative to ``max(1, ||x_i||)``, > 0.
+
+    Raises
+    ------
+    SolverOptionError
+        When an option has the wrong type or value.
+    """
+
+    memory: int = option(10, integer(low=1))
+    initial_step: float = option(1.0, number(low=0.0, low_open=True))
+    shrink: float = option(0.5, number(0.0, 1.0, low_open=True, high_open=True))
+    c: float = option(1e-4, number(0.0, 1.0, low_open=True, high_open=True))
+    max_backtracks: int = option(30, integer(low=1))
+    curvature_eps: float = option(1e-10, number(low=0.0))
+    max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
+
+    name = "lbfgs"
+
+    def __post_init__(self):
+        validate_fields(self, self.name)
+
+    def _evaluate(self, problem, x, rows, start=False):
+        loss, grad = problem.loss_and_grad(x, rows)
+        loss, (grad,), finite = check_evaluation(self.name, "loss_and_grad", rows, loss, grad, shapes=[(problem.n_params,)], start=start)
+        return loss, grad, finite
+
+    def init_state(self, problem, x, previous=None):
+        n, p, m = problem.n_rows, problem.n_params, int(self.memory)
+        loss, grad, _ = self._evaluate(problem, x, np.arange(n), start=True)
+        if isinstance(previous, LBFGSState) and previous.s.shape == (n, m, p):
+            mem = (previous.s.copy(), previous.y.copy(), previous.rho.copy(), previous.count.copy())
+        else:
+            mem = (np.zeros((n, m, p)), np.zeros((n, m, p)), np.zeros((n, m)), np.zeros(n, dtype=np.intp))
+        return LBFGSState(loss, grad, *mem)
+
+    def _directions(self, x, state):
+        """Descent directions (memory reset where L-BFGS's is not one), bounded; and ``g^T d``."""
+        d = lbfgs_direction(state.grad, state.s, state.y, state.rho, state.count)
+        gd = np.einsum("np,np->n", state.grad, d)
+        reset = ~(gd < 0) & (state.count > 0)
+        if reset.any():
+            state.count[reset] = 0
+            state.n_resets += int(reset.sum())
+        first = state.count == 0
+        gnorm = np.linalg.norm(state.grad, axis=1)
+        with np.errstate(divide="ignore"):
+            length = np.minimum(1.0, self.initial_step / gnorm)
+        d[first] = -state.grad[first] * length[first, None]
+        z, shortened = limit_step(x, x + d, self.max_step_norm)
+        d[shortened] = z[shortened] - x[shortened]
+        return d, np.einsum("np,np->n", state.grad, d)
+
+    def _remember(self, state, acc, s, y):
+        """Store the pairs of accepted rows that have positive curvature."""
+        sy = np.einsum("np,np->n", s, y)
+        keep = sy > self.curvature_eps * np.linalg.norm(s, axis=1) * np.linalg.norm(y, axis=1)
+        state.n_skipped += int((~keep).sum())
+        rows = acc[keep]
+        if rows.size:
+            for arr, new in ((state.s, s[keep]), (state.y, y[keep]), (state.rho, 1.0 / sy[keep])):
+                arr[rows] = np.roll(arr[rows], -1, axis=1)
+                arr[rows, -1] = new
+            state.count[rows] = np.minimum(state.count[rows] + 1, int(self.memory))
+
+    def update(self, problem, x, state):
+        x = x.copy()
+        d, gd = self._directions(x, state)
+        rows = np.flatnonzero(np.any(d != 0.0, axis=1))  # a zero gradient: nothing to do
+        progressed = rows.size == 0
+        t = np.ones(problem.n_rows)
+        for _ in range(int(self.max_backtracks)):
+            if rows.size == 0:
+                break
+            trial = x[rows] + t[rows, None] * d[rows]
+            lt, gt, finite = self._evaluate(problem, trial, rows)
+            with np.errstate(invalid="ignore"):
+                ok = finite & (lt <= state.loss[rows] + self.c * t[rows] * gd[rows])
+            acc = rows[ok]
+            self._remember(state, acc, trial[ok] - x[acc], gt[ok] - state.grad[acc])
+            x[acc], state.loss[acc], state.grad[acc] = trial[ok], lt[ok], gt[ok]
+            progressed |= acc.size > 0
+            rows = rows[~ok]
+            t[rows] *= self.shrink
+        if rows.size:  # failed line searches: start again from the gradient
+            state.count[rows] = 0
+            state.n_resets += int(rows.size)
+        return x, state, bool(progressed)
