@@ -4,11 +4,13 @@ A run stops early when the *relative decrease* of its total objective over one s
 
     (f_prev - f_curr) / max(|f_prev|, tiny),
 
-is at most ``tol``, where ``tiny`` is the smallest positive float (so ``f_prev = 0`` divides by
-``tiny``, not by zero). The rule is written multiplied out, ``f_prev - f_curr <= tol *
-max(|f_prev|, tiny)``, so that no division can overflow. With ``tol = 0`` a run never stops
-early unless the objective increases or stays equal. The total objective is the sum over rows
-(tasks) of each row's loss plus any penalty of the solver.
+is between 0 and ``tol``, where ``tiny`` is the smallest positive float (so ``f_prev = 0``
+divides by ``tiny``, not by zero). The rule is written multiplied out, ``0 <= f_prev - f_curr
+<= tol * max(|f_prev|, tiny)``, so that no division can overflow. A rise of the objective is
+not convergence (a learner's outer loop goes on and keeps its best point; the step solvers
+never rise). With ``tol = 0`` a run stops early only when the objective stays exactly equal.
+The total objective is the sum over rows (tasks) of each row's loss plus any penalty of the
+solver.
 """
 
 import numpy as np
@@ -51,15 +53,15 @@ def relative_decrease(prev, current):
 
 
 def has_converged(prev, current, tol):
-    """Whether a step from ``prev`` to ``current`` decreased the objective by at most ``tol``
-    relatively: ``prev - current <= tol * max(|prev|, tiny)``.
+    """Whether a step from ``prev`` to ``current`` decreased the objective, by at most ``tol``
+    relatively: ``0 <= prev - current <= tol * max(|prev|, tiny)``.
 
     Parameters
     ----------
     prev, current : float
         Total objective before and after a step; finite.
     tol : float
-        ``>= 0``. ``tol = 0`` only stops when the objective does not decrease.
+        ``>= 0``. ``tol = 0`` only stops when the objective stays equal; a rise never stops.
 
     Returns
     -------
@@ -73,4 +75,4 @@ def has_converged(prev, current, tol):
     prev, current = _check_values(prev, current)
     tol = check_number(tol, "tol", "relative decrease", low=0.0)
     with np.errstate(over="ignore"):
-        return bool(prev - current <= tol * max(abs(prev), _TINY))
+        return bool(0.0 <= prev - current <= tol * max(abs(prev), _TINY))
