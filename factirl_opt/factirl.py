@@ -107,21 +107,6 @@ def normalise_dictionary(D, H, band=2.0):
     return D / norms, H * norms
 
 
-def _resolve(solver, options, what):
-    if options is not None and not isinstance(options, dict):
-        raise ValidationError(f"{what}_options must be a dict of solver options; got {type(options).__name__}")
-    return solvers.resolve_solver(solver, **(options or {}))
-
-
-def has_converged(previous, current, tol):
-    """The outer loop's stop rule: ``0 <= previous - current <= tol * |previous|``.
-
-    A rise of the total objective is not convergence (the fit goes on, and keeps its best point).
-    """
-    decrease = previous - current
-    return 0.0 <= decrease <= tol * max(abs(previous), np.finfo(float).tiny)
-
-
 @dataclasses.dataclass
 class FactorialFit:
     """Result of :func:`fit_factorial` (the best point seen).
@@ -180,7 +165,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
         if it == 1 and history[1] == history[0]:
             status = "stalled"  # neither block moved: nothing will
             break
-        if has_converged(history[-2], history[-1], tol):
+        if solvers.has_converged(history[-2], history[-1], tol):  # a rise is not convergence
             status = "converged"
             break
     return best, history, it, status
@@ -240,8 +225,8 @@ def fit_factorial(mdp, demos_per_task, dictionary, coefficients, *, beta=5.0, ba
     if H.shape[0] != obj.n_tasks:
         raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
-        h = _resolve(h_solver, h_solver_options, "h_solver").for_alternating()
-        d = _resolve(d_solver, d_solver_options, "d_solver")
+        h = solvers.resolve_solver(h_solver, h_solver_options).for_alternating()
+        d = solvers.resolve_solver(d_solver, d_solver_options)
         best, history, it, status = _alternate(obj, Phi, D, h.project(H), h, d, max_iter, inner_steps, tol, report)
     _, D, H, loss = best
     return FactorialFit(D, H, loss, history, it, int(obj.n_evaluations), status)
@@ -293,7 +278,7 @@ def transfer_coefficients(mdp, demos_per_task, dictionary, *, beta=5.0, base_fea
     obj = make_objective(mdp, demos_per_task, beta, objective, planner)
     problem = weights_problem(obj, F)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
-        solver = _resolve(h_solver, h_solver_options, "h_solver")
+        solver = solvers.resolve_solver(h_solver, h_solver_options)
         res = solver.run(problem, solver.project(np.zeros((problem.n_rows, problem.n_params))), max_iter, tol=tol,
                          callback=report)
     rewards = task_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
@@ -465,7 +450,7 @@ class FactIRL:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         with translate_solver_errors():
-            h_solver = _resolve(self.h_solver, self.h_solver_options, "h_solver")
+            h_solver = solvers.resolve_solver(self.h_solver, self.h_solver_options)
         n = len(make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner).mu)
         D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng))
         if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):

@@ -120,7 +120,7 @@ class GradIRL:
         objective = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
         problem = weights_problem(objective, F)
         with translate_solver_errors(), fit_progress(self.callback, self.verbose, max_iter, "GradIRL") as report:
-            solver = solvers.resolve_solver(self.solver, **(self.solver_options or {}))
+            solver = solvers.resolve_solver(self.solver, self.solver_options)
             res = solver.run(problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, tol=tol, callback=report)
         S, A = mdp.n_states, mdp.n_actions
         self.weights_ = res.coefficients

@@ -13,7 +13,7 @@ products (for matrix-free Gauss-Newton on the dictionary).
 
 import numpy as np
 
-from solvers import StepProblem
+from solvers import Linearization, StepProblem
 
 from .synthetic import task_rewards
 
@@ -45,9 +45,23 @@ def weights_problem(objective, features=None):
     def residual_jacobian(x, rows):
         return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else F)
 
+    def linearize(x, rows):
+        lin = objective.linearize(rewards(x), rows)
+
+        def jvp(V):  # weight directions (r, p) -> reward directions F v_i
+            return lin.jvp(rewards(V))
+
+        def vjp(U):
+            y = lin.vjp(U).reshape(len(U), S * A)
+            return y if F is None else y @ F
+
+        return Linearization(lin.loss, lin.residual, jvp, vjp)
+
+    ls = objective.least_squares
     return StepProblem(
         loss_and_grad=loss_and_grad,
-        residual_jacobian=residual_jacobian if objective.least_squares else None,
+        residual_jacobian=residual_jacobian if ls else None,
+        linearize=linearize if ls else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
         n_params=p,
@@ -78,20 +92,45 @@ def dictionary_problem(objective, coefficients, base_features=None, unit_norm=Fa
     p = S * A if Phi is None else Phi.shape[1]
     all_rows = np.arange(n)
 
-    def loss_and_grad(x, rows):
+    def effective(x):
+        """The dictionary the rewards use (unit-norm columns if asked) and the column norms."""
         D = x.reshape(p, k)
-        norms = np.linalg.norm(D, axis=0) if unit_norm else None
-        if unit_norm:
-            D = D / np.where(norms > 0, norms, 1.0)
-        loss, y = objective.loss_and_grad(task_rewards(D if Phi is None else Phi @ D, H, S, A), all_rows)
-        g = y.reshape(n, S * A).T @ H  # (S*A, k): sum_i y_i h_i^T, eq. (11)
-        g = g if Phi is None else Phi.T @ g
-        if unit_norm:
-            g = (g - D * np.sum(D * g, axis=0)) / np.where(norms > 0, norms, 1.0)
-        return np.array([loss.sum()]), g.reshape(1, -1)
+        norms = np.where((nrm := np.linalg.norm(D, axis=0)) > 0, nrm, 1.0) if unit_norm else np.ones(k)
+        return D / norms, norms
+
+    def normalisation_map(D, norms, G):
+        """Derivative of ``D -> D~`` applied to G (it is symmetric): ``(G - D~ diag(D~^T G)) / norms``."""
+        return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
+
+    def rewards(D):
+        return task_rewards(D if Phi is None else Phi @ D, H, S, A)
+
+    def pull(y, D, norms):
+        """``Phi^T sum_i y_i h_i^T`` (eq. 11) through the normalisation: (1, p*k)."""
+        g = y.reshape(n, S * A).T @ H
+        return normalisation_map(D, norms, g if Phi is None else Phi.T @ g).reshape(1, -1)
+
+    def loss_and_grad(x, rows):
+        D, norms = effective(x)
+        loss, y = objective.loss_and_grad(rewards(D), all_rows)
+        return np.array([loss.sum()]), pull(y, D, norms)
+
+    def linearize(x, rows):
+        D, norms = effective(x)
+        lin = objective.linearize(rewards(D), all_rows)
+
+        def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
+            dD = normalisation_map(D, norms, V.reshape(p, k))
+            return lin.jvp(rewards(dD)).reshape(1, -1)
+
+        def vjp(U):
+            return pull(lin.vjp(U.reshape(n, -1)), D, norms)
+
+        return Linearization(np.array([lin.loss.sum()]), lin.residual.reshape(1, -1), jvp, vjp)
 
     return StepProblem(
         loss_and_grad=loss_and_grad,
+        linearize=linearize if objective.least_squares else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=1,
         n_params=p * k,

@@ -47,7 +47,7 @@ import numpy as np
 import solvers
 
 from ..evaluation import deviation
-from ..exceptions import ValidationError
+from ..exceptions import ValidationError, translate_solver_errors
 from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL
 from ..planning import optimal_q
@@ -103,7 +103,8 @@ def _check_int(value, name, minimum):
 def _check_h_solver(h_solver):
     if not isinstance(h_solver, str) or not h_solver:
         raise ValidationError(f"h_solver must be a registered solver name; got {h_solver!r}")
-    solvers.get_solver(h_solver)  # UnknownSolverError lists the available names
+    with translate_solver_errors():
+        solvers.get_solver(h_solver)  # UnknownSolverError lists the available names
     return h_solver
 
 

@@ -11,7 +11,7 @@ never know which one runs.
 """
 
 from ..exceptions import ValidationError
-from ._base import Linearization, Objective
+from ._base import Objective
 from .policy_matching import (
     PolicyMatchingObjective,
     dq_dtheta,
@@ -22,7 +22,6 @@ from .policy_matching import (
 
 __all__ = [
     "Objective",
-    "Linearization",
     "PolicyMatchingObjective",
     "policy_matching_loss",
     "policy_matching_grad_reference",

@@ -13,24 +13,7 @@ from .._validation import check_beta, check_mdp, check_statistics
 from ..exceptions import ValidationError
 from ..planning import get_planner
 
-__all__ = ["Objective", "Linearization"]
-
-
-class Linearization:
-    """An objective linearised at some rewards: residuals and the Jacobian as products.
-
-    Attributes
-    ----------
-    loss : ndarray, shape (r,)
-    residual : ndarray, shape (r, m)
-    jvp : callable
-        ``dR (r, S, A) -> J dR (r, m)``: forward mode (one solve per task).
-    vjp : callable
-        ``U (r, m) -> J^T U (r, S, A)``: reverse mode (one transposed solve per task).
-    """
-
-    def __init__(self, loss, residual, jvp, vjp):
-        self.loss, self.residual, self.jvp, self.vjp = loss, residual, jvp, vjp
+__all__ = ["Objective"]
 
 
 class Objective:
@@ -131,6 +114,10 @@ class Objective:
         return point.loss, self._linearize(point).residual, self._jacobian(point, features)
 
     def linearize(self, rewards, rows=None):
-        """:class:`Linearization` at ``rewards`` (residuals, Jacobian-vector products)."""
+        """``solvers.Linearization`` at ``rewards`` of tasks ``rows``, in reward space.
+
+        ``residual`` is (r, m); ``jvp`` maps reward directions (r, S, A) to (r, m) (forward mode,
+        one solve per task); ``vjp`` maps (r, m) to (r, S, A) (one transposed solve per task).
+        """
         self._require_least_squares("linearize")
         return self._linearize(self._evaluate(rewards, self._rows(rows)))

@@ -21,7 +21,9 @@ from .._threads import blas_limited
 from .._validation import check_beta, check_features, check_mdp, check_policy, check_rewards, check_statistics
 from ..exceptions import FactIRLError, ValidationError
 from ..planning import adjoint, boltzmann_policy, get_planner, plan, tangent
-from ._base import Linearization, Objective
+from solvers import Linearization
+
+from ._base import Objective
 
 __all__ = [
     "PolicyMatchingObjective",
