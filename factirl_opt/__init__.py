@@ -14,9 +14,11 @@ from .exceptions import (
     ConvergenceWarning,
     FactIRLError,
     MissingDependencyError,
+    MissingSolverBackendError,
     NotFittedError,
     PersistenceError,
     SolverError,
+    SolverOptionError,
     UnknownSolverError,
     ValidationError,
 )
@@ -96,4 +98,6 @@ __all__ = [
     "UnknownSolverError",
     "PersistenceError",
     "MissingDependencyError",
+    "MissingSolverBackendError",
+    "SolverOptionError",
 ]
