@@ -125,20 +125,25 @@ def _reproduce(args, argv):
           f"in {res['wall_time']:.1f} s")
     print(f"tables: {os.path.join(out, 'results.csv')}, {os.path.join(out, 'summary.csv')}")
     if not args.no_plot:
-        from .experiments.figures import plot_all
-
-        for path in plot_all(out):
-            print(f"wrote: {path}")
+        _claims_and_figures(out)
     return 0
 
 
-def _plot(args, argv):
+def _claims_and_figures(out):
+    """Write ``out/claims.md`` and draw figures 1-3 from a reproduce directory."""
+    from .experiments.claims import write_claims
     from .experiments.figures import plot_all
+    from .experiments.tables import load_preset_from_manifest
 
+    for path in plot_all(out):  # checks results.csv and the manifest first
+        print(f"wrote: {path}")
+    print(f"wrote: {write_claims(out, load_preset_from_manifest(out))}")
+
+
+def _plot(args, argv):
     if not os.path.isdir(args.dir):
         raise FactIRLError(f"{args.dir!r} is not a directory; give the --out directory of `factirl-opt reproduce`")
-    for path in plot_all(args.dir):
-        print(f"wrote: {path}")
+    _claims_and_figures(args.dir)
     return 0
 
 

@@ -1,22 +1,42 @@
 """Reproduction of the paper's experiments (section 4, figures 1-3).
 
-Presets are data (:mod:`.presets`); one runner executes them (:mod:`.runner`); figures are drawn
-from the tables it writes (:mod:`.figures`). From the command line::
+Module map:
+
+- :mod:`.presets`: experiment configurations as data (``paper``, ``quick``, ``test``, ``tiny``);
+- :mod:`.worlds`: a run's ground truth (world, true tasks, demonstrations) per world;
+- :mod:`.learners`: the learner line-ups as data (named builders);
+- :mod:`.runner`: plan the runs of a preset and execute them;
+- :mod:`.tables`: the CSV tables written from the run records, read back;
+- :mod:`.claims`: the paper's claims evaluated on the tables;
+- :mod:`.figures`: figures 1-3 drawn from the tables.
+
+From the command line::
 
     factirl-opt reproduce --preset quick --out runs/quick
     factirl-opt plot runs/quick
 """
 
-from .ground_truth import GroundTruth, make_ground_truth
+from .learners import LINEUPS, Learner, Lineup, get_lineup
 from .presets import PRESETS, Preset, get_preset
-from .runner import RunSpec, TEST_LEARNERS, TRAIN_LEARNERS, plan_runs, read_csv, run_one, run_sweep, write_tables
+from .runner import RunSpec, plan_runs, run_one, run_sweep
+from .tables import read_csv, write_tables
+from .worlds import WORLDS, GroundTruth, make_ground_truth
+
+#: learner names of the paper's line-up, per split (figure 1: train; figure 2: test)
+TRAIN_LEARNERS = LINEUPS["paper"].names("train")
+TEST_LEARNERS = LINEUPS["paper"].names("test")
 
 __all__ = [
     "Preset",
     "PRESETS",
     "get_preset",
     "GroundTruth",
+    "WORLDS",
     "make_ground_truth",
+    "Learner",
+    "Lineup",
+    "LINEUPS",
+    "get_lineup",
     "RunSpec",
     "TRAIN_LEARNERS",
     "TEST_LEARNERS",

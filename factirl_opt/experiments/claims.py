@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .runner import read_csv
+from .tables import read_csv, write_atomic
 
 __all__ = ["evaluate_claims", "claims_markdown", "write_claims"]
 
@@ -123,9 +123,8 @@ def write_claims(out, preset):
     solver = sorted({r["h_solver"] for r in rows})[0]
     rows = [r for r in rows if r["h_solver"] == solver]
     path = os.path.join(out, "claims.md")
-    with open(path, "w") as fh:
-        fh.write(f"# Paper claims vs this run (H-step solver: {solver})\n\n"
+    write_atomic(path, f"# Paper claims vs this run (H-step solver: {solver})\n\n"
                  "Deviation from the optimal score (eq. 13), lower is better. *holds*: the means are ordered as "
-                 "the paper says; *seeds*: seeds in which the paired comparison holds.\n\n")
-        fh.write(claims_markdown(evaluate_claims(rows, preset)))
+                 "the paper says; *seeds*: seeds in which the paired comparison holds.\n\n"
+                 + claims_markdown(evaluate_claims(rows, preset)))
     return path

@@ -15,8 +15,9 @@ import os
 
 import numpy as np
 
-from .runner import TEST_LEARNERS, TRAIN_LEARNERS, load_preset_from_manifest, read_csv
 from ..exceptions import ValidationError
+from ..mdp import GridWorld
+from .tables import load_preset_from_manifest, read_csv
 
 __all__ = ["plot_sweeps", "plot_value_functions", "plot_all"]
 
@@ -29,7 +30,6 @@ STYLES = {
     "flat, PCA features": dict(color="#ff7f0e", marker="v", linestyle="-."),
     "flat, features from ex.": dict(color="#9467bd", marker="P", linestyle="--"),
 }
-ACTION_DELTAS = ((-1, 0), (1, 0), (0, -1), (0, 1))  # GridWorld: up, down, left, right as (row, col)
 
 
 def _pyplot():
@@ -88,7 +88,7 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
         ("n_tasks", "demos_per_task", preset.default_demos, "number of training tasks",
          f"{preset.default_demos} demonstrations per training task"),
     )
-    learners = TRAIN_LEARNERS if split == "train" else TEST_LEARNERS
+    learners = list(dict.fromkeys(r["learner"] for r in rows))  # the tables' order: the line-up's
     lows, highs = [], []
     for ax, (x_name, fixed_name, fixed_value, xlabel, title) in zip(axes, panels):
         for learner in learners:
@@ -138,7 +138,7 @@ def _draw_demo(ax, demo, size):
     rows, cols = np.divmod(steps[:, 0], size)
     ax.plot(cols, rows, color="#d62728", linewidth=1.5, alpha=0.8)
     for r, c, a in zip(rows, cols, steps[:, 1]):
-        dr, dc = ACTION_DELTAS[a]
+        dr, dc = GridWorld.MOVES[a]
         ax.annotate("", xy=(c + 0.4 * dc, r + 0.4 * dr), xytext=(c, r),
                     arrowprops=dict(arrowstyle="->", color="#d62728", lw=1.2))
     ax.plot(cols[0], rows[0], "o", color="#d62728", markersize=7, markeredgecolor="white")
@@ -187,7 +187,10 @@ def plot_value_functions(data, path_base, point=None):
 
 
 def plot_all(out):
-    """Draw figures 1-3 into ``out/figures`` and the claims table ``out/claims.md``; returns the files."""
+    """Draw figures 1-3 into ``out/figures`` from a reproduce directory; returns the files written.
+
+    Reads ``out/results.csv``, ``out/manifest.json`` (the preset) and ``out/figure3.json``.
+    """
     out = os.fspath(out)
     path = os.path.join(out, "results.csv")
     if not os.path.exists(path):
@@ -198,12 +201,13 @@ def plot_all(out):
     os.makedirs(fig_dir, exist_ok=True)
     written = plot_sweeps(rows, preset, "train", os.path.join(fig_dir, "figure1"))
     written += plot_sweeps(rows, preset, "test", os.path.join(fig_dir, "figure2"))
-    from .claims import write_claims
-
-    written.append(write_claims(out, preset))
     f3 = os.path.join(out, "figure3.json")
     if os.path.exists(f3):
-        with open(f3) as fh:
-            written += plot_value_functions(json.load(fh), os.path.join(fig_dir, "figure3"),
-                                            point=(preset.default_tasks, preset.default_demos))
+        try:
+            with open(f3) as fh:
+                data = json.load(fh)
+        except ValueError as exc:
+            raise ValidationError(f"{f3} is not valid JSON ({exc}); rerun `factirl-opt reproduce` to rewrite it") from None
+        written += plot_value_functions(data, os.path.join(fig_dir, "figure3"),
+                                        point=(preset.default_tasks, preset.default_demos))
     return written

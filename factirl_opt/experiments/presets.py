@@ -1,7 +1,8 @@
 """Experiment presets: the paper's section 4 as data, run by :mod:`.runner`.
 
-A preset fixes the world (grid, dynamics, discount), the ground truth (number of primitives,
-coefficient distribution), the demonstrations, the learners' iteration budgets and the two
+A preset fixes the world (its name in :data:`.worlds.WORLDS`, grid, dynamics, discount), the
+ground truth (number of primitives, coefficient distribution), the demonstrations, the learner
+line-up (its name in :data:`.learners.LINEUPS`), the learners' iteration budgets and the two
 sweeps of figures 1 and 2:
 
 - demos per task (``demos_sweep``) at ``default_tasks`` training tasks;
@@ -21,8 +22,8 @@ Presets
     at 10 demos; 30 test tasks; 1 seed): a smoke run of every learner and figure in about a
     minute on two cores (under 2 minutes with ``--jobs 1`` on a busy machine).
 ``test``
-    The default point of ``quick`` only (50 tasks, 10 demos, 50 test tasks, 1 seed): what the
-    regression tests run to check the paper's orderings.
+    The paper's world and learners at one point (50 tasks, 10 demos, 50 test tasks, 1 seed):
+    what the regression tests run to check the paper's orderings.
 ``tiny``
     A 5x5 grid with a handful of tasks and few iterations: seconds, for tests of the machinery
     (resume, ``--jobs`` invariance, command line); its scores mean nothing.
@@ -32,9 +33,11 @@ import dataclasses
 import hashlib
 import json
 
+from .._validation import check_int, check_probability, check_real
 from ..exceptions import ValidationError
+from ..synthetic import COEFFICIENT_KINDS
 
-__all__ = ["Preset", "PRESETS", "get_preset"]
+__all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "get_preset"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +84,10 @@ class Preset:
         H-step solver steps of ``FactIRL.transfer``.
     n_seeds : int
         Default number of seeds.
+    world : str
+        The world's name in :data:`.worlds.WORLDS` (``"grid"``: the paper's).
+    lineup : str
+        The learner line-up's name in :data:`.learners.LINEUPS` (``"paper"``).
     """
 
     name: str
@@ -103,20 +110,29 @@ class Preset:
     inner_steps: int = 5
     transfer_max_iter: int = 100
     n_seeds: int = 3
+    world: str = "grid"
+    lineup: str = "paper"
 
     def __post_init__(self):
+        where = f"preset {self.name!r}: "
         for f in ("grid_size", "n_primitives", "demo_length", "default_tasks", "default_demos", "n_test_tasks",
                   "n_features_from_examples", "n_pca_components", "flat_max_iter", "fact_max_iter",
                   "inner_steps", "transfer_max_iter", "n_seeds"):
-            v = getattr(self, f)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValidationError(f"preset {self.name!r}: {f} must be an integer >= 1; got {v!r}")
+            object.__setattr__(self, f, check_int(getattr(self, f), where + f, minimum=1))
         for f in ("demos_sweep", "tasks_sweep"):
             v = getattr(self, f)
-            if not isinstance(v, tuple) or not v or any(isinstance(x, bool) or not isinstance(x, int) or x < 1 for x in v):
-                raise ValidationError(f"preset {self.name!r}: {f} must be a non-empty tuple of integers >= 1; got {v!r}")
-        if self.coefficient_kind not in ("gaussian", "nonneg"):
-            raise ValidationError(f"preset {self.name!r}: coefficient_kind must be 'gaussian' or 'nonneg'; got {self.coefficient_kind!r}")
+            if not isinstance(v, tuple) or not v:
+                raise ValidationError(f"{where}{f} must be a non-empty tuple of integers >= 1; got {v!r}")
+            object.__setattr__(self, f, tuple(check_int(x, f"{where}{f}[{i}]", minimum=1) for i, x in enumerate(v)))
+        object.__setattr__(self, "p_success", check_probability(self.p_success, where + "p_success"))
+        object.__setattr__(self, "gamma", check_real(self.gamma, where + "gamma", 0.0, 1.0, high_open=True))
+        object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
+        from .learners import LINEUPS
+        from .worlds import WORLDS
+
+        for f, choices in (("coefficient_kind", COEFFICIENT_KINDS), ("world", WORLDS), ("lineup", LINEUPS)):
+            if getattr(self, f) not in choices:
+                raise ValidationError(f"{where}{f} must be one of {', '.join(choices)}; got {getattr(self, f)!r}")
 
     def points(self):
         """Sorted unique ``(n_tasks, demos_per_task)`` points of both sweeps."""
@@ -131,9 +147,16 @@ class Preset:
         return d
 
     def fingerprint(self):
-        """Short hash of every field that changes a run's result (all but name and n_seeds)."""
+        """Short hash of every field that changes a run's result (all but name and n_seeds).
+
+        ``world`` and ``lineup`` enter it only when they differ from the paper's (``"grid"``,
+        ``"paper"``), so the paper's runs keep the keys they had before these fields existed.
+        """
         d = self.to_dict()
         del d["name"], d["n_seeds"]
+        for f, paper in (("world", "grid"), ("lineup", "paper")):
+            if d[f] == paper:
+                del d[f]
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:10]
 
     @classmethod
@@ -184,6 +207,15 @@ PRESETS = {
         transfer_max_iter=10,
         n_seeds=2,
     ),
+}
+
+
+#: one line per preset, for ``factirl-opt reproduce --help``
+PRESET_DESCRIPTIONS = {
+    "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (about 20 min on 2 cores)",
+    "quick": "every learner and figure on a small sweep, 1 seed (about a minute)",
+    "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
+    "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
 }
 
 

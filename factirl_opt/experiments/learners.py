@@ -1,0 +1,239 @@
+"""The learners of the experiments, as data: named line-ups of builders.
+
+A *line-up* is an ordered table of :class:`Learner` rows ``(split, name, build, version,
+needs)``. ``build(gt, preset, ctx)`` fits one learner on the ground truth's ``split`` tasks and
+returns a :class:`Fit` (learnt rewards, final loss per task, Q* evaluations); the runner times
+and scores it. Rows run in table order and share a :class:`RunContext` (the run's solver
+settings, random streams, and what earlier rows learnt), so a learner that builds on another
+(the factorial transfer on the factorial fit) names it in ``needs``. A new learner (another
+objective, features, another D-step solver) is a new row or a new line-up, not a new code
+path; bump a builder's ``version`` when its behaviour changes, so cached runs made with the
+old one are recomputed (:mod:`.store`).
+
+Line-up ``"paper"`` (the paper's section 4, names as in the paper):
+
+train tasks (``split = "train"``)
+    ``flat`` (GradIRL, tabular); ``flat, ground truth`` (GradIRL with the true dictionary as
+    features); ``flat, PCA features`` (GradIRL with the first ``n_pca_components`` components
+    of the uncentred PCA of the flat rewards); ``factorial`` (FactIRL initialised by that PCA,
+    the paper's heuristic, reusing the flat rewards); ``factorial, random init``.
+test tasks (``split = "test"``, one demonstration each)
+    ``flat`` (from scratch); ``factorial`` (``FactIRL.transfer`` with the dictionary learnt by
+    ``factorial``); ``flat, features from ex.`` (GradIRL with ``n_features_from_examples``
+    learnt flat training rewards, chosen at random, as features); ``flat, PCA features`` (the
+    training PCA components); ``flat, ground truth`` (the floor).
+
+Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
+"""
+
+import collections
+import dataclasses
+from typing import Callable
+
+import numpy as np
+
+from ..exceptions import ValidationError
+from ..factirl import FactIRL, pca_dictionary
+from ..gradirl import GradIRL
+
+__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options"]
+
+#: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
+Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
+
+#: the learners' random streams, spawned in this order from the ground truth's ``learner_rng``
+#: (append new names at the end: the existing streams then stay the same)
+STREAMS = ("pca", "random_init", "examples")
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """One row of a line-up.
+
+    Parameters
+    ----------
+    split : {"train", "test"}
+    name : str
+        The learner's name in the tables and figures.
+    build : callable
+        ``build(gt, preset, ctx) -> Fit``.
+    version : int
+        Version of the builder's behaviour (part of a cached run's key).
+    needs : tuple of (split, name)
+        Rows that must run before this one (their results are read from ``ctx``).
+    """
+
+    split: str
+    name: str
+    build: Callable
+    version: int = 1
+    needs: tuple = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Lineup:
+    """A named, ordered table of learners, and the test learners figure 3 shows."""
+
+    name: str
+    learners: tuple
+    value_maps: tuple = ()
+
+    def __post_init__(self):
+        seen = set()
+        for lr in self.learners:
+            if lr.split not in ("train", "test"):
+                raise ValidationError(f"line-up {self.name!r}: split must be 'train' or 'test'; got {lr.split!r}")
+            if (lr.split, lr.name) in seen:
+                raise ValidationError(f"line-up {self.name!r}: duplicate learner {lr.split}: {lr.name}")
+            missing = [n for n in lr.needs if tuple(n) not in seen]
+            if missing:
+                raise ValidationError(f"line-up {self.name!r}: {lr.split}: {lr.name} needs {missing} earlier in the line-up")
+            seen.add((lr.split, lr.name))
+        for name in self.value_maps:
+            if ("test", name) not in seen:
+                raise ValidationError(f"line-up {self.name!r}: value map of unknown test learner {name!r}")
+
+    def names(self, split):
+        """Learner names of one split, in line-up order."""
+        return tuple(lr.name for lr in self.learners if lr.split == split)
+
+    def fingerprint(self):
+        """``[[split, name, version], ...]``: what identifies the line-up in a cached run."""
+        return [[lr.split, lr.name, lr.version] for lr in self.learners]
+
+
+class RunContext:
+    """What the learners of one run share.
+
+    Attributes
+    ----------
+    spec : RunSpec
+        The run (point, seed, solver settings).
+    split : str
+        Split of the row being built (set by the runner).
+    rngs : dict
+        Named random streams (:data:`STREAMS`), spawned from ``gt.learner_rng``.
+    rewards : dict
+        ``(split, name) -> rewards (n, S, A)`` of the rows already built.
+    models : dict
+        Fitted estimators that later rows build on (e.g. ``"factorial"``).
+    """
+
+    def __init__(self, gt, spec):
+        self.spec = spec
+        self.split = None
+        self.rngs = dict(zip(STREAMS, gt.learner_rng.spawn(len(STREAMS))))
+        self.rewards = {}
+        self.models = {}
+        self._shared = {}
+
+    def shared(self, name, make):
+        """``make()``, computed once per run and shared by the rows that ask for ``name``."""
+        if name not in self._shared:
+            self._shared[name] = make()
+        return self._shared[name]
+
+
+def factorial_options(preset, spec):
+    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's H-step solver."""
+    return dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
+                inner_steps=preset.inner_steps, h_solver=spec.h_solver, flat_max_iter=preset.flat_max_iter,
+                transfer_max_iter=preset.transfer_max_iter)
+
+
+# --- builders: (gt, preset, ctx) -> Fit ---------------------------------------------------
+
+
+def _gradirl(gt, preset, ctx, features=None):
+    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter).fit(gt.mdp, gt.demos(ctx.split))
+    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+
+
+def _pca_features(gt, preset, ctx):
+    """The first components of the uncentred PCA of the flat training rewards, (S*A, k)."""
+
+    def make():
+        flat = ctx.rewards["train", "flat"]
+        d = gt.mdp.n_params
+        D, _ = pca_dictionary(flat.reshape(flat.shape[0], d), min(preset.n_pca_components, d), rng=ctx.rngs["pca"])
+        return D
+
+    return ctx.shared("pca_features", make)
+
+
+def flat(gt, preset, ctx):
+    """GradIRL, tabular rewards."""
+    return _gradirl(gt, preset, ctx)
+
+
+def flat_ground_truth(gt, preset, ctx):
+    """GradIRL with the true dictionary as features (the floor)."""
+    return _gradirl(gt, preset, ctx, gt.dictionary)
+
+
+def flat_pca_features(gt, preset, ctx):
+    """GradIRL with the PCA components of the flat training rewards as features."""
+    return _gradirl(gt, preset, ctx, _pca_features(gt, preset, ctx))
+
+
+def flat_features_from_examples(gt, preset, ctx):
+    """GradIRL with ``n_features_from_examples`` learnt flat training rewards as features."""
+    flat_train = ctx.rewards["train", "flat"]
+    n = flat_train.shape[0]
+    n_ex = min(preset.n_features_from_examples, n)
+    chosen = np.sort(ctx.rngs["examples"].choice(n, size=n_ex, replace=False))
+    return _gradirl(gt, preset, ctx, flat_train[chosen].reshape(n_ex, gt.mdp.n_params).T)
+
+
+def factorial(gt, preset, ctx):
+    """FactIRL from the PCA of the flat training rewards (the paper's heuristic)."""
+    model = FactIRL(init="pca", rng=ctx.rngs["pca"], **factorial_options(preset, ctx.spec))
+    model.fit(gt.mdp, gt.train_demos, flat_rewards=ctx.rewards["train", "flat"])
+    ctx.models["factorial"] = model
+    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+
+
+def factorial_random_init(gt, preset, ctx):
+    """FactIRL from a random start."""
+    model = FactIRL(init="random", rng=ctx.rngs["random_init"], **factorial_options(preset, ctx.spec))
+    model.fit(gt.mdp, gt.train_demos)
+    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+
+
+def factorial_transfer(gt, preset, ctx):
+    """``FactIRL.transfer`` of the training dictionary to the test tasks."""
+    model = ctx.models["factorial"]
+    model.transfer(gt.mdp, gt.test_demos)
+    return Fit(model.transfer_rewards_, model.transfer_loss_, model.transfer_n_evaluations_)
+
+
+_TRAIN_FLAT = (("train", "flat"),)
+
+#: line-up name (a preset's ``lineup``) -> Lineup
+LINEUPS = {
+    "paper": Lineup(
+        name="paper",
+        learners=(
+            Learner("train", "flat", flat),
+            Learner("train", "flat, ground truth", flat_ground_truth),
+            Learner("train", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
+            Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
+            Learner("train", "factorial, random init", factorial_random_init),
+            Learner("test", "flat", flat),
+            Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
+            Learner("test", "flat, features from ex.", flat_features_from_examples, needs=_TRAIN_FLAT),
+            Learner("test", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
+            Learner("test", "flat, ground truth", flat_ground_truth),
+        ),
+        value_maps=("flat", "factorial"),
+    ),
+}
+
+
+def get_lineup(lineup):
+    """A :class:`Lineup` from its name (or a Lineup, returned as is)."""
+    if isinstance(lineup, Lineup):
+        return lineup
+    if isinstance(lineup, str) and lineup in LINEUPS:
+        return LINEUPS[lineup]
+    raise ValidationError(f"unknown learner line-up {lineup!r}; available: {', '.join(LINEUPS)}")

@@ -1,0 +1,168 @@
+"""The result tables of a sweep: tidy CSV files written from run records, and read back.
+
+::
+
+    OUT/results.csv   one row per (run, split, learner); deterministic columns only
+    OUT/summary.csv   mean and standard deviation over seeds per (split, learner, point, solver)
+    OUT/timings.csv   fit time of every learner in every run (varies from run to run)
+    OUT/figure3.json  value functions of 4 test tasks (default point, first seed)
+
+Rows are sorted (split, solver, n_tasks, demos_per_task, learner in line-up order, seed), so
+the tables depend only on the set of run records, not on the order the runs finished in.
+Every file is written atomically (a temporary file in the same directory, then ``os.replace``)
+with the usual permissions (``0o666`` minus the umask).
+"""
+
+import csv
+import io
+import json
+import os
+import secrets
+
+import numpy as np
+
+from ..exceptions import ValidationError
+from .presets import Preset
+
+__all__ = [
+    "RESULT_COLUMNS",
+    "SUMMARY_COLUMNS",
+    "TIMING_COLUMNS",
+    "write_atomic",
+    "write_tables",
+    "read_csv",
+    "load_preset_from_manifest",
+]
+
+SPLITS = ("train", "test")
+RESULT_COLUMNS = (
+    "split", "learner", "n_tasks", "demos_per_task", "seed", "h_solver",
+    "n_scored_tasks", "deviation", "deviation_std", "loss", "n_evaluations",
+)
+SUMMARY_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "h_solver", "n_seeds", "deviation_mean", "deviation_std")
+TIMING_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "seed", "h_solver", "fit_time")
+INT_COLUMNS = ("n_tasks", "demos_per_task", "seed", "n_scored_tasks", "n_evaluations", "n_seeds")
+FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean")
+
+
+def write_atomic(path, text):
+    """Write ``text`` to ``path`` atomically, with mode ``0o666`` minus the umask."""
+    path = os.fspath(path)
+    d, base = os.path.split(path)
+    tmp = os.path.join(d, f".tmp-{os.getpid()}-{secrets.token_hex(4)}-{base}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _csv_text(rows, columns):
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: repr(r[c]) if isinstance(r[c], float) else r[c] for c in columns})
+    return buf.getvalue()
+
+
+def read_csv(path):
+    """Rows of a table written by :func:`write_tables`, with numbers parsed back.
+
+    Raises
+    ------
+    ValidationError
+        If the file is not such a table (a missing column or value, an unparsable number, a
+        truncated last line), naming the file and the line.
+    """
+    path = os.fspath(path)
+    out = []
+    with open(path, newline="") as fh:
+        reader = csv.DictReader(fh)
+        try:
+            if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS):
+                raise ValueError(f"unexpected header {reader.fieldnames}")
+            for r in reader:
+                out.append(_parse_row(r))
+        except (TypeError, ValueError, csv.Error) as exc:
+            raise ValidationError(f"{path}, line {reader.line_num}: not a table written by `factirl-opt reproduce` "
+                                  f"({exc}); rerun the command to rewrite it") from None
+    return out
+
+
+def _parse_row(r):
+    if None in r or None in r.values():
+        raise ValueError(f"expected {len(r) - (None in r)} comma-separated values")
+    for c, v in r.items():
+        if c in INT_COLUMNS:
+            r[c] = int(v)
+        elif c in FLOAT_COLUMNS:
+            r[c] = float(v)
+    return r
+
+
+def _order(learners):
+    """Sort key of the rows, learners in line-up order (``{(split, name): position}``)."""
+
+    def key(row):
+        return (SPLITS.index(row["split"]), row["h_solver"], row["n_tasks"], row["demos_per_task"],
+                learners[row["split"], row["learner"]], row.get("seed", 0))
+
+    return key
+
+
+def _summary(rows):
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["split"], r["learner"], r["n_tasks"], r["demos_per_task"], r["h_solver"]), []).append(r["deviation"])
+    return [
+        dict(split=s, learner=lr, n_tasks=n, demos_per_task=m, h_solver=h, n_seeds=len(v),
+             deviation_mean=float(np.mean(v)), deviation_std=float(np.std(v, ddof=1)) if len(v) > 1 else 0.0)
+        for (s, lr, n, m, h), v in groups.items()
+    ]
+
+
+def write_tables(out, records):
+    """Write results.csv, summary.csv, timings.csv (and figure3.json) from run records.
+
+    Parameters
+    ----------
+    out : str or path
+    records : list of dict
+        Run records (:func:`.runner.run_one`); their rows give the learners' order.
+
+    Returns
+    -------
+    list of dict
+        The result rows, sorted.
+    """
+    out = os.fspath(out)
+    learners = {}
+    for rec in records:
+        for r in rec["rows"]:
+            learners.setdefault((r["split"], r["learner"]), len(learners))
+    key = _order(learners)
+    rows = sorted((r for rec in records for r in rec["rows"]), key=key)
+    timings = sorted((r for rec in records for r in rec["timings"]), key=key)
+    summary = sorted(_summary(rows), key=key)
+    write_atomic(os.path.join(out, "results.csv"), _csv_text(rows, RESULT_COLUMNS))
+    write_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, SUMMARY_COLUMNS))
+    write_atomic(os.path.join(out, "timings.csv"), _csv_text(timings, TIMING_COLUMNS))
+    fig3 = sorted((rec for rec in records if "figure3" in rec), key=lambda rec: (rec["spec"]["h_solver"], rec["spec"]["seed"]))
+    if fig3:
+        write_atomic(os.path.join(out, "figure3.json"), json.dumps(fig3[0]["figure3"]))
+    return rows
+
+
+def load_preset_from_manifest(out):
+    """The :class:`Preset` recorded in ``out/manifest.json``."""
+    path = os.path.join(os.fspath(out), "manifest.json")
+    try:
+        with open(path) as fh:
+            return Preset.from_dict(json.load(fh)["preset"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValidationError(f"{path} is missing or unreadable ({exc}); run `factirl-opt reproduce --out DIR` first") from None

@@ -1,0 +1,113 @@
+"""The worlds of the experiments: what one run's learners see and are scored against.
+
+A *world* is a named recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``: an
+MDP, a true reward dictionary, training tasks with ``demos_per_task`` demonstrations each and
+test tasks with one demonstration each. :data:`WORLDS` maps a preset's ``world`` field to its
+recipe; a new world (e.g. Objectworld) is one more entry.
+
+``"grid"`` (the paper's section 4)
+    :class:`factirl_opt.GridWorld` of the preset's size and dynamics; tasks drawn by
+    :func:`factirl_opt.synthetic.synthetic_tasks` from a random dictionary (``D ~ N(0, 1)``;
+    coefficients ``N(0, 1)`` or ``|N(0, 1)|``).
+
+Randomness: the run's seed makes a ``numpy.random.SeedSequence`` whose spawned children feed
+independent streams, in this order: dictionary, training coefficients, test coefficients,
+training demonstrations, test demonstrations, learners (random initialisation, choice of the
+``features from ex.``; see :mod:`.learners`). So, for one seed, every point of a sweep shares
+the same dictionary and the same test tasks (with the same demonstrations), and the training
+tasks of a smaller point are the first ones of a larger point (paired comparisons across the
+sweep); nothing depends on which process runs what.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from ..exceptions import ValidationError
+from ..mdp import GridWorld, TabularMDP
+from ..synthetic import random_dictionary, synthetic_tasks
+
+__all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "N_STREAMS"]
+
+#: children spawned from a run's SeedSequence (see the module docstring for their order)
+N_STREAMS = 6
+SPLITS = ("train", "test")
+
+
+@dataclasses.dataclass
+class GroundTruth:
+    """Everything a run's learners see or are scored against.
+
+    Attributes
+    ----------
+    mdp : TabularMDP
+    dictionary : ndarray, shape (S*A, k)
+    train_rewards : ndarray, shape (n_tasks, S, A)
+    train_demos : list of n_tasks int arrays, each (demos_per_task, L, 2)
+    test_rewards : ndarray, shape (n_test_tasks, S, A)
+    test_demos : list of n_test_tasks int arrays, each (1, L, 2)
+    learner_rng : numpy.random.Generator
+        Parent of the learners' random streams (:class:`.learners.RunContext`).
+    """
+
+    mdp: TabularMDP
+    dictionary: np.ndarray
+    train_rewards: np.ndarray
+    train_demos: list
+    test_rewards: np.ndarray
+    test_demos: list
+    learner_rng: np.random.Generator
+
+    def demos(self, split):
+        """Demonstrations of the ``"train"`` or ``"test"`` tasks."""
+        return self.train_demos if _check_split(split) == "train" else self.test_demos
+
+    def rewards(self, split):
+        """True rewards (n, S, A) of the ``"train"`` or ``"test"`` tasks."""
+        return self.train_rewards if _check_split(split) == "train" else self.test_rewards
+
+
+def _check_split(split):
+    if split not in SPLITS:
+        raise ValidationError(f"split must be 'train' or 'test'; got {split!r}")
+    return split
+
+
+def grid_world(preset, n_tasks, demos_per_task, seed):
+    """The paper's world: a noisy grid and tasks mixing random primitive rewards.
+
+    Parameters
+    ----------
+    preset : Preset
+    n_tasks : int
+        Training tasks.
+    demos_per_task : int
+        Demonstrations of each training task (test tasks get one each).
+    seed : int
+        Entropy of the run's SeedSequence.
+
+    Returns
+    -------
+    GroundTruth
+    """
+    mdp = GridWorld(size=preset.grid_size, p_success=preset.p_success, gamma=preset.gamma)
+    S, A, k = mdp.n_states, mdp.n_actions, preset.n_primitives
+    s_dict, s_train, s_test, s_train_demo, s_test_demo, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
+    D = random_dictionary(S * A, k, rng=np.random.default_rng(s_dict))
+    kw = dict(dictionary=D, kind=preset.coefficient_kind)
+    train = synthetic_tasks(mdp, n_tasks, demos_per_task, preset.demo_length, rng=s_train, demo_rng=s_train_demo, **kw)
+    test = synthetic_tasks(mdp, preset.n_test_tasks, 1, preset.demo_length, rng=s_test, demo_rng=s_test_demo, **kw)
+    return GroundTruth(mdp, D, train.rewards, train.demos, test.rewards, test.demos, np.random.default_rng(s_learn))
+
+
+#: world name (a preset's ``world``) -> recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``
+WORLDS = {"grid": grid_world}
+
+
+def make_ground_truth(preset, n_tasks, demos_per_task, seed):
+    """Generate the ground truth of the run ``(preset, n_tasks, demos_per_task, seed)`` in the preset's world."""
+    try:
+        world = WORLDS[preset.world]
+    except KeyError:
+        raise ValidationError(f"unknown world {preset.world!r}; available: {', '.join(WORLDS)}") from None
+    return world(preset, n_tasks, demos_per_task, seed)
