@@ -147,36 +147,10 @@ def _plot(args, argv):
     return 0
 
 
-def _bench_parser():
-    """Parser of ``factirl-opt bench``: one sub-command per importable benchmark module."""
-    import importlib
-
-    from .benchmarks import BENCHMARKS
-
-    parser = argparse.ArgumentParser(prog=f"{PROG} bench", description="Benchmarks; each prints JSON on stdout.")
-    sub = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
-    missing = []
-    for name, module in BENCHMARKS.items():
-        try:
-            mod = importlib.import_module(f"factirl_opt.benchmarks.{module}")
-        except ImportError as exc:  # a benchmark still being written must not break the others
-            missing.append(f"{name} ({exc})")
-            continue
-        p = sub.add_parser(name, help=(mod.__doc__ or name).strip().splitlines()[0], description=mod.__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
-        mod.add_arguments(p)
-        p.set_defaults(_module=mod)
-    if missing:
-        parser.epilog = "unavailable: " + "; ".join(missing)
-    return parser
-
-
 def _bench(args, argv):
-    from .bench import run_from_args
+    from .bench import main as bench_main
 
-    bench_args = _bench_parser().parse_args(args.bench_args)
-    run_from_args(bench_args)
-    return 0
+    return bench_main(args.bench_args, prog=f"{PROG} bench")
 
 
 def main(argv=None):

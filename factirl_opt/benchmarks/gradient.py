@@ -27,14 +27,15 @@ import time
 import numpy as np
 
 from .._threads import limit_blas_threads
-from ..demonstrations import empirical_statistics, sample_demonstrations
-from ..synthetic import random_coefficients, random_dictionary, task_rewards
+from ..demonstrations import empirical_statistics
 from ..mdp import GridWorld
 from ..objectives.policy_matching import forward_point, gradient_at, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
 from ..planning import get_planner
 from ..planning import optimal_q
+from ..synthetic import synthetic_tasks
 
 __all__ = ["add_arguments", "run"]
+
 
 def add_arguments(parser):
     parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")
@@ -67,11 +68,10 @@ def _best_time(fn, repeats, budget, min_time=0.0, max_runs=2000):
 
 def _one_size(size, args, rng):
     mdp = GridWorld(size=size)
-    S, A = mdp.n_states, mdp.n_actions
-    D = random_dictionary(mdp.n_params, 5, rng)
-    R = task_rewards(D, random_coefficients(1, 5, rng=rng), S, A)[0]
-    demos = sample_demonstrations(mdp, R, args.n_demos, args.length, rng)
-    mu, pi_hat = empirical_statistics(mdp, demos)
+    S = mdp.n_states
+    task = synthetic_tasks(mdp, 1, args.n_demos, args.length, n_primitives=5, rng=rng)
+    R = task.rewards[0]
+    mu, pi_hat = empirical_statistics(mdp, task.demos)
     # the learner differentiates at its current estimate, not at the truth
     theta = R + 0.5 * rng.standard_normal(R.shape)
     beta = args.beta

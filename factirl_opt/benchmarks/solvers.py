@@ -36,18 +36,34 @@ import numpy as np
 
 import solvers
 
-from ..demonstrations import sample_demonstrations
+from ..demonstrations import empirical_statistics
 from ..evaluation import deviation
 from ..factirl import FactIRL
 from ..gradirl import GradIRL
-from ..synthetic import random_coefficients, random_dictionary, task_rewards
 from ..mdp import GridWorld
 from ..objectives import PolicyMatchingObjective
-from ..demonstrations import empirical_statistics
 from ..problems import weights_problem
+from ..synthetic import random_dictionary, synthetic_tasks
+from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run"]
 
+PARTS = ("transfer", "fit", "nonneg", "sparse", "subproblem_timing")
+DEFAULTS = {
+    "size": 10,
+    "transfer_tasks": 50,
+    "armijo_iter": 100,
+    "gn_iter": 30,
+    "sparse_gn_iter": 100,
+    "fit_tasks": 30,
+    "fit_demos": 10,
+    "fit_iter": 10,
+    "flat_iter": 100,
+    "inner_steps": 5,
+    "alphas": [0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0],
+    "repeats": 20,
+    "fresh_tasks": 10,
+}
 QUICK = {
     "size": 5,
     "transfer_tasks": 8,
@@ -66,40 +82,32 @@ QUICK = {
 
 
 def add_arguments(parser):
-    parser.add_argument("--quick", action="store_true", help="tiny sizes and budgets (seconds; for tests)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--size", type=int, default=10, help="grid side (default 10)")
-    parser.add_argument("--n-primitives", type=int, default=5)
-    parser.add_argument("--beta", type=float, default=5.0)
-    parser.add_argument("--transfer-tasks", type=int, default=50)
-    parser.add_argument("--transfer-demos", type=int, default=1)
-    parser.add_argument("--demo-length", type=int, default=10)
-    parser.add_argument("--armijo-iter", type=int, default=100)
-    parser.add_argument("--gn-iter", type=int, default=30)
-    parser.add_argument("--fit-tasks", type=int, default=30)
-    parser.add_argument("--fit-demos", type=int, default=10)
-    parser.add_argument("--fit-iter", type=int, default=10, help="FactIRL outer iterations")
-    parser.add_argument("--flat-iter", type=int, default=100, help="GradIRL iterations of the PCA init")
-    parser.add_argument("--inner-steps", type=int, default=5)
-    parser.add_argument("--sparse-gn-iter", type=int, default=100,
-                        help="GN steps of the sparse sweep: zero counts are compared near convergence (default 100)")
-    parser.add_argument("--alphas", type=float, nargs="+", default=[0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0])
-    parser.add_argument("--sparsity", type=float, default=0.4, help="zero probability of the sparse ground truth")
-    parser.add_argument("--repeats", type=int, default=20, help="timed re-solves per route (median kept)")
-    parser.add_argument("--fresh-tasks", type=int, default=10, help="tasks timed with a fresh cp.Problem each")
-    parser.add_argument(
-        "--parts",
-        nargs="+",
-        default=["transfer", "fit", "nonneg", "sparse", "subproblem_timing"],
-        choices=["transfer", "fit", "nonneg", "sparse", "subproblem_timing"],
-    )
+    def opt(*flags, **kw):
+        add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
-
-def _settings(args):
-    s = {k: getattr(args, k) for k in vars(args) if not k.startswith("_")}
-    if s.get("quick"):
-        s.update(QUICK)
-    return s
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes and budgets (seconds; for tests); options given explicitly keep their value")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the ground truth (default: 0)")
+    opt("--size", type=int, help="grid side")
+    parser.add_argument("--n-primitives", type=int, default=5, help="primitives, true and learnt (default: 5)")
+    parser.add_argument("--beta", type=float, default=5.0, help="Boltzmann inverse temperature (default: 5.0)")
+    opt("--transfer-tasks", type=int, help="new tasks of the transfer, nonneg and sparse parts")
+    parser.add_argument("--transfer-demos", type=int, default=1, help="demonstrations per new task (default: 1)")
+    parser.add_argument("--demo-length", type=int, default=10, help="steps per demonstration (default: 10)")
+    opt("--armijo-iter", type=int, help="Armijo iterations of the transfer")
+    opt("--gn-iter", type=int, help="Gauss-Newton steps of the transfer")
+    opt("--fit-tasks", type=int, help="training tasks of the fit part")
+    opt("--fit-demos", type=int, help="demonstrations per training task")
+    opt("--fit-iter", type=int, help="FactIRL outer iterations")
+    opt("--flat-iter", type=int, help="GradIRL iterations of the PCA init")
+    opt("--inner-steps", type=int, help="FactIRL steps per sub-problem")
+    opt("--sparse-gn-iter", type=int, help="GN steps of the sparse sweep: zero counts are compared near convergence")
+    opt("--alphas", type=float, nargs="+", help="L1 weights of the sparse sweep")
+    parser.add_argument("--sparsity", type=float, default=0.4, help="zero probability of the sparse ground truth (default: 0.4)")
+    opt("--repeats", type=int, help="timed re-solves per route (median kept)")
+    opt("--fresh-tasks", type=int, help="tasks timed with a fresh cp.Problem each")
+    parser.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
+                        help="parts to run (default: all)")
 
 
 def _gn_names(constraint="none"):
@@ -131,17 +139,14 @@ def _transfer(mdp, D, demos, true_R, name, iters, beta, **options):
     return out, H
 
 
-def _ground_truth(mdp, s, rng, n_tasks, n_demos, kind="gaussian", sparsity=0.0, D=None):
-    k = s["n_primitives"]
-    D = random_dictionary(mdp.n_params, k, rng) if D is None else D
-    H = random_coefficients(n_tasks, k, kind=kind, sparsity=sparsity, rng=rng)
-    R = task_rewards(D, H, mdp.n_states, mdp.n_actions)
-    demos = sample_demonstrations(mdp, R, n_demos, s["demo_length"], rng)
-    return D, H, R, demos
+def _tasks(mdp, s, rng, D, n_tasks, n_demos, kind="gaussian", sparsity=0.0):
+    """New tasks drawn from the dictionary ``D`` with their demonstrations (:func:`synthetic_tasks`)."""
+    return synthetic_tasks(mdp, n_tasks, n_demos, s["demo_length"], dictionary=D, kind=kind, sparsity=sparsity, rng=rng)
 
 
 def _part_transfer(mdp, s, rng, D):
-    _, _, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], D=D)
+    tasks = _tasks(mdp, s, rng, D, s["transfer_tasks"], s["transfer_demos"])
+    R, demos = tasks.rewards, tasks.demos
     for name in _gn_names():  # warm-up, untimed: cvxpy's and the backends' one-off import costs
         _transfer(mdp, D, demos[:2], R[:2], name, 1, s["beta"])
     rows = {"armijo": _transfer(mdp, D, demos, R, "armijo", s["armijo_iter"], s["beta"])[0]}
@@ -176,7 +181,8 @@ def _part_transfer(mdp, s, rng, D):
 
 
 def _part_fit(mdp, s, rng, D):
-    _, _, R, demos = _ground_truth(mdp, s, rng, s["fit_tasks"], s["fit_demos"], D=D)
+    tasks = _tasks(mdp, s, rng, D, s["fit_tasks"], s["fit_demos"])
+    R, demos = tasks.rewards, tasks.demos
     t0 = time.perf_counter()
     flat = GradIRL(beta=s["beta"], max_iter=s["flat_iter"]).fit(mdp, demos)
     flat_time = time.perf_counter() - t0
@@ -218,7 +224,8 @@ def _part_fit(mdp, s, rng, D):
 
 
 def _part_nonneg(mdp, s, rng, D):
-    _, H, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], kind="nonneg", D=D)
+    tasks = _tasks(mdp, s, rng, D, s["transfer_tasks"], s["transfer_demos"], kind="nonneg")
+    R, demos = tasks.rewards, tasks.demos
     rows = {}
     for name in _gn_names() + _gn_names("nonneg"):
         row, Hl = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"])
@@ -238,7 +245,8 @@ def _part_nonneg(mdp, s, rng, D):
 
 
 def _part_sparse(mdp, s, rng, D):
-    _, H, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], kind="nonneg", sparsity=s["sparsity"], D=D)
+    tasks = _tasks(mdp, s, rng, D, s["transfer_tasks"], s["transfer_demos"], kind="nonneg", sparsity=s["sparsity"])
+    R, demos, H = tasks.rewards, tasks.demos, tasks.coefficients
     out = {}
     for name in _gn_names("sparse"):
         sweep = []
@@ -276,8 +284,7 @@ def _gn_data(mdp, s, rng, D, n_steps):
     """
     from solvers.gauss_newton import reduce_least_squares
 
-    _, _, R, demos = _ground_truth(mdp, s, rng, s["transfer_tasks"], s["transfer_demos"], D=D)
-    mu, pi_hat = empirical_statistics(mdp, demos)
+    mu, pi_hat = empirical_statistics(mdp, _tasks(mdp, s, rng, D, s["transfer_tasks"], s["transfer_demos"]).demos)
     problem = weights_problem(PolicyMatchingObjective(mdp, mu, pi_hat, s["beta"]), D)
     solver = solvers.get_solver("gn-qp-osqp")
     x = np.zeros((problem.n_rows, problem.n_params))
@@ -315,7 +322,7 @@ def _part_timing(mdp, s, rng, D):
         build = time.perf_counter() - t0
         di = DirectBlockQP(n, k, constraint)
         for backend in ("osqp", "clarabel"):
-            if backend not in ("osqp", "clarabel") or f"gn-qp-{backend}" not in solvers.available_solvers():
+            if f"gn-qp-{backend}" not in solvers.available_solvers():
                 continue
             t0 = time.perf_counter()
             first = cv.solve(*variants[0], backend, alpha=0.05)  # canonicalisation happens here
@@ -349,11 +356,11 @@ def _part_timing(mdp, s, rng, D):
 
 def run(args):
     """Run the selected parts; returns the JSON-serialisable measurements."""
-    s = _settings(args)
+    s = resolve_settings(args, DEFAULTS, QUICK)
     mdp = GridWorld(size=s["size"])
     seeds = np.random.SeedSequence(s["seed"]).spawn(6)
     D = random_dictionary(mdp.n_params, s["n_primitives"], np.random.default_rng(seeds[0]))
-    parts = {"transfer": _part_transfer, "fit": _part_fit, "nonneg": _part_nonneg, "sparse": _part_sparse, "subproblem_timing": _part_timing}
+    parts = dict(zip(PARTS, (_part_transfer, _part_fit, _part_nonneg, _part_sparse, _part_timing)))
     out = {
         "benchmark": "solvers",
         "settings": {k: v for k, v in s.items() if k != "parts"},
