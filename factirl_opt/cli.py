@@ -6,104 +6,145 @@ Examples
 
     factirl-opt reproduce --preset quick --out runs/quick
     factirl-opt reproduce --preset paper --jobs 2 --out runs/paper
+    factirl-opt reproduce --preset tiny --h-solver gn-qp-osqp-sparse --h-solver-options alpha=0.03
     factirl-opt plot runs/paper
     factirl-opt bench fit --help
 """
 
 import argparse
+import json
 import os
 import shlex
 import sys
+import textwrap
+import warnings
 
-from .exceptions import FactIRLError
+from ._validation import check_int
+from .exceptions import FactIRLError, ValidationError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "parse_solver_options"]
 
 PROG = "factirl-opt"
 
 
-def _positive_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
-    return v
+def _integer(name, minimum, also=(), note=""):
+    """An argparse type: an integer checked by the library's validator (``also``: extra allowed values)."""
+
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer{note}; got {text!r}") from None
+        if value in also:
+            return value
+        try:
+            return check_int(value, name, minimum=minimum)
+        except ValidationError as exc:
+            raise argparse.ArgumentTypeError(f"{exc}{note}") from None
+
+    return parse
 
 
-def _jobs(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v == 0 or v < -1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer or -1 (every core), got {v}")
-    return v
+def parse_solver_options(text):
+    """Solver options from the command line: a JSON object, or comma-separated ``key=value`` pairs.
+
+    Values of the pairs are read as JSON when they parse (numbers, ``true``, ``null``, quoted
+    strings) and as plain strings otherwise: ``alpha=0.03,interface=direct`` gives
+    ``{"alpha": 0.03, "interface": "direct"}``. Whether the solver accepts them is checked
+    before any run starts.
+    """
+    text = text.strip()
+    if text.startswith("{"):
+        try:
+            value = json.loads(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"not a JSON object ({exc}): {text!r}") from None
+        if not isinstance(value, dict):
+            raise argparse.ArgumentTypeError(f"expected a JSON object; got {text!r}")
+        return value
+    options = {}
+    for pair in text.split(","):
+        key, sep, raw = pair.partition("=")
+        key = key.strip()
+        if not sep or not key or key in options:
+            raise argparse.ArgumentTypeError(f"expected a JSON object or key=value pairs (distinct keys); got {text!r}")
+        try:
+            options[key] = json.loads(raw)
+        except ValueError:
+            options[key] = raw.strip()
+    return options
 
 
-def _seed(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
+def _presets_epilog():
+    from .experiments.presets import PRESET_DESCRIPTIONS, PRESETS
+
+    lines = ["presets (factirl_opt.experiments.presets):"]
+    for name, p in PRESETS.items():
+        lines.append(f"  {name:6s} {len(p.points())} points x {p.n_seeds} seed(s): {PRESET_DESCRIPTIONS[name]}")
+    return "\n".join(lines)
+
+
+def _add_reproduce(sub):
+    from .experiments.presets import PRESETS
+
+    rep = sub.add_parser(
+        "reproduce",
+        help="run the paper's experiments (figures 1-3) and write tables and figures",
+        description=textwrap.fill(
+            "Run every learner of the paper's section 4 on every point of a preset's two sweeps (demos per task; "
+            "number of training tasks) for several seeds, then write results.csv, summary.csv, timings.csv, "
+            "manifest.json, claims.md and the figures into --out. Finished runs are saved one file each in OUT/runs, "
+            "so rerunning the same command after an interruption computes only the missing runs (records edited, "
+            "truncated or made by other code are reported and recomputed).", 79),
+        epilog=_presets_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    rep.add_argument("--preset", default="quick", choices=list(PRESETS), help="experiment configuration, see below (default: quick)")
+    rep.add_argument("--seed", type=_integer("seed", 0), default=0, metavar="BASE",
+                     help="base seed: the runs use seeds BASE, BASE+1, ... (default: 0)")
+    rep.add_argument("--seeds", type=_integer("seeds", 1), default=None, metavar="N",
+                     help="number of seeds (default: the preset's)")
+    rep.add_argument("--jobs", type=_integer("jobs", 1, also=(-1,), note=" (or -1: every core)"), default=1, metavar="N",
+                     help="runs executed in parallel (worker processes, or dask tasks); -1 uses every core; "
+                     "results do not depend on it (default: 1)")
+    rep.add_argument("--out", default=None, metavar="DIR", help="output directory (default: runs/PRESET)")
+    rep.add_argument("--h-solver", default="armijo", metavar="NAME",
+                     help="H-step solver of the factorial learner (fit and transfer): any name in "
+                     "solvers.available_solvers() (default: armijo)")
+    rep.add_argument("--h-solver-options", type=parse_solver_options, default=None, metavar="OPTS",
+                     help="its options, as JSON ('{\"alpha\": 0.03}') or key=value pairs (alpha=0.03,interface=direct) "
+                     "(default: none)")
+    rep.add_argument("--d-solver", default=None, metavar="NAME",
+                     help="D-step solver of the factorial learner, for a FactIRL that takes d_solver (default: FactIRL's)")
+    rep.add_argument("--d-solver-options", type=parse_solver_options, default=None, metavar="OPTS",
+                     help="its options, like --h-solver-options (default: none)")
+    rep.add_argument("--backend", default="processes", choices=["processes", "dask", "loky"],
+                     help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
+                     "name of 'processes' (default: processes)")
+    rep.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="Dask scheduler address (e.g. tcp://host:8786) for --backend dask (default: a local "
+                     "cluster of --jobs workers)")
+    rep.add_argument("--no-plot", action="store_true", help="write the tables only (plot later with `factirl-opt plot DIR`)")
+    rep.add_argument("--quiet", action="store_true", help="no progress bar")
+    rep.set_defaults(handler=_reproduce)
 
 
 def build_parser():
     """The argument parser of ``factirl-opt`` (sub-commands reproduce, plot, bench)."""
-    from .experiments.presets import PRESETS
-
     parser = argparse.ArgumentParser(
         prog=PROG,
         description="Multi-task inverse reinforcement learning (Mangin & Oudeyer 2014): reproduce the paper's "
         "experiments, plot them, run the benchmarks.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    rep = sub.add_parser(
-        "reproduce",
-        help="run the paper's experiments (figures 1-3) and write tables and figures",
-        description="Run every learner of the paper's section 4 on every point of a preset's two sweeps "
-        "(demos per task; number of training tasks) for several seeds, then write results.csv, summary.csv, "
-        "timings.csv, manifest.json and the figures into --out. Finished runs are saved one file each in "
-        "OUT/runs, so rerunning the same command after an interruption computes only the missing runs.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    presets = "; ".join(f"{name}: {len(p.points())} points x {p.n_seeds} seed(s)" for name, p in PRESETS.items())
-    rep.add_argument("--preset", default="quick", choices=list(PRESETS),
-                     help=f"experiment configuration ({presets}); see factirl_opt.experiments.presets")
-    rep.add_argument("--seed", type=_seed, default=0, metavar="BASE",
-                     help="base seed: the runs use seeds BASE, BASE+1, ... (each run's streams are spawned from its seed)")
-    rep.add_argument("--seeds", type=_positive_int, default=None, metavar="N",
-                     help="number of seeds (default: the preset's)")
-    rep.add_argument("--jobs", type=_jobs, default=1, metavar="N",
-                     help="runs executed in parallel (joblib processes, or dask tasks); -1 uses every core. "
-                     "Results do not depend on it")
-    rep.add_argument("--out", default=None, metavar="DIR", help="output directory (default: runs/<preset>)")
-    rep.add_argument("--h-solver", default="armijo", metavar="NAME",
-                     help="H-step solver of the factorial learner (fit and transfer): any name in "
-                     "solvers.available_solvers()")
-    rep.add_argument("--backend", default="loky", choices=["loky", "dask"],
-                     help="joblib backend: local processes (loky) or a Dask cluster (needs the 'dask' extra)")
-    rep.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                     help="Dask scheduler address (e.g. tcp://host:8786) for --backend dask; without it a local "
-                     "cluster of --jobs workers is started")
-    rep.add_argument("--no-plot", action="store_true", help="write the tables only (plot later with `factirl-opt plot DIR`)")
-    rep.add_argument("--quiet", action="store_true", help="no progress bar")
-    rep.set_defaults(handler=_reproduce)
-
+    _add_reproduce(sub)
     plot = sub.add_parser(
         "plot",
-        help="draw figures 1-3 (PNG and SVG) from a reproduce output directory",
+        help="draw figures 1-3 (PNG and SVG) and claims.md from a reproduce output directory",
         description="Read DIR/results.csv, DIR/figure3.json and DIR/manifest.json (written by `reproduce`) and "
-        "write DIR/figures/figure{1,2,3}.{png,svg}.",
+        "write DIR/figures/figure{1,2,3}.{png,svg} and DIR/claims.md.",
     )
     plot.add_argument("dir", metavar="DIR", help="output directory of `factirl-opt reproduce`")
     plot.set_defaults(handler=_plot)
-
     bench = sub.add_parser(
         "bench",
         help="run a benchmark (same as python -m factirl_opt.bench); `factirl-opt bench --help` lists them",
@@ -116,11 +157,20 @@ def build_parser():
 
 def _reproduce(args, argv):
     from .experiments.runner import run_sweep
+    from .experiments.store import RejectedRunWarning
 
     out = args.out or os.path.join("runs", args.preset)
     command = " ".join([PROG] + [shlex.quote(a) for a in argv])
-    res = run_sweep(args.preset, out, seeds=args.seeds, base_seed=args.seed, jobs=args.jobs, h_solver=args.h_solver,
-                    backend=args.backend, scheduler=args.scheduler, progress=not args.quiet, command=command)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RejectedRunWarning)  # reported below, one line per record
+        res = run_sweep(args.preset, out, seeds=args.seeds, base_seed=args.seed, jobs=args.jobs, h_solver=args.h_solver,
+                        h_solver_options=args.h_solver_options, d_solver=args.d_solver,
+                        d_solver_options=args.d_solver_options, backend=args.backend, scheduler=args.scheduler,
+                        progress=not args.quiet, command=command)
+    if res["rejected"]:
+        print(f"{PROG}: warning: rejected {len(res['rejected'])} run record(s), recomputed:", file=sys.stderr)
+        for name, reason in sorted(res["rejected"].items()):
+            print(f"  {name}: {reason}", file=sys.stderr)
     print(f"{res['n_runs']} runs ({res['n_computed']} computed, {res['n_runs'] - res['n_computed']} reused) "
           f"in {res['wall_time']:.1f} s")
     print(f"tables: {os.path.join(out, 'results.csv')}, {os.path.join(out, 'summary.csv')}")
@@ -130,7 +180,7 @@ def _reproduce(args, argv):
 
 
 def _claims_and_figures(out):
-    """Write ``out/claims.md`` and draw figures 1-3 from a reproduce directory."""
+    """Draw figures 1-3 and write ``out/claims.md`` from a reproduce directory."""
     from .experiments.claims import write_claims
     from .experiments.figures import plot_all
     from .experiments.tables import load_preset_from_manifest
@@ -157,7 +207,9 @@ def main(argv=None):
     """Entry point of the ``factirl-opt`` console script; returns the exit code.
 
     Mistakes in the options give argparse's usage message; errors raised by the library on bad
-    values (unknown solver, bad directory, ...) give a one-line message; both exit with code 2.
+    values (unknown solver, bad directory, a directory locked by another sweep...) give a
+    one-line message; both exit with code 2. An interrupted sweep (Ctrl-C, SIGTERM) exits with
+    128 + the signal number after stopping its workers; rerunning the command resumes it.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -173,9 +225,9 @@ def main(argv=None):
     except OSError as exc:
         print(f"{PROG}: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print(f"{PROG}: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
+        return 128 + getattr(exc, "signum", 2)
 
 
 if __name__ == "__main__":

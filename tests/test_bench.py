@@ -149,5 +149,6 @@ def test_blas_thread_limit_is_restored():
 
     before = counts()
     with limit_blas_threads(1) as inside:
-        assert all(n == 1 for n in inside) and counts() == inside
+        # (the limiter inspects the loaded libraries once: one loaded later by another test is not in ``inside``)
+        assert inside and all(n == 1 for n in inside) and counts().count(1) >= len(inside)
     assert counts() == before

@@ -10,14 +10,50 @@ import pytest
 from factirl_opt.cli import main
 
 
-def test_help_explains_every_reproduce_option(capsys):
+REPRODUCE_OPTIONS = ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--h-solver-options",
+                     "--d-solver", "--d-solver-options", "--backend", "--scheduler")
+
+
+def _reproduce_help(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["reproduce", "--help"])
     assert exc.value.code == 0
-    text = capsys.readouterr().out
-    for opt in ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--backend", "--scheduler"):
-        assert opt in text
-    assert "paper" in text and "quick" in text and "available_solvers" in text
+    return capsys.readouterr().out
+
+
+def _option_blocks(text):
+    """{option: its help text} from argparse's help output."""
+    blocks, current = {}, None
+    for line in text.split("options:", 1)[1].split("presets (", 1)[0].splitlines():
+        stripped = line.strip()
+        if line.startswith("  -"):  # an option (continuation lines are indented deeper)
+            current = stripped.split()[0].rstrip(",")
+            if current == "-h":
+                current = "--help"
+            blocks[current] = stripped
+        elif current and stripped:
+            blocks[current] += " " + stripped
+    return blocks
+
+
+def test_help_explains_every_reproduce_option(capsys):
+    text = _reproduce_help(capsys)
+    blocks = _option_blocks(text)
+    for opt in REPRODUCE_OPTIONS:
+        assert opt in blocks, opt
+        assert blocks[opt].count("default") == 1, blocks[opt]  # each default printed once
+    for opt in ("--no-plot", "--quiet", "--help"):
+        assert "default" not in blocks[opt]
+    assert "available_solvers" in text and "alpha=0.03" in text
+
+
+def test_help_documents_every_preset(capsys):
+    from factirl_opt.experiments.presets import PRESET_DESCRIPTIONS, PRESETS
+
+    text = " ".join(_reproduce_help(capsys).split())  # unwrapped
+    assert set(PRESET_DESCRIPTIONS) == set(PRESETS)
+    for name, description in PRESET_DESCRIPTIONS.items():
+        assert f"{name} {len(PRESETS[name].points())} points x {PRESETS[name].n_seeds} seed(s): {description}" in text
 
 
 def test_top_level_help(capsys):
@@ -32,7 +68,7 @@ def test_reproduce_then_plot(tmp_path, capsys):
     out = tmp_path / "tiny"
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet"]) == 0
     printed = capsys.readouterr().out
-    assert "3 runs (3 computed, 0 reused)" in printed
+    assert "3 runs (3 computed, 0 reused)" in printed and f"wrote: {out / 'claims.md'}" in printed
     for name in ("results.csv", "summary.csv", "timings.csv", "manifest.json", "figure3.json", "claims.md"):
         assert (out / name).exists()
     manifest = json.loads((out / "manifest.json").read_text())
@@ -43,16 +79,28 @@ def test_reproduce_then_plot(tmp_path, capsys):
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet", "--no-plot"]) == 0
     assert "3 runs (0 computed, 3 reused)" in capsys.readouterr().out
     os.remove(out / "figures" / "figure2.png")
+    os.remove(out / "claims.md")
     assert main(["plot", str(out)]) == 0
-    assert (out / "figures" / "figure2.png").exists()
+    assert (out / "figures" / "figure2.png").exists() and (out / "claims.md").exists()
+    # a truncated table: a clear error naming the file, not a traceback
+    text = (out / "results.csv").read_text()
+    (out / "results.csv").write_text(text[: len(text) - 40])
+    assert main(["plot", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"factirl-opt: error: {out / 'results.csv'}, line ") and "not a table" in err
+    assert err.count("\n") == 1
 
 
 @pytest.mark.parametrize("argv, message", [
     (["reproduce", "--preset", "huge"], "invalid choice: 'huge'"),
-    (["reproduce", "--jobs", "0"], "expected a positive integer or -1"),
-    (["reproduce", "--seeds", "two"], "expected an integer, got 'two'"),
-    (["reproduce", "--seed", "-1"], "expected an integer >= 0"),
+    (["reproduce", "--jobs", "0"], "jobs must be an integer >= 1; got 0 (or -1: every core)"),
+    (["reproduce", "--jobs", "x"], "jobs must be an integer (or -1: every core); got 'x'"),
+    (["reproduce", "--seeds", "two"], "seeds must be an integer; got 'two'"),
+    (["reproduce", "--seed", "-1"], "seed must be an integer >= 0; got -1"),
     (["reproduce", "--backend", "spark"], "invalid choice: 'spark'"),
+    (["reproduce", "--h-solver-options", "alpha"], "expected a JSON object or key=value pairs"),
+    (["reproduce", "--h-solver-options", "{alpha: 1}"], "not a JSON object"),
+    (["reproduce", "--h-solver-options", "a=1,a=2"], "distinct keys"),
     (["frobnicate"], "invalid choice: 'frobnicate'"),
 ])
 def test_bad_options_are_usage_errors(argv, message, capsys):
@@ -74,6 +122,23 @@ def test_library_errors_are_one_line_messages(tmp_path, capsys):
     assert code == 2 and "not a directory" in capsys.readouterr().err
     code = main(["plot", str(tmp_path)])
     assert code == 2 and "results.csv" in capsys.readouterr().err
+
+
+def test_solver_options_parse_json_or_pairs():
+    from factirl_opt.cli import parse_solver_options
+
+    assert parse_solver_options('{"alpha": 0.03, "interface": "direct"}') == {"alpha": 0.03, "interface": "direct"}
+    assert parse_solver_options("alpha=0.03, interface=direct,warm=true,n=3") == dict(
+        alpha=0.03, interface="direct", warm=True, n=3)
+
+
+def test_solver_options_are_validated_before_running(tmp_path, capsys):
+    code = main(["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--quiet", "--h-solver-options", "bogus=1"])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not accept option(s) bogus" in err and err.count("\n") == 1
+    assert not (tmp_path / "runs").exists()
+    code = main(["reproduce", "--preset", "tiny", "--out", str(tmp_path), "--quiet", "--d-solver-options", "a=1"])
+    assert code == 2 and "d_solver_options given without d_solver" in capsys.readouterr().err
 
 
 def test_bench_forwards_to_the_benchmarks(capsys):

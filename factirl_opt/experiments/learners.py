@@ -28,6 +28,7 @@ Figure 3 shows the value functions of the line-up's ``value_maps`` test learners
 
 import collections
 import dataclasses
+import inspect
 from typing import Callable
 
 import numpy as np
@@ -36,7 +37,8 @@ from ..exceptions import ValidationError
 from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL
 
-__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options"]
+__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options",
+           "check_d_solver_supported"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
@@ -134,11 +136,29 @@ class RunContext:
         return self._shared[name]
 
 
+def check_d_solver_supported():
+    """Raise a ValidationError if this FactIRL has no ``d_solver`` parameter."""
+    if "d_solver" not in inspect.signature(FactIRL).parameters:
+        raise ValidationError("this FactIRL has no d_solver parameter: the D-step solver cannot be chosen")
+
+
 def factorial_options(preset, spec):
-    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's H-step solver."""
-    return dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
-                inner_steps=preset.inner_steps, h_solver=spec.h_solver, flat_max_iter=preset.flat_max_iter,
-                transfer_max_iter=preset.transfer_max_iter)
+    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
+
+    Solver options and the D-step solver are passed only when the run names them, so a run
+    with the defaults builds exactly the FactIRL it always did.
+    """
+    kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
+              inner_steps=preset.inner_steps, h_solver=spec.h_solver, flat_max_iter=preset.flat_max_iter,
+              transfer_max_iter=preset.transfer_max_iter)
+    if spec.h_solver_options:
+        kw["h_solver_options"] = spec.h_options()
+    if spec.d_solver:
+        check_d_solver_supported()
+        kw["d_solver"] = spec.d_solver
+        if spec.d_solver_options:
+            kw["d_solver_options"] = spec.d_options()
+    return kw
 
 
 # --- builders: (gt, preset, ctx) -> Fit ---------------------------------------------------

@@ -1,26 +1,30 @@
 """The one experiment runner: plan the runs of a preset and execute them (in parallel, resumably).
 
-A *run* is one ``(n_tasks, demos_per_task, seed)`` point of a preset: generate the ground truth
-in the preset's world (:func:`.worlds.make_ground_truth`), build every learner of the preset's
-line-up (:mod:`.learners`: fits on the training tasks, figure 1; transfers to the test tasks,
-figure 2), and score each by the mean deviation (:func:`factirl_opt.deviation`) over the run's
-tasks. The tables are written by :mod:`.tables`.
+A *run* is one ``(n_tasks, demos_per_task, seed)`` point of a preset with the factorial
+learner's solver settings: generate the ground truth in the preset's world
+(:func:`.worlds.make_ground_truth`), build every learner of the preset's line-up
+(:mod:`.learners`: fits on the training tasks, figure 1; transfers to the test tasks, figure 2),
+and score each by the mean deviation (:func:`factirl_opt.deviation`) over the run's tasks.
 
 Output directory layout::
 
-    OUT/runs/<key>.json   one file per finished run (written atomically)
+    OUT/runs/<key>.json   one record per finished run, checked before reuse (:mod:`.store`)
     OUT/results.csv, summary.csv, timings.csv, figure3.json   (:mod:`.tables`)
-    OUT/manifest.json     preset, seeds, solver, versions, command, wall time
+    OUT/manifest.json     every run of the tables and every invocation (:mod:`.store`)
+    OUT/.lock             while a sweep writes (a second one is refused)
 
-A rerun into the same directory loads the finished runs and computes only the missing ones, so
-an interrupted sweep loses at most the runs in flight; tables are sorted, and every run is
-single-threaded with its own random streams, so they are identical whatever ``--jobs`` is.
+A rerun into the same directory reuses the finished runs and computes only the missing (or
+rejected) ones, so an interrupted sweep loses at most the runs in flight; tables are sorted, and
+every run is single-threaded with its own random streams, so they are identical whatever
+``--jobs`` is. Runs execute in this process (``jobs=1``), in worker processes that never outlive
+it (:mod:`.workers`), or on a Dask cluster.
 """
 
+import contextlib
 import dataclasses
+import hashlib
 import json
 import os
-import platform
 import sys
 import time
 
@@ -33,47 +37,114 @@ from .._validation import check_int
 from ..evaluation import deviation
 from ..exceptions import ValidationError, translate_solver_errors
 from ..planning import optimal_q
-from .learners import RunContext, get_lineup
+from . import store
+from .learners import RunContext, check_d_solver_supported, get_lineup
 from .presets import get_preset
-from .tables import write_atomic, write_tables
+from .tables import write_tables
+from .workers import imap_unordered, sigterm_raises
 from .worlds import make_ground_truth
 
-__all__ = ["RunSpec", "plan_runs", "run_one", "run_sweep"]
+__all__ = ["RunSpec", "BACKENDS", "solver_settings", "plan_runs", "run_cost", "run_one", "run_sweep"]
 
 #: test tasks whose value functions figure 3 shows
 N_FIGURE3_TASKS = 4
+#: execution backends (``"loky"`` is accepted as the former name of ``"processes"``)
+BACKENDS = ("processes", "dask")
+
+
+def _canonical(options):
+    return json.dumps(options, sort_keys=True, separators=(",", ":")) if options else ""
 
 
 @dataclasses.dataclass(frozen=True, order=True)
 class RunSpec:
-    """One run: a point of the sweeps, a seed, the factorial learner's H-step solver."""
+    """One run: a point of the sweeps, a seed, the factorial learner's solver settings.
+
+    ``h_solver_options`` and ``d_solver_options`` are canonical JSON (``""``: none);
+    ``d_solver`` is ``""`` for FactIRL's default D-step. Build specs with :func:`plan_runs`.
+    """
 
     n_tasks: int
     demos_per_task: int
     seed: int
     h_solver: str = "armijo"
+    h_solver_options: str = ""
+    d_solver: str = ""
+    d_solver_options: str = ""
+
+    def h_options(self):
+        """The H-step solver's options, a dict."""
+        return json.loads(self.h_solver_options) if self.h_solver_options else {}
+
+    def d_options(self):
+        """The D-step solver's options, a dict."""
+        return json.loads(self.d_solver_options) if self.d_solver_options else {}
+
+    def solver_label(self):
+        """The ``h_solver`` column of the tables: the H-step solver's name, then its options and
+        the D-step solver when they differ from the defaults (e.g. ``gn-qp-osqp-sparse {"alpha":0.03}``)."""
+        label = " ".join(x for x in (self.h_solver, self.h_solver_options) if x)
+        if self.d_solver:
+            label += " | d: " + " ".join(x for x in (self.d_solver, self.d_solver_options) if x)
+        return label
 
     def key(self, preset):
-        """File stem of the run, unique per preset configuration (fingerprint)."""
-        return f"n{self.n_tasks:03d}-m{self.demos_per_task:02d}-seed{self.seed}-{self.h_solver}-{preset.fingerprint()}"
+        """File stem of the run, unique per preset configuration (fingerprint) and solver settings."""
+        extra = (self.h_solver_options, self.d_solver, self.d_solver_options)
+        tag = self.h_solver + (f"-{hashlib.sha256(repr(extra).encode()).hexdigest()[:8]}" if any(extra) else "")
+        return f"n{self.n_tasks:03d}-m{self.demos_per_task:02d}-seed{self.seed}-{tag}-{preset.fingerprint()}"
 
 
-def _check_h_solver(h_solver):
-    if not isinstance(h_solver, str) or not h_solver:
-        raise ValidationError(f"h_solver must be a registered solver name; got {h_solver!r}")
-    with translate_solver_errors():
-        solvers.get_solver(h_solver)  # UnknownSolverError lists the available names
-    return h_solver
+def _check_options(options, name):
+    if options is None:
+        return {}
+    if not isinstance(options, dict) or not all(isinstance(k, str) and k for k in options):
+        raise ValidationError(f"{name} must be a dict of option names to values; got {options!r}")
+    try:
+        json.dumps(options)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name} must hold plain values (numbers, strings, booleans, lists); got {options!r}") from None
+    return options
 
 
-def plan_runs(preset, seeds, h_solver="armijo"):
-    """Every run of a preset for the given seeds, sorted.
+def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
+    """Validate the factorial learner's solver settings; returns the RunSpec fields.
+
+    Every name must be registered (:func:`solvers.available_solvers`) and accept its options;
+    a D-step solver needs a FactIRL with a ``d_solver`` parameter.
+
+    Returns
+    -------
+    dict
+        ``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options`` as RunSpec fields.
+    """
+    out = {}
+    for role, name, options in (("h", h_solver, h_solver_options), ("d", d_solver, d_solver_options)):
+        options = _check_options(options, f"{role}_solver_options")
+        if role == "d" and name is None:
+            if options:
+                raise ValidationError("d_solver_options given without d_solver")
+            out.update(d_solver="", d_solver_options="")
+            continue
+        if not isinstance(name, str) or not name:
+            raise ValidationError(f"{role}_solver must be a registered solver name; got {name!r}")
+        with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
+            solvers.get_solver(name, **options)
+        out.update({f"{role}_solver": name, f"{role}_solver_options": _canonical(options)})
+    if out["d_solver"]:
+        check_d_solver_supported()
+    return out
+
+
+def plan_runs(preset, seeds, h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
+    """Every run of a preset for the given seeds and solver settings, sorted.
 
     Parameters
     ----------
     preset : Preset or str
     seeds : sequence of int
-    h_solver : str
+    h_solver, h_solver_options, d_solver, d_solver_options
+        See :func:`solver_settings`.
 
     Returns
     -------
@@ -83,7 +154,21 @@ def plan_runs(preset, seeds, h_solver="armijo"):
     seeds = [check_int(s, "seed", minimum=0) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValidationError(f"seeds must be a non-empty list of distinct integers; got {list(seeds)!r}")
-    return sorted(RunSpec(n, m, s, h_solver) for (n, m) in preset.points() for s in seeds)
+    settings = solver_settings(h_solver, h_solver_options, d_solver, d_solver_options)
+    return sorted(RunSpec(n, m, s, **settings) for (n, m) in preset.points() for s in seeds)
+
+
+def run_cost(preset, spec):
+    """A run's estimated cost, in relative units (the progress bar's weight of the run).
+
+    Batched Q* evaluations times (tasks in the batch + 20, a per-batch overhead), summed over the
+    learners of the paper's line-up, times the number of states: the factorial fits (about
+    ``2 x 2 x inner_steps`` evaluations per outer iteration) dominate, so a run with 100 training
+    tasks weighs about 3 runs with 5. Only ratios between the runs of one sweep matter.
+    """
+    train = (3 * preset.flat_max_iter + 4 * preset.fact_max_iter * preset.inner_steps) * (spec.n_tasks + 20)
+    test = (4 * preset.flat_max_iter + preset.transfer_max_iter) * (preset.n_test_tasks + 20)
+    return float((train + test) * preset.grid_size ** 2)
 
 
 def _values(mdp, rewards):
@@ -116,7 +201,7 @@ def _run_one(preset, spec, progress):
     gt = make_ground_truth(preset, spec.n_tasks, spec.demos_per_task, spec.seed)
     lineup = get_lineup(preset.lineup)
     ctx = RunContext(gt, spec)
-    common = dict(n_tasks=spec.n_tasks, demos_per_task=spec.demos_per_task, seed=spec.seed, h_solver=spec.h_solver)
+    common = dict(n_tasks=spec.n_tasks, demos_per_task=spec.demos_per_task, seed=spec.seed, h_solver=spec.solver_label())
     rows, timings = [], []
     for learner in lineup.learners:
         progress(f"{learner.split}: {learner.name}")
@@ -147,44 +232,6 @@ def _figure3(gt, preset, spec, ctx, names):
     return fig
 
 
-def _load_record(path, key):
-    """A finished run's record, or None if the file is missing, truncated or another run's."""
-    try:
-        with open(path) as fh:
-            rec = json.load(fh)
-    except (OSError, ValueError):
-        return None
-    return rec if isinstance(rec, dict) and rec.get("key") == key and "rows" in rec else None
-
-
-def _git_commit():
-    """The source tree's git commit (``+dirty`` if modified), or None outside a git checkout."""
-    import subprocess
-
-    here = os.path.dirname(os.path.abspath(__file__))
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10)
-        if head.returncode != 0:
-            return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "../.."], cwd=here, capture_output=True,
-                               text=True, timeout=10).stdout.strip()
-        return head.stdout.strip() + ("+dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def _versions():
-    import importlib.metadata as md
-
-    v = {"python": platform.python_version(), "git_commit": _git_commit()}
-    for dist in ("numpy", "scipy", "cvxpy", "joblib", "matplotlib", "factirl-opt"):
-        try:
-            v[dist] = md.version(dist)
-        except md.PackageNotFoundError:
-            v[dist] = None
-    return v
-
-
 def _dask_records(preset, todo, jobs, scheduler):
     """Yield run records as runs finish on a Dask cluster (``scheduler``, or a local one)."""
     import joblib
@@ -207,34 +254,28 @@ def _dask_records(preset, todo, jobs, scheduler):
             cluster.close()
 
 
-def _execute(preset, todo, jobs, backend, scheduler, bar):
-    """Yield run records as runs finish (sequentially, or through joblib)."""
-    if backend == "dask":
-        yield from _dask_records(preset, todo, jobs, scheduler)
-    elif jobs == 1:
+def _execute(preset, todo, execution, bar):
+    """Yield run records as runs finish: in this process, in worker processes, or on Dask."""
+    if execution["backend"] == "dask":
+        yield from _dask_records(preset, todo, execution["jobs"], execution["scheduler"])
+    elif execution["jobs"] == 1:
         for spec in todo:
             key = spec.key(preset)
             yield run_one(preset, spec, progress=lambda label, key=key: bar.set_postfix_str(f"{key} | {label}", refresh=True))
     else:
-        import joblib
-
-        calls = (joblib.delayed(run_one)(preset, spec) for spec in todo)
-        yield from joblib.Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")(calls)
+        yield from imap_unordered(run_one, [(preset, spec) for spec in todo], execution["jobs"])
 
 
-def _check_sweep_options(preset, seeds, base_seed, jobs, h_solver, backend, scheduler):
-    """Validate run_sweep's options; returns (preset, seeds list, jobs, h_solver)."""
-    preset = get_preset(preset)
-    n_seeds = preset.n_seeds if seeds is None else check_int(seeds, "seeds", minimum=1)
-    base_seed = check_int(base_seed, "base seed", minimum=0)
+def _check_execution(jobs, backend, scheduler):
+    """Validate the execution options; returns ``dict(jobs, backend, scheduler)``."""
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs == 0 or jobs < -1:
         raise ValidationError(f"jobs must be a positive integer or -1 (every core); got {jobs!r}")
-    if backend not in ("loky", "dask"):
-        raise ValidationError(f"backend must be 'loky' or 'dask'; got {backend!r}")
+    backend = "processes" if backend == "loky" else backend
+    if backend not in BACKENDS:
+        raise ValidationError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     if scheduler is not None and backend != "dask":
         raise ValidationError("a scheduler address is only used with backend 'dask'")
-    jobs = (os.cpu_count() or 1) if jobs == -1 else int(jobs)
-    return preset, list(range(base_seed, base_seed + n_seeds)), jobs, _check_h_solver(h_solver)
+    return dict(jobs=(os.cpu_count() or 1) if jobs == -1 else int(jobs), backend=backend, scheduler=scheduler)
 
 
 def _prepare_out(out):
@@ -245,28 +286,37 @@ def _prepare_out(out):
     return out
 
 
-def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver="armijo", backend="loky", scheduler=None,
-              progress=True, command=None):
+def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver="armijo", h_solver_options=None, d_solver=None,
+              d_solver_options=None, backend="processes", scheduler=None, progress=True, command=None):
     """Run (or resume) every run of a preset into ``out`` and write the tables.
 
     Parameters
     ----------
     preset : Preset or str
     out : str or path
-        Output directory (created). Finished runs found in ``out/runs`` are not recomputed.
+        Output directory (created; locked while the sweep writes). Finished runs found in
+        ``out/runs`` are reused if they pass the store's checks (:mod:`.store`), else reported
+        and recomputed.
     seeds : int, optional
         Number of seeds (default: the preset's); seeds are ``base_seed, base_seed + 1, ...``.
     base_seed : int
     jobs : int
-        Runs executed at the same time (joblib); -1 uses every core.
+        Runs executed at the same time; -1 uses every core.
     h_solver : str
         H-step solver of the factorial learner (a name in ``solvers.available_solvers()``).
-    backend : {"loky", "dask"}
-        joblib backend. ``"dask"`` connects to ``scheduler`` (an address such as
-        ``tcp://host:8786``) or, without one, starts a local cluster of ``jobs`` workers.
+    h_solver_options : dict, optional
+        Its options (e.g. ``{"alpha": 0.03}`` for a sparse solver).
+    d_solver : str, optional
+        D-step solver of the factorial learner (default: FactIRL's); needs a FactIRL that takes
+        ``d_solver``.
+    d_solver_options : dict, optional
+    backend : {"processes", "dask"}
+        ``"processes"``: :mod:`.workers` (when ``jobs > 1``). ``"dask"`` connects to
+        ``scheduler`` (an address such as ``tcp://host:8786``) or, without one, starts a local
+        cluster of ``jobs`` workers. ``"loky"`` is accepted for ``"processes"``.
     scheduler : str, optional
     progress : bool
-        Show a tqdm progress bar on stderr (current run and learner).
+        Show a tqdm progress bar on stderr, its ETA weighted by :func:`run_cost`.
     command : str, optional
         Recorded in the manifest.
 
@@ -274,46 +324,64 @@ def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver="armijo", b
     -------
     dict
         ``rows`` (result rows), ``n_runs``, ``n_computed`` (runs computed by this call),
-        ``wall_time`` and ``out``.
+        ``rejected`` (``{file: reason}`` of the cached records rejected), ``wall_time``, ``out``.
+
+    Raises
+    ------
+    store.OutputLockedError
+        If another live sweep is writing to ``out``.
     """
     t0 = time.perf_counter()
-    preset, seeds_list, jobs, h_solver = _check_sweep_options(preset, seeds, base_seed, jobs, h_solver, backend, scheduler)
-    specs = plan_runs(preset, seeds_list, h_solver)
+    preset = get_preset(preset)
+    n_seeds = preset.n_seeds if seeds is None else check_int(seeds, "seeds", minimum=1)
+    base_seed = check_int(base_seed, "base seed", minimum=0)
+    execution = _check_execution(jobs, backend, scheduler)
+    specs = plan_runs(preset, range(base_seed, base_seed + n_seeds), h_solver, h_solver_options, d_solver, d_solver_options)
     out = _prepare_out(out)
+    invocation = store.new_invocation(command, dict(_solver_fields(specs[0]), jobs=execution["jobs"], backend=execution["backend"],
+                                                    seeds=list(range(base_seed, base_seed + n_seeds))))
+    with store.locked(out), sigterm_raises():
+        records, n_computed, rejected = _resume(preset, specs, out, execution, progress, invocation["id"])
+        ordered = [records[s.key(preset)] for s in specs]
+        rows = write_tables(out, ordered)
+        wall = time.perf_counter() - t0
+        invocation.update(n_runs=len(specs), n_computed=n_computed, n_reused=len(specs) - n_computed,
+                          n_rejected=len(rejected), wall_time_seconds=round(wall, 1),
+                          finished_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
+        store.write_manifest(out, preset, get_lineup(preset.lineup), ordered, invocation, rejected)
+    return dict(rows=rows, n_runs=len(specs), n_computed=n_computed, rejected=rejected, wall_time=wall, out=out)
+
+
+def _solver_fields(spec):
+    """The solver settings of a run, as plain values for the manifest."""
+    return dict(h_solver=spec.h_solver, h_solver_options=spec.h_options(), d_solver=spec.d_solver or None,
+                d_solver_options=spec.d_options())
+
+
+def _resume(preset, specs, out, execution, progress, invocation_id):
+    """Load the reusable records, compute the others; returns (records by key, n computed, rejected)."""
+    lineup = get_lineup(preset.lineup)
+    expected = store.expected_provenance(preset, lineup)
     runs_dir = os.path.join(out, "runs")
-    records, todo = {}, []
-    for spec in specs:
-        rec = _load_record(os.path.join(runs_dir, spec.key(preset) + ".json"), spec.key(preset))
-        if rec is None:
-            todo.append(spec)
-        else:
-            records[rec["key"]] = rec
-    _compute(preset, todo, records, runs_dir, dict(jobs=jobs, backend=backend, scheduler=scheduler), progress, len(specs))
-    rows = write_tables(out, [records[s.key(preset)] for s in specs])
-    wall = time.perf_counter() - t0
-    manifest = dict(
-        preset=preset.to_dict(), seeds=seeds_list, h_solver=h_solver, jobs=jobs, backend=backend,
-        command=command, n_runs=len(specs), n_computed=len(todo), wall_time_seconds=round(wall, 1),
-        cpu_count=os.cpu_count(), platform=platform.platform(), versions=_versions(),
-        finished_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    )
-    write_atomic(os.path.join(out, "manifest.json"), json.dumps(manifest, indent=2) + "\n")
-    return dict(rows=rows, n_runs=len(specs), n_computed=len(todo), wall_time=wall, out=out)
-
-
-def _compute(preset, todo, records, runs_dir, execution, progress, n_runs):
-    """Execute the runs of ``todo``, saving each record as it finishes."""
+    by_key = {s.key(preset): s for s in specs}
+    records, todo_keys, rejected = store.load_records(runs_dir, list(by_key), expected, lineup)
+    todo = [by_key[k] for k in todo_keys]
+    costs = {s.key(preset): run_cost(preset, s) for s in specs}
     from tqdm.auto import tqdm
 
-    bar = tqdm(total=n_runs, initial=len(records), desc=f"{preset.name} runs", unit="run", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=sum(costs.values()), initial=sum(costs[k] for k in records), desc=f"{preset.name}",
+               file=sys.stderr, disable=not progress, dynamic_ncols=True, smoothing=0,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}]{postfix}")
     try:
-        if todo and execution["jobs"] > 1:
-            bar.set_postfix_str(f"{len(todo)} to run on {execution['jobs']} {execution['backend']} workers", refresh=True)
-        for rec in _execute(preset, todo, execution["jobs"], execution["backend"], execution["scheduler"], bar):
-            write_atomic(os.path.join(runs_dir, rec["key"] + ".json"), json.dumps(rec))
-            records[rec["key"]] = rec
-            bar.update(1)
-            bar.set_postfix_str(f"done {rec['key']}", refresh=True)
+        bar.set_postfix_str(f"{len(records)}/{len(specs)} runs done; {len(todo)} to run on {execution['jobs']} "
+                            f"{'worker' if execution['jobs'] == 1 else 'workers'}", refresh=True)
+        with contextlib.closing(_execute(preset, todo, execution, bar)) as finished:
+            for rec in finished:
+                rec = store.seal(rec, expected, invocation_id)
+                store.write_record(runs_dir, rec)
+                records[rec["key"]] = rec
+                bar.update(costs[rec["key"]])
+                bar.set_postfix_str(f"{len(records)}/{len(specs)} runs done; last {rec['key']}", refresh=True)
     finally:
         bar.close()
+    return records, len(todo), rejected

@@ -1,0 +1,188 @@
+"""Worker processes of the runner: spawned, fed one task at a time, and never outliving their parent.
+
+Why not joblib's loky: its workers are kept for reuse after the work is done (300 s idle
+timeout), do not notice that their parent died (after a ``kill -9`` of the parent they finish
+their run, then wait), keep a resource tracker and joblib memmapping folders in ``/dev/shm``.
+Here:
+
+- each worker is a ``multiprocessing`` *spawn* process talking to the parent through its own
+  pipe (no shared memory, no semaphores, nothing in ``/dev/shm``);
+- a worker ignores SIGINT (a Ctrl-C reaches the whole process group: the parent decides) and
+  runs a watchdog thread that polls ``os.getppid()`` every :data:`POLL_SECONDS` and exits at
+  once when the parent is gone (SIGKILL of the parent: the workers exit within about a
+  second); a worker whose pipe closes exits too;
+- the parent, on any exit from :func:`imap_unordered` (done, an error, KeyboardInterrupt, or
+  :class:`Terminated` raised by SIGTERM inside :func:`sigterm_raises`), terminates and reaps
+  every worker (SIGTERM, then SIGKILL after :data:`GRACE_SECONDS`).
+
+Python's spawn start method also starts multiprocessing's resource tracker; it exits by itself
+once the parent and the workers are gone (it holds no resources here).
+"""
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import threading
+import time
+import traceback
+from multiprocessing.connection import wait
+
+from ..exceptions import FactIRLError
+
+__all__ = ["imap_unordered", "sigterm_raises", "Terminated", "WorkerError", "POLL_SECONDS"]
+
+#: how often a worker checks that its parent is alive (seconds)
+POLL_SECONDS = 0.5
+#: how long a terminated worker gets before SIGKILL (seconds)
+GRACE_SECONDS = 5.0
+
+
+class WorkerError(FactIRLError):
+    """A worker process died without returning its task's result."""
+
+
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread by SIGTERM inside :func:`sigterm_raises` (``signum`` attribute)."""
+
+    def __init__(self, signum):
+        super().__init__(f"terminated by signal {signum}")
+        self.signum = signum
+
+
+class _RemoteTraceback(Exception):
+    def __init__(self, tb):
+        super().__init__(tb)
+        self.tb = tb
+
+    def __str__(self):
+        return self.tb
+
+
+@contextlib.contextmanager
+def sigterm_raises():
+    """Turn SIGTERM into a :class:`Terminated` exception in the main thread for the block.
+
+    So ``finally`` clauses run (workers reaped, lock released) when a sweep is terminated. Does
+    nothing outside the main thread (where signal handlers cannot be set).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise Terminated(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _watch_parent(parent_pid):
+    while True:
+        time.sleep(POLL_SECONDS)
+        if os.getppid() != parent_pid:
+            os._exit(3)
+
+
+def _worker_main(conn, parent_pid):
+    """A worker's loop: receive ``(fn, args)``, send back ``("ok", result)`` or ``("error", exc, tb)``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        fn, args = task
+        try:
+            reply = ("ok", fn(*args))
+        except Exception as exc:
+            reply = ("error", exc, traceback.format_exc())
+        try:
+            conn.send(reply)
+        except (OSError, ValueError):
+            return
+        except Exception as exc:  # an unpicklable result or exception
+            conn.send(("error", WorkerError(f"cannot send the result back: {exc}"), traceback.format_exc()))
+
+
+def _start(ctx, n):
+    """Start ``n`` workers, with SIGINT ignored from their first instruction (spawned children inherit it)."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    workers = []
+    try:
+        for _ in range(n):
+            parent_end, child_end = ctx.Pipe()
+            proc = ctx.Process(target=_worker_main, args=(child_end, os.getpid()), daemon=True)
+            workers.append((proc, parent_end))
+            proc.start()
+            child_end.close()
+    except BaseException:
+        _stop([(p, c) for p, c in workers if p.pid is not None])
+        raise
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+    return workers
+
+
+def _stop(workers):
+    """Terminate and reap every worker (SIGTERM, then SIGKILL after the grace period)."""
+    for proc, conn in workers:
+        conn.close()
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + GRACE_SECONDS
+    for proc, _ in workers:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+
+
+def imap_unordered(fn, tasks, jobs):
+    """Yield ``fn(*args)`` for every ``args`` of ``tasks``, computed by ``jobs`` worker processes.
+
+    Results come as they finish. An exception raised by ``fn`` in a worker is re-raised here
+    (with the worker's traceback as its cause); a worker that dies raises :class:`WorkerError`.
+    ``fn`` and the arguments must be picklable (module-level functions, plain data).
+    """
+    tasks = list(tasks)
+    if not tasks:
+        return
+    workers = _start(multiprocessing.get_context("spawn"), min(int(jobs), len(tasks)))
+    try:
+        pending, busy = iter(tasks), {}
+        for proc, conn in workers:
+            _submit(pending, proc, conn, busy, fn)
+        while busy:
+            for conn in wait(list(busy)):
+                proc, args = busy.pop(conn)
+                yield _receive(conn, proc, args)
+                _submit(pending, proc, conn, busy, fn)
+    finally:
+        _stop(workers)
+
+
+def _submit(pending, proc, conn, busy, fn):
+    args = next(pending, None)
+    if args is not None:
+        conn.send((fn, args))
+        busy[conn] = (proc, args)
+
+
+def _receive(conn, proc, args):
+    try:
+        reply = conn.recv()
+    except (EOFError, OSError):
+        proc.join(1.0)
+        raise WorkerError(f"worker process {proc.pid} died (exit code {proc.exitcode}) while running {args!r}") from None
+    if reply[0] == "error":
+        raise reply[1] from _RemoteTraceback(reply[2])
+    return reply[1]

@@ -1,0 +1,130 @@
+"""Learner line-ups as data, worlds by name, and the solver settings the runner passes to FactIRL."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from factirl_opt import FactIRL
+from factirl_opt.exceptions import UnknownSolverError, ValidationError
+from factirl_opt.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
+from factirl_opt.experiments import learners as learners_mod
+from factirl_opt.experiments.learners import Fit, factorial_options, flat
+from factirl_opt.experiments.worlds import grid_world
+
+TINY = PRESETS["tiny"]
+
+
+def test_paper_lineup_is_the_papers():
+    paper = LINEUPS["paper"]
+    assert paper.names("train") == ("flat", "flat, ground truth", "flat, PCA features", "factorial", "factorial, random init")
+    assert paper.names("test") == ("flat", "factorial", "flat, features from ex.", "flat, PCA features", "flat, ground truth")
+    assert paper.value_maps == ("flat", "factorial")
+    assert paper.fingerprint()[3] == ["train", "factorial", 1]
+
+
+@pytest.mark.parametrize("learners, value_maps, match", [
+    ((Learner("train", "a", flat), Learner("train", "a", flat)), (), "duplicate learner train: a"),
+    ((Learner("test", "b", flat, needs=(("train", "a"),)),), (), r"needs \[\('train', 'a'\)\] earlier"),
+    ((Learner("valid", "a", flat),), (), "split must be"),
+    ((Learner("train", "a", flat),), ("a",), "value map of unknown test learner 'a'"),
+])
+def test_lineup_validation(learners, value_maps, match):
+    with pytest.raises(ValidationError, match=match):
+        Lineup("bad", learners, value_maps)
+
+
+def _short_flat(gt, preset, ctx):
+    from factirl_opt import GradIRL
+
+    model = GradIRL(beta=preset.beta, max_iter=3).fit(gt.mdp, gt.demos(ctx.split))
+    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+
+
+def test_a_new_lineup_is_a_table_row(monkeypatch):
+    lineup = Lineup("short", (Learner("train", "flat", flat), Learner("train", "flat, 3 iterations", _short_flat),
+                              Learner("test", "flat, 3 iterations", _short_flat)))
+    monkeypatch.setitem(LINEUPS, "short", lineup)
+    preset = dataclasses.replace(TINY, lineup="short")
+    assert preset.fingerprint() != TINY.fingerprint()  # a run's key follows its line-up
+    rec = run_one(preset, RunSpec(4, 2, 0))
+    assert [(r["split"], r["learner"]) for r in rec["rows"]] == [(lr.split, lr.name) for lr in lineup.learners]
+    assert rec["rows"][1]["n_evaluations"] <= rec["rows"][0]["n_evaluations"]
+    assert "figure3" not in rec  # no value maps in this line-up
+
+
+def test_preset_names_its_world_and_lineup(monkeypatch):
+    with pytest.raises(ValidationError, match="world must be one of grid; got 'objectworld'"):
+        Preset(name="x", world="objectworld")
+    with pytest.raises(ValidationError, match="lineup must be one of paper"):
+        Preset(name="x", lineup="mce")
+    calls = []
+
+    def small_grid(preset, n_tasks, demos_per_task, seed):
+        calls.append((n_tasks, demos_per_task, seed))
+        return grid_world(dataclasses.replace(preset, grid_size=3), n_tasks, demos_per_task, seed)
+
+    monkeypatch.setitem(WORLDS, "grid3", small_grid)
+    preset = dataclasses.replace(TINY, world="grid3", grid_size=3)
+    rec = run_one(preset, RunSpec(4, 2, 1))
+    assert calls == [(4, 2, 1)] and len(rec["rows"]) == 10
+    # the paper's world and line-up do not enter the fingerprint: old run keys stay valid
+    assert PRESETS["paper"].fingerprint() == "ea9fc43e51"
+
+
+# --- solver settings ---------------------------------------------------------------------
+
+
+class RecordingFactIRL(FactIRL):
+    """A FactIRL that takes a D-step solver (as the D-step issue will add) and records its arguments."""
+
+    seen = []
+
+    def __init__(self, d_solver="armijo", d_solver_options=None, **kw):
+        super().__init__(**kw)
+        self.d_solver, self.d_solver_options = d_solver, d_solver_options
+        RecordingFactIRL.seen.append(dict(kw, d_solver=d_solver, d_solver_options=d_solver_options))
+
+
+def test_default_settings_build_the_same_factirl():
+    spec = plan_runs(TINY, [0])[0]
+    assert (spec.h_solver, spec.h_solver_options, spec.d_solver, spec.d_solver_options) == ("armijo", "", "", "")
+    assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
+    assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
+                                                 flat_max_iter=10, transfer_max_iter=10)
+
+
+def test_h_solver_options_reach_factirl(monkeypatch):
+    spec = plan_runs(TINY, [0], h_solver="armijo", h_solver_options={"initial_step": 0.5})[0]
+    assert spec.h_options() == {"initial_step": 0.5} and spec.solver_label() == 'armijo {"initial_step":0.5}'
+    assert spec.key(TINY) != plan_runs(TINY, [0])[0].key(TINY)
+    RecordingFactIRL.seen = []
+    monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
+    rec = run_one(TINY, spec)
+    assert [s["h_solver_options"] for s in RecordingFactIRL.seen] == [{"initial_step": 0.5}] * 2
+    assert all(s["d_solver"] == "armijo" for s in RecordingFactIRL.seen)  # not passed: FactIRL's default
+    assert {r["h_solver"] for r in rec["rows"]} == {'armijo {"initial_step":0.5}'}
+
+
+def test_d_solver_is_passed_only_to_a_factirl_that_takes_it(monkeypatch):
+    with pytest.raises(ValidationError, match="no d_solver parameter"):
+        plan_runs(TINY, [0], d_solver="armijo")
+    monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
+    spec = plan_runs(TINY, [0], d_solver="armijo", d_solver_options={"initial_step": 0.25})[0]
+    assert spec.solver_label() == 'armijo | d: armijo {"initial_step":0.25}'
+    RecordingFactIRL.seen = []
+    run_one(TINY, spec)
+    assert [(s["d_solver"], s["d_solver_options"]) for s in RecordingFactIRL.seen] == [("armijo", {"initial_step": 0.25})] * 2
+
+
+@pytest.mark.parametrize("kw, error, match", [
+    (dict(h_solver="nope"), UnknownSolverError, "unknown solver 'nope'"),
+    (dict(h_solver_options={"bogus": 1}), ValidationError, "does not accept option"),
+    (dict(h_solver_options=[("alpha", 1)]), ValidationError, "h_solver_options must be a dict"),
+    (dict(h_solver_options={"alpha": np.float32}), ValidationError, "plain values"),
+    (dict(d_solver_options={"a": 1}), ValidationError, "d_solver_options given without d_solver"),
+    (dict(d_solver=""), ValidationError, "d_solver must be a registered solver name"),
+])
+def test_bad_solver_settings(kw, error, match):
+    with pytest.raises(error, match=match):
+        plan_runs(TINY, [0], **kw)
