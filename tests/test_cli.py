@@ -89,6 +89,10 @@ def test_reproduce_then_plot(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith(f"factirl-opt: error: {out / 'results.csv'}, line ") and "not a table" in err
     assert err.count("\n") == 1
+    (out / "results.csv").write_text("".join(text.splitlines(keepends=True)[:-3]))  # cut at a line boundary
+    assert main(["plot", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{out / 'results.csv'} has 27 rows, but the manifest describes 3 runs x 10 learners = 30" in err
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -38,3 +38,20 @@ def test_test_factorial_beats_baseline(scores, baseline):
 def test_test_ground_truth_is_best(scores):
     others = [v for (s, lr), v in scores.items() if s == "test" and lr != "flat, ground truth"]
     assert scores["test", "flat, ground truth"] < 0.9 * min(others)
+
+
+@pytest.mark.slow
+def test_quick_preset_runs_every_learner_and_figure_with_the_papers_orderings(tmp_path):
+    """The README's first command: every learner and figure; the main orderings at its default point."""
+    from factirl_opt.experiments import PRESETS, TEST_LEARNERS, TRAIN_LEARNERS
+    from factirl_opt.experiments.claims import evaluate_claims
+    from factirl_opt.experiments.figures import plot_all
+
+    run_sweep("quick", tmp_path, progress=False)
+    rows = read_csv(tmp_path / "results.csv")
+    assert {r["learner"] for r in rows if r["split"] == "train"} == set(TRAIN_LEARNERS)
+    assert {r["learner"] for r in rows if r["split"] == "test"} == set(TEST_LEARNERS)
+    assert len(plot_all(tmp_path)) == 6
+    p = PRESETS["quick"]
+    at_default = [c for c in evaluate_claims(rows, p) if c["point"] == f"{p.default_tasks} tasks, {p.default_demos} demos"]
+    assert len(at_default) == 8 and all(c["holds"] for c in at_default), at_default

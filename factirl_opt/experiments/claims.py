@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .tables import read_csv, write_atomic
+from .tables import read_results, write_atomic
 
 __all__ = ["evaluate_claims", "claims_markdown", "write_claims"]
 
@@ -119,7 +119,7 @@ def claims_markdown(claims):
 
 def write_claims(out, preset):
     """Evaluate the claims on ``out/results.csv`` and write ``out/claims.md``; returns its path."""
-    rows = read_csv(os.path.join(out, "results.csv"))
+    rows = read_results(out)
     solver = sorted({r["h_solver"] for r in rows})[0]
     rows = [r for r in rows if r["h_solver"] == solver]
     path = os.path.join(out, "claims.md")

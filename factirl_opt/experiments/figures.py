@@ -17,7 +17,7 @@ import numpy as np
 
 from ..exceptions import ValidationError
 from ..mdp import GridWorld
-from .tables import load_preset_from_manifest, read_csv
+from .tables import load_preset_from_manifest, read_results
 
 __all__ = ["plot_sweeps", "plot_value_functions", "plot_all"]
 
@@ -192,11 +192,8 @@ def plot_all(out):
     Reads ``out/results.csv``, ``out/manifest.json`` (the preset) and ``out/figure3.json``.
     """
     out = os.fspath(out)
-    path = os.path.join(out, "results.csv")
-    if not os.path.exists(path):
-        raise ValidationError(f"{path} not found; run `factirl-opt reproduce --out {out}` first")
+    rows = read_results(out)
     preset = load_preset_from_manifest(out)
-    rows = read_csv(path)
     fig_dir = os.path.join(out, "figures")
     os.makedirs(fig_dir, exist_ok=True)
     written = plot_sweeps(rows, preset, "train", os.path.join(fig_dir, "figure1"))

@@ -31,6 +31,7 @@ __all__ = [
     "write_atomic",
     "write_tables",
     "read_csv",
+    "read_results",
     "load_preset_from_manifest",
 ]
 
@@ -158,11 +159,46 @@ def write_tables(out, records):
     return rows
 
 
-def load_preset_from_manifest(out):
-    """The :class:`Preset` recorded in ``out/manifest.json``."""
+def read_results(out):
+    """The rows of ``out/results.csv``, checked against the runs ``out/manifest.json`` describes.
+
+    Raises
+    ------
+    ValidationError
+        If the table is not readable (:func:`read_csv`), or has fewer or more rows than the
+        manifest's runs times the line-up's learners (a table cut at a line boundary).
+    """
+    out = os.fspath(out)
+    path = os.path.join(out, "results.csv")
+    if not os.path.exists(path):
+        raise ValidationError(f"{path} not found; run `factirl-opt reproduce --out {out}` first")
+    rows = read_csv(path)
+    manifest = _read_manifest(out)
+    runs, lineup = manifest.get("runs"), manifest.get("lineup")
+    if isinstance(runs, list) and isinstance(lineup, list) and len(rows) != len(runs) * len(lineup):
+        raise ValidationError(f"{path} has {len(rows)} rows, but the manifest describes {len(runs)} runs x "
+                              f"{len(lineup)} learners = {len(runs) * len(lineup)}: truncated or from another sweep; "
+                              f"rerun `factirl-opt reproduce --out {out}` to rewrite it")
+    return rows
+
+
+def _read_manifest(out):
     path = os.path.join(os.fspath(out), "manifest.json")
     try:
         with open(path) as fh:
-            return Preset.from_dict(json.load(fh)["preset"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+            manifest = json.load(fh)
+        if not isinstance(manifest, dict):
+            raise ValueError("not a JSON object")
+        return manifest
+    except (OSError, ValueError) as exc:
         raise ValidationError(f"{path} is missing or unreadable ({exc}); run `factirl-opt reproduce --out DIR` first") from None
+
+
+def load_preset_from_manifest(out):
+    """The :class:`Preset` recorded in ``out/manifest.json``."""
+    manifest = _read_manifest(out)
+    try:
+        return Preset.from_dict(manifest["preset"])
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ValidationError(f"{os.path.join(os.fspath(out), 'manifest.json')} records no preset ({exc!r}); "
+                              "run `factirl-opt reproduce --out DIR` first") from None
