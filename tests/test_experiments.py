@@ -21,6 +21,7 @@ from factirl_opt.experiments import (
 )
 from factirl_opt.experiments import runner as runner_mod
 from factirl_opt.experiments.figures import plot_all
+from factirl_opt.experiments.store import RejectedRunWarning
 
 TABLES = ("results.csv", "summary.csv")
 
@@ -201,7 +202,8 @@ def test_resume_computes_only_missing_runs(tiny_sweep, tmp_path):
 
     runner_mod.run_one = spy
     try:
-        res = run_sweep("tiny", out, jobs=1, progress=False)
+        with pytest.warns(RejectedRunWarning, match=f"rejected 1 run record.*{files[1]}: truncated"):
+            res = run_sweep("tiny", out, jobs=1, progress=False)
     finally:
         runner_mod.run_one = original
     assert sorted(computed) == sorted(f[:-5] for f in (files[0], files[1], files[3]))

@@ -30,8 +30,7 @@ from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics
 from ..mdp import GridWorld
 from ..objectives.policy_matching import forward_point, gradient_at, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
-from ..planning import get_planner
-from ..planning import optimal_q
+from ..planning import get_planner, optimal_q
 from ..synthetic import synthetic_tasks
 
 __all__ = ["add_arguments", "run"]

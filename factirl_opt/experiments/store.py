@@ -45,6 +45,7 @@ import importlib.metadata as md
 import json
 import os
 import platform
+import secrets
 import socket
 import time
 import warnings
@@ -353,7 +354,7 @@ def locked(out):
 def new_invocation(command, settings):
     """This invocation's entry of the manifest's history (completed by :func:`write_manifest`)."""
     now = time.gmtime()
-    return dict(id=f"{time.strftime('%Y%m%dT%H%M%SZ', now)}-{os.getpid()}", command=command,
+    return dict(id=f"{time.strftime('%Y%m%dT%H%M%SZ', now)}-{os.getpid()}-{secrets.token_hex(3)}", command=command,
                 started_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", now), **settings)
 
 
