@@ -26,7 +26,13 @@ from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficien
 from .gradirl import GradIRL
 from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
-from .objectives import available_objectives, policy_matching_grad_reference, policy_matching_loss, residual_jacobian
+from .objectives import (
+    available_objectives,
+    mce_loss,
+    policy_matching_grad_reference,
+    policy_matching_loss,
+    residual_jacobian,
+)
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
 from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
 from .objectworld import (
@@ -58,6 +64,7 @@ __all__ = [
     "empirical_statistics",
     "demonstrations_from_trajectories",
     "policy_matching_loss",
+    "mce_loss",
     "available_objectives",
     "policy_matching_grad_reference",
     "residual_jacobian",

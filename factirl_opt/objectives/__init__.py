@@ -8,10 +8,15 @@ never know which one runs.
     The paper's eq. (5): squared distance between the Boltzmann policy on ``Q*`` and the
     demonstrated policy (:class:`PolicyMatchingObjective`; least squares, so the Gauss-Newton
     solvers apply).
+``"mce"``
+    Maximum causal entropy (Ziebart et al. 2010), infinite horizon, discounted: the negative
+    log-likelihood of the demonstrated pairs under the soft-optimal policy of the soft Bellman
+    equation (:class:`MCEObjective`, :func:`mce_loss`; not least squares: gradient solvers only).
 """
 
 from ..exceptions import ValidationError
 from ._base import Objective
+from .mce import MCEObjective, mce_loss, soft_values
 from .policy_matching import (
     PolicyMatchingObjective,
     dq_dtheta,
@@ -27,6 +32,9 @@ __all__ = [
     "policy_matching_grad_reference",
     "residual_jacobian",
     "dq_dtheta",
+    "MCEObjective",
+    "mce_loss",
+    "soft_values",
     "register_objective",
     "available_objectives",
     "get_objective",
@@ -61,3 +69,4 @@ def get_objective(name):
 
 
 register_objective("policy-matching", PolicyMatchingObjective)
+register_objective("mce", MCEObjective)
