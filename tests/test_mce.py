@@ -417,6 +417,18 @@ def test_gradirl_runs_with_mce_tabular_and_features(small_tasks):
     assert feats.weights_.shape == (12, 2) and feats.loss_history_[-1] < feats.loss_history_[0]
 
 
+def test_lbfgs_runs_on_mce(small_tasks):
+    solvers = pytest.importorskip("solvers")
+    if "lbfgs" not in solvers.available_solvers():
+        pytest.skip("no lbfgs solver registered")
+    mdp, tasks = small_tasks
+    flat = fo.GradIRL(objective="mce", solver="lbfgs", max_iter=20).fit(mdp, tasks.demos)
+    assert flat.loss_history_[-1] < 0.5 * flat.loss_history_[0]
+    fact = fo.FactIRL(n_primitives=2, objective="mce", h_solver="lbfgs", d_solver="lbfgs", init="random",
+                      max_iter=3, rng=0).fit(mdp, tasks.demos)
+    assert fact.loss_history_[-1] < fact.loss_history_[0]
+
+
 def test_factirl_fits_and_transfers_with_mce(small_tasks):
     mdp, tasks = small_tasks
     fact = fo.FactIRL(n_primitives=2, objective="mce", max_iter=5, flat_max_iter=20, rng=0).fit(mdp, tasks.demos)
@@ -429,11 +441,14 @@ def test_factirl_fits_and_transfers_with_mce(small_tasks):
                                rtol=1e-10)
 
 
-def test_gauss_newton_h_step_refuses_mce(small_tasks):
-    pytest.importorskip("cvxpy")
+@pytest.mark.parametrize("h_solver, fragment", [("gn-qp-osqp", "least-squares"), ("gn-cg", "linearize")])
+def test_gauss_newton_h_steps_refuse_mce(small_tasks, h_solver, fragment):
+    solvers = pytest.importorskip("solvers")
+    if h_solver not in solvers.available_solvers():
+        pytest.skip(f"{h_solver} not available")
     mdp, tasks = small_tasks
-    with pytest.raises(FactIRLError, match="least-squares"):
-        fo.FactIRL(n_primitives=2, objective="mce", h_solver="gn-qp-osqp", init="random", max_iter=2,
+    with pytest.raises(FactIRLError, match=fragment):
+        fo.FactIRL(n_primitives=2, objective="mce", h_solver=h_solver, init="random", max_iter=2,
                    rng=0).fit(mdp, tasks.demos)
 
 

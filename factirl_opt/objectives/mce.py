@@ -43,7 +43,7 @@ policy); ``dJ/dR = -(that)``.
 
 Potential shaping ``R + gamma P phi - phi`` shifts ``Q`` and ``V`` by ``-phi(s)`` and leaves
 ``pi``, hence the loss, unchanged. The objective is not a least-squares one: the Gauss-Newton
-step solvers do not apply, gradient solvers (Armijo) do.
+step solvers do not apply, gradient solvers (``armijo``, ``armijo-nonneg``, ``lbfgs``) do.
 """
 
 import numpy as np
@@ -196,7 +196,7 @@ def soft_policy_values(planner, R, policy, beta):
 class MCEObjective(Objective):
     """The MCE negative log-likelihood over a fixed set of tasks (see :class:`Objective`).
 
-    Not least squares: use it with gradient step solvers (``armijo``, ``armijo-nonneg``).
+    Not least squares: use it with gradient step solvers (``armijo``, ``armijo-nonneg``, ``lbfgs``).
     Warm start: each task's last soft values start its next Newton iteration.
     """
 
