@@ -28,6 +28,7 @@ __all__ = [
     "check_policy",
     "check_statistics",
     "check_features",
+    "check_stochastic_policy",
 ]
 
 
@@ -223,3 +224,16 @@ def check_features(features, n_params, n_states=None, name="features", min_colum
         rows = f"S*A = {n_params}" + (f" or S = {n_states}" if n_states is not None else "")
         raise ValidationError(f"{name} must have shape ({rows}, p) with p >= {min_columns}; got {given}")
     return F
+
+
+def check_stochastic_policy(mdp, policy, n):
+    """Stochastic policies as float64 (n, S, A): finite, nonnegative, each pi(.|s) summing to 1."""
+    pi = check_array(policy, "policy")
+    if pi.ndim == 2:
+        pi = pi[None]
+    S, A = mdp.n_states, mdp.n_actions
+    if pi.shape != (n, S, A):
+        raise ValidationError(f"a stochastic policy must have shape ({n}, {S}, {A}); got {np.shape(policy)}")
+    if not np.all(np.isfinite(pi)) or np.any(pi < 0) or np.any(np.abs(pi.sum(axis=2) - 1.0) > 1e-9):
+        raise ValidationError("a stochastic policy must be finite, nonnegative, and each pi(.|s) must sum to 1")
+    return pi

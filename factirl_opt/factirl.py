@@ -23,7 +23,7 @@ from ._progress import fit_progress
 from ._threads import blas_limited
 from ._validation import as_rng, check_array, check_features, check_int, check_mdp, check_tol
 from .exceptions import NotFittedError, ValidationError, translate_solver_errors
-from .gradirl import GradIRL, make_objective, warn_if_stalled
+from .gradirl import GradIRL, check_solver_applies, make_objective, warn_if_stalled
 from .mdp import check_signature
 from .problems import dictionary_problem, weights_problem
 from .synthetic import task_rewards
@@ -225,8 +225,8 @@ def fit_factorial(mdp, demos_per_task, dictionary, coefficients, *, beta=5.0, ba
     if H.shape[0] != obj.n_tasks:
         raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
-        h = solvers.resolve_solver(h_solver, h_solver_options).for_alternating()
-        d = solvers.resolve_solver(d_solver, d_solver_options)
+        h = check_solver_applies(solvers.resolve_solver(h_solver, h_solver_options), objective, "h_solver").for_alternating()
+        d = check_solver_applies(solvers.resolve_solver(d_solver, d_solver_options), objective, "d_solver")
         best, history, it, status = _alternate(obj, Phi, D, h.project(H), h, d, max_iter, inner_steps, tol, report)
     _, D, H, loss = best
     return FactorialFit(D, H, loss, history, it, int(obj.n_evaluations), status)
@@ -278,7 +278,7 @@ def transfer_coefficients(mdp, demos_per_task, dictionary, *, beta=5.0, base_fea
     obj = make_objective(mdp, demos_per_task, beta, objective, planner)
     problem = weights_problem(obj, F)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
-        solver = solvers.resolve_solver(h_solver, h_solver_options)
+        solver = check_solver_applies(solvers.resolve_solver(h_solver, h_solver_options), objective, "h_solver")
         res = solver.run(problem, solver.project(np.zeros((problem.n_rows, problem.n_params))), max_iter, tol=tol,
                          callback=report)
     rewards = task_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
@@ -450,7 +450,9 @@ class FactIRL:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         with translate_solver_errors():
-            h_solver = solvers.resolve_solver(self.h_solver, self.h_solver_options)
+            h_solver = check_solver_applies(solvers.resolve_solver(self.h_solver, self.h_solver_options), self.objective,
+                                            "h_solver")
+            check_solver_applies(solvers.resolve_solver(self.d_solver, self.d_solver_options), self.objective, "d_solver")
         n = len(make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner).mu)
         D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng))
         if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):

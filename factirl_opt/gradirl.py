@@ -10,18 +10,37 @@ from ._progress import fit_progress
 from ._threads import blas_limited
 from ._validation import check_beta, check_features, check_int, check_mdp, check_tol
 from .demonstrations import empirical_statistics
-from .exceptions import ConvergenceWarning, translate_solver_errors
+from .exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
 from .objectives import get_objective
 from .problems import weights_problem
 from .synthetic import task_rewards
 
-__all__ = ["GradIRL", "make_objective", "warn_if_stalled"]
+__all__ = ["GradIRL", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
 
 def make_objective(mdp, demos_per_task, beta, objective="policy-matching", planner="auto"):
     """The named objective bound to the empirical statistics of ``demos_per_task``."""
     mu, pi_hat = empirical_statistics(mdp, demos_per_task)
     return get_objective(objective)(mdp, mu, pi_hat, check_beta(beta), planner=planner)
+
+
+def _least_squares_only(solver):
+    return solver.needs_jacobian or solver.needs_linearization
+
+
+def check_solver_applies(solver, objective, what):
+    """Refuse, before any work, a least-squares solver on an objective without residuals.
+
+    The Gauss-Newton solvers (``gn-qp-*``, ``gn-cg``) need residuals (policy matching has them);
+    a likelihood such as ``"mce"`` does not. The message lists the solvers that apply.
+    """
+    if _least_squares_only(solver) and not get_objective(objective).least_squares:
+        usable = [name for name in solvers.available_solvers() if not _least_squares_only(solvers.get_solver(name))]
+        raise ValidationError(
+            f"{what} {solver.name!r} is a Gauss-Newton solver: it needs a least-squares objective (residuals), and the "
+            f"{objective!r} objective has none; use a gradient solver: {', '.join(usable)}"
+        )
+    return solver
 
 
 def warn_if_stalled(status, iterations, what):
@@ -120,7 +139,7 @@ class GradIRL:
         objective = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
         problem = weights_problem(objective, F)
         with translate_solver_errors(), fit_progress(self.callback, self.verbose, max_iter, "GradIRL") as report:
-            solver = solvers.resolve_solver(self.solver, self.solver_options)
+            solver = check_solver_applies(solvers.resolve_solver(self.solver, self.solver_options), self.objective, "solver")
             res = solver.run(problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, tol=tol, callback=report)
         S, A = mdp.n_states, mdp.n_actions
         self.weights_ = res.coefficients

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._threads import blas_limited
-from ._validation import check_array, check_beta, check_int, check_mdp, check_policy, check_real, check_rewards
+from ._validation import check_array, check_beta, check_stochastic_policy, check_int, check_mdp, check_policy, check_real, check_rewards
 from .exceptions import FactIRLError, ValidationError
 
 __all__ = [
@@ -368,18 +368,6 @@ def tangent(planner, system, policy, dR):
     return dR + planner.gamma * planner.backup(dV).reshape(dR.shape)
 
 
-def _check_stochastic(mdp, policy, n):
-    pi = np.asarray(policy, dtype=np.float64)
-    if pi.ndim == 2:
-        pi = pi[None]
-    S, A = mdp.n_states, mdp.n_actions
-    if pi.shape != (n, S, A):
-        raise ValidationError(f"a stochastic policy must have shape ({n}, {S}, {A}); got {np.shape(policy)}")
-    if not np.all(np.isfinite(pi)) or np.any(pi < 0) or np.any(np.abs(pi.sum(axis=2) - 1.0) > 1e-9):
-        raise ValidationError("a stochastic policy must be finite, nonnegative, and each pi(.|s) must sum to 1")
-    return pi
-
-
 @blas_limited
 def policy_evaluation(mdp, rewards, policy, planner="auto"):
     """Exact value of deterministic or stochastic policies (Bellman equation, paper eq. 1).
@@ -409,7 +397,7 @@ def policy_evaluation(mdp, rewards, policy, planner="auto"):
     if not stochastic:
         V, _ = _greedy_values(pl, R, check_policy(mdp, policy, R.shape[0]))
     else:
-        pi = _check_stochastic(mdp, policy, R.shape[0])
+        pi = check_stochastic_policy(mdp, policy, R.shape[0])
         V = pl.system(pi).solve(np.sum(pi * R, axis=2))
     return V[0] if single else V
 

@@ -441,7 +441,7 @@ def test_factirl_fits_and_transfers_with_mce(small_tasks):
                                rtol=1e-10)
 
 
-@pytest.mark.parametrize("h_solver, fragment", [("gn-qp-osqp", "least-squares"), ("gn-cg", "linearize")])
+@pytest.mark.parametrize("h_solver, fragment", [("gn-qp-osqp", "least-squares"), ("gn-cg", "least-squares")])
 def test_gauss_newton_h_steps_refuse_mce(small_tasks, h_solver, fragment):
     solvers = pytest.importorskip("solvers")
     if h_solver not in solvers.available_solvers():
@@ -452,11 +452,18 @@ def test_gauss_newton_h_steps_refuse_mce(small_tasks, h_solver, fragment):
                    rng=0).fit(mdp, tasks.demos)
 
 
-@pytest.mark.xfail(strict=True, reason="the solvers/ message does not yet name the gradient solvers that apply "
-                                       "(requested from the solvers owner)")
-def test_gauss_newton_refusal_names_the_solvers_that_apply(small_tasks):
+def test_gauss_newton_refusal_names_the_solvers_that_apply(small_tasks, monkeypatch):
     pytest.importorskip("cvxpy")
     mdp, tasks = small_tasks
-    with pytest.raises(FactIRLError, match="armijo"):
+    applies = r"needs a least-squares objective .* 'mce' objective has none; use a gradient solver: armijo, armijo-nonneg, lbfgs"
+    with pytest.raises(FactIRLError, match="h_solver 'gn-qp-osqp' is a Gauss-Newton solver: it " + applies):
         fo.FactIRL(n_primitives=2, objective="mce", h_solver="gn-qp-osqp", init="random", max_iter=2,
                    rng=0).fit(mdp, tasks.demos)
+    with pytest.raises(FactIRLError, match="d_solver 'gn-cg'"):
+        fo.FactIRL(n_primitives=2, objective="mce", d_solver="gn-cg").fit(mdp, tasks.demos)
+    with pytest.raises(FactIRLError, match="solver 'gn-cg'"):
+        fo.GradIRL(objective="mce", solver="gn-cg").fit(mdp, tasks.demos)
+    # refused before any work: the PCA initialisation's flat fit never runs
+    monkeypatch.setattr(fo.GradIRL, "fit", lambda *a, **k: pytest.fail("the flat learner ran"))
+    with pytest.raises(FactIRLError, match="Gauss-Newton"):
+        fo.FactIRL(n_primitives=2, objective="mce", h_solver="gn-qp-clarabel", init="pca").fit(mdp, tasks.demos)

@@ -50,9 +50,9 @@ import numpy as np
 from scipy.special import entr
 
 from .._threads import blas_limited
-from .._validation import check_beta, check_int, check_mdp, check_rewards, check_statistics
+from .._validation import check_beta, check_int, check_mdp, check_rewards, check_statistics, check_stochastic_policy
 from ..exceptions import FactIRLError
-from ..planning import _check_stochastic, adjoint, get_planner
+from ..planning import adjoint, get_planner
 from ._base import Objective
 
 __all__ = ["MCEObjective", "mce_loss", "soft_values"]
@@ -253,6 +253,6 @@ def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", ma
     beta = check_beta(beta)
     max_iter = check_int(max_iter, "max_iter", minimum=1)
     pl = get_planner(mdp, planner)
-    V0 = None if policy is None else soft_policy_values(pl, R, _check_stochastic(mdp, policy, R.shape[0]), beta)
+    V0 = None if policy is None else soft_policy_values(pl, R, check_stochastic_policy(mdp, policy, R.shape[0]), beta)
     point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter)
     return point.loss, _gradient(pl, point)
