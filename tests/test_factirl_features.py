@@ -5,6 +5,7 @@ import warnings
 from types import SimpleNamespace
 
 import numpy as np
+from helpers import central_difference
 import pytest
 
 import factirl_opt as fo
@@ -26,15 +27,6 @@ def _objective(mdp, demos, beta=5.0):
     return PolicyMatchingObjective(mdp, mu, pi, beta)
 
 
-def _central_difference(f, x, eps=1e-6):
-    g = np.zeros_like(x)
-    for j in np.ndindex(x.shape):
-        e = np.zeros_like(x)
-        e[j] = eps
-        g[j] = (f(x + e) - f(x - e)) / (2 * eps)
-    return g
-
-
 @pytest.mark.parametrize("unit_norm", [False, True])
 def test_dictionary_gradient_on_features_matches_finite_differences(grid3, tasks, rng, unit_norm):
     Phi = rng.random((36, 4))
@@ -43,7 +35,7 @@ def test_dictionary_gradient_on_features_matches_finite_differences(grid3, tasks
     D = 0.5 * rng.standard_normal((4, K))
     prob = dictionary_problem(obj, H, Phi, unit_norm=unit_norm)
     loss, g = prob.loss_and_grad(D.reshape(1, -1), np.arange(1))
-    fd = _central_difference(lambda x: prob.loss_and_grad(x.reshape(1, -1), np.arange(1))[0][0], D.ravel())
+    fd = central_difference(lambda x: prob.loss_and_grad(x.reshape(1, -1), np.arange(1))[0][0], D.ravel())
     np.testing.assert_allclose(g[0], fd, rtol=1e-5, atol=1e-8)
 
 
@@ -55,7 +47,7 @@ def test_coefficient_gradient_on_features_matches_finite_differences(grid3, task
     H = rng.standard_normal((5, K))
     rows = np.arange(5)
     _, g = prob.loss_and_grad(H, rows)
-    fd = _central_difference(lambda x: prob.loss_and_grad(x, rows)[0].sum(), H)
+    fd = central_difference(lambda x: prob.loss_and_grad(x, rows)[0].sum(), H)
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-8)
 
 

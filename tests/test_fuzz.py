@@ -4,11 +4,10 @@ Every call must either raise one of the library's own exceptions (``FactIRLError
 finite results, within a time bound (no hang), and never emit a numpy warning.
 """
 
-import contextlib
-import signal
 import warnings
 
 import numpy as np
+from helpers import Hang, hang_guard
 import pytest
 
 import factirl_opt as fo
@@ -16,24 +15,6 @@ from factirl_opt.exceptions import FactIRLError
 
 TIME_LIMIT = 20  # seconds per call: far above any legitimate call here (they take milliseconds)
 N_CASES = 150
-
-
-class _Timeout(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def _time_limit(seconds):
-    def handler(signum, frame):
-        raise _Timeout(f"call exceeded {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def _bad_value(rng):
@@ -105,11 +86,11 @@ def test_public_api_raises_own_errors_or_returns_finite_results(seed):
             warnings.simplefilter("error", RuntimeWarning)  # numpy overflow / invalid value warnings
             warnings.filterwarnings("ignore", category=fo.ConvergenceWarning)
             try:
-                with _time_limit(TIME_LIMIT):
+                with hang_guard(TIME_LIMIT, name):
                     result = call()
             except FactIRLError:
                 continue
-            except _Timeout:
+            except Hang:
                 pytest.fail(f"{name} hung (> {TIME_LIMIT} s)")
             except Exception as exc:  # noqa: BLE001 - the point of the test
                 pytest.fail(f"{name} raised a raw {type(exc).__name__}: {exc}")

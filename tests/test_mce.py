@@ -8,6 +8,7 @@ the rewards (no greedy ties to avoid), so any random reward is a valid check poi
 import warnings
 
 import numpy as np
+from helpers import central_difference, rel_err
 import pytest
 import scipy.sparse as sp
 
@@ -19,22 +20,8 @@ from factirl_opt.planning import DensePlanner, get_planner
 from factirl_opt.problems import dictionary_problem, weights_problem
 
 BETA = 2.0
-EPS = 1e-6
 
 
-def central_difference(f, x, eps=EPS):
-    x = np.array(x, dtype=np.float64)
-    g = np.empty_like(x)
-    for idx in np.ndindex(x.shape):
-        xp, xm = x.copy(), x.copy()
-        xp[idx] += eps
-        xm[idx] -= eps
-        g[idx] = (f(xp) - f(xm)) / (2 * eps)
-    return g
-
-
-def rel_err(a, b):
-    return np.linalg.norm(np.ravel(a) - np.ravel(b)) / np.linalg.norm(np.ravel(b))
 
 
 def reference_soft_vi(P, gamma, R, beta, sweeps=5000):

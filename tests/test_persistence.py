@@ -1,14 +1,13 @@
 """Saving and loading models and demonstrations: exact round trips and every error path."""
 
-import contextlib
 import io
 import json
 import pickle
-import signal
 import struct
 import zipfile
 
 import numpy as np
+from helpers import hang_guard
 import pytest
 
 import factirl_opt as fo
@@ -574,25 +573,6 @@ def test_inconsistent_lengths_cannot_overflow(demos_file, tmp_path):
 # ----------------------------------------------------------------------------- fuzzing
 
 
-class _Hang(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def _hang_guard(seconds):
-    """Turn a hang into a test failure (SIGALRM after ``seconds``): a bound, not a speed test."""
-    def _raise(signum, frame):
-        raise _Hang(f"a load did not return within {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, _raise)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-
-
 def _mutate(data, rng):
     buf = bytearray(data)
     op = rng.integers(3)
@@ -634,7 +614,7 @@ def test_fuzzed_files_load_or_raise_persistence_error(model_file, demos_file, ki
     data = open(src, "rb").read() if compressed else _uncompressed(src)
     rng = np.random.default_rng(2024)
     outcomes = {"refused": 0, "loaded": 0}
-    with _hang_guard(60):
+    with hang_guard(60):
         for _ in range(300):
             try:
                 result = load(io.BytesIO(_mutate(data, rng)))

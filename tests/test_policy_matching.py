@@ -6,6 +6,7 @@ step 1e-6 stays on one policy.
 """
 
 import numpy as np
+from helpers import central_difference, rel_err
 import pytest
 
 import factirl_opt as fo
@@ -20,20 +21,6 @@ BETA = 5.0
 ROUTES = ["fixed_point", "direct"]
 
 
-def central_difference(f, x, eps=EPS):
-    """Gradient of a scalar function of an array by central differences, same shape as x."""
-    x = np.array(x, dtype=np.float64)
-    g = np.empty_like(x)
-    for idx in np.ndindex(x.shape):
-        xp, xm = x.copy(), x.copy()
-        xp[idx] += eps
-        xm[idx] -= eps
-        g[idx] = (f(xp) - f(xm)) / (2 * eps)
-    return g
-
-
-def rel_err(a, b):
-    return np.linalg.norm(np.ravel(a) - np.ravel(b)) / np.linalg.norm(np.ravel(b))
 
 
 @pytest.fixture(params=["grid", "random"])

@@ -1,9 +1,8 @@
 """The one parser of demonstration layouts, and trajectories from other libraries."""
 
-import contextlib
-import signal
 
 import numpy as np
+from helpers import hang_guard
 import pytest
 
 import factirl_opt as fo
@@ -256,21 +255,6 @@ def test_task_steps_of_one_task(setting):
 # ----------------------------------------------------------------------------- fuzzing
 
 
-@contextlib.contextmanager
-def _hang_guard(seconds):
-    """Turn a hang into a test failure (SIGALRM after ``seconds``): a bound, not a speed test."""
-    def _raise(signum, frame):
-        raise TimeoutError(f"parsing did not return within {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, _raise)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, previous)
-
-
 _VALUES = [0, 1, 3, 15, 16, -1, 0.5, 2.0, np.nan, np.inf, 2**70, True, None, "a", 1e300]
 
 
@@ -306,7 +290,7 @@ def test_fuzzed_layouts_give_a_validation_error_or_valid_statistics():
     mdp = fo.GridWorld(size=4)
     rng = np.random.default_rng(7)
     outcomes = {"refused": 0, "accepted": 0}
-    with _hang_guard(60):
+    with hang_guard(60):
         for _ in range(1500):
             demos = _random_demos(rng)
             try:

@@ -1,0 +1,45 @@
+"""Helpers shared by the tests (imported as ``from helpers import ...``; pytest puts tests/ on sys.path)."""
+
+import contextlib
+import signal
+
+import numpy as np
+
+__all__ = ["hang_guard", "central_difference", "rel_err"]
+
+
+class Hang(Exception):
+    """A guarded call did not return in time."""
+
+
+@contextlib.contextmanager
+def hang_guard(seconds, what="the call"):
+    """Turn a hang into a test failure (SIGALRM after ``seconds``): a bound, not a speed test."""
+
+    def _raise(signum, frame):
+        raise Hang(f"{what} did not return within {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, _raise)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def central_difference(f, x, eps=1e-6):
+    """Gradient of a scalar function of an array by central differences, same shape as x."""
+    x = np.array(x, dtype=np.float64)
+    g = np.empty_like(x)
+    for idx in np.ndindex(x.shape):
+        xp, xm = x.copy(), x.copy()
+        xp[idx] += eps
+        xm[idx] -= eps
+        g[idx] = (f(xp) - f(xm)) / (2 * eps)
+    return g
+
+
+def rel_err(a, b):
+    """Relative error ``||a - b|| / ||b||`` of flattened arrays."""
+    return np.linalg.norm(np.ravel(a) - np.ravel(b)) / np.linalg.norm(np.ravel(b))
