@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
+from helpers import random_statistics
 
 
 def pytest_addoption(parser):
@@ -67,17 +68,7 @@ def make_statistics():
     ``mu_hat`` rows on the simplex with state 0 unvisited; ``pi_hat`` rows on the simplex,
     zero in the unvisited state (as :func:`empirical_statistics` produces).
     """
-
-    def make(rng, mdp, n):
-        S, A = mdp.n_states, mdp.n_actions
-        mu = rng.random((n, S))
-        mu[:, 0] = 0.0
-        mu /= mu.sum(axis=1, keepdims=True)
-        pi = rng.dirichlet(np.ones(A), size=(n, S))
-        pi[:, 0] = 0.0
-        return mu, pi
-
-    return make
+    return random_statistics
 
 
 def greedy_gap(mdp, rewards):

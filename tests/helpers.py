@@ -5,7 +5,7 @@ import signal
 
 import numpy as np
 
-__all__ = ["hang_guard", "central_difference", "rel_err"]
+__all__ = ["hang_guard", "central_difference", "rel_err", "random_statistics"]
 
 
 class Hang(Exception):
@@ -43,3 +43,18 @@ def central_difference(f, x, eps=1e-6):
 def rel_err(a, b):
     """Relative error ``||a - b|| / ||b||`` of flattened arrays."""
     return np.linalg.norm(np.ravel(a) - np.ravel(b)) / np.linalg.norm(np.ravel(b))
+
+
+def random_statistics(rng, mdp, n):
+    """Random empirical statistics ``(mu_hat (n, S), pi_hat (n, S, A))``.
+
+    ``mu_hat`` rows on the simplex with state 0 unvisited; ``pi_hat`` rows on the simplex,
+    zero in the unvisited state (as :func:`factirl_opt.empirical_statistics` produces).
+    """
+    S, A = mdp.n_states, mdp.n_actions
+    mu = rng.random((n, S))
+    mu[:, 0] = 0.0
+    mu /= mu.sum(axis=1, keepdims=True)
+    pi = rng.dirichlet(np.ones(A), size=(n, S))
+    pi[:, 0] = 0.0
+    return mu, pi

@@ -8,7 +8,7 @@ the rewards (no greedy ties to avoid), so any random reward is a valid check poi
 import warnings
 
 import numpy as np
-from helpers import central_difference, rel_err
+from helpers import central_difference, random_statistics, rel_err
 import pytest
 import scipy.sparse as sp
 
@@ -55,17 +55,6 @@ def random_sparse_mdp(rng, S=9, A=3, gamma=0.85):
     return fo.TabularMDP(sp.csr_matrix((vals, (rows, cols)), shape=(S * A, S)), gamma)
 
 
-def statistics(rng, mdp, n):
-    """Random mu_hat (state 0 unvisited) and pi_hat on the simplex."""
-    S, A = mdp.n_states, mdp.n_actions
-    mu = rng.random((n, S))
-    mu[:, 0] = 0.0
-    mu /= mu.sum(axis=1, keepdims=True)
-    pi = rng.dirichlet(np.ones(A), size=(n, S))
-    pi[:, 0] = 0.0
-    return mu, pi
-
-
 @pytest.fixture(params=["dense", "sparse", "sparse-lu", "grid"])
 def model(request, rng, random_mdp, grid3):
     """(mdp, planner): a dense random MDP, a sparse one on both planners, the sparse 3x3 grid."""
@@ -83,7 +72,7 @@ def test_loss_matches_independent_soft_value_iteration(rng, model):
     mdp, planner = model
     P = mdp.transitions
     for beta in (0.5, BETA, 10.0):
-        mu, pi_hat = statistics(rng, mdp, 3)
+        mu, pi_hat = random_statistics(rng, mdp, 3)
         R = rng.standard_normal((3, mdp.n_states, mdp.n_actions))
         loss, grad = fo.mce_loss(mdp, R, mu, pi_hat, beta, planner=planner)
         assert loss.shape == (3,) and grad.shape == R.shape
@@ -123,7 +112,7 @@ def test_loss_is_the_entropy_and_gradient_zero_when_the_data_is_the_soft_optimal
 
 def test_batched_equals_single_and_planners_agree(rng):
     mdp = random_sparse_mdp(rng)
-    mu, pi_hat = statistics(rng, mdp, 3)
+    mu, pi_hat = random_statistics(rng, mdp, 3)
     R = rng.standard_normal((3, mdp.n_states, mdp.n_actions))
     loss, grad = fo.mce_loss(mdp, R, mu, pi_hat, BETA, planner="sparse-lu")
     loss_d, grad_d = fo.mce_loss(mdp, R, mu, pi_hat, BETA, planner="dense")
@@ -136,7 +125,7 @@ def test_batched_equals_single_and_planners_agree(rng):
 
 
 def test_warm_start_policy_does_not_change_the_result(rng, random_mdp):
-    mu, pi_hat = statistics(rng, random_mdp, 2)
+    mu, pi_hat = random_statistics(rng, random_mdp, 2)
     R = rng.standard_normal((2, random_mdp.n_states, random_mdp.n_actions))
     loss, grad = fo.mce_loss(random_mdp, R, mu, pi_hat, BETA)
     for warm in (rng.dirichlet(np.ones(3), size=(2, 6)), np.eye(3)[rng.integers(0, 3, size=(2, 6))]):
@@ -146,7 +135,7 @@ def test_warm_start_policy_does_not_change_the_result(rng, random_mdp):
 
 
 def test_objective_warm_starts_from_its_last_values_and_counts(rng, grid3):
-    mu, pi_hat = statistics(rng, grid3, 3)
+    mu, pi_hat = random_statistics(rng, grid3, 3)
     obj = get_objective("mce")(grid3, mu, pi_hat, BETA)
     assert isinstance(obj, MCEObjective) and obj.name == "mce" and not obj.least_squares
     R = rng.standard_normal((3, grid3.n_states, grid3.n_actions))
@@ -167,7 +156,7 @@ def test_objective_warm_starts_from_its_last_values_and_counts(rng, grid3):
 
 def test_tabular_gradient_matches_finite_differences(rng, model):
     mdp, planner = model
-    mu, pi_hat = statistics(rng, mdp, 2)
+    mu, pi_hat = random_statistics(rng, mdp, 2)
     R = rng.standard_normal((2, mdp.n_states, mdp.n_actions))
     _, grad = fo.mce_loss(mdp, R, mu, pi_hat, BETA, planner=planner)
     for i in range(2):
@@ -176,7 +165,7 @@ def test_tabular_gradient_matches_finite_differences(rng, model):
 
 
 def test_gradient_at_large_beta_matches_finite_differences(rng, grid3):
-    mu, pi_hat = statistics(rng, grid3, 1)
+    mu, pi_hat = random_statistics(rng, grid3, 1)
     R = 0.2 * rng.standard_normal((grid3.n_states, grid3.n_actions))
     _, grad = fo.mce_loss(grid3, R, mu, pi_hat, 20.0)
     fd = central_difference(lambda r: fo.mce_loss(grid3, r, mu, pi_hat, 20.0)[0][0], R)
@@ -192,7 +181,7 @@ def test_feature_weight_and_coefficient_gradients(rng, model):
     mdp, planner = model
     n, k = 2, 3
     F, w = _factors(rng, mdp, n, k)
-    mu, pi_hat = statistics(rng, mdp, n)
+    mu, pi_hat = random_statistics(rng, mdp, n)
     problem = weights_problem(MCEObjective(mdp, mu, pi_hat, BETA, planner=planner), F)
     assert problem.residual_jacobian is None  # not least squares: no Gauss-Newton
     rows = np.arange(n)
@@ -211,7 +200,7 @@ def test_dictionary_gradient(rng, model):
     """dJ/dD = Phi^T sum_i y_i h_i^T (eq. 11), tabular and with base features, vs FD."""
     mdp, planner = model
     n, k = 3, 2
-    mu, pi_hat = statistics(rng, mdp, n)
+    mu, pi_hat = random_statistics(rng, mdp, n)
     obj = MCEObjective(mdp, mu, pi_hat, BETA, planner=planner)
     for Phi in (None, rng.standard_normal((mdp.n_params, 4))):
         p = mdp.n_params if Phi is None else Phi.shape[1]
@@ -229,7 +218,7 @@ def test_dictionary_gradient(rng, model):
 def test_potential_shaping_leaves_loss_policy_and_gradient_unchanged(rng, model):
     mdp, planner = model
     pl = get_planner(mdp, planner)
-    mu, pi_hat = statistics(rng, mdp, 2)
+    mu, pi_hat = random_statistics(rng, mdp, 2)
     R = rng.standard_normal((2, mdp.n_states, mdp.n_actions))
     phi = 3.0 * rng.standard_normal((2, mdp.n_states))
     R_shaped = R + mdp.gamma * pl.backup(phi) - phi[:, :, None]
@@ -245,7 +234,7 @@ def test_potential_shaping_leaves_loss_policy_and_gradient_unchanged(rng, model)
 
 @pytest.mark.parametrize("scale, beta", [(1e3, 5.0), (1.0, 1e3), (1e3, 1e3), (1e3, 1e-3)])
 def test_stable_at_large_reward_scale_and_beta(rng, grid4, scale, beta):
-    mu, pi_hat = statistics(rng, grid4, 3)
+    mu, pi_hat = random_statistics(rng, grid4, 3)
     R = scale * rng.standard_normal((3, grid4.n_states, grid4.n_actions))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -263,7 +252,7 @@ def test_stable_at_large_reward_scale_and_beta(rng, grid4, scale, beta):
 
 
 def test_overflowing_beta_times_reward_raises_instead_of_nan(rng, grid3):
-    mu, pi_hat = statistics(rng, grid3, 1)
+    mu, pi_hat = random_statistics(rng, grid3, 1)
     R = 1e290 * rng.standard_normal((grid3.n_states, grid3.n_actions))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # numpy reports the overflow; we raise
@@ -323,7 +312,7 @@ def test_newton_converges_in_few_steps_cold_and_warm(rng):
 
 
 def test_unconverged_soft_values_raise(rng, grid3):
-    mu, pi_hat = statistics(rng, grid3, 1)
+    mu, pi_hat = random_statistics(rng, grid3, 1)
     R = 10.0 * rng.standard_normal((grid3.n_states, grid3.n_actions))
     with pytest.raises(FactIRLError, match=r"did not converge in 1 iterations: task 0 has residual"):
         fo.mce_loss(grid3, R, mu, pi_hat, BETA, max_iter=1)
@@ -348,7 +337,7 @@ def test_unconverged_soft_values_raise(rng, grid3):
     ],
 )
 def test_validation(rng, grid3, change, fragment):
-    mu, pi_hat = statistics(rng, grid3, 1)
+    mu, pi_hat = random_statistics(rng, grid3, 1)
     kwargs = dict(rewards=np.zeros((9, 4)), mu_hat=mu[0], pi_hat=pi_hat[0], beta=BETA)
     kwargs.update(change)
     with pytest.raises(ValidationError, match=fragment):
@@ -362,7 +351,7 @@ def test_needs_an_mdp():
 
 def test_registry_lists_mce_and_refuses_least_squares_calls(rng, grid3):
     assert "mce" in fo.available_objectives() and get_objective("mce") is MCEObjective
-    mu, pi_hat = statistics(rng, grid3, 1)
+    mu, pi_hat = random_statistics(rng, grid3, 1)
     obj = MCEObjective(grid3, mu, pi_hat, BETA)
     with pytest.raises(ValidationError, match="least-squares objective"):
         obj.linearize(np.zeros((1, 9, 4)))

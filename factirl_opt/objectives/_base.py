@@ -2,8 +2,8 @@
 
 An objective turns rewards into a loss per task and ``dJ/dR`` (DESIGN section 9); everything
 else (planning, step solvers, the factorial scheme) is shared and never knows which objective
-runs. Subclasses implement the forward pass (:meth:`Objective._point`) and the gradient
-(:meth:`Objective._grad`); least-squares objectives (``least_squares = True``) also give
+runs. Subclasses implement the forward pass (:meth:`Objective._forward`), what warm-starts the
+next one (:meth:`Objective._warm_start`) and the gradient (:meth:`Objective._grad`); least-squares objectives (``least_squares = True``) also give
 residuals and their derivatives, which the Gauss-Newton solvers need.
 """
 
@@ -56,9 +56,24 @@ class Objective:
         self._last_grad = np.zeros((self.n_tasks, S, A))
 
     # -- what a subclass implements -----------------------------------------------------------
-    def _point(self, R, rows):  # pragma: no cover - interface
-        """Forward pass at rewards R (r, S, A) of tasks ``rows``; an object with ``.loss``."""
+    def _forward(self, R, rows, warm):  # pragma: no cover - interface
+        """Forward pass at rewards R (r, S, A) of tasks ``rows``; an object with ``.loss``.
+
+        ``warm`` is None or the :meth:`_warm_start` of the rows' last points.
+        """
         raise NotImplementedError
+
+    def _warm_start(self, point):  # pragma: no cover - interface
+        """What starts the next planning of these tasks (an array with the tasks first)."""
+        raise NotImplementedError
+
+    def _point(self, R, rows):
+        point = self._forward(R, rows, None if self._warm is None else self._warm[rows])
+        state = self._warm_start(point)
+        if self._warm is None:
+            self._warm = np.zeros((self.n_tasks, *state.shape[1:]), dtype=state.dtype)
+        self._warm[rows] = state
+        return point
 
     def _grad(self, point):  # pragma: no cover - interface
         """``dJ/dR`` (r, S, A) at a point."""

@@ -203,13 +203,11 @@ class MCEObjective(Objective):
     name = "mce"
     least_squares = False
 
-    def _point(self, R, rows):
-        warm = None if self._warm is None else self._warm[rows]
-        point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
-        if self._warm is None:
-            self._warm = np.zeros((self.n_tasks, self.mdp.n_states))
-        self._warm[rows] = point.V
-        return point
+    def _forward(self, R, rows, warm):
+        return _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
+
+    def _warm_start(self, point):
+        return point.V
 
     def _grad(self, point):
         return _gradient(self.planner, point)

@@ -105,13 +105,11 @@ class PolicyMatchingObjective(Objective):
     name = "policy-matching"
     least_squares = True
 
-    def _point(self, R, rows):
-        warm = None if self._warm is None else self._warm[rows]
-        point = forward_point(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
-        if self._warm is None:
-            self._warm = np.zeros((self.n_tasks, self.mdp.n_states), dtype=np.intp)
-        self._warm[rows] = point.plan.policy
-        return point
+    def _forward(self, R, rows, warm):
+        return forward_point(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
+
+    def _warm_start(self, point):
+        return point.plan.policy
 
     def _grad(self, point):
         return gradient_at(self.planner, point)
