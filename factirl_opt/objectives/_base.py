@@ -3,8 +3,9 @@
 An objective turns rewards into a loss per task and ``dJ/dR`` (DESIGN section 9); everything
 else (planning, step solvers, the factorial scheme) is shared and never knows which objective
 runs. Subclasses implement the forward pass (:meth:`Objective._forward`), what warm-starts the
-next one (:meth:`Objective._warm_start`) and the gradient (:meth:`Objective._grad`); least-squares objectives (``least_squares = True``) also give
-residuals and their derivatives, which the Gauss-Newton solvers need.
+next one (:meth:`Objective._warm_start`) and the gradient (:meth:`Objective._grad`);
+least-squares objectives (``least_squares = True``) also give residuals and their
+derivatives, which the Gauss-Newton solvers need.
 """
 
 import numpy as np
