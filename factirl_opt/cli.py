@@ -7,11 +7,13 @@ Examples
     factirl-opt reproduce --preset quick --out runs/quick
     factirl-opt reproduce --preset paper --jobs 2 --out runs/paper
     factirl-opt reproduce --preset tiny --h-solver gn-qp-osqp-sparse --h-solver-options alpha=0.03
+    factirl-opt reproduce --preset tiny --planner sparse-lu
     factirl-opt plot runs/paper
     factirl-opt bench fit --help
 """
 
 import argparse
+import dataclasses
 import json
 import os
 import shlex
@@ -86,6 +88,7 @@ def _presets_epilog():
 
 def _add_reproduce(sub):
     from .experiments.presets import PRESETS
+    from .planning import available_planners
 
     rep = sub.add_parser(
         "reproduce",
@@ -117,6 +120,10 @@ def _add_reproduce(sub):
                      help="D-step solver of the factorial learner, for a FactIRL that takes d_solver (default: FactIRL's)")
     rep.add_argument("--d-solver-options", type=parse_solver_options, default=None, metavar="OPTS",
                      help="its options, like --h-solver-options (default: none)")
+    rep.add_argument("--planner", default=None, choices=available_planners(),
+                     help="planning engine of every learner and score (factirl_opt.available_planners(); 'auto': "
+                     "dense up to 256 states, sparse LU above); a planner other than the preset's changes the "
+                     "runs' keys (default: the preset's, auto)")
     rep.add_argument("--backend", default="processes", choices=["processes", "dask", "loky"],
                      help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
                      "name of 'processes' (default: processes)")
@@ -156,14 +163,18 @@ def build_parser():
 
 
 def _reproduce(args, argv):
+    from .experiments.presets import get_preset
     from .experiments.runner import run_sweep
     from .experiments.store import RejectedRunWarning
 
     out = args.out or os.path.join("runs", args.preset)
+    preset = get_preset(args.preset)
+    if args.planner is not None:
+        preset = dataclasses.replace(preset, planner=args.planner)
     command = " ".join([PROG] + [shlex.quote(a) for a in argv])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RejectedRunWarning)  # reported below, one line per record
-        res = run_sweep(args.preset, out, seeds=args.seeds, base_seed=args.seed, jobs=args.jobs, h_solver=args.h_solver,
+        res = run_sweep(preset, out, seeds=args.seeds, base_seed=args.seed, jobs=args.jobs, h_solver=args.h_solver,
                         h_solver_options=args.h_solver_options, d_solver=args.d_solver,
                         d_solver_options=args.d_solver_options, backend=args.backend, scheduler=args.scheduler,
                         progress=not args.quiet, command=command)

@@ -11,7 +11,7 @@ from factirl_opt.cli import main
 
 
 REPRODUCE_OPTIONS = ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--h-solver-options",
-                     "--d-solver", "--d-solver-options", "--backend", "--scheduler")
+                     "--d-solver", "--d-solver-options", "--planner", "--backend", "--scheduler")
 
 
 def _reproduce_help(capsys):
@@ -102,6 +102,7 @@ def test_reproduce_then_plot(tmp_path, capsys):
     (["reproduce", "--seeds", "two"], "seeds must be an integer; got 'two'"),
     (["reproduce", "--seed", "-1"], "seed must be an integer >= 0; got -1"),
     (["reproduce", "--backend", "spark"], "invalid choice: 'spark'"),
+    (["reproduce", "--planner", "gpu"], "invalid choice: 'gpu'"),
     (["reproduce", "--h-solver-options", "alpha"], "expected a JSON object or key=value pairs"),
     (["reproduce", "--h-solver-options", "{alpha: 1}"], "not a JSON object"),
     (["reproduce", "--h-solver-options", "a=1,a=2"], "distinct keys"),
@@ -126,6 +127,18 @@ def test_library_errors_are_one_line_messages(tmp_path, capsys):
     assert code == 2 and "not a directory" in capsys.readouterr().err
     code = main(["plot", str(tmp_path)])
     assert code == 2 and "results.csv" in capsys.readouterr().err
+
+
+def test_planner_option_overrides_the_presets(tmp_path, capsys):
+    from factirl_opt.experiments import PRESETS
+
+    out = tmp_path / "dense"
+    assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--planner", "dense", "--out", str(out), "--quiet",
+                 "--no-plot"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["preset"]["name"] == "tiny" and manifest["preset"]["planner"] == "dense"
+    runs = sorted(os.listdir(out / "runs"))
+    assert len(runs) == 3 and not any(PRESETS["tiny"].fingerprint() in r for r in runs)  # other keys than auto's
 
 
 def test_solver_options_parse_json_or_pairs():

@@ -92,7 +92,7 @@ def test_default_settings_build_the_same_factirl():
     assert (spec.h_solver, spec.h_solver_options, spec.d_solver, spec.d_solver_options) == ("armijo", "", "", "")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
-                                                 flat_max_iter=10, transfer_max_iter=10)
+                                                 flat_max_iter=10, transfer_max_iter=10, planner="auto")
 
 
 def test_h_solver_options_reach_factirl(monkeypatch):
@@ -151,3 +151,53 @@ def test_naming_the_default_d_solver_changes_only_the_label():
 def test_bad_solver_settings(kw, error, match):
     with pytest.raises(error, match=match):
         plan_runs(TINY, [0], **kw)
+
+
+# --- planner -------------------------------------------------------------------------------
+
+
+def test_planner_enters_the_fingerprint_only_when_not_auto():
+    paper = PRESETS["paper"]
+    assert paper.planner == "auto"
+    assert dataclasses.replace(paper, planner="auto").fingerprint() == paper.fingerprint() == "ea9fc43e51"
+    dense = dataclasses.replace(paper, planner="dense")
+    assert dense.fingerprint() != paper.fingerprint()
+    assert Preset.from_dict(dense.to_dict()) == dense
+    assert RunSpec(100, 10, 0).key(dense) != RunSpec(100, 10, 0).key(paper)
+
+
+def test_unknown_planner_is_rejected():
+    with pytest.raises(ValidationError, match="preset 'x': planner must be one of auto, dense, sparse-lu; got 'gpu'"):
+        Preset(name="x", planner="gpu")
+
+
+def test_planner_reaches_every_learner_and_score(monkeypatch):
+    from factirl_opt import GradIRL
+    from factirl_opt.experiments import runner as runner_mod
+
+    seen = []
+
+    class SpyGradIRL(GradIRL):
+        def __init__(self, **kw):
+            seen.append(("GradIRL", kw["planner"]))
+            super().__init__(**kw)
+
+    class SpyFactIRL(FactIRL):
+        def __init__(self, **kw):
+            seen.append(("FactIRL", kw["planner"]))
+            super().__init__(**kw)
+
+    original = runner_mod.deviation
+
+    def spy_deviation(mdp, true, learnt, planner="auto"):
+        seen.append(("deviation", planner))
+        return original(mdp, true, learnt, planner=planner)
+
+    monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
+    monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
+    monkeypatch.setattr(runner_mod, "deviation", spy_deviation)
+    preset = dataclasses.replace(TINY, planner="sparse-lu")
+    rec = run_one(preset, RunSpec(preset.default_tasks, preset.default_demos, 0))
+    kinds = {k for k, _ in seen}
+    assert kinds == {"GradIRL", "FactIRL", "deviation"} and {p for _, p in seen} == {"sparse-lu"}
+    assert sum(k == "deviation" for k, _ in seen) == len(rec["rows"]) + len(LINEUPS["paper"].value_maps)

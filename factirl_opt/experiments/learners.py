@@ -150,7 +150,7 @@ def factorial_options(preset, spec):
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
               inner_steps=preset.inner_steps, h_solver=spec.h_solver, flat_max_iter=preset.flat_max_iter,
-              transfer_max_iter=preset.transfer_max_iter)
+              transfer_max_iter=preset.transfer_max_iter, planner=preset.planner)
     if spec.h_solver_options:
         kw["h_solver_options"] = spec.h_options()
     if spec.d_solver:
@@ -165,7 +165,8 @@ def factorial_options(preset, spec):
 
 
 def _gradirl(gt, preset, ctx, features=None):
-    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter).fit(gt.mdp, gt.demos(ctx.split))
+    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, planner=preset.planner)
+    model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
 

@@ -38,9 +38,14 @@ import json
 
 from .._validation import check_int, check_probability, check_real
 from ..exceptions import ValidationError
+from ..planning import available_planners
 from ..synthetic import COEFFICIENT_KINDS
 
-__all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "get_preset"]
+__all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_preset"]
+
+#: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
+#: (and so its runs' keys) only when they differ from these
+LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +96,10 @@ class Preset:
         The world's name in :data:`.worlds.WORLDS` (``"grid"``: the paper's).
     lineup : str
         The learner line-up's name in :data:`.learners.LINEUPS` (``"paper"``).
+    planner : str
+        Planning engine of every learner, of the demonstrations and of the scores (a name in
+        :func:`factirl_opt.available_planners`; ``"auto"``: dense up to 256 states, sparse LU
+        above).
     """
 
     name: str
@@ -115,6 +124,7 @@ class Preset:
     n_seeds: int = 3
     world: str = "grid"
     lineup: str = "paper"
+    planner: str = "auto"
 
     def __post_init__(self):
         where = f"preset {self.name!r}: "
@@ -133,7 +143,8 @@ class Preset:
         from .learners import LINEUPS
         from .worlds import WORLDS
 
-        for f, choices in (("coefficient_kind", COEFFICIENT_KINDS), ("world", WORLDS), ("lineup", LINEUPS)):
+        for f, choices in (("coefficient_kind", COEFFICIENT_KINDS), ("world", WORLDS), ("lineup", LINEUPS),
+                           ("planner", available_planners())):
             if getattr(self, f) not in choices:
                 raise ValidationError(f"{where}{f} must be one of {', '.join(choices)}; got {getattr(self, f)!r}")
 
@@ -152,13 +163,14 @@ class Preset:
     def fingerprint(self):
         """Short hash of every field that changes a run's result (all but name and n_seeds).
 
-        ``world`` and ``lineup`` enter it only when they differ from the paper's (``"grid"``,
-        ``"paper"``), so the paper's runs keep the keys they had before these fields existed.
+        The fields added after the paper's preset (:data:`LATER_FIELDS`: ``world``, ``lineup``,
+        ``planner``, ...) enter it only when they differ from their defaults, so the paper's
+        runs keep the keys they had before these fields existed.
         """
         d = self.to_dict()
         del d["name"], d["n_seeds"]
-        for f, paper in (("world", "grid"), ("lineup", "paper")):
-            if d[f] == paper:
+        for f, default in LATER_FIELDS.items():
+            if d[f] == default:
                 del d[f]
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:10]
 

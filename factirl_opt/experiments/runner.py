@@ -171,9 +171,9 @@ def run_cost(preset, spec):
     return float((train + test) * preset.grid_size ** 2)
 
 
-def _values(mdp, rewards):
+def _values(mdp, rewards, planner):
     """Optimal value functions V*(s) = max_a Q*(s, a) of a batch of rewards, (n, S)."""
-    Q, _ = optimal_q(mdp, rewards)
+    Q, _ = optimal_q(mdp, rewards, planner=planner)
     return Q.max(axis=-1)
 
 
@@ -209,7 +209,7 @@ def _run_one(preset, spec, progress):
         t0 = time.perf_counter()
         fit = learner.build(gt, preset, ctx)
         elapsed = time.perf_counter() - t0
-        dev = deviation(gt.mdp, gt.rewards(learner.split), fit.rewards)
+        dev = deviation(gt.mdp, gt.rewards(learner.split), fit.rewards, planner=preset.planner)
         head = dict(split=learner.split, learner=learner.name, **common)
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
                          loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations)))
@@ -225,10 +225,11 @@ def _figure3(gt, preset, spec, ctx, names):
     """Value functions of the first test tasks: the truth and the ``names`` test learners'."""
     j = slice(0, N_FIGURE3_TASKS)
     true, learnt = gt.test_rewards[j], {name: ctx.rewards["test", name][j] for name in names}
-    fig = dict(grid_size=preset.grid_size, seed=spec.seed, true=_values(gt.mdp, true).tolist())
-    fig.update({name: _values(gt.mdp, R).tolist() for name, R in learnt.items()})
+    planner = preset.planner
+    fig = dict(grid_size=preset.grid_size, seed=spec.seed, true=_values(gt.mdp, true, planner).tolist())
+    fig.update({name: _values(gt.mdp, R, planner).tolist() for name, R in learnt.items()})
     fig["demos"] = [d[0].tolist() for d in gt.test_demos[j]]
-    fig.update({f"deviation_{name}": deviation(gt.mdp, true, R).tolist() for name, R in learnt.items()})
+    fig.update({f"deviation_{name}": deviation(gt.mdp, true, R, planner=planner).tolist() for name, R in learnt.items()})
     return fig
 
 
