@@ -82,7 +82,8 @@ def _presets_epilog():
 
     lines = ["presets (factirl_opt.experiments.presets):"]
     for name, p in PRESETS.items():
-        lines.append(f"  {name:6s} {len(p.points())} points x {p.n_seeds} seed(s): {PRESET_DESCRIPTIONS[name]}")
+        solvers = "" if (p.h_solver, p.d_solver) == ("armijo", "") else f" [solvers: H {p.h_solver}, D {p.d_solver or 'armijo'}]"
+        lines.append(f"  {name:6s} {len(p.points())} points x {p.n_seeds} seed(s): {PRESET_DESCRIPTIONS[name]}{solvers}")
     return "\n".join(lines)
 
 
@@ -110,16 +111,17 @@ def _add_reproduce(sub):
                      help="runs executed in parallel (worker processes, or dask tasks); -1 uses every core; "
                      "results do not depend on it (default: 1)")
     rep.add_argument("--out", default=None, metavar="DIR", help="output directory (default: runs/PRESET)")
-    rep.add_argument("--h-solver", default="armijo", metavar="NAME",
+    rep.add_argument("--h-solver", default=None, metavar="NAME",
                      help="H-step solver of the factorial learner (fit and transfer): any name in "
-                     "solvers.available_solvers() (default: armijo)")
+                     "solvers.available_solvers() (default: the preset's, see below)")
     rep.add_argument("--h-solver-options", type=parse_solver_options, default=None, metavar="OPTS",
                      help="its options, as JSON ('{\"alpha\": 0.03}') or key=value pairs (alpha=0.03,interface=direct) "
-                     "(default: none)")
+                     "(default: none with --h-solver, else the preset's)")
     rep.add_argument("--d-solver", default=None, metavar="NAME",
-                     help="D-step solver of the factorial learner, for a FactIRL that takes d_solver (default: FactIRL's)")
+                     help="D-step solver of the factorial learner, any name in solvers.available_solvers() "
+                     "(default: the preset's, else FactIRL's)")
     rep.add_argument("--d-solver-options", type=parse_solver_options, default=None, metavar="OPTS",
-                     help="its options, like --h-solver-options (default: none)")
+                     help="its options, like --h-solver-options (default: none with --d-solver, else the preset's)")
     rep.add_argument("--planner", default=None, choices=available_planners(),
                      help="planning engine of every learner and score (factirl_opt.available_planners(); 'auto': "
                      "dense up to 256 states, sparse LU above); a planner other than the preset's changes the "

@@ -2,6 +2,7 @@
 
 import dataclasses
 import inspect
+import json
 
 import numpy as np
 import pytest
@@ -201,3 +202,59 @@ def test_planner_reaches_every_learner_and_score(monkeypatch):
     kinds = {k for k, _ in seen}
     assert kinds == {"GradIRL", "FactIRL", "deviation"} and {p for _, p in seen} == {"sparse-lu"}
     assert sum(k == "deviation" for k, _ in seen) == len(rec["rows"]) + len(LINEUPS["paper"].value_maps)
+
+
+# --- solvers named by presets; the fast preset ---------------------------------------------
+
+
+def test_fast_preset_is_the_paper_with_faster_solvers():
+    from factirl_opt.experiments.presets import FAST_SOLVERS, SOLVER_FIELDS
+
+    paper, fast = PRESETS["paper"], PRESETS["fast"]
+    assert (fast.h_solver, fast.d_solver) == (FAST_SOLVERS["h_solver"], FAST_SOLVERS["d_solver"])
+    same = {f: v for f, v in paper.to_dict().items() if f not in ("name", *SOLVER_FIELDS)}
+    assert same == {f: v for f, v in fast.to_dict().items() if f not in ("name", *SOLVER_FIELDS)}
+    assert fast.fingerprint() == paper.fingerprint()  # the solvers are in the run keys instead
+    specs = plan_runs(fast, [0, 1, 2])
+    assert len(specs) == 27 and {(s.h_solver, s.d_solver) for s in specs} == {(fast.h_solver, fast.d_solver)}
+    assert {s.key(fast) for s in specs}.isdisjoint(s.key(paper) for s in plan_runs(paper, [0, 1, 2]))
+    # the same solvers named on the paper preset: the same runs
+    named = plan_runs(paper, [0, 1, 2], h_solver=fast.h_solver, d_solver=fast.d_solver)
+    assert [s.key(paper) for s in named] == [s.key(fast) for s in specs]
+
+
+def test_a_sweep_overrides_the_presets_solvers():
+    fast = PRESETS["fast"]
+    (spec,) = plan_runs(dataclasses.replace(fast, demos_sweep=(10,), tasks_sweep=(100,)), [0], h_solver="armijo")
+    assert (spec.h_solver, spec.h_solver_options, spec.d_solver) == ("armijo", "", fast.d_solver)
+    preset = dataclasses.replace(TINY, h_solver="armijo", h_solver_options={"initial_step": 0.5})
+    assert preset.h_solver_options == '{"initial_step":0.5}' and preset.h_options() == {"initial_step": 0.5}
+    assert Preset.from_dict(json.loads(json.dumps(preset.to_dict()))) == preset
+    assert plan_runs(preset, [0])[0].h_options() == {"initial_step": 0.5}  # the preset's options with its solver
+    assert plan_runs(preset, [0], h_solver_options={"initial_step": 0.25})[0].h_options() == {"initial_step": 0.25}
+    assert plan_runs(preset, [0], h_solver="armijo")[0].h_options() == {}  # a named solver: its own options only
+
+
+@pytest.mark.parametrize("kw, error, match", [
+    (dict(h_solver="nope"), UnknownSolverError, "preset 'x': unknown solver 'nope'"),
+    (dict(h_solver_options="{oops"), ValidationError, "preset 'x': h_solver_options must be a dict or its JSON"),
+    (dict(h_solver_options={"bogus": 1}), ValidationError, "preset 'x': .*does not accept option"),
+    (dict(d_solver_options={"a": 1}), ValidationError, "preset 'x': d_solver_options given without d_solver"),
+])
+def test_preset_solver_validation(kw, error, match):
+    with pytest.raises(error, match=match):
+        Preset(name="x", **kw)
+
+
+def test_fast_solvers_run_at_tiny_scale():
+    from factirl_opt.experiments.presets import FAST_SOLVERS
+
+    preset = dataclasses.replace(TINY, name="tiny-fast", **FAST_SOLVERS)
+    spec = plan_runs(preset, [0])[-1]
+    rec = run_one(preset, spec)
+    label = f"{FAST_SOLVERS['h_solver']} | d: {FAST_SOLVERS['d_solver']}"
+    assert {r["h_solver"] for r in rec["rows"]} == {label}
+    assert all(np.isfinite(r["deviation"]) and r["n_evaluations"] > 0 for r in rec["rows"])
+    default = run_one(TINY, plan_runs(TINY, [0])[-1])
+    flat_rows = [(r["split"], r["deviation"]) for r in default["rows"] if r["learner"] == "flat"]
+    assert flat_rows == [(r["split"], r["deviation"]) for r in rec["rows"] if r["learner"] == "flat"]  # untouched

@@ -29,16 +29,19 @@ Figure 3 shows the value functions of the line-up's ``value_maps`` test learners
 import collections
 import dataclasses
 import inspect
+import json
 from typing import Callable
 
 import numpy as np
 
-from ..exceptions import ValidationError
+import solvers
+
+from ..exceptions import ValidationError, translate_solver_errors
 from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL
 
 __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options",
-           "check_d_solver_supported"]
+           "check_d_solver_supported", "solver_settings", "decode_options"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
@@ -140,6 +143,58 @@ def check_d_solver_supported():
     """Raise a ValidationError if this FactIRL has no ``d_solver`` parameter."""
     if "d_solver" not in inspect.signature(FactIRL).parameters:
         raise ValidationError("this FactIRL has no d_solver parameter: the D-step solver cannot be chosen")
+
+
+def _canonical(options):
+    return json.dumps(options, sort_keys=True, separators=(",", ":")) if options else ""
+
+
+def decode_options(text):
+    """Solver options stored as canonical JSON (``""``: none), as a dict."""
+    return json.loads(text) if text else {}
+
+
+
+def _check_options(options, name):
+    if options is None:
+        return {}
+    if not isinstance(options, dict) or not all(isinstance(k, str) and k for k in options):
+        raise ValidationError(f"{name} must be a dict of option names to values; got {options!r}")
+    try:
+        json.dumps(options)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name} must hold plain values (numbers, strings, booleans, lists); got {options!r}") from None
+    return options
+
+
+def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
+    """Validate the factorial learner's solver settings; returns them as RunSpec (and Preset) fields.
+
+    Every name must be registered (:func:`solvers.available_solvers`) and accept its options;
+    a D-step solver needs a FactIRL with a ``d_solver`` parameter.
+
+    Returns
+    -------
+    dict
+        ``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options``: the names (``""``
+        for FactIRL's default D-step) and the options as canonical JSON (``""``: none).
+    """
+    out = {}
+    for role, name, options in (("h", h_solver, h_solver_options), ("d", d_solver, d_solver_options)):
+        options = _check_options(options, f"{role}_solver_options")
+        if role == "d" and name is None:
+            if options:
+                raise ValidationError("d_solver_options given without d_solver")
+            out.update(d_solver="", d_solver_options="")
+            continue
+        if not isinstance(name, str) or not name:
+            raise ValidationError(f"{role}_solver must be a registered solver name; got {name!r}")
+        with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
+            solvers.get_solver(name, **options)
+        out.update({f"{role}_solver": name, f"{role}_solver_options": _canonical(options)})
+    if out["d_solver"]:
+        check_d_solver_supported()
+    return out
 
 
 def factorial_options(preset, spec):

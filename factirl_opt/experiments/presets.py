@@ -17,6 +17,12 @@ Presets
     The paper's setting: 10x10 grid, k = 5 primitives, demonstrations of 10 steps, 100
     training tasks with 10 demos each at the default point, sweeps (1, 2, 5, 10, 20) demos and
     (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 3 seeds.
+``fast``
+    The ``paper`` preset with faster solvers for the factorial learner (:data:`FAST_SOLVERS`:
+    the Gauss-Newton QP H-step ``gn-qp-clarabel``, with fit and transfer; the D-step named
+    explicitly): same world, sweeps, test tasks, seeds and budgets, so its runs differ from the
+    paper's only in the factorial learners' solvers (the flat learners' rows are identical). Its
+    fingerprint is the paper's: its runs' keys differ by their solver tag.
 ``quick``
     Every learner and figure of the paper in about a minute with ``--jobs 1`` (the README's
     first command): an 8x8 grid (the paper's dynamics and k = 5 primitives), 3 points (3 and
@@ -37,15 +43,18 @@ import hashlib
 import json
 
 from .._validation import check_int, check_probability, check_real
-from ..exceptions import ValidationError
+from ..exceptions import FactIRLError, ValidationError
 from ..planning import available_planners
 from ..synthetic import COEFFICIENT_KINDS
+from .learners import decode_options, solver_settings
 
 __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_preset"]
 
 #: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
 #: (and so its runs' keys) only when they differ from these
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto"}
+#: the solver fields: defaults of a sweep's solvers, part of each run's key, not of the fingerprint
+SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,6 +109,14 @@ class Preset:
         Planning engine of every learner, of the demonstrations and of the scores (a name in
         :func:`factirl_opt.available_planners`; ``"auto"``: dense up to 256 states, sparse LU
         above).
+    h_solver, d_solver : str
+        The factorial learner's H-step and D-step solvers when a sweep names none (names in
+        ``solvers.available_solvers()``; ``d_solver=""``: FactIRL's default D-step).
+    h_solver_options, d_solver_options : dict or str
+        Their options, a dict (or its JSON), stored as canonical JSON (``""``: none). The four
+        solver fields are not part of the fingerprint: they are part of every run's key
+        (:class:`.runner.RunSpec`), so a ``fast`` run and a ``paper`` run with the same
+        ``--h-solver`` and ``--d-solver`` are the same run.
     """
 
     name: str
@@ -125,6 +142,10 @@ class Preset:
     world: str = "grid"
     lineup: str = "paper"
     planner: str = "auto"
+    h_solver: str = "armijo"
+    h_solver_options: str = ""
+    d_solver: str = ""
+    d_solver_options: str = ""
 
     def __post_init__(self):
         where = f"preset {self.name!r}: "
@@ -147,6 +168,35 @@ class Preset:
                            ("planner", available_planners())):
             if getattr(self, f) not in choices:
                 raise ValidationError(f"{where}{f} must be one of {', '.join(choices)}; got {getattr(self, f)!r}")
+        self._check_solvers(where)
+
+    def _check_solvers(self, where):
+        """Validate the solver fields (:func:`.learners.solver_settings`) and store them canonically."""
+
+        def as_dict(f):
+            value = getattr(self, f)
+            if isinstance(value, str):
+                try:
+                    value = json.loads(value) if value else None
+                except ValueError:
+                    raise ValidationError(f"{where}{f} must be a dict or its JSON; got {value!r}") from None
+            return value
+
+        try:
+            settings = solver_settings(self.h_solver, as_dict("h_solver_options"), self.d_solver or None,
+                                       as_dict("d_solver_options"))
+        except FactIRLError as exc:
+            raise type(exc)(where + str(exc)) from None
+        for f, value in settings.items():
+            object.__setattr__(self, f, value)
+
+    def h_options(self):
+        """The H-step solver's options, a dict."""
+        return decode_options(self.h_solver_options)
+
+    def d_options(self):
+        """The D-step solver's options, a dict."""
+        return decode_options(self.d_solver_options)
 
     def points(self):
         """Sorted unique ``(n_tasks, demos_per_task)`` points of both sweeps."""
@@ -161,14 +211,16 @@ class Preset:
         return d
 
     def fingerprint(self):
-        """Short hash of every field that changes a run's result (all but name and n_seeds).
+        """Short hash of every field that changes a run's result (all but name, n_seeds and the
+        solvers, which are in the runs' keys).
 
         The fields added after the paper's preset (:data:`LATER_FIELDS`: ``world``, ``lineup``,
         ``planner``, ...) enter it only when they differ from their defaults, so the paper's
         runs keep the keys they had before these fields existed.
         """
         d = self.to_dict()
-        del d["name"], d["n_seeds"]
+        for f in ("name", "n_seeds", *SOLVER_FIELDS):
+            del d[f]
         for f, default in LATER_FIELDS.items():
             if d[f] == default:
                 del d[f]
@@ -187,8 +239,13 @@ class Preset:
             raise ValidationError(f"not a preset: {exc}") from None
 
 
+#: the ``fast`` preset's solvers (issue 13): the Gauss-Newton QP H-step (half the evaluations of
+#: Armijo's); the D-step stays Armijo's until the D-step solvers' measurements choose one
+FAST_SOLVERS = dict(h_solver="gn-qp-clarabel", d_solver="armijo")
+
 PRESETS = {
     "paper": Preset(name="paper"),
+    "fast": Preset(name="fast", **FAST_SOLVERS),
     "quick": Preset(
         name="quick",
         grid_size=8,
@@ -233,6 +290,8 @@ PRESETS = {
 #: one line per preset, for ``factirl-opt reproduce --help``
 PRESET_DESCRIPTIONS = {
     "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (about 20 min on 2 cores)",
+    "fast": "the paper's section 4 with faster solvers (same world, sweeps, seeds and budgets; aimed at under 10 min "
+            "on 2 cores)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (about a minute)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",

@@ -23,22 +23,19 @@ it (:mod:`.workers`), or on a Dask cluster.
 import contextlib
 import dataclasses
 import hashlib
-import json
 import os
 import sys
 import time
 
 import numpy as np
 
-import solvers
-
 from .._threads import limit_blas_threads
 from .._validation import check_int
 from ..evaluation import deviation
-from ..exceptions import ValidationError, translate_solver_errors
+from ..exceptions import ValidationError
 from ..planning import optimal_q
 from . import store
-from .learners import RunContext, check_d_solver_supported, get_lineup
+from .learners import RunContext, decode_options, get_lineup, solver_settings
 from .presets import get_preset
 from .tables import write_tables
 from .workers import imap_unordered, sigterm_raises
@@ -50,10 +47,6 @@ __all__ = ["RunSpec", "BACKENDS", "solver_settings", "plan_runs", "run_cost", "r
 N_FIGURE3_TASKS = 4
 #: execution backends (``"loky"`` is accepted as the former name of ``"processes"``)
 BACKENDS = ("processes", "dask")
-
-
-def _canonical(options):
-    return json.dumps(options, sort_keys=True, separators=(",", ":")) if options else ""
 
 
 @dataclasses.dataclass(frozen=True, order=True)
@@ -74,11 +67,11 @@ class RunSpec:
 
     def h_options(self):
         """The H-step solver's options, a dict."""
-        return json.loads(self.h_solver_options) if self.h_solver_options else {}
+        return decode_options(self.h_solver_options)
 
     def d_options(self):
         """The D-step solver's options, a dict."""
-        return json.loads(self.d_solver_options) if self.d_solver_options else {}
+        return decode_options(self.d_solver_options)
 
     def solver_label(self):
         """The ``h_solver`` column of the tables: the H-step solver's name, then its options and
@@ -95,48 +88,22 @@ class RunSpec:
         return f"n{self.n_tasks:03d}-m{self.demos_per_task:02d}-seed{self.seed}-{tag}-{preset.fingerprint()}"
 
 
-def _check_options(options, name):
-    if options is None:
-        return {}
-    if not isinstance(options, dict) or not all(isinstance(k, str) and k for k in options):
-        raise ValidationError(f"{name} must be a dict of option names to values; got {options!r}")
-    try:
-        json.dumps(options)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{name} must hold plain values (numbers, strings, booleans, lists); got {options!r}") from None
-    return options
+def _with_preset_solvers(preset, h_solver, h_solver_options, d_solver, d_solver_options):
+    """The solver settings of a call, the preset's where the call names none.
 
-
-def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
-    """Validate the factorial learner's solver settings; returns the RunSpec fields.
-
-    Every name must be registered (:func:`solvers.available_solvers`) and accept its options;
-    a D-step solver needs a FactIRL with a ``d_solver`` parameter.
-
-    Returns
-    -------
-    dict
-        ``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options`` as RunSpec fields.
+    A solver not named (None) is the preset's, with the given options or else the preset's; a
+    named solver takes only the options given with it.
     """
-    out = {}
-    for role, name, options in (("h", h_solver, h_solver_options), ("d", d_solver, d_solver_options)):
-        options = _check_options(options, f"{role}_solver_options")
-        if role == "d" and name is None:
-            if options:
-                raise ValidationError("d_solver_options given without d_solver")
-            out.update(d_solver="", d_solver_options="")
-            continue
-        if not isinstance(name, str) or not name:
-            raise ValidationError(f"{role}_solver must be a registered solver name; got {name!r}")
-        with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
-            solvers.get_solver(name, **options)
-        out.update({f"{role}_solver": name, f"{role}_solver_options": _canonical(options)})
-    if out["d_solver"]:
-        check_d_solver_supported()
-    return out
+    if h_solver is None:
+        h_solver = preset.h_solver
+        h_solver_options = preset.h_options() if h_solver_options is None else h_solver_options
+    if d_solver is None and preset.d_solver:
+        d_solver = preset.d_solver
+        d_solver_options = preset.d_options() if d_solver_options is None else d_solver_options
+    return h_solver, h_solver_options, d_solver, d_solver_options
 
 
-def plan_runs(preset, seeds, h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
+def plan_runs(preset, seeds, h_solver=None, h_solver_options=None, d_solver=None, d_solver_options=None):
     """Every run of a preset for the given seeds and solver settings, sorted.
 
     Parameters
@@ -144,7 +111,8 @@ def plan_runs(preset, seeds, h_solver="armijo", h_solver_options=None, d_solver=
     preset : Preset or str
     seeds : sequence of int
     h_solver, h_solver_options, d_solver, d_solver_options
-        See :func:`solver_settings`.
+        See :func:`.learners.solver_settings`; a solver left None is the preset's (with the
+        options given, or else the preset's).
 
     Returns
     -------
@@ -154,7 +122,7 @@ def plan_runs(preset, seeds, h_solver="armijo", h_solver_options=None, d_solver=
     seeds = [check_int(s, "seed", minimum=0) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValidationError(f"seeds must be a non-empty list of distinct integers; got {list(seeds)!r}")
-    settings = solver_settings(h_solver, h_solver_options, d_solver, d_solver_options)
+    settings = solver_settings(*_with_preset_solvers(preset, h_solver, h_solver_options, d_solver, d_solver_options))
     return sorted(RunSpec(n, m, s, **settings) for (n, m) in preset.points() for s in seeds)
 
 
@@ -287,7 +255,7 @@ def _prepare_out(out):
     return out
 
 
-def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver="armijo", h_solver_options=None, d_solver=None,
+def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver=None, h_solver_options=None, d_solver=None,
               d_solver_options=None, backend="processes", scheduler=None, progress=True, command=None):
     """Run (or resume) every run of a preset into ``out`` and write the tables.
 
@@ -303,13 +271,15 @@ def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver="armijo", h
     base_seed : int
     jobs : int
         Runs executed at the same time; -1 uses every core.
-    h_solver : str
-        H-step solver of the factorial learner (a name in ``solvers.available_solvers()``).
+    h_solver : str, optional
+        H-step solver of the factorial learner (a name in ``solvers.available_solvers()``);
+        default: the preset's (``preset.h_solver``).
     h_solver_options : dict, optional
-        Its options (e.g. ``{"alpha": 0.03}`` for a sparse solver).
+        Its options (e.g. ``{"alpha": 0.03}`` for a sparse solver); default: none for a named
+        solver, the preset's for the preset's solver.
     d_solver : str, optional
-        D-step solver of the factorial learner (default: FactIRL's); needs a FactIRL that takes
-        ``d_solver``.
+        D-step solver of the factorial learner; default: the preset's (``preset.d_solver``, or
+        FactIRL's default when the preset names none).
     d_solver_options : dict, optional
     backend : {"processes", "dask"}
         ``"processes"``: :mod:`.workers` (when ``jobs > 1``). ``"dask"`` connects to
