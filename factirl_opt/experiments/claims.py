@@ -1,18 +1,20 @@
-"""The paper's section 4 claims, checked against a reproduce directory's results.
+"""The claims of a line-up (the paper's section 4; Objectworld's), checked against a reproduce directory's results.
 
 Each claim compares two learners' mean deviations (over the run's tasks, then over seeds) at a
 point of the sweeps, or one learner across a sweep. A claim *holds* when the means are ordered
-as the paper says; the number of seeds in which the paired comparison holds (same ground truth,
+as the claim says; the number of seeds in which the paired comparison holds (same ground truth,
 same demonstrations) is reported next to it, so a reader sees how robust the ordering is.
+:data:`CLAIMS` maps a line-up's name to its claims.
 """
 
 import os
 
 import numpy as np
 
+from ..exceptions import ValidationError
 from .tables import read_results, write_atomic
 
-__all__ = ["evaluate_claims", "claims_markdown", "write_claims"]
+__all__ = ["CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims"]
 
 
 def _by_seed(rows, split, learner, n, m):
@@ -53,21 +55,16 @@ def _decreasing(rows, split, learner, m, tasks, claim, source):
                 seeds=f"{wins}/{len(seeds)}")
 
 
-def evaluate_claims(rows, preset):
-    """The claims of the paper's section 4 evaluated on result rows.
+def _sweep_claims(rows, preset, split, a, b, claim, source, tasks_source=None):
+    """``a`` beats ``b`` at every point of both sweeps but the default one (demos sweep first)."""
+    n, m = preset.default_tasks, preset.default_demos
+    out = [_less(rows, split, a, b, n, d, f"{claim} (demos sweep)", source) for d in sorted(preset.demos_sweep) if d != m]
+    return out + [_less(rows, split, a, b, nn, m, f"{claim} (tasks sweep)", tasks_source or source)
+                  for nn in sorted(preset.tasks_sweep) if nn != n]
 
-    Parameters
-    ----------
-    rows : list of dict
-        Rows of results.csv (one h_solver).
-    preset : Preset
 
-    Returns
-    -------
-    list of dict
-        ``claim``, ``source`` (where the paper says it), ``point``, ``measured`` (mean ± std
-        over seeds), ``holds`` (bool) and ``seeds`` (paired wins / seeds).
-    """
+def paper_claims(rows, preset):
+    """The claims of the paper's section 4 (line-up ``"paper"``)."""
     n, m = preset.default_tasks, preset.default_demos
     tasks = sorted(preset.tasks_sweep)
     out = [
@@ -80,14 +77,8 @@ def evaluate_claims(rows, preset):
         _decreasing(rows, "train", "factorial", m, tasks, "train: factorial improves with the number of tasks",
                     "4.1, fig. 1"),
     ]
-    for d in sorted(preset.demos_sweep):
-        if d != m:
-            out.append(_less(rows, "train", "factorial", "flat", n, d, "train: factorial beats flat (demos sweep)",
-                             "fig. 1 caption: moderate demos per task"))
-    for nn in tasks:
-        if nn != n:
-            out.append(_less(rows, "train", "factorial", "flat", nn, m, "train: factorial beats flat (tasks sweep)",
-                             "fig. 1 caption: many tasks"))
+    out += _sweep_claims(rows, preset, "train", "factorial", "flat", "train: factorial beats flat",
+                         "fig. 1 caption: moderate demos per task", "fig. 1 caption: many tasks")
     out += [
         _less(rows, "test", "factorial", "flat", n, m, "test: factorial beats flat from scratch", "4.2, fig. 2"),
         _less(rows, "test", "factorial", "flat, PCA features", n, m, "test: factorial beats flat, PCA features", "4.2"),
@@ -98,18 +89,66 @@ def evaluate_claims(rows, preset):
         _decreasing(rows, "test", "factorial", m, tasks, "test: factorial improves with the number of training tasks",
                     "4.2, fig. 2"),
     ]
-    for d in sorted(preset.demos_sweep):
-        if d != m:
-            out.append(_less(rows, "test", "factorial", "flat", n, d, "test: factorial beats flat (demos sweep)", "fig. 2"))
-    for nn in tasks:
-        if nn != n:
-            out.append(_less(rows, "test", "factorial", "flat", nn, m, "test: factorial beats flat (tasks sweep)", "fig. 2"))
-    return [c for c in out if c is not None]
+    return out + _sweep_claims(rows, preset, "test", "factorial", "flat", "test: factorial beats flat", "fig. 2")
+
+
+def objectworld_claims(rows, preset):
+    """Issue 11's claims on the multi-task Objectworld (line-up ``"objectworld"``)."""
+    n, m = preset.default_tasks, preset.default_demos
+    tasks, source = sorted(preset.tasks_sweep), "issue 11"
+    out = []
+    for split in ("train", "test"):
+        out += [
+            _less(rows, split, "factorial, features", "flat, features", n, m,
+                  f"{split}: factorial on features beats flat on features", source),
+            _less(rows, split, "factorial, features", "flat", n, m, f"{split}: factorial on features beats flat tabular",
+                  source),
+            _less(rows, split, "factorial, features", "factorial", n, m,
+                  f"{split}: factorial on features beats factorial tabular", "(our addition)"),
+            _less(rows, split, "flat, ground truth", "factorial, features", n, m,
+                  f"{split}: the true primitives as features are the floor", "(our addition)"),
+            _decreasing(rows, split, "factorial, features", m, tasks,
+                        f"{split}: factorial on features improves with the number of training tasks", source),
+        ]
+    out.insert(4, _less(rows, "train", "factorial, features", "factorial, features, random init", n, m,
+                        "train: PCA is an efficient initialisation on features (beats random init)", "(paper's fn. 2)"))
+    return out + _sweep_claims(rows, preset, "test", "factorial, features", "flat, features",
+                               "test: factorial on features beats flat on features", source)
+
+
+#: line-up name -> (what the claims are, the function evaluating them on result rows)
+CLAIMS = {
+    "paper": ("Paper claims", paper_claims),
+    "objectworld": ("Objectworld claims (issue 11)", objectworld_claims),
+}
+
+
+def evaluate_claims(rows, preset):
+    """The claims of the preset's line-up (:data:`CLAIMS`) evaluated on result rows.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Rows of results.csv (one h_solver).
+    preset : Preset
+
+    Returns
+    -------
+    list of dict
+        ``claim``, ``source`` (where it is made), ``point``, ``measured`` (mean ± std over
+        seeds), ``holds`` (bool) and ``seeds`` (paired wins / seeds); the claims whose learners
+        or points are not in the rows are left out.
+    """
+    try:
+        _, claims = CLAIMS[preset.lineup]
+    except KeyError:
+        raise ValidationError(f"no claims for the line-up {preset.lineup!r}; claims exist for {', '.join(CLAIMS)}") from None
+    return [c for c in claims(rows, preset) if c is not None]
 
 
 def claims_markdown(claims):
     """A markdown table of :func:`evaluate_claims`'s output."""
-    lines = ["| claim (paper) | where | point | ours: mean deviation ± std over seeds | holds | seeds |",
+    lines = ["| claim | where | point | ours: mean deviation ± std over seeds | holds | seeds |",
              "|---|---|---|---|---|---|"]
     for c in claims:
         lines.append(f"| {c['claim']} | {c['source']} | {c['point']} | {c['measured']} | "
@@ -123,8 +162,9 @@ def write_claims(out, preset):
     solver = sorted({r["h_solver"] for r in rows})[0]
     rows = [r for r in rows if r["h_solver"] == solver]
     path = os.path.join(out, "claims.md")
-    write_atomic(path, f"# Paper claims vs this run (H-step solver: {solver})\n\n"
+    title = CLAIMS.get(preset.lineup, ("Claims",))[0]
+    write_atomic(path, f"# {title} vs this run (H-step solver: {solver})\n\n"
                  "Deviation from the optimal score (eq. 13), lower is better. *holds*: the means are ordered as "
-                 "the paper says; *seeds*: seeds in which the paired comparison holds.\n\n"
+                 "the claim says; *seeds*: seeds in which the paired comparison holds.\n\n"
                  + claims_markdown(evaluate_claims(rows, preset)))
     return path

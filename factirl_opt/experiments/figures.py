@@ -5,9 +5,14 @@
   against the number of training tasks (at its default demos per task); markers at the mean
   over seeds, error bars one standard deviation over seeds (when there are several).
 - Figure 3: optimal value functions of 4 test tasks (default point, first seed): the true task
-  with its single demonstration drawn on it, then the flat and the factorial learners' models.
-  Each map has its own colour scale (learnt rewards are defined up to scale); blue is high, as
-  in the paper.
+  with its single demonstration drawn on it, then the models of the line-up's ``value_maps``
+  learners (the paper's: flat and factorial). Each map has its own colour scale (learnt rewards
+  are defined up to scale); blue is high, as in the paper. On Objectworld the objects are drawn
+  over every map (:func:`factirl_opt.plot_objectworld`: dots filled with the inner colour,
+  ringed with the outer one).
+
+A figure shows a sweep's panel only when the sweep has at least two points (Objectworld's
+presets sweep the number of training tasks only).
 """
 
 import json
@@ -17,6 +22,8 @@ import numpy as np
 
 from ..exceptions import ValidationError
 from ..mdp import GridWorld
+from ..objectworld import make_objectworld, plot_objectworld
+from .learners import get_lineup
 from .tables import load_preset_from_manifest, read_results
 
 __all__ = ["plot_sweeps", "plot_value_functions", "plot_all"]
@@ -29,7 +36,15 @@ STYLES = {
     "flat, ground truth": dict(color="#2ca02c", marker="^", linestyle=":"),
     "flat, PCA features": dict(color="#ff7f0e", marker="v", linestyle="-."),
     "flat, features from ex.": dict(color="#9467bd", marker="P", linestyle="--"),
+    "flat, features": dict(color="#e377c2", marker="o", linestyle="--"),
+    "factorial, features": dict(color="#08306b", marker="s", linestyle="-", linewidth=2.2),
+    "factorial, features, random init": dict(color="#6baed6", marker="D", linestyle="--"),
+    "flat MCE": dict(color="#8c564b", marker="o", linestyle=":"),
+    "factorial MCE": dict(color="#bcbd22", marker="s", linestyle="-", linewidth=2.2),
 }
+
+#: figure 3's row labels of the paper's learners (other learners are labelled by their names)
+ROW_NAMES = {"flat": "flat learner", "factorial": "factorial learner"}
 
 
 def _pyplot():
@@ -80,14 +95,11 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
     h_solver = h_solver or sorted({r["h_solver"] for r in rows})[0]
     rows = [r for r in rows if r["h_solver"] == h_solver]
     n_seeds = len({r["seed"] for r in rows})
+    panels = _panels(rows, preset)
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharey=True)
-    panels = (
-        ("demos_per_task", "n_tasks", preset.default_tasks, "demonstrations per training task",
-         f"{preset.default_tasks} training tasks"),
-        ("n_tasks", "demos_per_task", preset.default_demos, "number of training tasks",
-         f"{preset.default_demos} demonstrations per training task"),
-    )
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels) if len(panels) > 1 else 8.0, 4.4), sharey=True,
+                             squeeze=False)
+    axes = axes[0]
     learners = list(dict.fromkeys(r["learner"] for r in rows))  # the tables' order: the line-up's
     lows, highs = [], []
     for ax, (x_name, fixed_name, fixed_value, xlabel, title) in zip(axes, panels):
@@ -114,12 +126,26 @@ def plot_sweeps(rows, preset, split, path_base, h_solver=None):
     axes[0].set_ylabel("deviation from optimal score\n(mean over tasks; lower is better; log scale)")
     what = "training tasks" if split == "train" else "test tasks, one demonstration each"
     spread = f"mean ± std over {n_seeds} seeds" if n_seeds > 1 else "1 seed"
-    fig.suptitle(f"Figure {1 if split == 'train' else 2}: performance on {what}  [{spread}; H-step solver: {h_solver}]",
+    sep = "  " if len(panels) > 1 else "\n"
+    fig.suptitle(f"Figure {1 if split == 'train' else 2}: performance on {what}{sep}[{spread}; H-step solver: {h_solver}]",
                  fontsize=11)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
-    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    legend_rows = -(-len(labels) // (5 if len(panels) > 1 else 3))  # the paper's 5 learners: one row
+    fig.legend(handles, labels, loc="lower center", ncol=-(-len(labels) // legend_rows), fontsize=9, frameon=False)
+    fig.tight_layout(rect=(0, 0.03 + 0.05 * legend_rows, 1, 0.95 if len(panels) > 1 else 0.9))
     return _save(plt, fig, path_base, dpi=130)
+
+
+def _panels(rows, preset):
+    """The panels of figures 1-2: each sweep with at least two points (or the first sweep alone)."""
+    panels = [
+        ("demos_per_task", "n_tasks", preset.default_tasks, "demonstrations per training task",
+         f"{preset.default_tasks} training tasks"),
+        ("n_tasks", "demos_per_task", preset.default_demos, "number of training tasks",
+         f"{preset.default_demos} demonstrations per training task"),
+    ]
+    swept = [p for p in panels if len({r[p[0]] for r in rows if r[p[1]] == p[2]}) > 1]
+    return swept or panels[:1]
 
 
 def _save(plt, fig, path_base, dpi):
@@ -132,46 +158,75 @@ def _save(plt, fig, path_base, dpi):
     return written
 
 
-def _draw_demo(ax, demo, size):
-    """The demonstration's path: a line through the visited cells, arrows for the actions."""
+def _draw_demo(ax, demo, size, moves, colour):
+    """The demonstration's path: a line through the visited cells, arrows for the actions.
+
+    ``moves[a]`` is action a's ``(d_row, d_col)``; an action that does not move gets no arrow.
+    """
     steps = np.asarray(demo)
     rows, cols = np.divmod(steps[:, 0], size)
-    ax.plot(cols, rows, color="#d62728", linewidth=1.5, alpha=0.8)
+    ax.plot(cols, rows, color=colour, linewidth=1.5, alpha=0.8)
     for r, c, a in zip(rows, cols, steps[:, 1]):
-        dr, dc = GridWorld.MOVES[a]
-        ax.annotate("", xy=(c + 0.4 * dc, r + 0.4 * dr), xytext=(c, r),
-                    arrowprops=dict(arrowstyle="->", color="#d62728", lw=1.2))
-    ax.plot(cols[0], rows[0], "o", color="#d62728", markersize=7, markeredgecolor="white")
+        dr, dc = moves[a]
+        if (dr, dc) != (0, 0):
+            ax.annotate("", xy=(c + 0.4 * dc, r + 0.4 * dr), xytext=(c, r),
+                        arrowprops=dict(arrowstyle="->", color=colour, lw=1.2))
+    ax.plot(cols[0], rows[0], "o", color=colour, markersize=7, markeredgecolor="white", zorder=4)
 
 
-def plot_value_functions(data, path_base, point=None):
-    """Figure 3: value-function heat maps of 4 test tasks (rows: true, flat, factorial).
+def _map_style(data, size):
+    """How figure 3 draws a world: ``(draw(ax, V), demo colour, "... is high")``.
+
+    The paper's grid: blue heat maps, red demonstrations. Objectworld: grey heat maps (the
+    objects' colours stay readable) with the objects drawn over them
+    (:func:`factirl_opt.plot_objectworld`), demonstrations in cyan (no object has that colour).
+    """
+    if "objects" not in data:
+        return (lambda ax, V: ax.imshow(V, cmap="Blues", interpolation="nearest")), "#d62728", "blue is high"
+    world = make_objectworld(size, int(data["n_inner"]), int(data["n_outer"]), objects=np.asarray(data["objects"]))
+
+    def draw(ax, V):
+        ax.imshow(V, cmap="Greys", interpolation="nearest")
+        plot_objectworld(world, ax)
+
+    return draw, "#17becf", "dark is high"
+
+
+def plot_value_functions(data, path_base, point=None, learners=("flat", "factorial")):
+    """Figure 3: value-function heat maps of 4 test tasks (rows: the truth, then each learner).
 
     Parameters
     ----------
     data : dict
-        Contents of figure3.json (``grid_size``, ``true``, ``flat``, ``factorial``, ``demos``,
-        ``deviation_flat``, ``deviation_factorial``).
+        Contents of figure3.json: ``grid_size``, ``true``, ``demos``, and for each learner its
+        maps and ``deviation_<learner>``; Objectworld's (``objects``, ``n_inner``, ``n_outer``,
+        ``moves``) draw the objects over the maps (:func:`factirl_opt.plot_objectworld`) and the
+        demonstrations with the world's actions.
     path_base : str
     point : tuple (n_tasks, demos_per_task), optional
         The training point the learners come from (shown in the title).
+    learners : sequence of str
+        The test learners whose maps are drawn, one row each (the line-up's ``value_maps``).
 
     Returns
     -------
     list of str
     """
     size = int(data["grid_size"])
+    missing = [name for name in learners if name not in data or f"deviation_{name}" not in data]
+    if missing:
+        raise ValidationError(f"figure3 data has no value maps of {missing}; rerun `factirl-opt reproduce` to rewrite it")
+    (draw, demo_colour, high), moves = _map_style(data, size), data.get("moves", GridWorld.MOVES)
     plt = _pyplot()
-    n = len(data["true"])
-    fig, axes = plt.subplots(3, n, figsize=(2.7 * n + 0.6, 8.4), squeeze=False)
-    row_names = (("true", "true task (V*) + demonstration"), ("flat", "flat learner"), ("factorial", "factorial learner"))
-    for i, (key, name) in enumerate(row_names):
+    n, rows = len(data["true"]), [("true", "true task (V*) + demonstration")]
+    rows += [(name, ROW_NAMES.get(name, name)) for name in learners]
+    fig, axes = plt.subplots(len(rows), n, figsize=(2.7 * n + 0.6, 2.8 * len(rows)), squeeze=False)
+    for i, (key, name) in enumerate(rows):
         for j in range(n):
             ax = axes[i, j]
-            V = np.asarray(data[key][j]).reshape(size, size)
-            ax.imshow(V, cmap="Blues", interpolation="nearest")
+            draw(ax, np.asarray(data[key][j]).reshape(size, size))
             if key == "true":
-                _draw_demo(ax, data["demos"][j], size)
+                _draw_demo(ax, data["demos"][j], size, moves, demo_colour)
                 ax.set_title(f"test task {j + 1}", fontsize=10)
             else:
                 ax.set_title(f"deviation {data['deviation_' + key][j]:.2f}", fontsize=9)
@@ -180,8 +235,8 @@ def plot_value_functions(data, path_base, point=None):
             if j == 0:
                 ax.set_ylabel(name, fontsize=10)
     trained = f"learners trained on {point[0]} tasks x {point[1]} demos, " if point else ""
-    fig.suptitle(f"Figure 3: optimal value functions of 4 test tasks, one demonstration each\n"
-                 f"({trained}seed {data.get('seed', '?')}; blue is high; each map has its own colour scale)", fontsize=10)
+    fig.suptitle(f"Figure 3: optimal value functions of {n} test tasks, one demonstration each\n"
+                 f"({trained}seed {data.get('seed', '?')}; {high}; each map has its own colour scale)", fontsize=10)
     fig.tight_layout(rect=(0, 0, 1, 0.95))
     return _save(plt, fig, path_base, dpi=110)
 
@@ -206,5 +261,6 @@ def plot_all(out):
         except ValueError as exc:
             raise ValidationError(f"{f3} is not valid JSON ({exc}); rerun `factirl-opt reproduce` to rewrite it") from None
         written += plot_value_functions(data, os.path.join(fig_dir, "figure3"),
-                                        point=(preset.default_tasks, preset.default_demos))
+                                        point=(preset.default_tasks, preset.default_demos),
+                                        learners=get_lineup(preset.lineup).value_maps)
     return written

@@ -23,6 +23,19 @@ test tasks (``split = "test"``, one demonstration each)
     learnt flat training rewards, chosen at random, as features); ``flat, PCA features`` (the
     training PCA components); ``flat, ground truth`` (the floor).
 
+Line-up ``"objectworld"`` (issue 11; the world's base features are Levine's discrete distance
+features, the true dictionary ELIRL's primitives):
+
+train tasks
+    ``flat`` (GradIRL, tabular); ``flat, features`` (GradIRL on the base features); ``flat,
+    ground truth`` (GradIRL with the true primitives as features: the floor); ``factorial``
+    (FactIRL, tabular, from the PCA of ``flat``); ``factorial, features`` (FactIRL with
+    ``R_i = Phi D h_i`` on the base features, from the PCA of the feature weights of ``flat,
+    features``); ``factorial, features, random init``.
+test tasks (one demonstration each)
+    ``flat``; ``flat, features``; ``factorial`` and ``factorial, features`` (``transfer`` of
+    the training dictionaries); ``flat, ground truth``.
+
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
 
@@ -261,26 +274,60 @@ def flat_features_from_examples(gt, preset, ctx):
     return _gradirl(gt, preset, ctx, flat_train[chosen].reshape(n_ex, gt.mdp.n_params).T)
 
 
+def _fit_factorial(gt, preset, ctx, name, init, flat=None, features=None):
+    """Fit a FactIRL on the training tasks, keep it in ``ctx.models[name]`` for its transfer.
+
+    ``init="pca"`` starts from the uncentred PCA of the rewards learnt by the training row
+    ``flat`` (random stream ``"pca"``); ``init="random"`` from a random start (stream
+    ``"random_init"``). ``features``: the base features of ``R_i = Phi D h_i`` (None: tabular).
+    """
+    rng = ctx.rngs["pca" if init == "pca" else "random_init"]
+    model = FactIRL(init=init, rng=rng, features=features, **factorial_options(preset, ctx.spec))
+    model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
+    ctx.models[name] = model
+    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+
+
+def _transfer(gt, ctx, name):
+    """``FactIRL.transfer`` of the dictionary of the fitted model ``name`` to the test tasks."""
+    model = ctx.models[name]
+    model.transfer(gt.mdp, gt.test_demos)
+    return Fit(model.transfer_rewards_, model.transfer_loss_, model.transfer_n_evaluations_)
+
+
 def factorial(gt, preset, ctx):
     """FactIRL from the PCA of the flat training rewards (the paper's heuristic)."""
-    model = FactIRL(init="pca", rng=ctx.rngs["pca"], **factorial_options(preset, ctx.spec))
-    model.fit(gt.mdp, gt.train_demos, flat_rewards=ctx.rewards["train", "flat"])
-    ctx.models["factorial"] = model
-    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+    return _fit_factorial(gt, preset, ctx, "factorial", "pca", flat="flat")
 
 
 def factorial_random_init(gt, preset, ctx):
     """FactIRL from a random start."""
-    model = FactIRL(init="random", rng=ctx.rngs["random_init"], **factorial_options(preset, ctx.spec))
-    model.fit(gt.mdp, gt.train_demos)
-    return Fit(model.rewards_, model.loss_, model.n_evaluations_)
+    return _fit_factorial(gt, preset, ctx, "factorial, random init", "random")
 
 
 def factorial_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the training dictionary to the test tasks."""
-    model = ctx.models["factorial"]
-    model.transfer(gt.mdp, gt.test_demos)
-    return Fit(model.transfer_rewards_, model.transfer_loss_, model.transfer_n_evaluations_)
+    return _transfer(gt, ctx, "factorial")
+
+
+def flat_features(gt, preset, ctx):
+    """GradIRL on the world's base features (Objectworld: the discrete distance features)."""
+    return _gradirl(gt, preset, ctx, gt.features)
+
+
+def factorial_features(gt, preset, ctx):
+    """FactIRL on the world's base features, from the PCA of ``flat, features``'s weights."""
+    return _fit_factorial(gt, preset, ctx, "factorial, features", "pca", flat="flat, features", features=gt.features)
+
+
+def factorial_features_random_init(gt, preset, ctx):
+    """FactIRL on the world's base features from a random start."""
+    return _fit_factorial(gt, preset, ctx, "factorial, features, random init", "random", features=gt.features)
+
+
+def factorial_features_transfer(gt, preset, ctx):
+    """``FactIRL.transfer`` of the feature-space dictionary to the test tasks."""
+    return _transfer(gt, ctx, "factorial, features")
 
 
 _TRAIN_FLAT = (("train", "flat"),)
@@ -302,6 +349,24 @@ LINEUPS = {
             Learner("test", "flat, ground truth", flat_ground_truth),
         ),
         value_maps=("flat", "factorial"),
+    ),
+    "objectworld": Lineup(
+        name="objectworld",
+        learners=(
+            Learner("train", "flat", flat),
+            Learner("train", "flat, features", flat_features),
+            Learner("train", "flat, ground truth", flat_ground_truth),
+            Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
+            Learner("train", "factorial, features", factorial_features, needs=(("train", "flat, features"),)),
+            Learner("train", "factorial, features, random init", factorial_features_random_init),
+            Learner("test", "flat", flat),
+            Learner("test", "flat, features", flat_features),
+            Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
+            Learner("test", "factorial, features", factorial_features_transfer,
+                    needs=(("train", "factorial, features"),)),
+            Learner("test", "flat, ground truth", flat_ground_truth),
+        ),
+        value_maps=("flat, features", "factorial, features"),
     ),
 }
 

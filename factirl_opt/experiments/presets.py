@@ -52,7 +52,7 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_pres
 
 #: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
 #: (and so its runs' keys) only when they differ from these
-LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto"}
+LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05}
 #: the solver fields: defaults of a sweep's solvers, part of each run's key, not of the fingerprint
 SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
 
@@ -67,15 +67,18 @@ class Preset:
     grid_size : int
         Side of the grid world.
     p_success : float
-        Probability that a feasible move succeeds.
+        Probability that a feasible move succeeds (Objectworld: the probability of the intended
+        move, its ``determinism``).
     gamma : float
         Discount factor.
     beta : float
         Boltzmann inverse temperature of every learner.
     n_primitives : int
-        k, the size of the true dictionary and of the learnt ones.
+        k, the size of the true dictionary and of the learnt ones (Objectworld: also c1, the
+        number of inner colours, one true primitive each).
     coefficient_kind : {"gaussian", "nonneg"}
-        Distribution of the true mixing coefficients (:func:`factirl_opt.random_coefficients`).
+        Distribution of the true mixing coefficients (:func:`factirl_opt.random_coefficients`;
+        the grid world only).
     demo_length : int
         Steps per demonstration (train and test).
     demos_sweep : tuple of int
@@ -109,6 +112,10 @@ class Preset:
         Planning engine of every learner, of the demonstrations and of the scores (a name in
         :func:`factirl_opt.available_planners`; ``"auto"``: dense up to 256 states, sparse LU
         above).
+    n_outer_colours : int
+        Objectworld only: c2, the number of outer (distractor) colours.
+    object_density : float
+        Objectworld only: the probability that a cell holds an object.
     h_solver, d_solver : str
         The factorial learner's H-step and D-step solvers when a sweep names none (names in
         ``solvers.available_solvers()``; ``d_solver=""``: FactIRL's default D-step).
@@ -142,6 +149,8 @@ class Preset:
     world: str = "grid"
     lineup: str = "paper"
     planner: str = "auto"
+    n_outer_colours: int = 2
+    object_density: float = 0.05
     h_solver: str = "armijo"
     h_solver_options: str = ""
     d_solver: str = ""
@@ -151,7 +160,7 @@ class Preset:
         where = f"preset {self.name!r}: "
         for f in ("grid_size", "n_primitives", "demo_length", "default_tasks", "default_demos", "n_test_tasks",
                   "n_features_from_examples", "n_pca_components", "flat_max_iter", "fact_max_iter",
-                  "inner_steps", "transfer_max_iter", "n_seeds"):
+                  "inner_steps", "transfer_max_iter", "n_seeds", "n_outer_colours"):
             object.__setattr__(self, f, check_int(getattr(self, f), where + f, minimum=1))
         for f in ("demos_sweep", "tasks_sweep"):
             v = getattr(self, f)
@@ -159,6 +168,8 @@ class Preset:
                 raise ValidationError(f"{where}{f} must be a non-empty tuple of integers >= 1; got {v!r}")
             object.__setattr__(self, f, tuple(check_int(x, f"{where}{f}[{i}]", minimum=1) for i, x in enumerate(v)))
         object.__setattr__(self, "p_success", check_probability(self.p_success, where + "p_success"))
+        object.__setattr__(self, "object_density", check_real(self.object_density, where + "object_density", 0.0, 1.0,
+                                                              low_open=True))
         object.__setattr__(self, "gamma", check_real(self.gamma, where + "gamma", 0.0, 1.0, high_open=True))
         object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
         from .learners import LINEUPS
@@ -243,6 +254,9 @@ class Preset:
 #: Armijo's); the D-step stays Armijo's until the D-step solvers' measurements choose one
 FAST_SOLVERS = dict(h_solver="gn-qp-clarabel", d_solver="armijo")
 
+#: the Objectworld presets' solvers: the Gauss-Newton QP H-step (evaluations cost 10x more there)
+OBJECTWORLD_SOLVERS = dict(h_solver="gn-qp-clarabel")
+
 PRESETS = {
     "paper": Preset(name="paper"),
     "fast": Preset(name="fast", **FAST_SOLVERS),
@@ -269,6 +283,56 @@ PRESETS = {
         n_test_tasks=50,
         n_seeds=1,
     ),
+    "objectworld": Preset(
+        name="objectworld",
+        world="objectworld",
+        lineup="objectworld",
+        grid_size=32,
+        demo_length=16,
+        demos_sweep=(32,),
+        tasks_sweep=(10, 20, 50, 100),
+        default_tasks=100,
+        default_demos=32,
+        n_test_tasks=100,
+        n_seeds=3,
+        **OBJECTWORLD_SOLVERS,
+    ),
+    "objectworld-quick": Preset(
+        name="objectworld-quick",
+        world="objectworld",
+        lineup="objectworld",
+        grid_size=16,
+        demo_length=16,
+        demos_sweep=(16,),
+        tasks_sweep=(5, 20),
+        default_tasks=20,
+        default_demos=16,
+        n_test_tasks=20,
+        flat_max_iter=40,
+        fact_max_iter=15,
+        transfer_max_iter=40,
+        n_seeds=1,
+        **OBJECTWORLD_SOLVERS,
+    ),
+    "objectworld-tiny": Preset(
+        name="objectworld-tiny",
+        world="objectworld",
+        lineup="objectworld",
+        grid_size=8,
+        object_density=0.15,
+        demo_length=8,
+        demos_sweep=(4,),
+        tasks_sweep=(3, 6),
+        default_tasks=6,
+        default_demos=4,
+        n_test_tasks=4,
+        flat_max_iter=8,
+        fact_max_iter=3,
+        inner_steps=2,
+        transfer_max_iter=8,
+        n_seeds=1,
+        **OBJECTWORLD_SOLVERS,
+    ),
     "tiny": Preset(
         name="tiny",
         grid_size=5,
@@ -294,6 +358,11 @@ PRESET_DESCRIPTIONS = {
             "on 2 cores)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (about a minute)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
+    "objectworld": "ELIRL's multi-task Objectworld: 32x32, 100 training tasks x 32 demos of 16 steps, tasks sweep "
+                   "10-100, 100 test tasks, 3 seeds (hours on 2 cores)",
+    "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 1 seed "
+                         "(minutes)",
+    "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
 }
 

@@ -197,6 +197,7 @@ def _figure3(gt, preset, spec, ctx, names):
     fig = dict(grid_size=preset.grid_size, seed=spec.seed, true=_values(gt.mdp, true, planner).tolist())
     fig.update({name: _values(gt.mdp, R, planner).tolist() for name, R in learnt.items()})
     fig["demos"] = [d[0].tolist() for d in gt.test_demos[j]]
+    fig.update(gt.map_extras)
     fig.update({f"deviation_{name}": deviation(gt.mdp, true, R, planner=planner).tolist() for name, R in learnt.items()})
     return fig
 

@@ -3,31 +3,44 @@
 A *world* is a named recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``: an
 MDP, a true reward dictionary, training tasks with ``demos_per_task`` demonstrations each and
 test tasks with one demonstration each. :data:`WORLDS` maps a preset's ``world`` field to its
-recipe; a new world (e.g. Objectworld) is one more entry.
+recipe; a new world is one more entry.
 
 ``"grid"`` (the paper's section 4)
     :class:`factirl_opt.GridWorld` of the preset's size and dynamics; tasks drawn by
     :func:`factirl_opt.synthetic.synthetic_tasks` from a random dictionary (``D ~ N(0, 1)``;
-    coefficients ``N(0, 1)`` or ``|N(0, 1)|``).
+    coefficients ``N(0, 1)`` or ``|N(0, 1)|``). No base features.
+``"objectworld"`` (the multi-task Objectworld of ELIRL, Mendez et al. 2018)
+    :func:`factirl_opt.make_objectworld` with ``N = grid_size``, ``c1 = n_primitives`` inner
+    colours, ``c2 = n_outer_colours`` outer colours, ``object_density``, ``determinism =
+    p_success`` and ``gamma``; tasks drawn by ELIRL's rule
+    (:func:`factirl_opt.multitask_rewards`: 2-4 inner colours per task, weights
+    ``5 (3u - 2)``, reward ``sum_c w_c 1[distance to colour c < 3]``), state rewards repeated
+    over the 5 actions; the true dictionary is the c1 primitives ``1[distance to colour c < 3]``
+    (S, c1); the base features are Levine's discrete features (S, (N-1)(c1+c2))
+    (:func:`factirl_opt.objectworld_features`). Demonstrations of the greedy expert
+    (:func:`factirl_opt.sample_demonstrations`, uniform start states), planned with the
+    preset's planner. ``coefficient_kind`` is not used.
 
 Randomness: the run's seed makes a ``numpy.random.SeedSequence`` whose spawned children feed
-independent streams, in this order: dictionary, training coefficients, test coefficients,
-training demonstrations, test demonstrations, learners (random initialisation, choice of the
-``features from ex.``; see :mod:`.learners`). So, for one seed, every point of a sweep shares
-the same dictionary and the same test tasks (with the same demonstrations), and the training
-tasks of a smaller point are the first ones of a larger point (paired comparisons across the
-sweep); nothing depends on which process runs what.
+independent streams, in this order: dictionary (Objectworld: the object layout), training
+coefficients, test coefficients, training demonstrations, test demonstrations, learners
+(random initialisation, choice of the ``features from ex.``; see :mod:`.learners`). So, for one
+seed, every point of a sweep shares the same dictionary (world) and the same test tasks (with
+the same demonstrations), and the training tasks of a smaller point are the first ones of a
+larger point (paired comparisons across the sweep); nothing depends on which process runs what.
 """
 
 import dataclasses
 
 import numpy as np
 
+from ..demonstrations import sample_demonstrations
 from ..exceptions import ValidationError
 from ..mdp import GridWorld, TabularMDP
+from ..objectworld import _MOVES, make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
 from ..synthetic import random_dictionary, synthetic_tasks
 
-__all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "N_STREAMS"]
+__all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "objectworld", "N_STREAMS"]
 
 #: children spawned from a run's SeedSequence (see the module docstring for their order)
 N_STREAMS = 6
@@ -41,13 +54,21 @@ class GroundTruth:
     Attributes
     ----------
     mdp : TabularMDP
-    dictionary : ndarray, shape (S*A, k)
+    dictionary : ndarray, shape (S*A, k) or (S, k)
+        The true primitive rewards (state primitives are repeated over actions by the learners
+        that take them as features).
     train_rewards : ndarray, shape (n_tasks, S, A)
     train_demos : list of n_tasks int arrays, each (demos_per_task, L, 2)
     test_rewards : ndarray, shape (n_test_tasks, S, A)
     test_demos : list of n_test_tasks int arrays, each (1, L, 2)
     learner_rng : numpy.random.Generator
         Parent of the learners' random streams (:class:`.learners.RunContext`).
+    features : ndarray, shape (S*A, p) or (S, p), or None
+        The world's base features (Objectworld: the discrete distance features); None when
+        the world has none.
+    map_extras : dict
+        What the value-map figure needs besides the values, as plain JSON values (Objectworld:
+        ``objects``, ``n_inner``, ``n_outer`` and the actions' ``moves``); empty for the grid.
     """
 
     mdp: TabularMDP
@@ -57,6 +78,8 @@ class GroundTruth:
     test_rewards: np.ndarray
     test_demos: list
     learner_rng: np.random.Generator
+    features: np.ndarray = None
+    map_extras: dict = dataclasses.field(default_factory=dict)
 
     def demos(self, split):
         """Demonstrations of the ``"train"`` or ``"test"`` tasks."""
@@ -100,8 +123,43 @@ def grid_world(preset, n_tasks, demos_per_task, seed):
     return GroundTruth(mdp, D, train.rewards, train.demos, test.rewards, test.demos, np.random.default_rng(s_learn))
 
 
+def objectworld(preset, n_tasks, demos_per_task, seed):
+    """The multi-task Objectworld (ELIRL's benchmark; see the module docstring).
+
+    Parameters
+    ----------
+    preset : Preset
+    n_tasks : int
+        Training tasks.
+    demos_per_task : int
+        Demonstrations of each training task (test tasks get one each).
+    seed : int
+        Entropy of the run's SeedSequence.
+
+    Returns
+    -------
+    GroundTruth
+        With ``dictionary`` the true primitives (S, c1), ``features`` the discrete features
+        (S, (N-1)(c1+c2)) and the world's objects in ``map_extras``.
+    """
+    s_world, s_train, s_test, s_train_demo, s_test_demo, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
+    world = make_objectworld(preset.grid_size, preset.n_primitives, preset.n_outer_colours, preset.object_density,
+                             determinism=preset.p_success, gamma=preset.gamma, rng=np.random.default_rng(s_world))
+    mdp = world.mdp()
+    split = {}
+    for name, n, m, s_tasks, s_demos in (("train", n_tasks, demos_per_task, s_train, s_train_demo),
+                                         ("test", preset.n_test_tasks, 1, s_test, s_test_demo)):
+        rewards, _, primitives = multitask_rewards(world, n, rng=np.random.default_rng(s_tasks))
+        R = state_action_rewards(rewards, mdp.n_actions)
+        split[name] = (R, sample_demonstrations(mdp, R, m, preset.demo_length, rng=np.random.default_rng(s_demos),
+                                                planner=preset.planner))
+    extras = dict(objects=world.objects.tolist(), n_inner=world.n_inner, n_outer=world.n_outer, moves=_MOVES.tolist())
+    return GroundTruth(mdp, primitives, *split["train"], *split["test"], np.random.default_rng(s_learn),
+                       features=objectworld_features(world), map_extras=extras)
+
+
 #: world name (a preset's ``world``) -> recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``
-WORLDS = {"grid": grid_world}
+WORLDS = {"grid": grid_world, "objectworld": objectworld}
 
 
 def make_ground_truth(preset, n_tasks, demos_per_task, seed):
