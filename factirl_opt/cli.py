@@ -8,6 +8,7 @@ Examples
     factirl-opt reproduce --preset paper --jobs 2 --out runs/paper
     factirl-opt reproduce --preset tiny --h-solver gn-qp-osqp-sparse --h-solver-options alpha=0.03
     factirl-opt reproduce --preset tiny --planner sparse-lu
+    factirl-opt reproduce --preset paper --lineup paper+mce --jobs 2 --out runs/paper-mce
     factirl-opt plot runs/paper
     factirl-opt bench fit --help
 """
@@ -88,6 +89,7 @@ def _presets_epilog():
 
 
 def _add_reproduce(sub):
+    from .experiments.learners import LINEUPS
     from .experiments.presets import PRESETS
     from .planning import available_planners
 
@@ -126,6 +128,9 @@ def _add_reproduce(sub):
                      help="planning engine of every learner and score (factirl_opt.available_planners(); 'auto': "
                      "dense up to 256 states, sparse LU above); a planner other than the preset's changes the "
                      "runs' keys (default: the preset's, auto)")
+    rep.add_argument("--lineup", default=None, choices=list(LINEUPS),
+                     help="learner line-up (factirl_opt.experiments.learners; e.g. paper+mce adds the MCE learners); a "
+                     "line-up other than the preset's changes the runs' keys (default: the preset's)")
     rep.add_argument("--backend", default="processes", choices=["processes", "dask", "loky"],
                      help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
                      "name of 'processes' (default: processes)")
@@ -171,8 +176,9 @@ def _reproduce(args, argv):
 
     out = args.out or os.path.join("runs", args.preset)
     preset = get_preset(args.preset)
-    if args.planner is not None:
-        preset = dataclasses.replace(preset, planner=args.planner)
+    overrides = {f: getattr(args, f) for f in ("planner", "lineup") if getattr(args, f) is not None}
+    if overrides:
+        preset = dataclasses.replace(preset, **overrides)
     command = " ".join([PROG] + [shlex.quote(a) for a in argv])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RejectedRunWarning)  # reported below, one line per record

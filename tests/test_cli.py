@@ -11,7 +11,7 @@ from factirl_opt.cli import main
 
 
 REPRODUCE_OPTIONS = ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--h-solver-options",
-                     "--d-solver", "--d-solver-options", "--planner", "--backend", "--scheduler")
+                     "--d-solver", "--d-solver-options", "--planner", "--lineup", "--backend", "--scheduler")
 
 
 def _reproduce_help(capsys):
@@ -103,6 +103,7 @@ def test_reproduce_then_plot(tmp_path, capsys):
     (["reproduce", "--seed", "-1"], "seed must be an integer >= 0; got -1"),
     (["reproduce", "--backend", "spark"], "invalid choice: 'spark'"),
     (["reproduce", "--planner", "gpu"], "invalid choice: 'gpu'"),
+    (["reproduce", "--lineup", "mce"], "invalid choice: 'mce'"),
     (["reproduce", "--h-solver-options", "alpha"], "expected a JSON object or key=value pairs"),
     (["reproduce", "--h-solver-options", "{alpha: 1}"], "not a JSON object"),
     (["reproduce", "--h-solver-options", "a=1,a=2"], "distinct keys"),
@@ -139,6 +140,27 @@ def test_planner_option_overrides_the_presets(tmp_path, capsys):
     assert manifest["preset"]["name"] == "tiny" and manifest["preset"]["planner"] == "dense"
     runs = sorted(os.listdir(out / "runs"))
     assert len(runs) == 3 and not any(PRESETS["tiny"].fingerprint() in r for r in runs)  # other keys than auto's
+
+
+def test_lineup_option_selects_the_mce_learners(tmp_path, capsys):
+    out = tmp_path / "mce"
+    assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--lineup", "paper+mce", "--out", str(out), "--quiet"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["preset"]["lineup"] == "paper+mce" and len(manifest["lineup"]) == 14
+    claims = (out / "claims.md").read_text()
+    assert claims.startswith("# Paper and MCE claims") and "| test: factorial MCE beats flat MCE |" in claims
+    code = main(["reproduce", "--preset", "tiny", "--lineup", "objectworld", "--out", str(tmp_path / "x"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "the line-up 'objectworld' runs in the world(s) objectworld; got world 'grid'" in err
+    assert err.count("\n") == 1
+
+
+def test_presets_print_their_solvers(capsys):
+    text = " ".join(_reproduce_help(capsys).split())
+    assert "[solvers: H gn-qp-clarabel, D armijo]" in text and "objectworld-quick" in text
+    from factirl_opt.experiments.presets import PRESET_DESCRIPTIONS
+
+    assert f"{PRESET_DESCRIPTIONS['paper']} [solvers" not in text  # the paper's Armijo steps are not listed
 
 
 def test_solver_options_parse_json_or_pairs():

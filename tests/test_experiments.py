@@ -338,3 +338,122 @@ def test_progress_is_weighted_by_run_cost(tmp_path, monkeypatch):
     paper = PRESETS["paper"]
     big, small = (run_cost(paper, runner_mod.RunSpec(n, 10, 0)) for n in (100, 5))
     assert 2 < big / small < 4
+
+
+# --- the paper's run keys; the other presets and line-ups at tiny scale --------------------
+
+
+def test_the_papers_run_keys_are_those_of_the_committed_results():
+    """The committed paper-scale run (results/runs) is what `reproduce --preset paper` plans."""
+    runs = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "runs")
+    if not os.path.isdir(runs):
+        pytest.skip("no committed results/ in this checkout")
+    committed = sorted(f[:-5] for f in os.listdir(runs) if f.endswith(".json"))
+    assert committed == sorted(s.key(PRESETS["paper"]) for s in plan_runs("paper", [0, 1, 2]))
+
+
+@pytest.fixture(scope="module")
+def objectworld_sweep(tmp_path_factory):
+    """The objectworld-tiny preset, run once for the module (a few seconds)."""
+    out = tmp_path_factory.mktemp("objectworld-tiny")
+    res = run_sweep("objectworld-tiny", out, jobs=1, progress=False)
+    return out, res
+
+
+def test_objectworld_smoke_sweep_tables_figures_and_claims(objectworld_sweep):
+    from factirl_opt.experiments import LINEUPS
+    from factirl_opt.experiments.claims import evaluate_claims, write_claims
+
+    out, res = objectworld_sweep
+    p = PRESETS["objectworld-tiny"]
+    assert res["n_runs"] == res["n_computed"] == len(p.points())
+    rows = read_csv(out / "results.csv")
+    lineup = LINEUPS["objectworld"]
+    for split in ("train", "test"):
+        assert {r["learner"] for r in rows if r["split"] == split} == set(lineup.names(split))
+    assert {r["h_solver"] for r in rows} == {"gn-qp-clarabel"}
+    data = json.loads(_read(out / "figure3.json"))
+    assert {"objects", "n_inner", "n_outer", "moves", *lineup.value_maps} <= set(data)
+    written = plot_all(out)
+    assert sorted(os.path.basename(w) for w in written) == sorted(f"figure{i}.{e}" for i in (1, 2, 3) for e in ("png", "svg"))
+    with open(out / "figures" / "figure1.svg") as fh:
+        svg = fh.read()
+    assert all(name in svg for name in lineup.names("train"))  # the legend names every learner
+    claims = evaluate_claims(rows, p)
+    names = [c["claim"] for c in claims]
+    assert "test: factorial on features beats flat on features" in names
+    assert "train: factorial on features beats flat tabular" in names
+    assert "test: factorial on features improves with the number of training tasks" in names
+    assert all(isinstance(c["holds"], bool) for c in claims)
+    with open(write_claims(out, p)) as fh:
+        assert fh.read().startswith("# Objectworld claims (issue 11) vs this run (H-step solver: gn-qp-clarabel)")
+
+
+def test_a_single_sweep_draws_one_panel(objectworld_sweep, tiny_sweep, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from factirl_opt.experiments.figures import plot_sweeps
+
+    out, _ = objectworld_sweep
+    rows = read_csv(out / "results.csv")
+    created = []
+    original = plt.subplots
+
+    def spy(*args, **kwargs):
+        fig, axes = original(*args, **kwargs)
+        created.append(np.shape(axes))
+        return fig, axes
+
+    plt.subplots = spy
+    try:
+        plot_sweeps(rows, PRESETS["objectworld-tiny"], "test", str(tmp_path / "f2"))
+        plot_sweeps(read_csv(tiny_sweep[0] / "results.csv"), PRESETS["tiny"], "test", str(tmp_path / "g2"))
+    finally:
+        plt.subplots = original
+    assert created == [(1, 1), (1, 2)]  # the tasks sweep only; the paper's two sweeps
+
+
+def test_paper_with_mce_smoke_sweep(tmp_path):
+    import dataclasses
+
+    from factirl_opt.experiments.claims import evaluate_claims
+
+    preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce")
+    run_sweep(preset, tmp_path, seeds=1, progress=False)
+    rows = read_csv(tmp_path / "results.csv")
+    assert {"flat MCE", "factorial MCE"} <= {r["learner"] for r in rows if r["split"] == "test"}
+    claims = {c["claim"]: c for c in evaluate_claims(rows, preset)}
+    assert "test: factorial MCE beats flat MCE" in claims and "test: factorial beats flat from scratch" in claims
+    mce = {r["learner"]: r["deviation"] for r in rows if r["split"] == "test" and (r["n_tasks"], r["demos_per_task"]) == (8, 5)}
+    assert claims["test: factorial MCE beats flat MCE"]["holds"] == (mce["factorial MCE"] < mce["flat MCE"])
+    written = plot_all(tmp_path)
+    with open(tmp_path / "figures" / "figure2.svg") as fh:
+        svg = fh.read()
+    assert "flat MCE" in svg and "factorial MCE" in svg and len(written) == 6
+    assert set(json.loads(_read(tmp_path / "figure3.json"))) >= {"flat MCE", "factorial MCE", "deviation_factorial MCE"}
+
+
+def test_claims_need_a_known_lineup():
+    import dataclasses
+
+    from factirl_opt.experiments import claims as claims_mod
+
+    preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce")
+    saved = claims_mod.CLAIMS.pop("paper+mce")
+    try:
+        with pytest.raises(ValidationError, match="no claims for the line-up 'paper\\+mce'"):
+            claims_mod.evaluate_claims([], preset)
+    finally:
+        claims_mod.CLAIMS["paper+mce"] = saved
+
+
+def test_value_maps_of_unknown_learners_are_refused(tiny_sweep, tmp_path):
+    from factirl_opt.experiments.figures import plot_value_functions
+
+    out, _ = tiny_sweep
+    data = json.loads(_read(out / "figure3.json"))
+    with pytest.raises(ValidationError, match="no value maps of \\['factorial MCE'\\]"):
+        plot_value_functions(data, str(tmp_path / "f3"), learners=("flat", "factorial MCE"))

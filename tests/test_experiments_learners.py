@@ -56,9 +56,9 @@ def test_a_new_lineup_is_a_table_row(monkeypatch):
 
 
 def test_preset_names_its_world_and_lineup(monkeypatch):
-    with pytest.raises(ValidationError, match="world must be one of grid; got 'objectworld'"):
-        Preset(name="x", world="objectworld")
-    with pytest.raises(ValidationError, match="lineup must be one of paper"):
+    with pytest.raises(ValidationError, match="world must be one of grid, objectworld; got 'gridworld'"):
+        Preset(name="x", world="gridworld")
+    with pytest.raises(ValidationError, match="lineup must be one of paper, objectworld, paper\\+mce, objectworld\\+mce"):
         Preset(name="x", lineup="mce")
     calls = []
 
@@ -93,7 +93,8 @@ def test_default_settings_build_the_same_factirl():
     assert (spec.h_solver, spec.h_solver_options, spec.d_solver, spec.d_solver_options) == ("armijo", "", "", "")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
-                                                 flat_max_iter=10, transfer_max_iter=10, planner="auto")
+                                                 flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
+                                                 planner="auto")
 
 
 def test_h_solver_options_reach_factirl(monkeypatch):
@@ -184,9 +185,9 @@ def test_planner_reaches_every_learner_and_score(monkeypatch):
             super().__init__(**kw)
 
     class SpyFactIRL(FactIRL):
-        def __init__(self, **kw):
+        def __init__(self, d_solver="armijo", **kw):
             seen.append(("FactIRL", kw["planner"]))
-            super().__init__(**kw)
+            super().__init__(d_solver=d_solver, **kw)
 
     original = runner_mod.deviation
 
@@ -258,3 +259,65 @@ def test_fast_solvers_run_at_tiny_scale():
     default = run_one(TINY, plan_runs(TINY, [0])[-1])
     flat_rows = [(r["split"], r["deviation"]) for r in default["rows"] if r["learner"] == "flat"]
     assert flat_rows == [(r["split"], r["deviation"]) for r in rec["rows"] if r["learner"] == "flat"]  # untouched
+
+
+# --- Objectworld and MCE line-ups ---------------------------------------------------------
+
+
+def test_objectworld_lineup():
+    ow = LINEUPS["objectworld"]
+    assert ow.names("train") == ("flat", "flat, features", "flat, ground truth", "factorial", "factorial, features",
+                                 "factorial, features, random init")
+    assert ow.names("test") == ("flat", "flat, features", "factorial", "factorial, features", "flat, ground truth")
+    assert ow.value_maps == ("flat, features", "factorial, features") and ow.worlds == ("objectworld",)
+
+
+def test_mce_lineups_extend_the_paper_and_objectworld_lineups():
+    for base, suffix in (("paper", ""), ("objectworld", ", features")):
+        ext, lineup = LINEUPS[base + "+mce"], LINEUPS[base]
+        mce = (f"flat MCE{suffix}", f"factorial MCE{suffix}")
+        for split in ("train", "test"):
+            assert ext.names(split) == lineup.names(split) + mce
+        assert ext.worlds == lineup.worlds and ext.value_maps == lineup.value_maps + mce
+        # the line-up's own rows keep their builders and versions
+        assert [r for r in ext.fingerprint() if r[1] not in mce] == lineup.fingerprint()
+
+
+def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch):
+    seen = []
+
+    class SpyFactIRL(FactIRL):
+        def __init__(self, d_solver="armijo", **kw):
+            seen.append((kw["objective"], kw["h_solver"], d_solver))
+            super().__init__(d_solver=d_solver, **kw)
+
+    monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
+    preset = dataclasses.replace(TINY, lineup="paper+mce")
+    spec = plan_runs(preset, [0], h_solver="gn-qp-clarabel", d_solver="lbfgs")[-1]
+    rec = run_one(preset, spec)
+    assert seen == [("policy-matching", "gn-qp-clarabel", "lbfgs")] * 2 + [("mce", "armijo", "lbfgs")]
+    assert {r["h_solver"] for r in rec["rows"]} == {"gn-qp-clarabel | d: lbfgs"}
+    mce = {(r["split"], r["learner"]): r for r in rec["rows"] if "MCE" in r["learner"]}
+    assert set(mce) == {(s, n) for s in ("train", "test") for n in ("flat MCE", "factorial MCE")}
+    assert all(np.isfinite(r["deviation"]) and r["n_evaluations"] > 0 for r in mce.values())
+
+
+@pytest.mark.parametrize("objective, h, d, expected", [
+    ("policy-matching", "gn-qp-clarabel", "gn-cg", ("gn-qp-clarabel", "gn-cg")),
+    ("mce", "gn-qp-clarabel", "gn-cg", ("armijo", "armijo")),
+    ("mce", "armijo", "lbfgs", ("armijo", "lbfgs")),
+])
+def test_factorial_options_use_solvers_that_apply_to_the_objective(objective, h, d, expected):
+    spec = plan_runs(TINY, [0], h_solver=h, h_solver_options={"lam_max": 1e6} if h.startswith("gn") else None,
+                     d_solver=d)[0]
+    kw = factorial_options(TINY, spec, objective)
+    assert (kw["h_solver"], kw["d_solver"], kw["objective"]) == (*expected, objective)
+    assert ("h_solver_options" in kw) == (expected[0] == h and h.startswith("gn"))
+
+
+def test_the_papers_rows_do_not_depend_on_the_extra_learners():
+    spec = plan_runs(TINY, [0])[0]  # 4 tasks < k = 5: the PCA completes its basis from the random stream
+    paper, extended = run_one(TINY, spec), run_one(dataclasses.replace(TINY, lineup="paper+mce"), spec)
+    rows = {(r["split"], r["learner"]): r for r in extended["rows"]}
+    for r in paper["rows"]:
+        assert rows[r["split"], r["learner"]] == r

@@ -14,7 +14,8 @@ import numpy as np
 from ..exceptions import ValidationError
 from .tables import read_results, write_atomic
 
-__all__ = ["CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims"]
+__all__ = ["CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims",
+           "mce_claims"]
 
 
 def _by_seed(rows, split, learner, n, m):
@@ -116,10 +117,23 @@ def objectworld_claims(rows, preset):
                                "test: factorial on features beats flat on features", source)
 
 
+def mce_claims(rows, preset, suffix=""):
+    """Issue 12's claims: the factorial MCE learner beats the flat MCE learner (names + ``suffix``)."""
+    n, m = preset.default_tasks, preset.default_demos
+    flat, fact = f"flat MCE{suffix}", f"factorial MCE{suffix}"
+    out = [_less(rows, split, fact, flat, n, m, f"{split}: {fact} beats {flat}", "issue 12") for split in ("train", "test")]
+    out.append(_decreasing(rows, "test", fact, m, sorted(preset.tasks_sweep),
+                           f"test: {fact} improves with the number of training tasks", "issue 12"))
+    return out + _sweep_claims(rows, preset, "test", fact, flat, f"test: {fact} beats {flat}", "issue 12")
+
+
 #: line-up name -> (what the claims are, the function evaluating them on result rows)
 CLAIMS = {
     "paper": ("Paper claims", paper_claims),
     "objectworld": ("Objectworld claims (issue 11)", objectworld_claims),
+    "paper+mce": ("Paper and MCE claims", lambda rows, preset: paper_claims(rows, preset) + mce_claims(rows, preset)),
+    "objectworld+mce": ("Objectworld and MCE claims (issues 11, 12)",
+                        lambda rows, preset: objectworld_claims(rows, preset) + mce_claims(rows, preset, ", features")),
 }
 
 

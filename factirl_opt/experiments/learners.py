@@ -36,6 +36,14 @@ test tasks (one demonstration each)
     ``flat``; ``flat, features``; ``factorial`` and ``factorial, features`` (``transfer`` of
     the training dictionaries); ``flat, ground truth``.
 
+Line-ups ``"paper+mce"`` and ``"objectworld+mce"`` (issue 12): the line-up, plus a flat and a
+factorial learner on the maximum causal entropy likelihood (``objective="mce"``), train and
+test: ``flat MCE`` (GradIRL), ``factorial MCE`` (FactIRL from the PCA of ``flat MCE``'s
+rewards; its ``transfer`` on the test tasks); on Objectworld both on the base features
+(``flat MCE, features``, ``factorial MCE, features``). The Gauss-Newton solvers need a
+least-squares objective: where a run names one, the MCE learners use Armijo's steps
+(:func:`factorial_options`).
+
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
 
@@ -51,13 +59,16 @@ import solvers
 
 from ..exceptions import ValidationError, translate_solver_errors
 from ..factirl import FactIRL, pca_dictionary
-from ..gradirl import GradIRL
+from ..gradirl import GradIRL, check_solver_applies
 
 __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options",
            "check_d_solver_supported", "solver_settings", "decode_options"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
+
+#: the objective of the paper's learners (eq. 5)
+DEFAULT_OBJECTIVE = "policy-matching"
 
 #: the learners' random streams, spawned in this order from the ground truth's ``learner_rng``
 #: (append new names at the end: the existing streams then stay the same)
@@ -90,11 +101,16 @@ class Learner:
 
 @dataclasses.dataclass(frozen=True)
 class Lineup:
-    """A named, ordered table of learners, and the test learners figure 3 shows."""
+    """A named, ordered table of learners, and the test learners figure 3 shows.
+
+    ``worlds``: the names of the worlds (:data:`.worlds.WORLDS`) the line-up runs in (empty:
+    any world); e.g. a line-up with learners on base features needs a world that has them.
+    """
 
     name: str
     learners: tuple
     value_maps: tuple = ()
+    worlds: tuple = ()
 
     def __post_init__(self):
         seen = set()
@@ -210,30 +226,46 @@ def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_s
     return out
 
 
-def factorial_options(preset, spec):
+def _applies(name, options, objective):
+    """Whether the registered solver ``name`` applies to ``objective`` (Gauss-Newton ones need residuals)."""
+    try:
+        check_solver_applies(solvers.get_solver(name, **options), objective, "solver")
+    except ValidationError:
+        return False
+    return True
+
+
+def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
     """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
 
     Solver options and the D-step solver are passed only when the run names them, so a run
-    with the defaults builds exactly the FactIRL it always did.
+    with the defaults builds exactly the FactIRL it always did. A learner on an objective
+    without residuals (``"mce"``) cannot take a Gauss-Newton solver (``gn-qp-*``, ``gn-cg``):
+    where the run names one, that learner uses Armijo's steps instead (its table rows keep the
+    run's solver label).
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
-              inner_steps=preset.inner_steps, h_solver=spec.h_solver, flat_max_iter=preset.flat_max_iter,
-              transfer_max_iter=preset.transfer_max_iter, planner=preset.planner)
-    if spec.h_solver_options:
-        kw["h_solver_options"] = spec.h_options()
+              inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
+              transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
+    roles = [("h", spec.h_solver, spec.h_options())]
     if spec.d_solver:
         check_d_solver_supported()
-        kw["d_solver"] = spec.d_solver
-        if spec.d_solver_options:
-            kw["d_solver_options"] = spec.d_options()
+        roles.append(("d", spec.d_solver, spec.d_options()))
+    for role, name, options in roles:
+        if not _applies(name, options, objective):
+            name, options = "armijo", {}
+        kw[f"{role}_solver"] = name
+        if options:
+            kw[f"{role}_solver_options"] = options
     return kw
 
 
 # --- builders: (gt, preset, ctx) -> Fit ---------------------------------------------------
 
 
-def _gradirl(gt, preset, ctx, features=None):
-    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, planner=preset.planner)
+def _gradirl(gt, preset, ctx, features=None, objective=DEFAULT_OBJECTIVE):
+    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, objective=objective,
+                    planner=preset.planner)
     model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
@@ -274,7 +306,7 @@ def flat_features_from_examples(gt, preset, ctx):
     return _gradirl(gt, preset, ctx, flat_train[chosen].reshape(n_ex, gt.mdp.n_params).T)
 
 
-def _fit_factorial(gt, preset, ctx, name, init, flat=None, features=None):
+def _fit_factorial(gt, preset, ctx, name, init, flat=None, features=None, objective=DEFAULT_OBJECTIVE):
     """Fit a FactIRL on the training tasks, keep it in ``ctx.models[name]`` for its transfer.
 
     ``init="pca"`` starts from the uncentred PCA of the rewards learnt by the training row
@@ -282,7 +314,7 @@ def _fit_factorial(gt, preset, ctx, name, init, flat=None, features=None):
     ``"random_init"``). ``features``: the base features of ``R_i = Phi D h_i`` (None: tabular).
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
-    model = FactIRL(init=init, rng=rng, features=features, **factorial_options(preset, ctx.spec))
+    model = FactIRL(init=init, rng=rng, features=features, **factorial_options(preset, ctx.spec, objective))
     model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[name] = model
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
@@ -330,6 +362,52 @@ def factorial_features_transfer(gt, preset, ctx):
     return _transfer(gt, ctx, "factorial, features")
 
 
+def flat_mce(gt, preset, ctx):
+    """GradIRL on the MCE likelihood, tabular rewards."""
+    return _gradirl(gt, preset, ctx, objective="mce")
+
+
+def factorial_mce(gt, preset, ctx):
+    """FactIRL on the MCE likelihood, from the PCA of ``flat MCE``'s rewards."""
+    return _fit_factorial(gt, preset, ctx, "factorial MCE", "pca", flat="flat MCE", objective="mce")
+
+
+def factorial_mce_transfer(gt, preset, ctx):
+    """``FactIRL.transfer`` of the MCE dictionary to the test tasks (MCE likelihood)."""
+    return _transfer(gt, ctx, "factorial MCE")
+
+
+def flat_mce_features(gt, preset, ctx):
+    """GradIRL on the MCE likelihood and the world's base features."""
+    return _gradirl(gt, preset, ctx, gt.features, objective="mce")
+
+
+def factorial_mce_features(gt, preset, ctx):
+    """FactIRL on the MCE likelihood and the base features, from the PCA of ``flat MCE, features``."""
+    return _fit_factorial(gt, preset, ctx, "factorial MCE, features", "pca", flat="flat MCE, features",
+                          features=gt.features, objective="mce")
+
+
+def factorial_mce_features_transfer(gt, preset, ctx):
+    """``FactIRL.transfer`` of the MCE feature-space dictionary to the test tasks."""
+    return _transfer(gt, ctx, "factorial MCE, features")
+
+
+def _extended(learners, train, test):
+    """A line-up's learners with more train rows after its train rows and test rows at the end."""
+    return tuple(lr for lr in learners if lr.split == "train") + train + tuple(lr for lr in learners if lr.split == "test") + test
+
+
+def _mce_rows(suffix, flat_build, fact_build, transfer_build):
+    """The train and test rows of a flat MCE learner and its factorial counterpart (names + ``suffix``)."""
+    flat_name, fact_name = f"flat MCE{suffix}", f"factorial MCE{suffix}"
+    train = (Learner("train", flat_name, flat_build),
+             Learner("train", fact_name, fact_build, needs=(("train", flat_name),)))
+    test = (Learner("test", flat_name, flat_build),
+            Learner("test", fact_name, transfer_build, needs=(("train", fact_name),)))
+    return train, test
+
+
 _TRAIN_FLAT = (("train", "flat"),)
 
 #: line-up name (a preset's ``lineup``) -> Lineup
@@ -367,8 +445,21 @@ LINEUPS = {
             Learner("test", "flat, ground truth", flat_ground_truth),
         ),
         value_maps=("flat, features", "factorial, features"),
+        worlds=("objectworld",),
     ),
 }
+LINEUPS["paper+mce"] = Lineup(
+    name="paper+mce",
+    learners=_extended(LINEUPS["paper"].learners, *_mce_rows("", flat_mce, factorial_mce, factorial_mce_transfer)),
+    value_maps=("flat", "factorial", "flat MCE", "factorial MCE"),
+)
+LINEUPS["objectworld+mce"] = Lineup(
+    name="objectworld+mce",
+    learners=_extended(LINEUPS["objectworld"].learners, *_mce_rows(", features", flat_mce_features, factorial_mce_features,
+                                                                   factorial_mce_features_transfer)),
+    value_maps=("flat, features", "factorial, features", "flat MCE, features", "factorial MCE, features"),
+    worlds=("objectworld",),
+)
 
 
 def get_lineup(lineup):

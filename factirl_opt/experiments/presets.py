@@ -179,6 +179,10 @@ class Preset:
                            ("planner", available_planners())):
             if getattr(self, f) not in choices:
                 raise ValidationError(f"{where}{f} must be one of {', '.join(choices)}; got {getattr(self, f)!r}")
+        worlds = LINEUPS[self.lineup].worlds
+        if worlds and self.world not in worlds:
+            raise ValidationError(f"{where}the line-up {self.lineup!r} runs in the world(s) {', '.join(worlds)}; "
+                                  f"got world {self.world!r}")
         self._check_solvers(where)
 
     def _check_solvers(self, where):
