@@ -2,17 +2,25 @@
 
 Module map:
 
-- :mod:`.presets`: experiment configurations as data (``paper``, ``quick``, ``test``, ``tiny``);
-- :mod:`.worlds`: a run's ground truth (world, true tasks, demonstrations) per world;
-- :mod:`.learners`: the learner line-ups as data (named builders);
+- :mod:`.presets`: experiment configurations as data (``paper``, ``fast``, ``quick``, ``test``,
+  ``tiny``, ``objectworld``, ``objectworld-quick``, ``objectworld-tiny``), with their planner
+  and the factorial learner's default solvers;
+- :mod:`.worlds`: a run's ground truth (world, true tasks, demonstrations, base features) per
+  world (``"grid"``, ``"objectworld"``);
+- :mod:`.learners`: the learner line-ups as data (named builders: ``"paper"``,
+  ``"objectworld"``, and both ``+mce``), the solver settings;
 - :mod:`.runner`: plan the runs of a preset and execute them;
+- :mod:`.store`: the checked run cache, the lock and the manifest;
+- :mod:`.workers`: worker processes that never outlive the sweep;
 - :mod:`.tables`: the CSV tables written from the run records, read back;
-- :mod:`.claims`: the paper's claims evaluated on the tables;
+- :mod:`.claims`: each line-up's claims evaluated on the tables;
 - :mod:`.figures`: figures 1-3 drawn from the tables.
 
 From the command line::
 
     factirl-opt reproduce --preset quick --out runs/quick
+    factirl-opt reproduce --preset objectworld-quick --out runs/objectworld-quick
+    factirl-opt reproduce --preset paper --lineup paper+mce --jobs 2 --out runs/paper-mce
     factirl-opt plot runs/quick
 """
 

@@ -1,9 +1,9 @@
-"""Experiment presets: the paper's section 4 as data, run by :mod:`.runner`.
+"""Experiment presets: the paper's section 4 (and the Objectworld benchmark) as data, run by :mod:`.runner`.
 
 A preset fixes the world (its name in :data:`.worlds.WORLDS`, grid, dynamics, discount), the
 ground truth (number of primitives, coefficient distribution), the demonstrations, the learner
-line-up (its name in :data:`.learners.LINEUPS`), the learners' iteration budgets and the two
-sweeps of figures 1 and 2:
+line-up (its name in :data:`.learners.LINEUPS`), the planner, the learners' iteration budgets,
+the factorial learner's default solvers and the two sweeps of figures 1 and 2:
 
 - demos per task (``demos_sweep``) at ``default_tasks`` training tasks;
 - number of training tasks (``tasks_sweep``) at ``default_demos`` demos per task.
@@ -18,11 +18,15 @@ Presets
     training tasks with 10 demos each at the default point, sweeps (1, 2, 5, 10, 20) demos and
     (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 3 seeds.
 ``fast``
-    The ``paper`` preset with faster solvers for the factorial learner (:data:`FAST_SOLVERS`:
-    the Gauss-Newton QP H-step ``gn-qp-clarabel``, with fit and transfer; the D-step named
-    explicitly): same world, sweeps, test tasks, seeds and budgets, so its runs differ from the
-    paper's only in the factorial learners' solvers (the flat learners' rows are identical). Its
-    fingerprint is the paper's: its runs' keys differ by their solver tag.
+    The ``paper`` preset with faster solvers for the factorial learner (:data:`FAST_SOLVERS`,
+    one line: the Gauss-Newton QP H-step ``gn-qp-clarabel``, in fit and transfer, and the
+    D-step named explicitly): same world, sweeps, test tasks, seeds and budgets, so its runs
+    differ from the paper's only in the factorial learners' solvers (the flat learners' rows are
+    identical). Its fingerprint is the paper's: its runs' keys differ by their solver tag.
+    Measured at the default point (100 tasks x 10 demos, seed 0, one run): 7277 Q*
+    evaluations against the paper's 10409 (factorial 1549 vs 2521, transfer 41 vs 557), but
+    about the same wall time (the QP steps cost more than Armijo's): the D-step solvers of
+    issue 13 decide whether it reaches 10 minutes.
 ``quick``
     Every learner and figure of the paper in about a minute with ``--jobs 1`` (the README's
     first command): an 8x8 grid (the paper's dynamics and k = 5 primitives), 3 points (3 and
@@ -36,6 +40,24 @@ Presets
 ``tiny``
     A 5x5 grid with a handful of tasks and few iterations: seconds, for tests of the machinery
     (resume, ``--jobs`` invariance, command line); its scores mean nothing.
+``objectworld``
+    ELIRL's multi-task Objectworld (world and line-up ``"objectworld"``): 32x32, c1 = 5 inner
+    colours (one true primitive each, k = 5), c2 = 2 outer colours, object density 0.05,
+    determinism 0.7, gamma 0.9; 100 training tasks x 32 demonstrations of 16 steps at the
+    default point, a sweep over the number of training tasks (10, 20, 50, 100), 100 test
+    tasks with one demonstration each, 3 seeds, the paper's budgets, the Gauss-Newton QP H-step
+    (:data:`OBJECTWORLD_SOLVERS`; evaluations cost about 10x the paper grid's there).
+``objectworld-quick``
+    The same at 16x16 in minutes with ``--jobs 1``: 5 and 20 training tasks x 16
+    demonstrations, 20 test tasks, 1 seed, GradIRL 40 iterations, FactIRL 15 outer
+    iterations, transfer 40 steps.
+``objectworld-tiny``
+    An 8x8 Objectworld (object density 0.15), a few tasks and iterations: seconds, the smoke
+    test of the Objectworld machinery; its scores mean nothing.
+
+Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce")``, or
+``factirl-opt reproduce --lineup``) or planner; those fields enter the fingerprint only when
+they differ from the paper's (:data:`LATER_FIELDS`), so the paper's runs keep their keys.
 """
 
 import dataclasses
@@ -358,8 +380,7 @@ PRESETS = {
 #: one line per preset, for ``factirl-opt reproduce --help``
 PRESET_DESCRIPTIONS = {
     "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (about 20 min on 2 cores)",
-    "fast": "the paper's section 4 with faster solvers (same world, sweeps, seeds and budgets; aimed at under 10 min "
-            "on 2 cores)",
+    "fast": "the paper's section 4 with the faster solvers of FAST_SOLVERS (same world, sweeps, seeds and budgets)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (about a minute)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
     "objectworld": "ELIRL's multi-task Objectworld: 32x32, 100 training tasks x 32 demos of 16 steps, tasks sweep "
