@@ -53,6 +53,7 @@ from .mdp import TabularMDP
 
 __all__ = [
     "ACTIONS",
+    "MOVES",
     "ObjectWorld",
     "make_objectworld",
     "objectworld_transitions",
@@ -66,7 +67,8 @@ __all__ = [
 ]
 
 ACTIONS = ("stay", "up", "down", "left", "right")
-_MOVES = np.array([(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)])  # (d_row, d_col) per action
+#: (d_row, d_col) displacement of each action, in the order of ``ACTIONS``
+MOVES = np.array([(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)])
 N_ACTIONS = len(ACTIONS)
 ELIRL_RADIUS = 3  # a colour is "near" when its distance is < 3 (ELIRL's rew_dist)
 ELIRL_SCALE = 5.0  # ELIRL's R_SCALE: weights 5 * (3u - 2), in [-10, 5)
@@ -151,8 +153,8 @@ def objectworld_transitions(size, determinism=0.7):
     p = check_real(determinism, "determinism", 0.0, 1.0)
     S, A = size * size, N_ACTIONS
     rows, cols = np.divmod(np.arange(S), size)
-    land_r = np.clip(rows[:, None] + _MOVES[:, 0], 0, size - 1)
-    land_c = np.clip(cols[:, None] + _MOVES[:, 1], 0, size - 1)
+    land_r = np.clip(rows[:, None] + MOVES[:, 0], 0, size - 1)
+    land_c = np.clip(cols[:, None] + MOVES[:, 1], 0, size - 1)
     landing = land_r * size + land_c  # (S, M): cell reached by move m from s
     prob = np.full((A, A), (1.0 - p) / 4.0)  # prob[a, m]: move m happens when a is intended
     np.fill_diagonal(prob, p)

@@ -99,7 +99,7 @@ class SyntheticTasks:
 
 
 def synthetic_tasks(mdp, n_tasks, n_demos, length, n_primitives=5, dictionary=None, kind="gaussian", sparsity=0.0,
-                    rng=None, demo_rng=None):
+                    rng=None, demo_rng=None, planner="auto"):
     """Draw tasks from a (random or given) dictionary and sample an expert's demonstrations.
 
     Draws, in this order: the dictionary from ``rng`` (unless given), the coefficients from
@@ -121,6 +121,8 @@ def synthetic_tasks(mdp, n_tasks, n_demos, length, n_primitives=5, dictionary=No
     kind, sparsity
         See :func:`random_coefficients`.
     rng, demo_rng : numpy.random.Generator or int or None
+    planner : str, default="auto"
+        Planner of the expert's ``Q*`` (:func:`factirl_opt.available_planners`).
 
     Returns
     -------
@@ -133,5 +135,5 @@ def synthetic_tasks(mdp, n_tasks, n_demos, length, n_primitives=5, dictionary=No
     D = random_dictionary(S * A, n_primitives, rng) if dictionary is None else check_array(dictionary, "dictionary", ndim=2)
     H = random_coefficients(n_tasks, D.shape[1], kind=kind, sparsity=sparsity, rng=rng)
     R = task_rewards(D, H, S, A)
-    demos = sample_demonstrations(mdp, R, n_demos, length, rng=demo_rng)
+    demos = sample_demonstrations(mdp, R, n_demos, length, rng=demo_rng, planner=planner)
     return SyntheticTasks(dictionary=D, coefficients=H, rewards=R, demos=demos)

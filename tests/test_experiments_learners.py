@@ -1,7 +1,6 @@
 """Learner line-ups as data, worlds by name, and the solver settings the runner passes to FactIRL."""
 
 import dataclasses
-import inspect
 import json
 
 import numpy as np
@@ -109,18 +108,8 @@ def test_h_solver_options_reach_factirl(monkeypatch):
     assert {r["h_solver"] for r in rec["rows"]} == {'armijo {"initial_step":0.5}'}
 
 
-class OldFactIRL(FactIRL):
-    """A FactIRL without a D-step solver parameter (as before the D-step issue)."""
-
-    def __init__(self, **kw):
-        super().__init__(**kw)
-
-
-def test_d_solver_needs_a_factirl_that_takes_it(monkeypatch):
-    monkeypatch.setattr(learners_mod, "FactIRL", OldFactIRL)
-    with pytest.raises(ValidationError, match="no d_solver parameter"):
-        plan_runs(TINY, [0], d_solver="armijo")
-    assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0])  # the default is never passed
+def test_the_default_d_solver_is_never_passed():
+    assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0])
 
 
 def test_d_solver_and_its_options_reach_factirl(monkeypatch):
@@ -132,8 +121,6 @@ def test_d_solver_and_its_options_reach_factirl(monkeypatch):
     assert [(s["d_solver"], s["d_solver_options"]) for s in RecordingFactIRL.seen] == [("armijo", {"initial_step": 0.25})] * 2
 
 
-@pytest.mark.skipif("d_solver" not in inspect.signature(FactIRL).parameters,
-                    reason="this FactIRL has no D-step solver parameter")
 def test_naming_the_default_d_solver_changes_only_the_label():
     default, named = plan_runs(TINY, [0])[-1], plan_runs(TINY, [0], d_solver="armijo")[-1]
     a, b = run_one(TINY, default), run_one(TINY, named)

@@ -49,7 +49,6 @@ Figure 3 shows the value functions of the line-up's ``value_maps`` test learners
 
 import collections
 import dataclasses
-import inspect
 import json
 from typing import Callable
 
@@ -62,7 +61,7 @@ from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL, check_solver_applies
 
 __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options",
-           "check_d_solver_supported", "solver_settings", "decode_options"]
+           "solver_settings", "decode_options"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
@@ -168,12 +167,6 @@ class RunContext:
         return self._shared[name]
 
 
-def check_d_solver_supported():
-    """Raise a ValidationError if this FactIRL has no ``d_solver`` parameter."""
-    if "d_solver" not in inspect.signature(FactIRL).parameters:
-        raise ValidationError("this FactIRL has no d_solver parameter: the D-step solver cannot be chosen")
-
-
 def _canonical(options):
     return json.dumps(options, sort_keys=True, separators=(",", ":")) if options else ""
 
@@ -221,8 +214,6 @@ def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_s
         with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
             solvers.get_solver(name, **options)
         out.update({f"{role}_solver": name, f"{role}_solver_options": _canonical(options)})
-    if out["d_solver"]:
-        check_d_solver_supported()
     return out
 
 
@@ -249,7 +240,6 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
     roles = [("h", spec.h_solver, spec.h_options())]
     if spec.d_solver:
-        check_d_solver_supported()
         roles.append(("d", spec.d_solver, spec.d_options()))
     for role, name, options in roles:
         if not _applies(name, options, objective):

@@ -37,7 +37,7 @@ import numpy as np
 from ..demonstrations import sample_demonstrations
 from ..exceptions import ValidationError
 from ..mdp import GridWorld, TabularMDP
-from ..objectworld import _MOVES, make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
+from ..objectworld import MOVES, make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
 from ..synthetic import random_dictionary, synthetic_tasks
 
 __all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "objectworld", "N_STREAMS"]
@@ -117,7 +117,7 @@ def grid_world(preset, n_tasks, demos_per_task, seed):
     S, A, k = mdp.n_states, mdp.n_actions, preset.n_primitives
     s_dict, s_train, s_test, s_train_demo, s_test_demo, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
     D = random_dictionary(S * A, k, rng=np.random.default_rng(s_dict))
-    kw = dict(dictionary=D, kind=preset.coefficient_kind)
+    kw = dict(dictionary=D, kind=preset.coefficient_kind, planner=preset.planner)
     train = synthetic_tasks(mdp, n_tasks, demos_per_task, preset.demo_length, rng=s_train, demo_rng=s_train_demo, **kw)
     test = synthetic_tasks(mdp, preset.n_test_tasks, 1, preset.demo_length, rng=s_test, demo_rng=s_test_demo, **kw)
     return GroundTruth(mdp, D, train.rewards, train.demos, test.rewards, test.demos, np.random.default_rng(s_learn))
@@ -153,7 +153,7 @@ def objectworld(preset, n_tasks, demos_per_task, seed):
         R = state_action_rewards(rewards, mdp.n_actions)
         split[name] = (R, sample_demonstrations(mdp, R, m, preset.demo_length, rng=np.random.default_rng(s_demos),
                                                 planner=preset.planner))
-    extras = dict(objects=world.objects.tolist(), n_inner=world.n_inner, n_outer=world.n_outer, moves=_MOVES.tolist())
+    extras = dict(objects=world.objects.tolist(), n_inner=world.n_inner, n_outer=world.n_outer, moves=MOVES.tolist())
     return GroundTruth(mdp, primitives, *split["train"], *split["test"], np.random.default_rng(s_learn),
                        features=objectworld_features(world), map_extras=extras)
 
