@@ -91,7 +91,7 @@ def _presets_epilog():
 def _add_reproduce(sub):
     from .experiments.learners import LINEUPS
     from .experiments.presets import PRESETS
-    from .planning import available_planners
+    from .planning import AUTO_DENSE_MAX_STATES, available_planners
 
     rep = sub.add_parser(
         "reproduce",
@@ -126,8 +126,8 @@ def _add_reproduce(sub):
                      help="its options, like --h-solver-options (default: none with --d-solver, else the preset's)")
     rep.add_argument("--planner", default=None, choices=available_planners(),
                      help="planning engine of every learner and score (factirl_opt.available_planners(); 'auto': "
-                     "dense up to 256 states, sparse LU above); a planner other than the preset's changes the "
-                     "runs' keys (default: the preset's, auto)")
+                     f"dense up to {AUTO_DENSE_MAX_STATES} states, sparse LU above); a planner other than the preset's "
+                     "changes the runs' keys (default: the preset's, auto)")
     rep.add_argument("--lineup", default=None, choices=list(LINEUPS),
                      help="learner line-up (factirl_opt.experiments.learners; e.g. paper+mce adds the MCE learners); a "
                      "line-up other than the preset's changes the runs' keys (default: the preset's)")

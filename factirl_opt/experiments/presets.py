@@ -132,7 +132,7 @@ class Preset:
         The learner line-up's name in :data:`.learners.LINEUPS` (``"paper"``).
     planner : str
         Planning engine of every learner, of the demonstrations and of the scores (a name in
-        :func:`factirl_opt.available_planners`; ``"auto"``: dense up to 256 states, sparse LU
+        :func:`factirl_opt.available_planners`; ``"auto"``: dense up to ``planning.AUTO_DENSE_MAX_STATES`` states, sparse LU
         above).
     n_outer_colours : int
         Objectworld only: c2, the number of outer (distractor) colours.
