@@ -60,7 +60,7 @@ from .exceptions import MissingBackendError, SolverError, SolverOptionError, Sol
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
-from .stopping import has_converged, relative_decrease
+from .stopping import gradient_converged, has_converged, relative_decrease
 
 __all__ = [
     "StepProblem",
@@ -75,6 +75,7 @@ __all__ = [
     "qp_solver_name",
     "relative_decrease",
     "has_converged",
+    "gradient_converged",
     "SolversError",
     "SolverError",
     "UnknownSolverError",

@@ -15,9 +15,9 @@ import numpy as np
 
 from .exceptions import SolverError, SolverOptionError
 from ._validation import check_number
-from .stopping import has_converged
+from .stopping import gradient_converged, has_converged, relative_decrease
 
-__all__ = ["StepProblem", "Linearization", "SolverResult", "StepSolver", "limit_step"]
+__all__ = ["StepProblem", "Linearization", "SolverResult", "StepSolver", "limit_step", "row_norms"]
 
 
 @dataclass(frozen=True)
@@ -105,8 +105,9 @@ class SolverResult:
     coefficients : ndarray, shape (n, p)
         The new parameters (coefficients ``H`` for an H-step).
     status : str
-        ``"converged"`` (relative decrease below ``tol``), ``"max_iter"``, or ``"stalled"``
-        (no row could make progress).
+        ``"converged"`` (relative decrease below ``tol``, or gradient norm below ``gtol`` times
+        its initial value; :mod:`solvers.stopping`), ``"max_iter"``, or ``"stalled"`` (no row
+        could make progress).
     iterations : int
         Iterations (steps) taken.
     solve_time : float
@@ -119,6 +120,12 @@ class SolverResult:
         Total objective before the first step and after each step.
     state : object
         Solver state to warm-start the next run (step sizes, damping).
+    reason : str
+        Why the run stopped, in words (the rule and the values that met it).
+    gradient_norm : float
+        Norm of the first-order optimality measure at the final point, over all rows
+        (:meth:`StepSolver.optimality`); inf if it overflowed, NaN if the solver's state
+        holds no gradient.
     """
 
     coefficients: np.ndarray
@@ -129,6 +136,8 @@ class SolverResult:
     n_evaluations: int
     loss_history: list = field(default_factory=list)
     state: Any = None
+    reason: str = ""
+    gradient_norm: float = float("nan")
 
 
 class StepSolver:
@@ -170,6 +179,54 @@ class StepSolver:
         """
         return self
 
+    def gradient(self, state):
+        """Gradient of every row's smooth objective at the state's point, shape (n, p), or None.
+
+        The default reads ``state.grad`` (None when the state has none: the run then stops by
+        the other rules only); solvers whose state holds another quantity (half the gradient,
+        or residuals and a Jacobian) override this.
+        """
+        return getattr(state, "grad", None)
+
+    def optimality(self, x, grad):
+        """First-order optimality measure of every row, shape (n,): zero at a stationary point.
+
+        The norm of the gradient for an unconstrained solver; of the projected gradient for
+        ``constraint="nonneg"`` (components at the bound pointing outwards are dropped).
+        Solvers with a penalty override this (the minimum-norm subgradient).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, p)
+        grad : ndarray, shape (n, p)
+            Gradient of the smooth objective at ``x`` (:meth:`gradient`).
+        """
+        g = np.asarray(grad, dtype=np.float64)
+        if self.constraint == "nonneg":
+            g = np.where((np.asarray(x) <= 0.0) & (g > 0.0), 0.0, g)
+        return row_norms(g)
+
+    def _gradient_norm(self, x, state):
+        """Total optimality measure over all rows (the gradient rule's norm): inf on overflow,
+        NaN when the solver's state has no gradient."""
+        grad = self.gradient(state)
+        if grad is None:
+            return float("nan")
+        with np.errstate(over="ignore", invalid="ignore"):
+            norm = float(row_norms(self.optimality(x, grad)[None])[0])
+        return norm if np.isfinite(norm) else np.inf
+
+    def carry_over(self, state):
+        """What of a run's final ``state`` should warm-start a run on a *changed* problem.
+
+        In an alternating scheme a block's sub-problem changes between two of its runs (the
+        other block moved). Scalars that describe the scale of a step (Armijo step sizes,
+        Levenberg-Marquardt damping) remain good guesses; information tied to the old
+        problem's curvature (L-BFGS pairs) is stale and misleads the next run. The default
+        keeps the whole state; solvers with problem-specific memory override this.
+        """
+        return state
+
     def init_state(self, problem, x, previous=None):  # pragma: no cover - interface
         raise NotImplementedError
 
@@ -177,8 +234,8 @@ class StepSolver:
         """One step for every row; returns ``(x_new, state, progressed)``."""
         raise NotImplementedError
 
-    def run(self, problem, x0, max_iter, state=None, tol=0.0, callback=None):
-        """Take up to ``max_iter`` steps from ``x0``.
+    def run(self, problem, x0, max_iter, state=None, tol=0.0, callback=None, gtol=0.0):
+        """Take up to ``max_iter`` steps from ``x0``, stopping early by the rules of :mod:`solvers.stopping`.
 
         Parameters
         ----------
@@ -192,6 +249,9 @@ class StepSolver:
             Stop when the relative decrease of the total objective over a step is below tol.
         callback : callable, optional
             Called as ``callback(iteration, total_objective)`` after each step.
+        gtol : float
+            Stop when the total optimality measure (gradient norm, :meth:`optimality`) is at
+            most ``gtol`` times its value at ``x0``.
 
         Returns
         -------
@@ -205,24 +265,23 @@ class StepSolver:
             When the objective is not finite at ``x0`` or the solver fails.
         """
         x = self._check_run(problem, x0, max_iter, tol, callback)
+        check_number(gtol, "gtol", self.name, low=0.0)
         t0 = time.perf_counter()
         ev0 = problem.n_evaluations()
         state = self.init_state(problem, x, previous=state)
         history = [self._total(state)]
-        status = "max_iter"
-        it = 0
+        g0 = gnorm = self._gradient_norm(x, state)
+        status, reason, it = "max_iter", f"max_iter={max_iter} steps taken", 0
         for it in range(1, max_iter + 1):
             x, state, progressed = self.update(problem, x, state)
-            total = self._total(state)
-            history.append(total)
+            history.append(self._total(state))
+            gnorm = self._gradient_norm(x, state)
             if callback is not None:
-                callback(it, total)
-            if not progressed:
-                status = "stalled"
+                callback(it, history[-1])
+            status, reason = _stop_reason(progressed, history, gnorm, g0, tol, gtol)
+            if status is not None:
                 break
-            if has_converged(history[-2], total, tol):
-                status = "converged"
-                break
+            status, reason = "max_iter", f"max_iter={max_iter} steps taken"
         return SolverResult(
             coefficients=x,
             status=status,
@@ -232,6 +291,8 @@ class StepSolver:
             n_evaluations=problem.n_evaluations() - ev0,
             loss_history=history,
             state=state,
+            reason=reason,
+            gradient_norm=gnorm,
         )
 
     def _check_run(self, problem, x0, max_iter, tol, callback):
@@ -258,6 +319,30 @@ class StepSolver:
         if not np.isfinite(total):
             raise SolverError(f"{self.name}: the total objective is not finite ({total}); the solver must reject such points")
         return total
+
+
+def row_norms(a):
+    """Euclidean norm of every row of ``a`` (n, p), without underflow or needless overflow.
+
+    Each row is divided by its largest magnitude before squaring, so gradients of 1e-200 (a
+    consistently rescaled problem) keep their relative size instead of squaring to zero.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    top = np.max(np.abs(a), axis=1, initial=0.0)
+    safe = np.where((top > 0) & np.isfinite(top), top, 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.where(np.isfinite(top), safe * np.sqrt(np.sum(np.square(a / safe[:, None]), axis=1)), np.inf)
+
+
+def _stop_reason(progressed, history, gnorm, g0, tol, gtol):
+    """``(status, reason)`` of a run after a step, or ``(None, None)`` to go on."""
+    if not progressed:
+        return "stalled", "stalled: no row could decrease its objective"
+    if has_converged(history[-2], history[-1], tol):
+        return "converged", f"relative decrease {relative_decrease(history[-2], history[-1]):.3g} <= tol={tol:g}"
+    if not (np.isnan(gnorm) or np.isnan(g0)) and gradient_converged(gnorm, g0, gtol):
+        return "converged", f"gradient norm {gnorm:.3g} <= gtol={gtol:g} x initial {g0:.3g}"
+    return None, None
 
 
 def limit_step(x, z, max_step_norm):

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._base import StepSolver, limit_step
+from ._base import StepSolver, limit_step, row_norms
 from ._blockqp import BACKENDS, CONSTRAINTS, DATA_LIMIT, check_backend, check_constraint, refine_active_set
 from ._validation import check_evaluation, check_number, choice, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
@@ -278,6 +278,18 @@ class GaussNewtonSolver(StepSolver):
         if self.alternating_damping is None:
             return self
         return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
+
+    def gradient(self, state):
+        """``2 J_i^T r_i`` of the least-squares part (the penalty is handled by :meth:`optimality`)."""
+        return 2.0 * np.einsum("nmk,nm->nk", state.jacobian, state.residual)
+
+    def optimality(self, x, grad):
+        """The projected gradient (nonneg) or the minimum-norm subgradient of ``f + alpha ||x||_1`` (sparse)."""
+        if self.constraint != "sparse":
+            return super().optimality(x, grad)
+        x, g = np.asarray(x, dtype=np.float64), np.asarray(grad, dtype=np.float64)
+        at_zero = np.sign(g) * np.maximum(np.abs(g) - self.alpha, 0.0)
+        return row_norms(np.where(x != 0.0, g + self.alpha * np.sign(x), at_zero))
 
     # -- constraint handling shared with the learners ---------------------------------------
     def project(self, x):

@@ -196,13 +196,31 @@ class GaussNewtonCGSolver(StepSolver):
         A row whose step is below ``xtol * (||x|| + xtol)`` has converged (not evaluated).
     max_step_norm : float, default=100.0
         Step bound relative to ``max(1, ||x_i||)``, > 0.
-    alternating_damping : float or None, default=None
+    alternating_damping : float or None, default=1.0
         ``damping`` of the copy :meth:`for_alternating` returns, for a block of an alternating
-        scheme (FactIRL's fit): a large value (e.g. 1.0 with ``alternating_lam_down=0.99``)
-        makes proximal steps that move the block gradually, as the QP H-step's copy does.
-        None (the default, until measured on the D-step) uses this solver as configured.
-    alternating_lam_down : float, default=0.99
+        scheme (FactIRL's D-step): proximal steps, ``lam`` as large as the curvature along the
+        gradient, shrinking by ``alternating_lam_down`` per accepted step (the damping is carried
+        from one outer iteration to the next), so the block moves gradually while the other
+        block is still poor and approaches Gauss-Newton steps as the fit settles. None: use
+        this solver as configured.
+    alternating_lam_down : float, default=0.9
         ``lam_down`` of that copy, in (0, 1).
+    alternating_cg_tol : float, default=0.1
+        ``cg_tol`` of that copy, >= 0: an inexact (truncated) Newton step is enough for a block
+        whose sub-problem changes at every outer iteration.
+
+    Notes
+    -----
+    The alternating defaults were measured on FactIRL fits with an Armijo H-step. 5x5 grid,
+    30 tasks, k = 4: this solver as configured (``damping=1e-3``: nearly Gauss-Newton steps)
+    drove the rewards into saturated plateaus (Boltzmann policies deterministic, gradient
+    ~1e-6 of the initial one) and converged at loss 0.130 after 6 outer iterations, against
+    0.020 for Armijo/Armijo; ``damping=1, lam_down=0.99`` reached 0.020 in 1394 Q*
+    evaluations (Armijo/Armijo: 1170), ``damping=1, lam_down=0.9`` a loss below 1e-4 in 388,
+    ``damping=10`` stopped at 0.31. Paper scale (10x10 grid, 100 tasks, k = 5, the
+    ``bench fit`` setting; Armijo/Armijo: loss 0.210, 2976 evaluations, 3.6e5 linear solves):
+    ``cg_tol=1e-3`` gave loss 0.069 in 484 evaluations and 2.5e5 linear solves, ``cg_tol=0.1``
+    0.069 in 454 evaluations and 1.9e5 linear solves (gtol = 1e-4, ``cg_max_iter`` 10 and 20).
 
     Raises
     ------
@@ -221,8 +239,9 @@ class GaussNewtonCGSolver(StepSolver):
     max_retries: int = option(10, integer(low=0))
     xtol: float = option(1e-12, number(low=0.0))
     max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
-    alternating_damping: float = option(None, optional(number(low=0.0, low_open=True)))
-    alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
+    alternating_damping: float = option(1.0, optional(number(low=0.0, low_open=True)))
+    alternating_lam_down: float = option(0.9, number(0.0, 1.0, low_open=True, high_open=True))
+    alternating_cg_tol: float = option(0.1, number(low=0.0))
 
     name = "gn-cg"
     needs_linearization = True
@@ -233,10 +252,16 @@ class GaussNewtonCGSolver(StepSolver):
             raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
 
     def for_alternating(self):
-        """A proximal copy (``alternating_damping``, ``alternating_lam_down``), or ``self``."""
+        """A proximal, inexact copy (``alternating_damping``, ``alternating_lam_down``,
+        ``alternating_cg_tol``), or ``self`` when ``alternating_damping`` is None."""
         if self.alternating_damping is None:
             return self
-        return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
+        return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down,
+                       cg_tol=self.alternating_cg_tol)
+
+    def gradient(self, state):
+        """``2 J_i^T r_i`` (the state holds half the gradient)."""
+        return 2.0 * state.grad
 
     def _linearize(self, problem, x, rows, start=False):
         """``problem.linearize`` at ``x`` (rows ``rows``), checked."""

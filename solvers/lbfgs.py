@@ -15,8 +15,13 @@ approximation stays positive definite); otherwise it is skipped. A direction tha
 descent direction (round-off) resets the row's memory, as does a line search that fails.
 
 The memory is part of the solver state: ``run(..., state=previous.state)`` keeps it when
-the shapes match (FactIRL keeps it across the inner steps of one outer iteration); it is
-reset when the run is given ``state=None``. Steps are bounded like the Gauss-Newton ones:
+the shapes match; it is reset when the run is given ``state=None``. In an alternating scheme
+(FactIRL's fit) the memory lives for the inner steps of one outer iteration and is dropped
+between outer iterations (:meth:`LBFGSSolver.carry_over`): once the other block has moved, the
+pairs describe another problem's curvature. Measured on FactIRL's D-step (5x5 grid, 30 tasks,
+k = 4, Armijo H-step): with the memory kept across outer iterations the fit converged to a
+saturated plateau at loss 0.105 (508 Q* evaluations); dropped, it reached 0.020 (633), the
+Armijo/Armijo fit's loss (1170). Steps are bounded like the Gauss-Newton ones:
 ``||t d|| <= max_step_norm * max(1, ||x||)`` (:func:`solvers._base.limit_step`).
 Unconstrained only (``constraint = "none"``).
 """
@@ -45,6 +50,10 @@ class LBFGSState:
     rho : ndarray, shape (n, memory)
         ``1 / (s^T y)`` of each pair (0 for empty slots).
     count : ndarray of int, shape (n,)
+    first_scale : ndarray, shape (n,)
+        Step size ``t`` of the first step ``-t g`` of a row without pairs: ``s^T y / y^T y`` of
+        the newest pair of a previous run on a changed problem (:meth:`LBFGSSolver.carry_over`),
+        NaN when there is none (the gradient step is then shortened to ``initial_step``).
     n_skipped : int
         Pairs skipped for lack of positive curvature.
     n_resets : int
@@ -57,6 +66,7 @@ class LBFGSState:
     y: np.ndarray
     rho: np.ndarray
     count: np.ndarray
+    first_scale: np.ndarray = None
     n_skipped: int = 0
     n_resets: int = 0
 
@@ -140,14 +150,31 @@ class LBFGSSolver(StepSolver):
         loss, (grad,), finite = check_evaluation(self.name, "loss_and_grad", rows, loss, grad, shapes=[(problem.n_params,)], start=start)
         return loss, grad, finite
 
+    def carry_over(self, state):
+        """Only the scale of the steps: curvature pairs of one problem mislead L-BFGS on a changed
+        one (see the module docstring). The newest pair's ``s^T y / y^T y`` of each row becomes
+        the size of its first (gradient) step on the next problem."""
+        if not isinstance(state, LBFGSState):
+            return None
+        n, m, p = state.s.shape
+        scale = np.full(n, np.nan) if state.first_scale is None else state.first_scale.copy()
+        has = state.count > 0
+        sy = np.einsum("np,np->n", state.s[:, -1], state.y[:, -1])
+        yy = np.einsum("np,np->n", state.y[:, -1], state.y[:, -1])
+        scale[has] = sy[has] / yy[has]  # stored pairs have s^T y > 0, hence y != 0
+        return LBFGSState(None, None, np.zeros((n, m, p)), np.zeros((n, m, p)), np.zeros((n, m)),
+                          np.zeros(n, dtype=np.intp), first_scale=scale)
+
     def init_state(self, problem, x, previous=None):
         n, p, m = problem.n_rows, problem.n_params, int(self.memory)
         loss, grad, _ = self._evaluate(problem, x, np.arange(n), start=True)
         if isinstance(previous, LBFGSState) and previous.s.shape == (n, m, p):
             mem = (previous.s.copy(), previous.y.copy(), previous.rho.copy(), previous.count.copy())
+            scale = None if previous.first_scale is None else previous.first_scale.copy()
         else:
             mem = (np.zeros((n, m, p)), np.zeros((n, m, p)), np.zeros((n, m)), np.zeros(n, dtype=np.intp))
-        return LBFGSState(loss, grad, *mem)
+            scale = None
+        return LBFGSState(loss, grad, *mem, first_scale=np.full(n, np.nan) if scale is None else scale)
 
     def _directions(self, x, state):
         """Descent directions (memory reset where L-BFGS's is not one), bounded; and ``g^T d``."""
@@ -161,6 +188,8 @@ class LBFGSSolver(StepSolver):
         gnorm = np.linalg.norm(state.grad, axis=1)
         with np.errstate(divide="ignore"):
             length = np.minimum(1.0, self.initial_step / gnorm)
+        known = np.isfinite(state.first_scale)
+        length[known] = state.first_scale[known]
         d[first] = -state.grad[first] * length[first, None]
         z, shortened = limit_step(x, x + d, self.max_step_norm)
         d[shortened] = z[shortened] - x[shortened]
@@ -197,7 +226,8 @@ class LBFGSSolver(StepSolver):
             progressed |= acc.size > 0
             rows = rows[~ok]
             t[rows] *= self.shrink
-        if rows.size:  # failed line searches: start again from the gradient
+        if rows.size:  # failed line searches: start again from a short gradient step
             state.count[rows] = 0
+            state.first_scale[rows] = np.nan
             state.n_resets += int(rows.size)
         return x, state, bool(progressed)

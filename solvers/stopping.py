@@ -1,6 +1,9 @@
-"""The one stopping rule of the step solvers and of the learners' outer loops.
+"""The stopping rules of the step solvers and of the learners' outer loops.
 
-A run stops early when the *relative decrease* of its total objective over one step,
+Two rules, each with one home here; a run stops ("converged") as soon as either holds.
+
+**Relative decrease** (:func:`has_converged`, tolerance ``tol``). A run stops early when the
+*relative decrease* of its total objective over one step,
 
     (f_prev - f_curr) / max(|f_prev|, tiny),
 
@@ -11,13 +14,23 @@ not convergence (a learner's outer loop goes on and keeps its best point; the st
 never rise). With ``tol = 0`` a run stops early only when the objective stays exactly equal.
 The total objective is the sum over rows (tasks) of each row's loss plus any penalty of the
 solver.
+
+**Gradient norm** (:func:`gradient_converged`, tolerance ``gtol``). A run stops when the norm
+of the first-order optimality measure of its total objective (the gradient; for a constrained
+or penalised solver the projected gradient or the minimum-norm subgradient,
+:meth:`solvers.StepSolver.optimality`) is at most ``gtol`` times its value at the start of the
+run: ``||g|| <= gtol * ||g_0||``. Relative to the start, so the rule does not depend on the
+scale of the objective or of the parameters. It stops runs whose objective keeps decreasing
+geometrically toward a minimum at infinity (the relative decrease never becomes small there;
+for the IRL objectives: Boltzmann policies saturating as the rewards grow) and runs that reach a
+stationary point. ``gtol = 0`` stops only at an exactly zero gradient.
 """
 
 import numpy as np
 
 from ._validation import check_number
 
-__all__ = ["relative_decrease", "has_converged"]
+__all__ = ["relative_decrease", "has_converged", "gradient_converged"]
 
 _TINY = np.finfo(np.float64).tiny
 
@@ -76,3 +89,33 @@ def has_converged(prev, current, tol):
     tol = check_number(tol, "tol", "relative decrease", low=0.0)
     with np.errstate(over="ignore"):
         return bool(0.0 <= prev - current <= tol * max(abs(prev), _TINY))
+
+
+def gradient_converged(norm, initial, gtol):
+    """Whether the gradient norm has fallen to at most ``gtol`` times its initial value.
+
+    Parameters
+    ----------
+    norm : float
+        Norm of the first-order optimality measure now, >= 0 (inf when it overflowed).
+    initial : float
+        Its norm at the start of the run, >= 0 (inf when it overflowed).
+    gtol : float
+        ``>= 0``.
+
+    Returns
+    -------
+    bool
+        ``norm <= gtol * initial``; False when either norm is not finite (an overflowed
+        gradient says nothing about convergence).
+
+    Raises
+    ------
+    SolverOptionError
+        When a norm is not a number >= 0 (NaN included) or ``gtol`` is not a finite number >= 0.
+    """
+    gtol = check_number(gtol, "gtol", "gradient rule", low=0.0)
+    for value, name in ((norm, "norm"), (initial, "initial")):
+        if value != np.inf:
+            check_number(value, name, "gradient rule", low=0.0)
+    return bool(np.isfinite(norm) and np.isfinite(initial) and norm <= gtol * initial)

@@ -16,7 +16,9 @@ from factirl_opt.benchmarks import fit as fit_bench
 from factirl_opt.benchmarks import solvers as solvers_bench
 from factirl_opt.cli import main as cli_main
 
-FIT_ENTRY = {"time_s", "n_evaluations", "n_iter", "final_loss", "mean_train_deviation"}
+FIT_ENTRY = {"time_s", "n_evaluations", "n_linear_solves", "n_iter", "status", "final_loss", "mean_train_deviation"}
+COMBO_ENTRY = FIT_ENTRY | {"h_solver", "d_solver", "stop_reason", "deviation_ratio_over_flat", "evaluations_ratio_vs_reference",
+                           "linear_solves_ratio_vs_reference", "qualifies"}
 
 
 def run_bench(capsys, argv):
@@ -68,8 +70,8 @@ def test_gradient_benchmark_defaults_to_10x10_when_present(capsys):
 def test_fit_benchmark_quick(capsys):
     out = run_bench(capsys, ["fit", "--quick"])
     assert set(out) == {"benchmark", "total_s", "flat", "factorial", "deviation_ratio_factorial_over_flat",
-                        "data_time_s", "settings"}
-    assert set(out["flat"]) == FIT_ENTRY | {"status"} and set(out["factorial"]) == FIT_ENTRY
+                        "combinations", "reference", "best", "skipped", "data_time_s", "settings"}
+    assert set(out["flat"]) == FIT_ENTRY and set(out["factorial"]) == COMBO_ENTRY
     _finite_numbers(out)
     s = out["settings"]
     assert s["quick"] and {k: s[k] for k in fit_bench.QUICK} == fit_bench.QUICK
@@ -82,6 +84,69 @@ def test_fit_benchmark_quick(capsys):
     assert ratio == pytest.approx(out["factorial"]["mean_train_deviation"] / out["flat"]["mean_train_deviation"])
     # the quick setting (16 tasks sharing 2 primitives) keeps the paper's point: factorial beats flat
     assert ratio < 0.7
+
+
+def test_fit_benchmark_compares_every_combination(capsys):
+    """(H armijo | gn-qp-clarabel) x (D armijo | lbfgs | gn-cg) side by side from one start."""
+    import solvers
+
+    out = run_bench(capsys, ["fit", "--quick", "--max-iter", "4"])
+    combos, s = out["combinations"], out["settings"]
+    assert s["d_solver"] == "armijo" and s["h_solvers"] == ["armijo", "gn-qp-clarabel"]
+    assert s["d_solvers"] == ["armijo", "lbfgs", "gn-cg"]
+    expected = [f"{h}|{d}" for h in s["h_solvers"] for d in s["d_solvers"]]
+    available = set(solvers.available_solvers())
+    assert sorted(combos) == sorted(e for e in expected if set(e.split("|")) <= available)
+    assert out["skipped"] == [e for e in expected if e not in combos]
+    assert out["reference"] == "armijo|armijo" and out["factorial"] == combos["armijo|armijo"]
+    ref = combos["armijo|armijo"]
+    for name, e in combos.items():
+        assert set(e) == COMBO_ENTRY and f"{e['h_solver']}|{e['d_solver']}" == name
+        assert 1 <= e["n_iter"] <= 4 and e["status"] in ("converged", "max_iter", "stalled") and e["stop_reason"]
+        # every Q* evaluation solves at least one Bellman system per task (policy evaluation)
+        assert e["n_linear_solves"] >= e["n_evaluations"] * s["n_tasks"]
+        assert e["evaluations_ratio_vs_reference"] == pytest.approx(e["n_evaluations"] / ref["n_evaluations"])
+        assert e["linear_solves_ratio_vs_reference"] == pytest.approx(e["n_linear_solves"] / ref["n_linear_solves"])
+        assert e["deviation_ratio_over_flat"] == pytest.approx(e["mean_train_deviation"] / out["flat"]["mean_train_deviation"])
+        assert e["qualifies"] == (e["final_loss"] <= ref["final_loss"]
+                                  and e["mean_train_deviation"] <= fit_bench.DEVIATION_SLACK * ref["mean_train_deviation"])
+    qualified = [k for k, e in combos.items() if e["qualifies"]]
+    assert "armijo|armijo" in qualified
+    assert out["best"] == min(qualified, key=lambda k: (combos[k]["n_evaluations"], combos[k]["time_s"]))
+    # gn-cg's matrix-free products are linear solves that Q* evaluations do not show
+    if "armijo|gn-cg" in combos:
+        per_eval = {k: combos[k]["n_linear_solves"] / combos[k]["n_evaluations"] for k in ("armijo|armijo", "armijo|gn-cg")}
+        assert per_eval["armijo|gn-cg"] > per_eval["armijo|armijo"]
+
+
+def test_fit_benchmark_selected_pair_and_errors(capsys):
+    out = run_bench(capsys, ["fit", "--quick", "--max-iter", "2", "--h-solvers", "armijo", "--d-solvers", "lbfgs",
+                             "--d-solver", "gn-cg"])
+    # the reference and the selected pair are always fitted
+    assert sorted(out["combinations"]) == ["armijo|armijo", "armijo|gn-cg", "armijo|lbfgs"]
+    assert out["factorial"] == out["combinations"]["armijo|gn-cg"] and out["factorial"]["d_solver"] == "gn-cg"
+    from factirl_opt.exceptions import ValidationError
+
+    args = bench.build_parser().parse_args(["fit", "--quick", "--d-solvers", "no-such-solver"])
+    with pytest.raises(ValidationError, match="unknown solver.*no-such-solver"):
+        fit_bench.run(args)
+
+
+def test_counting_planner_counts_every_task_system():
+    import numpy as np
+
+    from factirl_opt import GridWorld
+    from factirl_opt.planning import get_planner, optimal_q, plan
+
+    mdp = GridWorld(size=3)
+    planner = fit_bench.CountingPlanner(get_planner(mdp))
+    R = np.random.default_rng(0).standard_normal((4, mdp.n_states, mdp.n_actions))
+    res = plan(planner, R)
+    assert planner.n_solves >= 4  # at least one policy evaluation of each task
+    np.testing.assert_allclose(res.Q, optimal_q(mdp, R)[0], rtol=1e-12, atol=1e-12)
+    before = planner.n_solves
+    res.system.solve_transpose(np.ones((4, mdp.n_states)))
+    assert planner.n_solves == before + 4 and planner.name == get_planner(mdp).name
 
 
 def test_fit_benchmark_explicit_options_win_over_quick(capsys):

@@ -207,3 +207,91 @@ def test_transfer_with_a_per_call_solver(data):
         model.transfer(mdp, demos[:2], h_solver_options={"alpha": 0.1})
     with pytest.raises(UnknownSolverError, match="available"):
         model.transfer(mdp, demos[:2], h_solver="no-such-solver")
+
+
+# --- the alternating loop: stopping rules, records, solver forms -------------------------------
+
+
+def _pca_start(mdp, demos, k=K):
+    flat = fo.GradIRL(max_iter=10).fit(mdp, demos)
+    return fo.pca_dictionary(flat.rewards_.reshape(len(demos), -1), k)
+
+
+def test_fit_records_the_stop_and_the_evaluations(data):
+    mdp, _, demos = data
+    D0, H0 = _pca_start(mdp, demos)
+    fit = fo.fit_factorial(mdp, demos, D0, H0, max_iter=4, gtol=0.0)
+    assert fit.status == "max_iter" and fit.reason == "max_iter=4 outer iterations done" and fit.n_iter == 4
+    ev = fit.evaluation_history
+    assert len(ev) == len(fit.loss_history) == 5 and ev[0] == 1 and ev[-1] == fit.n_evaluations
+    assert all(b > a for a, b in zip(ev, ev[1:]))  # every outer iteration evaluates Q*
+    # the relative-decrease rule: a large tol stops after the first iteration that decreased
+    fit = fo.fit_factorial(mdp, demos, D0, H0, max_iter=10, tol=0.99, gtol=0.0)
+    dec = fo.fit_factorial(mdp, demos, D0, H0, max_iter=1, gtol=0.0).loss_history  # inner runs do not use tol
+    assert fit.status == "converged" and fit.n_iter == 1 and fit.loss_history == dec
+    assert fit.reason == f"relative decrease {(dec[0] - dec[1]) / dec[0]:.3g} <= tol=0.99"
+    model = fo.FactIRL(n_primitives=K, max_iter=10, tol=0.99).fit(mdp, demos, flat_rewards=fo.task_rewards(D0, H0, 9, 4))
+    assert model.status_ == "converged" and model.stop_reason_.startswith("relative decrease")
+
+
+def test_gradient_norm_rule_and_measure(data):
+    """fit.gradient_norm is the norm of (dJ/dH, dJ/dD) at the last point (eqs. 11-12, computed
+    here by the step problems); gtol stops the loop once it falls to gtol x its initial value."""
+    from factirl_opt.gradirl import make_objective
+    from factirl_opt.problems import dictionary_problem, weights_problem
+
+    mdp, _, demos = data
+    D0, H0 = _pca_start(mdp, demos)
+    fit = fo.fit_factorial(mdp, demos, D0, H0, max_iter=3, tol=0.0, gtol=0.0)
+    assert_non_increasing(fit.loss_history)  # so the best point is the last one
+    obj = make_objective(mdp, demos, 5.0)
+    gH = weights_problem(obj, fit.dictionary).loss_and_grad(fit.coefficients, np.arange(5))[1]
+    gD = dictionary_problem(obj, fit.coefficients).loss_and_grad(fit.dictionary.reshape(1, -1), np.arange(1))[1]
+    assert fit.gradient_norm == pytest.approx(np.hypot(np.linalg.norm(gH), np.linalg.norm(gD)), rel=1e-10)
+    start = fo.fit_factorial(mdp, demos, D0, H0, max_iter=0)
+    assert start.n_iter == 0 and start.status == "max_iter" and start.gradient_norm > fit.gradient_norm
+    g0 = start.gradient_norm
+    ratio = fit.gradient_norm / g0
+    stop = fo.fit_factorial(mdp, demos, D0, H0, max_iter=10, tol=0.0, gtol=1.0001 * ratio)
+    assert stop.status == "converged" and stop.n_iter <= 3
+    assert stop.reason.startswith("gradient norm") and f"x initial {g0:.3g}" in stop.reason
+    with pytest.raises(ValidationError, match="gtol"):
+        fo.fit_factorial(mdp, demos, D0, H0, gtol=-1.0)
+
+
+def test_both_blocks_use_their_alternating_form_and_carry_over(data, monkeypatch):
+    """The D-solver is used in its alternating (proximal) form as the H-solver is; each block's
+    run is warm-started by the solver's carry_over of its previous run: gn-cg keeps its damping,
+    L-BFGS drops its pairs and keeps only the scale of its first step."""
+    import solvers
+
+    mdp, _, demos = data
+    D0, H0 = _pca_start(mdp, demos)
+    seen = []
+    original = solvers.StepSolver.run
+
+    def spy(self, problem, x0, max_iter, state=None, **kw):
+        seen.append((self.name, problem.n_rows, getattr(self, "damping", None), state))
+        return original(self, problem, x0, max_iter, state=state, **kw)
+
+    monkeypatch.setattr(solvers.StepSolver, "run", spy)
+    fo.fit_factorial(mdp, demos, D0, H0, d_solver="gn-cg", max_iter=2, tol=0.0)
+    d_runs = [s for s in seen if s[1] == 1]
+    assert [s[2] for s in d_runs] == [1.0, 1.0]  # the proximal copy (damping 1), not the solver's 1e-3
+    assert d_runs[0][3] is None and np.shape(d_runs[1][3].lam) == (1,)
+    seen.clear()
+    fo.fit_factorial(mdp, demos, D0, H0, d_solver="lbfgs", max_iter=3, tol=0.0)
+    d_states = [s[3] for s in seen if s[1] == 1]
+    assert d_states[0] is None
+    for st in d_states[1:]:
+        assert np.all(st.count == 0) and not np.any(st.s) and np.all(np.isfinite(st.first_scale))
+
+
+@pytest.mark.parametrize("d_solver", ["lbfgs", "gn-cg"])
+def test_d_solvers_fit_and_never_worsen_the_best_point(data, d_solver):
+    mdp, R, demos = data
+    D0, H0 = _pca_start(mdp, demos)
+    fit = fo.fit_factorial(mdp, demos, D0, H0, d_solver=d_solver, max_iter=8)
+    assert min(fit.loss_history) == pytest.approx(fit.loss.sum(), rel=1e-12)
+    assert fit.loss.sum() < 0.1 * fit.loss_history[0]
+    assert fit.status in ("converged", "max_iter") and fit.reason

@@ -160,7 +160,36 @@ def test_non_finite_trials_are_rejected():
 
 
 def test_for_alternating():
+    """The alternating form (FactIRL's D-step) is proximal and inexact by default: lam = 1 x
+    the curvature scale, shrinking by 0.9 per accepted step, CG to a 0.1 relative residual;
+    alternating_damping=None keeps the solver."""
     plain = solvers.get_solver("gn-cg")
-    assert plain.for_alternating() is plain
-    prox = solvers.get_solver("gn-cg", alternating_damping=1.0).for_alternating()
-    assert (prox.damping, prox.lam_down, prox.name) == (1.0, 0.99, "gn-cg")
+    prox = plain.for_alternating()
+    assert (prox.damping, prox.lam_down, prox.cg_tol, prox.name) == (1.0, 0.9, 0.1, "gn-cg")
+    assert (plain.damping, plain.lam_down, plain.cg_tol) == (1e-3, 1.0 / 3.0, 1e-3)  # unchanged
+    assert prox.cg_max_iter == plain.cg_max_iter and prox.lam_up == plain.lam_up
+    custom = solvers.get_solver("gn-cg", alternating_damping=10.0, alternating_lam_down=0.5, alternating_cg_tol=0.0)
+    assert (custom.for_alternating().damping, custom.for_alternating().lam_down, custom.for_alternating().cg_tol) == (10.0, 0.5, 0.0)
+    with pytest.raises(solvers.SolverOptionError, match="alternating_cg_tol must be a finite number >= 0"):
+        solvers.get_solver("gn-cg", alternating_cg_tol=-1.0)
+    keep = solvers.get_solver("gn-cg", alternating_damping=None)
+    assert keep.for_alternating() is keep
+
+
+def test_damping_is_carried_over(rng):
+    """The damping of a run warm-starts the next one (carry_over keeps the whole state)."""
+    problem, _, _ = exp_problem(rng)
+    solver = solvers.get_solver("gn-cg")
+    first = solver.run(problem, np.zeros((N, K)), 3)
+    carried = solver.carry_over(first.state)
+    assert carried is first.state
+    state = solver.init_state(problem, first.coefficients, previous=carried)
+    np.testing.assert_allclose(state.lam, np.clip(first.state.lam, solver.lam_min * state.scale, solver.lam_max * state.scale))
+
+
+def test_gradient_is_twice_the_state_half_gradient(rng):
+    problem, A, y = linear_problem(rng)
+    solver = solvers.get_solver("gn-cg")
+    x = rng.standard_normal((N, K))
+    state = solver.init_state(problem, x)
+    np.testing.assert_allclose(solver.gradient(state), problem.loss_and_grad(x, np.arange(N))[1], rtol=1e-12)

@@ -91,6 +91,28 @@ def test_memory_is_kept_across_runs_and_reset_with_none(rng):
     assert np.all(other.count == 0)  # shapes differ: a new memory
 
 
+def test_carry_over_drops_the_pairs_and_keeps_the_step_scale(rng):
+    """Between two runs on a changed problem (alternating minimisation) only the scale
+    s^T y / y^T y of each row's newest pair is kept; it sizes the first (gradient) step."""
+    problem, x_star = quadratic_rows(rng)
+    solver = solvers.get_solver("lbfgs", memory=5)
+    first = solver.run(problem, np.zeros_like(x_star), 3, tol=0.0)
+    carried = solver.carry_over(first.state)
+    assert np.all(carried.count == 0) and not np.any(carried.s) and not np.any(carried.y)
+    s, y = first.state.s[:, -1], first.state.y[:, -1]
+    np.testing.assert_allclose(carried.first_scale, np.sum(s * y, axis=1) / np.sum(y * y, axis=1), rtol=1e-12)
+    assert np.all(first.state.count == 3)  # the run's own state is untouched
+    # the next run starts with the gradient step of that size
+    state = solver.init_state(problem, first.coefficients, previous=carried)
+    x1, _, _ = solver.update(problem, first.coefficients, state)
+    g = problem.loss_and_grad(first.coefficients, np.arange(len(x_star)))[1]
+    np.testing.assert_allclose(x1, first.coefficients - carried.first_scale[:, None] * g, rtol=1e-12)
+    assert solver.carry_over(None) is None
+    # a row without a pair (a fresh state) keeps no scale: its first step is capped at initial_step
+    fresh = solver.carry_over(solver.init_state(problem, np.zeros_like(x_star)))
+    assert np.all(np.isnan(fresh.first_scale))
+
+
 def test_curvature_pairs_without_positive_curvature_are_skipped():
     """A double well ``x^4/4 - x^2`` near 0 is concave: ``s^T y < 0`` there."""
 

@@ -1,4 +1,4 @@
-"""The one relative-decrease stopping rule (solvers.stopping) and its use by StepSolver.run."""
+"""The stopping rules (solvers.stopping: relative decrease, gradient norm) and their use by StepSolver.run."""
 
 import numpy as np
 import pytest
@@ -65,3 +65,93 @@ def test_run_stops_by_the_rule():
     res = solver.run(problem, np.ones((2, 1)), 10, tol=0.3)
     assert res.status == "max_iter" and res.iterations == 10
     np.testing.assert_allclose(np.array(res.loss_history[1:]) / res.loss_history[:-1], 0.64)
+
+    assert res.reason.startswith("max_iter=10 steps")
+
+
+def test_gradient_rule():
+    assert solvers.gradient_converged(1e-3, 1.0, 1e-3)  # boundary: <= gtol * initial
+    assert not solvers.gradient_converged(1.1e-3, 1.0, 1e-3)
+    assert solvers.gradient_converged(0.0, 1.0, 0.0) and not solvers.gradient_converged(1e-300, 1.0, 0.0)
+    assert solvers.gradient_converged(0.0, 0.0, 0.5)  # a zero gradient from the start
+    # an overflowed norm says nothing: never convergence
+    assert not solvers.gradient_converged(np.inf, np.inf, 1.0) and not solvers.gradient_converged(1.0, np.inf, 1.0)
+    assert not solvers.gradient_converged(np.inf, 1.0, 1e300)
+
+
+@pytest.mark.parametrize("args, fragment", [((-1.0, 1.0, 0.1), "norm must be a finite number >= 0"),
+                                            ((1.0, np.nan, 0.1), "initial must be a finite number >= 0"),
+                                            ((-np.inf, 1.0, 0.1), "norm must be a finite number >= 0"),
+                                            ((1.0, 1.0, np.inf), "gtol must be a finite number >= 0"),
+                                            ((1.0, 1.0, -0.1), "gtol must be a finite number >= 0"),
+                                            (("1", 1.0, 0.1), "norm must be a finite number")])
+def test_gradient_rule_rejects_bad_values(args, fragment):
+    with pytest.raises(SolverOptionError, match=fragment):
+        solvers.gradient_converged(*args)
+
+
+def _quadratic():
+    return solvers.StepProblem(
+        loss_and_grad=lambda x, rows: (np.sum(x * x, axis=1), 2 * x), n_evaluations=lambda: 0, n_rows=2, n_params=1
+    )
+
+
+def test_run_stops_by_the_gradient_rule():
+    """Fixed step 0.1 on x^2 multiplies the gradient by 0.8 per step: ||g_t|| = 0.8^t ||g_0||,
+    so gtol = 0.5 stops after 4 steps (0.8^4 = 0.41), with the values in the reason."""
+    solver = solvers.ArmijoSolver(initial_step=0.1, grow=1.0)
+    res = solver.run(_quadratic(), np.ones((2, 1)), 10, gtol=0.5)
+    assert res.status == "converged" and res.iterations == 4
+    assert res.gradient_norm == pytest.approx(0.8**4 * np.sqrt(8.0))
+    assert res.reason == f"gradient norm {res.gradient_norm:.3g} <= gtol=0.5 x initial {np.sqrt(8.0):.3g}"
+    res = solver.run(_quadratic(), np.ones((2, 1)), 10, tol=0.4)
+    assert res.reason == "relative decrease 0.36 <= tol=0.4"
+    with pytest.raises(SolverOptionError, match="armijo: gtol must be a finite number >= 0"):
+        solver.run(_quadratic(), np.ones((2, 1)), 10, gtol=-1.0)
+
+
+def test_stalled_run_says_so():
+    problem = solvers.StepProblem(loss_and_grad=lambda x, rows: (np.ones(len(rows)), np.ones_like(x)),
+                                  n_evaluations=lambda: 0, n_rows=1, n_params=1)
+    res = solvers.ArmijoSolver(max_backtracks=2).run(problem, np.zeros((1, 1)), 5)
+    assert res.status == "stalled" and res.reason == "stalled: no row could decrease its objective"
+
+
+def test_optimality_measures():
+    """Unconstrained: the gradient; nonneg: components at the bound pointing outwards dropped;
+    sparse: the minimum-norm subgradient of f + alpha ||x||_1."""
+    x = np.array([[0.0, 1.0, 0.0], [2.0, 0.0, -1.0]])
+    g = np.array([[1.0, -2.0, -3.0], [0.5, 0.05, 0.2]])
+    np.testing.assert_allclose(solvers.get_solver("armijo").optimality(x, g), np.linalg.norm(g, axis=1))
+    np.testing.assert_allclose(solvers.get_solver("armijo-nonneg").optimality(np.abs(x), g),
+                               [np.hypot(2.0, 3.0), np.linalg.norm([0.5, 0.0, 0.2])])
+    sparse = [n for n in solvers.available_solvers() if n.endswith("-sparse")]
+    if sparse:
+        solver = solvers.get_solver(sparse[0], alpha=0.1)
+        # row 0: x=0 with |g| > alpha -> g shrunk by alpha; x=1 -> g + alpha; row 1: |0.05| < alpha at 0 -> 0
+        expected = [np.linalg.norm([0.9, -1.9, -2.9]), np.linalg.norm([0.6, 0.0, 0.1])]
+        np.testing.assert_allclose(solver.optimality(x, g), expected)
+
+
+def test_row_norms_neither_underflow_nor_overflow_needlessly():
+    from solvers._base import row_norms
+
+    a = np.array([[3e-200, 4e-200], [3e200, 4e200], [0.0, 0.0], [np.inf, 1.0], [3.0, -4.0]])
+    np.testing.assert_allclose(row_norms(a), [5e-200, 5e200, 0.0, np.inf, 5.0], rtol=1e-15)
+
+
+def test_gradient_rule_is_scale_invariant_and_skipped_without_a_gradient():
+    """x^2 scaled by 1e-200: squared gradients underflow, the rule must not see zeros. A
+    solver whose state has no ``grad`` stops by the other rules only."""
+    for scale in (1.0, 1e-200, 1e150):
+        problem = solvers.StepProblem(loss_and_grad=lambda x, rows, c=scale: (c * np.sum(x * x, axis=1), 2 * c * x),
+                                      n_evaluations=lambda: 0, n_rows=2, n_params=1)
+        res = solvers.ArmijoSolver(initial_step=0.1 / scale, grow=1.0, max_step=1e300).run(problem, np.ones((2, 1)), 10, gtol=0.5)
+        assert res.iterations == 4 and res.status == "converged"
+
+    class NoGradient(solvers.ArmijoSolver):
+        def gradient(self, state):
+            return None
+
+    res = NoGradient(initial_step=0.1, grow=1.0).run(_quadratic(), np.ones((2, 1)), 10, gtol=0.99)
+    assert res.status == "max_iter" and np.isnan(res.gradient_norm)
