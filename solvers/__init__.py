@@ -33,16 +33,24 @@ Built-in solvers
 ``lbfgs``
     Limited-memory BFGS with an Armijo line search, one memory per row
     (:class:`LBFGSSolver`; options ``memory``, ``initial_step``, ...). Its memory is kept
-    across runs given the previous ``state`` and reset with ``state=None``. Unconstrained.
+    across runs given the previous ``state`` and reset with ``state=None``; between the runs
+    of an alternating scheme only the step scale is carried over (:meth:`StepSolver.carry_over`).
+    Unconstrained.
 ``gn-cg``
     Matrix-free Gauss-Newton / Levenberg-Marquardt steps, ``(J^T J + lam I) delta = -J^T r``
     solved by truncated conjugate gradients, each iteration one batched Jacobian-vector
     product and one vector-Jacobian product (:class:`GaussNewtonCGSolver`; needs
-    ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained.
+    ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained. Its
+    alternating form (FactIRL's D-step) takes proximal, inexact steps.
 
-Every solver's run stops early by one rule, :func:`has_converged` (relative decrease of the
-total objective, :mod:`solvers.stopping`), and bounds its steps relative to ``max(1, ||x_i||)``
-(``max_step_norm``) where it takes Newton-like steps.
+Every solver's run stops early by the rules of :mod:`solvers.stopping`: the relative decrease
+of the total objective (:func:`has_converged`, ``tol``) and the norm of its gradient relative to
+the start (:func:`gradient_converged`, ``gtol``; projected or minimum-norm subgradient for the
+constrained and penalised solvers, :meth:`StepSolver.optimality`); the result says why it
+stopped (``SolverResult.reason``). Solvers bound their steps relative to ``max(1, ||x_i||)``
+(``max_step_norm``) where they take Newton-like steps. In an alternating scheme a learner
+uses each solver's :meth:`StepSolver.for_alternating` form and warm-starts it with
+:meth:`StepSolver.carry_over` of its previous run.
 
 Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.g.
 ``get_solver("gn-qp-osqp", interface="direct")`` calls OSQP without cvxpy. A name is only
