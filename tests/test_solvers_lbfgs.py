@@ -113,6 +113,26 @@ def test_carry_over_drops_the_pairs_and_keeps_the_step_scale(rng):
     assert np.all(np.isnan(fresh.first_scale))
 
 
+def test_a_failed_line_search_forgets_the_carried_step_scale():
+    """Every trial point is NaN: the line search fails, and the row falls back to a gradient
+    step capped at initial_step (the carried scale is dropped with the memory)."""
+
+    def loss_and_grad(x, rows):
+        bad = np.any(x != 0.0, axis=1)
+        loss, grad = np.where(bad, np.nan, 1.0), np.where(bad[:, None], np.nan, 1.0)
+        return loss, np.broadcast_to(grad, x.shape).copy()
+
+    problem = solvers.StepProblem(loss_and_grad, lambda: 0, 2, 3)
+    solver = solvers.get_solver("lbfgs", max_backtracks=3)
+    previous = solver.carry_over(solver.init_state(problem, np.zeros((2, 3))))
+    previous.first_scale[:] = 5.0
+    state = solver.init_state(problem, np.zeros((2, 3)), previous=previous)
+    np.testing.assert_array_equal(state.first_scale, 5.0)
+    x, state, progressed = solver.update(problem, np.zeros((2, 3)), state)
+    assert not progressed and np.all(np.isnan(state.first_scale)) and state.n_resets == 2
+    np.testing.assert_array_equal(x, 0.0)
+
+
 def test_curvature_pairs_without_positive_curvature_are_skipped():
     """A double well ``x^4/4 - x^2`` near 0 is concave: ``s^T y < 0`` there."""
 
