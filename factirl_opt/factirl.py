@@ -198,11 +198,12 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
 
     Each block runs ``inner_steps`` steps of its solver's alternating form, warm-started by
     what the solver carries over from its previous run (:meth:`solvers.StepSolver.carry_over`);
-    the inner runs stop early on the same rules as the loop (:func:`fit_factorial`).
+    the inner runs stop early only by the gradient rule or a stall (:func:`fit_factorial`).
     """
     penalised = h_solver.constraint == "sparse"
     band = 1.0 if penalised else 2.0
-    loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, band, penalised)
+    D, H = normalise_dictionary(D, H, band)  # the H-step starts where the loss is evaluated (no band: no rescaling)
+    loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, np.inf, penalised)
     history, evaluations, gnorm = [total], [objective.n_evaluations], g0
     best = (total, D, H, loss)
     h_state = d_state = None
