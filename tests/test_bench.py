@@ -217,3 +217,15 @@ def test_blas_thread_limit_is_restored():
         # (the limiter inspects the loaded libraries once: one loaded later by another test is not in ``inside``)
         assert inside and all(n == 1 for n in inside) and counts().count(1) >= len(inside)
     assert counts() == before
+
+
+@pytest.mark.slow
+def test_fit_benchmark_paper_scale_acceptance(capsys):
+    """Issue 13 at paper scale (the defaults, one run): Armijo H-step with the gn-cg D-step
+    reaches a final loss no higher than Armijo/Armijo's, a train deviation within 5% of it, with
+    at most a third of its Q* evaluations (measured: 454 vs 2976, loss 0.069 vs 0.210)."""
+    out = run_bench(capsys, ["fit", "--h-solvers", "armijo", "--d-solvers", "gn-cg"])
+    ref, e = out["combinations"]["armijo|armijo"], out["combinations"]["armijo|gn-cg"]
+    assert e["qualifies"] and out["best"] == "armijo|gn-cg"
+    assert e["final_loss"] <= ref["final_loss"] and 3 * e["n_evaluations"] <= ref["n_evaluations"]
+    assert e["mean_train_deviation"] <= 1.05 * ref["mean_train_deviation"]
