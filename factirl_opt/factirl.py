@@ -396,9 +396,12 @@ class FactIRL:
         Fixed number of solver steps per sub-problem.
     tol : float, default=1e-5
         Stop when the relative decrease of the total loss over an outer iteration is below tol
-        (a rise is not convergence; the best point seen is kept). The fit also stops when the
-        gradient norm over (H, D) falls to ``GTOL`` (1e-4) times its initial value; see
-        :func:`fit_factorial` for both rules and for the inner runs. Transfer stops on ``tol``.
+        (a rise is not convergence; the best point seen is kept); see :func:`fit_factorial` for
+        both rules and for the inner runs. Transfer stops on ``tol``.
+    gtol : float, default=1e-4
+        The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
+        value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
+        fixed budgets, as the ``paper`` preset does).
     h_solver : str or solvers.StepSolver, default="armijo"
         H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
         ``transfer`` uses it too. A constrained solver keeps its constraint in the
@@ -456,7 +459,8 @@ class FactIRL:
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
     """
 
-    def __init__(self, n_primitives=5, beta=5.0, init="pca", max_iter=100, inner_steps=5, tol=1e-5, h_solver="armijo",
+    def __init__(self, n_primitives=5, beta=5.0, init="pca", max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,
+                 h_solver="armijo",
                  h_solver_options=None, d_solver="armijo", d_solver_options=None, features=None,
                  objective="policy-matching", planner="auto", flat_max_iter=100, transfer_max_iter=100, rng=None,
                  verbose=False, callback=None):
@@ -466,6 +470,7 @@ class FactIRL:
         self.max_iter = max_iter
         self.inner_steps = inner_steps
         self.tol = tol
+        self.gtol = gtol
         self.h_solver = h_solver
         self.h_solver_options = h_solver_options
         self.d_solver = d_solver
@@ -550,8 +555,8 @@ class FactIRL:
             D, H = _orient_nonneg(D, H, self.init == "random")
         fit = fit_factorial(mdp, demos_per_task, D, H, beta=self.beta, base_features=Phi, h_solver=h_solver,
                             d_solver=self.d_solver, d_solver_options=self.d_solver_options, max_iter=self.max_iter,
-                            inner_steps=self.inner_steps, tol=self.tol, objective=self.objective, planner=self.planner,
-                            callback=self.callback, verbose=self.verbose)
+                            inner_steps=self.inner_steps, tol=self.tol, gtol=self.gtol, objective=self.objective,
+                            planner=self.planner, callback=self.callback, verbose=self.verbose)
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
         self.rewards_ = _rewards(mdp, Phi, fit.dictionary, fit.coefficients)
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history

@@ -93,7 +93,7 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
                                                  flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
-                                                 planner="auto")
+                                                 planner="auto", gtol=0.0)
 
 
 def test_h_solver_options_reach_factirl(monkeypatch):
@@ -199,16 +199,14 @@ def test_fast_preset_is_the_paper_with_faster_solvers():
     from factirl_opt.experiments.presets import FAST_SOLVERS, SOLVER_FIELDS
 
     paper, fast = PRESETS["paper"], PRESETS["fast"]
-    assert (fast.h_solver, fast.d_solver) == (FAST_SOLVERS["h_solver"], FAST_SOLVERS["d_solver"])
-    same = {f: v for f, v in paper.to_dict().items() if f not in ("name", *SOLVER_FIELDS)}
-    assert same == {f: v for f, v in fast.to_dict().items() if f not in ("name", *SOLVER_FIELDS)}
-    assert fast.fingerprint() == paper.fingerprint()  # the solvers are in the run keys instead
+    assert (fast.h_solver, fast.d_solver, fast.fact_gtol) == tuple(FAST_SOLVERS[f] for f in ("h_solver", "d_solver", "fact_gtol"))
+    ignored = ("name", "fact_gtol", *SOLVER_FIELDS)
+    same = {f: v for f, v in paper.to_dict().items() if f not in ignored}
+    assert same == {f: v for f, v in fast.to_dict().items() if f not in ignored}
+    assert paper.fact_gtol == 0.0 < fast.fact_gtol and fast.fingerprint() != paper.fingerprint()
     specs = plan_runs(fast, [0, 1, 2])
     assert len(specs) == 27 and {(s.h_solver, s.d_solver) for s in specs} == {(fast.h_solver, fast.d_solver)}
     assert {s.key(fast) for s in specs}.isdisjoint(s.key(paper) for s in plan_runs(paper, [0, 1, 2]))
-    # the same solvers named on the paper preset: the same runs
-    named = plan_runs(paper, [0, 1, 2], h_solver=fast.h_solver, d_solver=fast.d_solver)
-    assert [s.key(paper) for s in named] == [s.key(fast) for s in specs]
 
 
 def test_a_sweep_overrides_the_presets_solvers():
