@@ -56,7 +56,7 @@ AUTO_DENSE_MAX_STATES = 256
 #: memory for one chunk of dense (c, S, S) systems
 DENSE_CHUNK_BYTES = 256 * 2**20
 #: the sparse planner's cache of factorisations of recent policies (estimated bytes)
-FACTOR_CACHE_BYTES = 512 * 2**20
+FACTOR_CACHE_BYTES = 768 * 2**20
 #: a policy differing from a factorised one in at most this many states is solved by a low-rank update
 UPDATE_MAX_RANK = 16
 #: the sparse planner orders states once when the actions' union pattern is at most this much denser than one action's
@@ -274,7 +274,7 @@ class _TaskFactor:
     def __init__(self, M, permc_spec, policy=None):
         self.lu = _lu(sp.csc_matrix((M.data, M.indices, M.indptr), shape=M.shape), permc_spec)
         self.policy = policy
-        self.nbytes = 12 * self.lu.nnz
+        self.nbytes = 16 * self.lu.nnz  # measured resident size of a SuperLU factorisation: 14-16 bytes per entry
 
     @property
     def base(self):
@@ -286,12 +286,6 @@ class _TaskFactor:
         return self.lu.solve(b, trans="N" if transpose else "T")
 
 
-def _relative_residual(M, x, b, transpose):
-    r = b - (M.T @ x if transpose else M @ x)
-    scale = np.linalg.norm(b, axis=0)
-    return np.max(np.linalg.norm(r, axis=0) / np.where(scale > 0, scale, 1.0)), r
-
-
 class _UpdatedFactor:
     """A policy differing from a factorised one in k states, by a rank-k (Woodbury) update.
 
@@ -301,20 +295,23 @@ class _UpdatedFactor:
     ``M'^-T b = M^-T (b - W^T C^-T Z^T b)``. Every solve is checked against ``M'`` itself:
     one step of iterative refinement if the relative residual exceeds 1e-14, and a fresh
     factorisation if it still exceeds :data:`RESIDUAL_TOL` (never seen at gamma <= 0.99).
+    Construction is refused (``well_conditioned`` False) when ``cond(C) >= 1e8``.
     """
 
-    def __init__(self, base, M, changed, W, permc_spec, policy):
+    def __init__(self, planner, base, policy, changed):
         import scipy.linalg as sla
 
-        self.base, self.M, self.W, self.policy, self.permc_spec = base, M, W, policy, permc_spec
-        E = np.zeros((M.shape[0], len(changed)))
+        self.planner, self.base, self.policy = planner, base, policy
+        q, A, Paug = planner.order, planner.A, planner._Paug
+        self.sel = q * A + policy[q]  # the rows of the augmented P that M' uses, in the planner's order
+        self.W = -planner.gamma * (Paug[self.sel[changed]] - Paug[q[changed] * A + base.policy[q[changed]]])
+        E = np.zeros((len(q), len(changed)))
         E[changed, np.arange(len(changed))] = 1.0
         self.Z = base.solve(E)
-        C = np.eye(len(changed)) + W @ self.Z
-        self.C = sla.lu_factor(C)
-        self._lu_solve, self._fresh = sla.lu_solve, None
+        C = np.eye(len(changed)) + self.W @ self.Z
         self.well_conditioned = bool(np.linalg.cond(C) < 1e8)
-        self.nbytes = self.Z.nbytes + M.data.nbytes + M.indices.nbytes + W.data.nbytes
+        self.C, self._lu_solve, self._fresh = sla.lu_factor(C), sla.lu_solve, None
+        self.nbytes = self.Z.nbytes + self.sel.nbytes + self.W.data.nbytes + self.W.indices.nbytes
 
     def _raw(self, b, transpose):
         if transpose:
@@ -323,16 +320,28 @@ class _UpdatedFactor:
         y = self.base.solve(b)
         return y - self.Z @ self._lu_solve(self.C, self.W @ y)
 
+    def _residual(self, x, b, transpose):
+        """Largest relative residual over the columns of ``b - M' x`` (or ``M'^T``), and the residual."""
+        pl = self.planner
+        if transpose:
+            y = np.zeros((pl._Paug.shape[0],) + x.shape[1:])
+            y[self.sel] = x
+            r = b - (x - pl.gamma * (pl._PaugT @ y))
+        else:
+            r = b - (x - pl.gamma * (pl._Paug @ x)[self.sel])
+        scale = np.linalg.norm(b, axis=0)
+        return np.max(np.linalg.norm(r, axis=0) / np.where(scale > 0, scale, 1.0)), r
+
     def solve(self, b, transpose=False):
         if self._fresh is None:
             x = self._raw(b, transpose)
-            res, r = _relative_residual(self.M, x, b, transpose)
+            res, r = self._residual(x, b, transpose)
             if res > 1e-14:
                 x = x + self._raw(r, transpose)
-                res, _ = _relative_residual(self.M, x, b, transpose)
+                res, _ = self._residual(x, b, transpose)
             if res <= RESIDUAL_TOL:
                 return x
-            self._fresh = _TaskFactor(self.M, self.permc_spec, self.policy)
+            self._fresh = _TaskFactor(self.planner.policy_matrix(self.policy), self.planner.permc_spec, self.policy)
         return self._fresh.solve(b, transpose)
 
 
@@ -367,7 +376,7 @@ class SparseLUPlanner(Planner):
         self.order, self.permc_spec = self._ordering()
         self.inverse_order = np.argsort(self.order)
         self._augmented()
-        self._cache, self._pinned, self._cache_bytes = collections.OrderedDict(), {}, 0
+        self._cache, self._groups, self._cache_bytes = {}, collections.OrderedDict(), 0
 
     def _ordering(self):
         """State ordering ``q`` (new index i is state ``q[i]``) and SuperLU's permc_spec."""
@@ -396,6 +405,7 @@ class SparseLUPlanner(Planner):
         rows = np.repeat(np.arange(S * A), np.diff(Paug.indptr))
         # offset of each row's diagonal entry within the row (exactly one per row)
         self._Paug, self._diag_offset = Paug, np.flatnonzero(Paug.indices == own[rows]) - Paug.indptr[:-1]
+        self._PaugT = Paug.T.tocsr()
 
     def backup(self, V):
         if V.ndim == 3:  # k directions: (n, S, k) -> (n, S*A, k)
@@ -450,41 +460,40 @@ class SparseLUPlanner(Planner):
     def _solver(self, policy_i, hint):
         """A solver for one deterministic policy: a low-rank update of ``hint``'s factorisation
         when the policies differ in at most :data:`UPDATE_MAX_RANK` states, else a new LU."""
-        M = self.policy_matrix(policy_i)
         base = None if hint is None else hint.base
         if base is not None and base.policy is not None:
             changed = np.flatnonzero(base.policy[self.order] != policy_i[self.order])
             if 0 < changed.size <= UPDATE_MAX_RANK:
-                rows = self.order[changed] * self.A
-                W = -self.gamma * (self._Paug[rows + policy_i[self.order[changed]]] - self._Paug[rows + base.policy[self.order[changed]]])
-                update = _UpdatedFactor(base, M, changed, W, self.permc_spec, policy_i)
+                update = _UpdatedFactor(self, base, policy_i, changed)
                 if update.well_conditioned:
                     return update
-        return _TaskFactor(M, self.permc_spec, policy_i)
-
-    def _pin(self, solver, sign):
-        """Account for a cache entry: its own bytes and, once per base factorisation it keeps alive, the base's."""
-        base = solver.base
-        count = self._pinned.get(id(base), 0) + sign  # a pinned base is alive, so its id is unique
-        if count == 0 or count == sign:
-            self._cache_bytes += sign * base.nbytes
-        if count:
-            self._pinned[id(base)] = count
-        else:
-            del self._pinned[id(base)]
-        if solver is not base:
-            self._cache_bytes += sign * solver.nbytes
+        return _TaskFactor(self.policy_matrix(policy_i), self.permc_spec, policy_i)
 
     def _remember(self, key, solver):
+        """Cache ``solver`` under ``key``. Entries are grouped by the factorisation they use (an LU
+        and its low-rank updates): the least recently used group goes first, so every eviction
+        frees memory."""
+        base = solver.base
+        group = self._groups.get(id(base))  # a cached base is alive, so its id is unique
+        if group is None:
+            group = self._groups[id(base)] = [base, []]
+            self._cache_bytes += base.nbytes
+        group[1].append(key)
         self._cache[key] = solver
-        self._pin(solver, +1)
-        while self._cache_bytes > FACTOR_CACHE_BYTES and len(self._cache) > 1:
-            self._pin(self._cache.popitem(last=False)[1], -1)
+        if solver is not base:
+            self._cache_bytes += solver.nbytes
+        self._groups.move_to_end(id(base))
+        while self._cache_bytes > FACTOR_CACHE_BYTES and len(self._groups) > 1:
+            _, (old, keys) = self._groups.popitem(last=False)
+            for k in keys:
+                evicted = self._cache.pop(k)
+                self._cache_bytes -= 0 if evicted is old else evicted.nbytes
+            self._cache_bytes -= old.nbytes
 
     def clear_cache(self):
         """Forget the cached factorisations."""
         self._cache.clear()
-        self._pinned.clear()
+        self._groups.clear()
         self._cache_bytes = 0
 
     def system(self, policy, hints=None):
@@ -504,7 +513,7 @@ class SparseLUPlanner(Planner):
                 solver = self._solver(pol, None if hints is None else hints[j])
                 self._remember(key, solver)
             else:
-                self._cache.move_to_end(key)
+                self._groups.move_to_end(id(solver.base))
             solvers.append(solver)
         return _FactorSystem(self, solvers)
 
