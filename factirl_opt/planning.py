@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 #: ``planner="auto"`` uses the dense planner up to this many states (measured crossover)
-AUTO_DENSE_MAX_STATES = 256
+AUTO_DENSE_MAX_STATES = 144
 #: memory for one chunk of dense (c, S, S) systems
 DENSE_CHUNK_BYTES = 256 * 2**20
 #: the sparse planner's cache of factorisations of recent policies (estimated bytes)
@@ -176,6 +176,12 @@ class Planner:
         """Where policy iteration starts without a warm start: greedy on the immediate reward."""
         return np.argmax(R, axis=2)
 
+    def refine_policy(self, R, Q, policy):
+        """The next policy of policy iteration, given the improved (greedy) ``policy`` on the
+        exact ``Q`` (n, S, A) of the last one. This planner takes it as is (Howard's policy
+        iteration); see :meth:`SparseLUPlanner.refine_policy`."""
+        return policy
+
 
 class DensePlanner(Planner):
     """Batched dense LU on (n, S, S) systems (today's planner; best for small S)."""
@@ -267,12 +273,12 @@ def _lu(MT, permc_spec):
 class _TaskFactor:
     """Sparse LU of one policy's ``M = I - gamma P_pi`` (in the planner's state ordering).
 
-    SuperLU factors ``M^T`` (the CSR arrays of ``M`` read as CSC, no conversion), so
+    SuperLU factors ``M^T`` (given as CSC: the CSR arrays of ``M``, no conversion), so
     ``M x = b`` is its transposed solve and ``M^T x = b`` its plain one.
     """
 
-    def __init__(self, M, permc_spec, policy=None):
-        self.lu = _lu(sp.csc_matrix((M.data, M.indices, M.indptr), shape=M.shape), permc_spec)
+    def __init__(self, MT, permc_spec, policy=None):
+        self.lu = _lu(MT, permc_spec)
         self.policy = policy
         self.nbytes = 16 * self.lu.nnz  # measured resident size of a SuperLU factorisation: 14-16 bytes per entry
 
@@ -295,23 +301,24 @@ class _UpdatedFactor:
     ``M'^-T b = M^-T (b - W^T C^-T Z^T b)``. Every solve is checked against ``M'`` itself:
     one step of iterative refinement if the relative residual exceeds 1e-14, and a fresh
     factorisation if it still exceeds :data:`RESIDUAL_TOL` (never seen at gamma <= 0.99).
-    Construction is refused (``well_conditioned`` False) when ``cond(C) >= 1e8``.
     """
 
     def __init__(self, planner, base, policy, changed):
         import scipy.linalg as sla
 
         self.planner, self.base, self.policy = planner, base, policy
-        q, A, Paug = planner.order, planner.A, planner._Paug
+        q, A, k = planner.order, planner.A, len(changed)
         self.sel = q * A + policy[q]  # the rows of the augmented P that M' uses, in the planner's order
-        self.W = -planner.gamma * (Paug[self.sel[changed]] - Paug[q[changed] * A + base.policy[q[changed]]])
-        E = np.zeros((len(q), len(changed)))
-        E[changed, np.arange(len(changed))] = 1.0
+        self.W = np.zeros((k, len(q)))  # dense: k <= UPDATE_MAX_RANK rows
+        for sign, rows in ((-1.0, self.sel[changed]), (1.0, q[changed] * A + base.policy[q[changed]])):
+            data, indices, indptr = planner._rows(rows)
+            self.W[np.repeat(np.arange(k), np.diff(indptr)), indices] += sign * planner.gamma * data
+        E = np.zeros((len(q), k))
+        E[changed, np.arange(k)] = 1.0
         self.Z = base.solve(E)
-        C = np.eye(len(changed)) + self.W @ self.Z
-        self.well_conditioned = bool(np.linalg.cond(C) < 1e8)
-        self.C, self._lu_solve, self._fresh = sla.lu_factor(C), sla.lu_solve, None
-        self.nbytes = self.Z.nbytes + self.sel.nbytes + self.W.data.nbytes + self.W.indices.nbytes
+        # C = I + W Z is nonsingular (det C = det M' / det M); its accuracy is checked by every solve
+        self.C, self._lu_solve, self._fresh = sla.lu_factor(np.eye(k) + self.W @ self.Z), sla.lu_solve, None
+        self.nbytes = self.Z.nbytes + self.sel.nbytes + self.W.nbytes
 
     def _raw(self, b, transpose):
         if transpose:
@@ -341,7 +348,7 @@ class _UpdatedFactor:
                 res, _ = self._residual(x, b, transpose)
             if res <= RESIDUAL_TOL:
                 return x
-            self._fresh = _TaskFactor(self.planner.policy_matrix(self.policy), self.planner.permc_spec, self.policy)
+            self._fresh = _TaskFactor(self.planner.matrix_transpose(self.policy), self.planner.permc_spec, self.policy)
         return self._fresh.solve(b, transpose)
 
 
@@ -417,25 +424,34 @@ class SparseLUPlanner(Planner):
     def pullback(self, G):
         return (self.PT @ np.ascontiguousarray(G.reshape(G.shape[0], self.S * self.A).T)).T
 
-    def policy_matrix(self, policy_i):
-        """``M = I - gamma P_pi`` (S, S) CSR, in the planner's state order, of one deterministic
-        (S,) or stochastic (S, A) policy (given in the MDP's state order)."""
-        S, A, q, Paug = self.S, self.A, self.order, self._Paug
+    def _rows(self, rows):
+        """CSR arrays (data, indices, indptr) of the given rows of the augmented ``P``."""
+        Paug = self._Paug
+        start, length = Paug.indptr[rows], Paug.indptr[rows + 1] - Paug.indptr[rows]
+        indptr = np.zeros(len(rows) + 1, dtype=Paug.indptr.dtype)
+        np.cumsum(length, out=indptr[1:])
+        gather = np.repeat(start - indptr[:-1], length) + np.arange(indptr[-1])
+        return Paug.data[gather], Paug.indices[gather], indptr
+
+    def matrix_transpose(self, policy_i):
+        """``M^T = (I - gamma P_pi)^T`` (S, S) as CSC (the CSR arrays of ``M``), in the planner's
+        state order, of one deterministic (S,) or stochastic (S, A) policy (given in the MDP's order)."""
+        S, A, q = self.S, self.A, self.order
         if policy_i.ndim == 2:
             Pi = sp.csr_matrix((policy_i[q].ravel(), (np.repeat(np.arange(S), A), (q[:, None] * A + np.arange(A)).ravel())),
                                shape=(S, S * A))
-            M = (sp.identity(S, format="csr") - self.gamma * (Pi @ Paug)).tocsr()
+            M = (sp.identity(S, format="csr") - self.gamma * (Pi @ self._Paug)).tocsr()
             M.sort_indices()
-            return M
+            return sp.csc_matrix((M.data, M.indices, M.indptr), shape=(S, S))
         sel = q * A + policy_i[q]
-        start, length = Paug.indptr[sel], Paug.indptr[sel + 1] - Paug.indptr[sel]
-        indptr = np.zeros(S + 1, dtype=Paug.indptr.dtype)
-        np.cumsum(length, out=indptr[1:])
-        gather = np.repeat(start - indptr[:-1], length) + np.arange(indptr[-1])
-        data = -self.gamma * Paug.data[gather]
+        data, indices, indptr = self._rows(sel)
+        data = -self.gamma * data
         data[indptr[:-1] + self._diag_offset[sel]] += 1.0
-        return sp.csr_matrix((data, Paug.indices[gather], indptr), shape=(S, S))
+        return sp.csc_matrix((data, indices, indptr), shape=(S, S))
 
+    def policy_matrix(self, policy_i):
+        """``M = I - gamma P_pi`` (S, S) CSR, in the planner's state order (see :meth:`matrix_transpose`)."""
+        return self.matrix_transpose(policy_i).T
 
     def initial_policy(self, R):
         """Greedy policy after value-iteration sweeps (batched sparse backups, cheap next to a
@@ -443,9 +459,22 @@ class SparseLUPlanner(Planner):
         :data:`WARMUP_MAX_CHANGES` states per sweep (at most :data:`WARMUP_MAX_SWEEPS` sweeps):
         policy iteration from there needs about one factorisation per task, then low-rank updates.
         """
-        n, S, A = R.shape
         Rt = np.ascontiguousarray(np.moveaxis(R, 0, 2))  # (S, A, n): tasks innermost, one SpMM per sweep
-        pol, V = _greedy_columns(Rt)
+        return self._value_sweeps(Rt, *_greedy_columns(Rt))
+
+    def refine_policy(self, R, Q, policy):
+        """Value-iteration sweeps from ``V_1 = max_a Q`` (``Q`` exact for the last policy ``pi``),
+        stopped as in :meth:`initial_policy` (modified policy iteration). Each sweep's greedy
+        policy ``pi_k`` satisfies ``V^{pi_k} >= V_k >= V^pi`` (``T V_k >= V_k`` holds from
+        ``V_0 = V^pi`` on), so policy iteration still improves monotonically and ends only on
+        an exactly verified optimum, with far fewer factorisations than one per greedy step."""
+        Rt = np.ascontiguousarray(np.moveaxis(R, 0, 2))
+        _, V = _greedy_columns(np.moveaxis(Q, 0, 2))
+        return self._value_sweeps(Rt, np.ascontiguousarray(policy.T), V)
+
+    def _value_sweeps(self, Rt, pol, V):
+        """Greedy policy (n, S) after value-iteration sweeps from ``V`` (S, n) on rewards ``Rt`` (S, A, n)."""
+        S, A, n = Rt.shape
         for _ in range(WARMUP_MAX_SWEEPS):
             Q = (self.P @ V).reshape(S, A, n)
             Q *= self.gamma
@@ -464,10 +493,8 @@ class SparseLUPlanner(Planner):
         if base is not None and base.policy is not None:
             changed = np.flatnonzero(base.policy[self.order] != policy_i[self.order])
             if 0 < changed.size <= UPDATE_MAX_RANK:
-                update = _UpdatedFactor(self, base, policy_i, changed)
-                if update.well_conditioned:
-                    return update
-        return _TaskFactor(self.policy_matrix(policy_i), self.permc_spec, policy_i)
+                return _UpdatedFactor(self, base, policy_i, changed)
+        return _TaskFactor(self.matrix_transpose(policy_i), self.permc_spec, policy_i)
 
     def _remember(self, key, solver):
         """Cache ``solver`` under ``key``. Entries are grouped by the factorisation they use (an LU
@@ -503,7 +530,7 @@ class SparseLUPlanner(Planner):
         factorisation a nearby policy may update instead of factorising anew.
         """
         if policy.ndim == 3:
-            return _FactorSystem(self, [_TaskFactor(self.policy_matrix(p), self.permc_spec) for p in policy])
+            return _FactorSystem(self, [_TaskFactor(self.matrix_transpose(p), self.permc_spec) for p in policy])
         solvers = []
         for j, pol in enumerate(policy):
             pol = np.ascontiguousarray(pol, dtype=np.intp)
@@ -607,6 +634,7 @@ def plan(planner, R, policy=None, max_iter=1000):
         if not changed.any():
             system = planner.system(pol) if sys_a.solvers is None else _FactorSystem(planner, solvers)
             return PlanResult(Q, pol, V, system)
+        pol[active[changed]] = planner.refine_policy(Ra[changed], Qa[changed], pol[active[changed]])
         active = active[changed]
     raise FactIRLError(f"policy iteration did not converge in {max_iter} sweeps")
 
