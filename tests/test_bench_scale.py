@@ -14,7 +14,7 @@ import pytest
 from factirl_opt import bench
 from factirl_opt.benchmarks import BENCHMARKS, scale
 
-PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_same_s"}
+PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_same_s", "runs"}
 SIZE_KEYS = {"n_states", "n_actions", "default_resolves_to", "build_s", "demonstrations_s", "score_s", "planners",
              "changed_tasks", "max_changed_states", "grad_max_rel_diff", "peak_rss_mb"}
 
@@ -42,16 +42,19 @@ def test_scale_benchmark_fields_and_consistency(capsys, tmp_path):
         for field in ("build_s", "demonstrations_s", "score_s", "peak_rss_mb"):
             assert entry[field] > 0
         assert set(entry["planners"]) == {"dense", "sparse-lu", "auto"}
-        for name, p in entry["planners"].items():
-            if "skipped" in p:
-                continue
-            assert set(p) == PLANNER_KEYS
+        measured = [name for name in ("dense", "sparse-lu") if "skipped" not in entry["planners"][name]]
+        for name in measured:
+            p = entry["planners"][name]
+            assert set(p) == PLANNER_KEYS and p["resolved"] == name
             assert all(p[f] > 0 for f in ("cold_plan_s", "warm_s", "warm_same_s"))
-        assert entry["planners"]["sparse-lu"]["resolved"] == "sparse-lu"
-        assert entry["default_resolves_to"] == entry["planners"]["auto"]["resolved"]
+            assert 1 <= p["runs"] <= 2
+        # auto is the planner it resolves to
+        auto = entry["planners"]["auto"]
+        assert auto["same_as"] == auto["resolved"] == entry["default_resolves_to"]
+        assert {k: v for k, v in auto.items() if k != "same_as"} == entry["planners"][auto["resolved"]]
         assert 0 <= entry["changed_tasks"] <= 3 and entry["max_changed_states"] >= 0
         # the planners compute the same gradient (relative to the first planner run)
-        assert set(entry["grad_max_rel_diff"]) == {n for n, p in entry["planners"].items() if "skipped" not in p}
+        assert set(entry["grad_max_rel_diff"]) == set(measured) and entry["grad_max_rel_diff"][measured[0]] == 0.0
         assert max(entry["grad_max_rel_diff"].values()) < 1e-9
     small, big = out["sizes"]["4x4"], out["sizes"]["13x13"]
     assert small["default_resolves_to"] == "dense" and big["default_resolves_to"] == "sparse-lu"

@@ -6,34 +6,36 @@ For every grid side in ``--sizes`` (default 10 20 32 64 100) and ``--tasks`` tas
 - ``build_s``: ``GridWorld(size)`` (sparse dynamics);
 - ``demonstrations_s``: ``sample_demonstrations`` (``--n-demos`` x ``--length``) and their
   empirical statistics, default planner (``Q*`` from scratch);
-- per planner (``dense`` only up to ``--dense-max-states`` states, else skipped with the
-  reason; ``sparse-lu``; ``auto``, the default): ``cold_plan_s``, ``Q*`` and the greedy policy
-  by policy iteration from scratch at the learner's current estimate ``R_hat = R + 0.5 N(0, 1)``
-  (this is the warm-up), then two warm batched loss+gradient evaluations of eq. (5)
-  (``policy_matching_loss`` with the greedy policy passed as ``policy=``):
+- per planner, ``dense`` (only up to ``--dense-max-states`` states, else skipped with the
+  reason) and ``sparse-lu``: ``cold_plan_s``, ``Q*`` and the greedy policy by policy iteration
+  from scratch at the learner's current estimate ``R_hat = R + 0.5 N(0, 1)`` (the warm-up;
+  factorisation caches emptied first), then two warm batched loss+gradient evaluations of
+  eq. (5) (``policy_matching_loss`` with that greedy policy passed as ``policy=``):
 
   * ``warm_s`` (the headline): at slightly perturbed rewards ``R_hat + 1e-3 N(0, 1)`` (a fresh
     perturbation per repeat), as in a line search: the greedy policy changes in a few states
-    of some tasks (``changed_tasks``, ``max_changed_states``);
-  * ``warm_same_s``: at ``R_hat`` itself, the greedy policy exactly known (for the sparse
-    planner its factorisations are then reused from its cache: solves only).
+    of some tasks (``changed_tasks``, ``max_changed_states``, for the first perturbation);
+  * ``warm_same_s``: at ``R_hat`` itself, the greedy policy exactly known (the sparse planner
+    then reuses its cached factorisations: solves only).
 
-  Timings are the best of ``--repeats`` runs, one run when the first exceeds ``--budget``
-  seconds. Every planner's cache of factorisations is emptied before its warm-up;
+  Each is the best of ``--repeats`` runs (one run when the first exceeds ``--budget`` s), the
+  repeats interleaved across planners so that load changes on a shared machine hit them alike.
+  ``auto``, the default, is not a planner of its own but a name that resolves to one of them
+  (``default_resolves_to``); its entry is that planner's (``same_as``);
 - ``score_s``: ``deviation`` (eq. 13) of ``R_hat`` on the true rewards, default planner,
   caches emptied first.
 
-Also per size: the gradients' agreement between planners (max relative difference to the
-first planner run) and ``peak_rss_mb``, the peak resident memory (``ru_maxrss``) of the
-process that measured that size. By default each size runs in a fresh process (spawned), so
-that figure is the size's own peak, SuperLU's C allocations included (tracemalloc would miss
-them); ``--in-process`` runs all sizes here (the figure is then the peak so far).
+Also per size: the planners' gradients at the first perturbation, compared with the first
+planner's (``grad_max_rel_diff``), and ``peak_rss_mb``, the peak resident memory
+(``ru_maxrss``) of the process that measured that size. By default each size runs in a fresh
+(spawned) process, so that figure is the size's own peak, SuperLU's C allocations included
+(tracemalloc would miss them); ``--in-process`` runs all sizes here (the peak so far).
 
-Summary: ``ratio_dense_over_default`` (warm) per size where dense ran, the default planner's
-fitted exponent ``time ~ S^e`` (log-log least squares of ``warm_s`` over the sizes >=
-``--fit-min-size``, default 32), the load average before and after the run (the timings are
-wall times on a possibly shared machine). ``--plot PATH`` writes a log-log figure (matplotlib,
-Agg backend). BLAS threads are limited to ``--blas-threads`` (default 1).
+Summary: ``ratio_dense_over_default`` (``warm_s``) per size where dense ran, the default
+planner's fitted exponent ``warm_s ~ S^e`` (log-log least squares over the sizes >=
+``--fit-min-size``, default 32), and the load average before and after the run (the timings
+are wall times on a possibly shared machine). ``--plot PATH`` writes a log-log figure
+(matplotlib, Agg backend). BLAS threads are limited to ``--blas-threads`` (default 1).
 """
 
 import argparse
@@ -81,38 +83,36 @@ def _timed(fn):
     return time.perf_counter() - t0, out
 
 
-def _best(fn, repeats, budget):
-    """Best wall time over ``repeats`` calls ``fn(r)`` (one call if the first exceeds ``budget``)."""
-    times, out = [], None
-    for r in range(max(1, repeats)):
-        t, res = _timed(lambda: fn(r))
-        times.append(t)
-        out = res if r == 0 else out
-        if times[0] > budget:
-            break
-    return min(times), out
-
-
 def _perturbed(R_hat, seed, r):
     """The r-th perturbation ``R_hat + 1e-3 N(0, 1)`` (regenerated, not stored: 32 MB each at 100x100)."""
     return R_hat + 1e-3 * np.random.default_rng([seed, r]).standard_normal(R_hat.shape)
 
 
-def _planner_entry(mdp, name, R_hat, mu, pi_hat, args, seed):
-    """Cold plan and the two warm evaluations of one planner; returns (entry, (policy, gradient)) or (entry, None)."""
-    S = mdp.n_states
-    if name == "dense" and S > args.dense_max_states:
-        return {"skipped": f"S = {S} > --dense-max-states {args.dense_max_states}"}, None
+def _planner_timings(mdp, names, R_hat, mu, pi_hat, args, seed):
+    """Cold plan of each planner, then its warm evaluations (repeats interleaved across planners,
+    so that load changes hit them alike). Returns {name: entry} and the gradients' differences."""
     clear_caches(mdp)
-    t_cold, (_, pol) = _timed(lambda: optimal_q(mdp, R_hat, planner=name))
-
-    def warm(rewards):
-        return policy_matching_loss(mdp, rewards, mu, pi_hat, args.beta, policy=pol, planner=name)[1]
-
-    t_warm, grad = _best(lambda r: warm(_perturbed(R_hat, seed, r)), args.repeats, args.budget)
-    t_same, _ = _best(lambda r: warm(R_hat), args.repeats, args.budget)
-    entry = {"resolved": get_planner(mdp, name).name, "cold_plan_s": t_cold, "warm_s": t_warm, "warm_same_s": t_same}
-    return entry, (pol, grad)
+    cold, pols = {}, {}
+    for name in names:
+        cold[name], (_, pols[name]) = _timed(lambda: optimal_q(mdp, R_hat, planner=name))
+    times = {name: {"warm_s": [], "warm_same_s": []} for name in names}
+    ref, diffs = None, {}
+    for key in ("warm_s", "warm_same_s"):
+        for r in range(max(1, args.repeats)):
+            rewards = _perturbed(R_hat, seed, r) if key == "warm_s" else R_hat
+            for name in names:
+                if r and times[name][key][0] > args.budget:
+                    continue
+                t, (_, grad) = _timed(lambda: policy_matching_loss(mdp, rewards, mu, pi_hat, args.beta,
+                                                                   policy=pols[name], planner=name))
+                times[name][key].append(t)
+                if key == "warm_s" and r == 0:  # the planners' gradients at the first perturbation
+                    ref = grad if ref is None else ref
+                    diffs[name] = float(np.max(np.abs(grad - ref)) / np.max(np.abs(ref)))
+    entries = {name: {"resolved": name, "cold_plan_s": cold[name], "warm_s": min(times[name]["warm_s"]),
+                      "warm_same_s": min(times[name]["warm_same_s"]), "runs": len(times[name]["warm_s"])}
+               for name in names}
+    return entries, diffs, pols
 
 
 def _one_size(size, args):
@@ -126,26 +126,25 @@ def _one_size(size, args):
             lambda: empirical_statistics(mdp, sample_demonstrations(mdp, R, args.n_demos, args.length, rng)))
         R_hat = R + 0.5 * rng.standard_normal(R.shape)
         seed = int(rng.integers(2**31))
-        planners, diffs, ref, changes = {}, {}, None, None
-        for name in ("dense", "sparse-lu", DEFAULT_PLANNER):
-            planners[name], out = _planner_entry(mdp, name, R_hat, mu, pi_hat, args, seed)
-            if out is None:
-                continue
-            pol, grad = out
-            ref = grad if ref is None else ref  # the gradients at the first perturbation, first planner run
-            diffs[name] = float(np.max(np.abs(grad - ref)) / np.max(np.abs(ref)))
-            if changes is None and name != "dense":  # greedy policies after the perturbation (warm: cheap)
-                changes = (optimal_q(mdp, _perturbed(R_hat, seed, 0), policy=pol, planner=name)[1] != pol).sum(axis=1)
+        names = ["sparse-lu"] if S > args.dense_max_states else ["dense", "sparse-lu"]
+        planners, diffs, pols = _planner_timings(mdp, names, R_hat, mu, pi_hat, args, seed)
+        resolved = get_planner(mdp, DEFAULT_PLANNER).name
+        planners[DEFAULT_PLANNER] = dict(planners[resolved], resolved=resolved, same_as=resolved)
+        if "dense" not in names:
+            planners["dense"] = {"skipped": f"S = {S} > --dense-max-states {args.dense_max_states}"}
+        # greedy policies after the first perturbation (warm: cheap)
+        changes = (optimal_q(mdp, _perturbed(R_hat, seed, 0), policy=pols["sparse-lu"], planner="sparse-lu")[1]
+                   != pols["sparse-lu"]).sum(axis=1)
         clear_caches(mdp)
         t_score, _ = _timed(lambda: deviation(mdp, R, R_hat))
     return {
         "n_states": S,
         "n_actions": A,
-        "default_resolves_to": planners[DEFAULT_PLANNER]["resolved"],
+        "default_resolves_to": resolved,
         "build_s": t_build,
         "demonstrations_s": t_demos,
         "score_s": t_score,
-        "planners": planners,
+        "planners": {name: planners[name] for name in ("dense", "sparse-lu", DEFAULT_PLANNER)},
         "changed_tasks": int(np.count_nonzero(changes)),
         "max_changed_states": int(changes.max()),
         "grad_max_rel_diff": diffs,
