@@ -185,10 +185,10 @@ class Planner:
         """Where policy iteration starts without a warm start: greedy on the immediate reward."""
         return np.argmax(R, axis=2)
 
-    def refine_policy(self, R, Q, policy):
+    def refine_policy(self, R, Q, policy, previous):
         """The next policy of policy iteration, given the improved (greedy) ``policy`` on the
-        exact ``Q`` (n, S, A) of the last one. This planner takes it as is (Howard's policy
-        iteration); see :meth:`SparseLUPlanner.refine_policy`."""
+        exact ``Q`` (n, S, A) of the ``previous`` one. This planner takes it as is (Howard's
+        policy iteration); see :meth:`SparseLUPlanner.refine_policy`."""
         return policy
 
 
@@ -319,16 +319,17 @@ class _UpdatedFactor:
         self.planner, self.base, self.policy = planner, base, policy
         q, A, k = planner.order, planner.A, len(changed)
         self.sel = q * A + policy[q]  # the rows of the augmented P that M' uses, in the planner's order
-        self.W = np.zeros((k, len(q)))  # dense: k <= UPDATE_MAX_RANK rows
-        for sign, rows in ((-1.0, self.sel[changed]), (1.0, q[changed] * A + base.policy[q[changed]])):
-            data, indices, indptr = planner._rows(rows)
-            self.W[np.repeat(np.arange(k), np.diff(indptr)), indices] += sign * planner.gamma * data
+        parts = [(sign, planner._rows(rows)) for sign, rows in ((-planner.gamma, self.sel[changed]),
+                                                                (planner.gamma, q[changed] * A + base.policy[q[changed]]))]
+        self.W = sp.csr_matrix((np.concatenate([s * d for s, (d, _, _) in parts]),
+                                (np.concatenate([np.repeat(np.arange(k), np.diff(ip)) for _, (_, _, ip) in parts]),
+                                 np.concatenate([i for _, (_, i, _) in parts]))), shape=(k, len(q)))
         E = np.zeros((len(q), k))
         E[changed, np.arange(k)] = 1.0
         self.Z = base.solve(E)
         # C = I + W Z is nonsingular (det C = det M' / det M); its accuracy is checked by every solve
         self.C, self._lu_solve, self._fresh = sla.lu_factor(np.eye(k) + self.W @ self.Z), sla.lu_solve, None
-        self.nbytes = self.Z.nbytes + self.sel.nbytes + self.W.nbytes
+        self.nbytes = self.Z.nbytes + self.sel.nbytes + 12 * self.W.nnz
 
     def _raw(self, b, transpose):
         if transpose:
@@ -485,12 +486,16 @@ class SparseLUPlanner(Planner):
         Rt = np.ascontiguousarray(np.transpose(R, (2, 1, 0)))  # (A, S, n): one SpMM per sweep, actions outermost
         return self._value_sweeps(Rt, *_greedy_actions(Rt))
 
-    def refine_policy(self, R, Q, policy):
-        """Value-iteration sweeps from ``V_1 = max_a Q`` (``Q`` exact for the last policy ``pi``),
-        stopped as in :meth:`initial_policy` (modified policy iteration). Each sweep's greedy
-        policy ``pi_k`` satisfies ``V^{pi_k} >= V_k >= V^pi`` (``T V_k >= V_k`` holds from
-        ``V_0 = V^pi`` on), so policy iteration still improves monotonically and ends only on
-        an exactly verified optimum, with far fewer factorisations than one per greedy step."""
+    def refine_policy(self, R, Q, policy, previous):
+        """Value-iteration sweeps from ``V_1 = max_a Q`` (``Q`` exact for the ``previous`` policy
+        ``pi``), stopped as in :meth:`initial_policy` (modified policy iteration); none when the
+        greedy step changed at most :data:`UPDATE_MAX_RANK` states per task (the next exact
+        evaluation is then a cheap low-rank update). Each
+        sweep's greedy policy ``pi_k`` satisfies ``V^{pi_k} >= V_k >= V^pi`` (``T V_k >= V_k``
+        holds from ``V_0 = V^pi`` on), so policy iteration still improves monotonically and ends
+        only on an exactly verified optimum, with far fewer factorisations than one per greedy step."""
+        if np.count_nonzero(policy != previous, axis=1).max() <= UPDATE_MAX_RANK:
+            return policy
         Rt = np.ascontiguousarray(np.transpose(R, (2, 1, 0)))
         _, V = _greedy_actions(np.transpose(Q, (2, 1, 0)))
         return self._value_sweeps(Rt, np.ascontiguousarray(policy.T), V)
@@ -520,24 +525,29 @@ class SparseLUPlanner(Planner):
         return _TaskFactor(self.matrix_transpose(policy_i), self.permc_spec, policy_i)
 
     def _remember(self, key, solver):
-        """Cache ``solver`` under ``key``. Entries are grouped by the factorisation they use (an LU
-        and its low-rank updates): the least recently used group goes first, so every eviction
-        frees memory."""
+        """Cache ``solver`` under ``key``. Entries are grouped by the factorisation they use: an LU
+        and its latest low-rank update (which replaces an older one: the next warm start is the
+        latest policy). The least recently used group goes first, so every eviction frees memory."""
         base = solver.base
         group = self._groups.get(id(base))  # a cached base is alive, so its id is unique
         if group is None:
-            group = self._groups[id(base)] = [base, []]
+            group = self._groups[id(base)] = [base, [], None]
             self._cache_bytes += base.nbytes
-        group[1].append(key)
-        self._cache[key] = solver
-        if solver is not base:
+        if solver is base:
+            group[1].append(key)
+        else:
+            if group[2] is not None:
+                self._cache_bytes -= self._cache.pop(group[2]).nbytes
+            group[2] = key
             self._cache_bytes += solver.nbytes
+        self._cache[key] = solver
         self._groups.move_to_end(id(base))
         while self._cache_bytes > FACTOR_CACHE_BYTES and len(self._groups) > 1:
-            _, (old, keys) = self._groups.popitem(last=False)
+            _, (old, keys, update) = self._groups.popitem(last=False)
             for k in keys:
-                evicted = self._cache.pop(k)
-                self._cache_bytes -= 0 if evicted is old else evicted.nbytes
+                del self._cache[k]
+            if update is not None:
+                self._cache_bytes -= self._cache.pop(update).nbytes
             self._cache_bytes -= old.nbytes
 
     def clear_cache(self):
@@ -657,7 +667,7 @@ def plan(planner, R, policy=None, max_iter=1000):
         if not changed.any():
             system = planner.system(pol) if sys_a.solvers is None else _FactorSystem(planner, solvers)
             return PlanResult(Q, pol, V, system)
-        pol[active[changed]] = planner.refine_policy(Ra[changed], Qa[changed], pol[active[changed]])
+        pol[active[changed]] = planner.refine_policy(Ra[changed], Qa[changed], pol[active[changed]], pa[changed])
         active = active[changed]
     raise FactIRLError(f"policy iteration did not converge in {max_iter} sweeps")
 

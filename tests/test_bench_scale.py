@@ -14,7 +14,7 @@ import pytest
 from factirl_opt import bench
 from factirl_opt.benchmarks import BENCHMARKS, scale
 
-PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_same_s", "runs"}
+PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_perturbed_s", "runs"}
 SIZE_KEYS = {"n_states", "n_actions", "default_resolves_to", "build_s", "demonstrations_s", "score_s", "planners",
              "changed_tasks", "max_changed_states", "grad_max_rel_diff", "peak_rss_mb"}
 
@@ -46,7 +46,7 @@ def test_scale_benchmark_fields_and_consistency(capsys, tmp_path):
         for name in measured:
             p = entry["planners"][name]
             assert set(p) == PLANNER_KEYS and p["resolved"] == name
-            assert all(p[f] > 0 for f in ("cold_plan_s", "warm_s", "warm_same_s"))
+            assert all(p[f] > 0 for f in ("cold_plan_s", "warm_s", "warm_perturbed_s"))
             assert 1 <= p["runs"] <= 2
         # auto is the planner it resolves to
         auto = entry["planners"]["auto"]
@@ -62,14 +62,16 @@ def test_scale_benchmark_fields_and_consistency(capsys, tmp_path):
     assert "warm_s" in small["planners"]["dense"]
     assert big["planners"]["dense"] == {"skipped": "S = 169 > --dense-max-states 100"}
     # ratios are the times' ratios, only where dense ran
-    assert set(out["ratio_dense_over_default"]) == {"4x4"}
-    assert out["ratio_dense_over_default"]["4x4"] == pytest.approx(
-        small["planners"]["dense"]["warm_s"] / small["planners"]["auto"]["warm_s"])
-    # the exponent is the least-squares slope of log(warm_s of auto) vs log(S) over sizes >= 4
-    S = np.log([16, 169])
-    t = np.log([small["planners"]["auto"]["warm_s"], big["planners"]["auto"]["warm_s"]])
-    assert math.isfinite(out["exponent_default"])
-    assert out["exponent_default"] == pytest.approx((t[1] - t[0]) / (S[1] - S[0]))
+    for suffix, key in (("", "warm_s"), ("_perturbed", "warm_perturbed_s")):
+        assert set(out["ratio_dense_over_default" + suffix]) == {"4x4"}
+        assert out["ratio_dense_over_default" + suffix]["4x4"] == pytest.approx(
+            small["planners"]["dense"][key] / small["planners"]["auto"][key])
+        # the exponent is the least-squares slope of log(time of auto) vs log(S) over sizes >= 4
+        S = np.log([16, 169])
+        t = np.log([small["planners"]["auto"][key], big["planners"]["auto"][key]])
+        assert math.isfinite(out["exponent_default" + suffix])
+        assert out["exponent_default" + suffix] == pytest.approx((t[1] - t[0]) / (S[1] - S[0]))
+    assert out["ratio_dense_over_default"]["4x4"] == 1.0  # auto is the dense planner there
     assert out["exponent_sizes"] == [4, 13]
     assert len(out["load_average"]["before"]) == 3 and len(out["load_average"]["after"]) == 3
     settings = out["settings"]
@@ -80,7 +82,7 @@ def test_scale_benchmark_fields_and_consistency(capsys, tmp_path):
 
 def test_exponent_needs_two_sizes_and_dense_runs_by_default_up_to_1024_states(capsys):
     out = run_scale(capsys, "--fit-min-size", "13")
-    assert out["exponent_default"] is None and out["exponent_sizes"] == [13]
+    assert out["exponent_default"] is None and out["exponent_default_perturbed"] is None and out["exponent_sizes"] == [13]
     assert set(out["ratio_dense_over_default"]) == {"4x4", "13x13"}  # dense fits both by default
 
 
