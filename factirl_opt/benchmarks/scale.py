@@ -170,7 +170,7 @@ def _ratios(per_size, key):
             for name, e in per_size.items() if key in e["planners"]["dense"]}
 
 
-def _plot(per_size, path):
+def _plot(per_size, path, tasks):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -187,8 +187,7 @@ def _plot(per_size, path):
         ax.loglog(S, [e[key] for e in per_size.values()], "s--", alpha=0.6, label=label)
     ax.set_xlabel("states S")
     ax.set_ylabel("wall time (s)")
-    ax.set_title("planning at scale (GridWorld, one run; auto = dense up to "
-                 f"{AUTO_DENSE_MAX_STATES} states, sparse-lu above)", fontsize=9)
+    ax.set_title(f"GridWorld, {tasks} tasks, one run (auto: dense up to {AUTO_DENSE_MAX_STATES} states)", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -211,7 +210,7 @@ def run(args):
     load_before = os.getloadavg()
     per_size = _measure_all(args)
     if args.plot:
-        _plot(per_size, args.plot)
+        _plot(per_size, args.plot, args.tasks)
     return {
         "benchmark": "scale",
         "default_planner": DEFAULT_PLANNER,
