@@ -242,7 +242,7 @@ _M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number
 
 @contextlib.contextmanager
 def _mapped_allocations():
-    """glibc only: allocations of 64 KiB or more are memory-mapped inside the block.
+    """glibc only: inside the ``with`` block, allocations of 64 KiB or more are memory-mapped.
 
     SuperLU allocates each factorisation (and its work arrays) with ``malloc``. glibc serves
     blocks below its dynamic mmap threshold (which numpy's 32 MB temporaries raise to 32 MiB)
@@ -310,7 +310,7 @@ class _UpdatedFactor:
     capacitance ``C = I + W Z`` (k, k): ``M'^-1 b = y - Z C^-1 W y`` (``y = M^-1 b``) and
     ``M'^-T b = M^-T (b - W^T C^-T Z^T b)``. Every solve is checked against ``M'`` itself:
     one step of iterative refinement if the relative residual exceeds 1e-14, and a fresh
-    factorisation if it still exceeds :data:`RESIDUAL_TOL` (never seen at gamma <= 0.99).
+    factorisation if it still exceeds :data:`RESIDUAL_TOL` (not observed in the tests, gamma up to 0.99).
     """
 
     def __init__(self, planner, base, policy, changed):
@@ -319,11 +319,8 @@ class _UpdatedFactor:
         self.planner, self.base, self.policy = planner, base, policy
         q, A, k = planner.order, planner.A, len(changed)
         self.sel = q * A + policy[q]  # the rows of the augmented P that M' uses, in the planner's order
-        parts = [(sign, planner._rows(rows)) for sign, rows in ((-planner.gamma, self.sel[changed]),
-                                                                (planner.gamma, q[changed] * A + base.policy[q[changed]]))]
-        self.W = sp.csr_matrix((np.concatenate([s * d for s, (d, _, _) in parts]),
-                                (np.concatenate([np.repeat(np.arange(k), np.diff(ip)) for _, (_, _, ip) in parts]),
-                                 np.concatenate([i for _, (_, i, _) in parts]))), shape=(k, len(q)))
+        old_rows = q[changed] * A + base.policy[q[changed]]
+        self.W = planner.gamma * (planner.row_block(old_rows) - planner.row_block(self.sel[changed]))  # (k, S) CSR
         E = np.zeros((len(q), k))
         E[changed, np.arange(k)] = 1.0
         self.Z = base.solve(E)
@@ -383,8 +380,8 @@ class SparseLUPlanner(Planner):
     differs from a factorised one (its hint, e.g. the previous policy-iteration sweep) in
     at most :data:`UPDATE_MAX_RANK` states is solved by a verified low-rank update of that
     factorisation (:class:`_UpdatedFactor`; measured break-even with a new LU: 24-28 states
-    at S = 1024 and 10,000). The cache is grouped by factorisation (an LU and its updates)
-    and evicts whole groups, least recently used first.
+    at S = 1024 and 10,000). The cache is grouped by factorisation (an LU and its latest
+    update) and evicts whole groups, least recently used first.
 
     Policy iteration. A cold start runs value-iteration sweeps first (:meth:`initial_policy`)
     and, between exact evaluations, :meth:`refine_policy` runs more (modified policy
@@ -456,6 +453,10 @@ class SparseLUPlanner(Planner):
         np.cumsum(length, out=indptr[1:])
         gather = np.repeat(start - indptr[:-1], length) + np.arange(indptr[-1])
         return Paug.data[gather], Paug.indices[gather], indptr
+
+    def row_block(self, rows):
+        """The given rows of ``P`` (rows ``s * A + a``), columns in the planner's order, as CSR."""
+        return sp.csr_matrix(self._rows(rows), shape=(len(rows), self.S))
 
     def matrix_transpose(self, policy_i):
         """``M^T = (I - gamma P_pi)^T`` (S, S) as CSC (the CSR arrays of ``M``), in the planner's
