@@ -588,7 +588,11 @@ def available_planners():
 
 
 def clear_caches(mdp):
-    """Forget the factorisations kept by every planner bound to ``mdp`` (see :class:`SparseLUPlanner`)."""
+    """Forget the factorisations kept by every planner bound to ``mdp``.
+
+    The sparse planner keeps the factorisations of recent policies for the MDP's lifetime (up
+    to :data:`FACTOR_CACHE_BYTES`, see :class:`SparseLUPlanner`); this frees them.
+    """
     for planner in mdp.__dict__.get("_planners", {}).values():
         planner.clear_cache()
 
