@@ -66,6 +66,8 @@ AUTO_DENSE_MAX_STATES = 144
 DENSE_CHUNK_BYTES = 256 * 2**20
 #: the sparse planner's cache of factorisations of recent policies (estimated bytes)
 FACTOR_CACHE_BYTES = 768 * 2**20
+#: ... and at most this many factorisations (with their latest updates) per task of the largest batch seen
+CACHE_GROUPS_PER_TASK = 2
 #: a policy differing from a factorised one in at most this many states is solved by a low-rank update
 UPDATE_MAX_RANK = 16
 #: the sparse planner orders states once when the actions' union pattern is at most this much denser than one action's
@@ -74,6 +76,8 @@ FIXED_ORDER_MAX_DENSITY = 1.5
 #: greedy policies change in at most WARMUP_MAX_CHANGES states per task, after at most WARMUP_MAX_SWEEPS
 WARMUP_MAX_CHANGES = 4
 WARMUP_MAX_SWEEPS = 100
+#: the sparse planner returns the heap's free pages to the OS after this many bytes of new factorisations
+TRIM_BYTES = 16 * 2**20
 #: relative residual every low-rank-updated solve is checked against
 RESIDUAL_TOL = 1e-12
 
@@ -236,39 +240,58 @@ def _greedy_actions(Q):
     return best, top
 
 
-_MALLOPT = []  # [mallopt function or None], looked up once
+_GLIBC = []  # [the C library if it is glibc, else None], looked up once
 _M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number
+
+
+def _glibc():
+    """The C library when it is glibc (for ``mallopt`` and ``malloc_trim``), else None."""
+    if not _GLIBC:
+        import ctypes
+        import platform
+
+        lib = None
+        if platform.libc_ver()[0] == "glibc":
+            lib = ctypes.CDLL(None)
+            lib.mallopt.argtypes, lib.mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+            lib.malloc_trim.argtypes, lib.malloc_trim.restype = (ctypes.c_size_t,), ctypes.c_int
+        _GLIBC.append(lib)
+    return _GLIBC[0]
 
 
 @contextlib.contextmanager
 def _mapped_allocations():
-    """glibc only: inside the ``with`` block, allocations of 64 KiB or more are memory-mapped.
+    """glibc only: inside the ``with`` block, new allocations of 64 KiB or more are memory-mapped.
 
-    SuperLU allocates each factorisation (and its work arrays) with ``malloc``. glibc serves
-    blocks below its dynamic mmap threshold (which numpy's 32 MB temporaries raise to 32 MiB)
-    from the heap, where freed factorisations leave holes the OS never gets back: measured at
-    100x100 with 100 tasks, 2.2 GB peak resident memory instead of 1.4 GB. Mapped blocks are
-    returned on ``free``. On exit the threshold is set to 32 MiB, the ceiling glibc's own
-    dynamic threshold reaches; elsewhere (no glibc) this does nothing.
+    Why (the sparse planner's memory). SuperLU sizes each factorisation's storage from an
+    estimate, 20 nnz(M): four blocks of 3.4 MB at S = 1024 and 34 MB at S = 10,000, about ten
+    times what it fills. A block is resident only where it is written, unless glibc carves it
+    from heap memory written before (glibc serves any request from the heap's free chunks
+    when it has some, whatever its mmap threshold). So the planner (1) maps SuperLU's blocks
+    when the heap has no room for them (mapped blocks return to the OS when freed) and (2)
+    after building factorisations returns the heap's free pages to the OS
+    (:func:`_release_free_memory`), so that a block carved from them stays unresident where
+    SuperLU never writes. Measured on a 20-iteration fit of 100 tasks at 32x32: see the
+    README's planning figures. On exit the threshold is 32 MiB, the ceiling glibc's own
+    dynamic threshold reaches (numpy's temporaries raise it there); without glibc this does
+    nothing.
     """
-    if not _MALLOPT:
-        import ctypes
-        import platform
-
-        fn = None
-        if platform.libc_ver()[0] == "glibc":
-            fn = ctypes.CDLL(None).mallopt
-            fn.argtypes, fn.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-        _MALLOPT.append(fn)
-    mallopt = _MALLOPT[0]
-    if mallopt is None:
+    lib = _glibc()
+    if lib is None:
         yield
         return
-    mallopt(_M_MMAP_THRESHOLD, 64 * 2**10)
+    lib.mallopt(_M_MMAP_THRESHOLD, 64 * 2**10)
     try:
         yield
     finally:
-        mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
+        lib.mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
+
+
+def _release_free_memory():
+    """glibc only: return the heap's free pages to the OS (``malloc_trim(0)``); see :func:`_mapped_allocations`."""
+    lib = _glibc()
+    if lib is not None:
+        lib.malloc_trim(0)
 
 
 def _lu(MT, permc_spec):
@@ -356,7 +379,7 @@ class _UpdatedFactor:
                 res, _ = self._residual(x, b, transpose)
             if res <= RESIDUAL_TOL:
                 return x
-            self._fresh = _TaskFactor(self.planner.matrix_transpose(self.policy), self.planner.permc_spec, self.policy)
+            self._fresh = self.planner._factor(self.policy)
         return self._fresh.solve(b, transpose)
 
 
@@ -375,7 +398,8 @@ class SparseLUPlanner(Planner):
     computed once and every policy's matrix is built directly in that order: the fill of any
     policy is then a subset of the union's. Otherwise each policy is ordered on its own.
 
-    Reuse. Factorisations are cached by policy (up to :data:`FACTOR_CACHE_BYTES`), so a
+    Reuse. Factorisations are cached by policy (up to :data:`FACTOR_CACHE_BYTES`, and
+    :data:`CACHE_GROUPS_PER_TASK` per task of the largest batch planned), so a
     warm-started evaluation at an unchanged greedy policy costs only solves. A policy that
     differs from a factorised one (its hint, e.g. the previous policy-iteration sweep) in
     at most :data:`UPDATE_MAX_RANK` states is solved by a verified low-rank update of that
@@ -404,7 +428,8 @@ class SparseLUPlanner(Planner):
         self.order, self.permc_spec = self._ordering()
         self.inverse_order = np.argsort(self.order)
         self._augmented()
-        self._cache, self._groups, self._cache_bytes = {}, collections.OrderedDict(), 0
+        self._cache, self._groups, self._cache_bytes, self._max_batch = {}, collections.OrderedDict(), 0, 1
+        self._since_trim = 0
 
     def _ordering(self):
         """State ordering ``q`` (new index i is state ``q[i]``) and SuperLU's permc_spec."""
@@ -523,7 +548,16 @@ class SparseLUPlanner(Planner):
             changed = np.flatnonzero(base.policy[self.order] != policy_i[self.order])
             if 0 < changed.size <= UPDATE_MAX_RANK:
                 return _UpdatedFactor(self, base, policy_i, changed)
-        return _TaskFactor(self.matrix_transpose(policy_i), self.permc_spec, policy_i)
+        return self._factor(policy_i)
+
+    def _factor(self, policy_i):
+        """A new LU of a deterministic (S,) or stochastic (S, A) policy; frees heap pages now and then."""
+        factor = _TaskFactor(self.matrix_transpose(policy_i), self.permc_spec, policy_i if policy_i.ndim == 1 else None)
+        self._since_trim += factor.nbytes
+        if self._since_trim >= TRIM_BYTES:
+            _release_free_memory()
+            self._since_trim = 0
+        return factor
 
     def _remember(self, key, solver):
         """Cache ``solver`` under ``key``. Entries are grouped by the factorisation they use: an LU
@@ -543,7 +577,8 @@ class SparseLUPlanner(Planner):
             self._cache_bytes += solver.nbytes
         self._cache[key] = solver
         self._groups.move_to_end(id(base))
-        while self._cache_bytes > FACTOR_CACHE_BYTES and len(self._groups) > 1:
+        while len(self._groups) > 1 and (self._cache_bytes > FACTOR_CACHE_BYTES
+                                         or len(self._groups) > CACHE_GROUPS_PER_TASK * self._max_batch):
             _, (old, keys, update) = self._groups.popitem(last=False)
             for k in keys:
                 del self._cache[k]
@@ -564,14 +599,15 @@ class SparseLUPlanner(Planner):
         factorisation a nearby policy may update instead of factorising anew.
         """
         if policy.ndim == 3:
-            return _FactorSystem(self, [_TaskFactor(self.matrix_transpose(p), self.permc_spec) for p in policy])
+            return _FactorSystem(self, [self._factor(p) for p in policy])
+        self._max_batch = max(self._max_batch, len(policy))
         solvers = []
         for j, pol in enumerate(policy):
-            pol = np.ascontiguousarray(pol, dtype=np.intp)
-            key = pol.tobytes()
+            key = np.ascontiguousarray(pol, dtype=np.intp).tobytes()
             solver = self._cache.get(key)
             if solver is None:
-                solver = self._solver(pol, None if hints is None else hints[j])
+                # the solver keeps a view of its own key, not of the caller's (n, S) batch
+                solver = self._solver(np.frombuffer(key, dtype=np.intp), None if hints is None else hints[j])
                 self._remember(key, solver)
             else:
                 self._groups.move_to_end(id(solver.base))
