@@ -15,6 +15,7 @@ BENCHMARKS = {
     "gradient": "gradient",
     "fit": "fit",
     "solvers": "solvers",
+    "scale": "scale",
 }
 
 
