@@ -97,8 +97,11 @@ class CountingPlanner(Planner):
     def pullback(self, G):
         return self.planner.pullback(G)
 
-    def system(self, policy):
-        return _CountingSystem(self.planner.system(policy), self)
+    def system(self, policy, hints=None):
+        return _CountingSystem(self.planner.system(policy, hints), self)
+
+    def __getattr__(self, name):  # anything else a planner offers (value sweeps, caches): the wrapped one's
+        return getattr(self.__dict__["planner"], name)
 
 
 def add_arguments(parser):
