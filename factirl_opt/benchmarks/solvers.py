@@ -111,8 +111,8 @@ def add_arguments(parser):
 
 
 def _gn_names(constraint="none"):
-    suffix = "" if constraint == "none" else f"-{constraint}"
-    return [n for n in (f"gn-qp-osqp{suffix}", f"gn-qp-clarabel{suffix}") if n in solvers.available_solvers()]
+    names = (solvers.qp_solver_name(backend, constraint) for backend in ("osqp", "clarabel"))
+    return [n for n in names if n in solvers.available_solvers()]
 
 
 def _transfer(mdp, D, demos, true_R, name, iters, beta, **options):
@@ -234,9 +234,9 @@ def _part_nonneg(mdp, s, rng, D):
         rows[name] = row
     checks = {}
     for backend in ("osqp", "clarabel"):
-        a, b = rows.get(f"gn-qp-{backend}"), rows.get(f"gn-qp-{backend}-nonneg")
+        a, b = rows.get(solvers.qp_solver_name(backend)), rows.get(solvers.qp_solver_name(backend, "nonneg"))
         if a and b:
-            checks[f"gn-qp-{backend}-nonneg"] = {
+            checks[solvers.qp_solver_name(backend, "nonneg")] = {
                 "all_coefficients_nonneg": b["min_coefficient"] >= 0.0,
                 "deviation_no_worse_than_unconstrained": b["mean_deviation"] <= a["mean_deviation"],
                 "deviation_ratio_vs_unconstrained": b["mean_deviation"] / max(a["mean_deviation"], 1e-300),
@@ -322,7 +322,7 @@ def _part_timing(mdp, s, rng, D):
         build = time.perf_counter() - t0
         di = DirectBlockQP(n, k, constraint)
         for backend in ("osqp", "clarabel"):
-            if f"gn-qp-{backend}" not in solvers.available_solvers():
+            if solvers.qp_solver_name(backend) not in solvers.available_solvers():
                 continue
             t0 = time.perf_counter()
             first = cv.solve(*variants[0], backend, alpha=0.05)  # canonicalisation happens here
