@@ -345,6 +345,21 @@ def _stop_reason(progressed, history, gnorm, g0, tol, gtol):
     return None, None
 
 
+def update_damping(solver, state, acc, rej, n):
+    """Levenberg-Marquardt damping after a trial step; returns the rows that may retry.
+
+    Accepted rows ``acc`` shrink ``state.lam`` by ``solver.lam_down`` (not below
+    ``lam_min * scale``), rejected rows ``rej`` grow it by ``solver.lam_up`` (not above
+    ``lam_max * scale``); a rejected row may retry while its damping is below the cap.
+    Shared by the Gauss-Newton QP and CG solvers.
+    """
+    state.lam[acc] = np.maximum(state.lam[acc] * solver.lam_down, solver.lam_min * state.scale[acc])
+    state.lam[rej] = np.minimum(state.lam[rej] * solver.lam_up, solver.lam_max * state.scale[rej])
+    retry = np.zeros(n, dtype=bool)
+    retry[rej[state.lam[rej] < solver.lam_max * state.scale[rej]]] = True
+    return retry
+
+
 def limit_step(x, z, max_step_norm):
     """Shorten every row's step ``z_i - x_i`` to at most ``max_step_norm * max(1, ||x_i||)``.
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._base import StepSolver, limit_step, row_norms
+from ._base import StepSolver, limit_step, row_norms, update_damping
 from ._blockqp import BACKENDS, CONSTRAINTS, DATA_LIMIT, check_backend, check_constraint, refine_active_set
 from ._validation import check_evaluation, check_number, choice, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
@@ -458,13 +458,10 @@ class GaussNewtonSolver(StepSolver):
             state.loss[acc] = trial[ok]
             state.residual[acc] = r[ok]
             state.jacobian[acc] = J[ok]
-            state.lam[acc] = np.maximum(state.lam[acc] * self.lam_down, self.lam_min * state.scale[acc])
-            state.lam[rej] = np.minimum(state.lam[rej] * self.lam_up, self.lam_max * state.scale[rej])
+            retry = update_damping(self, state, acc, rej, n)
             if ok.any():
                 accepted_any = True
                 break
-            retry = np.zeros(n, dtype=bool)
-            retry[rej[state.lam[rej] < self.lam_max * state.scale[rej]]] = True
             if not retry.any():
                 break
         return x, state, bool(accepted_any or converged_all)

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._base import StepSolver, limit_step
+from ._base import StepSolver, limit_step, update_damping
 from ._validation import check_evaluation, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
 
@@ -337,13 +337,10 @@ class GaussNewtonCGSolver(StepSolver):
             if acc.size:
                 x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
                 state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
-            state.lam[acc] = np.maximum(state.lam[acc] * self.lam_down, self.lam_min * state.scale[acc])
-            state.lam[rej] = np.minimum(state.lam[rej] * self.lam_up, self.lam_max * state.scale[rej])
+            retry = update_damping(self, state, acc, rej, n)
             if acc.size:
                 accepted_any = True
                 break
-            retry = np.zeros(n, dtype=bool)
-            retry[rej[state.lam[rej] < self.lam_max * state.scale[rej]]] = True
             if not retry.any():
                 break
         return x, state, bool(accepted_any or converged_all)
