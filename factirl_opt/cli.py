@@ -83,7 +83,9 @@ def _presets_epilog():
 
     lines = ["presets (factirl_opt.experiments.presets):"]
     for name, p in PRESETS.items():
-        solvers = "" if (p.h_solver, p.d_solver) == ("armijo", "") else f" [solvers: H {p.h_solver}, D {p.d_solver or 'armijo'}]"
+        flat = p.flat_solver if p.flat_solver == p.flat_features_solver else f"{p.flat_solver}/{p.flat_features_solver}"
+        solvers = ("" if (p.h_solver, p.d_solver, flat) == ("armijo", "", "armijo") else
+                   f" [solvers: flat {flat}, H {p.h_solver}, D {p.d_solver or 'armijo'}]")
         lines.append(f"  {name:6s} {len(p.points())} points x {p.n_seeds} seed(s): {PRESET_DESCRIPTIONS[name]}{solvers}")
     return "\n".join(lines)
 
@@ -131,6 +133,10 @@ def _add_reproduce(sub):
     rep.add_argument("--lineup", default=None, choices=list(LINEUPS),
                      help="learner line-up (factirl_opt.experiments.learners; e.g. paper+mce adds the MCE learners); a "
                      "line-up other than the preset's changes the runs' keys (default: the preset's)")
+    rep.add_argument("--flat-solver", default=None, metavar="NAME",
+                     help="step solver of every GradIRL fit (the flat learners, tabular and on features), any name in "
+                     "solvers.available_solvers(); "
+                     "a solver other than the preset's changes the runs' keys (default: the preset's)")
     rep.add_argument("--backend", default="processes", choices=["processes", "dask", "loky"],
                      help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
                      "name of 'processes' (default: processes)")
@@ -177,6 +183,8 @@ def _reproduce(args, argv):
     out = args.out or os.path.join("runs", args.preset)
     preset = get_preset(args.preset)
     overrides = {f: getattr(args, f) for f in ("planner", "lineup") if getattr(args, f) is not None}
+    if args.flat_solver is not None:
+        overrides.update(flat_solver=args.flat_solver, flat_features_solver=args.flat_solver)
     if overrides:
         preset = dataclasses.replace(preset, **overrides)
     command = " ".join([PROG] + [shlex.quote(a) for a in argv])

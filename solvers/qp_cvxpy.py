@@ -93,7 +93,7 @@ class CvxpyBlockQP:
         if not self.problem.is_dcp(dpp=True):  # pragma: no cover - a construction invariant
             raise SolverError("the Gauss-Newton block QP is not DPP")
 
-    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000):
+    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
         """Solve every task's subproblem with new data (re-using the compiled problem).
 
         Parameters
@@ -107,6 +107,10 @@ class CvxpyBlockQP:
         tolerance : float, optional
             Backend accuracy (see :func:`backend_options`).
         max_iter : int
+        fresh : bool
+            Do not warm-start the backend from the previous solve (the first solve of a solver
+            that shares this compiled problem with others: its result then does not depend on
+            what they solved before).
 
         Returns
         -------
@@ -125,7 +129,8 @@ class CvxpyBlockQP:
         self.alpha.value = np.repeat(check_alpha(alpha, self.n), self.k)
         with warnings.catch_warnings():  # the status is checked below and reported by the caller
             warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=True, verbose=False, **backend_options(backend, tolerance, max_iter))
+            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=not fresh, verbose=False,
+                               **backend_options(backend, tolerance, max_iter))
         status = str(self.problem.status)
         value = self.z.value
         z = None if value is None else np.asarray(value, dtype=np.float64).reshape(self.n, self.k)

@@ -107,7 +107,7 @@ class DirectBlockQP:
             q[2 * self.n * self.k :] = np.repeat(alpha, self.k)
         return q
 
-    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000):
+    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
         """Solve every task's subproblem; same contract as :meth:`CvxpyBlockQP.solve`.
 
         Raises
@@ -120,6 +120,8 @@ class DirectBlockQP:
         t0 = time.perf_counter()
         Ax = self._matrix(R)
         if backend == "osqp":
+            if fresh:  # no warm start from another solver's last solution
+                self._osqp = None
             z, status = self._solve_osqp(Ax, b.ravel(), check_alpha(alpha, self.n), tolerance, max_iter)
         else:
             z, status = self._solve_clarabel(Ax, b.ravel(), check_alpha(alpha, self.n), tolerance, max_iter)

@@ -11,7 +11,8 @@ from factirl_opt.cli import main
 
 
 REPRODUCE_OPTIONS = ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--h-solver-options",
-                     "--d-solver", "--d-solver-options", "--planner", "--lineup", "--backend", "--scheduler")
+                     "--d-solver", "--d-solver-options", "--planner", "--lineup", "--flat-solver", "--backend",
+                     "--scheduler")
 
 
 def _reproduce_help(capsys):
@@ -155,9 +156,19 @@ def test_lineup_option_selects_the_mce_learners(tmp_path, capsys):
     assert err.count("\n") == 1
 
 
+def test_flat_solver_option_overrides_the_presets(tmp_path, capsys):
+    out = tmp_path / "lbfgs"
+    assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--flat-solver", "lbfgs", "--out", str(out), "--quiet",
+                 "--no-plot"]) == 0
+    assert json.loads((out / "manifest.json").read_text())["preset"]["flat_solver"] == "lbfgs"
+    code = main(["reproduce", "--preset", "tiny", "--flat-solver", "nope", "--out", str(tmp_path / "x"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("factirl-opt: error: preset 'tiny': unknown solver 'nope'") and "lbfgs" in err
+
+
 def test_presets_print_their_solvers(capsys):
     text = " ".join(_reproduce_help(capsys).split())
-    assert "[solvers: H gn-qp-clarabel, D armijo]" in text and "objectworld-quick" in text
+    assert "[solvers: flat lbfgs/gn-qp-clarabel, H gn-qp-clarabel, D lbfgs]" in text and "objectworld-quick" in text
     from factirl_opt.experiments.presets import PRESET_DESCRIPTIONS
 
     assert f"{PRESET_DESCRIPTIONS['paper']} [solvers" not in text  # the paper's Armijo steps are not listed

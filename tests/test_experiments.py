@@ -334,6 +334,7 @@ def test_progress_is_weighted_by_run_cost(tmp_path, monkeypatch):
     costs = {s.key(p): run_cost(p, s) for s in specs}
     assert bar.total == pytest.approx(sum(costs.values())) and bar.n == pytest.approx(bar.total)
     assert sorted(bar.updates) == sorted(costs.values()) and bar.smoothing == 0  # average rate over the whole sweep
+    assert bar.updates == sorted(bar.updates, reverse=True)  # one worker: the runs ran costliest first
     # a run with 100 training tasks weighs about 3 with 5 (paper preset; measured 2-3x)
     paper = PRESETS["paper"]
     big, small = (run_cost(paper, runner_mod.RunSpec(n, 10, 0)) for n in (100, 5))

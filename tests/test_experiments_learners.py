@@ -11,6 +11,7 @@ from factirl_opt.exceptions import UnknownSolverError, ValidationError
 from factirl_opt.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
 from factirl_opt.experiments import learners as learners_mod
 from factirl_opt.experiments.learners import Fit, factorial_options, flat
+from factirl_opt.experiments.presets import LATER_FIELDS
 from factirl_opt.experiments.worlds import grid_world
 
 TINY = PRESETS["tiny"]
@@ -29,6 +30,9 @@ def test_paper_lineup_is_the_papers():
     ((Learner("test", "b", flat, needs=(("train", "a"),)),), (), r"needs \[\('train', 'a'\)\] earlier"),
     ((Learner("valid", "a", flat),), (), "split must be"),
     ((Learner("train", "a", flat),), ("a",), "value map of unknown test learner 'a'"),
+    ((Learner("train", "a", flat, per_seed=True),), (), "train: a cannot be per_seed"),
+    ((Learner("train", "a", flat), Learner("test", "b", flat, needs=(("train", "a"),), per_seed=True)), (),
+     "test: b cannot be per_seed"),
 ])
 def test_lineup_validation(learners, value_maps, match):
     with pytest.raises(ValidationError, match=match):
@@ -93,7 +97,10 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
                                                  flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
-                                                 planner="auto", gtol=0.0)
+                                                 planner="auto", gtol=0.0, tol=1e-5)
+    import inspect
+
+    assert inspect.signature(FactIRL).parameters["tol"].default == TINY.fact_tol  # FactIRL's own default
 
 
 def test_h_solver_options_reach_factirl(monkeypatch):
@@ -199,8 +206,8 @@ def test_fast_preset_is_the_paper_with_faster_solvers():
     from factirl_opt.experiments.presets import FAST_SOLVERS, SOLVER_FIELDS
 
     paper, fast = PRESETS["paper"], PRESETS["fast"]
-    assert (fast.h_solver, fast.d_solver, fast.fact_gtol) == tuple(FAST_SOLVERS[f] for f in ("h_solver", "d_solver", "fact_gtol"))
-    ignored = ("name", "fact_gtol", *SOLVER_FIELDS)
+    assert {f: getattr(fast, f) for f in FAST_SOLVERS} == FAST_SOLVERS
+    ignored = ("name", *FAST_SOLVERS, *SOLVER_FIELDS)
     same = {f: v for f, v in paper.to_dict().items() if f not in ignored}
     assert same == {f: v for f, v in fast.to_dict().items() if f not in ignored}
     assert paper.fact_gtol == 0.0 < fast.fact_gtol and fast.fingerprint() != paper.fingerprint()
@@ -241,9 +248,51 @@ def test_fast_solvers_run_at_tiny_scale():
     label = f"{FAST_SOLVERS['h_solver']} | d: {FAST_SOLVERS['d_solver']}"
     assert {r["h_solver"] for r in rec["rows"]} == {label}
     assert all(np.isfinite(r["deviation"]) and r["n_evaluations"] > 0 for r in rec["rows"])
-    default = run_one(TINY, plan_runs(TINY, [0])[-1])
-    flat_rows = [(r["split"], r["deviation"]) for r in default["rows"] if r["learner"] == "flat"]
-    assert flat_rows == [(r["split"], r["deviation"]) for r in rec["rows"] if r["learner"] == "flat"]  # untouched
+
+
+@pytest.mark.parametrize("field", ["flat_solver", "flat_features_solver"])
+@pytest.mark.parametrize("value, error, match", [
+    ("nope", UnknownSolverError, "preset 'x': unknown solver 'nope'"),
+    ("", ValidationError, "preset 'x': {field} must be a registered solver name; got ''"),
+    (3, ValidationError, "preset 'x': {field} must be a registered solver name; got 3"),
+])
+def test_flat_solver_validation(field, value, error, match):
+    with pytest.raises(error, match=match.format(field=field)):
+        Preset(name="x", **{field: value})
+    with pytest.raises(ValidationError, match="preset 'x': fact_tol must be"):
+        Preset(name="x", fact_tol=-1.0)
+
+
+@pytest.mark.parametrize("field, value", [("flat_solver", "lbfgs"), ("flat_features_solver", "lbfgs"), ("fact_tol", 1e-4)])
+def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(field, value):
+    assert dataclasses.replace(TINY, **{field: LATER_FIELDS[field]}).fingerprint() == TINY.fingerprint()
+    lbfgs = dataclasses.replace(TINY, **{field: value})
+    assert lbfgs.fingerprint() != TINY.fingerprint()
+    assert {s.key(lbfgs) for s in plan_runs(lbfgs, [0])}.isdisjoint(s.key(TINY) for s in plan_runs(TINY, [0]))
+
+
+def test_flat_solvers_reach_every_gradirl_and_fall_back_where_they_do_not_apply(monkeypatch):
+    seen = []
+
+    class SpyGradIRL(learners_mod.GradIRL):
+        def __init__(self, **kw):
+            seen.append((kw["objective"], kw["features"] is not None, kw["solver"]))
+            super().__init__(**kw)
+
+    monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
+    preset = dataclasses.replace(PRESETS["objectworld-tiny"], lineup="objectworld+mce", flat_solver="lbfgs",
+                                 flat_features_solver="gn-qp-clarabel")
+    rec = run_one(preset, plan_runs(preset, [0])[-1])
+    assert sorted(set(seen)) == [("mce", True, "armijo"),  # flat MCE on features: no residuals for Gauss-Newton
+                                 ("policy-matching", False, "lbfgs"), ("policy-matching", True, "gn-qp-clarabel")]
+    assert len(seen) == 8 and all(np.isfinite(r["deviation"]) for r in rec["rows"])  # 4 flat rows, train and test
+    default = {(r["split"], r["learner"]): r for r in run_one(TINY, plan_runs(TINY, [0])[-1])["rows"]}
+    seen.clear()
+    lbfgs = dataclasses.replace(TINY, flat_solver="lbfgs")
+    rows = {(r["split"], r["learner"]): r for r in run_one(lbfgs, plan_runs(lbfgs, [0])[-1])["rows"]}
+    assert sorted(set(seen)) == [("policy-matching", False, "lbfgs"), ("policy-matching", True, "armijo")]
+    assert rows["train", "flat"]["n_evaluations"] != default["train", "flat"]["n_evaluations"]
+    assert rows["train", "flat, ground truth"] == default["train", "flat, ground truth"]  # features: still Armijo
 
 
 # --- Objectworld and MCE line-ups ---------------------------------------------------------
@@ -306,3 +355,32 @@ def test_the_papers_rows_do_not_depend_on_the_extra_learners():
     rows = {(r["split"], r["learner"]): r for r in extended["rows"]}
     for r in paper["rows"]:
         assert rows[r["split"], r["learner"]] == r
+
+
+# --- per-seed rows: fitted once per seed, scored at every point -----------------------------
+
+
+def test_per_seed_rows_are_fitted_once_per_seed_with_the_same_records(monkeypatch):
+
+    built = []
+    real = [lr for lr in LINEUPS["paper"].learners]
+    spy = tuple(dataclasses.replace(lr, build=(lambda b, lr=lr: lambda gt, p, ctx: built.append((ctx.spec.n_tasks, lr.split, lr.name))
+                                                or b(gt, p, ctx))(lr.build)) for lr in real)
+    monkeypatch.setitem(learners_mod.LINEUPS, "paper", Lineup("paper", spy, LINEUPS["paper"].value_maps))
+    specs = plan_runs(TINY, [0])
+    assert len({(s.n_tasks, s.demos_per_task) for s in specs}) == 3
+    reuse = {}
+    shared = [run_one(TINY, spec, reuse=reuse) for spec in specs]
+    per_seed = {(lr.split, lr.name) for lr in real if lr.per_seed}
+    assert per_seed == {("test", "flat"), ("test", "flat, ground truth")}
+    counts = {name: sum(1 for b in built if (b[1], b[2]) == name) for name in {(b[1], b[2]) for b in built}}
+    assert all(counts[name] == (1 if name in per_seed else 3) for name in counts)
+    assert len(reuse) == 2
+    built.clear()
+    alone = [run_one(TINY, spec) for spec in specs]
+    assert len(built) == 3 * len(real)  # without reuse: every row of every run
+    for a, b in zip(shared, alone):
+        assert a["rows"] == b["rows"] and a["key"] == b["key"]
+    # another seed is another fit
+    run_one(TINY, plan_runs(TINY, [1])[0], reuse=reuse)
+    assert len(reuse) == 4

@@ -268,3 +268,49 @@ def test_wrong_shapes_from_the_problem_are_reported():
     problem = solvers.StepProblem(lambda x, rows: (np.zeros(len(rows)), x[:, :1]), lambda: 0, 2, 2)
     with pytest.raises(SolverError, match=r"returned output 2 of shape \(2, 1\); expected \(2, 2\)"):
         solvers.ArmijoSolver().run(problem, np.ones((2, 2)), 1)
+
+
+# --- compiled block QPs shared per thread ---------------------------------------------------
+
+
+@pytest.mark.parametrize("interface", ["cvxpy", "direct"])
+def test_compiled_block_qps_are_shared_per_thread_and_results_do_not_depend_on_history(interface):
+    """A new solver re-uses the thread's compiled problem, never another solver's warm start."""
+    import threading
+
+    from solvers.gauss_newton import compiled_block_qp
+
+    from test_solvers_conformance import exp_problem
+
+    name = "gn-qp-osqp-nonneg"  # OSQP warm-starts; the nonneg variant has an active set
+    runs = []
+    for history in (False, True):
+        if history:  # another solver of the same shape solves something else first
+            other, _, _ = exp_problem(np.random.default_rng(7))
+            solvers.get_solver(name, interface=interface).run(other, np.zeros((N, K)), 3)
+            workspace = getattr(compiled_block_qp(interface, N, K, "nonneg"), "_osqp", None)
+        problem, _, _ = exp_problem(np.random.default_rng(1))
+        solver = solvers.get_solver(name, interface=interface)
+        runs.append(solver.run(problem, np.zeros((N, K)), 5).coefficients)
+        assert solver._block_qp(N, K) is compiled_block_qp(interface, N, K, "nonneg")
+        if history and interface == "direct":  # OSQP set up anew for the new solver, then updated
+            assert compiled_block_qp(interface, N, K, "nonneg")._osqp is not workspace
+    np.testing.assert_array_equal(runs[0], runs[1])
+    mine = compiled_block_qp(interface, N, K, "nonneg")
+    other_thread = []
+    t = threading.Thread(target=lambda: other_thread.append(compiled_block_qp(interface, N, K, "nonneg")))
+    t.start()
+    t.join()
+    assert other_thread[0] is not mine and compiled_block_qp(interface, N, K, "nonneg") is mine
+
+
+def test_the_compiled_cache_is_bounded(monkeypatch):
+    from solvers import gauss_newton
+
+    monkeypatch.setattr(gauss_newton, "COMPILED_CACHE_SIZE", 2)
+    first = gauss_newton.compiled_block_qp("direct", 2, 1, "none")
+    gauss_newton.compiled_block_qp("direct", 3, 1, "none")
+    assert gauss_newton.compiled_block_qp("direct", 2, 1, "none") is first  # most recently used: kept
+    gauss_newton.compiled_block_qp("direct", 4, 1, "none")
+    assert gauss_newton.compiled_block_qp("direct", 2, 1, "none") is first
+    assert len(gauss_newton._compiled.problems) == 2

@@ -89,6 +89,11 @@ class Learner:
         Version of the builder's behaviour (part of a cached run's key).
     needs : tuple of (split, name)
         Rows that must run before this one (their results are read from ``ctx``).
+    per_seed : bool
+        The fit depends only on the seed's world and test tasks, not on the sweep point (a test
+        row that reads nothing from training: ``flat`` from scratch, on fixed features): the
+        runner fits it once per seed and worker and scores it in every run of that seed
+        (:func:`.runner.run_one`'s ``reuse``).
     """
 
     split: str
@@ -96,6 +101,7 @@ class Learner:
     build: Callable
     version: int = 1
     needs: tuple = ()
+    per_seed: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,6 +124,9 @@ class Lineup:
                 raise ValidationError(f"line-up {self.name!r}: split must be 'train' or 'test'; got {lr.split!r}")
             if (lr.split, lr.name) in seen:
                 raise ValidationError(f"line-up {self.name!r}: duplicate learner {lr.split}: {lr.name}")
+            if lr.per_seed and (lr.split != "test" or lr.needs):
+                raise ValidationError(f"line-up {self.name!r}: {lr.split}: {lr.name} cannot be per_seed: only a test row "
+                                      "that needs no other row is the same at every point of a seed")
             missing = [n for n in lr.needs if tuple(n) not in seen]
             if missing:
                 raise ValidationError(f"line-up {self.name!r}: {lr.split}: {lr.name} needs {missing} earlier in the line-up")
@@ -236,6 +245,7 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
     run's solver label).
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
+              tol=preset.fact_tol,
               inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
     roles = [("h", spec.h_solver, spec.h_options())]
@@ -254,8 +264,10 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
 
 
 def _gradirl(gt, preset, ctx, features=None, objective=DEFAULT_OBJECTIVE):
-    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, objective=objective,
-                    planner=preset.planner)
+    solver = preset.flat_solver if features is None else preset.flat_features_solver
+    solver = solver if _applies(solver, {}, objective) else "armijo"
+    model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, solver=solver,
+                    objective=objective, planner=preset.planner)
     model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
@@ -393,7 +405,7 @@ def _mce_rows(suffix, flat_build, fact_build, transfer_build):
     flat_name, fact_name = f"flat MCE{suffix}", f"factorial MCE{suffix}"
     train = (Learner("train", flat_name, flat_build),
              Learner("train", fact_name, fact_build, needs=(("train", flat_name),)))
-    test = (Learner("test", flat_name, flat_build),
+    test = (Learner("test", flat_name, flat_build, per_seed=True),
             Learner("test", fact_name, transfer_build, needs=(("train", fact_name),)))
     return train, test
 
@@ -410,11 +422,11 @@ LINEUPS = {
             Learner("train", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
             Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
             Learner("train", "factorial, random init", factorial_random_init),
-            Learner("test", "flat", flat),
+            Learner("test", "flat", flat, per_seed=True),
             Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
             Learner("test", "flat, features from ex.", flat_features_from_examples, needs=_TRAIN_FLAT),
             Learner("test", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
-            Learner("test", "flat, ground truth", flat_ground_truth),
+            Learner("test", "flat, ground truth", flat_ground_truth, per_seed=True),
         ),
         value_maps=("flat", "factorial"),
     ),
@@ -427,12 +439,12 @@ LINEUPS = {
             Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
             Learner("train", "factorial, features", factorial_features, needs=(("train", "flat, features"),)),
             Learner("train", "factorial, features, random init", factorial_features_random_init),
-            Learner("test", "flat", flat),
-            Learner("test", "flat, features", flat_features),
+            Learner("test", "flat", flat, per_seed=True),
+            Learner("test", "flat, features", flat_features, per_seed=True),
             Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
             Learner("test", "factorial, features", factorial_features_transfer,
                     needs=(("train", "factorial, features"),)),
-            Learner("test", "flat, ground truth", flat_ground_truth),
+            Learner("test", "flat, ground truth", flat_ground_truth, per_seed=True),
         ),
         value_maps=("flat, features", "factorial, features"),
         worlds=("objectworld",),

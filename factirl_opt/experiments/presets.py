@@ -18,15 +18,13 @@ Presets
     training tasks with 10 demos each at the default point, sweeps (1, 2, 5, 10, 20) demos and
     (5, 10, 20, 50, 100) tasks, 100 test tasks with one demonstration each, 3 seeds.
 ``fast``
-    The ``paper`` preset with faster solvers for the factorial learner (:data:`FAST_SOLVERS`,
-    one line: Armijo H-steps, the matrix-free Gauss-Newton D-step ``gn-cg``, and the gradient
-    stopping rule ``fact_gtol = 1e-4``, chosen from ``factirl-opt bench fit``'s comparison): same world, sweeps, test tasks, seeds and budgets, so its runs
-    differ from the paper's only in the factorial learners' solvers (the flat learners' rows are
-    identical). Its fingerprint is the paper's: its runs' keys differ by their solver tag.
-    Measured at the default point (100 tasks x 10 demos, seed 0, one run): 7277 Q*
-    evaluations against the paper's 10409 (factorial 1549 vs 2521, transfer 41 vs 557), but
-    about the same wall time (the QP steps cost more than Armijo's): the D-step solvers of
-    issue 13 decide whether it reaches 10 minutes.
+    The ``paper`` world, sweeps, test tasks and seeds with faster solvers, stopping rules and
+    budgets (:data:`FAST_SOLVERS`): FactIRL with Gauss-Newton QP H-steps through Clarabel
+    (also in transfer), L-BFGS D-steps, 2 + 2 inner steps per outer iteration, at most 50
+    outer iterations, stopping at a gradient norm 1e-3 times the initial one or a relative
+    decrease 1e-4; the flat learners with L-BFGS on tabular rewards and Gauss-Newton QP steps
+    on features. ``reproduce --preset fast --jobs 2`` is timed in the README next to the
+    paper preset, and its results are committed under ``results/fast/``.
 ``quick``
     Every learner and figure of the paper in about a minute with ``--jobs 1`` (the README's
     first command): an 8x8 grid (the paper's dynamics and k = 5 primitives), 3 points (3 and
@@ -45,8 +43,8 @@ Presets
     colours (one true primitive each, k = 5), c2 = 2 outer colours, object density 0.05,
     determinism 0.7, gamma 0.9; 100 training tasks x 32 demonstrations of 16 steps at the
     default point, a sweep over the number of training tasks (10, 20, 50, 100), 100 test
-    tasks with one demonstration each, 3 seeds, the paper's budgets, the Gauss-Newton QP H-step
-    (:data:`OBJECTWORLD_SOLVERS`; evaluations cost about 10x the paper grid's there).
+    tasks with one demonstration each, 3 seeds; the ``fast`` preset's solvers and budgets,
+    with L-BFGS for the flat fits on features too (:data:`OBJECTWORLD_SOLVERS`).
 ``objectworld-quick``
     The same at 16x16 in minutes with ``--jobs 1``: 5 and 20 training tasks x 16
     demonstrations, 20 test tasks, 1 seed, GradIRL 40 iterations, FactIRL 15 outer
@@ -64,8 +62,10 @@ import dataclasses
 import hashlib
 import json
 
+import solvers
+
 from .._validation import check_int, check_probability, check_real
-from ..exceptions import FactIRLError, ValidationError
+from ..exceptions import FactIRLError, ValidationError, translate_solver_errors
 from ..planning import available_planners
 from ..synthetic import COEFFICIENT_KINDS
 from .learners import decode_options, solver_settings
@@ -75,7 +75,7 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_pres
 #: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
 #: (and so its runs' keys) only when they differ from these
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05,
-                "fact_gtol": 0.0}
+                "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_solver": "armijo", "flat_features_solver": "armijo"}
 #: the solver fields: defaults of a sweep's solvers, part of each run's key, not of the fingerprint
 SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
 
@@ -142,6 +142,15 @@ class Preset:
         Objectworld only: c2, the number of outer (distractor) colours.
     object_density : float
         Objectworld only: the probability that a cell holds an object.
+    fact_tol : float
+        FactIRL's relative-decrease stopping rule (``FactIRL(tol=...)``; 1e-5, its default,
+        except in ``fast``).
+    flat_solver, flat_features_solver : str
+        Step solvers of the line-up's GradIRL fits (flat learners, train and test) on tabular
+        rewards and on features (names in ``solvers.available_solvers()``, without options):
+        ``"armijo"``, the paper's, except in ``fast``. A Gauss-Newton solver is replaced by
+        Armijo's for the learners on an objective without residuals (``"mce"``), like the
+        factorial ones'.
     h_solver, d_solver : str
         The factorial learner's H-step and D-step solvers when a sweep names none (names in
         ``solvers.available_solvers()``; ``d_solver=""``: FactIRL's default D-step).
@@ -178,6 +187,9 @@ class Preset:
     n_outer_colours: int = 2
     object_density: float = 0.05
     fact_gtol: float = 0.0
+    fact_tol: float = 1e-5
+    flat_solver: str = "armijo"
+    flat_features_solver: str = "armijo"
     h_solver: str = "armijo"
     h_solver_options: str = ""
     d_solver: str = ""
@@ -199,6 +211,7 @@ class Preset:
                                                               low_open=True))
         object.__setattr__(self, "gamma", check_real(self.gamma, where + "gamma", 0.0, 1.0, high_open=True))
         object.__setattr__(self, "fact_gtol", check_real(self.fact_gtol, where + "fact_gtol", low=0.0))
+        object.__setattr__(self, "fact_tol", check_real(self.fact_tol, where + "fact_tol", low=0.0))
         object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
         from .learners import LINEUPS
         from .worlds import WORLDS
@@ -228,6 +241,12 @@ class Preset:
         try:
             settings = solver_settings(self.h_solver, as_dict("h_solver_options"), self.d_solver or None,
                                        as_dict("d_solver_options"))
+            for f in ("flat_solver", "flat_features_solver"):
+                name = getattr(self, f)
+                if not isinstance(name, str) or not name:
+                    raise ValidationError(f"{f} must be a registered solver name; got {name!r}")
+                with translate_solver_errors():  # unknown names list the available ones
+                    solvers.get_solver(name)
         except FactIRLError as exc:
             raise type(exc)(where + str(exc)) from None
         for f, value in settings.items():
@@ -282,13 +301,20 @@ class Preset:
             raise ValidationError(f"not a preset: {exc}") from None
 
 
-#: the ``fast`` preset's solvers (issue 13): measured at paper scale (``bench fit``), armijo | gn-cg
-#: reached a lower loss and deviation than armijo | armijo with 15% of its Q* evaluations, in half
-#: the wall time; the QP H-step saves evaluations but costs more per step on the 10x10 grid
-FAST_SOLVERS = dict(h_solver="armijo", d_solver="gn-cg", fact_gtol=1e-4)
+#: the ``fast`` preset's solvers and stopping rules (issue 13), chosen from runs of its default
+#: point (100 tasks x 10 demos, seed 0, one run each, two at a time on the 2-core machine):
+#: Gauss-Newton QP H-steps (Clarabel; transfer too), L-BFGS D-steps, FactIRL stopping at a
+#: gradient norm 1e-3 x its initial one or a relative decrease 1e-4 per outer iteration, L-BFGS
+#: for the tabular flat fits and Gauss-Newton QP steps for the flat fits on features (5-15
+#: weights per task; on 400 tabular weights per task the cvxpy block QP does not fit in memory).
+#: The run took 97 s against 444 s for armijo | gn-cg with the paper's flat solvers (whose
+#: random-init fit ran its 100 outer iterations of CG products) and kept every ordering of the paper
+FAST_SOLVERS = dict(h_solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2, fact_max_iter=50, fact_gtol=1e-3,
+                    fact_tol=1e-4, flat_solver="lbfgs", flat_features_solver="gn-qp-clarabel")
 
-#: the Objectworld presets' solvers: the Gauss-Newton QP H-step (evaluations cost 10x more there)
-OBJECTWORLD_SOLVERS = dict(h_solver="gn-qp-clarabel")
+#: the Objectworld presets' solvers: the ``fast`` preset's, with L-BFGS for the flat fits on features
+#: too (Levine's 217 features at 32x32 make a Gauss-Newton block QP too large to compile)
+OBJECTWORLD_SOLVERS = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
 
 PRESETS = {
     "paper": Preset(name="paper"),
@@ -342,10 +368,9 @@ PRESETS = {
         default_demos=16,
         n_test_tasks=20,
         flat_max_iter=40,
-        fact_max_iter=15,
         transfer_max_iter=40,
         n_seeds=1,
-        **OBJECTWORLD_SOLVERS,
+        **dict(OBJECTWORLD_SOLVERS, fact_max_iter=15),
     ),
     "objectworld-tiny": Preset(
         name="objectworld-tiny",
@@ -360,11 +385,9 @@ PRESETS = {
         default_demos=4,
         n_test_tasks=4,
         flat_max_iter=8,
-        fact_max_iter=3,
-        inner_steps=2,
         transfer_max_iter=8,
         n_seeds=1,
-        **OBJECTWORLD_SOLVERS,
+        **dict(OBJECTWORLD_SOLVERS, fact_max_iter=3),
     ),
     "tiny": Preset(
         name="tiny",
@@ -387,11 +410,12 @@ PRESETS = {
 #: one line per preset, for ``factirl-opt reproduce --help``
 PRESET_DESCRIPTIONS = {
     "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (about 20 min on 2 cores)",
-    "fast": "the paper's section 4 with the faster solvers of FAST_SOLVERS (same world, sweeps, seeds and budgets)",
+    "fast": "the paper's section 4 with the factorial learner's faster solvers (FAST_SOLVERS; same world, sweeps, "
+            "seeds and budgets; under 10 min on 2 cores)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (about a minute)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
     "objectworld": "ELIRL's multi-task Objectworld: 32x32, 100 training tasks x 32 demos of 16 steps, tasks sweep "
-                   "10-100, 100 test tasks, 3 seeds (hours on 2 cores)",
+                   "10-100, 100 test tasks, 3 seeds (about an hour on 2 cores)",
     "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 1 seed "
                          "(minutes)",
     "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",

@@ -20,6 +20,7 @@ every run is single-threaded with its own random streams, so they are identical 
 it (:mod:`.workers`), or on a Dask cluster.
 """
 
+import collections
 import contextlib
 import dataclasses
 import hashlib
@@ -145,7 +146,7 @@ def _values(mdp, rewards, planner):
     return Q.max(axis=-1)
 
 
-def run_one(preset, spec, progress=None):
+def run_one(preset, spec, progress=None, reuse=None):
     """Execute one run: build and score every learner of the preset's line-up.
 
     Parameters
@@ -154,6 +155,11 @@ def run_one(preset, spec, progress=None):
     spec : RunSpec
     progress : callable, optional
         Called with the learner's label (e.g. ``"train: flat"``) before each fit.
+    reuse : dict, optional
+        Fits of the line-up's ``per_seed`` rows (:class:`.learners.Learner`), shared by the
+        runs of one sweep: a row whose fit is there (same preset fingerprint, seed, learner and
+        builder version) is scored without refitting (its timing is that of the fit that made
+        it), and a new one is added. The record is the same as without it.
 
     Returns
     -------
@@ -162,10 +168,37 @@ def run_one(preset, spec, progress=None):
         point's first seed, ``figure3`` (value functions of 4 test tasks).
     """
     with limit_blas_threads(1):
-        return _run_one(preset, spec, progress or (lambda label: None))
+        return _run_one(preset, spec, progress or (lambda label: None), reuse)
 
 
-def _run_one(preset, spec, progress):
+#: per-seed fits kept by a worker process for the runs it executes (see :func:`_run_in_worker`)
+_WORKER_FITS = collections.OrderedDict()
+#: per-seed fits a worker keeps (the most recent; a sweep's runs of one seed share them)
+WORKER_FITS_KEPT = 16
+
+
+def _run_in_worker(preset, spec):
+    """:func:`run_one` in a worker process, re-using that process's per-seed fits."""
+    record = run_one(preset, spec, reuse=_WORKER_FITS)
+    while len(_WORKER_FITS) > WORKER_FITS_KEPT:
+        _WORKER_FITS.popitem(last=False)
+    return record
+
+
+def _build(learner, gt, preset, ctx, reuse):
+    """``(fit, seconds)`` of one row: built, or a per-seed fit from ``reuse``."""
+    key = (preset.fingerprint(), ctx.spec.seed, learner.split, learner.name, learner.version)
+    if reuse is not None and learner.per_seed and key in reuse:
+        return reuse[key]
+    t0 = time.perf_counter()
+    fit = learner.build(gt, preset, ctx)
+    built = (fit, time.perf_counter() - t0)
+    if reuse is not None and learner.per_seed:
+        reuse[key] = built
+    return built
+
+
+def _run_one(preset, spec, progress, reuse):
     gt = make_ground_truth(preset, spec.n_tasks, spec.demos_per_task, spec.seed)
     lineup = get_lineup(preset.lineup)
     ctx = RunContext(gt, spec)
@@ -174,9 +207,7 @@ def _run_one(preset, spec, progress):
     for learner in lineup.learners:
         progress(f"{learner.split}: {learner.name}")
         ctx.split = learner.split
-        t0 = time.perf_counter()
-        fit = learner.build(gt, preset, ctx)
-        elapsed = time.perf_counter() - t0
+        fit, elapsed = _build(learner, gt, preset, ctx, reuse)
         dev = deviation(gt.mdp, gt.rewards(learner.split), fit.rewards, planner=preset.planner)
         head = dict(split=learner.split, learner=learner.name, **common)
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
@@ -216,7 +247,7 @@ def _dask_records(preset, todo, jobs, scheduler):
     client = Client(cluster if cluster is not None else scheduler)
     try:
         with joblib.parallel_config(backend="dask"):
-            calls = (joblib.delayed(run_one)(preset, spec) for spec in todo)
+            calls = (joblib.delayed(_run_in_worker)(preset, spec) for spec in todo)
             yield from joblib.Parallel(n_jobs=jobs, return_as="generator_unordered")(calls)
     finally:
         client.close()
@@ -229,11 +260,13 @@ def _execute(preset, todo, execution, bar):
     if execution["backend"] == "dask":
         yield from _dask_records(preset, todo, execution["jobs"], execution["scheduler"])
     elif execution["jobs"] == 1:
+        reuse = {}  # this sweep's per-seed fits
         for spec in todo:
             key = spec.key(preset)
-            yield run_one(preset, spec, progress=lambda label, key=key: bar.set_postfix_str(f"{key} | {label}", refresh=True))
+            yield run_one(preset, spec, progress=lambda label, key=key: bar.set_postfix_str(f"{key} | {label}", refresh=True),
+                          reuse=reuse)
     else:
-        yield from imap_unordered(run_one, [(preset, spec) for spec in todo], execution["jobs"])
+        yield from imap_unordered(_run_in_worker, [(preset, spec) for spec in todo], execution["jobs"])
 
 
 def _check_execution(jobs, backend, scheduler):
@@ -266,7 +299,8 @@ def run_sweep(preset, out, seeds=None, base_seed=0, jobs=1, h_solver=None, h_sol
     out : str or path
         Output directory (created; locked while the sweep writes). Finished runs found in
         ``out/runs`` are reused if they pass the store's checks (:mod:`.store`), else reported
-        and recomputed.
+        and recomputed. The runs to compute start costliest first (:func:`run_cost`), so an
+        interrupted sweep has its largest points, and ``--jobs`` workers finish together.
     seeds : int, optional
         Number of seeds (default: the preset's); seeds are ``base_seed, base_seed + 1, ...``.
     base_seed : int
@@ -337,8 +371,10 @@ def _resume(preset, specs, out, execution, progress, invocation_id):
     runs_dir = os.path.join(out, "runs")
     by_key = {s.key(preset): s for s in specs}
     records, todo_keys, rejected = store.load_records(runs_dir, list(by_key), expected, lineup)
-    todo = [by_key[k] for k in todo_keys]
     costs = {s.key(preset): run_cost(preset, s) for s in specs}
+    # costliest first: the default point's runs start at once, and the small runs fill the
+    # workers at the end (longest-processing-time order); records do not depend on the order
+    todo = sorted((by_key[k] for k in todo_keys), key=lambda s: -costs[s.key(preset)])
     from tqdm.auto import tqdm
 
     bar = tqdm(total=sum(costs.values()), initial=sum(costs[k] for k in records), desc=f"{preset.name}",
