@@ -283,7 +283,7 @@ def test_flat_solvers_reach_every_gradirl_and_fall_back_where_they_do_not_apply(
     preset = dataclasses.replace(PRESETS["objectworld-tiny"], lineup="objectworld+mce", flat_solver="lbfgs",
                                  flat_features_solver="gn-qp-clarabel")
     rec = run_one(preset, plan_runs(preset, [0])[-1])
-    assert sorted(set(seen)) == [("mce", True, "armijo"),  # flat MCE on features: no residuals for Gauss-Newton
+    assert sorted(set(seen)) == [("mce", True, "lbfgs"),  # flat MCE on features: no residuals for Gauss-Newton
                                  ("policy-matching", False, "lbfgs"), ("policy-matching", True, "gn-qp-clarabel")]
     assert len(seen) == 8 and all(np.isfinite(r["deviation"]) for r in rec["rows"])  # 4 flat rows, train and test
     default = {(r["split"], r["learner"]): r for r in run_one(TINY, plan_runs(TINY, [0])[-1])["rows"]}
@@ -329,7 +329,7 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
     preset = dataclasses.replace(TINY, lineup="paper+mce")
     spec = plan_runs(preset, [0], h_solver="gn-qp-clarabel", d_solver="lbfgs")[-1]
     rec = run_one(preset, spec)
-    assert seen == [("policy-matching", "gn-qp-clarabel", "lbfgs")] * 2 + [("mce", "armijo", "lbfgs")]
+    assert seen == [("policy-matching", "gn-qp-clarabel", "lbfgs")] * 2 + [("mce", "lbfgs", "lbfgs")]
     assert {r["h_solver"] for r in rec["rows"]} == {"gn-qp-clarabel | d: lbfgs"}
     mce = {(r["split"], r["learner"]): r for r in rec["rows"] if "MCE" in r["learner"]}
     assert set(mce) == {(s, n) for s in ("train", "test") for n in ("flat MCE", "factorial MCE")}
@@ -338,7 +338,7 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
 
 @pytest.mark.parametrize("objective, h, d, expected", [
     ("policy-matching", "gn-qp-clarabel", "gn-cg", ("gn-qp-clarabel", "gn-cg")),
-    ("mce", "gn-qp-clarabel", "gn-cg", ("armijo", "armijo")),
+    ("mce", "gn-qp-clarabel", "gn-cg", ("lbfgs", "lbfgs")),
     ("mce", "armijo", "lbfgs", ("armijo", "lbfgs")),
 ])
 def test_factorial_options_use_solvers_that_apply_to_the_objective(objective, h, d, expected):

@@ -41,8 +41,8 @@ factorial learner on the maximum causal entropy likelihood (``objective="mce"``)
 test: ``flat MCE`` (GradIRL), ``factorial MCE`` (FactIRL from the PCA of ``flat MCE``'s
 rewards; its ``transfer`` on the test tasks); on Objectworld both on the base features
 (``flat MCE, features``, ``factorial MCE, features``). The Gauss-Newton solvers need a
-least-squares objective: where a run names one, the MCE learners use Armijo's steps
-(:func:`factorial_options`).
+least-squares objective: where a run names one, the MCE learners take L-BFGS steps
+(:data:`GRADIENT_FALLBACK`, :func:`factorial_options`).
 
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
@@ -68,6 +68,10 @@ Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
 
 #: the objective of the paper's learners (eq. 5)
 DEFAULT_OBJECTIVE = "policy-matching"
+
+#: the solver a learner on an objective without residuals (``"mce"``) takes where the run or
+#: preset names a Gauss-Newton one: the quasi-Newton counterpart, which needs only gradients
+GRADIENT_FALLBACK = "lbfgs"
 
 #: the learners' random streams, spawned in this order from the ground truth's ``learner_rng``
 #: (append new names at the end: the existing streams then stay the same)
@@ -241,8 +245,8 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
     Solver options and the D-step solver are passed only when the run names them, so a run
     with the defaults builds exactly the FactIRL it always did. A learner on an objective
     without residuals (``"mce"``) cannot take a Gauss-Newton solver (``gn-qp-*``, ``gn-cg``):
-    where the run names one, that learner uses Armijo's steps instead (its table rows keep the
-    run's solver label).
+    where the run names one, that learner takes :data:`GRADIENT_FALLBACK`'s steps instead
+    (its table rows keep the run's solver label).
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
               tol=preset.fact_tol,
@@ -253,7 +257,7 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
         roles.append(("d", spec.d_solver, spec.d_options()))
     for role, name, options in roles:
         if not _applies(name, options, objective):
-            name, options = "armijo", {}
+            name, options = GRADIENT_FALLBACK, {}
         kw[f"{role}_solver"] = name
         if options:
             kw[f"{role}_solver_options"] = options
@@ -265,7 +269,7 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
 
 def _gradirl(gt, preset, ctx, features=None, objective=DEFAULT_OBJECTIVE):
     solver = preset.flat_solver if features is None else preset.flat_features_solver
-    solver = solver if _applies(solver, {}, objective) else "armijo"
+    solver = solver if _applies(solver, {}, objective) else GRADIENT_FALLBACK
     model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, solver=solver,
                     objective=objective, planner=preset.planner)
     model.fit(gt.mdp, gt.demos(ctx.split))

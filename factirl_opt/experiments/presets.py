@@ -149,8 +149,8 @@ class Preset:
         Step solvers of the line-up's GradIRL fits (flat learners, train and test) on tabular
         rewards and on features (names in ``solvers.available_solvers()``, without options):
         ``"armijo"``, the paper's, except in ``fast``. A Gauss-Newton solver is replaced by
-        Armijo's for the learners on an objective without residuals (``"mce"``), like the
-        factorial ones'.
+        L-BFGS for the learners on an objective without residuals (``"mce"``), like the
+        factorial ones' (:data:`.learners.GRADIENT_FALLBACK`).
     h_solver, d_solver : str
         The factorial learner's H-step and D-step solvers when a sweep names none (names in
         ``solvers.available_solvers()``; ``d_solver=""``: FactIRL's default D-step).
