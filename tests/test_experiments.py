@@ -196,9 +196,9 @@ def test_resume_computes_only_missing_runs(tiny_sweep, tmp_path):
     computed = []
     original = runner_mod.run_one
 
-    def spy(preset, spec, progress=None):
+    def spy(preset, spec, progress=None, reuse=None):
         computed.append(spec.key(preset))
-        return original(preset, spec, progress)
+        return original(preset, spec, progress, reuse=reuse)
 
     runner_mod.run_one = spy
     try:
@@ -220,11 +220,11 @@ def test_interrupted_sweep_resumes_with_identical_tables(tiny_sweep, tmp_path, m
     original = runner_mod.run_one
     calls = []
 
-    def dies_on_third(preset, spec, progress=None):
+    def dies_on_third(preset, spec, progress=None, reuse=None):
         calls.append(spec)
         if len(calls) == 3:
             raise KeyboardInterrupt
-        return original(preset, spec, progress)
+        return original(preset, spec, progress, reuse=reuse)
 
     monkeypatch.setattr(runner_mod, "run_one", dies_on_third)
     with pytest.raises(KeyboardInterrupt):
@@ -372,7 +372,7 @@ def test_objectworld_smoke_sweep_tables_figures_and_claims(objectworld_sweep):
     lineup = LINEUPS["objectworld"]
     for split in ("train", "test"):
         assert {r["learner"] for r in rows if r["split"] == split} == set(lineup.names(split))
-    assert {r["h_solver"] for r in rows} == {"gn-qp-clarabel"}
+    assert {r["h_solver"] for r in rows} == {"gn-qp-clarabel | d: lbfgs"}
     data = json.loads(_read(out / "figure3.json"))
     assert {"objects", "n_inner", "n_outer", "moves", *lineup.value_maps} <= set(data)
     written = plot_all(out)
@@ -387,7 +387,7 @@ def test_objectworld_smoke_sweep_tables_figures_and_claims(objectworld_sweep):
     assert "test: factorial on features improves with the number of training tasks" in names
     assert all(isinstance(c["holds"], bool) for c in claims)
     with open(write_claims(out, p)) as fh:
-        assert fh.read().startswith("# Objectworld claims (issue 11) vs this run (H-step solver: gn-qp-clarabel)")
+        assert fh.read().startswith("# Objectworld claims (issue 11) vs this run (H-step solver: gn-qp-clarabel | d: lbfgs)")
 
 
 def test_a_single_sweep_draws_one_panel(objectworld_sweep, tiny_sweep, tmp_path):

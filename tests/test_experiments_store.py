@@ -197,7 +197,7 @@ def test_a_stale_lock_is_replaced(reference, tmp_path):
 
 
 def test_lock_released_after_an_interruption(tmp_path, monkeypatch):
-    def interrupted(preset, spec, progress=None):
+    def interrupted(preset, spec, progress=None, reuse=None):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(runner_mod, "run_one", interrupted)
