@@ -43,6 +43,13 @@ def as_rng(rng):
     raise ValidationError(f"rng must be a numpy Generator, a SeedSequence, an int seed or None; got {type(rng).__name__}")
 
 
+def check_bool(value, name):
+    """``value`` as a Python bool, rejecting anything but True, False and numpy bools."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValidationError(f"{name} must be True or False; got {value!r}")
+    return bool(value)
+
+
 def check_int(value, name, minimum=None, maximum=None):
     """``value`` as a Python int, rejecting bools, floats and values outside [minimum, maximum]."""
     bounds = [f">= {minimum}"] if minimum is not None else []

@@ -21,7 +21,7 @@ import solvers
 
 from ._progress import fit_progress
 from ._threads import blas_limited
-from ._validation import as_rng, check_array, check_features, check_int, check_mdp, check_tol
+from ._validation import as_rng, check_array, check_bool, check_features, check_int, check_mdp, check_tol
 from .exceptions import NotFittedError, ValidationError, translate_solver_errors
 from .gradirl import GradIRL, check_solver_applies, make_objective, warn_if_stalled
 from .mdp import check_signature
@@ -37,6 +37,9 @@ GTOL = 1e-4
 
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
+
+#: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
+PCA_MAX_HALVINGS = 20
 
 
 def pca_dictionary(parameters, n_components, rng=None):
@@ -76,6 +79,45 @@ def pca_dictionary(parameters, n_components, rng=None):
         Qm, _ = np.linalg.qr(np.hstack([D, extra]))
         D = Qm[:, :n_components]
     return D, X @ D
+
+
+def shrink_coefficients(total_loss, coefficients, max_halvings=PCA_MAX_HALVINGS):
+    """Halve a start's coefficients while the total loss decreases.
+
+    A flat learner fitted to near-deterministic demonstrations grows rewards far larger than
+    the expert's; their rank-k truncation (the PCA start) then lies where the Boltzmann policies
+    are saturated and the gradients of eq. (10) nearly vanish, so descent from it crawls
+    (Objectworld at 32x32: the rank-5 truncation scores a policy-matching loss of 6.50 over 10
+    tasks, 4.77 at 1/32 of its scale, 8.0 at zero). Scaling ``H`` by ``2**-j`` leaves the
+    primitives unchanged; ``j`` is the first one whose loss is not lower than the previous
+    (``j = 0``, the unscaled start, when halving does not help).
+
+    Parameters
+    ----------
+    total_loss : callable
+        ``total_loss(H) -> float``: the objective of eq. (10) at coefficients H (n, k).
+    coefficients : ndarray, shape (n, k)
+    max_halvings : int
+        Largest j tried.
+
+    Returns
+    -------
+    coefficients : ndarray, shape (n, k)
+        ``2**-j H``.
+    halvings : int
+        j.
+    n_calls : int
+        Calls of ``total_loss`` (batched planning evaluations).
+    """
+    H = np.asarray(coefficients, dtype=float)
+    best, j, calls = total_loss(H), 0, 1
+    while j < max_halvings:
+        trial = total_loss(H * 2.0 ** -(j + 1))
+        calls += 1
+        if not trial < best:
+            break
+        best, j = trial, j + 1
+    return H * 2.0 ** -j, j, calls
 
 
 def _orient_nonneg(D, H, fold=False):
@@ -384,12 +426,21 @@ class FactIRL:
     init : {"pca", "random"} or tuple (D0, H0), default="pca"
         ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
         or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
-        parameters (:func:`pca_dictionary`; with ``features``, of the flat learner's feature
-        weights), as the paper recommends. ``"random"``: Gaussian primitives normalised to unit
+        parameters (:func:`pca_dictionary`), as the paper recommends. With ``features``, of the
+        flat learner's feature weights measured by the rewards they give: the PCA of the
+        rewards ``Phi w_i`` (the weights' PCA in the metric ``Phi^T Phi``; nested or constant
+        features such as Objectworld's leave the weights themselves ill-determined), mapped
+        back to feature space by minimum-norm least squares. ``"random"``: Gaussian primitives normalised to unit
         norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
         grid) and the Boltzmann policies start far from saturation, where the gradients are
         informative (a unit-scale random start saturates them and the descent stalls). A tuple
         gives the initial arrays D0 (p, k) and H0 (n, k).
+    pca_shrink : bool, default=True
+        With ``init="pca"``, halve the start's coefficients while the total loss decreases
+        (:func:`shrink_coefficients`; one planning evaluation per trial): the flat learner's
+        rewards can be so large that their truncation starts the fit in a saturated region.
+        On the paper's grid the unscaled start is kept (two evaluations); on Objectworld the
+        start shrinks 32-fold. False: the PCA start as it is.
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -459,7 +510,7 @@ class FactIRL:
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
     """
 
-    def __init__(self, n_primitives=5, beta=5.0, init="pca", max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,
+    def __init__(self, n_primitives=5, beta=5.0, init="pca", pca_shrink=True, max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,
                  h_solver="armijo",
                  h_solver_options=None, d_solver="armijo", d_solver_options=None, features=None,
                  objective="policy-matching", planner="auto", flat_max_iter=100, transfer_max_iter=100, rng=None,
@@ -467,6 +518,7 @@ class FactIRL:
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
+        self.pca_shrink = pca_shrink
         self.max_iter = max_iter
         self.inner_steps = inner_steps
         self.tol = tol
@@ -489,21 +541,28 @@ class FactIRL:
             return None
         return check_features(self.features, mdp.n_params, mdp.n_states, min_columns=self.n_primitives)
 
-    def _pca_init(self, mdp, demos_per_task, n, Phi, flat_rewards, rng):
+    def _pca_init(self, mdp, demos_per_task, n, Phi, flat_rewards, rng, obj):
         evals = 0
         if flat_rewards is None:
             flat = GradIRL(beta=self.beta, features=Phi, max_iter=self.flat_max_iter, objective=self.objective,
                            planner=self.planner).fit(mdp, demos_per_task)
-            W, evals = flat.weights_, flat.n_evaluations_
+            X, evals = flat.rewards_.reshape(n, -1), flat.n_evaluations_
         else:
             Theta = check_array(flat_rewards, "flat_rewards")
             if Theta.shape != (n, mdp.n_states, mdp.n_actions):
                 raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
-            W = Theta.reshape(n, -1) if Phi is None else np.linalg.lstsq(Phi, Theta.reshape(n, -1).T, rcond=None)[0].T
-        D, H = pca_dictionary(W, self.n_primitives, rng)
+            X = Theta.reshape(n, -1)
+            if Phi is not None:  # the rewards the least-squares feature weights give
+                X = (Phi @ np.linalg.lstsq(Phi, X.T, rcond=None)[0]).T
+        D, H = pca_dictionary(X, self.n_primitives, rng)
+        if Phi is not None:
+            D = np.linalg.lstsq(Phi, D, rcond=None)[0]
+        if self.pca_shrink:
+            H, _, calls = shrink_coefficients(lambda Hs: float(np.sum(obj.loss_and_grad(_rewards(mdp, Phi, D, Hs))[0])), H)
+            evals += calls
         return D, H, evals
 
-    def _initial(self, mdp, demos_per_task, n, Phi, flat_rewards, rng):
+    def _initial(self, mdp, demos_per_task, n, Phi, flat_rewards, rng, obj):
         k, p = self.n_primitives, mdp.n_params if Phi is None else Phi.shape[1]
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
@@ -517,7 +576,7 @@ class FactIRL:
             D0 /= np.linalg.norm(D0, axis=0)
             return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
         if isinstance(self.init, str) and self.init == "pca":
-            return self._pca_init(mdp, demos_per_task, n, Phi, flat_rewards, rng)
+            return self._pca_init(mdp, demos_per_task, n, Phi, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
     @blas_limited
@@ -545,12 +604,14 @@ class FactIRL:
         if k > p:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
+        check_bool(self.pca_shrink, "pca_shrink")
         with translate_solver_errors():
             h_solver = check_solver_applies(solvers.resolve_solver(self.h_solver, self.h_solver_options), self.objective,
                                             "h_solver")
             check_solver_applies(solvers.resolve_solver(self.d_solver, self.d_solver_options), self.objective, "d_solver")
-        n = len(make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner).mu)
-        D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng))
+        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        n = len(obj.mu)
+        D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng), obj)
         if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
             D, H = _orient_nonneg(D, H, self.init == "random")
         fit = fit_factorial(mdp, demos_per_task, D, H, beta=self.beta, base_features=Phi, h_solver=h_solver,

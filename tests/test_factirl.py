@@ -49,12 +49,40 @@ def test_pca_init_counts_the_flat_fit_and_reuses_flat_rewards(data):
     assert own.n_evaluations_ == given.n_evaluations_ + flat.n_evaluations_
 
 
-def test_pca_init_starts_from_the_pca_of_flat_rewards(data):
+@pytest.mark.parametrize("shrink", [False, True])
+def test_pca_init_starts_from_the_pca_of_flat_rewards(data, shrink):
     mdp, _, demos = data
     flat = fo.GradIRL(max_iter=10).fit(mdp, demos)
-    model = fo.FactIRL(n_primitives=K, max_iter=0).fit(mdp, demos, flat_rewards=flat.rewards_)
+    model = fo.FactIRL(n_primitives=K, max_iter=0, pca_shrink=shrink).fit(mdp, demos, flat_rewards=flat.rewards_)
     D, H = fo.pca_dictionary(flat.rewards_.reshape(5, -1), K)
-    np.testing.assert_allclose(model.coefficients_ @ model.dictionary_.T, H @ D.T, atol=1e-12)
+    np.testing.assert_allclose(model.coefficients_ @ model.dictionary_.T, H @ D.T, atol=1e-12)  # halving does not help
+    assert model.n_evaluations_ == 1 + 2 * shrink  # the start, and the unscaled and halved trials
+
+
+def test_pca_shrink_halves_an_oversized_start(data):
+    mdp, _, demos = data
+    big = 64 * fo.GradIRL(max_iter=10).fit(mdp, demos).rewards_  # far into the saturated region
+    D, H = fo.pca_dictionary(big.reshape(5, -1), K)
+    kept = fo.FactIRL(n_primitives=K, max_iter=0, pca_shrink=False).fit(mdp, demos, flat_rewards=big)
+    shrunk = fo.FactIRL(n_primitives=K, max_iter=0).fit(mdp, demos, flat_rewards=big)
+    np.testing.assert_allclose(kept.coefficients_ @ kept.dictionary_.T, H @ D.T, atol=1e-12)
+    factor = np.sum(shrunk.coefficients_ @ shrunk.dictionary_.T) / np.sum(H @ D.T)
+    j = int(round(-np.log2(factor)))
+    assert j >= 1 and factor == pytest.approx(2.0 ** -j, rel=1e-12)
+    assert shrunk.loss_history_[0] < kept.loss_history_[0]
+    assert shrunk.n_evaluations_ == 1 + j + 2  # the start, then trials 2**0 .. 2**-(j+1)
+
+
+def test_shrink_coefficients_stops_at_the_first_rise():
+    H = np.full((2, 2), 4.0)  # sum 16: halving reaches sum 1 (loss 0) after 4 trials, the 5th rises
+    out, j, calls = fo.factirl.shrink_coefficients(lambda X: (X.sum() - 1.0) ** 2, H)
+    assert (j, calls) == (4, 6)
+    np.testing.assert_array_equal(out, H / 16)
+    out, j, calls = fo.factirl.shrink_coefficients(lambda X: (X.sum() - 16.0) ** 2, H)
+    assert (j, calls) == (0, 2) and out is not H
+    np.testing.assert_array_equal(out, H)
+    _, j, calls = fo.factirl.shrink_coefficients(lambda X: X.sum() ** 2, H, max_halvings=5)
+    assert (j, calls) == (5, 6)
 
 
 def test_tuple_init(rng, data):
@@ -138,6 +166,7 @@ def test_pca_dictionary(rng):
 @pytest.mark.parametrize(
     "kwargs, error, fragment",
     [
+        (dict(pca_shrink="yes"), ValidationError, r"pca_shrink must be True or False; got 'yes'"),
         (dict(init="kmeans"), ValidationError, r"init must be one of \('pca', 'random'\) or a tuple \(D0, H0\); got 'kmeans'"),
         (dict(init=(np.ones((36, K)),)), ValidationError, r"init given as a tuple must be \(D0, H0\)"),
         (dict(init=(np.ones((36, K)), np.ones((4, K)))), ValidationError, r"init \(D0, H0\) must have shapes \(36, 2\) and \(5, 2\); got \(36, 2\) and \(4, 2\)"),

@@ -63,6 +63,20 @@ def test_identity_features_reproduce_the_tabular_route(grid3, tasks, rng):
     np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=1e-9, atol=1e-12)
 
 
+def test_pca_init_on_features_is_the_pca_of_the_rewards_they_give(grid3, tasks, rng):
+    Phi = rng.random((36, 6))
+    Phi[:, 5] = Phi[:, 4] + Phi[:, 3]  # a dependent feature: the weights are not unique
+    flat = fo.GradIRL(features=Phi, max_iter=5).fit(grid3, tasks.demos)
+    model = fo.FactIRL(n_primitives=K, features=Phi, max_iter=0, pca_shrink=False).fit(grid3, tasks.demos,
+                                                                                     flat_rewards=flat.rewards_)
+    D, H = fo.pca_dictionary(flat.rewards_.reshape(5, -1), K)
+    np.testing.assert_allclose(model.rewards_.reshape(5, -1), H @ D.T, atol=1e-9)
+    assert model.dictionary_.shape == (6, K)
+    tab = fo.FactIRL(n_primitives=K, max_iter=3).fit(grid3, tasks.demos, flat_rewards=flat.rewards_)
+    eye = fo.FactIRL(n_primitives=K, features=np.eye(36), max_iter=3).fit(grid3, tasks.demos, flat_rewards=flat.rewards_)
+    np.testing.assert_allclose(eye.rewards_, tab.rewards_, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("init", ["pca", "random"])
 def test_fit_and_transfer_on_state_features(grid3, tasks, rng, init):
     Phi = rng.random((9, 3))  # state features, repeated over actions
