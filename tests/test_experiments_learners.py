@@ -97,7 +97,7 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
                                                  flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
-                                                 planner="auto", gtol=0.0, tol=1e-5)
+                                                 planner="auto", gtol=0.0, tol=1e-5, pca_shrink=False)
     import inspect
 
     assert inspect.signature(FactIRL).parameters["tol"].default == TINY.fact_tol  # FactIRL's own default
@@ -263,12 +263,22 @@ def test_flat_solver_validation(field, value, error, match):
         Preset(name="x", fact_tol=-1.0)
 
 
-@pytest.mark.parametrize("field, value", [("flat_solver", "lbfgs"), ("flat_features_solver", "lbfgs"), ("fact_tol", 1e-4)])
+@pytest.mark.parametrize("field, value", [("flat_solver", "lbfgs"), ("flat_features_solver", "lbfgs"), ("fact_tol", 1e-4),
+                                          ("pca_shrink", True)])
 def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(field, value):
     assert dataclasses.replace(TINY, **{field: LATER_FIELDS[field]}).fingerprint() == TINY.fingerprint()
     lbfgs = dataclasses.replace(TINY, **{field: value})
     assert lbfgs.fingerprint() != TINY.fingerprint()
     assert {s.key(lbfgs) for s in plan_runs(lbfgs, [0])}.isdisjoint(s.key(TINY) for s in plan_runs(TINY, [0]))
+
+
+def test_pca_shrink_reaches_every_factirl_and_is_validated():
+    assert [name for name, p in PRESETS.items() if p.pca_shrink] == ["fast", "objectworld", "objectworld-quick",
+                                                                      "objectworld-tiny"]
+    for preset in (TINY, PRESETS["fast"]):
+        assert factorial_options(preset, plan_runs(preset, [0])[0])["pca_shrink"] is preset.pca_shrink
+    with pytest.raises(ValidationError, match="preset 'x': pca_shrink must be True or False; got 1"):
+        Preset(name="x", pca_shrink=1)
 
 
 def test_flat_solvers_reach_every_gradirl_and_fall_back_where_they_do_not_apply(monkeypatch):

@@ -249,7 +249,7 @@ def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
     (its table rows keep the run's solver label).
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
-              tol=preset.fact_tol,
+              tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
               inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
     roles = [("h", spec.h_solver, spec.h_options())]
