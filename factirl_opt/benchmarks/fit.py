@@ -144,9 +144,10 @@ def _entry(learner, planner, elapsed, mdp, true_rewards):
 
 
 def _fit_factorial(s, mdp, tasks, flat, h_solver, d_solver):
-    """One factorial fit from the PCA of the flat rewards, with its own counting planner."""
+    """One factorial fit from the PCA of the flat rewards (the paper's start, unshrunk: every
+    combination starts from the same point), with its own counting planner."""
     planner = CountingPlanner(get_planner(mdp))
-    fact = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], init="pca", max_iter=s["max_iter"],
+    fact = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], init="pca", pca_shrink=False, max_iter=s["max_iter"],
                    inner_steps=s["inner_steps"], tol=s["tol"], h_solver=h_solver, d_solver=d_solver, planner=planner,
                    rng=np.random.default_rng(s["seed"] + 1))
     _, elapsed = _timed(lambda: fact.fit(mdp, tasks.demos, flat_rewards=flat.rewards_))
