@@ -89,8 +89,8 @@ def shrink_coefficients(total_loss, coefficients, max_halvings=PCA_MAX_HALVINGS)
     are saturated and the gradients of eq. (10) nearly vanish, so descent from it crawls
     (Objectworld at 32x32: the rank-5 truncation scores a policy-matching loss of 6.50 over 10
     tasks, 4.77 at 1/32 of its scale, 8.0 at zero). Scaling ``H`` by ``2**-j`` leaves the
-    primitives unchanged; ``j`` is the first one whose loss is not lower than the previous
-    (``j = 0``, the unscaled start, when halving does not help).
+    primitives unchanged; ``j`` is the number of halvings that each lowered the loss (the next
+    one did not; ``j = 0``, the unscaled start, when halving does not help).
 
     Parameters
     ----------
@@ -439,8 +439,9 @@ class FactIRL:
         With ``init="pca"``, halve the start's coefficients while the total loss decreases
         (:func:`shrink_coefficients`; one planning evaluation per trial): the flat learner's
         rewards can be so large that their truncation starts the fit in a saturated region.
-        On the paper's grid the unscaled start is kept (two evaluations); on Objectworld the
-        start shrinks 32-fold. False: the PCA start as it is.
+        On the paper's grid the policy-matching start is usually kept (two evaluations; halved
+        once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
+        Objectworld the start shrinks 32-fold. False: the PCA start as it is.
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
