@@ -47,7 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._validation import as_rng, check_int, check_real
+from ._validation import as_rng, check_bool, check_int, check_real
 from .exceptions import ValidationError
 from .mdp import TabularMDP
 
@@ -349,8 +349,7 @@ def objectworld_features(world, continuous=False, dtype=np.float64):
         State features, one row per state (row-major cells).
     """
     world = _check_world(world)
-    if not isinstance(continuous, (bool, np.bool_)):
-        raise ValidationError(f"continuous must be True or False; got {continuous!r}")
+    continuous = check_bool(continuous, "continuous")
     dsq = _squared_distances(world)
     N = world.size
     if continuous:
