@@ -1,0 +1,129 @@
+"""Files the library writes: atomically, or not at all.
+
+Every file the library writes (models, demonstrations, run records, tables, manifests,
+figures) goes through :func:`atomic_write`: the bytes go to a temporary file in the target's
+directory, which is flushed and ``fsync``-ed, then renamed over the target (``os.replace``,
+atomic on POSIX within one file system). A failure at any point (a full disk, a read-only
+directory, Ctrl-C) leaves the previous file intact and no temporary file behind.
+
+Operating-system errors (a missing or read-only directory, a path that is a directory, a full
+disk) are raised as :class:`~factirl_opt.exceptions.PersistenceError`, naming the path and the
+cause; the original ``OSError`` is chained as ``__cause__``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import secrets
+from collections.abc import Iterator
+from typing import IO
+
+from .exceptions import PersistenceError
+
+__all__ = ["atomic_write", "write_text_atomic", "os_error", "open_for_reading"]
+
+#: permissions of a new file before the umask is applied (as ``open`` gives)
+FILE_MODE = 0o666
+
+
+def os_error(exc: OSError, action: str, path: str | os.PathLike) -> PersistenceError:
+    """The library's error for an ``OSError`` raised while ``action``-ing ``path``.
+
+    The message names the path and the cause (``strerror``, e.g. "No space left on device");
+    raise it ``from exc`` so the original stays chained.
+    """
+    cause = exc.strerror or type(exc).__name__
+    if exc.errno == errno.ENOSPC:
+        cause += " (the disk is full)"
+    return PersistenceError(f"cannot {action} {os.fspath(path)!r}: {cause}")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
+    """Open a temporary file beside ``path``; on a clean exit make it ``path`` atomically.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to create or replace. Its directory must exist.
+    binary : bool
+        Open the temporary file in binary mode (text mode, ``newline=""`` otherwise).
+
+    Yields
+    ------
+    file object
+        Write the whole content into it. On an exception inside the block (or a failure to
+        flush, sync or rename) the temporary file is removed, ``path`` is left as it was and
+        the exception propagates (an ``OSError`` as :class:`PersistenceError`).
+
+    Notes
+    -----
+    The new file gets mode ``0o666`` minus the umask, like a file made by ``open``, and the
+    directory is synced after the rename where the platform allows it.
+    """
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise PersistenceError(f"cannot write {path!r}: it is a directory")
+    directory, base = os.path.split(os.path.abspath(path))
+    tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(4)}-{base}")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE & ~_umask())
+    except OSError as exc:
+        raise os_error(exc, "write", path) from exc
+    try:
+        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove_quietly(tmp)
+        raise os_error(exc, "write", path) from exc
+    except BaseException:
+        _remove_quietly(tmp)
+        raise
+    _sync_directory(directory)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` through :func:`atomic_write`."""
+    with atomic_write(path) as fh:
+        fh.write(text)
+
+
+def open_for_reading(path: str | os.PathLike, binary: bool = True) -> IO:
+    """``open(path)`` for reading, with ``OSError`` raised as :class:`PersistenceError`.
+
+    A missing file, a directory or a file without read permission is named with its cause.
+    """
+    try:
+        return open(os.fspath(path), "rb" if binary else "r")
+    except OSError as exc:
+        raise os_error(exc, "read", path) from exc
+
+
+def _remove_quietly(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
+def _sync_directory(directory: str) -> None:
+    """Make the rename durable (best effort: not every platform can open a directory)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

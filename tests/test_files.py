@@ -1,0 +1,87 @@
+"""Atomic writes: a failure leaves the old file intact and nothing beside it."""
+
+import errno
+import os
+
+import pytest
+
+from factirl_opt.exceptions import PersistenceError
+from factirl_opt.files import atomic_write, open_for_reading, write_text_atomic
+
+
+def _listing(d):
+    return sorted(os.listdir(d))
+
+
+def test_write_and_replace(tmp_path):
+    p = tmp_path / "a.txt"
+    write_text_atomic(p, "one")
+    write_text_atomic(p, "two")
+    assert p.read_text() == "two"
+    assert _listing(tmp_path) == ["a.txt"]
+
+
+def test_mode_follows_umask(tmp_path):
+    old = os.umask(0o027)
+    try:
+        write_text_atomic(tmp_path / "m.txt", "x")
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "m.txt").st_mode & 0o777) == 0o640
+
+
+def test_exception_inside_block_keeps_old_file(tmp_path):
+    p = tmp_path / "a.bin"
+    p.write_bytes(b"good")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_write(p, binary=True) as fh:
+            fh.write(b"partial")
+            raise KeyboardInterrupt
+    assert p.read_bytes() == b"good"
+    assert _listing(tmp_path) == ["a.bin"]
+
+
+def test_full_disk_keeps_old_file(tmp_path, monkeypatch):
+    p = tmp_path / "a.bin"
+    p.write_bytes(b"good")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(PersistenceError, match="disk is full") as info:
+        with atomic_write(p, binary=True) as fh:
+            fh.write(b"new")
+    assert isinstance(info.value.__cause__, OSError)
+    assert str(p) in str(info.value)
+    assert p.read_bytes() == b"good"
+    assert _listing(tmp_path) == ["a.bin"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores directory permissions")
+def test_read_only_directory(tmp_path):
+    d = tmp_path / "ro"
+    d.mkdir()
+    (d / "a.txt").write_text("good")
+    d.chmod(0o500)
+    try:
+        with pytest.raises(PersistenceError, match="a.txt"):
+            write_text_atomic(d / "a.txt", "new")
+        assert (d / "a.txt").read_text() == "good"
+    finally:
+        d.chmod(0o700)
+
+
+def test_missing_directory_and_directory_path(tmp_path):
+    with pytest.raises(PersistenceError, match="No such file or directory"):
+        write_text_atomic(tmp_path / "missing" / "a.txt", "x")
+    with pytest.raises(PersistenceError, match="is a directory"):
+        write_text_atomic(tmp_path, "x")
+
+
+def test_open_for_reading_errors(tmp_path):
+    with pytest.raises(PersistenceError, match="missing.bin") as info:
+        open_for_reading(tmp_path / "missing.bin")
+    assert isinstance(info.value.__cause__, FileNotFoundError)
+    with pytest.raises(PersistenceError):
+        open_for_reading(tmp_path)
