@@ -1,7 +1,14 @@
 """Shared fixtures: a seeded ``rng`` and the ``--runslow`` option for ``@pytest.mark.slow``."""
 
+import os
+import sys
+
 import numpy as np
 import pytest
+
+# test modules live in sub-folders mirroring the package (imported with --import-mode=importlib,
+# so two folders may hold modules of the same name); ``from helpers import ...`` finds tests/
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import factirl_opt as fo
 from helpers import random_statistics

@@ -346,7 +346,7 @@ def test_progress_is_weighted_by_run_cost(tmp_path, monkeypatch):
 
 def test_the_papers_run_keys_are_those_of_the_committed_results():
     """The committed paper-scale run (results/runs) is what `reproduce --preset paper` plans."""
-    runs = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "results", "runs")
+    runs = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "results", "runs")
     if not os.path.isdir(runs):
         pytest.skip("no committed results/ in this checkout")
     committed = sorted(f[:-5] for f in os.listdir(runs) if f.endswith(".json"))

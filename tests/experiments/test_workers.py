@@ -19,7 +19,7 @@ import pytest
 from factirl_opt.experiments import run_sweep
 from factirl_opt.experiments.workers import POLL_SECONDS, WorkerError, imap_unordered
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 N_SEEDS = 6
 TABLES = ("results.csv", "summary.csv", "figure3.json")
 
