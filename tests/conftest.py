@@ -6,12 +6,30 @@ import sys
 import numpy as np
 import pytest
 
-# test modules live in sub-folders mirroring the package (imported with --import-mode=importlib,
-# so two folders may hold modules of the same name); ``from helpers import ...`` finds tests/
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+
+def _register_shared_test_modules():
+    """Make ``from helpers import ...`` and ``from solver_problems import ...`` work in every test.
+
+    Test modules live in sub-folders mirroring the package and are imported with
+    ``--import-mode=importlib``; tests/ is not put on ``sys.path`` (its folder ``solvers/``
+    would shadow the ``solvers`` package), so the two shared modules are registered by path.
+    """
+    import importlib.util
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in ("helpers", "solver_problems"):
+        if name not in sys.modules:
+            spec = importlib.util.spec_from_file_location(name, os.path.join(here, f"{name}.py"))
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            spec.loader.exec_module(module)
+
+
+_register_shared_test_modules()
 
 import factirl_opt as fo
-from helpers import random_statistics
+from helpers import greedy_gap, random_statistics
 
 
 def pytest_addoption(parser):
@@ -76,13 +94,6 @@ def make_statistics():
     zero in the unvisited state (as :func:`empirical_statistics` produces).
     """
     return random_statistics
-
-
-def greedy_gap(mdp, rewards):
-    """Smallest gap between the best and second-best Q* over all states (and tasks)."""
-    Q, _ = fo.optimal_q(mdp, rewards)
-    Qs = np.sort(np.asarray(Q), axis=-1)
-    return float(np.min(Qs[..., -1] - Qs[..., -2]))
 
 
 @pytest.fixture

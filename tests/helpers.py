@@ -1,11 +1,13 @@
-"""Helpers shared by the tests (imported as ``from helpers import ...``; pytest puts tests/ on sys.path)."""
+"""Helpers shared by the tests (``from helpers import ...``; registered by conftest)."""
 
 import contextlib
 import signal
 
 import numpy as np
 
-__all__ = ["hang_guard", "central_difference", "rel_err", "random_statistics"]
+import factirl_opt as fo
+
+__all__ = ["hang_guard", "central_difference", "rel_err", "random_statistics", "greedy_gap"]
 
 
 class Hang(Exception):
@@ -58,3 +60,10 @@ def random_statistics(rng, mdp, n):
     pi = rng.dirichlet(np.ones(A), size=(n, S))
     pi[:, 0] = 0.0
     return mu, pi
+
+
+def greedy_gap(mdp, rewards):
+    """Smallest gap between the best and second-best Q* over all states (and tasks)."""
+    Q, _ = fo.optimal_q(mdp, rewards)
+    Qs = np.sort(np.asarray(Q), axis=-1)
+    return float(np.min(Qs[..., -1] - Qs[..., -2]))

@@ -14,7 +14,7 @@ from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives import PolicyMatchingObjective, dq_dtheta
 from factirl_opt.problems import dictionary_problem, weights_problem
 
-from conftest import greedy_gap
+from helpers import greedy_gap
 
 EPS = 1e-6
 BETA = 5.0

@@ -12,7 +12,7 @@ from solvers import SolverError
 from solvers._base import limit_step
 from solvers.gauss_newton import rescale_subproblems
 
-from test_solvers_conformance import GN, K, N, exact_step, linear_problem
+from solver_problems import GN, K, N, exact_step, linear_problem
 
 
 def counting(residual_fn, jacobian_fn, n, k):
@@ -280,7 +280,7 @@ def test_compiled_block_qps_are_shared_per_thread_and_results_do_not_depend_on_h
 
     from solvers.gauss_newton import compiled_block_qp
 
-    from test_solvers_conformance import exp_problem
+    from solver_problems import exp_problem
 
     name = "gn-qp-osqp-nonneg"  # OSQP warm-starts; the nonneg variant has an active set
     runs = []

@@ -7,7 +7,7 @@ import pytest
 import solvers
 from solvers.gn_cg import cg_normal_equations
 
-from test_solvers_conformance import K, N, exact_step, exp_problem, least_squares_problem, linear_problem
+from solver_problems import K, N, exact_step, exp_problem, least_squares_problem, linear_problem
 
 
 def _explicit(A, r, lam):

@@ -8,7 +8,7 @@ import pytest
 import solvers
 from solvers.lbfgs import lbfgs_direction
 
-from test_solvers_conformance import exp_problem
+from solver_problems import exp_problem
 
 
 def quadratic_rows(rng, n=5, p=8, cond=50.0):

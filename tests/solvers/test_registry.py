@@ -12,7 +12,7 @@ from solvers.gauss_newton import reduce_least_squares, safe_step
 from solvers.qp_cvxpy import CvxpyBlockQP
 from solvers.qp_direct import DirectBlockQP
 
-from test_solvers_conformance import K, N, exact_step, linear_problem
+from solver_problems import K, N, exact_step, linear_problem
 
 EXPECTED = {
     "armijo",
