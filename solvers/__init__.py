@@ -57,8 +57,12 @@ Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.
 *available* when its backend (and cvxpy) is installed.
 """
 
+from __future__ import annotations
+
 import importlib.util
 import inspect
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from ._base import Linearization, SolverResult, StepProblem, StepSolver
 from ._blockqp import BACKENDS, CONSTRAINTS
@@ -98,10 +102,17 @@ __all__ = [
 ]
 
 #: name -> (factory, default options, required importable modules)
-_REGISTRY = {}
+_REGISTRY: dict[str, tuple[Callable[..., StepSolver], dict[str, Any], tuple[str, ...]]] = {}
 
 
-def register_solver(name, factory=None, *, requires=(), overwrite=False, **defaults):
+def register_solver(
+    name: str,
+    factory: Callable[..., StepSolver] | None = None,
+    *,
+    requires: tuple[str, ...] = (),
+    overwrite: bool = False,
+    **defaults: Any,
+) -> Any:
     """Register a step-solver factory under ``name``; usable as a decorator.
 
     Parameters
@@ -130,7 +141,7 @@ def register_solver(name, factory=None, *, requires=(), overwrite=False, **defau
     if isinstance(requires, str) or not all(isinstance(m, str) and m for m in requires):
         raise SolverOptionError(f"requires of solver {name!r} must be a tuple of module names; got {requires!r}")
 
-    def decorate(f):
+    def decorate(f: Any) -> Any:
         if not callable(f):
             raise SolverOptionError(f"solver factory for {name!r} must be callable; got {type(f).__name__}")
         if name in _REGISTRY and not overwrite:
@@ -141,32 +152,32 @@ def register_solver(name, factory=None, *, requires=(), overwrite=False, **defau
     return decorate if factory is None else decorate(factory)
 
 
-def unregister_solver(name):
+def unregister_solver(name: str) -> None:
     """Remove ``name`` from the registry."""
     if not isinstance(name, str) or name not in _REGISTRY:
         raise UnknownSolverError(f"unknown solver {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
     del _REGISTRY[name]
 
 
-def _missing(requires):
+def _missing(requires: tuple[str, ...]) -> list[str]:
     return [m for m in requires if importlib.util.find_spec(m) is None]
 
 
-def registered_solvers():
+def registered_solvers() -> list[str]:
     """All registered names, whether or not their backend is installed (sorted)."""
     return sorted(_REGISTRY)
 
 
-def available_solvers():
+def available_solvers() -> list[str]:
     """Registered names whose backend is installed (sorted)."""
     return sorted(n for n, (_, _, req) in _REGISTRY.items() if not _missing(req))
 
 
-def _factory_name(factory):
+def _factory_name(factory: Any) -> str:
     return f"{getattr(factory, '__module__', '?')}.{getattr(factory, '__qualname__', repr(factory))}"
 
 
-def _check_accepted(name, factory, kwargs, options):
+def _check_accepted(name: str, factory: Any, kwargs: dict[str, Any], options: dict[str, Any]) -> None:
     """Raise SolverOptionError when ``factory`` cannot take the options ``kwargs``."""
     try:
         signature = inspect.signature(factory)
@@ -180,7 +191,7 @@ def _check_accepted(name, factory, kwargs, options):
         raise SolverOptionError(f"solver {name!r} does not accept option(s) {', '.join(bad)}; its options are: {', '.join(accepted)}") from None
 
 
-def get_solver(name, **options):
+def get_solver(name: str, **options: Any) -> StepSolver:
     """A new solver instance for a registered ``name``, with ``options`` over its defaults.
 
     Raises
@@ -224,7 +235,7 @@ def get_solver(name, **options):
     return solver
 
 
-def resolve_solver(solver, options=None, /, **kwargs):
+def resolve_solver(solver: str | StepSolver, options: Mapping[str, Any] | None = None, /, **kwargs: Any) -> StepSolver:
     """A solver from a registered name or a :class:`StepSolver` instance (returned as is).
 
     Parameters

@@ -7,11 +7,14 @@ Gauss-Newton steps share one outer loop, :meth:`StepSolver.run`, and one stoppin
 :func:`solvers.stopping.has_converged`.
 """
 
+from __future__ import annotations
+
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .exceptions import SolverError, SolverOptionError
 from ._validation import check_number
@@ -57,7 +60,7 @@ class StepProblem:
     residual_jacobian: Optional[Callable] = None
     linearize: Optional[Callable] = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize"):
             value = getattr(self, name)
             if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize")):
@@ -90,8 +93,8 @@ class Linearization:
     gradient of the loss is ``2 J_i^T r_i = 2 vjp(residual)``.
     """
 
-    loss: np.ndarray
-    residual: np.ndarray
+    loss: NDArray[np.float64]
+    residual: NDArray[np.float64]
     jvp: Callable
     vjp: Callable
 
@@ -128,13 +131,13 @@ class SolverResult:
         holds no gradient.
     """
 
-    coefficients: np.ndarray
+    coefficients: NDArray[np.float64]
     status: str
     iterations: int
     solve_time: float
-    loss: np.ndarray
+    loss: NDArray[np.float64]
     n_evaluations: int
-    loss_history: list = field(default_factory=list)
+    loss_history: list[float] = field(default_factory=list)
     state: Any = None
     reason: str = ""
     gradient_norm: float = float("nan")
@@ -157,20 +160,20 @@ class StepSolver:
         initialisation.
     """
 
-    name = "base"
-    needs_jacobian = False
-    needs_linearization = False
-    constraint = "none"
+    name: str = "base"
+    needs_jacobian: bool = False
+    needs_linearization: bool = False
+    constraint: str = "none"
 
-    def project(self, x):
+    def project(self, x: ArrayLike) -> NDArray[np.float64]:
         """Map parameters to the solver's feasible set (identity when unconstrained)."""
         return np.asarray(x, dtype=np.float64)
 
-    def penalty(self, x):
+    def penalty(self, x: ArrayLike) -> NDArray[np.float64]:
         """Per-row penalty the solver adds to the loss (zero when there is none), shape (n,)."""
         return np.zeros(np.shape(x)[0])
 
-    def for_alternating(self):
+    def for_alternating(self) -> StepSolver:
         """The solver to use as one block of an alternating scheme (FactIRL's H-step in fit).
 
         In alternating minimisation the sub-problem over H need not (and, while D is still
@@ -179,7 +182,7 @@ class StepSolver:
         """
         return self
 
-    def gradient(self, state):
+    def gradient(self, state: Any) -> NDArray[np.float64] | None:
         """Gradient of every row's smooth objective at the state's point, shape (n, p), or None.
 
         The default reads ``state.grad`` (None when the state has none: the run then stops by
@@ -188,7 +191,7 @@ class StepSolver:
         """
         return getattr(state, "grad", None)
 
-    def optimality(self, x, grad):
+    def optimality(self, x: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
         """First-order optimality measure of every row, shape (n,): zero at a stationary point.
 
         The norm of the gradient for an unconstrained solver; of the projected gradient for
@@ -206,7 +209,7 @@ class StepSolver:
             g = np.where((np.asarray(x) <= 0.0) & (g > 0.0), 0.0, g)
         return row_norms(g)
 
-    def _gradient_norm(self, x, state):
+    def _gradient_norm(self, x: NDArray[np.float64], state: Any) -> float:
         """Total optimality measure over all rows (the gradient rule's norm): inf on overflow,
         NaN when the solver's state has no gradient."""
         grad = self.gradient(state)
@@ -216,7 +219,7 @@ class StepSolver:
             norm = float(row_norms(self.optimality(x, grad)[None])[0])
         return norm if np.isfinite(norm) else np.inf
 
-    def carry_over(self, state):
+    def carry_over(self, state: Any) -> Any:
         """What of a run's final ``state`` should warm-start a run on a *changed* problem.
 
         In an alternating scheme a block's sub-problem changes between two of its runs (the
@@ -227,14 +230,23 @@ class StepSolver:
         """
         return state
 
-    def init_state(self, problem, x, previous=None):  # pragma: no cover - interface
+    def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> Any:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def update(self, problem, x, state):  # pragma: no cover - interface
+    def update(self, problem: StepProblem, x: NDArray[np.float64], state: Any) -> tuple[NDArray[np.float64], Any, bool]:  # pragma: no cover - interface
         """One step for every row; returns ``(x_new, state, progressed)``."""
         raise NotImplementedError
 
-    def run(self, problem, x0, max_iter, state=None, tol=0.0, callback=None, gtol=0.0):
+    def run(
+        self,
+        problem: StepProblem,
+        x0: ArrayLike,
+        max_iter: int,
+        state: Any = None,
+        tol: float = 0.0,
+        callback: Callable[[int, float], Any] | None = None,
+        gtol: float = 0.0,
+    ) -> SolverResult:
         """Take up to ``max_iter`` steps from ``x0``, stopping early by the rules of :mod:`solvers.stopping`.
 
         Parameters
@@ -278,10 +290,10 @@ class StepSolver:
             gnorm = self._gradient_norm(x, state)
             if callback is not None:
                 callback(it, history[-1])
-            status, reason = _stop_reason(progressed, history, gnorm, g0, tol, gtol)
-            if status is not None:
+            stopped = _stop_reason(progressed, history, gnorm, g0, tol, gtol)
+            if stopped is not None:
+                status, reason = stopped
                 break
-            status, reason = "max_iter", f"max_iter={max_iter} steps taken"
         return SolverResult(
             coefficients=x,
             status=status,
@@ -295,7 +307,7 @@ class StepSolver:
             gradient_norm=gnorm,
         )
 
-    def _check_run(self, problem, x0, max_iter, tol, callback):
+    def _check_run(self, problem: Any, x0: ArrayLike, max_iter: int, tol: float, callback: Any) -> NDArray[np.float64]:
         """Validate the arguments of :meth:`run`; the projected starting point."""
         if not isinstance(problem, StepProblem):
             raise SolverOptionError(f"{self.name}: problem must be a StepProblem; got {type(problem).__name__}")
@@ -314,14 +326,14 @@ class StepSolver:
             raise SolverOptionError(f"{self.name}: callback must be callable; got {type(callback).__name__}")
         return self.project(x)
 
-    def _total(self, state):
+    def _total(self, state: Any) -> float:
         total = float(np.sum(state.loss))
         if not np.isfinite(total):
             raise SolverError(f"{self.name}: the total objective is not finite ({total}); the solver must reject such points")
         return total
 
 
-def row_norms(a):
+def row_norms(a: ArrayLike) -> NDArray[np.float64]:
     """Euclidean norm of every row of ``a`` (n, p), without underflow or needless overflow.
 
     Each row is divided by its largest magnitude before squaring, so gradients of 1e-200 (a
@@ -334,18 +346,20 @@ def row_norms(a):
         return np.where(np.isfinite(top), safe * np.sqrt(np.sum(np.square(a / safe[:, None]), axis=1)), np.inf)
 
 
-def _stop_reason(progressed, history, gnorm, g0, tol, gtol):
-    """``(status, reason)`` of a run after a step, or ``(None, None)`` to go on."""
+def _stop_reason(
+    progressed: bool, history: list[float], gnorm: float, g0: float, tol: float, gtol: float
+) -> tuple[str, str] | None:
+    """``(status, reason)`` of a run after a step, or None to go on."""
     if not progressed:
         return "stalled", "stalled: no row could decrease its objective"
     if has_converged(history[-2], history[-1], tol):
         return "converged", f"relative decrease {relative_decrease(history[-2], history[-1]):.3g} <= tol={tol:g}"
     if not (np.isnan(gnorm) or np.isnan(g0)) and gradient_converged(gnorm, g0, gtol):
         return "converged", f"gradient norm {gnorm:.3g} <= gtol={gtol:g} x initial {g0:.3g}"
-    return None, None
+    return None
 
 
-def update_damping(solver, state, acc, rej, n):
+def update_damping(solver: Any, state: Any, acc: NDArray[np.intp], rej: NDArray[np.intp], n: int) -> NDArray[np.bool_]:
     """Levenberg-Marquardt damping after a trial step; returns the rows that may retry.
 
     Accepted rows ``acc`` shrink ``state.lam`` by ``solver.lam_down`` (not below
@@ -360,7 +374,9 @@ def update_damping(solver, state, acc, rej, n):
     return retry
 
 
-def limit_step(x, z, max_step_norm):
+def limit_step(
+    x: NDArray[np.float64], z: NDArray[np.float64], max_step_norm: float | None
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Shorten every row's step ``z_i - x_i`` to at most ``max_step_norm * max(1, ||x_i||)``.
 
     A trust-region-like cap shared by the solvers: rows within the radius are returned

@@ -1,6 +1,6 @@
 """The block-separable QP of one Gauss-Newton H-step, shared by every backend.
 
-After the per-task QR reduction (see :func:`solvers.gauss_newton.reduce_least_squares`) the
+After the per-task QR reduction (see :func:`solvers.gn_subproblem.reduce_least_squares`) the
 subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is
 
     minimise  ||R_i z_i - b_i||^2  [+ alpha_i ||z_i||_1]     subject to  [z_i >= 0]

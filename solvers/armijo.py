@@ -7,11 +7,15 @@ keeps the reduced size. With ``nonneg=True`` the step is projected onto ``x >= 0
 gradient with the Armijo condition on the actual displacement).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from ._base import StepSolver
+from ._base import StepProblem, StepSolver
 from ._validation import boolean, check_evaluation, integer, number, option, validate_fields
 
 __all__ = ["ArmijoSolver", "ArmijoState"]
@@ -67,13 +71,13 @@ class ArmijoSolver(StepSolver):
 
     name = "armijo"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         validate_fields(self, "armijo-nonneg" if self.nonneg is True else "armijo")
         if self.nonneg:
             self.name = "armijo-nonneg"
             self.constraint = "nonneg"
 
-    def project(self, x):
+    def project(self, x: ArrayLike) -> NDArray[np.float64]:
         x = np.asarray(x, dtype=np.float64)
         return np.maximum(x, 0.0) if self.nonneg else x
 
@@ -82,15 +86,16 @@ class ArmijoSolver(StepSolver):
         loss, (grad,), finite = check_evaluation(self.name, "loss_and_grad", rows, loss, grad, shapes=[(problem.n_params,)], start=start)
         return loss, grad, finite
 
-    def init_state(self, problem, x, previous=None):
+    def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> ArmijoState:
         loss, grad, _ = self._evaluate(problem, x, np.arange(problem.n_rows), start=True)
-        if previous is not None and np.shape(getattr(previous, "step", None)) == (problem.n_rows,):
-            step = previous.step.copy()
+        previous_step: Any = getattr(previous, "step", None)
+        if previous is not None and np.shape(previous_step) == (problem.n_rows,):
+            step = previous_step.copy()
         else:
             step = np.full(problem.n_rows, float(self.initial_step))
         return ArmijoState(loss=loss, grad=grad, step=step)
 
-    def update(self, problem, x, state):
+    def update(self, problem: StepProblem, x: NDArray[np.float64], state: ArmijoState) -> tuple[NDArray[np.float64], ArmijoState, bool]:
         x_new = x.copy()
         loss, grad, step = state.loss.copy(), state.grad.copy(), state.step.copy()
         rows = np.arange(problem.n_rows)

@@ -10,6 +10,8 @@ so code written against plain Python conventions keeps working.
 re-raises them as the library's own family.
 """
 
+from __future__ import annotations
+
 __all__ = ["SolversError", "SolverError", "UnknownSolverError", "SolverOptionError", "MissingBackendError"]
 
 
@@ -25,7 +27,7 @@ class SolverError(SolversError, RuntimeError):
 class UnknownSolverError(SolversError, KeyError):
     """A solver name is not in the registry; the message lists the available ones."""
 
-    def __str__(self):  # KeyError quotes its argument; keep the message readable
+    def __str__(self) -> str:  # KeyError quotes its argument; keep the message readable
         return str(self.args[0]) if self.args else ""
 
 

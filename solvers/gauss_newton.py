@@ -1,4 +1,4 @@
-"""Gauss-Newton / Levenberg-Marquardt steps whose subproblem is a QP (DESIGN section 3).
+"""Gauss-Newton / Levenberg-Marquardt steps whose subproblem is a QP (docs/maths.md §5).
 
 For each task (row) ``i`` with residuals ``r_i`` (m,) and Jacobian ``J_i = dr_i/dh`` (m, k) at
 the current coefficients ``h_i`` (forward mode with k right-hand sides, from
@@ -8,14 +8,14 @@ the current coefficients ``h_i`` (forward mode with k right-hand sides, from
               [subject to h_i + delta >= 0]              (constraint="nonneg")
               [+ alpha ||h_i + delta||_1]                (constraint="sparse")
 
-Before any QP solver sees it, the (m + k, k) least squares is reduced to a k x k factor: with
-``[J_i; sqrt(lam_i) I] = Q_i R_i`` (QR) and ``c_i = Q_i^T [r_i; 0]``, the objective is
-``||R_i z - b_i||^2 + const`` over the new coefficients ``z = h_i + delta``, where
-``b_i = R_i h_i - c_i``. All tasks' reduced subproblems of one step are solved together as one
-block-separable QP (:mod:`solvers.qp_cvxpy`, compiled once per shape; or
-:mod:`solvers.qp_direct`). For the constrained variants the backend's solution is then made
-exact on its active set (:func:`solvers._blockqp.refine_active_set`: exact zeros, checked
-against the KKT conditions), so the sparse variant reports true zeros whatever the backend.
+Before any QP solver sees it, the (m + k, k) least squares is reduced to a k x k triangular
+factor ``||R_i z - b_i||^2`` over the new coefficients ``z = h_i + delta``
+(:func:`solvers.gn_subproblem.reduce_least_squares`). All tasks' reduced subproblems of one
+step are solved together as one block-separable QP (:mod:`solvers.qp_cvxpy`, compiled once
+per shape; or :mod:`solvers.qp_direct`). For the constrained variants the backend's solution
+is then made exact on its active set (:func:`solvers._blockqp.refine_active_set`: exact
+zeros, checked against the KKT conditions), so the sparse variant reports true zeros whatever
+the backend.
 
 Levenberg-Marquardt: a task's step is accepted if its true objective (loss plus penalty)
 drops and is finite; then ``lam_i`` shrinks by ``lam_down``; otherwise the step is rejected and
@@ -44,19 +44,28 @@ relative step seen in the well-behaved runs of the tests. A row whose Jacobian o
 exactly zero has a zero step: it makes no progress (and is not evaluated).
 """
 
-import collections
+from __future__ import annotations
+
 import importlib.util
-import threading
-import time
 import warnings
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from ._base import StepSolver, limit_step, row_norms, update_damping
+from ._base import StepProblem, StepSolver, limit_step, row_norms, update_damping
 from ._blockqp import BACKENDS, CONSTRAINTS, DATA_LIMIT, check_backend, check_constraint, refine_active_set
 from ._validation import check_evaluation, check_number, choice, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
+from .gn_subproblem import (
+    COMPILED_CACHE_SIZE,  # re-exported; the cache reads solvers.gn_subproblem.COMPILED_CACHE_SIZE
+    compiled_block_qp,
+    reduce_least_squares,
+    rescale_subproblems,
+    safe_step,
+    unconstrained_step_norm,
+)
 
 __all__ = [
     "GaussNewtonSolver",
@@ -72,7 +81,7 @@ INTERFACES = ("cvxpy", "direct")
 FALLBACKS = ("backend", "safe-step", "none")
 
 
-def qp_solver_name(backend, constraint="none", interface="cvxpy"):
+def qp_solver_name(backend: str, constraint: str = "none", interface: str = "cvxpy") -> str:
     """The name of a Gauss-Newton QP solver: ``gn-qp-{backend}[-{constraint}][-direct]``.
 
     The one place the pattern is built: the registry registers ``qp_solver_name(b, c)`` for
@@ -88,38 +97,6 @@ def qp_solver_name(backend, constraint="none", interface="cvxpy"):
     check_constraint(constraint)
     name = f"gn-qp-{backend}" + ("" if constraint == "none" else f"-{constraint}")
     return name + ("-direct" if interface == "direct" else "")
-
-
-#: compiled block QPs kept per thread (see :func:`compiled_block_qp`)
-COMPILED_CACHE_SIZE = 16
-_compiled = threading.local()
-
-
-def compiled_block_qp(interface, n, k, constraint):
-    """The block QP of ``n`` tasks x ``k`` coefficients, compiled once per thread and shape.
-
-    Compiling costs up to seconds (cvxpy canonicalises the parametrised problem on its first
-    solve: 3.5 s for 100 tasks x 15 coefficients, against 10 ms per later solve), and every
-    new solver object (one per ``GradIRL``/``FactIRL`` fit) would pay it again. The problems
-    only hold parameter values between calls, so one compiled problem serves every solver of
-    a thread in turn; each thread has its own (no sharing between concurrent fits). The
-    ``COMPILED_CACHE_SIZE`` most recently built shapes are kept.
-    """
-    cache = getattr(_compiled, "problems", None)
-    if cache is None:
-        cache = _compiled.problems = collections.OrderedDict()
-    key = (interface, n, k, constraint)
-    if key in cache:
-        cache.move_to_end(key)
-        return cache[key]
-    if interface == "cvxpy":
-        from .qp_cvxpy import CvxpyBlockQP as cls
-    else:
-        from .qp_direct import DirectBlockQP as cls
-    cache[key] = cls(n, k, constraint)
-    while len(cache) > COMPILED_CACHE_SIZE:
-        cache.popitem(last=False)
-    return cache[key]
 
 
 class QPFallbackWarning(RuntimeWarning):
@@ -152,67 +129,15 @@ class GaussNewtonState:
         Row steps the step bound acted on (damping raised or step shortened).
     """
 
-    loss: np.ndarray
-    residual: np.ndarray
-    jacobian: np.ndarray
-    lam: np.ndarray
-    scale: np.ndarray = None
+    loss: NDArray[np.float64]
+    residual: NDArray[np.float64]
+    jacobian: NDArray[np.float64]
+    lam: NDArray[np.float64]
+    scale: NDArray[np.float64]
     qp_time: float = 0.0
     qp_solves: int = 0
     qp_failures: int = 0
     bounded_steps: int = 0
-
-
-def reduce_least_squares(jacobian, residual, coefficients, lam):
-    """Reduce each row's damped least squares to a k x k triangular factor (QR).
-
-    ``||r + J (z - h)||^2 + lam ||z - h||^2 = ||R z - b||^2 + ||r_perp||^2`` for all z, with
-    ``[J; sqrt(lam) I] = Q R`` and ``b = R h - Q^T [r; 0]``.
-
-    Parameters
-    ----------
-    jacobian : ndarray, shape (n, m, k)
-    residual : ndarray, shape (n, m)
-    coefficients : ndarray, shape (n, k)
-        ``h``.
-    lam : ndarray, shape (n,)
-        Damping (>= 0).
-
-    Returns
-    -------
-    R : ndarray, shape (n, k, k)
-        Upper triangular.
-    b : ndarray, shape (n, k)
-    """
-    n, m, k = jacobian.shape
-    M = np.concatenate([jacobian, np.sqrt(lam)[:, None, None] * np.eye(k)[None]], axis=1)
-    Q, R = np.linalg.qr(M)  # batched, reduced: Q (n, m+k, k), R (n, k, k)
-    c = np.einsum("nmk,nm->nk", Q[:, :m], residual)
-    b = np.einsum("nij,nj->ni", R, coefficients) - c
-    return R, b
-
-
-def safe_step(R, b, coefficients, constraint="none", alpha=0.0):
-    """One proximal-gradient step on ``||R z - b||^2 [+ alpha ||z||_1]`` from ``h`` (no QP solver).
-
-    With step ``1 / L``, ``L = 2 ||R||_2^2`` (the gradient's Lipschitz constant), the step cannot
-    increase the (damped) model; it is the fallback when every QP backend failed.
-
-    Returns
-    -------
-    z : ndarray, shape (n, k)
-        Feasible for ``constraint``.
-    """
-    h = np.asarray(coefficients, dtype=np.float64)
-    L = 2.0 * np.linalg.norm(R, ord=2, axis=(1, 2)) ** 2
-    L = np.where(L > 0, L, 1.0)
-    grad = 2.0 * np.einsum("nji,nj->ni", R, np.einsum("nij,nj->ni", R, h) - b)
-    z = h - grad / L[:, None]
-    if constraint == "nonneg":
-        z = np.maximum(z, 0.0)
-    elif constraint == "sparse":
-        z = np.sign(z) * np.maximum(np.abs(z) - alpha / L[:, None], 0.0)
-    return z
 
 
 @dataclass
@@ -291,33 +216,33 @@ class GaussNewtonSolver(StepSolver):
     lam_max: float = option(1e10, number(low=0.0, low_open=True))
     max_retries: int = option(10, integer(low=0))
     xtol: float = option(1e-12, number(low=0.0))
-    tolerance: dict = option(None, lambda value, name, owner: _check_tolerance(value, owner))
+    tolerance: dict[str, float] = option(None, lambda value, name, owner: _check_tolerance(value, owner))
     max_qp_iter: int = option(10000, integer(low=1))
-    alternating_damping: float = option(1.0, optional(number(low=0.0, low_open=True)))
+    alternating_damping: float | None = option(1.0, optional(number(low=0.0, low_open=True)))
     alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
     max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
-    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _cache: dict[tuple[str, int, int, str], Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     needs_jacobian = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         valid = self.backend in BACKENDS and self.constraint in CONSTRAINTS
         validate_fields(self, qp_solver_name(self.backend, self.constraint) if valid else "gn-qp")
         self.name = qp_solver_name(self.backend, self.constraint, self.interface)
         if not self.lam_min < self.lam_max:
             raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
 
-    def for_alternating(self):
+    def for_alternating(self) -> GaussNewtonSolver:
         """A proximal copy (``alternating_damping``, ``alternating_lam_down``) for FactIRL's fit."""
         if self.alternating_damping is None:
             return self
         return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
 
-    def gradient(self, state):
+    def gradient(self, state: GaussNewtonState) -> NDArray[np.float64]:
         """``2 J_i^T r_i`` of the least-squares part (the penalty is handled by :meth:`optimality`)."""
         return 2.0 * np.einsum("nmk,nm->nk", state.jacobian, state.residual)
 
-    def optimality(self, x, grad):
+    def optimality(self, x: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
         """The projected gradient (nonneg) or the minimum-norm subgradient of ``f + alpha ||x||_1`` (sparse)."""
         if self.constraint != "sparse":
             return super().optimality(x, grad)
@@ -326,12 +251,12 @@ class GaussNewtonSolver(StepSolver):
         return row_norms(np.where(x != 0.0, g + self.alpha * np.sign(x), at_zero))
 
     # -- constraint handling shared with the learners ---------------------------------------
-    def project(self, x):
+    def project(self, x: ArrayLike) -> NDArray[np.float64]:
         """Map coefficients to the feasible set: ``max(x, 0)`` for the nonneg variant."""
         x = np.asarray(x, dtype=np.float64)
         return np.maximum(x, 0.0) if self.constraint == "nonneg" else x
 
-    def penalty(self, x):
+    def penalty(self, x: ArrayLike) -> NDArray[np.float64]:
         """``alpha ||x_i||_1`` per row for the sparse variant, zeros otherwise; shape (n,)."""
         x = np.asarray(x, dtype=np.float64)
         if self.constraint == "sparse":
@@ -339,20 +264,22 @@ class GaussNewtonSolver(StepSolver):
         return np.zeros(x.shape[0])
 
     # -- the block QP -------------------------------------------------------------------------
-    def _block_qp(self, n, k):
+    def _block_qp(self, n: int, k: int) -> Any:
         """The compiled block QP of this shape: from this solver's cache, else this thread's."""
         key = (self.interface, n, k, self.constraint)
         if key not in self._cache:
             self._cache[key] = compiled_block_qp(*key)
         return self._cache[key]
 
-    def _backends(self):
+    def _backends(self) -> list[str]:
         order = [self.backend]
         if self.fallback == "backend":
             order += [b for b in BACKENDS if b != self.backend and importlib.util.find_spec(b) is not None]
         return order if self.fallback != "safe-step" else order[:1]
 
-    def solve_subproblems(self, R, b, x, state=None):
+    def solve_subproblems(
+        self, R: NDArray[np.float64], b: NDArray[np.float64], x: NDArray[np.float64], state: GaussNewtonState | None = None
+    ) -> NDArray[np.float64] | None:
         """Solve the reduced subproblems of every row, with the failure handling.
 
         Parameters
@@ -429,7 +356,7 @@ class GaussNewtonSolver(StepSolver):
             raise SolverError(f"{self.name}: problem.residual_jacobian returned residuals {r.shape} and a Jacobian {J.shape}")
         return loss + self.penalty(x), r, J, finite
 
-    def init_state(self, problem, x, previous=None):
+    def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> GaussNewtonState:
         if problem.residual_jacobian is None:
             raise SolverOptionError(f"solver {self.name!r} needs a least-squares problem (StepProblem.residual_jacobian is None)")
         rows = np.arange(problem.n_rows)
@@ -443,7 +370,7 @@ class GaussNewtonSolver(StepSolver):
                 f"{np.max(np.abs(J[bad])):.3g}); rescale the problem"
             )
         scale[~(scale > 0)] = 1.0
-        lam = getattr(previous, "lam", None)
+        lam: Any = getattr(previous, "lam", None)
         if not (np.shape(lam) == (problem.n_rows,) and np.all(np.isfinite(lam)) and np.all(lam > 0)):
             lam = self.damping * scale
         lam = np.maximum(np.clip(lam, self.lam_min * scale, self.lam_max * scale), np.finfo(np.float64).tiny)
@@ -453,7 +380,7 @@ class GaussNewtonSolver(StepSolver):
         """The reduced factors of every row, after enforcing the step bound on ``lam``."""
         R, b = reduce_least_squares(state.jacobian, state.residual, x, state.lam)
         radius = self.max_step_norm * np.maximum(1.0, np.linalg.norm(x, axis=1))
-        far = ~(_unconstrained_step_norm(R, b, x) <= radius)  # too long, or not finite
+        far = ~(unconstrained_step_norm(R, b, x) <= radius)  # too long, or not finite
         if far.any():
             J, r = state.jacobian[far], state.residual[far]
             g = np.linalg.norm(np.einsum("nmk,nm->nk", J, r), axis=1)
@@ -463,7 +390,9 @@ class GaussNewtonSolver(StepSolver):
             state.bounded_steps += int(far.sum())
         return R, b
 
-    def update(self, problem, x, state):
+    def update(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonState
+    ) -> tuple[NDArray[np.float64], GaussNewtonState, bool]:
         n, k = x.shape
         x = x.copy()
         retry = np.ones(n, dtype=bool)  # rows allowed to try in this round
@@ -501,7 +430,7 @@ class GaussNewtonSolver(StepSolver):
         return x, state, bool(accepted_any or converged_all)
 
 
-def _check_tolerance(value, owner):
+def _check_tolerance(value: Any, owner: str) -> dict[str, float]:
     """The ``tolerance`` option: None or a dict from backend names to accuracies."""
     if value is None:
         return {}
@@ -514,51 +443,3 @@ def _check_tolerance(value, owner):
     return dict(value)
 
 
-def _unconstrained_step_norm(R, b, x):
-    """``||R_i^{-1} b_i - x_i||`` per row: the length of the unconstrained damped step (inf
-    where it cannot be computed)."""
-    with np.errstate(all="ignore"):
-        try:
-            z = np.linalg.solve(R, b[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # an exactly singular row: solve row by row
-            z = np.full_like(x, np.inf)
-            for i in range(x.shape[0]):
-                try:
-                    z[i] = np.linalg.solve(R[i], b[i])
-                except np.linalg.LinAlgError:
-                    pass
-        norm = np.linalg.norm(z - x, axis=1)
-    return np.where(np.isfinite(norm), norm, np.inf)
-
-
-def rescale_subproblems(R, b, alpha=0.0):
-    """Scale every row's reduced subproblem to unit size, without changing its minimiser.
-
-    With ``s_i = max|R_i|`` (1 where zero), ``||R_i z - b_i||^2 + a_i ||z||_1 = s_i^2 (||R_i z / s_i
-    - b_i / s_i||^2 + (a_i / s_i^2) ||z||_1)``, so the backends' absolute tolerances mean the
-    same thing for a tiny Jacobian (near a fit). The scaled L1 weight is capped at
-    ``2 ||(R_i / s_i)^T (b_i / s_i)||_inf``, the smallest weight for which ``z = 0`` is the
-    minimiser: every larger weight has the same minimiser (zero), so the cap changes nothing
-    but keeps the weight finite when ``s_i`` is tiny.
-
-    Parameters
-    ----------
-    R : ndarray, shape (n, k, k)
-    b : ndarray, shape (n, k)
-    alpha : float or ndarray, shape (n,)
-        L1 weight (0 for the smooth variants).
-
-    Returns
-    -------
-    Rs : ndarray, shape (n, k, k)
-    bs : ndarray, shape (n, k)
-    alphas : ndarray, shape (n,)
-    """
-    s = np.max(np.abs(R), axis=(1, 2))
-    s[~(s > 0)] = 1.0
-    Rs, bs = R / s[:, None, None], b / s[:, None]
-    a = np.broadcast_to(np.asarray(alpha, dtype=np.float64), s.shape)
-    zero_at = 2.0 * np.max(np.abs(np.einsum("nji,nj->ni", Rs, bs)), axis=1)
-    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-        alphas = np.where(a > 0, np.minimum(a / s**2, zero_at), 0.0)
-    return Rs, bs, alphas

@@ -26,11 +26,15 @@ Rows accepted at different steps hold linearisations from different calls of
 one-row D-step, and in any step where every row moved together).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field, replace
+from typing import Any, Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
-from ._base import StepSolver, limit_step, update_damping
+from ._base import StepProblem, StepSolver, limit_step, update_damping
 from ._validation import check_evaluation, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
 
@@ -81,7 +85,7 @@ class _Linearizations:
         return self._apply("vjp", U, rows, p)
 
 
-def product(owner, lin, kind, V, width):
+def product(owner: str, lin: Any, kind: str, V: NDArray[np.float64], width: int) -> NDArray[np.float64]:
     """``lin.jvp(V)`` or ``lin.vjp(V)`` as float64 of shape (len(V), width), checked."""
     out = np.asarray(getattr(lin, kind)(V), dtype=np.float64)
     if out.shape != (len(V), width):
@@ -89,7 +93,14 @@ def product(owner, lin, kind, V, width):
     return out
 
 
-def cg_normal_equations(jvp, vjp, grad, lam, max_iter, tol):
+def cg_normal_equations(
+    jvp: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    vjp: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    grad: NDArray[np.float64],
+    lam: NDArray[np.float64],
+    max_iter: int,
+    tol: float,
+) -> tuple[NDArray[np.float64], NDArray[np.intp], int]:
     """Solve ``(J_i^T J_i + lam_i I) delta_i = -g_i`` for every row by conjugate gradients.
 
     Parameters
@@ -246,12 +257,12 @@ class GaussNewtonCGSolver(StepSolver):
     name = "gn-cg"
     needs_linearization = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         validate_fields(self, self.name)
         if not self.lam_min < self.lam_max:
             raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
 
-    def for_alternating(self):
+    def for_alternating(self) -> GaussNewtonCGSolver:
         """A proximal, inexact copy (``alternating_damping``, ``alternating_lam_down``,
         ``alternating_cg_tol``), or ``self`` when ``alternating_damping`` is None."""
         if self.alternating_damping is None:
@@ -259,7 +270,7 @@ class GaussNewtonCGSolver(StepSolver):
         return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down,
                        cg_tol=self.alternating_cg_tol)
 
-    def gradient(self, state):
+    def gradient(self, state: GaussNewtonCGState) -> NDArray[np.float64]:
         """``2 J_i^T r_i`` (the state holds half the gradient)."""
         return 2.0 * state.grad
 
@@ -271,7 +282,7 @@ class GaussNewtonCGSolver(StepSolver):
         loss, (r,), finite = check_evaluation(self.name, "linearize", rows, lin.loss, lin.residual, shapes=[(None,)], start=start)
         return lin, loss, r, finite
 
-    def init_state(self, problem, x, previous=None):
+    def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> GaussNewtonCGState:
         if problem.linearize is None:
             raise SolverOptionError(f"solver {self.name!r} needs problem.linearize (a StepProblem built with linearize=...)")
         n, p = problem.n_rows, problem.n_params
@@ -279,7 +290,7 @@ class GaussNewtonCGSolver(StepSolver):
         lin, loss, r, _ = self._linearize(problem, x, rows, start=True)
         stack = _Linearizations(lin, n, self.name)
         grad = stack.vjp(r, rows, p)
-        state = GaussNewtonCGState(loss=loss, residual=r, grad=grad, lam=None, scale=None, lin=stack, n_vjp=1)
+        state = GaussNewtonCGState(loss=loss, residual=r, grad=grad, lam=np.empty(0), scale=np.empty(0), lin=stack, n_vjp=1)
         if not np.all(np.isfinite(grad)):
             bad = np.flatnonzero(~np.all(np.isfinite(grad), axis=1))
             raise SolverError(f"{self.name}: the objective returned a non-finite derivative at the starting point, rows {bad[:10].tolist()}")
@@ -289,7 +300,7 @@ class GaussNewtonCGSolver(StepSolver):
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             scale = np.einsum("nm,nm->n", Jg, Jg) / gg
         scale[~(np.isfinite(scale) & (scale > 0))] = 1.0
-        lam = getattr(previous, "lam", None)
+        lam: Any = getattr(previous, "lam", None)
         if not (np.shape(lam) == (n,) and np.all(np.isfinite(lam)) and np.all(lam > 0)):
             lam = self.damping * scale
         state.scale = scale
@@ -315,7 +326,9 @@ class GaussNewtonCGSolver(StepSolver):
         state.cg_breakdowns += broken
         return limit_step(x[rows], x[rows] + delta, self.max_step_norm)[0]
 
-    def update(self, problem, x, state):
+    def update(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState
+    ) -> tuple[NDArray[np.float64], GaussNewtonCGState, bool]:
         n, p = x.shape
         x = x.copy()
         retry = np.ones(n, dtype=bool)

@@ -31,11 +31,15 @@ Steps are bounded like the Gauss-Newton ones: ``||t d|| <= max_step_norm * max(1
 Unconstrained only (``constraint = "none"``).
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from ._base import StepSolver, limit_step
+from ._base import StepProblem, StepSolver, limit_step
 from ._validation import check_evaluation, integer, number, option, validate_fields
 
 __all__ = ["LBFGSSolver", "LBFGSState", "lbfgs_direction"]
@@ -49,6 +53,7 @@ class LBFGSState:
     ----------
     loss : ndarray, shape (n,)
     grad : ndarray, shape (n, p)
+        None in a state returned by :meth:`LBFGSSolver.carry_over`.
     s, y : ndarray, shape (n, memory, p)
         Curvature pairs, oldest first; row ``i`` holds ``count[i]`` valid pairs, in the last
         slots.
@@ -71,12 +76,12 @@ class LBFGSState:
     y: np.ndarray
     rho: np.ndarray
     count: np.ndarray
-    first_scale: np.ndarray = None
+    first_scale: np.ndarray
     n_skipped: int = 0
     n_resets: int = 0
 
 
-def lbfgs_direction(grad, s, y, rho, count):
+def lbfgs_direction(grad: NDArray[np.float64], s: NDArray[np.float64], y: NDArray[np.float64], rho: NDArray[np.float64], count: NDArray[np.intp]) -> NDArray[np.float64]:
     """The L-BFGS direction ``-H g`` of every row (two-loop recursion, batched).
 
     Parameters
@@ -147,7 +152,7 @@ class LBFGSSolver(StepSolver):
 
     name = "lbfgs"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         validate_fields(self, self.name)
 
     def _evaluate(self, problem, x, rows, start=False):
@@ -155,7 +160,7 @@ class LBFGSSolver(StepSolver):
         loss, (grad,), finite = check_evaluation(self.name, "loss_and_grad", rows, loss, grad, shapes=[(problem.n_params,)], start=start)
         return loss, grad, finite
 
-    def carry_over(self, state):
+    def carry_over(self, state: Any) -> LBFGSState | None:
         """Only the scale of the steps: curvature pairs of one problem mislead L-BFGS on a changed
         one (see the module docstring). The newest pair's ``s^T y / y^T y`` of each row becomes
         the size of its first (gradient) step on the next problem."""
@@ -167,10 +172,11 @@ class LBFGSSolver(StepSolver):
         sy = np.einsum("np,np->n", state.s[:, -1], state.y[:, -1])
         yy = np.einsum("np,np->n", state.y[:, -1], state.y[:, -1])
         scale[has] = sy[has] / yy[has]  # stored pairs have s^T y > 0, hence y != 0
-        return LBFGSState(None, None, np.zeros((n, m, p)), np.zeros((n, m, p)), np.zeros((n, m)),
+        # no point: loss and grad are None (init_state evaluates them on the next problem)
+        return LBFGSState(None, None, np.zeros((n, m, p)), np.zeros((n, m, p)), np.zeros((n, m)),  # type: ignore[arg-type]
                           np.zeros(n, dtype=np.intp), first_scale=scale)
 
-    def init_state(self, problem, x, previous=None):
+    def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> LBFGSState:
         n, p, m = problem.n_rows, problem.n_params, int(self.memory)
         loss, grad, _ = self._evaluate(problem, x, np.arange(n), start=True)
         if isinstance(previous, LBFGSState) and previous.s.shape == (n, m, p):
@@ -212,7 +218,7 @@ class LBFGSSolver(StepSolver):
                 arr[rows, -1] = new
             state.count[rows] = np.minimum(state.count[rows] + 1, int(self.memory))
 
-    def update(self, problem, x, state):
+    def update(self, problem: StepProblem, x: NDArray[np.float64], state: LBFGSState) -> tuple[NDArray[np.float64], LBFGSState, bool]:
         x = x.copy()
         d, gd = self._directions(x, state)
         rows = np.flatnonzero(np.any(d != 0.0, axis=1))  # a zero gradient: nothing to do

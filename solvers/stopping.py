@@ -26,6 +26,8 @@ for the IRL objectives: Boltzmann policies saturating as the rewards grow) and r
 stationary point. ``gtol = 0`` stops only at an exactly zero gradient.
 """
 
+from __future__ import annotations
+
 import numpy as np
 
 from ._validation import check_number
@@ -41,7 +43,7 @@ def _check_values(prev, current):
     return float(prev), float(current)
 
 
-def relative_decrease(prev, current):
+def relative_decrease(prev: float, current: float) -> float:
     """Relative decrease ``(prev - current) / max(|prev|, tiny)`` of a total objective.
 
     Parameters
@@ -65,7 +67,7 @@ def relative_decrease(prev, current):
         return float((prev - current) / max(abs(prev), _TINY))
 
 
-def has_converged(prev, current, tol):
+def has_converged(prev: float, current: float, tol: float) -> bool:
     """Whether a step from ``prev`` to ``current`` decreased the objective, by at most ``tol``
     relatively: ``0 <= prev - current <= tol * max(|prev|, tiny)``.
 
@@ -91,7 +93,7 @@ def has_converged(prev, current, tol):
         return bool(0.0 <= prev - current <= tol * max(abs(prev), _TINY))
 
 
-def gradient_converged(norm, initial, gtol):
+def gradient_converged(norm: float, initial: float, gtol: float) -> bool:
     """Whether the gradient norm has fallen to at most ``gtol`` times its initial value.
 
     Parameters

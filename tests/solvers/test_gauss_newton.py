@@ -305,12 +305,12 @@ def test_compiled_block_qps_are_shared_per_thread_and_results_do_not_depend_on_h
 
 
 def test_the_compiled_cache_is_bounded(monkeypatch):
-    from solvers import gauss_newton
+    from solvers import gn_subproblem
 
-    monkeypatch.setattr(gauss_newton, "COMPILED_CACHE_SIZE", 2)
-    first = gauss_newton.compiled_block_qp("direct", 2, 1, "none")
-    gauss_newton.compiled_block_qp("direct", 3, 1, "none")
-    assert gauss_newton.compiled_block_qp("direct", 2, 1, "none") is first  # most recently used: kept
-    gauss_newton.compiled_block_qp("direct", 4, 1, "none")
-    assert gauss_newton.compiled_block_qp("direct", 2, 1, "none") is first
-    assert len(gauss_newton._compiled.problems) == 2
+    monkeypatch.setattr(gn_subproblem, "COMPILED_CACHE_SIZE", 2)
+    first = gn_subproblem.compiled_block_qp("direct", 2, 1, "none")
+    gn_subproblem.compiled_block_qp("direct", 3, 1, "none")
+    assert gn_subproblem.compiled_block_qp("direct", 2, 1, "none") is first  # most recently used: kept
+    gn_subproblem.compiled_block_qp("direct", 4, 1, "none")
+    assert gn_subproblem.compiled_block_qp("direct", 2, 1, "none") is first
+    assert len(gn_subproblem._compiled.problems) == 2

@@ -31,7 +31,7 @@ def test_has_converged_rule():
     # tol = 0: stops only when the objective stays equal
     assert not solvers.has_converged(10.0, 10.0 - 1e-12, 0.0)
     assert solvers.has_converged(10.0, 10.0, 0.0)
-    # a rise is never convergence (issue 9: the outer loop goes on and keeps its best point)
+    # a rise is never convergence (the outer loop goes on and keeps its best point)
     assert not solvers.has_converged(10.0, 10.5, 0.0) and not solvers.has_converged(10.0, 10.5, 1.0)
     assert not solvers.has_converged(-4.0, -3.9, 0.5)
     # prev = 0 is guarded (relative to tiny)
