@@ -1,4 +1,4 @@
-"""The block-separable QP of one Gauss-Newton H-step, shared by every backend.
+"""The block-separable QP of one Gauss-Newton H-step, shared by every backend (docs/maths.md §5).
 
 After the per-task QR reduction (see :func:`solvers.gn_subproblem.reduce_least_squares`) the
 subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is

@@ -1,4 +1,4 @@
-"""Gradient descent with Armijo backtracking and step-size adaptation (the paper's descent).
+"""Gradient descent with Armijo backtracking and step-size adaptation (the paper's descent; docs/maths.md §5).
 
 Section 3.2: "the learner performs a fixed amount of gradient descent on each sub-problem
 (...) with Armijo step size adaptation". Each row (task) keeps its own step size: a step

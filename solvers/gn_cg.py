@@ -1,5 +1,7 @@
 """Matrix-free Gauss-Newton / Levenberg-Marquardt steps solved by truncated conjugate gradients.
 
+The maths: docs/maths.md §5 (the D-step that uses it: §8).
+
 For each row ``i`` with residuals ``r_i`` (m,) and Jacobian ``J_i`` (m, p), never formed, the
 step solves the damped normal equations
 

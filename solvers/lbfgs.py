@@ -1,4 +1,4 @@
-"""Limited-memory BFGS, batched over rows, with an Armijo backtracking line search.
+"""Limited-memory BFGS, batched over rows, with an Armijo backtracking line search (docs/maths.md §5).
 
 Each row (a task for an H-step; the single row ``vec(D)`` of a D-step) keeps its own memory of
 the last ``memory`` curvature pairs ``s = x_new - x``, ``y = g_new - g`` and its own line

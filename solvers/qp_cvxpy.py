@@ -13,8 +13,8 @@ One :class:`CvxpyBlockQP` holds a ``cp.Problem`` over ``z`` (n*k,) for a fixed n
 parameter times a parameter-free affine expression, so the problem is DPP and cvxpy
 canonicalises it once; every later ``solve`` only maps the new parameter values to the
 backend's data (and, for OSQP, updates the cached factorisation). A fresh ``cp.Problem`` per
-task per step would cost milliseconds each; this block form costs tens of microseconds per
-task (see ``python -m factirl_opt.bench solvers``).
+task per step would pay the canonicalisation every time; the block form pays it once per
+shape (measured by ``python -m factirl_opt.bench solvers``). The maths: docs/maths.md §5.
 """
 
 import time

@@ -1,4 +1,4 @@
-"""The stopping rules of the step solvers and of the learners' outer loops.
+"""The stopping rules of the step solvers and of the learners' outer loops (docs/maths.md §5).
 
 Two rules, each with one home here; a run stops ("converged") as soon as either holds.
 
