@@ -47,6 +47,9 @@ from .objectworld import (
     plot_objectworld,
     state_action_rewards,
 )
+from .objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
+from .objectives.environments import MultiEnvironmentObjective, multi_environment_objective
+from .successors import from_successors, to_successors
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
 from .trajectories import demonstrations_from_trajectories
 
@@ -97,6 +100,14 @@ __all__ = [
     "multitask_rewards",
     "state_action_rewards",
     "plot_objectworld",
+    "ObjectWorldMaps",
+    "objectworld_maps",
+    "fresh_maps",
+    "block_cells",
+    "MultiEnvironmentObjective",
+    "multi_environment_objective",
+    "from_successors",
+    "to_successors",
     "FactIRLError",
     "ConvergenceWarning",
     "ValidationError",
