@@ -50,8 +50,8 @@ from .objectworld import (
 from .objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
 from .objectives.environments import MultiEnvironmentObjective, multi_environment_objective
 from .successors import from_successors, to_successors
-from .synthetic import SyntheticTasks
-from .task_features import TaskFeatures, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
+from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
+from .task_features import TaskFeatures
 from .trajectories import demonstrations_from_trajectories
 
 __version__ = "0.1.0"

@@ -127,8 +127,8 @@ class TaskFeatures:
     def products(self, M: ArrayLike, rows: ArrayLike | None = None) -> list[NDArray[np.float64]]:
         """Per-task ``Phi_i M`` as (S_i*A, k) matrices, e.g. the H-step's features ``Phi_i D``."""
         rows = self._rows(rows)
-        M = check_array(M, "M", ndim=2)
-        if M.shape[0] != self.n_features:
-            raise ValidationError(f"M must have shape ({self.n_features}, k); got {M.shape}")
-        dirs = self.rewards(np.broadcast_to(M, (rows.size, *M.shape)), rows)
-        return [np.reshape(d, (-1, M.shape[1])) for d in dirs]
+        Mx = check_array(M, "M", ndim=2)
+        if Mx.shape[0] != self.n_features:
+            raise ValidationError(f"M must have shape ({self.n_features}, k); got {Mx.shape}")
+        dirs = self.rewards(np.broadcast_to(Mx, (rows.size, *Mx.shape)), rows)
+        return [np.reshape(d, (-1, Mx.shape[1])) for d in dirs]
