@@ -47,7 +47,11 @@ from .objectworld import (
     plot_objectworld,
     state_action_rewards,
 )
+from .objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
+from .objectives.environments import MultiEnvironmentObjective, multi_environment_objective
+from .successors import from_successors, to_successors
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
+from .task_features import TaskFeatures
 from .trajectories import demonstrations_from_trajectories
 
 __version__ = "0.1.0"
@@ -97,6 +101,15 @@ __all__ = [
     "multitask_rewards",
     "state_action_rewards",
     "plot_objectworld",
+    "ObjectWorldMaps",
+    "objectworld_maps",
+    "fresh_maps",
+    "block_cells",
+    "MultiEnvironmentObjective",
+    "multi_environment_objective",
+    "from_successors",
+    "to_successors",
+    "TaskFeatures",
     "FactIRLError",
     "ConvergenceWarning",
     "ValidationError",
