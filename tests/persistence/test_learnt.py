@@ -1,0 +1,146 @@
+"""The learnt attributes declared on the estimator classes drive what is saved and checked."""
+
+import json
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import PersistenceError
+from factirl_opt.persistence.learnt import KINDS, SIGNATURE_KEYS, features_sha256, is_array_kind
+from factirl_opt.persistence.models import MODEL_CLASSES
+
+CONFIGURATIONS = ["gradirl-tabular", "gradirl-features", "factirl-tabular", "factirl-features", "factirl-transfer",
+                  "factirl-features-transfer"]
+
+
+def _learnt(model):
+    return {k: v for k, v in vars(model).items() if k.endswith("_") and not k.startswith("_")}
+
+
+def _rewrite(src, dst, edit):
+    with np.load(src, allow_pickle=False) as npz:
+        header = json.loads(str(npz["__header__"][()]))
+        arrays = {k: npz[k] for k in npz.files if k != "__header__"}
+    edit(header, arrays)
+    np.savez(dst, __header__=np.array(json.dumps(header)), **arrays)
+    return dst
+
+
+@pytest.mark.parametrize("cls", list(MODEL_CLASSES.values()))
+def test_declarations_use_known_kinds(cls):
+    assert cls.learnt_attributes, cls
+    for key, kind in cls.learnt_attributes.items():
+        assert key.endswith("_") and not key.startswith("_") and key.isidentifier(), key
+        assert (is_array_kind(kind) and all(isinstance(a, str) for a in kind)) or kind in KINDS, (key, kind)
+
+
+@pytest.mark.parametrize("name", CONFIGURATIONS)
+def test_every_learnt_attribute_is_declared_and_round_trips(fitted_models, name, tmp_path):
+    model = fitted_models[name]
+    attributes = _learnt(model)
+    declared = type(model).learnt_attributes
+    assert set(attributes) <= set(declared), f"{name} sets undeclared attributes {set(attributes) - set(declared)}"
+    assert {"rewards_", "loss_history_", "n_iter_", "status_", "mdp_signature_"} <= set(attributes)
+    if name.endswith("transfer"):
+        assert {k for k in declared if k.startswith("transfer_")} <= set(attributes)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+    assert set(_learnt(loaded)) == set(attributes) | {"features_sha256_"}
+    for key, value in attributes.items():
+        got = getattr(loaded, key)
+        if isinstance(value, np.ndarray):
+            assert got.dtype == value.dtype and got.shape == value.shape, key
+            np.testing.assert_array_equal(got, value, err_msg=key)
+        else:
+            assert got == value and type(got) is type(value), key
+
+
+def test_factirl_records_its_stop_reason_and_it_is_checked(fitted_models, tmp_path):
+    model = fitted_models["factirl-tabular"]
+    assert isinstance(model.stop_reason_, str) and model.stop_reason_
+    path = fo.save_model(model, tmp_path / "m.npz")
+    assert fo.load_model(path).stop_reason_ == model.stop_reason_
+    bad = _rewrite(path, tmp_path / "bad.npz", lambda h, a: h["attributes"].update(stop_reason_=["x"]))
+    with pytest.raises(PersistenceError, match=r"attribute stop_reason_ must be a string; got \['x'\]"):
+        fo.load_model(bad)
+
+
+def test_undeclared_attribute_is_refused_on_saving(fitted_models, tmp_path):
+    model = fo.load_model(fo.save_model(fitted_models["gradirl-tabular"], tmp_path / "m.npz"))
+    model.dictionary_ = np.eye(3)
+    with pytest.raises(PersistenceError, match="cannot save GradIRL: 'dictionary_' is not a learnt attribute of GradIRL"):
+        fo.save_model(model, tmp_path / "x.npz")
+    assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("weights_", np.ones((4, 7)), r"weights_ of shape \(4, 7\) disagrees with the columns of the features parameter"),
+        ("rewards_", np.ones((4, 16, 3)), r"rewards_ of shape \(4, 16, 3\) disagrees with the MDP .* axis 2 \(A\) has length 3, not 4"),
+        ("loss_", np.ones(5), r"loss_ of shape \(5,\) disagrees with axis 0 of weights_"),
+        ("loss_", np.ones((4, 1)), r"attribute loss_ must be a 1-d float array"),
+        ("n_iter_", 2.0, "attribute n_iter_ must be an integer >= 0; got 2.0"),
+        ("status_", np.array([1.0]), "attribute status_ must be a string; got an array of shape"),
+        ("features_sha256_", "ABC", "attribute features_sha256_ must be None or a SHA-256 digest"),
+    ],
+)
+def test_saved_attributes_are_checked_by_kind(fitted_models, tmp_path, key, value, match):
+    model = fo.load_model(fo.save_model(fitted_models["gradirl-features"], tmp_path / "m.npz"))
+    setattr(model, key, value)
+    with pytest.raises(PersistenceError, match=match):
+        fo.save_model(model, tmp_path / "x.npz")
+
+
+def test_files_without_the_new_attributes_still_load(fitted_models, tmp_path):
+    model = fitted_models["factirl-features"]
+    path = fo.save_model(model, tmp_path / "m.npz")
+
+    def as_old_file(header, arrays):
+        for key in ("stop_reason_", "features_sha256_", "mdp_signature_"):
+            header["attributes"].pop(key, None)
+
+    old = fo.load_model(_rewrite(path, tmp_path / "old.npz", as_old_file))
+    assert old.mdp_signature_ is None and old.features_sha256_ is None and not hasattr(old, "stop_reason_")
+    np.testing.assert_array_equal(old.dictionary_, model.dictionary_)
+    unfitted = fo.load_model(fo.save_model(fo.GradIRL(), tmp_path / "u.npz"))
+    assert not hasattr(unfitted, "features_sha256_") and not hasattr(unfitted, "mdp_signature_")
+
+
+def test_features_digest_is_saved_and_checked_against_the_features(fitted_models, grid_tasks, tmp_path):
+    _, _, _, state_features, _ = grid_tasks
+    model = fo.load_model(fo.save_model(fitted_models["factirl-features"], tmp_path / "m.npz"))
+    model.features_sha256_ = features_sha256(state_features)  # what the learners record at fit
+    path = fo.save_model(model, tmp_path / "signed.npz")
+    assert fo.load_model(path).features_sha256_ == features_sha256(state_features)
+
+    other = state_features[::-1].copy()  # the same shape, other features
+    assert features_sha256(other) != features_sha256(state_features)
+    swapped = _rewrite(path, tmp_path / "swapped.npz", lambda h, a: a.update({"param/features": other}))
+    with pytest.raises(PersistenceError, match="swapped.npz is malformed: the features parameter is not the one the model"):
+        fo.load_model(swapped)
+    model.features = other
+    with pytest.raises(PersistenceError, match="cannot save FactIRL: the features parameter is not the one"):
+        fo.save_model(model, tmp_path / "x.npz")
+    model.features = None  # the dictionary no longer fits the parameters either
+    with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with S \* A of the MDP"):
+        fo.save_model(model, tmp_path / "x.npz")
+    bare = fo.FactIRL()
+    bare.features_sha256_ = features_sha256(state_features)
+    with pytest.raises(PersistenceError, match="features_sha256_ records features, but the model has no features"):
+        fo.save_model(bare, tmp_path / "x.npz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz", "signed.npz", "swapped.npz"]
+
+
+def test_features_digest_depends_on_values_and_shape():
+    F = np.arange(12.0).reshape(3, 4)
+    assert features_sha256(F) == features_sha256(F.tolist()) == features_sha256(np.asfortranarray(F))
+    assert features_sha256(F) != features_sha256(F.reshape(4, 3))
+    G = F.copy()
+    G[2, 3] += 1e-12
+    assert features_sha256(F) != features_sha256(G)
+    assert len(features_sha256(F)) == 64
+
+
+def test_signature_keys_are_the_mdps(grid_tasks):
+    assert sorted(grid_tasks[0].signature()) == sorted(SIGNATURE_KEYS)
