@@ -1,5 +1,7 @@
 """Fitted estimators in the configurations persistence must handle (shared by this folder)."""
 
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -37,3 +39,43 @@ def fitted_models(grid_tasks):
     models["factirl-features-transfer"].transfer(mdp, new_demos)
     return models
 
+
+
+def _mount(*args):
+    """Run ``mount args``; skip the test when mounting is not permitted here."""
+    try:
+        done = subprocess.run(["mount", *args], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError) as exc:
+        pytest.skip(f"cannot run mount here ({exc}): a real full or read-only file system needs it")
+    if done.returncode != 0:
+        pytest.skip(f"mounting is not permitted here (mount: {done.stderr.strip()}): needs root with CAP_SYS_ADMIN")
+
+
+class Tmpfs:
+    """Small tmpfs file systems mounted under a test's tmp_path, unmounted at teardown."""
+
+    def __init__(self, root):
+        self.root, self.mounted = root, []
+
+    def mount(self, name, size="64k"):
+        directory = self.root / name
+        directory.mkdir()
+        _mount("-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(directory))
+        self.mounted.append(directory)
+        return directory
+
+    @staticmethod
+    def read_only(directory):
+        _mount("-o", "remount,ro", str(directory))
+
+    def unmount_all(self):
+        for directory in reversed(self.mounted):
+            subprocess.run(["umount", str(directory)], capture_output=True, timeout=30)
+
+
+@pytest.fixture()
+def tmpfs(tmp_path):
+    """A :class:`Tmpfs`: real full and read-only file systems (the test skips if it cannot mount)."""
+    mounts = Tmpfs(tmp_path)
+    yield mounts
+    mounts.unmount_all()
