@@ -69,10 +69,12 @@ or directory, a read-only directory, a path that is a directory, a full disk) ra
 
 Pickle and copy. The estimators hold only their parameters and learnt attributes (no MDP, no
 planner cache), so a fitted model round-trips through :mod:`pickle` and :func:`copy.deepcopy`
-(which joblib and Dask rely on) with equal arrays. ``callback`` is kept as it is: a
-module-level function pickles (by name); a lambda or a local function cannot be pickled, and
-``pickle`` raises its ``PicklingError`` naming the function (set ``callback=None``, or use a
-module-level function, before pickling). ``copy.deepcopy`` keeps the same callback object.
+(which joblib and Dask rely on) with equal arrays. ``callback`` is kept as it is (it is not
+dropped): a module-level function pickles by name; a lambda or a local function cannot be
+pickled, and ``pickle`` raises its own error naming the function (``PicklingError``, or
+``AttributeError: Can't pickle local object ...`` for a function defined inside another): set
+``callback=None``, or use a module-level function, before pickling. ``copy.deepcopy`` keeps
+the same callback object.
 """
 
 from .archive import FORMAT_VERSION
