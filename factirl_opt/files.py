@@ -76,7 +76,8 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
     except OSError as exc:
         raise os_error(exc, "write", path) from exc
     try:
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
+        fh: IO = os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")
+        with fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())

@@ -15,7 +15,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from ..exceptions import PersistenceError
+from ..exceptions import PersistenceError, ValidationError
 from ..files import atomic_write, open_for_reading, os_error
 
 __all__ = ["FORMAT_VERSION", "FORMAT", "HEADER", "write_archive", "read_archive", "require", "check_array", "to_json",
@@ -67,8 +67,10 @@ def write_archive(target: Target, header: dict, arrays: dict[str, np.ndarray]) -
     """
     header = {"format": FORMAT, "format_version": FORMAT_VERSION, "library_version": library_version(),
               "numpy_version": np.__version__, **header}
-    members = {HEADER: np.array(json.dumps(header, default=json_default)), **arrays}
-    if hasattr(target, "write"):
+    members: dict[str, Any] = {HEADER: np.array(json.dumps(header, default=json_default)), **arrays}
+    if not isinstance(target, (str, os.PathLike)):
+        if not hasattr(target, "write"):
+            raise ValidationError(f"path must be a str, an os.PathLike or a writable binary file; got {type(target).__name__}")
         np.savez_compressed(target, **members)
         return target
     path = os.fspath(target)
@@ -138,7 +140,9 @@ def read_archive(source: Target, kind: str) -> tuple[dict, dict[str, np.ndarray]
     or an unreadable path raises :class:`PersistenceError` naming the file.
     """
     label = label_of(source)
-    if hasattr(source, "read"):
+    if not isinstance(source, (str, os.PathLike)):
+        if not hasattr(source, "read"):
+            raise ValidationError(f"path must be a str, an os.PathLike or a readable binary file; got {type(source).__name__}")
         contents = _members(source, label)
     else:
         with open_for_reading(source) as fh:
@@ -146,7 +150,7 @@ def read_archive(source: Target, kind: str) -> tuple[dict, dict[str, np.ndarray]
     header = _header(contents, label)
     found = header.get("kind")
     if found != kind:
-        loader = {"model": "load_model", "demonstrations": "load_demonstrations"}.get(found)
+        loader = {"model": "load_model", "demonstrations": "load_demonstrations"}.get(str(found))
         hint = f"; use {loader}" if loader else ""
         raise PersistenceError(f"{label} holds {found!r:.40} data, not {kind!r}{hint}")
     return header, contents, label

@@ -37,7 +37,8 @@ def save_demonstrations(demos_per_task: object, path: Target) -> str | IO[bytes]
     ------
     ValidationError
         The demonstrations are not in an accepted layout, or hold a value that is not an
-        integer >= 0 (the message names task, episode and step).
+        integer >= 0 (the message names task, episode and step); or ``path`` is neither a
+        path nor a writable file.
     PersistenceError
         The file cannot be written (a missing or read-only directory, a path that is a
         directory, a full disk): the message names the path and the cause, the ``OSError``
@@ -108,7 +109,7 @@ def load_demonstrations(path: Target) -> list[NDArray[np.int64] | list[NDArray[n
     forms, steps, lengths, counts = _demonstration_arrays(header, contents, label)
     episodes = np.split(steps, np.cumsum(lengths)[:-1])
     bounds = np.concatenate([[0], np.cumsum(counts)])
-    out = []
+    out: list = []
     for i, form in enumerate(forms):
         eps = episodes[bounds[i]:bounds[i + 1]]
         if form in ("list", "episode"):

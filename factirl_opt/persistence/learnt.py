@@ -146,7 +146,7 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
             raise PersistenceError(f"{context}: {key!r:.60} is not a learnt attribute of {cls.__name__} "
                                    f"(declared in {cls.__name__}.learnt_attributes: {', '.join(declared)})")
         kind = declared[key]
-        if is_array_kind(kind):
+        if isinstance(kind, tuple):
             check_array(value, f"attribute {key}", context, len(kind), "f")
         else:
             _check_value(key, kind, value, context)

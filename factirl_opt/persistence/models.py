@@ -79,7 +79,7 @@ def save_model(model: GradIRL | FactIRL, path: Target) -> str | IO[bytes]:
         written (a missing or read-only directory, a path that is a directory, a full disk:
         the message names the path and the cause, the ``OSError`` is chained).
     ValidationError
-        ``model`` is not a GradIRL or FactIRL.
+        ``model`` is not a GradIRL or FactIRL, or ``path`` neither a path nor a writable file.
     """
     cls = type(model)
     if MODEL_CLASSES.get(cls.__name__) is not cls:
@@ -130,6 +130,8 @@ def load_model(path: Target) -> GradIRL | FactIRL:
         attribute its class does not declare or one of the wrong kind, shape or with
         non-finite values, has features other than those of ``features_sha256_``, or has a
         newer format version (the message names the file and what is wrong).
+    ValidationError
+        ``path`` is neither a path nor a readable file.
     """
     header, contents, label = read_archive(path, "model")
     name = require(header, "class", label, "the header", str)
