@@ -518,7 +518,7 @@ class FactIRL:
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
         "dictionary_": ("p", "k"), "coefficients_": ("n", "k"), "rewards_": ("n", "S", "A"), "loss_": ("n",),
         "loss_history_": "history", "n_evaluations_": "count", "n_iter_": "count", "status_": "text",
-        "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "sha256",
+        "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
     }

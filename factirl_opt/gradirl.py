@@ -112,7 +112,7 @@ class GradIRL:
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
         "weights_": ("n", "p"), "rewards_": ("n", "S", "A"), "loss_": ("n",), "loss_history_": "history",
         "n_evaluations_": "count", "n_iter_": "count", "status_": "text", "stop_reason_": "text",
-        "mdp_signature_": "mdp-signature", "features_sha256_": "sha256",
+        "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
     }
 
     def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None,

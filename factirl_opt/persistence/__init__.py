@@ -29,7 +29,8 @@ SHA-256 of the transitions), so that it can refuse another MDP
 ``features`` it was fitted with (:func:`.learnt.features_sha256`; None without features), so
 that it can refuse other features of the same shape. Both are saved with the model, and
 :func:`load_model` checks the digest against the saved ``features``. A fitted model's file
-without them loads with ``None`` (unknown, not checked).
+without a signature loads with ``mdp_signature_ = None`` (unknown, not checked); one without
+a digest gets the digest of its saved features.
 
 Parameters that do not fit in JSON:
 

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._validation import check_int, check_real
+from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
 from .archive import check_array
 
 __all__ = ["KINDS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "learnt_attributes", "check_learnt", "features_sha256",
-           "check_features_digest", "NONE_WHEN_MISSING"]
+           "fitted_features_sha256", "check_features_digest"]
 
 #: What the learners' ``mdp_signature_`` holds (:meth:`~factirl_opt.TabularMDP.signature`).
 SIGNATURE_KEYS = ("n_states", "n_actions", "gamma", "transitions_sha256")
@@ -39,12 +39,8 @@ KINDS = {
     "history": "a list of finite numbers",
     "text": "a string",
     "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature)",
-    "sha256": "None or a SHA-256 digest (64 lowercase hexadecimal digits)",
+    "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
 }
-
-#: Kinds that a fitted model's file may lack (written before the attribute existed): the loaded
-#: model gets None, which means "unknown, not checked".
-NONE_WHEN_MISSING = ("mdp-signature", "sha256")
 
 #: A declared kind: axis names of a float array, or a key of :data:`KINDS`.
 Kind = tuple[str, ...] | str
@@ -94,7 +90,7 @@ def _check_value(key: str, kind: str, value: Any, context: str) -> None:
                 check_real(v, f"attribute {key}[{t}]")
         elif kind == "text" and not isinstance(value, str):
             raise ValidationError(f"attribute {key} must be a string; got {value!r:.60}")
-        elif kind == "sha256" and not (value is None or _is_sha256(value)):
+        elif kind == "features-digest" and not (value is None or _is_sha256(value)):
             raise ValidationError(f"attribute {key} must be {KINDS[kind]}; got {value!r:.80}")
     except ValidationError as exc:
         raise PersistenceError(f"{context}: {exc}") from None
@@ -153,25 +149,52 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
     _check_axes(declared, attributes, _known_axes(attributes, n_feature_columns), context)
 
 
-def features_sha256(features: ArrayLike) -> str:
-    """SHA-256 of a features matrix as given: its shape (int64) then its float64 values (C order).
+def features_sha256(features: ArrayLike, n_states: int, n_actions: int) -> str:
+    """SHA-256 (hex) of the base features a model is fitted with: ``features_sha256_``.
 
-    What a model records as ``features_sha256_``, so that it can tell another features matrix
-    of the same shape from the one it was fitted with.
+    The features are taken as the learners use them: float64 (S*A, p), state features (S, p)
+    repeated over the actions (:func:`~factirl_opt._validation.check_features`); the digest
+    covers the ``repr`` of that shape, then the values in C order. Two feature matrices have
+    the same digest exactly when the learners see the same values, bit for bit.
+
+    Raises
+    ------
+    ValidationError
+        ``features`` is not a finite (S*A, p) or (S, p) matrix.
     """
-    F = np.ascontiguousarray(features, dtype=np.float64)
-    h = hashlib.sha256(np.asarray(F.shape, dtype=np.int64).tobytes())
+    F = np.ascontiguousarray(check_features(features, n_states * n_actions, n_states), dtype=np.float64)
+    h = hashlib.sha256(repr(F.shape).encode())
     h.update(F.tobytes())
     return h.hexdigest()
 
 
+def fitted_features_sha256(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> str | None:
+    """The digest of ``features`` on the MDP of ``attributes["mdp_signature_"]``.
+
+    None without features, or when the MDP is unknown (no signature: state features cannot be
+    told from state-action ones).
+    """
+    sig = attributes.get("mdp_signature_")
+    if features is None or not isinstance(sig, dict):
+        return None
+    try:
+        return features_sha256(features, sig["n_states"], sig["n_actions"])
+    except ValidationError as exc:
+        raise PersistenceError(f"{context}: the features parameter does not fit the MDP of mdp_signature_: {exc}") from None
+
+
 def check_features_digest(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> None:
-    """The stored ``features_sha256_`` must be the digest of the stored features parameter."""
+    """The stored ``features_sha256_`` must be the digest of the stored features parameter.
+
+    Checked when both are there and the MDP is known (``mdp_signature_``); a digest without
+    features is refused.
+    """
     digest = attributes.get("features_sha256_")
     if digest is None:
         return
     if features is None:
         raise PersistenceError(f"{context}: features_sha256_ records features, but the model has no features parameter")
-    if features_sha256(features) != digest:
+    actual = fitted_features_sha256(attributes, features, context)
+    if actual is not None and actual != digest:
         raise PersistenceError(f"{context}: the features parameter is not the one the model was fitted with "
-                               f"(its SHA-256 differs from features_sha256_)")
+                               f"(its SHA-256 {actual[:12]}... differs from features_sha256_ {digest[:12]}...)")

@@ -10,7 +10,7 @@ from ..exceptions import PersistenceError, ValidationError
 from ..factirl import FactIRL
 from ..gradirl import GradIRL
 from .archive import Target, read_archive, require, to_json, write_archive
-from .learnt import NONE_WHEN_MISSING, check_features_digest, check_learnt, learnt_attributes
+from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
@@ -116,10 +116,11 @@ def load_model(path: Target) -> GradIRL | FactIRL:
     model : GradIRL or FactIRL
         With the saved parameters and learnt attributes: it transfers and scores exactly like
         the saved model. Every declared attribute is optional, so files written before an
-        attribute existed still load: a fitted model's file without ``mdp_signature_`` (format
-        version 1, or attributes set by hand) or without ``features_sha256_`` loads with that
-        attribute ``None`` (unknown: such a model cannot check the MDP, or the features, it is
-        used with); another missing attribute is absent.
+        attribute existed still load. A fitted model's file without ``mdp_signature_`` (format
+        version 1, or attributes set by hand) loads with ``mdp_signature_ = None`` (unknown:
+        such a model cannot check the MDP it is used on); one without ``features_sha256_``
+        gets the digest of its saved ``features`` (None without features, or when the MDP is
+        unknown); another missing attribute is absent.
 
     Raises
     ------
@@ -147,7 +148,20 @@ def load_model(path: Target) -> GradIRL | FactIRL:
     for key, value in attributes.items():
         setattr(model, key, value)
     if attributes:
-        for key, kind in learnt_attributes(cls).items():
-            if kind in NONE_WHEN_MISSING and key not in attributes:
-                setattr(model, key, None)
+        _complete_old_file(model, cls, attributes, params.get("features"), label)
     return model
+
+
+def _complete_old_file(model: Any, cls: type, attributes: dict[str, Any], features: Any, label: str) -> None:
+    """A fitted model's file written before ``mdp_signature_`` or ``features_sha256_`` existed.
+
+    The signature becomes None (unknown: not checked); the digest is computed from the saved
+    features (None without features, or when the MDP is unknown).
+    """
+    for key, kind in learnt_attributes(cls).items():
+        if key in attributes:
+            continue
+        if kind == "mdp-signature":
+            setattr(model, key, None)
+        elif kind == "features-digest":
+            setattr(model, key, fitted_features_sha256(attributes, features, f"{label} is malformed"))

@@ -1,5 +1,6 @@
 """The learnt attributes declared on the estimator classes drive what is saved and checked."""
 
+import hashlib
 import json
 
 import numpy as np
@@ -46,6 +47,8 @@ def test_every_learnt_attribute_is_declared_and_round_trips(fitted_models, name,
         assert {k for k in declared if k.startswith("transfer_")} <= set(attributes)
     loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
     assert set(_learnt(loaded)) == set(attributes) | {"features_sha256_"}
+    S, A = model.mdp_signature_["n_states"], model.mdp_signature_["n_actions"]
+    assert loaded.features_sha256_ == (None if model.features is None else features_sha256(model.features, S, A))
     for key, value in attributes.items():
         got = getattr(loaded, key)
         if isinstance(value, np.ndarray):
@@ -82,7 +85,7 @@ def test_undeclared_attribute_is_refused_on_saving(fitted_models, tmp_path):
         ("loss_", np.ones((4, 1)), r"attribute loss_ must be a 1-d float array"),
         ("n_iter_", 2.0, "attribute n_iter_ must be an integer >= 0; got 2.0"),
         ("status_", np.array([1.0]), "attribute status_ must be a string; got an array of shape"),
-        ("features_sha256_", "ABC", "attribute features_sha256_ must be None or a SHA-256 digest"),
+        ("features_sha256_", "ABC", "attribute features_sha256_ must be None \\(no features\\) or the features' SHA-256"),
     ],
 )
 def test_saved_attributes_are_checked_by_kind(fitted_models, tmp_path, key, value, match):
@@ -92,54 +95,74 @@ def test_saved_attributes_are_checked_by_kind(fitted_models, tmp_path, key, valu
         fo.save_model(model, tmp_path / "x.npz")
 
 
-def test_files_without_the_new_attributes_still_load(fitted_models, tmp_path):
+def test_files_without_the_new_attributes_still_load(fitted_models, grid_tasks, tmp_path):
+    mdp, _, _, state_features, _ = grid_tasks
     model = fitted_models["factirl-features"]
     path = fo.save_model(model, tmp_path / "m.npz")
 
-    def as_old_file(header, arrays):
-        for key in ("stop_reason_", "features_sha256_", "mdp_signature_"):
-            header["attributes"].pop(key, None)
+    def before_the_digest(header, arrays):
+        header["attributes"].pop("stop_reason_", None)
+        header["attributes"].pop("features_sha256_", None)
 
-    old = fo.load_model(_rewrite(path, tmp_path / "old.npz", as_old_file))
-    assert old.mdp_signature_ is None and old.features_sha256_ is None and not hasattr(old, "stop_reason_")
+    old = fo.load_model(_rewrite(path, tmp_path / "old.npz", before_the_digest))
+    assert not hasattr(old, "stop_reason_")
+    assert old.features_sha256_ == features_sha256(state_features, mdp.n_states, mdp.n_actions)
     np.testing.assert_array_equal(old.dictionary_, model.dictionary_)
+
+    def version_1(header, arrays):
+        before_the_digest(header, arrays)
+        header["format_version"] = 1
+        header["attributes"].pop("mdp_signature_")
+
+    oldest = fo.load_model(_rewrite(path, tmp_path / "v1.npz", version_1))
+    assert oldest.mdp_signature_ is None and oldest.features_sha256_ is None
+    tabular = fo.load_model(_rewrite(fo.save_model(fitted_models["gradirl-tabular"], tmp_path / "t.npz"), tmp_path / "t1.npz",
+                                     before_the_digest))
+    assert tabular.features_sha256_ is None and tabular.mdp_signature_ == mdp.signature()
     unfitted = fo.load_model(fo.save_model(fo.GradIRL(), tmp_path / "u.npz"))
     assert not hasattr(unfitted, "features_sha256_") and not hasattr(unfitted, "mdp_signature_")
 
 
 def test_features_digest_is_saved_and_checked_against_the_features(fitted_models, grid_tasks, tmp_path):
-    _, _, _, state_features, _ = grid_tasks
+    mdp, _, _, state_features, _ = grid_tasks
+    S, A = mdp.n_states, mdp.n_actions
     model = fo.load_model(fo.save_model(fitted_models["factirl-features"], tmp_path / "m.npz"))
-    model.features_sha256_ = features_sha256(state_features)  # what the learners record at fit
+    model.features_sha256_ = features_sha256(state_features, S, A)  # what the learners record at fit
     path = fo.save_model(model, tmp_path / "signed.npz")
-    assert fo.load_model(path).features_sha256_ == features_sha256(state_features)
+    assert fo.load_model(path).features_sha256_ == features_sha256(state_features, S, A)
 
     other = state_features[::-1].copy()  # the same shape, other features
-    assert features_sha256(other) != features_sha256(state_features)
+    assert features_sha256(other, S, A) != features_sha256(state_features, S, A)
     swapped = _rewrite(path, tmp_path / "swapped.npz", lambda h, a: a.update({"param/features": other}))
     with pytest.raises(PersistenceError, match="swapped.npz is malformed: the features parameter is not the one the model"):
         fo.load_model(swapped)
     model.features = other
     with pytest.raises(PersistenceError, match="cannot save FactIRL: the features parameter is not the one"):
         fo.save_model(model, tmp_path / "x.npz")
+    model.features = np.ones((7, 5))
+    with pytest.raises(PersistenceError, match=r"features parameter does not fit the MDP of mdp_signature_: features must"):
+        fo.save_model(model, tmp_path / "x.npz")
     model.features = None  # the dictionary no longer fits the parameters either
     with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with S \* A of the MDP"):
         fo.save_model(model, tmp_path / "x.npz")
     bare = fo.FactIRL()
-    bare.features_sha256_ = features_sha256(state_features)
+    bare.features_sha256_ = features_sha256(state_features, S, A)
     with pytest.raises(PersistenceError, match="features_sha256_ records features, but the model has no features"):
         fo.save_model(bare, tmp_path / "x.npz")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz", "signed.npz", "swapped.npz"]
 
 
-def test_features_digest_depends_on_values_and_shape():
-    F = np.arange(12.0).reshape(3, 4)
-    assert features_sha256(F) == features_sha256(F.tolist()) == features_sha256(np.asfortranarray(F))
-    assert features_sha256(F) != features_sha256(F.reshape(4, 3))
+def test_features_digest_definition():
+    """SHA-256 of the features as the learners use them: float64 (S*A, p), repr of the shape, then the values."""
+    S, A = 3, 2
+    F = np.arange(12.0).reshape(S * A, 2)
+    expected = hashlib.sha256(repr((S * A, 2)).encode() + F.tobytes()).hexdigest()
+    assert features_sha256(F, S, A) == features_sha256(F.tolist(), S, A) == features_sha256(np.asfortranarray(F), S, A) == expected
+    state = np.arange(6.0).reshape(S, 2)
+    assert features_sha256(state, S, A) == features_sha256(np.repeat(state, A, axis=0), S, A)
     G = F.copy()
-    G[2, 3] += 1e-12
-    assert features_sha256(F) != features_sha256(G)
-    assert len(features_sha256(F)) == 64
+    G[2, 1] += 1e-12
+    assert features_sha256(F, S, A) != features_sha256(G, S, A)
 
 
 def test_signature_keys_are_the_mdps(grid_tasks):
