@@ -70,12 +70,11 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
         exc = IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
         raise os_error(exc, "write", path) from exc
     directory, base = os.path.split(os.path.abspath(path))
-    tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(4)}-{base}")
+    # a unique name (O_EXCL) of bounded length beside the target, created inside the try so
+    # that an interrupt right after its creation still removes it
+    tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(8)}-{base[:100]}")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)  # the kernel applies the umask
-    except OSError as exc:
-        raise os_error(exc, "write", path) from exc
-    try:
         fh: IO = os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")
         with fh:
             yield fh

@@ -147,3 +147,10 @@ def test_open_for_reading_reads_and_names_a_directory(tmp_path):
     with pytest.raises(PersistenceError, match="Is a directory") as info:
         open_for_reading(tmp_path)
     assert isinstance(info.value.__cause__, IsADirectoryError)
+
+
+def test_long_names_are_written(tmp_path):
+    p = tmp_path / ("n" * 250)
+    write_text_atomic(p, "x")
+    assert p.read_text() == "x"
+    assert _listing(tmp_path) == ["n" * 250]

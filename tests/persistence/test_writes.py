@@ -3,6 +3,8 @@
 import errno
 import io
 import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -196,3 +198,54 @@ def test_a_path_of_another_type_is_refused(tmp_path):
     with pytest.raises(fo.ValidationError, match="path must be a str, an os.PathLike or a readable binary file; got NoneType"):
         fo.load_demonstrations(None)
     assert _listing(tmp_path) == []
+
+
+def test_ctrl_c_at_any_byte_of_the_archive(fitted_models, tmp_path, monkeypatch):
+    path = tmp_path / "file.npz"
+    _write_old("model", fitted_models, path)
+    size = os.path.getsize(path)
+    for budget in range(0, size + 200, max(1, size // 25)):
+        _fail_at(monkeypatch, f"write@{budget}", KeyboardInterrupt())
+        try:
+            fo.save_model(fitted_models["factirl-features-transfer"], path)
+        except KeyboardInterrupt:
+            pass
+        monkeypatch.undo()
+        _same_model(fitted_models["factirl-transfer"], fo.load_model(path))
+        assert _listing(tmp_path) == ["file.npz"]
+
+
+def test_real_interrupts_at_random_times_leave_a_readable_file(tmp_path):
+    """SIGALRM raising KeyboardInterrupt (as Ctrl-C does) at random times during repeated saves:
+    the file always loads, as the old model or as the new one."""
+    mdp = fo.GridWorld(size=8)
+    rng = np.random.default_rng(0)
+    demos = fo.sample_demonstrations(mdp, rng.standard_normal((20, mdp.n_states, mdp.n_actions)), 2, 5, rng=0)
+    old, new = fo.GradIRL(max_iter=1).fit(mdp, demos), fo.GradIRL(max_iter=2).fit(mdp, demos)
+    path = tmp_path / "model.npz"
+    fo.save_model(old, path)
+    started = time.perf_counter()
+    fo.save_model(old, tmp_path / "timing.npz")
+    duration = time.perf_counter() - started
+    os.unlink(tmp_path / "timing.npz")
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    interrupted = 0
+    try:
+        for _ in range(30):
+            signal.setitimer(signal.ITIMER_REAL, float(rng.uniform(1e-5, 1.2 * duration)))
+            try:
+                fo.save_model(new, path)
+                signal.setitimer(signal.ITIMER_REAL, 0)
+            except KeyboardInterrupt:
+                interrupted += 1
+            loaded = fo.load_model(path)
+            assert any(np.array_equal(loaded.weights_, m.weights_) for m in (old, new))
+            fo.save_model(old, path)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert interrupted > 0
