@@ -521,6 +521,7 @@ class FactIRL:
         "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
+        "transfer_stop_reason_": "text",
     }
 
     def __init__(self, n_primitives=5, beta=5.0, init="pca", pca_shrink=True, max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,

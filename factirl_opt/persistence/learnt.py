@@ -10,8 +10,8 @@ A kind is either
 
 - a tuple of axis names: a finite float array with one axis per name, e.g.
   ``("n", "S", "A")``. Axes with the same name have the same length across the attributes;
-  ``S`` and ``A`` are the MDP's (from ``mdp_signature_``) and ``p`` is the number of columns
-  of the ``features`` parameter (``S * A`` without features);
+  ``S`` and ``A`` are the MDP's (from ``mdp_signature_``) and ``p``, the number of reward
+  parameters, is the number of columns of the ``features`` parameter when there is one;
 - or one of the strings of :data:`KINDS`.
 """
 
@@ -121,8 +121,6 @@ def _known_axes(attributes: dict[str, Any], n_feature_columns: int | None) -> di
     if isinstance(sig, dict):
         where = f"the MDP of mdp_signature_ (S, A) = ({sig['n_states']}, {sig['n_actions']})"
         axes["S"], axes["A"] = (sig["n_states"], where), (sig["n_actions"], where)
-        if n_feature_columns is None:
-            axes["p"] = (sig["n_states"] * sig["n_actions"], f"S * A of {where}")
     if n_feature_columns is not None:
         axes["p"] = (n_feature_columns, "the columns of the features parameter")
     return axes

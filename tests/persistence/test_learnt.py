@@ -44,7 +44,7 @@ def test_every_learnt_attribute_is_declared_and_round_trips(fitted_models, name,
     assert set(attributes) <= set(declared), f"{name} sets undeclared attributes {set(attributes) - set(declared)}"
     assert {"rewards_", "loss_history_", "n_iter_", "status_", "mdp_signature_"} <= set(attributes)
     if name.endswith("transfer"):
-        assert {k for k in declared if k.startswith("transfer_")} <= set(attributes)
+        assert {"transfer_coefficients_", "transfer_rewards_", "transfer_loss_", "transfer_status_"} <= set(attributes)
     loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
     assert set(_learnt(loaded)) == set(attributes) | {"features_sha256_"}
     S, A = model.mdp_signature_["n_states"], model.mdp_signature_["n_actions"]
@@ -142,8 +142,11 @@ def test_features_digest_is_saved_and_checked_against_the_features(fitted_models
     model.features = np.ones((7, 5))
     with pytest.raises(PersistenceError, match=r"features parameter does not fit the MDP of mdp_signature_: features must"):
         fo.save_model(model, tmp_path / "x.npz")
-    model.features = None  # the dictionary no longer fits the parameters either
-    with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with S \* A of the MDP"):
+    model.features = np.ones((16, 3))  # the dictionary does not fit these either
+    with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with the columns of the features"):
+        fo.save_model(model, tmp_path / "x.npz")
+    model.features = None
+    with pytest.raises(PersistenceError, match="features_sha256_ records features, but the model has no features"):
         fo.save_model(model, tmp_path / "x.npz")
     bare = fo.FactIRL()
     bare.features_sha256_ = features_sha256(state_features, S, A)
