@@ -75,8 +75,28 @@ def write_archive(target: Target, header: dict, arrays: dict[str, np.ndarray]) -
         return target
     path = os.fspath(target)
     with atomic_write(path, binary=True) as fh:
-        np.savez_compressed(fh, **members)
+        _savez(fh, members)
     return path
+
+
+def _savez(fh: IO[bytes], members: dict[str, Any]) -> None:
+    """``np.savez_compressed`` into ``fh``, raising the interrupt or OS error that stopped it.
+
+    ``zipfile`` replaces an exception raised while a member is being written (Ctrl-C, a full
+    disk) by its own ``ValueError`` ("Can't close the ZIP file while there is an open writing
+    handle"); the original, found in the ``__context__`` chain, is raised instead.
+    """
+    try:
+        np.savez_compressed(fh, **members)
+    except (KeyboardInterrupt, OSError):
+        raise
+    except BaseException as exc:
+        original = exc.__context__
+        while original is not None and not isinstance(original, (KeyboardInterrupt, OSError)):
+            original = original.__context__
+        if original is None:
+            raise
+        raise original from None
 
 
 def _members(source: Target, label: str) -> dict[str, np.ndarray]:
