@@ -166,26 +166,35 @@ def features_sha256(features: ArrayLike, n_states: int, n_actions: int) -> str:
     return h.hexdigest()
 
 
-def fitted_features_sha256(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> str | None:
-    """The digest of ``features`` on the MDP of ``attributes["mdp_signature_"]``.
+def _mdp_shape(attributes: dict[str, Any]) -> tuple[int, int] | None:
+    """(S, A) of the model's MDP: from ``mdp_signature_``, else from the shape of ``rewards_``."""
+    sig, rewards = attributes.get("mdp_signature_"), attributes.get("rewards_")
+    if isinstance(sig, dict):
+        return sig["n_states"], sig["n_actions"]
+    if isinstance(rewards, np.ndarray) and rewards.ndim == 3:
+        return rewards.shape[1], rewards.shape[2]
+    return None
 
-    None without features, or when the MDP is unknown (no signature: state features cannot be
-    told from state-action ones).
+
+def fitted_features_sha256(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> str | None:
+    """The digest of ``features`` on the model's MDP (S, A from ``mdp_signature_`` or ``rewards_``).
+
+    None without features, or when S and A are unknown (state features cannot then be told
+    from state-action ones).
     """
-    sig = attributes.get("mdp_signature_")
-    if features is None or not isinstance(sig, dict):
+    shape = _mdp_shape(attributes)
+    if features is None or shape is None:
         return None
     try:
-        return features_sha256(features, sig["n_states"], sig["n_actions"])
+        return features_sha256(features, *shape)
     except ValidationError as exc:
-        raise PersistenceError(f"{context}: the features parameter does not fit the MDP of mdp_signature_: {exc}") from None
+        raise PersistenceError(f"{context}: the features parameter does not fit the model's MDP (S, A) = {shape}: {exc}") from None
 
 
 def check_features_digest(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> None:
     """The stored ``features_sha256_`` must be the digest of the stored features parameter.
 
-    Checked when both are there and the MDP is known (``mdp_signature_``); a digest without
-    features is refused.
+    Checked when both are there and S, A are known; a digest without features is refused.
     """
     digest = attributes.get("features_sha256_")
     if digest is None:

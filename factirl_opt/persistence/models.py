@@ -119,8 +119,8 @@ def load_model(path: Target) -> GradIRL | FactIRL:
         attribute existed still load. A fitted model's file without ``mdp_signature_`` (format
         version 1, or attributes set by hand) loads with ``mdp_signature_ = None`` (unknown:
         such a model cannot check the MDP it is used on); one without ``features_sha256_``
-        gets the digest of its saved ``features`` (None without features, or when the MDP is
-        unknown); another missing attribute is absent.
+        gets the digest of its saved ``features`` (None without features), as the model was
+        fitted with them; another missing attribute is absent.
 
     Raises
     ------
@@ -156,7 +156,7 @@ def _complete_old_file(model: Any, cls: type, attributes: dict[str, Any], featur
     """A fitted model's file written before ``mdp_signature_`` or ``features_sha256_`` existed.
 
     The signature becomes None (unknown: not checked); the digest is computed from the saved
-    features (None without features, or when the MDP is unknown).
+    features (None without features; S and A come from the signature or from ``rewards_``).
     """
     for key, kind in learnt_attributes(cls).items():
         if key in attributes:

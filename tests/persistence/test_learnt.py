@@ -115,7 +115,15 @@ def test_files_without_the_new_attributes_still_load(fitted_models, grid_tasks, 
         header["attributes"].pop("mdp_signature_")
 
     oldest = fo.load_model(_rewrite(path, tmp_path / "v1.npz", version_1))
-    assert oldest.mdp_signature_ is None and oldest.features_sha256_ is None
+    assert oldest.mdp_signature_ is None  # S and A from rewards_: the state features are recognised
+    assert oldest.features_sha256_ == features_sha256(state_features, mdp.n_states, mdp.n_actions)
+
+    def without_rewards(header, arrays):
+        version_1(header, arrays)
+        header["array_attributes"].remove("rewards_")
+        arrays.pop("attr/rewards_")
+
+    assert fo.load_model(_rewrite(path, tmp_path / "v1r.npz", without_rewards)).features_sha256_ is None
     tabular = fo.load_model(_rewrite(fo.save_model(fitted_models["gradirl-tabular"], tmp_path / "t.npz"), tmp_path / "t1.npz",
                                      before_the_digest))
     assert tabular.features_sha256_ is None and tabular.mdp_signature_ == mdp.signature()
@@ -140,7 +148,7 @@ def test_features_digest_is_saved_and_checked_against_the_features(fitted_models
     with pytest.raises(PersistenceError, match="cannot save FactIRL: the features parameter is not the one"):
         fo.save_model(model, tmp_path / "x.npz")
     model.features = np.ones((7, 5))
-    with pytest.raises(PersistenceError, match=r"features parameter does not fit the MDP of mdp_signature_: features must"):
+    with pytest.raises(PersistenceError, match=r"features parameter does not fit the model's MDP \(S, A\) = \(16, 4\): features must"):
         fo.save_model(model, tmp_path / "x.npz")
     model.features = np.ones((16, 3))  # the dictionary does not fit these either
     with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with the columns of the features"):
