@@ -14,6 +14,7 @@ leading axis (DESIGN section 8).
 """
 
 import dataclasses
+from typing import ClassVar
 
 import numpy as np
 
@@ -510,6 +511,18 @@ class FactIRL:
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
     """
+
+    #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
+    #: ``load_model`` what to check (factirl_opt.persistence.learnt): a tuple names the axes of a
+    #: finite float array (same name, same length; S, A of the MDP, p parameters), a string a kind.
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
+        "dictionary_": ("p", "k"), "coefficients_": ("n", "k"), "rewards_": ("n", "S", "A"), "loss_": ("n",),
+        "loss_history_": "history", "n_evaluations_": "count", "n_iter_": "count", "status_": "text",
+        "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
+        "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
+        "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
+        "transfer_stop_reason_": "text",
+    }
 
     def __init__(self, n_primitives=5, beta=5.0, init="pca", pca_shrink=True, max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,
                  h_solver="armijo",

@@ -37,13 +37,9 @@ def os_error(exc: OSError, action: str, path: str | os.PathLike) -> PersistenceE
     cause = exc.strerror or type(exc).__name__
     if exc.errno == errno.ENOSPC:
         cause += " (the disk is full)"
+    elif exc.errno == errno.ENOENT and action == "write":
+        cause += f" (the directory {os.path.dirname(os.path.abspath(path))!r} does not exist)"
     return PersistenceError(f"cannot {action} {os.fspath(path)!r}: {cause}")
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 @contextlib.contextmanager
@@ -71,15 +67,16 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
     """
     path = os.fspath(path)
     if os.path.isdir(path):
-        raise PersistenceError(f"cannot write {path!r}: it is a directory")
-    directory, base = os.path.split(os.path.abspath(path))
-    tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(4)}-{base}")
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE & ~_umask())
-    except OSError as exc:
+        exc = IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
         raise os_error(exc, "write", path) from exc
+    directory, base = os.path.split(os.path.abspath(path))
+    # a unique name (O_EXCL) of bounded length beside the target, created inside the try so
+    # that an interrupt right after its creation still removes it
+    tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(8)}-{base[:100]}")
     try:
-        with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"newline": ""})) as fh:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)  # the kernel applies the umask
+        fh: IO = os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")
+        with fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())

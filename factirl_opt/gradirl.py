@@ -1,6 +1,7 @@
 """GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1)."""
 
 import warnings
+from typing import ClassVar
 
 import numpy as np
 
@@ -104,6 +105,15 @@ class GradIRL:
     mdp_signature_ : dict
         The signature of the MDP it was fitted on.
     """
+
+    #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
+    #: ``load_model`` what to check (factirl_opt.persistence.learnt): a tuple names the axes of a
+    #: finite float array (same name, same length; S, A of the MDP, p parameters), a string a kind.
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
+        "weights_": ("n", "p"), "rewards_": ("n", "S", "A"), "loss_": ("n",), "loss_history_": "history",
+        "n_evaluations_": "count", "n_iter_": "count", "status_": "text", "stop_reason_": "text",
+        "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
+    }
 
     def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None,
                  objective="policy-matching", planner="auto", verbose=False, callback=None):

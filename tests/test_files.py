@@ -75,8 +75,13 @@ def test_read_only_directory(tmp_path):
 def test_missing_directory_and_directory_path(tmp_path):
     with pytest.raises(PersistenceError, match="No such file or directory"):
         write_text_atomic(tmp_path / "missing" / "a.txt", "x")
-    with pytest.raises(PersistenceError, match="is a directory"):
+    with pytest.raises(PersistenceError, match=r"does not exist") as info:
+        write_text_atomic(tmp_path / "missing" / "a.txt", "x")
+    assert isinstance(info.value.__cause__, FileNotFoundError)
+    with pytest.raises(PersistenceError, match="Is a directory") as info:
         write_text_atomic(tmp_path, "x")
+    assert isinstance(info.value.__cause__, IsADirectoryError)
+    assert _listing(tmp_path) == []
 
 
 def test_open_for_reading_errors(tmp_path):
@@ -85,3 +90,67 @@ def test_open_for_reading_errors(tmp_path):
     assert isinstance(info.value.__cause__, FileNotFoundError)
     with pytest.raises(PersistenceError):
         open_for_reading(tmp_path)
+
+
+def test_permission_denied_directory_monkeypatched(tmp_path, monkeypatch):
+    """A directory we may not write into. Root ignores permission bits, so os.open is made to
+    raise EACCES here (the real read-only file system is tested on a tmpfs in
+    tests/persistence/test_writes.py)."""
+    p = tmp_path / "a.txt"
+    p.write_text("good")
+    real_open = os.open
+
+    def denied(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), path)
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", denied)
+    with pytest.raises(PersistenceError, match=r"cannot write .*a\.txt.*Permission denied") as info:
+        write_text_atomic(p, "new")
+    assert isinstance(info.value.__cause__, PermissionError)
+    monkeypatch.undo()
+    assert p.read_text() == "good"
+    assert _listing(tmp_path) == ["a.txt"]
+
+
+@pytest.mark.parametrize("where", ["fsync", "replace"])
+@pytest.mark.parametrize("error", [KeyboardInterrupt(), OSError(errno.EIO, os.strerror(errno.EIO))])
+def test_failure_after_writing_keeps_old_file(tmp_path, monkeypatch, where, error):
+    p = tmp_path / "a.txt"
+    p.write_text("good")
+
+    def fail(*args):
+        raise error
+
+    monkeypatch.setattr(os, where, fail)
+    with pytest.raises(KeyboardInterrupt if isinstance(error, KeyboardInterrupt) else PersistenceError) as info:
+        write_text_atomic(p, "new")
+    monkeypatch.undo()
+    if isinstance(error, OSError):
+        assert info.value.__cause__ is error and "Input/output error" in str(info.value)
+    assert p.read_text() == "good"
+    assert _listing(tmp_path) == ["a.txt"]
+
+
+def test_text_mode_keeps_newlines(tmp_path):
+    write_text_atomic(tmp_path / "t.txt", "a\r\nb\n")
+    assert (tmp_path / "t.txt").read_bytes() == b"a\r\nb\n"
+
+
+def test_open_for_reading_reads_and_names_a_directory(tmp_path):
+    (tmp_path / "a.bin").write_bytes(b"xy")
+    with open_for_reading(tmp_path / "a.bin") as fh:
+        assert fh.read() == b"xy"
+    with open_for_reading(tmp_path / "a.bin", binary=False) as fh:
+        assert fh.read() == "xy"
+    with pytest.raises(PersistenceError, match="Is a directory") as info:
+        open_for_reading(tmp_path)
+    assert isinstance(info.value.__cause__, IsADirectoryError)
+
+
+def test_long_names_are_written(tmp_path):
+    p = tmp_path / ("n" * 250)
+    write_text_atomic(p, "x")
+    assert p.read_text() == "x"
+    assert _listing(tmp_path) == ["n" * 250]

@@ -260,8 +260,10 @@ def demos_file(setting, tmp_path):
 
 
 def test_missing_file(tmp_path):
-    with pytest.raises(FileNotFoundError):
-        fo.load_model(tmp_path / "nope.npz")
+    for load in (fo.load_model, fo.load_demonstrations):
+        with pytest.raises(PersistenceError, match=r"cannot read .*nope\.npz.*No such file or directory") as info:
+            load(tmp_path / "nope.npz")
+        assert isinstance(info.value.__cause__, FileNotFoundError)
 
 
 def test_corrupt_and_foreign_files(model_file, tmp_path):
@@ -330,7 +332,7 @@ def test_wrong_kind(model_file, demos_file):
         (lambda h: h["params"].update({"n_components": 3}), (), "stored parameters do not fit FactIRL.*n_components"),
         (lambda h: h["params"].update({"rng": {"type": "generator", "bit_generator": "NoSuchBitGen"}}), (), "rng parameter is malformed"),
         (lambda h: h["params"].update({"rng": 7}), (), "rng parameter is malformed"),
-        (lambda h: h["attributes"].update({"__class__": 1}), (), "not a learnt attribute name"),
+        (lambda h: h["attributes"].update({"__class__": 1}), (), "'__class__' is not a learnt attribute of FactIRL"),
         (lambda h: h.update({"kind": None}), (), "holds None data, not 'model'"),
     ],
 )
@@ -425,14 +427,16 @@ def test_crafted_header_values(model_file, tmp_path):
         (lambda h: (h["attributes"].update(dictionary_="abc"), h["array_attributes"].remove("dictionary_")), None,
          "attribute dictionary_ must be a 2-d float array; got str 'abc'"),
         (lambda h: h["attributes"].update(dictionary_="abc"), None, "attribute dictionary_ is stored twice"),
-        (lambda h: h["array_attributes"].append("extra_"), {"attr/extra_": np.array("abc")}, "attribute extra_ must be a numeric array; got <U3"),
+        (lambda h: h["array_attributes"].append("extra_"), {"attr/extra_": np.ones(3)}, "'extra_' is not a learnt attribute of FactIRL"),
+        (lambda h: h["attributes"].update(stop_reason_=3), None, "attribute stop_reason_ must be a string; got 3"),
+        (lambda h: h["attributes"].update(n_iter_=[1]), None, "attribute n_iter_ must be an integer >= 0"),
         (None, {"attr/dictionary_": np.array(["abc"])}, r"attribute dictionary_ must be a 2-d float array; got <U3 of shape \(1,\)"),
         (None, {"attr/dictionary_": np.ones(64)}, r"attribute dictionary_ must be a 2-d float array; got float64 of shape \(64,\)"),
         (None, {"attr/dictionary_": np.ones((64, 2), dtype=np.int64)}, "attribute dictionary_ must be a 2-d float array; got int64"),
         (None, {"attr/dictionary_": np.full((64, 2), np.nan)}, r"attribute dictionary_ must be finite; found nan at index \(0, 0\)"),
         (None, {"attr/rewards_": np.full((5, 16, 4), np.inf)}, "attribute rewards_ must be finite; found inf"),
-        (None, {"attr/coefficients_": np.ones((5, 3))}, r"dictionary_ of shape \(64, 2\) and coefficients_ of shape \(5, 3\) disagree"),
-        (None, {"attr/loss_": np.ones(4)}, r"rewards_ of shape \(5, 16, 4\) and loss_ of shape \(4,\) disagree"),
+        (None, {"attr/coefficients_": np.ones((5, 3))}, r"coefficients_ of shape \(5, 3\) disagrees with axis 1 of dictionary_ \(shape \(64, 2\)\): axis 1 \(k\) has length 3, not 2"),
+        (None, {"attr/loss_": np.ones(4)}, r"loss_ of shape \(4,\) disagrees with axis 0 of coefficients_ \(shape \(5, 2\)\): axis 0 \(n\) has length 4, not 5"),
         (lambda h: h["attributes"].update(n_iter_=-1), None, "attribute n_iter_ must be an integer >= 0; got -1"),
         (lambda h: h["attributes"].update(n_evaluations_="7"), None, "attribute n_evaluations_ must be an integer >= 0; got '7'"),
         (lambda h: h["attributes"].update(loss_history_=[1.0, "x"]), None, r"attribute loss_history_\[1\] must be a finite number"),
@@ -523,7 +527,7 @@ def test_files_without_signature_load_with_none(setting, fitted, tmp_path):
         ({"n_states": 16, "n_actions": 4, "gamma": 1.5, "transitions_sha256": "0" * 64}, "gamma must be a finite number"),
         ({"n_states": 16, "n_actions": 4, "gamma": 0.9, "transitions_sha256": "xyz"}, "transitions_sha256 must be 64 hexadecimal digits"),
         ({"n_states": 32, "n_actions": 2, "gamma": 0.9, "transitions_sha256": "0" * 64},
-         r"rewards_ of shape \(5, 16, 4\) do not fit the MDP of mdp_signature_ \(S, A\) = \(32, 2\)"),
+         r"rewards_ of shape \(5, 16, 4\) disagrees with the MDP of mdp_signature_ \(S, A\) = \(32, 2\): axis 1 \(S\)"),
     ],
 )
 def test_malformed_signatures_are_refused(model_file, tmp_path, signature, match):

@@ -82,7 +82,7 @@ STAMP_EXCLUDED = (
     "factirl_opt/experiments/figures.py",
     "factirl_opt/experiments/store.py",
     "factirl_opt/experiments/workers.py",
-    "factirl_opt/persistence.py",
+    "factirl_opt/persistence/",
     "factirl_opt/gym_adapter.py",
 )
 LOCK_NAME = ".lock"

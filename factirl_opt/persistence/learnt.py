@@ -1,0 +1,207 @@
+"""The learnt attributes of an estimator, as its class declares them, and their checks.
+
+Each estimator class declares the attributes ``fit`` (and ``transfer``) set, in the class
+variable ``learnt_attributes``: a mapping from the attribute's name (ending in ``_``) to its
+kind. :func:`~factirl_opt.persistence.save_model` stores exactly these and
+:func:`~factirl_opt.persistence.load_model` checks each against its kind, so a new attribute
+is saved and checked by declaring it, and an attribute that is not declared is refused.
+
+A kind is either
+
+- a tuple of axis names: a finite float array with one axis per name, e.g.
+  ``("n", "S", "A")``. Axes with the same name have the same length across the attributes;
+  ``S`` and ``A`` are the MDP's (from ``mdp_signature_``) and ``p``, the number of reward
+  parameters, is the number of columns of the ``features`` parameter when there is one;
+- or one of the strings of :data:`KINDS`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import check_features, check_int, check_real
+from ..exceptions import PersistenceError, ValidationError
+from .archive import check_array
+
+__all__ = ["KINDS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "learnt_attributes", "check_learnt", "features_sha256",
+           "fitted_features_sha256", "check_features_digest"]
+
+#: What the learners' ``mdp_signature_`` holds (:meth:`~factirl_opt.TabularMDP.signature`).
+SIGNATURE_KEYS = ("n_states", "n_actions", "gamma", "transitions_sha256")
+
+#: The kinds of learnt attributes that are not arrays, and what each holds.
+KINDS = {
+    "count": "an integer >= 0",
+    "history": "a list of finite numbers",
+    "text": "a string",
+    "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature)",
+    "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
+}
+
+#: A declared kind: axis names of a float array, or a key of :data:`KINDS`.
+Kind = tuple[str, ...] | str
+
+
+def is_array_kind(kind: Kind) -> bool:
+    return isinstance(kind, tuple)
+
+
+def learnt_attributes(cls: type) -> dict[str, Kind]:
+    """The class's declaration ``cls.learnt_attributes`` (name -> kind)."""
+    return dict(getattr(cls, "learnt_attributes", {}))
+
+
+def _is_sha256(value: Any) -> bool:
+    return isinstance(value, str) and len(value) == 64 and set(value) <= set("0123456789abcdef")
+
+
+def _check_signature(sig: Any, context: str) -> None:
+    """``mdp_signature_``: None or a :meth:`TabularMDP.signature` dict."""
+    if sig is None:
+        return
+    if not isinstance(sig, dict) or sorted(sig) != sorted(SIGNATURE_KEYS):
+        raise PersistenceError(f"{context}: mdp_signature_ must be {KINDS['mdp-signature']}; got {sig!r:.120}")
+    try:
+        check_int(sig["n_states"], "mdp_signature_ n_states", minimum=1)
+        check_int(sig["n_actions"], "mdp_signature_ n_actions", minimum=1)
+        check_real(sig["gamma"], "mdp_signature_ gamma", 0.0, 1.0, high_open=True)
+    except ValidationError as exc:
+        raise PersistenceError(f"{context}: {exc}") from None
+    if not _is_sha256(sig["transitions_sha256"]):
+        raise PersistenceError(f"{context}: mdp_signature_ transitions_sha256 must be 64 hexadecimal digits; "
+                               f"got {sig['transitions_sha256']!r:.80}")
+
+
+def _check_value(key: str, kind: str, value: Any, context: str) -> None:
+    """One attribute of a non-array kind."""
+    if isinstance(value, np.ndarray):
+        raise PersistenceError(f"{context}: attribute {key} must be {KINDS[kind]}; got an array of shape {value.shape}")
+    try:
+        if kind == "count":
+            check_int(value, f"attribute {key}", minimum=0)
+        elif kind == "history":
+            if not isinstance(value, list):
+                raise ValidationError(f"attribute {key} must be a list of finite numbers; got {type(value).__name__}")
+            for t, v in enumerate(value):
+                check_real(v, f"attribute {key}[{t}]")
+        elif kind == "text" and not isinstance(value, str):
+            raise ValidationError(f"attribute {key} must be a string; got {value!r:.60}")
+        elif kind == "features-digest" and not (value is None or _is_sha256(value)):
+            raise ValidationError(f"attribute {key} must be {KINDS[kind]}; got {value!r:.80}")
+    except ValidationError as exc:
+        raise PersistenceError(f"{context}: {exc}") from None
+    if kind == "mdp-signature":
+        _check_signature(value, context)
+
+
+def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dict[str, tuple[int, str]], context: str) -> None:
+    """Axes of the same name have the same length; ``axes`` holds the lengths known beforehand."""
+    for key, kind in declared.items():
+        value = attributes.get(key)
+        if not (is_array_kind(kind) and isinstance(value, np.ndarray)):
+            continue
+        for i, axis in enumerate(kind):
+            length = value.shape[i]
+            if axis not in axes:
+                axes[axis] = (length, f"axis {i} of {key} (shape {value.shape})")
+            elif axes[axis][0] != length:
+                raise PersistenceError(
+                    f"{context}: attribute {key} of shape {value.shape} disagrees with {axes[axis][1]}: axis {i} "
+                    f"({axis}) has length {length}, not {axes[axis][0]}"
+                )
+
+
+def _known_axes(attributes: dict[str, Any], n_feature_columns: int | None) -> dict[str, tuple[int, str]]:
+    axes = {}
+    sig = attributes.get("mdp_signature_")
+    if isinstance(sig, dict):
+        where = f"the MDP of mdp_signature_ (S, A) = ({sig['n_states']}, {sig['n_actions']})"
+        axes["S"], axes["A"] = (sig["n_states"], where), (sig["n_actions"], where)
+    if n_feature_columns is not None:
+        axes["p"] = (n_feature_columns, "the columns of the features parameter")
+    return axes
+
+
+def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_columns: int | None = None) -> None:
+    """Check learnt ``attributes`` against the declaration of ``cls``; PersistenceError naming the bad one.
+
+    Every name must be declared; each value must be of its kind (an array kind's array
+    finite, float, with the declared number of axes); axes of the same name must agree, with
+    each other and with the MDP signature and ``n_feature_columns`` (the features
+    parameter's columns, if any). Declared attributes may be missing.
+    """
+    declared = learnt_attributes(cls)
+    for key, value in attributes.items():
+        if key not in declared:
+            raise PersistenceError(f"{context}: {key!r:.60} is not a learnt attribute of {cls.__name__} "
+                                   f"(declared in {cls.__name__}.learnt_attributes: {', '.join(declared)})")
+        kind = declared[key]
+        if isinstance(kind, tuple):
+            check_array(value, f"attribute {key}", context, len(kind), "f")
+        else:
+            _check_value(key, kind, value, context)
+    _check_axes(declared, attributes, _known_axes(attributes, n_feature_columns), context)
+
+
+def features_sha256(features: ArrayLike, n_states: int, n_actions: int) -> str:
+    """SHA-256 (hex) of the base features a model is fitted with: ``features_sha256_``.
+
+    The features are taken as the learners use them: float64 (S*A, p), state features (S, p)
+    repeated over the actions (:func:`~factirl_opt._validation.check_features`); the digest
+    covers the ``repr`` of that shape, then the values in C order. Two feature matrices have
+    the same digest exactly when the learners see the same values, bit for bit.
+
+    Raises
+    ------
+    ValidationError
+        ``features`` is not a finite (S*A, p) or (S, p) matrix.
+    """
+    F = np.ascontiguousarray(check_features(features, n_states * n_actions, n_states), dtype=np.float64)
+    h = hashlib.sha256(repr(F.shape).encode())
+    h.update(F.tobytes())
+    return h.hexdigest()
+
+
+def _mdp_shape(attributes: dict[str, Any]) -> tuple[int, int] | None:
+    """(S, A) of the model's MDP: from ``mdp_signature_``, else from the shape of ``rewards_``."""
+    sig, rewards = attributes.get("mdp_signature_"), attributes.get("rewards_")
+    if isinstance(sig, dict):
+        return sig["n_states"], sig["n_actions"]
+    if isinstance(rewards, np.ndarray) and rewards.ndim == 3:
+        return rewards.shape[1], rewards.shape[2]
+    return None
+
+
+def fitted_features_sha256(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> str | None:
+    """The digest of ``features`` on the model's MDP (S, A from ``mdp_signature_`` or ``rewards_``).
+
+    None without features, or when S and A are unknown (state features cannot then be told
+    from state-action ones).
+    """
+    shape = _mdp_shape(attributes)
+    if features is None or shape is None:
+        return None
+    try:
+        return features_sha256(features, *shape)
+    except ValidationError as exc:
+        raise PersistenceError(f"{context}: the features parameter does not fit the model's MDP (S, A) = {shape}: {exc}") from None
+
+
+def check_features_digest(attributes: dict[str, Any], features: np.ndarray | None, context: str) -> None:
+    """The stored ``features_sha256_`` must be the digest of the stored features parameter.
+
+    Checked when both are there and S, A are known; a digest without features is refused.
+    """
+    digest = attributes.get("features_sha256_")
+    if digest is None:
+        return
+    if features is None:
+        raise PersistenceError(f"{context}: features_sha256_ records features, but the model has no features parameter")
+    actual = fitted_features_sha256(attributes, features, context)
+    if actual is not None and actual != digest:
+        raise PersistenceError(f"{context}: the features parameter is not the one the model was fitted with "
+                               f"(its SHA-256 {actual[:12]}... differs from features_sha256_ {digest[:12]}...)")

@@ -1,0 +1,180 @@
+"""The learnt attributes declared on the estimator classes drive what is saved and checked."""
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import PersistenceError
+from factirl_opt.persistence.learnt import KINDS, SIGNATURE_KEYS, features_sha256, is_array_kind
+from factirl_opt.persistence.models import MODEL_CLASSES
+
+CONFIGURATIONS = ["gradirl-tabular", "gradirl-features", "factirl-tabular", "factirl-features", "factirl-transfer",
+                  "factirl-features-transfer"]
+
+
+def _learnt(model):
+    return {k: v for k, v in vars(model).items() if k.endswith("_") and not k.startswith("_")}
+
+
+def _rewrite(src, dst, edit):
+    with np.load(src, allow_pickle=False) as npz:
+        header = json.loads(str(npz["__header__"][()]))
+        arrays = {k: npz[k] for k in npz.files if k != "__header__"}
+    edit(header, arrays)
+    np.savez(dst, __header__=np.array(json.dumps(header)), **arrays)
+    return dst
+
+
+@pytest.mark.parametrize("cls", list(MODEL_CLASSES.values()))
+def test_declarations_use_known_kinds(cls):
+    assert cls.learnt_attributes, cls
+    for key, kind in cls.learnt_attributes.items():
+        assert key.endswith("_") and not key.startswith("_") and key.isidentifier(), key
+        assert (is_array_kind(kind) and all(isinstance(a, str) for a in kind)) or kind in KINDS, (key, kind)
+
+
+@pytest.mark.parametrize("name", CONFIGURATIONS)
+def test_every_learnt_attribute_is_declared_and_round_trips(fitted_models, name, tmp_path):
+    model = fitted_models[name]
+    attributes = _learnt(model)
+    declared = type(model).learnt_attributes
+    assert set(attributes) <= set(declared), f"{name} sets undeclared attributes {set(attributes) - set(declared)}"
+    assert {"rewards_", "loss_history_", "n_iter_", "status_", "mdp_signature_"} <= set(attributes)
+    if name.endswith("transfer"):
+        assert {"transfer_coefficients_", "transfer_rewards_", "transfer_loss_", "transfer_status_"} <= set(attributes)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+    assert set(_learnt(loaded)) == set(attributes) | {"features_sha256_"}
+    S, A = model.mdp_signature_["n_states"], model.mdp_signature_["n_actions"]
+    assert loaded.features_sha256_ == (None if model.features is None else features_sha256(model.features, S, A))
+    for key, value in attributes.items():
+        got = getattr(loaded, key)
+        if isinstance(value, np.ndarray):
+            assert got.dtype == value.dtype and got.shape == value.shape, key
+            np.testing.assert_array_equal(got, value, err_msg=key)
+        else:
+            assert got == value and type(got) is type(value), key
+
+
+def test_factirl_records_its_stop_reason_and_it_is_checked(fitted_models, tmp_path):
+    model = fitted_models["factirl-tabular"]
+    assert isinstance(model.stop_reason_, str) and model.stop_reason_
+    path = fo.save_model(model, tmp_path / "m.npz")
+    assert fo.load_model(path).stop_reason_ == model.stop_reason_
+    bad = _rewrite(path, tmp_path / "bad.npz", lambda h, a: h["attributes"].update(stop_reason_=["x"]))
+    with pytest.raises(PersistenceError, match=r"attribute stop_reason_ must be a string; got \['x'\]"):
+        fo.load_model(bad)
+
+
+def test_undeclared_attribute_is_refused_on_saving(fitted_models, tmp_path):
+    model = fo.load_model(fo.save_model(fitted_models["gradirl-tabular"], tmp_path / "m.npz"))
+    model.dictionary_ = np.eye(3)
+    with pytest.raises(PersistenceError, match="cannot save GradIRL: 'dictionary_' is not a learnt attribute of GradIRL"):
+        fo.save_model(model, tmp_path / "x.npz")
+    assert not (tmp_path / "x.npz").exists()
+
+
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("weights_", np.ones((4, 7)), r"weights_ of shape \(4, 7\) disagrees with the columns of the features parameter"),
+        ("rewards_", np.ones((4, 16, 3)), r"rewards_ of shape \(4, 16, 3\) disagrees with the MDP .* axis 2 \(A\) has length 3, not 4"),
+        ("loss_", np.ones(5), r"loss_ of shape \(5,\) disagrees with axis 0 of weights_"),
+        ("loss_", np.ones((4, 1)), r"attribute loss_ must be a 1-d float array"),
+        ("n_iter_", 2.0, "attribute n_iter_ must be an integer >= 0; got 2.0"),
+        ("status_", np.array([1.0]), "attribute status_ must be a string; got an array of shape"),
+        ("features_sha256_", "ABC", "attribute features_sha256_ must be None \\(no features\\) or the features' SHA-256"),
+    ],
+)
+def test_saved_attributes_are_checked_by_kind(fitted_models, tmp_path, key, value, match):
+    model = fo.load_model(fo.save_model(fitted_models["gradirl-features"], tmp_path / "m.npz"))
+    setattr(model, key, value)
+    with pytest.raises(PersistenceError, match=match):
+        fo.save_model(model, tmp_path / "x.npz")
+
+
+def test_files_without_the_new_attributes_still_load(fitted_models, grid_tasks, tmp_path):
+    mdp, _, _, state_features, _ = grid_tasks
+    model = fitted_models["factirl-features"]
+    path = fo.save_model(model, tmp_path / "m.npz")
+
+    def before_the_digest(header, arrays):
+        header["attributes"].pop("stop_reason_", None)
+        header["attributes"].pop("features_sha256_", None)
+
+    old = fo.load_model(_rewrite(path, tmp_path / "old.npz", before_the_digest))
+    assert not hasattr(old, "stop_reason_")
+    assert old.features_sha256_ == features_sha256(state_features, mdp.n_states, mdp.n_actions)
+    np.testing.assert_array_equal(old.dictionary_, model.dictionary_)
+
+    def version_1(header, arrays):
+        before_the_digest(header, arrays)
+        header["format_version"] = 1
+        header["attributes"].pop("mdp_signature_")
+
+    oldest = fo.load_model(_rewrite(path, tmp_path / "v1.npz", version_1))
+    assert oldest.mdp_signature_ is None  # S and A from rewards_: the state features are recognised
+    assert oldest.features_sha256_ == features_sha256(state_features, mdp.n_states, mdp.n_actions)
+
+    def without_rewards(header, arrays):
+        version_1(header, arrays)
+        header["array_attributes"].remove("rewards_")
+        arrays.pop("attr/rewards_")
+
+    assert fo.load_model(_rewrite(path, tmp_path / "v1r.npz", without_rewards)).features_sha256_ is None
+    tabular = fo.load_model(_rewrite(fo.save_model(fitted_models["gradirl-tabular"], tmp_path / "t.npz"), tmp_path / "t1.npz",
+                                     before_the_digest))
+    assert tabular.features_sha256_ is None and tabular.mdp_signature_ == mdp.signature()
+    unfitted = fo.load_model(fo.save_model(fo.GradIRL(), tmp_path / "u.npz"))
+    assert not hasattr(unfitted, "features_sha256_") and not hasattr(unfitted, "mdp_signature_")
+
+
+def test_features_digest_is_saved_and_checked_against_the_features(fitted_models, grid_tasks, tmp_path):
+    mdp, _, _, state_features, _ = grid_tasks
+    S, A = mdp.n_states, mdp.n_actions
+    model = fo.load_model(fo.save_model(fitted_models["factirl-features"], tmp_path / "m.npz"))
+    model.features_sha256_ = features_sha256(state_features, S, A)  # what the learners record at fit
+    path = fo.save_model(model, tmp_path / "signed.npz")
+    assert fo.load_model(path).features_sha256_ == features_sha256(state_features, S, A)
+
+    other = state_features[::-1].copy()  # the same shape, other features
+    assert features_sha256(other, S, A) != features_sha256(state_features, S, A)
+    swapped = _rewrite(path, tmp_path / "swapped.npz", lambda h, a: a.update({"param/features": other}))
+    with pytest.raises(PersistenceError, match="swapped.npz is malformed: the features parameter is not the one the model"):
+        fo.load_model(swapped)
+    model.features = other
+    with pytest.raises(PersistenceError, match="cannot save FactIRL: the features parameter is not the one"):
+        fo.save_model(model, tmp_path / "x.npz")
+    model.features = np.ones((7, 5))
+    with pytest.raises(PersistenceError, match=r"features parameter does not fit the model's MDP \(S, A\) = \(16, 4\): features must"):
+        fo.save_model(model, tmp_path / "x.npz")
+    model.features = np.ones((16, 3))  # the dictionary does not fit these either
+    with pytest.raises(PersistenceError, match=r"dictionary_ of shape \(5, 2\) disagrees with the columns of the features"):
+        fo.save_model(model, tmp_path / "x.npz")
+    model.features = None
+    with pytest.raises(PersistenceError, match="features_sha256_ records features, but the model has no features"):
+        fo.save_model(model, tmp_path / "x.npz")
+    bare = fo.FactIRL()
+    bare.features_sha256_ = features_sha256(state_features, S, A)
+    with pytest.raises(PersistenceError, match="features_sha256_ records features, but the model has no features"):
+        fo.save_model(bare, tmp_path / "x.npz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz", "signed.npz", "swapped.npz"]
+
+
+def test_features_digest_definition():
+    """SHA-256 of the features as the learners use them: float64 (S*A, p), repr of the shape, then the values."""
+    S, A = 3, 2
+    F = np.arange(12.0).reshape(S * A, 2)
+    expected = hashlib.sha256(repr((S * A, 2)).encode() + F.tobytes()).hexdigest()
+    assert features_sha256(F, S, A) == features_sha256(F.tolist(), S, A) == features_sha256(np.asfortranarray(F), S, A) == expected
+    state = np.arange(6.0).reshape(S, 2)
+    assert features_sha256(state, S, A) == features_sha256(np.repeat(state, A, axis=0), S, A)
+    G = F.copy()
+    G[2, 1] += 1e-12
+    assert features_sha256(F, S, A) != features_sha256(G, S, A)
+
+
+def test_signature_keys_are_the_mdps(grid_tasks):
+    assert sorted(grid_tasks[0].signature()) == sorted(SIGNATURE_KEYS)
