@@ -5,11 +5,18 @@ gets the same rule and the same message wherever it enters. All raise
 :class:`~factirl_opt.exceptions.ValidationError` naming the argument and the bad value.
 """
 
+from __future__ import annotations
+
 import numbers
+import typing
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .exceptions import ValidationError
+
+if typing.TYPE_CHECKING:
+    from .mdp import TabularMDP
 
 #: largest ``|R| / (1 - gamma)`` accepted: values (and their differences) stay finite in float64
 REWARD_LIMIT = 1e300
@@ -29,6 +36,7 @@ __all__ = [
     "check_statistics",
     "check_features",
     "check_stochastic_policy",
+    "check_start",
 ]
 
 
@@ -143,15 +151,53 @@ def check_mdp(mdp):
     return mdp
 
 
-def check_rewards(mdp, rewards, name="rewards"):
-    """Return rewards as float64 (n, S, A) and whether a single (S, A) reward was given."""
+def check_rewards(mdp: TabularMDP, rewards: ArrayLike, name: str = "rewards") -> tuple[NDArray[np.float64], bool]:
+    """Rewards as float64 (n, S, A), and whether one task's reward was given.
+
+    The one home of the reward layouts: every public function that takes rewards validates
+    them here, so each accepts the same four layouts.
+
+    ======================  ==============================  =============================
+    shape of ``rewards``    meaning                         ``R[i, s, a]``
+    ======================  ==============================  =============================
+    (n, S, A)               n state-action rewards          ``rewards[i, s, a]``
+    (S, A)                  one state-action reward         ``rewards[s, a]``, n = 1
+    (n, S), not (S, A)      n state rewards                 ``rewards[i, s]``
+    (S,)                    one state reward                ``rewards[s]``, n = 1
+    ======================  ==============================  =============================
+
+    State rewards are broadcast over the actions (``R(s, a) = r(s)``, docs/maths.md §1),
+    as :func:`~factirl_opt.objectworld.multitask_rewards` returns them. A 2-d array is read
+    as (S, A) whenever its shape is (S, A): when ``A == S``, an (S, S) array is one
+    state-action reward, never S state rewards; pass n == S state rewards over S actions as
+    (n, S, A) (e.g. ``state_action_rewards(r, A)``). A 2-d array of another shape whose last
+    axis has length S is read as (n, S).
+
+    Returns
+    -------
+    R : ndarray of float64, shape (n, S, A)
+        A new array when state rewards were given.
+    single : bool
+        True for the (S, A) and (S,) layouts (callers then drop the task axis of results).
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the shape given and the accepted shapes; or the largest reward when
+        ``|R| / (1 - gamma)`` would overflow float64.
+    """
     R = check_array(rewards, name)
     S, A = mdp.n_states, mdp.n_actions
-    single = R.ndim == 2
-    if single:
+    single = R.ndim == 1 or (R.ndim == 2 and R.shape == (S, A))
+    if R.ndim in (1, 2) and R.shape[-1] == S and R.shape != (S, A):
+        R = np.repeat(R.reshape(-1, S)[:, :, None], A, axis=2)  # state rewards over the actions
+    elif single:
         R = R[None]
     if R.ndim != 3 or R.shape[1:] != (S, A):
-        raise ValidationError(f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)}")
+        raise ValidationError(
+            f"{name} must have shape (n, S, A) = (n, {S}, {A}), (S, A) = ({S}, {A}), state rewards (n, S) = (n, {S}) "
+            f"or (S,) = ({S},); got {np.shape(rewards)}"
+        )
     if R.size and np.max(np.abs(R)) > REWARD_LIMIT * (1.0 - mdp.gamma):
         raise ValidationError(
             f"{name} reach {np.max(np.abs(R)):.3g}: values beyond {REWARD_LIMIT:.0e} * (1 - gamma) overflow the "
@@ -244,3 +290,50 @@ def check_stochastic_policy(mdp, policy, n):
     if not np.all(np.isfinite(pi)) or np.any(pi < 0) or np.any(np.abs(pi.sum(axis=2) - 1.0) > 1e-9):
         raise ValidationError("a stochastic policy must be finite, nonnegative, and each pi(.|s) must sum to 1")
     return pi
+
+
+#: tolerance on the sum of a start-state distribution
+START_SUM_TOL = 1e-9
+
+
+def check_start(start: int | ArrayLike | None, n: int, n_states: int) -> int | NDArray[np.float64] | None:
+    """A start-state specification: None, a state index, or (n, S) start-state distributions.
+
+    Parameters
+    ----------
+    start : None, int, or array_like of shape (S,) or (n, S)
+        None (uniform), one state for every episode, one distribution for every task, or one
+        distribution per task. Distributions must be finite, nonnegative and sum to 1 (within
+        :data:`START_SUM_TOL`).
+    n : int
+        Number of tasks.
+    n_states : int
+        ``S``.
+
+    Returns
+    -------
+    None, int, or ndarray of float64, shape (n, S)
+        Distributions are returned one row per task (an (S,) vector repeated n times).
+    """
+    if start is None:
+        return None
+    if isinstance(start, (numbers.Integral, np.bool_)):
+        return check_int(start, "start", minimum=0, maximum=n_states - 1)
+    p = check_array(start, "start")
+    if p.shape not in ((n_states,), (n, n_states)):
+        raise ValidationError(
+            f"start must be None, a state index in [0, {n_states}), a distribution over the states of shape "
+            f"(S,) = ({n_states},) or one per task of shape (n, S) = ({n}, {n_states}); got "
+            f"{type(start).__name__} of shape {p.shape}"
+        )
+    rows = p.reshape(-1, n_states)
+    label = (lambda i: "start") if p.ndim == 1 else (lambda i: f"start[{i}]")
+    if np.any(rows < 0):
+        i, s = (int(v) for v in np.argwhere(rows < 0)[0])
+        raise ValidationError(f"start must hold nonnegative probabilities; {label(i)} has {float(rows[i, s])!r} at state {s}")
+    sums = rows.sum(axis=1)
+    err = np.abs(sums - 1.0)
+    if np.any(err > START_SUM_TOL):
+        i = int(np.argmax(err))
+        raise ValidationError(f"start probabilities must sum to 1 (within {START_SUM_TOL:g}); {label(i)} sums to {float(sums[i])!r}")
+    return np.array(np.broadcast_to(rows, (n, n_states)), dtype=np.float64)
