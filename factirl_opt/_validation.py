@@ -195,8 +195,8 @@ def check_rewards(mdp: TabularMDP, rewards: ArrayLike, name: str = "rewards") ->
         R = R[None]
     if R.ndim != 3 or R.shape[1:] != (S, A):
         raise ValidationError(
-            f"{name} must have shape (n, S, A) = (n, {S}, {A}), (S, A) = ({S}, {A}), state rewards (n, S) = (n, {S}) "
-            f"or (S,) = ({S},); got {np.shape(rewards)}"
+            f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)} (state rewards of "
+            f"shape (S,) = ({S},) or (n, S) = (n, {S}) are accepted too, repeated over the actions)"
         )
     if R.size and np.max(np.abs(R)) > REWARD_LIMIT * (1.0 - mdp.gamma):
         raise ValidationError(

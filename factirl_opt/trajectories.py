@@ -141,9 +141,28 @@ def _as_indices(arr, where, n_states=None, n_actions=None):
 
 
 def _is_trajectory(x):
+    """An episode read as a trajectory: any mapping (its keys are checked when read) or an object."""
     if isinstance(x, collections.abc.Mapping):
         return True
     return any(hasattr(x, o) and hasattr(x, a) for o, a in zip(_OBS_KEYS, _ACT_KEYS))
+
+
+def _has_trajectory_keys(x):
+    """A mapping holding an observations or an actions key (so it was meant as one trajectory)."""
+    return isinstance(x, collections.abc.Mapping) and any(k in x for k in _OBS_KEYS + _ACT_KEYS)
+
+
+def describe(x) -> str:
+    """What a value is, for messages: its type with its shape, length or keys."""
+    if isinstance(x, collections.abc.Mapping):
+        keys = [repr(k) for k in list(x)[:6]]
+        more = ", ..." if len(x) > 6 else ""
+        return f"a {type(x).__name__} of {len(x)} entries with keys [{', '.join(keys)}{more}]"
+    if isinstance(x, np.ndarray):
+        return f"an array of shape {x.shape} and dtype {x.dtype}"
+    if isinstance(x, (list, tuple)):
+        return f"a {type(x).__name__} of length {len(x)}"
+    return f"{type(x).__name__} {x!r}" if isinstance(x, (numbers.Number, str)) else type(x).__name__
 
 
 def _trajectory_fields(x, where):
@@ -228,10 +247,11 @@ def _episode(ep, i, j, load_files):
         return _trajectory_pairs(ep, where)
     try:
         arr = np.asarray(ep)
-    except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
-        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
+    except (TypeError, ValueError) as exc:  # e.g. pairs of different lengths: [[0, 1], [2]]
+        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2); got {describe(ep)} "
+                              f"that is not a rectangular array ({exc})") from None
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
+        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape} ({describe(ep)})")
     return arr
 
 
@@ -271,6 +291,8 @@ def _single_episode(entry, load_files):
         return "a list of (state, action) pairs" if entry and _is_pair(entry[0]) else None
     if load_files and isinstance(entry, (str, os.PathLike)):
         return f"a rollout file {os.fspath(entry)!r}"
+    if isinstance(entry, collections.abc.Mapping):
+        return f"a trajectory, {describe(entry)}" if _has_trajectory_keys(entry) else None
     return f"a trajectory, {type(entry).__name__}" if _is_trajectory(entry) else None
 
 
@@ -287,6 +309,20 @@ def _nesting_error(entries, i, what, name):
     return ValidationError(head + f"If it is the only episode of task {i}, wrap it in a list: [episode]")
 
 
+def _layout_hint(demos, name):
+    """How to pass a single trajectory, a dict of tasks or an iterator as ``demos_per_task``."""
+    if isinstance(demos, collections.abc.Mapping):
+        if _has_trajectory_keys(demos):
+            return f", a single trajectory: pass [[{name}]] for one task of one episode"
+        return (f": a mapping of tasks is not accepted (the task order would be implicit); pass "
+                f"list({name}.values()) for one task per entry, in the order of its keys")
+    if _is_trajectory(demos):
+        return f", a single trajectory: pass [[{name}]] for one task of one episode"
+    if isinstance(demos, collections.abc.Iterable) and not isinstance(demos, (str, bytes)):
+        return f": pass list({name}) if it yields one entry per task"
+    return ""
+
+
 def _task_entries(demos, name, load_files):
     """The entries of ``demos_per_task``, one per task, after the checks of the nesting rule."""
     rule = f"{name} must be a list with one entry per task (one task is a list of one), or a 4-d array (n, m, L, 2)"
@@ -299,11 +335,9 @@ def _task_entries(demos, name, load_files):
                 f"{rule}; got an array of shape {demos.shape}, the layout of one task's episodes: pass [{name}] for "
                 f"one task of {m} episodes, or list({name}[:, None]) for {m} tasks of one episode each"
             )
-        raise ValidationError(f"{rule}; got an array of shape {demos.shape}")
+        raise ValidationError(f"{rule}; got {describe(demos)}")
     if not isinstance(demos, (list, tuple)):
-        if _is_trajectory(demos):
-            raise ValidationError(f"{rule}; got a single trajectory ({type(demos).__name__}): pass [[{name}]] for one task of one episode")
-        raise ValidationError(f"{rule}; got {type(demos).__name__}")
+        raise ValidationError(f"{rule}; got {describe(demos)}{_layout_hint(demos, name)}")
     if len(demos) == 0:
         raise ValidationError(f"{name} is empty: give the demonstrations of at least one task")
     for i, entry in enumerate(demos):
@@ -328,10 +362,12 @@ def _parse_task(entry, i, bounds, load_files):
             raise ValidationError(f"demonstrations of task {i} are empty: give at least one episode")
         episodes = [_episode(ep, i, j, load_files) for j, ep in enumerate(entry)]
         return TaskDemonstrations(_episodes_steps(episodes, i, bounds), np.array([len(e) for e in episodes], dtype=np.int64), "list")
-    shape = f" of shape {entry.shape}" if isinstance(entry, np.ndarray) else ""
+    hint = ""
+    if isinstance(entry, collections.abc.Mapping):
+        hint = " (a mapping of episodes is not accepted: pass list(episodes.values()), in the order of its keys)"
     raise ValidationError(
         f"demonstrations of task {i} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
-        f"got {type(entry).__name__}{shape}"
+        f"got {describe(entry)}{hint}"
     )
 
 
