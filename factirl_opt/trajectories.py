@@ -40,15 +40,21 @@ Only the (state, action) steps enter the empirical statistics of eq. (5); episod
 are kept for saving (:func:`~factirl_opt.save_demonstrations`) and for the user.
 """
 
+from __future__ import annotations
+
 import collections.abc
 import numbers
 import os
 import typing
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._validation import check_mdp
 from .exceptions import PersistenceError, ValidationError
+
+if typing.TYPE_CHECKING:
+    from .mdp import TabularMDP
 
 __all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "task_steps", "TaskDemonstrations"]
 
@@ -75,7 +81,7 @@ class TaskDemonstrations(typing.NamedTuple):
     lengths: np.ndarray
     form: str
 
-    def episodes(self):
+    def episodes(self) -> list[NDArray[np.int64]]:
         """The episodes as a list of int64 (L_j, 2) arrays (views of ``steps``)."""
         return np.split(self.steps, np.cumsum(self.lengths)[:-1])
 
@@ -152,7 +158,7 @@ def _has_trajectory_keys(x):
     return isinstance(x, collections.abc.Mapping) and any(k in x for k in _OBS_KEYS + _ACT_KEYS)
 
 
-def describe(x) -> str:
+def describe(x: object) -> str:
     """What a value is, for messages: its type with its shape, length or keys."""
     if isinstance(x, collections.abc.Mapping):
         keys = [repr(k) for k in list(x)[:6]]
@@ -371,7 +377,8 @@ def _parse_task(entry, i, bounds, load_files):
     )
 
 
-def parse_demonstrations(demos_per_task, n_states=None, n_actions=None, name="demos_per_task", load_files=False):
+def parse_demonstrations(demos_per_task: typing.Any, n_states: int | None = None, n_actions: int | None = None,
+                         name: str = "demos_per_task", load_files: bool = False) -> list[TaskDemonstrations]:
     """Every task's demonstrations, in any accepted layout, validated (see the module docstring).
 
     Parameters
@@ -404,7 +411,7 @@ def parse_demonstrations(demos_per_task, n_states=None, n_actions=None, name="de
     return [_parse_task(entry, i, bounds, load_files) for i, entry in enumerate(entries)]
 
 
-def task_steps(mdp, task_demos, task=0):
+def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArray[np.int64]:
     """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
 
     Parameters
@@ -422,7 +429,8 @@ def task_steps(mdp, task_demos, task=0):
     return _parse_task(task_demos, task, (mdp.n_states, mdp.n_actions), False).steps
 
 
-def demonstrations_from_trajectories(trajectories_per_task, mdp=None):
+def demonstrations_from_trajectories(trajectories_per_task: typing.Any,
+                                     mdp: TabularMDP | None = None) -> list[list[NDArray[np.int64]]]:
     """Trajectories from other libraries as this library's demonstrations (one list of episodes per task).
 
     Reads, without importing those libraries, objects with ``obs`` and ``acts`` attributes
