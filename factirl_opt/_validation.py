@@ -18,10 +18,14 @@ from .exceptions import ValidationError
 if typing.TYPE_CHECKING:
     from .mdp import TabularMDP
 
+#: What ``rng=`` accepts everywhere: a Generator, a seed, a SeedSequence or None (see :func:`as_rng`).
+RNGLike = np.random.Generator | int | np.random.SeedSequence | None
+
 #: largest ``|R| / (1 - gamma)`` accepted: values (and their differences) stay finite in float64
 REWARD_LIMIT = 1e300
 
 __all__ = [
+    "RNGLike",
     "as_rng",
     "check_int",
     "check_real",
@@ -40,7 +44,7 @@ __all__ = [
 ]
 
 
-def as_rng(rng):
+def as_rng(rng: RNGLike) -> np.random.Generator:
     """A ``numpy.random.Generator`` from a Generator, a seed, a SeedSequence or None."""
     if isinstance(rng, np.random.Generator):
         return rng

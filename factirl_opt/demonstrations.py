@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._threads import blas_limited
-from ._validation import as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
+from ._validation import RNGLike, as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
 from .planning import get_planner, plan
 from .trajectories import parse_demonstrations, task_steps
 
@@ -91,7 +91,7 @@ def sample_demonstrations(
     rewards: ArrayLike,
     n_demos: int,
     length: int,
-    rng: np.random.Generator | int | np.random.SeedSequence | None = None,
+    rng: RNGLike = None,
     planner: str = "auto",
     start: int | ArrayLike | None = None,
     return_final_states: bool = False,

@@ -22,7 +22,7 @@ import typing
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validation import as_rng, check_array, check_int, check_mdp, check_real
+from ._validation import RNGLike, as_rng, check_array, check_int, check_mdp, check_real
 from .demonstrations import sample_demonstrations
 from .exceptions import ValidationError
 
@@ -34,7 +34,7 @@ __all__ = ["random_dictionary", "random_coefficients", "task_rewards", "Syntheti
 COEFFICIENT_KINDS = ("gaussian", "nonneg")
 
 
-def random_dictionary(n_params: int, n_primitives: int = 5, rng: np.random.Generator | int | np.random.SeedSequence | None = None) -> NDArray[np.float64]:
+def random_dictionary(n_params: int, n_primitives: int = 5, rng: RNGLike = None) -> NDArray[np.float64]:
     """A random dictionary ``D`` of shape (n_params, n_primitives), entries N(0, 1)."""
     n_params = check_int(n_params, "n_params", minimum=1)
     n_primitives = check_int(n_primitives, "n_primitives", minimum=1)
@@ -42,7 +42,7 @@ def random_dictionary(n_params: int, n_primitives: int = 5, rng: np.random.Gener
 
 
 def random_coefficients(n_tasks: int, n_primitives: int = 5, kind: str = "gaussian", sparsity: float = 0.0,
-                        rng: np.random.Generator | int | np.random.SeedSequence | None = None) -> NDArray[np.float64]:
+                        rng: RNGLike = None) -> NDArray[np.float64]:
     """Random mixing coefficients ``H`` of shape (n_tasks, n_primitives).
 
     Parameters
@@ -113,7 +113,7 @@ class SyntheticTasks:
 
 def synthetic_tasks(mdp: TabularMDP, n_tasks: int, n_demos: int, length: int, n_primitives: int = 5,
                     dictionary: ArrayLike | None = None, kind: str = "gaussian", sparsity: float = 0.0,
-                    rng: np.random.Generator | int | np.random.SeedSequence | None = None, demo_rng: np.random.Generator | int | np.random.SeedSequence | None = None,
+                    rng: RNGLike = None, demo_rng: RNGLike = None,
                     planner: str = "auto") -> SyntheticTasks:
     """Draw tasks from a (random or given) dictionary and sample an expert's demonstrations.
 

@@ -476,6 +476,6 @@ def demonstrations_from_trajectories(trajectories_per_task: typing.Any,
     >>> [ep.tolist() for ep in demos[0]]
     [[[0, 1], [1, 2]], [[2, 0]]]
     """
-    bounds = (None, None) if mdp is None else (check_mdp(mdp).n_states, mdp.n_actions)
-    tasks = parse_demonstrations(trajectories_per_task, *bounds, name="trajectories_per_task", load_files=True)
+    n_states, n_actions = (None, None) if mdp is None else (check_mdp(mdp).n_states, mdp.n_actions)
+    tasks = parse_demonstrations(trajectories_per_task, n_states, n_actions, name="trajectories_per_task", load_files=True)
     return [[ep.copy() for ep in task.episodes()] for task in tasks]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_int, check_real
+from .._validation import RNGLike, as_rng, check_int, check_real
 from ..exceptions import ValidationError
 from .features import squared_distances
 from .world import N_ACTIONS, ObjectWorld, check_world
@@ -72,8 +72,8 @@ def multitask_primitives(world: ObjectWorld) -> NDArray[np.float64]:
     return (dsq[:, : world.n_inner] < float(ELIRL_RADIUS**2)).astype(np.float64)
 
 
-def multitask_rewards(world: ObjectWorld, n_tasks: int, rng: np.random.Generator | int | np.random.SeedSequence | None = None
-                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def multitask_rewards(world: ObjectWorld, n_tasks: int,
+                      rng: RNGLike = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """ELIRL's multi-task rewards and their coefficients on the true primitives.
 
     For each task, independently: draw ``k`` uniformly in {2, 3, 4} (capped at ``c1``), choose

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_int, check_real
+from .._validation import RNGLike, as_rng, check_int, check_real
 from ..exceptions import ValidationError
 from ..mdp import TabularMDP
 
@@ -175,7 +175,7 @@ def _check_objects(objects, size, n_inner, n_outer):
 
 
 def make_objectworld(size: int = 32, n_inner: int = 5, n_outer: int = 2, object_density: float = 0.05, determinism: float = 0.7,
-                     gamma: float = 0.9, rng: np.random.Generator | int | np.random.SeedSequence | None = None, objects: ArrayLike | None = None) -> ObjectWorld:
+                     gamma: float = 0.9, rng: RNGLike = None, objects: ArrayLike | None = None) -> ObjectWorld:
     """Build an Objectworld (defaults: ELIRL's multi-task benchmark).
 
     Parameters
