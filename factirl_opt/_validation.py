@@ -220,8 +220,12 @@ def check_policy(mdp, policy, n, name="policy"):
     S, A = mdp.n_states, mdp.n_actions
     if pol.shape != (n, S):
         raise ValidationError(f"{name} must have shape ({n}, {S}) (one action per state and task); got {np.shape(policy)}")
-    if not np.issubdtype(pol.dtype, np.integer) or np.any((pol < 0) | (pol >= A)):
-        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got {pol!r}")
+    if not np.issubdtype(pol.dtype, np.integer):
+        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got an array of dtype {pol.dtype}")
+    bad = (pol < 0) | (pol >= A)
+    if np.any(bad):
+        i, s = (int(v) for v in np.argwhere(bad)[0])
+        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got {int(pol[i, s])} for task {i}, state {s}")
     return pol.astype(np.intp, copy=False)
 
 
@@ -244,8 +248,10 @@ def check_statistics(mdp, mu_hat, pi_hat, n=None, atol=1e-6):
         raise ValidationError(f"pi_hat must have shape ({mu.shape[0]}, {S}, {A}) to match mu_hat {mu.shape}; got {np.shape(pi_hat)}")
     if n is not None and mu.shape[0] != n:
         raise ValidationError(f"mu_hat and pi_hat describe {mu.shape[0]} tasks but rewards describe {n}")
-    if np.any(mu < 0) or np.any(pi < 0):
-        raise ValidationError("mu_hat and pi_hat must be nonnegative")
+    for label, arr in (("mu_hat", mu), ("pi_hat", pi)):
+        if np.any(arr < 0):
+            index = tuple(int(v) for v in np.argwhere(arr < 0)[0])
+            raise ValidationError(f"{label} must be nonnegative; found {float(arr[index])!r} at index {index} (task {index[0]})")
     mu_sums = mu.sum(axis=1)
     if np.any(np.abs(mu_sums - 1.0) > atol):
         i = int(np.argmax(np.abs(mu_sums - 1.0)))
@@ -291,8 +297,13 @@ def check_stochastic_policy(mdp, policy, n):
     S, A = mdp.n_states, mdp.n_actions
     if pi.shape != (n, S, A):
         raise ValidationError(f"a stochastic policy must have shape ({n}, {S}, {A}); got {np.shape(policy)}")
-    if not np.all(np.isfinite(pi)) or np.any(pi < 0) or np.any(np.abs(pi.sum(axis=2) - 1.0) > 1e-9):
-        raise ValidationError("a stochastic policy must be finite, nonnegative, and each pi(.|s) must sum to 1")
+    if np.any(pi < 0):
+        i, s, a = (int(v) for v in np.argwhere(pi < 0)[0])
+        raise ValidationError(f"a stochastic policy must be nonnegative; pi(a={a}|s={s}) of task {i} is {float(pi[i, s, a])!r}")
+    err = np.abs(pi.sum(axis=2) - 1.0)
+    if np.any(err > 1e-9):
+        i, s = (int(v) for v in np.unravel_index(np.argmax(err), err.shape))
+        raise ValidationError(f"each pi(.|s) of a stochastic policy must sum to 1; task {i}, state {s} sums to {float(pi[i, s].sum())!r}")
     return pi
 
 

@@ -161,3 +161,32 @@ def test_check_start_forms():
 def test_check_start_errors(start, fragment):
     with pytest.raises(ValidationError, match=fragment):
         check_start(start, 2, 4)
+
+
+# --- policies and statistics name the bad entry -----------------------------------------------
+
+
+def test_policy_messages_name_the_entry(grid3):
+    from factirl_opt._validation import check_policy, check_statistics, check_stochastic_policy
+
+    pol = np.zeros((2, 9), dtype=int)
+    pol[1, 5] = 7
+    with pytest.raises(ValidationError, match=r"policy must hold integer actions in \[0, 4\); got 7 for task 1, state 5"):
+        check_policy(grid3, pol, 2)
+    with pytest.raises(ValidationError, match=r"integer actions in \[0, 4\); got an array of dtype float64"):
+        check_policy(grid3, np.zeros(9), 1)
+    pi = np.full((2, 9, 4), 0.25)
+    pi[1, 3] = [0.5, 0.5, 0.5, -0.5]
+    with pytest.raises(ValidationError, match=r"must be nonnegative; pi\(a=3\|s=3\) of task 1 is -0\.5"):
+        check_stochastic_policy(grid3, pi, 2)
+    pi[1, 3] = [0.5, 0.5, 0.5, 0.0]
+    with pytest.raises(ValidationError, match=r"must sum to 1; task 1, state 3 sums to 1\.5"):
+        check_stochastic_policy(grid3, pi, 2)
+    mu = np.full((1, 9), 1 / 9)
+    pi_hat = np.full((1, 9, 4), 0.25)
+    mu[0, 2], mu[0, 3] = -1 / 9, 3 / 9
+    with pytest.raises(ValidationError, match=r"mu_hat must be nonnegative; found -0\.11\d* at index \(0, 2\) \(task 0\)"):
+        check_statistics(grid3, mu, pi_hat)
+    pi_hat[0, 4] = [1.25, -0.25, 0, 0]
+    with pytest.raises(ValidationError, match=r"pi_hat must be nonnegative; found -0\.25 at index \(0, 4, 1\)"):
+        check_statistics(grid3, np.full((1, 9), 1 / 9), pi_hat)
