@@ -107,9 +107,9 @@ def sample_demonstrations(
     mdp : TabularMDP
     rewards : array_like, shape (n, S, A), (S, A), (n, S) or (S,)
         The tasks' true rewards; state rewards (n, S) or (S,) (e.g. from
-        :func:`~factirl_opt.objectworld.multitask_rewards`) are broadcast over the actions. An
-        (S, S) array with ``A == S`` is one (S, A) reward (layouts: :func:`check_rewards
-        <factirl_opt._validation.check_rewards>`).
+        :func:`~factirl_opt.objectworld.multitask_rewards`) are repeated over the actions. A
+        2-d array of shape (S, A) is always one (S, A) reward: on an MDP with ``A == S``, pass
+        S state rewards as (S, S, A) (:func:`~factirl_opt.objectworld.state_action_rewards`).
     n_demos : int
         Demonstrations per task, m >= 1.
     length : int

@@ -1,8 +1,9 @@
 """Scoring learnt rewards on the true task (paper eq. 13; docs/maths.md §9).
 
-Rewards enter in any layout of :func:`~factirl_opt._validation.check_rewards`: (n, S, A) or
-(S, A) state-action rewards, or (n, S) or (S,) state rewards broadcast over the actions (an
-(S, S) array with ``A == S`` is one (S, A) reward).
+Rewards enter as (n, S, A) or (S, A) state-action rewards, or as (n, S) or (S,) state rewards
+repeated over the actions. A 2-d array of shape (S, A) is always one (S, A) reward: on an MDP
+with ``A == S``, pass S state rewards as (S, S, A)
+(:func:`~factirl_opt.objectworld.state_action_rewards`).
 """
 
 from __future__ import annotations
