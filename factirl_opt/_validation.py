@@ -5,16 +5,27 @@ gets the same rule and the same message wherever it enters. All raise
 :class:`~factirl_opt.exceptions.ValidationError` naming the argument and the bad value.
 """
 
+from __future__ import annotations
+
 import numbers
+import typing
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .exceptions import ValidationError
+
+if typing.TYPE_CHECKING:
+    from .mdp import TabularMDP
+
+#: What ``rng=`` accepts everywhere: a Generator, a seed, a SeedSequence or None (see :func:`as_rng`).
+RNGLike = np.random.Generator | int | np.random.SeedSequence | None
 
 #: largest ``|R| / (1 - gamma)`` accepted: values (and their differences) stay finite in float64
 REWARD_LIMIT = 1e300
 
 __all__ = [
+    "RNGLike",
     "as_rng",
     "check_int",
     "check_real",
@@ -29,10 +40,11 @@ __all__ = [
     "check_statistics",
     "check_features",
     "check_stochastic_policy",
+    "check_start",
 ]
 
 
-def as_rng(rng):
+def as_rng(rng: RNGLike) -> np.random.Generator:
     """A ``numpy.random.Generator`` from a Generator, a seed, a SeedSequence or None."""
     if isinstance(rng, np.random.Generator):
         return rng
@@ -143,15 +155,53 @@ def check_mdp(mdp):
     return mdp
 
 
-def check_rewards(mdp, rewards, name="rewards"):
-    """Return rewards as float64 (n, S, A) and whether a single (S, A) reward was given."""
+def check_rewards(mdp: TabularMDP, rewards: ArrayLike, name: str = "rewards") -> tuple[NDArray[np.float64], bool]:
+    """Rewards as float64 (n, S, A), and whether one task's reward was given.
+
+    The one home of the reward layouts: every public function that takes rewards validates
+    them here, so each accepts the same four layouts.
+
+    ======================  ==============================  =============================
+    shape of ``rewards``    meaning                         ``R[i, s, a]``
+    ======================  ==============================  =============================
+    (n, S, A)               n state-action rewards          ``rewards[i, s, a]``
+    (S, A)                  one state-action reward         ``rewards[s, a]``, n = 1
+    (n, S), not (S, A)      n state rewards                 ``rewards[i, s]``
+    (S,)                    one state reward                ``rewards[s]``, n = 1
+    ======================  ==============================  =============================
+
+    State rewards are broadcast over the actions (``R(s, a) = r(s)``, docs/maths.md §1),
+    as :func:`~factirl_opt.objectworld.multitask_rewards` returns them. A 2-d array is read
+    as (S, A) whenever its shape is (S, A): when ``A == S``, an (S, S) array is one
+    state-action reward, never S state rewards; pass n == S state rewards over S actions as
+    (n, S, A) (e.g. ``state_action_rewards(r, A)``). A 2-d array of another shape whose last
+    axis has length S is read as (n, S).
+
+    Returns
+    -------
+    R : ndarray of float64, shape (n, S, A)
+        A new array when state rewards were given.
+    single : bool
+        True for the (S, A) and (S,) layouts (callers then drop the task axis of results).
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the shape given and the accepted shapes; or the largest reward when
+        ``|R| / (1 - gamma)`` would overflow float64.
+    """
     R = check_array(rewards, name)
     S, A = mdp.n_states, mdp.n_actions
-    single = R.ndim == 2
-    if single:
+    single = R.ndim == 1 or (R.ndim == 2 and R.shape == (S, A))
+    if R.ndim in (1, 2) and R.shape[-1] == S and R.shape != (S, A):
+        R = np.repeat(R.reshape(-1, S)[:, :, None], A, axis=2)  # state rewards over the actions
+    elif single:
         R = R[None]
     if R.ndim != 3 or R.shape[1:] != (S, A):
-        raise ValidationError(f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)}")
+        raise ValidationError(
+            f"{name} must have shape (S, A) = ({S}, {A}) or (n, {S}, {A}); got {np.shape(rewards)} (state rewards of "
+            f"shape (S,) = ({S},) or (n, S) = (n, {S}) are accepted too, repeated over the actions)"
+        )
     if R.size and np.max(np.abs(R)) > REWARD_LIMIT * (1.0 - mdp.gamma):
         raise ValidationError(
             f"{name} reach {np.max(np.abs(R)):.3g}: values beyond {REWARD_LIMIT:.0e} * (1 - gamma) overflow the "
@@ -170,8 +220,12 @@ def check_policy(mdp, policy, n, name="policy"):
     S, A = mdp.n_states, mdp.n_actions
     if pol.shape != (n, S):
         raise ValidationError(f"{name} must have shape ({n}, {S}) (one action per state and task); got {np.shape(policy)}")
-    if not np.issubdtype(pol.dtype, np.integer) or np.any((pol < 0) | (pol >= A)):
-        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got {pol!r}")
+    if not np.issubdtype(pol.dtype, np.integer):
+        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got an array of dtype {pol.dtype}")
+    bad = (pol < 0) | (pol >= A)
+    if np.any(bad):
+        i, s = (int(v) for v in np.argwhere(bad)[0])
+        raise ValidationError(f"{name} must hold integer actions in [0, {A}); got {int(pol[i, s])} for task {i}, state {s}")
     return pol.astype(np.intp, copy=False)
 
 
@@ -194,8 +248,10 @@ def check_statistics(mdp, mu_hat, pi_hat, n=None, atol=1e-6):
         raise ValidationError(f"pi_hat must have shape ({mu.shape[0]}, {S}, {A}) to match mu_hat {mu.shape}; got {np.shape(pi_hat)}")
     if n is not None and mu.shape[0] != n:
         raise ValidationError(f"mu_hat and pi_hat describe {mu.shape[0]} tasks but rewards describe {n}")
-    if np.any(mu < 0) or np.any(pi < 0):
-        raise ValidationError("mu_hat and pi_hat must be nonnegative")
+    for label, arr in (("mu_hat", mu), ("pi_hat", pi)):
+        if np.any(arr < 0):
+            index = tuple(int(v) for v in np.argwhere(arr < 0)[0])
+            raise ValidationError(f"{label} must be nonnegative; found {float(arr[index])!r} at index {index} (task {index[0]})")
     mu_sums = mu.sum(axis=1)
     if np.any(np.abs(mu_sums - 1.0) > atol):
         i = int(np.argmax(np.abs(mu_sums - 1.0)))
@@ -241,6 +297,58 @@ def check_stochastic_policy(mdp, policy, n):
     S, A = mdp.n_states, mdp.n_actions
     if pi.shape != (n, S, A):
         raise ValidationError(f"a stochastic policy must have shape ({n}, {S}, {A}); got {np.shape(policy)}")
-    if not np.all(np.isfinite(pi)) or np.any(pi < 0) or np.any(np.abs(pi.sum(axis=2) - 1.0) > 1e-9):
-        raise ValidationError("a stochastic policy must be finite, nonnegative, and each pi(.|s) must sum to 1")
+    if np.any(pi < 0):
+        i, s, a = (int(v) for v in np.argwhere(pi < 0)[0])
+        raise ValidationError(f"a stochastic policy must be nonnegative; pi(a={a}|s={s}) of task {i} is {float(pi[i, s, a])!r}")
+    err = np.abs(pi.sum(axis=2) - 1.0)
+    if np.any(err > 1e-9):
+        i, s = (int(v) for v in np.unravel_index(np.argmax(err), err.shape))
+        raise ValidationError(f"each pi(.|s) of a stochastic policy must sum to 1; task {i}, state {s} sums to {float(pi[i, s].sum())!r}")
     return pi
+
+
+#: tolerance on the sum of a start-state distribution
+START_SUM_TOL = 1e-9
+
+
+def check_start(start: int | ArrayLike | None, n: int, n_states: int) -> int | NDArray[np.float64] | None:
+    """A start-state specification: None, a state index, or (n, S) start-state distributions.
+
+    Parameters
+    ----------
+    start : None, int, or array_like of shape (S,) or (n, S)
+        None (uniform), one state for every episode, one distribution for every task, or one
+        distribution per task. Distributions must be finite, nonnegative and sum to 1 (within
+        :data:`START_SUM_TOL`).
+    n : int
+        Number of tasks.
+    n_states : int
+        ``S``.
+
+    Returns
+    -------
+    None, int, or ndarray of float64, shape (n, S)
+        Distributions are returned one row per task (an (S,) vector repeated n times).
+    """
+    if start is None:
+        return None
+    if isinstance(start, (numbers.Integral, np.bool_)):
+        return check_int(start, "start", minimum=0, maximum=n_states - 1)
+    p = check_array(start, "start")
+    if p.shape not in ((n_states,), (n, n_states)):
+        raise ValidationError(
+            f"start must be None, a state index in [0, {n_states}), a distribution over the states of shape "
+            f"(S,) = ({n_states},) or one per task of shape (n, S) = ({n}, {n_states}); got "
+            f"{type(start).__name__} of shape {p.shape}"
+        )
+    rows = p.reshape(-1, n_states)
+    label = (lambda i: "start") if p.ndim == 1 else (lambda i: f"start[{i}]")
+    if np.any(rows < 0):
+        i, s = (int(v) for v in np.argwhere(rows < 0)[0])
+        raise ValidationError(f"start must hold nonnegative probabilities; {label(i)} has {float(rows[i, s])!r} at state {s}")
+    sums = rows.sum(axis=1)
+    err = np.abs(sums - 1.0)
+    if np.any(err > START_SUM_TOL):
+        i = int(np.argmax(err))
+        raise ValidationError(f"start probabilities must sum to 1 (within {START_SUM_TOL:g}); {label(i)} sums to {float(sums[i])!r}")
+    return np.array(np.broadcast_to(rows, (n, n_states)), dtype=np.float64)

@@ -32,10 +32,14 @@ from its id; an environment object is read by duck typing (anything whose ``unwr
 such a ``P``).
 """
 
+from __future__ import annotations
+
 import importlib
+import typing
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
 
 from ._validation import check_real
 from .exceptions import MissingDependencyError, ValidationError
@@ -121,7 +125,8 @@ def _outcomes(table, S, A):
         for a in range(A):
             outcomes = row[a]
             if not isinstance(outcomes, (list, tuple)) or len(outcomes) == 0:
-                raise ValidationError(f"P[{s}][{a}] must be a non-empty list of (probability, next_state, reward, terminated)")
+                raise ValidationError(f"P[{s}][{a}] must be a non-empty list of (probability, next_state, reward, terminated); "
+                                      f"got {outcomes!r:.100}")
             for item in outcomes:
                 prob, nxt, reward, done = _outcome(item, s, a, S)
                 rows.append(s * A + a)
@@ -161,7 +166,7 @@ def _read_model(env, terminal):
     return P, R, absorbing
 
 
-def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
+def from_gymnasium(env: typing.Any, gamma: float = 0.9, terminal: str = "absorbing", **make_kwargs: typing.Any) -> TabularMDP:
     """A :class:`TabularMDP` from a Gymnasium toy-text environment's ``env.unwrapped.P``.
 
     Parameters
@@ -205,7 +210,7 @@ def from_gymnasium(env, gamma=0.9, terminal="absorbing", **make_kwargs):
     return TabularMDP(P, gamma)  # kept sparse: (S * A, S) CSR, row s * A + a
 
 
-def gymnasium_rewards(env, terminal="absorbing", **make_kwargs):
+def gymnasium_rewards(env: typing.Any, terminal: str = "absorbing", **make_kwargs: typing.Any) -> NDArray[np.float64]:
     """The environment's own reward as an (S, A) array of expected immediate rewards.
 
     ``R[s, a] = sum_k p_k r_k`` over the outcomes ``(p_k, s'_k, r_k, done_k)`` listed in

@@ -4,7 +4,7 @@ The one recipe used by the experiments, the benchmarks, the notebooks and the te
 dictionary ``D`` -> coefficients ``H`` -> rewards ``R_i = D h_i`` -> expert demonstrations
 (:func:`synthetic_tasks`).
 
-Distributions (DESIGN section 4 leaves them open; fixed here):
+Distributions (the paper leaves them open; fixed here, docs/maths.md §9):
 
 - dictionary: ``D[j, l] ~ N(0, 1)`` i.i.d. over parameters j and primitives l;
 - ``"gaussian"`` coefficients: ``H[i, l] ~ N(0, 1)``;
@@ -14,27 +14,35 @@ Distributions (DESIGN section 4 leaves them open; fixed here):
   least one nonzero coefficient per task.
 """
 
+from __future__ import annotations
+
 import dataclasses
+import typing
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from ._validation import as_rng, check_array, check_int, check_mdp, check_real
+from ._validation import RNGLike, as_rng, check_array, check_int, check_mdp, check_real
 from .demonstrations import sample_demonstrations
 from .exceptions import ValidationError
+
+if typing.TYPE_CHECKING:
+    from .mdp import TabularMDP
 
 __all__ = ["random_dictionary", "random_coefficients", "task_rewards", "SyntheticTasks", "synthetic_tasks"]
 
 COEFFICIENT_KINDS = ("gaussian", "nonneg")
 
 
-def random_dictionary(n_params, n_primitives=5, rng=None):
+def random_dictionary(n_params: int, n_primitives: int = 5, rng: RNGLike = None) -> NDArray[np.float64]:
     """A random dictionary ``D`` of shape (n_params, n_primitives), entries N(0, 1)."""
     n_params = check_int(n_params, "n_params", minimum=1)
     n_primitives = check_int(n_primitives, "n_primitives", minimum=1)
     return as_rng(rng).standard_normal((n_params, n_primitives))
 
 
-def random_coefficients(n_tasks, n_primitives=5, kind="gaussian", sparsity=0.0, rng=None):
+def random_coefficients(n_tasks: int, n_primitives: int = 5, kind: str = "gaussian", sparsity: float = 0.0,
+                        rng: RNGLike = None) -> NDArray[np.float64]:
     """Random mixing coefficients ``H`` of shape (n_tasks, n_primitives).
 
     Parameters
@@ -61,7 +69,7 @@ def random_coefficients(n_tasks, n_primitives=5, kind="gaussian", sparsity=0.0, 
     return H
 
 
-def task_rewards(dictionary, coefficients, n_states, n_actions):
+def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, n_actions: int) -> NDArray[np.float64]:
     """Rewards ``R_i = D h_i`` as (n, S, A) from D (S*A, k) and H (n, k).
 
     The library's one home of this product (FactIRL's rewards, transfer, the experiments).
@@ -76,7 +84,12 @@ def task_rewards(dictionary, coefficients, n_states, n_actions):
     with np.errstate(over="ignore", invalid="ignore"):
         R = (H @ D.T).reshape(-1, n_states, n_actions)
     if not np.all(np.isfinite(R)):
-        raise ValidationError("the rewards D h_i overflow float64: rescale the dictionary or the coefficients")
+        i = int(np.argmax(~np.all(np.isfinite(R.reshape(len(R), -1)), axis=1)))
+        raise ValidationError(
+            f"the rewards D h_i of task {i} overflow float64 (largest |dictionary| entry {np.max(np.abs(D)):.3g}, "
+            f"largest |coefficients[{i}]| entry {np.max(np.abs(H[i])):.3g}): rescale the dictionary (for rewards on base "
+            "features Phi, the dictionary given here is Phi @ D: rescale the features) or the coefficients"
+        )
     return R
 
 
@@ -98,8 +111,10 @@ class SyntheticTasks:
     demos: list
 
 
-def synthetic_tasks(mdp, n_tasks, n_demos, length, n_primitives=5, dictionary=None, kind="gaussian", sparsity=0.0,
-                    rng=None, demo_rng=None, planner="auto"):
+def synthetic_tasks(mdp: TabularMDP, n_tasks: int, n_demos: int, length: int, n_primitives: int = 5,
+                    dictionary: ArrayLike | None = None, kind: str = "gaussian", sparsity: float = 0.0,
+                    rng: RNGLike = None, demo_rng: RNGLike = None,
+                    planner: str = "auto") -> SyntheticTasks:
     """Draw tasks from a (random or given) dictionary and sample an expert's demonstrations.
 
     Draws, in this order: the dictionary from ``rng`` (unless given), the coefficients from

@@ -40,15 +40,21 @@ Only the (state, action) steps enter the empirical statistics of eq. (5); episod
 are kept for saving (:func:`~factirl_opt.save_demonstrations`) and for the user.
 """
 
+from __future__ import annotations
+
 import collections.abc
 import numbers
 import os
 import typing
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._validation import check_mdp
 from .exceptions import PersistenceError, ValidationError
+
+if typing.TYPE_CHECKING:
+    from .mdp import TabularMDP
 
 __all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "task_steps", "TaskDemonstrations"]
 
@@ -75,7 +81,7 @@ class TaskDemonstrations(typing.NamedTuple):
     lengths: np.ndarray
     form: str
 
-    def episodes(self):
+    def episodes(self) -> list[NDArray[np.int64]]:
         """The episodes as a list of int64 (L_j, 2) arrays (views of ``steps``)."""
         return np.split(self.steps, np.cumsum(self.lengths)[:-1])
 
@@ -141,9 +147,28 @@ def _as_indices(arr, where, n_states=None, n_actions=None):
 
 
 def _is_trajectory(x):
+    """An episode read as a trajectory: any mapping (its keys are checked when read) or an object."""
     if isinstance(x, collections.abc.Mapping):
         return True
     return any(hasattr(x, o) and hasattr(x, a) for o, a in zip(_OBS_KEYS, _ACT_KEYS))
+
+
+def _has_trajectory_keys(x):
+    """A mapping holding an observations or an actions key (so it was meant as one trajectory)."""
+    return isinstance(x, collections.abc.Mapping) and any(k in x for k in _OBS_KEYS + _ACT_KEYS)
+
+
+def describe(x: object) -> str:
+    """What a value is, for messages: its type with its shape, length or keys."""
+    if isinstance(x, collections.abc.Mapping):
+        keys = [repr(k) for k in list(x)[:6]]
+        more = ", ..." if len(x) > 6 else ""
+        return f"a {type(x).__name__} of {len(x)} entries with keys [{', '.join(keys)}{more}]"
+    if isinstance(x, np.ndarray):
+        return f"an array of shape {x.shape} and dtype {x.dtype}"
+    if isinstance(x, (list, tuple)):
+        return f"a {type(x).__name__} of length {len(x)}"
+    return f"{type(x).__name__} {x!r}" if isinstance(x, (numbers.Number, str)) else type(x).__name__
 
 
 def _trajectory_fields(x, where):
@@ -228,10 +253,11 @@ def _episode(ep, i, j, load_files):
         return _trajectory_pairs(ep, where)
     try:
         arr = np.asarray(ep)
-    except (TypeError, ValueError):  # e.g. pairs of different lengths: [[0, 1], [2]]
-        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2)") from None
+    except (TypeError, ValueError) as exc:  # e.g. pairs of different lengths: [[0, 1], [2]]
+        raise ValidationError(f"{where} must be an array of (state, action) pairs of shape (L, 2); got {describe(ep)} "
+                              f"that is not a rectangular array ({exc})") from None
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
-        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape}")
+        raise ValidationError(f"{where} must have shape (L, 2) with L >= 1; got {arr.shape} ({describe(ep)})")
     return arr
 
 
@@ -271,6 +297,8 @@ def _single_episode(entry, load_files):
         return "a list of (state, action) pairs" if entry and _is_pair(entry[0]) else None
     if load_files and isinstance(entry, (str, os.PathLike)):
         return f"a rollout file {os.fspath(entry)!r}"
+    if isinstance(entry, collections.abc.Mapping):
+        return f"a trajectory, {describe(entry)}" if _has_trajectory_keys(entry) else None
     return f"a trajectory, {type(entry).__name__}" if _is_trajectory(entry) else None
 
 
@@ -287,6 +315,20 @@ def _nesting_error(entries, i, what, name):
     return ValidationError(head + f"If it is the only episode of task {i}, wrap it in a list: [episode]")
 
 
+def _layout_hint(demos, name):
+    """How to pass a single trajectory, a dict of tasks or an iterator as ``demos_per_task``."""
+    if isinstance(demos, collections.abc.Mapping):
+        if _has_trajectory_keys(demos):
+            return f", a single trajectory: pass [[{name}]] for one task of one episode"
+        return (f": a mapping of tasks is not accepted (the task order would be implicit); pass "
+                f"list({name}.values()) for one task per entry, in the order of its keys")
+    if _is_trajectory(demos):
+        return f", a single trajectory: pass [[{name}]] for one task of one episode"
+    if isinstance(demos, collections.abc.Iterable) and not isinstance(demos, (str, bytes)):
+        return f": pass list({name}) if it yields one entry per task"
+    return ""
+
+
 def _task_entries(demos, name, load_files):
     """The entries of ``demos_per_task``, one per task, after the checks of the nesting rule."""
     rule = f"{name} must be a list with one entry per task (one task is a list of one), or a 4-d array (n, m, L, 2)"
@@ -299,11 +341,9 @@ def _task_entries(demos, name, load_files):
                 f"{rule}; got an array of shape {demos.shape}, the layout of one task's episodes: pass [{name}] for "
                 f"one task of {m} episodes, or list({name}[:, None]) for {m} tasks of one episode each"
             )
-        raise ValidationError(f"{rule}; got an array of shape {demos.shape}")
+        raise ValidationError(f"{rule}; got {describe(demos)}")
     if not isinstance(demos, (list, tuple)):
-        if _is_trajectory(demos):
-            raise ValidationError(f"{rule}; got a single trajectory ({type(demos).__name__}): pass [[{name}]] for one task of one episode")
-        raise ValidationError(f"{rule}; got {type(demos).__name__}")
+        raise ValidationError(f"{rule}; got {describe(demos)}{_layout_hint(demos, name)}")
     if len(demos) == 0:
         raise ValidationError(f"{name} is empty: give the demonstrations of at least one task")
     for i, entry in enumerate(demos):
@@ -328,14 +368,17 @@ def _parse_task(entry, i, bounds, load_files):
             raise ValidationError(f"demonstrations of task {i} are empty: give at least one episode")
         episodes = [_episode(ep, i, j, load_files) for j, ep in enumerate(entry)]
         return TaskDemonstrations(_episodes_steps(episodes, i, bounds), np.array([len(e) for e in episodes], dtype=np.int64), "list")
-    shape = f" of shape {entry.shape}" if isinstance(entry, np.ndarray) else ""
+    hint = ""
+    if isinstance(entry, collections.abc.Mapping):
+        hint = " (a mapping of episodes is not accepted: pass list(episodes.values()), in the order of its keys)"
     raise ValidationError(
         f"demonstrations of task {i} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
-        f"got {type(entry).__name__}{shape}"
+        f"got {describe(entry)}{hint}"
     )
 
 
-def parse_demonstrations(demos_per_task, n_states=None, n_actions=None, name="demos_per_task", load_files=False):
+def parse_demonstrations(demos_per_task: typing.Any, n_states: int | None = None, n_actions: int | None = None,
+                         name: str = "demos_per_task", load_files: bool = False) -> list[TaskDemonstrations]:
     """Every task's demonstrations, in any accepted layout, validated (see the module docstring).
 
     Parameters
@@ -368,7 +411,7 @@ def parse_demonstrations(demos_per_task, n_states=None, n_actions=None, name="de
     return [_parse_task(entry, i, bounds, load_files) for i, entry in enumerate(entries)]
 
 
-def task_steps(mdp, task_demos, task=0):
+def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArray[np.int64]:
     """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
 
     Parameters
@@ -386,7 +429,8 @@ def task_steps(mdp, task_demos, task=0):
     return _parse_task(task_demos, task, (mdp.n_states, mdp.n_actions), False).steps
 
 
-def demonstrations_from_trajectories(trajectories_per_task, mdp=None):
+def demonstrations_from_trajectories(trajectories_per_task: typing.Any,
+                                     mdp: TabularMDP | None = None) -> list[list[NDArray[np.int64]]]:
     """Trajectories from other libraries as this library's demonstrations (one list of episodes per task).
 
     Reads, without importing those libraries, objects with ``obs`` and ``acts`` attributes
@@ -432,6 +476,6 @@ def demonstrations_from_trajectories(trajectories_per_task, mdp=None):
     >>> [ep.tolist() for ep in demos[0]]
     [[[0, 1], [1, 2]], [[2, 0]]]
     """
-    bounds = (None, None) if mdp is None else (check_mdp(mdp).n_states, mdp.n_actions)
-    tasks = parse_demonstrations(trajectories_per_task, *bounds, name="trajectories_per_task", load_files=True)
+    n_states, n_actions = (None, None) if mdp is None else (check_mdp(mdp).n_states, mdp.n_actions)
+    tasks = parse_demonstrations(trajectories_per_task, n_states, n_actions, name="trajectories_per_task", load_files=True)
     return [[ep.copy() for ep in task.episodes()] for task in tasks]

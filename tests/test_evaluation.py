@@ -40,7 +40,7 @@ def test_deviation_is_nonnegative_and_positive_for_bad_rewards(rng, grid4):
 
 
 def test_score_shapes_must_match(grid4):
-    with pytest.raises(ValidationError, match=r"true_rewards \(2, 16, 4\) and learnt_rewards \(3, 16, 4\)"):
+    with pytest.raises(ValidationError, match=r"same number of tasks; got 2 true \(shape \(2, 16, 4\)\) and 3 learnt \(shape \(3, 16, 4\)\)"):
         fo.score(grid4, np.zeros((2, 16, 4)), np.zeros((3, 16, 4)))
     with pytest.raises(ValidationError, match=r"learnt_rewards must have shape .*got \(16, 5\)"):
         fo.deviation(grid4, np.zeros((16, 4)), np.zeros((16, 5)))

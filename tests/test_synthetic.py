@@ -45,3 +45,19 @@ def test_sparsity_keeps_one_nonzero_per_task(rng):
 def test_validation(call, fragment):
     with pytest.raises(ValidationError, match=fragment):
         call()
+
+
+def test_overflow_names_the_task_and_the_sizes():
+    D = np.ones((36, 2))
+    H = np.array([[1.0, 1.0], [1e308, 1e308], [0.0, 1.0]])
+    with pytest.raises(ValidationError, match=r"rewards D h_i of task 1 overflow float64 \(largest \|dictionary\| entry 1, "
+                       r"largest \|coefficients\[1\]\| entry 1e\+308\).*Phi @ D"):
+        fo.task_rewards(D, H, 9, 4)
+
+
+def test_synthetic_tasks_are_unchanged_by_the_sampler_options(grid3):
+    """synthetic_tasks samples with the default start: the same tasks and demonstrations as sampling them."""
+    tasks = fo.synthetic_tasks(grid3, 3, 4, 5, n_primitives=2, rng=0, demo_rng=1)
+    again = fo.sample_demonstrations(grid3, tasks.rewards, 4, 5, rng=1)
+    for x, y in zip(tasks.demos, again):
+        np.testing.assert_array_equal(x, y)

@@ -195,7 +195,7 @@ def test_nesting_rule_for_pairs_trajectories_and_arrays(setting):
     t = Trajectory([0, 1], [1])
     with pytest.raises(ValidationError, match=r"demos_per_task\[0\] is a single episode \(a trajectory, Trajectory\).*2 tasks of 1 episode"):
         fo.empirical_statistics(mdp, [t, t])
-    with pytest.raises(ValidationError, match=r"got a single trajectory \(dict\): pass \[\[demos_per_task\]\]"):
+    with pytest.raises(ValidationError, match=r"got a dict of 2 entries with keys \['obs', 'acts'\], a single trajectory: pass \[\[demos_per_task\]\]"):
         fo.empirical_statistics(mdp, {"obs": [0], "acts": [1]})
     with pytest.raises(ValidationError, match=r"trajectories_per_task\[0\] is a single episode \(a rollout file 'r.npz'\)"):
         demonstrations_from_trajectories(["r.npz"])
@@ -302,3 +302,47 @@ def test_fuzzed_layouts_give_a_validation_error_or_valid_statistics():
             np.testing.assert_allclose(mu.sum(axis=1), 1.0)
             outcomes["accepted"] += 1
     assert min(outcomes.values()) > 20  # both branches are exercised
+
+
+def test_a_mapping_of_tasks_is_reported_as_what_it_is(setting):
+    mdp, demos = setting
+    by_name = {"reach": demos[0], "avoid": demos[1]}
+    with pytest.raises(ValidationError) as info:
+        fo.empirical_statistics(mdp, by_name)
+    msg = str(info.value)
+    assert "got a dict of 2 entries with keys ['reach', 'avoid']" in msg
+    assert "a mapping of tasks is not accepted" in msg and "list(demos_per_task.values())" in msg
+    assert "single trajectory" not in msg
+    # the suggestion, followed literally, works
+    demos_per_task = by_name
+    assert fo.empirical_statistics(mdp, list(demos_per_task.values()))[0].shape == (2, 16)
+    many = {f"task{i}": demos[0] for i in range(9)}
+    with pytest.raises(ValidationError, match=r"a dict of 9 entries with keys \['task0', .*'task5', \.\.\.\]"):
+        fo.empirical_statistics(mdp, many)
+
+
+def test_a_mapping_of_episodes_as_a_task_is_reported_as_what_it_is(setting):
+    mdp, demos = setting
+    episodes = {"first": demos[0][0], "second": demos[0][1]}
+    with pytest.raises(ValidationError) as info:
+        fo.empirical_statistics(mdp, [episodes])
+    msg = str(info.value)
+    assert "demonstrations of task 0 must be an int array of shape (m, L, 2) or a list of episodes" in msg
+    assert "got a dict of 2 entries with keys ['first', 'second']" in msg and "list(episodes.values())" in msg
+
+
+@pytest.mark.parametrize(
+    "demos, fragment",
+    [
+        (iter([[[[0, 1]]]]), r"got list_iterator: pass list\(demos_per_task\) if it yields one entry per task"),
+        (3, r"got int 3$"),
+        (np.zeros((2, 2)), r"got an array of shape \(2, 2\) and dtype float64"),
+        ([[[[0, 1], [2]]]], r"task 0, episode 0 must be an array of \(state, action\) pairs of shape \(L, 2\); got a list of length 2"),
+        ([[np.zeros((3, 3), dtype=int)]], r"task 0, episode 0 must have shape \(L, 2\) with L >= 1; got \(3, 3\) \(an array of shape \(3, 3\) and dtype int64\)"),
+        ([[[[0, 1]], 7]], r"task 0, episode 1 must have shape \(L, 2\) with L >= 1; got \(\) \(int 7\)"),
+    ],
+)
+def test_layout_messages_name_the_input(setting, demos, fragment):
+    mdp, _ = setting
+    with pytest.raises(ValidationError, match=fragment):
+        fo.empirical_statistics(mdp, demos)

@@ -112,7 +112,7 @@ def test_boltzmann_needs_an_action_axis():
 
 @pytest.mark.parametrize(
     "shape, fragment",
-    [((16, 3), r"got \(16, 3\)"), ((16,), r"got \(16,\)"), ((2, 15, 4), r"got \(2, 15, 4\)"), ((1, 2, 16, 4), r"got \(1, 2, 16, 4\)")],
+    [((16, 3), r"got \(16, 3\)"), ((15,), r"got \(15,\)"), ((2, 15, 4), r"got \(2, 15, 4\)"), ((1, 2, 16, 4), r"got \(1, 2, 16, 4\)")],
 )
 def test_bad_reward_shapes(grid4, shape, fragment):
     with pytest.raises(ValidationError, match=r"rewards must have shape \(S, A\) = \(16, 4\) or \(n, 16, 4\); " + fragment):
