@@ -11,11 +11,20 @@ and learnt policies run in the real environment.
 - :func:`run_policy` runs a policy (e.g. greedy on a learnt reward) in the environment and
   reports success as the environment judges it.
 
-minigrid is optional: ``pip install -e ".[minigrid]"``; importing this package does not import
-it, the functions raise :class:`~factirl_opt.exceptions.MissingDependencyError` without it.
+minigrid is optional: ``pip install -e ".[minigrid]"``. ``import factirl_opt`` does not import
+it; importing this package does, when it is installed (so that gymnasium knows the MiniGrid and
+BabyAI environment ids), and without it the functions raise
+:class:`~factirl_opt.exceptions.MissingDependencyError` with the pip command.
 The conventions (state numbering, actions, terminal states) are in
 :mod:`factirl_opt.minigrid.model`.
 """
+
+import importlib as _importlib
+
+try:  # registers MiniGrid's and BabyAI's environments with gymnasium
+    _importlib.import_module("minigrid")
+except ImportError:  # the functions raise MissingDependencyError when called
+    pass
 
 from .episodes import BotDemonstration, PolicyRun, bot_demonstration, run_policy
 from .features import COLOURS, DEFAULT_THRESHOLDS, OBJECT_TYPES, minigrid_feature_names, minigrid_features, parse_goto_mission

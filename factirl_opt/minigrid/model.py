@@ -254,14 +254,14 @@ def from_minigrid(env: Any, gamma: float = 0.9, thresholds: tuple[float, ...] = 
     start = agent_state(base)
     edges, ended, paid = _explore(sim, start)
     terminal_set = {s for s, done in ended.items() if done}
+    keys = sorted({start} | set(ended), key=lambda s: (s[1], s[0], s[2]))
+    _check_static(sim, before, keys, terminal_set)
     if not terminal_set:
         raise ValidationError(f"no reachable state ends the episode of mission {getattr(base, 'mission', '')!r} by "
                               "navigation alone (left/right/forward); pick-up, toggle or done would be needed")
     if start in terminal_set:
         raise ValidationError(f"the agent starts in a terminal state {start} (e.g. already facing its target); "
                               "the model would end the episode where the environment does not: choose another seed")
-    keys = sorted({start} | set(ended), key=lambda s: (s[1], s[0], s[2]))
-    _check_static(sim, before, keys, terminal_set)
     lookup = {s: i for i, s in enumerate(keys)}
     states = np.array(keys, dtype=np.int64).reshape(-1, 3)
     terminal = np.array([s in terminal_set for s in keys])
