@@ -68,7 +68,7 @@ def require_minigrid(what: str = "this function") -> ModuleType:
 def base_env(env: Any) -> Any:
     """``env.unwrapped``, checked to be a MiniGrid environment that has been reset."""
     base = getattr(env, "unwrapped", env)
-    for attr in ("grid", "agent_pos", "agent_dir", "step", "front_pos"):
+    for attr in ("grid", "agent_pos", "agent_dir", "step", "max_steps"):
         if not hasattr(base, attr):
             raise ValidationError(f"env must be a MiniGrid/BabyAI environment; {type(base).__name__} has no {attr!r}")
     if base.agent_pos is None or base.grid is None:
