@@ -99,26 +99,31 @@ def _check_step(model: MiniGridModel, s: int, a: int, nxt: tuple[int, int, int],
     predicted = P.indices[P.indptr[row]:P.indptr[row + 1]]
     if predicted.tolist() != [n] or bool(model.terminal[n]) != terminated:
         raise ValidationError(
-            f"step {t}: the environment went from {tuple(model.states[s])} by {ACTIONS[a]!r} to {nxt} "
+            f"step {t}: the environment went from {tuple(model.states[s].tolist())} by {ACTIONS[a]!r} to {nxt} "
             f"(terminated={terminated}); the model predicts state(s) {model.states[predicted].tolist()}"
         )
     return n
 
 
 def _start_at(env: Any, start: Any, gamma: float, thresholds: tuple[float, ...]) -> MiniGridModel:
-    """Move the agent to ``start`` (a reachable, non-terminal state) and read the model."""
+    """The layout's model (read at the environment's start); then move the agent to ``start``.
+
+    ``start`` must be a non-terminal state of the model: every state reachable from it is then
+    a state of the model too (the model holds all states reachable from the environment's
+    start without passing through a terminal state).
+    """
     model = from_minigrid(env, gamma, thresholds)
     if start is None:
         return model
     try:
-        s = model.index(*start)
-    except TypeError:
-        raise ValidationError(f"start must be an (x, y, direction) triple; got {start!r}") from None
-    if model.terminal[s]:
-        raise ValidationError(f"start {tuple(start)} is a terminal state of the mission {model.mission!r}")
+        x, y, d = (int(v) for v in start)
+    except (TypeError, ValueError):
+        raise ValidationError(f"start must be an (x, y, direction) triple of integers; got {start!r}") from None
+    if model.terminal[model.index(x, y, d)]:
+        raise ValidationError(f"start {(x, y, d)} is a terminal state of the mission {model.mission!r}")
     base = base_env(env)
-    base.agent_pos, base.agent_dir = (int(start[0]), int(start[1])), int(start[2])
-    return from_minigrid(env, gamma, thresholds)
+    base.agent_pos, base.agent_dir = (x, y), d
+    return model
 
 
 def bot_demonstration(env: Any, seed: int | None = None, *, start: tuple[int, int, int] | None = None,
@@ -139,8 +144,9 @@ def bot_demonstration(env: Any, seed: int | None = None, *, start: tuple[int, in
     seed : int, optional
         Reset the environment with this seed first (required with an id).
     start : (x, y, direction), optional
-        Start the bot from this reachable, non-terminal state of the layout instead of the
-        environment's start (the agent is moved there after the reset).
+        Start the bot from this non-terminal state of the layout's model instead of the
+        environment's start (the agent is moved there after the reset). The model is still
+        the layout's, read at the environment's start, so ``model.start`` is not ``start``.
     gamma, thresholds
         Passed to :func:`~factirl_opt.minigrid.model.from_minigrid`.
 
@@ -174,8 +180,9 @@ def bot_demonstration(env: Any, seed: int | None = None, *, start: tuple[int, in
             action = int(bot.replan())
             s = model.state_of(env)
             if action not in range(len(ACTIONS)):
-                raise ValidationError(f"step {len(pairs)}: the bot chose action {action} in state {tuple(model.states[s])}; "
-                                      f"only {ACTIONS} (0, 1, 2) are modelled")
+                name = base_env(env).actions(action).name
+                raise ValidationError(f"step {len(pairs)}: the bot chose action {action} ({name!r}) in state "
+                                      f"{tuple(model.states[s].tolist())}; only {ACTIONS} (0, 1, 2) are modelled")
             _, reward, terminated, truncated, _ = env.step(action)
             nexts.append(_check_step(model, s, action, agent_state(base_env(env)), bool(terminated), len(pairs)))
             pairs.append((s, action))

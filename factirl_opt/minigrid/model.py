@@ -2,8 +2,10 @@
 
 Conventions (every index order used by :mod:`factirl_opt.minigrid`)
 -------------------------------------------------------------------
-- **States** are the agent's ``(x, y, direction)`` reachable from its start under the
-  navigation actions; ``x`` is the column and ``y`` the row of MiniGrid's grid (``y`` grows
+- **States** are the agent's ``(x, y, direction)`` reachable in an episode from its start
+  under the navigation actions (terminal states are entered, not left). From another start
+  in the same layout fewer states may be reachable (e.g. a corner whose only entrance faces
+  the target), never more; ``x`` is the column and ``y`` the row of MiniGrid's grid (``y`` grows
   downwards) and ``direction`` is MiniGrid's: 0 east (+x), 1 south (+y), 2 west, 3 north.
   They are numbered in row-major order, sorted by ``(y, x, direction)``.
 - **Actions** (:data:`ACTIONS`): MiniGrid's first three, 0 turn left, 1 turn right, 2 move
