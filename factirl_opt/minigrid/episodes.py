@@ -173,7 +173,8 @@ def bot_demonstration(env: Any, seed: int | None = None, *, start: tuple[int, in
             raise ValidationError(f"the BabyAI bot needs a BabyAI level (env.unwrapped.instrs); got {type(env.unwrapped).__name__}")
         model = _start_at(env, start, gamma, thresholds)
         bot = importlib.import_module("minigrid.utils.baby_ai_bot").BabyAIBot(env)
-        pairs, nexts = [], []
+        pairs: list[tuple[int, int]] = []
+        nexts: list[int] = []
         terminated = truncated = False
         reward = 0.0
         while not (terminated or truncated):
@@ -258,7 +259,8 @@ def run_policy(env: Any, policy: ArrayLike, seed: int | None = None, *, model: M
             raise ValidationError(f"model must be a MiniGridModel (see from_minigrid); got {type(model).__name__}")
         _check_layout(model, env)
         actions = _check_policy(policy, model)
-        states, taken = [model.start], []
+        states: list[int] = [model.start]
+        taken: list[int] = []
         terminated = truncated = False
         reward = 0.0
         while not (terminated or truncated) and (limit is None or len(taken) < limit):

@@ -21,6 +21,7 @@ Conventions (every index order used by :mod:`factirl_opt.minigrid`)
   ``max_steps`` is a time limit, not part of the model. A start state that is itself
   terminal is refused (the environment would not end the episode there, the model would).
 
+Navigation is assumed deterministic, as MiniGrid's is: each (state, action) is probed once.
 The simulator is probed on a deep copy of ``env.unwrapped`` (with its observation rendering
 switched off), so the caller's environment is never modified. minigrid is an optional
 dependency: ``pip install "minigrid>=3.0"``, or ``pip install -e ".[minigrid]"`` in a clone.

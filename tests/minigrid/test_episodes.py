@@ -59,6 +59,7 @@ def test_bot_episodes_are_the_models_transitions_on_50_layouts():
             steps += len(run.demonstration)
             bad += mismatches(run)
             assert run.success and len(run.demonstration) < env.unwrapped.max_steps
+    print(f"{steps} bot steps, {bad} mismatches, {picked} episodes refused (pick-up)")
     assert steps >= 1000 and bad == 0
     assert wins == 50 and picked <= 5  # 3 of the 200 other starts with this rng
 
