@@ -17,6 +17,19 @@ BabyAI environment ids), and without it the functions raise
 :class:`~factirl_opt.exceptions.MissingDependencyError` with the pip command.
 The conventions (state numbering, actions, terminal states) are in
 :mod:`factirl_opt.minigrid.model`.
+
+Examples
+--------
+>>> import gymnasium as gym
+>>> import minigrid  # registers the MiniGrid and BabyAI ids with gymnasium  # doctest: +SKIP
+>>> import factirl_opt as fo
+>>> env = gym.make("BabyAI-GoToLocal-v0")  # doctest: +SKIP
+>>> episode = fo.bot_demonstration(env, seed=0)  # doctest: +SKIP
+>>> model = episode.model  # the layout: model.mdp, model.features, model.states, model.start
+>>> fo.parse_goto_mission(episode.mission)  # doctest: +SKIP
+('green', 'ball')
+>>> _, policy = fo.optimal_q(model.mdp, rewards)  # greedy on (S, A) rewards  # doctest: +SKIP
+>>> fo.run_policy(env, policy, seed=0, model=model).success  # doctest: +SKIP
 """
 
 import importlib as _importlib

@@ -109,6 +109,8 @@ class MiniGridModel:
         :data:`~factirl_opt.minigrid.features.COLOURS` and ``OBJECT_TYPES``).
     grid_size : tuple of int
         ``(width, height)`` of the grid.
+    lookup : dict
+        ``(x, y, direction) -> state number`` (what :meth:`index` reads).
     """
 
     mdp: TabularMDP

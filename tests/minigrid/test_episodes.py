@@ -174,3 +174,18 @@ def test_missing_minigrid_raises_with_the_pip_command(monkeypatch):
     for call in (lambda: bot_demonstration(LOCAL, seed=0), lambda: run_policy(LOCAL, np.zeros(3, dtype=int), seed=0)):
         with pytest.raises(MissingDependencyError, match="minigrid, which is not installed: pip install"):
             call()
+
+
+def test_greedy_policy_of_the_missions_feature_reward_succeeds_in_the_environment():
+    """End to end: reward 1 on the feature "front=<colour> <type>" of the mission, planned on
+    the model, is a policy that the environment judges successful from the start."""
+    env = gym.make(LOCAL)
+    for seed in range(10):
+        env.reset(seed=seed)
+        model = from_minigrid(env)
+        colour, kind = fo.parse_goto_mission(model.mission)
+        reward = model.features[:, model.feature_names.index(f"front={colour} {kind}")]
+        np.testing.assert_array_equal(reward.astype(bool), model.success)
+        _, policy = fo.optimal_q(model.mdp, np.repeat(reward[:, None], 3, axis=1))
+        run = run_policy(env, policy, seed=seed, model=model)
+        assert run.success and model.success[run.states[-1]]
