@@ -56,6 +56,28 @@ from .trajectories import demonstrations_from_trajectories
 
 __version__ = "0.1.0"
 
+#: Public names of the optional BabyAI/MiniGrid adapter, loaded on first access (PEP 562) so
+#: that ``import factirl_opt`` does not import minigrid; loading :mod:`factirl_opt.minigrid`
+#: imports minigrid when it is installed, which registers its environments with gymnasium.
+_MINIGRID_NAMES = (
+    "from_minigrid", "MiniGridModel", "minigrid_feature_names", "parse_goto_mission",
+    "bot_demonstration", "BotDemonstration", "run_policy", "PolicyRun",
+)
+
+
+def __getattr__(name):
+    if name in _MINIGRID_NAMES:
+        import importlib
+
+        value = getattr(importlib.import_module(".minigrid", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MINIGRID_NAMES))
+
 __all__ = [
     "TabularMDP",
     "GridWorld",
@@ -87,6 +109,7 @@ __all__ = [
     "SyntheticTasks",
     "from_gymnasium",
     "gymnasium_rewards",
+    *_MINIGRID_NAMES,
     "save_model",
     "load_model",
     "save_demonstrations",
