@@ -82,7 +82,7 @@ def _limited(n_threads: int) -> Iterator[list[int]]:
         yield counts
     finally:
         with _lock:
-            _open.remove(n_threads)
+            _open.pop()  # only the main thread opens limits: they close in the reverse order
             _set(libs, [_open[-1]] * len(libs) if _open else _saved)
 
 
