@@ -13,13 +13,14 @@ Both planners are direct solvers: relative residuals are at the level of floatin
 (~1e-15), below the 1e-12 the library promises; the sparse planner's low-rank updates check
 every solve's residual against the policy's own matrix.
 
-What depends on the planner. ``Q*``, values, losses and gradients at a given reward agree
-between planners to floating-point accuracy (relative ~1e-13 and below). Where ``Q*`` has ties
-(two actions within a relative 1e-12), the greedy policy returned may differ between planners
-(each keeps its current action; the sparse planner's value-iteration warm start reaches a
-different one), and the optimal values do not. A fit is a long chain of such evaluations
-through non-smooth greedy switches, so fitted rewards can drift apart by more than the
-per-evaluation differences (see the user guide, "Planners").
+What depends on the planner. ``Q*``, policy values, losses and gradients at given rewards agree
+between planners to floating-point accuracy (about 1e-15 relative). The greedy policy returned
+is the same except where two actions tie within a relative 1e-12 (both optimal; each planner
+keeps the action its policy iteration reached). A fit chains many evaluations and amplifies such
+rounding-level differences along directions in which the loss hardly changes, so fitted rewards
+agree between planners only approximately (the same happens with a 1e-15 perturbation of the
+start with one planner); a fit with one planner is repeatable bit for bit, also in threads. See
+the user guide, "Large MDPs: sparse dynamics and planners".
 """
 
 from __future__ import annotations
@@ -54,20 +55,21 @@ class PlanResult:
         ``I - gamma P_pi`` of ``policy``, ready for more solves (adjoint, Jacobian).
     """
 
-    Q: np.ndarray
-    policy: np.ndarray
-    V: np.ndarray
+    Q: NDArray[np.float64]
+    policy: NDArray[np.intp]
+    V: NDArray[np.float64]
     system: PolicySystem
 
 
-def greedy_values(planner, R, policy, hints=None):
+def greedy_values(planner: Planner, R: NDArray[np.float64], policy: NDArray[np.intp],
+                  hints: list[Any] | None = None) -> tuple[NDArray[np.float64], PolicySystem]:
     """Values of deterministic policies and their system: solve (I - gamma P_pi) V = R_pi."""
     system = planner.system(policy, hints)
     R_pi = np.take_along_axis(R, policy[:, :, None], axis=2)[:, :, 0]
     return system.solve(R_pi), system
 
 
-def plan(planner, R, policy=None, max_iter=1000):
+def plan(planner: Planner, R: NDArray[np.float64], policy: ArrayLike | None = None, max_iter: int = 1000) -> PlanResult:
     """Exact ``Q*`` of every task by policy iteration (unvalidated; see :func:`optimal_q`).
 
     Each sweep evaluates the active tasks' policies exactly; a sparse planner is handed each
@@ -104,7 +106,7 @@ def plan(planner, R, policy=None, max_iter=1000):
     raise FactIRLError(f"policy iteration did not converge in {max_iter} sweeps")
 
 
-def _policy_weights(policy, shape):
+def _policy_weights(policy: NDArray[Any], shape: tuple[int, int, int]) -> NDArray[np.float64]:
     """``w[n, s, a]`` = 1[a = pi(s)] for deterministic (n, S) policies, ``pi(a|s)`` for stochastic ones."""
     if policy.ndim == 3:
         return policy
@@ -113,7 +115,7 @@ def _policy_weights(policy, shape):
     return w
 
 
-def adjoint(planner, system, policy, G):
+def adjoint(planner: Planner, system: PolicySystem, policy: NDArray[Any], G: NDArray[np.float64]) -> NDArray[np.float64]:
     """``dL/dR`` from ``G = dL/dQ`` for ``Q = R + gamma P V``, ``V`` the values of ``policy``.
 
     For a greedy (deterministic) policy ``V(s) = Q(s, pi(s))`` (``Q*``, docs/maths.md §3); for a
@@ -142,7 +144,7 @@ def adjoint(planner, system, policy, G):
     return y
 
 
-def tangent(planner, system, policy, dR):
+def tangent(planner: Planner, system: PolicySystem, policy: NDArray[Any], dR: NDArray[np.float64]) -> NDArray[np.float64]:
     """Forward-mode derivative ``dQ`` of ``Q = R + gamma P V^pi`` along ``dR`` (policy fixed).
 
     ``dV = (I - gamma P_pi)^-1 dR_pi`` with ``dR_pi(s) = sum_a w(a|s) dR(s, a)``, then
@@ -170,7 +172,7 @@ def tangent(planner, system, policy, dR):
 
 
 @blas_limited
-def policy_evaluation(mdp, rewards, policy, planner="auto"):
+def policy_evaluation(mdp: Any, rewards: ArrayLike, policy: ArrayLike, planner: str | Planner = "auto") -> NDArray[np.float64]:
     """Exact value of deterministic or stochastic policies (Bellman equation, paper eq. 1).
 
     Parameters
@@ -204,7 +206,8 @@ def policy_evaluation(mdp, rewards, policy, planner="auto"):
 
 
 @blas_limited
-def optimal_q(mdp, rewards, policy=None, max_iter=1000, planner="auto"):
+def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None, max_iter: int = 1000,
+              planner: str | Planner = "auto") -> tuple[NDArray[np.float64], NDArray[np.intp]]:
     """Exact optimal action values Q* and a greedy policy, by policy iteration.
 
     Policy iteration (Howard) evaluates each policy exactly, so the result is exact up to
@@ -212,6 +215,10 @@ def optimal_q(mdp, rewards, policy=None, max_iter=1000, planner="auto"):
     as in a line search) it usually converges in one or two evaluations. Ties in the greedy
     step keep the current action unless another is better by more than a relative 1e-12,
     so the iteration cannot cycle.
+
+    ``Q`` agrees between planners to floating-point accuracy (about 1e-15 relative); the
+    greedy policy too, except in states where actions tie within 1e-12 (see the module
+    docstring for what a fit's result depends on).
 
     Parameters
     ----------
@@ -242,7 +249,7 @@ def optimal_q(mdp, rewards, policy=None, max_iter=1000, planner="auto"):
     return res.Q, res.policy
 
 
-def boltzmann_policy(Q, beta):
+def boltzmann_policy(Q: ArrayLike, beta: float) -> NDArray[np.float64]:
     """Boltzmann (softmax) policy ``pi(a|s) ∝ exp(beta Q(s, a))`` (paper eq. 7).
 
     Numerically stable: the maximum over actions is subtracted before exponentiating, so no
@@ -271,7 +278,8 @@ def boltzmann_policy(Q, beta):
 
 
 @blas_limited
-def value_iteration(mdp, rewards, tol=1e-12, max_iter=100000, planner="auto"):
+def value_iteration(mdp: Any, rewards: ArrayLike, tol: float = 1e-12, max_iter: int = 100000,
+                    planner: str | Planner = "auto") -> NDArray[np.float64]:
     """Q* by value iteration (paper eq. 3): a slow, simple reference for tests.
 
     Parameters

@@ -283,3 +283,17 @@ def test_policy_iteration_sweep_limit(twins):
     Q, pol = fo.optimal_q(sparse_mdp, R, planner="dense")
     with pytest.raises(FactIRLError, match="policy iteration did not converge in 1 sweeps"):
         fo.optimal_q(sparse_mdp, R, policy=np.argmin(Q, axis=2), max_iter=1, planner="dense")
+
+
+def test_planners_agree_to_rounding_at_the_same_rewards(make_statistics, tie_free_rewards):
+    """What does not depend on the planner: Q*, the greedy policy (no ties), loss and gradient."""
+    grid = fo.GridWorld(13)
+    rng = np.random.default_rng(7)
+    R = tie_free_rewards(rng, grid, (4, grid.n_states, 4))
+    mu, pi_hat = make_statistics(rng, grid, 4)
+    (Qd, pd), (Qs, ps) = (fo.optimal_q(grid, R, planner=name) for name in ("dense", "sparse-lu"))
+    np.testing.assert_array_equal(pd, ps)
+    np.testing.assert_allclose(Qs, Qd, rtol=0, atol=1e-13 * np.abs(Qd).max())
+    (Ld, Gd), (Ls, Gs) = (fo.policy_matching_loss(grid, R, mu, pi_hat, BETA, planner=name) for name in ("dense", "sparse-lu"))
+    np.testing.assert_allclose(Ls, Ld, rtol=1e-13)
+    np.testing.assert_allclose(Gs, Gd, rtol=0, atol=1e-13 * np.abs(Gd).max())
