@@ -137,6 +137,12 @@ class TabularMDP:
 
     #: the attributes that define a model (with the public ones); the other private ones are lazy caches
     _STATE = ("_P", "_dense", "_shape")
+    _P: sp.csr_matrix  # sparse models: the validated CSR (S*A, S) dynamics
+    _dense: np.ndarray  # dense models: the validated (S, A, S) dynamics
+    _shape: tuple[int, int]
+    _dense_cache: np.ndarray
+    _csr_cache: sp.csr_matrix
+    gamma: float
 
     def __init__(self, transitions: Any, gamma: float) -> None:
         if sp.issparse(transitions):
@@ -290,6 +296,8 @@ class GridWorld(TabularMDP):
     """
 
     ACTIONS = ("up", "down", "left", "right")
+    size: int
+    p_success: float
     #: (row, column) displacement of each action, in the order of ``ACTIONS``
     MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 

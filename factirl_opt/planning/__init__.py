@@ -1,7 +1,7 @@
 """The planning engine: the one place that solves Bellman systems (docs/maths.md §2-§4).
 
 Planners (``planner=`` by name everywhere; :func:`available_planners`,
-:func:`register_planner`):
+:func:`register_planner`, :func:`unregister_planner`):
 
 ``"dense"``
     Batched dense LU (``numpy.linalg.solve`` on (n, S, S) systems, built in chunks of tasks
@@ -39,13 +39,21 @@ from .cache import CACHE_GROUPS_PER_TASK, FACTOR_CACHE_BYTES, FactorCache, clear
 from .dense import DENSE_CHUNK_BYTES, DensePlanner
 from .engine import PlanResult, adjoint, boltzmann_policy, optimal_q, plan, policy_evaluation, tangent, value_iteration
 from .lowrank import RESIDUAL_TOL, UPDATE_MAX_RANK, UpdatedFactor
-from .registry import AUTO_DENSE_MAX_STATES, available_planners, get_planner, register_planner, resolve_planner
+from .registry import (
+    AUTO_DENSE_MAX_STATES,
+    available_planners,
+    get_planner,
+    register_planner,
+    resolve_planner,
+    unregister_planner,
+)
 from .sparse_lu import SparseLUPlanner, TaskFactor
 
 __all__ = [
     "available_planners",
     "get_planner",
     "register_planner",
+    "unregister_planner",
     "resolve_planner",
     "clear_caches",
     "optimal_q",

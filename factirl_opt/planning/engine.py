@@ -267,11 +267,11 @@ def boltzmann_policy(Q: ArrayLike, beta: float) -> NDArray[np.float64]:
     pi : ndarray, shape (..., S, A)
         Rows sum to 1.
     """
-    Q = check_array(Q, "Q")
-    if Q.ndim < 1:
-        raise ValidationError(f"Q must have an action axis; got shape {Q.shape}")
+    values = check_array(Q, "Q")
+    if values.ndim < 1:
+        raise ValidationError(f"Q must have an action axis; got shape {values.shape}")
     beta = check_beta(beta)
-    z = beta * (Q - Q.max(axis=-1, keepdims=True))
+    z = beta * (values - values.max(axis=-1, keepdims=True))
     np.exp(z, out=z)
     z /= z.sum(axis=-1, keepdims=True)
     return z

@@ -17,7 +17,7 @@ from .cache import cached_planner
 from .dense import DensePlanner
 from .sparse_lu import SparseLUPlanner
 
-__all__ = ["register_planner", "available_planners", "get_planner", "resolve_planner", "AUTO_DENSE_MAX_STATES"]
+__all__ = ["register_planner", "unregister_planner", "available_planners", "get_planner", "resolve_planner", "AUTO_DENSE_MAX_STATES"]
 
 #: ``planner="auto"`` uses the dense planner up to this many states (the measured crossover, 12x12)
 AUTO_DENSE_MAX_STATES = 144
@@ -37,6 +37,13 @@ def register_planner(name: str, cls: type[Planner], overwrite: bool = False) -> 
     if name in _REGISTRY and not overwrite:
         raise ValidationError(f"a planner named {name!r} is already registered (pass overwrite=True to replace it)")
     _REGISTRY[name] = cls
+
+
+def unregister_planner(name: str) -> None:
+    """Remove the planner registered as ``name`` (planners already bound to MDPs stay usable)."""
+    if not isinstance(name, str) or name not in _REGISTRY:
+        raise ValidationError(f"unknown planner {name!r}; available: {', '.join(available_planners())}")
+    del _REGISTRY[name]
 
 
 def available_planners() -> list[str]:

@@ -80,6 +80,8 @@ class FactorSystem(PolicySystem):
     """One sparse solver per task (:class:`TaskFactor` or :class:`UpdatedFactor`), in the
     planner's state ordering: right-hand sides are permuted in, solutions permuted back."""
 
+    solvers: list[Any]
+
     def __init__(self, planner: SparseLUPlanner, solvers: list[Any]) -> None:
         self.planner, self.solvers, self.n = planner, list(solvers), len(solvers)
 

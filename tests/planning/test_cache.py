@@ -48,7 +48,7 @@ def test_planners_live_beside_the_mdp_and_go_with_it():
     fo.optimal_q(grid, np.zeros((grid.n_states, 4)), planner="sparse-lu")
     pl = planning.get_planner(grid, "sparse-lu")
     assert not any(isinstance(v, (dict, planning.Planner)) for v in vars(grid).values())  # nothing hidden on the model
-    assert pl.mdp is grid and pl in cache._PLANNERS[grid].values()
+    assert pl.mdp is grid and planning.get_planner(grid, "sparse-lu") is pl
     dead_mdp, dead_planner = weakref.ref(grid), weakref.ref(pl)
     del grid, pl
     gc.collect()

@@ -6,7 +6,6 @@ import pytest
 import factirl_opt as fo
 from factirl_opt import planning
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.planning import registry
 
 PLANNERS = fo.available_planners()
 
@@ -59,7 +58,7 @@ class EchoPlanner(planning.DensePlanner):
 def echo_registered():
     planning.register_planner("echo", EchoPlanner)
     yield
-    del registry._REGISTRY["echo"]
+    planning.unregister_planner("echo")
 
 
 def test_register_planner_makes_it_available_everywhere(grid3, echo_registered):
@@ -80,6 +79,8 @@ def test_register_planner_errors(echo_registered):
         planning.register_planner("", EchoPlanner)
     with pytest.raises(ValidationError, match="must be a Planner subclass; got <class 'object'>"):
         planning.register_planner("thing", object)
+    with pytest.raises(ValidationError, match="unknown planner 'thing'; available: auto, dense, sparse-lu, echo"):
+        planning.unregister_planner("thing")
 
 
 def test_the_base_classes_are_abstract(grid3):
