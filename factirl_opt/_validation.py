@@ -8,6 +8,7 @@ gets the same rule and the same message wherever it enters. All raise
 from __future__ import annotations
 
 import numbers
+import sys
 import typing
 
 import numpy as np
@@ -148,9 +149,13 @@ def check_array(value, name, ndim=None, dtype=np.float64):
 
 
 def check_mdp(mdp):
-    from .mdp import TabularMDP
+    """``mdp`` if it is a :class:`~factirl_opt.mdp.TabularMDP` (or a subclass), else raise.
 
-    if not isinstance(mdp, TabularMDP):
+    The class is looked up among the loaded modules, not imported: this module is a leaf that
+    the model module imports (no import cycle), and no model can exist before its module loads.
+    """
+    models = sys.modules.get(__name__.rpartition(".")[0] + ".mdp")
+    if models is None or not isinstance(mdp, models.TabularMDP):
         raise ValidationError(f"mdp must be a TabularMDP; got {type(mdp).__name__}")
     return mdp
 

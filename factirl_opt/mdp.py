@@ -1,18 +1,32 @@
 """Tabular Markov decision processes: :class:`TabularMDP` and the paper's :class:`GridWorld`.
 
-Conventions (DESIGN sections 2 and 7): dynamics ``P(s' | s, a)`` either dense, an array
+Conventions (docs/maths.md §1): dynamics ``P(s' | s, a)`` either dense, an array
 ``P[s, a, s']`` of shape (S, A, S), or sparse, a ``scipy.sparse`` matrix of shape (S*A, S) whose
 row ``s * A + a`` is ``P(. | s, a)``; rows sum to one. Rewards ``R[..., s, a]``; a tabular reward
 parameter ``theta`` is ``R`` flattened in C order, so ``d = S * A`` and index ``s * A + a``.
+
+Models are immutable: every attribute is set once, by the constructor, and the dynamics arrays
+are read-only, so whatever the library caches about a model (its planners and factorisations,
+:mod:`factirl_opt.planning.cache`) can never go stale. To change a model, build a new one.
+Models pickle and deep-copy without those caches.
 """
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
-from ._validation import check_real_dtype, check_int, check_probability, check_real
+from ._validation import check_int, check_probability, check_real, check_real_dtype
 from .exceptions import ValidationError
 
-__all__ = ["TabularMDP", "GridWorld", "check_signature"]
+__all__ = ["TabularMDP", "GridWorld", "check_signature", "SIGNATURE_KEYS"]
+
+#: the keys of :meth:`TabularMDP.signature`, in the order they are compared and reported
+SIGNATURE_KEYS = ("n_states", "n_actions", "gamma", "transitions_sha256")
 
 _ROW_SUM_TOL = 1e-9
 #: largest dense (S, A, S) copy that ``transitions`` builds for a sparse model, in bytes
@@ -47,8 +61,15 @@ def _check_dense(transitions):
     return P
 
 
+def _read_only(*arrays):
+    for arr in arrays:
+        arr.setflags(write=False)
+
+
 def _check_sparse(transitions):
     """A validated canonical CSR copy (S*A, S) of a scipy.sparse matrix, never densified."""
+    if transitions.dtype.kind not in "biuf":  # complex would lose its imaginary part with a mere warning
+        raise ValidationError(f"sparse transitions must be real (float or integer); got dtype {transitions.dtype}")
     P = sp.csr_matrix(transitions, dtype=np.float64, copy=True)
     P.sum_duplicates()
     P.eliminate_zeros()
@@ -69,8 +90,7 @@ def _check_sparse(transitions):
         r = int(np.argmax(err > _ROW_SUM_TOL))
         raise ValidationError(f"each row of the (S*A, S) transitions must sum to 1 (within {_ROW_SUM_TOL}); "
                               f"row {r} (s={r // A}, a={r % A}) sums to {float(sums[r])!r}")
-    for arr in (P.data, P.indices, P.indptr):
-        arr.setflags(write=False)
+    _read_only(P.data, P.indices, P.indptr)
     return P, A
 
 
@@ -104,36 +124,77 @@ class TabularMDP:
     Raises
     ------
     ValidationError
-        With a message naming the bad shape or value.
+        With a message naming the bad shape or value; also on any attempt to set or delete an
+        attribute after construction (models are immutable: build a new one).
+
+    Notes
+    -----
+    Immutable and picklable: the dynamics arrays (the dense array, the CSR's ``data``,
+    ``indices`` and ``indptr``) are read-only, attributes cannot be set, and ``pickle`` and
+    ``copy.deepcopy`` carry the model without its lazy caches (CSR or dense copies, sampling
+    tables) or planners, which a copy rebuilds on use and plans with identically.
     """
 
-    def __init__(self, transitions, gamma):
+    #: the attributes that define a model (with the public ones); the other private ones are lazy caches
+    _STATE = ("_P", "_dense", "_shape")
+    _P: sp.csr_matrix  # sparse models: the validated CSR (S*A, S) dynamics
+    _dense: np.ndarray  # dense models: the validated (S, A, S) dynamics
+    _shape: tuple[int, int]
+    _dense_cache: np.ndarray
+    _csr_cache: sp.csr_matrix
+    gamma: float
+
+    def __init__(self, transitions: Any, gamma: float) -> None:
         if sp.issparse(transitions):
-            self._P, A = _check_sparse(transitions)
-            self._shape = (self._P.shape[1], A)
+            P, A = _check_sparse(transitions)
+            self._init("_P", P)
+            self._init("_shape", (P.shape[1], A))
         else:
-            self._dense = _check_dense(transitions)
-            self._shape = self._dense.shape[:2]
-        self.gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
+            dense = _check_dense(transitions)
+            self._init("_dense", dense)
+            self._init("_shape", dense.shape[:2])
+        self._init("gamma", check_real(gamma, "gamma", 0.0, 1.0, high_open=True))
+
+    def _init(self, name: str, value: Any) -> None:
+        """Set an attribute in a constructor or a lazy cache (the only way: models are immutable)."""
+        object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise ValidationError(f"{type(self).__name__} is immutable: cannot set {name!r}; "
+                              "build a new model with the values you want (e.g. TabularMDP(transitions, gamma=...))")
+
+    def __delattr__(self, name: str) -> None:
+        raise ValidationError(f"{type(self).__name__} is immutable: cannot delete {name!r}; build a new model instead")
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The defining attributes only: lazy caches are not pickled or deep-copied."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_") or k in self._STATE}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if "_P" in state:
+            _read_only(self._P.data, self._P.indices, self._P.indptr)
+        if "_dense" in state:
+            _read_only(self._dense)
 
     @property
-    def is_sparse(self):
+    def is_sparse(self) -> bool:
         return hasattr(self, "_P")
 
     @property
-    def n_states(self):
+    def n_states(self) -> int:
         return self._shape[0]
 
     @property
-    def n_actions(self):
+    def n_actions(self) -> int:
         return self._shape[1]
 
     @property
-    def n_params(self):
+    def n_params(self) -> int:
         return self._shape[0] * self._shape[1]
 
     @property
-    def transitions(self):
+    def transitions(self) -> np.ndarray:
         if not self.is_sparse:
             return self._dense
         size = self.n_states * self.n_params * 8
@@ -142,56 +203,56 @@ class TabularMDP:
                 f"this sparse model's dense (S, A, S) transitions would take {size / 2**30:.1f} GiB; "
                 "use mdp.transition_matrix (CSR, (S*A, S))"
             )
-        if not hasattr(self, "_dense_cache"):
+        if "_dense_cache" not in self.__dict__:
             dense = self._P.toarray().reshape(self.n_states, self.n_actions, self.n_states)
-            dense.setflags(write=False)
-            self._dense_cache = dense
+            _read_only(dense)
+            self._init("_dense_cache", dense)
         return self._dense_cache
 
     @property
-    def transition_matrix(self):
+    def transition_matrix(self) -> Any:
         return self._P if self.is_sparse else self._dense.reshape(self.n_params, self.n_states)
 
     @property
-    def transitions_flat(self):
+    def transitions_flat(self) -> np.ndarray:
         """Dense models: transitions reshaped to (S * A, S), rows indexed by ``s * A + a``."""
         if self.is_sparse:
             raise ValidationError("transitions_flat is for dense models; a sparse model's (S*A, S) matrix is mdp.transition_matrix")
         return self.transition_matrix
 
-    def csr(self):
+    def csr(self) -> sp.csr_matrix:
         """The dynamics as a CSR (S*A, S) matrix (built once and cached for a dense model)."""
         if self.is_sparse:
             return self._P
-        if not hasattr(self, "_csr_cache"):
+        if "_csr_cache" not in self.__dict__:
             P = sp.csr_matrix(self.transition_matrix)
             P.eliminate_zeros()
             P.sort_indices()
-            self._csr_cache = P
+            _read_only(P.data, P.indices, P.indptr)
+            self._init("_csr_cache", P)
         return self._csr_cache
 
-    def signature(self):
-        """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics.
+    def signature(self) -> dict[str, Any]:
+        """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics
+        (keys :data:`SIGNATURE_KEYS`).
 
         Learners record it at ``fit`` (``mdp_signature_``), saved models carry it, and a model
         refuses an MDP whose signature differs (:func:`check_signature`). The digest is the
         SHA-256 of the transitions as a canonical CSR matrix (float64, sorted indices, explicit
         zeros removed), so a dense and a sparse copy of the same dynamics share it.
         """
-        import hashlib
-
         P = self.csr()
         h = hashlib.sha256()
         for part in (np.asarray(P.shape, dtype=np.int64), P.indptr.astype(np.int64), P.indices.astype(np.int64), P.data):
             h.update(np.ascontiguousarray(part).tobytes())
-        return {"n_states": int(self.n_states), "n_actions": int(self.n_actions), "gamma": float(self.gamma),
-                "transitions_sha256": h.hexdigest()}
+        values = (int(self.n_states), int(self.n_actions), float(self.gamma), h.hexdigest())
+        return dict(zip(SIGNATURE_KEYS, values))
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"{type(self).__name__}(n_states={self.n_states}, n_actions={self.n_actions}, gamma={self.gamma})"
 
 
-def check_signature(expected, mdp, what="this model"):
+def check_signature(expected: Any, mdp: TabularMDP, what: str = "this model") -> None:
     """Raise :class:`ValidationError` unless ``mdp`` has the signature ``expected``.
 
     Parameters
@@ -205,7 +266,7 @@ def check_signature(expected, mdp, what="this model"):
     got = mdp.signature()
     if not isinstance(expected, dict) or set(expected) != set(got):
         raise ValidationError(f"{what} carries no valid MDP signature (got {expected!r})")
-    diffs = [k for k in ("n_states", "n_actions", "gamma", "transitions_sha256") if expected[k] != got[k]]
+    diffs = [k for k in SIGNATURE_KEYS if expected[k] != got[k]]
     if diffs:
         detail = ", ".join("the transitions differ" if k == "transitions_sha256" else f"{k}: fitted {expected[k]!r}, given {got[k]!r}"
                            for k in diffs)
@@ -213,12 +274,12 @@ def check_signature(expected, mdp, what="this model"):
 
 
 class GridWorld(TabularMDP):
-    """The paper's grid world (section 4; DESIGN section 2).
+    """The paper's grid world (section 4; docs/maths.md §9).
 
     States are the cells of a ``size x size`` grid, numbered row-major: ``s = row * size + col``
     (row 0 at the top). Actions are the four moves ``0: up, 1: down, 2: left, 3: right``.
 
-    Dynamics, as fixed by DESIGN section 2: from state ``s`` let ``F(s)`` be the feasible moves
+    Dynamics: from state ``s`` let ``F(s)`` be the feasible moves
     (those that stay on the grid). A feasible requested move succeeds with probability
     ``p_success``; with probability ``1 - p_success`` the agent makes a move drawn uniformly
     from ``F(s)`` (the requested one included). An infeasible request (into a wall) gives a
@@ -235,13 +296,15 @@ class GridWorld(TabularMDP):
     """
 
     ACTIONS = ("up", "down", "left", "right")
+    size: int
+    p_success: float
     #: (row, column) displacement of each action, in the order of ``ACTIONS``
     MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))
 
-    def __init__(self, size=10, p_success=0.7, gamma=0.9):
-        self.size = check_int(size, "size", minimum=2)
+    def __init__(self, size: int = 10, p_success: float = 0.7, gamma: float = 0.9) -> None:
+        self._init("size", check_int(size, "size", minimum=2))
         p = check_probability(p_success, "p_success")
-        self.p_success = p
+        self._init("p_success", p)
         super().__init__(self._build(self.size, p), gamma)
 
     @classmethod
@@ -266,7 +329,7 @@ class GridWorld(TabularMDP):
         val = np.concatenate([vals[keep], np.full(int(succ.sum()), p)])
         return sp.csr_matrix((val, (row, col)), shape=(S * A, S))
 
-    def state_to_cell(self, state):
+    def state_to_cell(self, state: ArrayLike) -> Any:
         """(row, col) of a state index, or arrays of them for an array of states."""
         state = np.asarray(state)
         if not np.issubdtype(state.dtype, np.integer) or np.any((state < 0) | (state >= self.n_states)):
@@ -276,7 +339,7 @@ class GridWorld(TabularMDP):
             return int(r), int(c)
         return r, c
 
-    def cell_to_state(self, row, col):
+    def cell_to_state(self, row: ArrayLike, col: ArrayLike) -> Any:
         """State index of cell (row, col) (scalars or arrays)."""
         row, col = np.asarray(row), np.asarray(col)
         for name, v in (("row", row), ("col", col)):
@@ -285,5 +348,5 @@ class GridWorld(TabularMDP):
         s = row * self.size + col
         return int(s) if s.ndim == 0 else s
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"GridWorld(size={self.size}, p_success={self.p_success}, gamma={self.gamma})"

@@ -1,16 +1,25 @@
-"""TabularMDP validation and the grid world's dynamics (DESIGN section 2)."""
+"""TabularMDP: validation, immutability, pickling, signatures; the grid world's dynamics (docs/maths.md §9)."""
+
+import ast
+import copy
+import pickle
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import factirl_opt as fo
+from factirl_opt import mdp as mdp_module
+from factirl_opt import planning
 from factirl_opt.exceptions import FactIRLError, ValidationError
 
 UP, DOWN, LEFT, RIGHT = range(4)
 
 
 def reference_grid(size, p):
-    """Independent construction of DESIGN section 2's dynamics, move by move."""
+    """Independent construction of the grid's dynamics, move by move."""
     S = size * size
     P = np.zeros((S, 4, S))
     moves = {UP: (-1, 0), DOWN: (1, 0), LEFT: (0, -1), RIGHT: (0, 1)}
@@ -162,3 +171,151 @@ def test_validation_errors_are_library_and_value_errors():
         fo.GridWorld(size=1)
     with pytest.raises(ValueError):
         fo.GridWorld(size=1)
+
+
+# --- sparse dynamics: validation and the grid world --------------------------------------------
+
+
+def sparse_rows(rows):
+    return sp.csr_matrix(np.array(rows, dtype=float))
+
+
+@pytest.mark.parametrize(
+    "rows, fragment",
+    [
+        ([[1, 0], [0.5, 0.5], [1.5, -0.5], [0, 1]], r"nonnegative; found -0.5 in row 2 \(s=1, a=0\), column 1"),
+        ([[1, 0], [0.5, 0.5], [0, 1], [np.nan, 1]], r"finite; found nan in row 3 \(s=1, a=1\), column 0"),
+        ([[1, 0], [0.5, 0.4], [0, 1], [0, 1]], r"row 1 \(s=0, a=1\) sums to 0\.9"),
+        ([[1, 0], [0, 1], [0, 0], [0, 1]], r"row 2 \(s=1, a=0\) sums to 0\.0"),
+        ([[1, 0, 0], [0, 1, 0]], r"shape \(S\*A, S\) with S, A >= 1; got \(2, 3\)"),
+        ([[1, 0], [0, 1], [1, 0]], r"shape \(S\*A, S\) with S, A >= 1; got \(3, 2\)"),
+    ],
+)
+def test_sparse_transitions_validation(rows, fragment):
+    with pytest.raises(ValidationError, match=fragment):
+        fo.TabularMDP(sparse_rows(rows), 0.9)
+
+
+def test_sparse_transitions_kept_sparse_and_canonical():
+    P = sp.csr_matrix(([0.5, 0.5, 1.0, 0.0, 1.0, 1.0], ([0, 0, 1, 2, 2, 3], [1, 0, 0, 0, 1, 0])), shape=(4, 2))
+    mdp = fo.TabularMDP(P, 0.5)
+    assert mdp.is_sparse and sp.issparse(mdp.transition_matrix) and mdp.csr() is mdp.transition_matrix
+    assert mdp.n_states == 2 and mdp.n_actions == 2
+    assert mdp.transition_matrix.nnz == 5  # the explicit zero is dropped
+    np.testing.assert_array_equal(mdp.transitions, P.toarray().reshape(2, 2, 2))
+
+
+def reference_grid_sparse(size, p):
+    """The grid's dynamics cell by cell, as a dict {(s*A + a, s'): probability}."""
+    moves = fo.GridWorld.MOVES
+    out = {}
+    for r in range(size):
+        for c in range(size):
+            s = r * size + c
+            dest = {a: (r + dr) * size + (c + dc) for a, (dr, dc) in enumerate(moves) if 0 <= r + dr < size and 0 <= c + dc < size}
+            for a in range(len(moves)):
+                row = s * len(moves) + a
+                for t in dest.values():
+                    out[row, t] = out.get((row, t), 0.0) + ((1 - p) if a in dest else 1.0) / len(dest)
+                if a in dest:
+                    out[row, dest[a]] += p
+    return out
+
+
+@pytest.mark.parametrize("size, p", [(2, 0.7), (5, 0.0), (7, 1.0), (12, 0.7)])
+def test_grid_sparse_dynamics_equal_cell_by_cell_reference(size, p):
+    P = fo.GridWorld(size, p_success=p).transition_matrix.tocoo()
+    ref = {k: v for k, v in reference_grid_sparse(size, p).items() if v != 0.0}
+    got = dict(zip(zip(P.row.tolist(), P.col.tolist()), P.data.tolist()))
+    assert set(got) == set(ref)
+    assert max(abs(got[k] - ref[k]) for k in ref) <= 1e-15
+
+
+@pytest.mark.parametrize("sparse", [True, False])
+def test_complex_dynamics_are_refused(sparse):
+    P = np.eye(2)[:, None, :].repeat(2, axis=1).astype(complex)  # (2, 2, 2), real part valid
+    P[0, 0] += 1e-3j
+    dynamics = sp.csr_matrix(P.reshape(4, 2)) if sparse else P
+    with pytest.raises(ValidationError, match="complex"):
+        fo.TabularMDP(dynamics, 0.9)
+
+
+# --- immutability, pickling, signatures ------------------------------------------------------
+
+
+def models():
+    rng = np.random.default_rng(3)
+    dense = fo.TabularMDP(rng.dirichlet(np.ones(4), size=(4, 2)), 0.8)
+    return {"dense": dense, "sparse": fo.TabularMDP(sp.csr_matrix(dense.transition_matrix), 0.8), "grid": fo.GridWorld(13)}
+
+
+@pytest.mark.parametrize("kind", ["dense", "sparse", "grid"])
+@pytest.mark.parametrize("name", ["gamma", "_P", "_dense", "size", "new_attribute"])
+def test_models_are_immutable(kind, name):
+    model = models()[kind]
+    fo.optimal_q(model, np.ones((model.n_states, model.n_actions)))
+    with pytest.raises(ValidationError, match=f"{type(model).__name__} is immutable: cannot set '{name}'; build a new model"):
+        setattr(model, name, 0.5)
+    with pytest.raises(ValidationError, match="is immutable: cannot delete 'gamma'"):
+        del model.gamma
+    assert model.gamma == 0.8 if kind != "grid" else model.gamma == 0.9
+
+
+@pytest.mark.parametrize("kind", ["dense", "sparse", "grid"])
+def test_dynamics_arrays_are_read_only(kind):
+    model = models()[kind]
+    P = model.transition_matrix
+    arrays = (P.data, P.indices, P.indptr) if sp.issparse(P) else (P, model.transitions)
+    arrays += (model.csr().data, model.csr().indices, model.csr().indptr, model.transitions)
+    for arr in arrays:
+        with pytest.raises(ValueError, match="read-only"):
+            arr[0] = 0
+
+
+@pytest.mark.parametrize("kind", ["dense", "sparse", "grid"])
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_planned_models_pickle_and_copy_without_their_caches(kind, how):
+    model = models()[kind]
+    R = np.random.default_rng(4).standard_normal((3, model.n_states, model.n_actions))
+    Q, pol = fo.optimal_q(model, R, planner="sparse-lu")
+    fo.sample_demonstrations(model, R, 1, 3, 0)
+    model.transitions, model.csr()
+    twin = pickle.loads(pickle.dumps(model)) if how == "pickle" else copy.deepcopy(model)
+    assert set(vars(twin)) <= {"_P", "_dense", "_shape", "gamma", "size", "p_success"}  # no cache carried
+    assert type(twin) is type(model) and twin.signature() == model.signature()
+    Q2, pol2 = fo.optimal_q(twin, R, planner="sparse-lu")
+    np.testing.assert_array_equal(Q2, Q)
+    np.testing.assert_array_equal(pol2, pol)
+    with pytest.raises(ValidationError, match="immutable"):
+        twin.gamma = 0.5
+    P = twin.transition_matrix
+    with pytest.raises(ValueError, match="read-only"):
+        (P.data if sp.issparse(P) else P)[0] = 0
+
+
+def optimal_values(model):
+    return fo.optimal_q(model, np.ones((model.n_states, model.n_actions)), planner="sparse-lu")[0]
+
+
+def test_a_planned_model_goes_to_a_process_pool():
+    model = models()["grid"]
+    expected = optimal_values(model)
+    with ProcessPoolExecutor(2) as pool:
+        for got in pool.map(optimal_values, [model, model]):
+            np.testing.assert_array_equal(got, expected)
+
+
+def test_signature_keys_are_defined_once():
+    grid = fo.GridWorld(3)
+    assert tuple(grid.signature()) == mdp_module.SIGNATURE_KEYS
+    other = fo.GridWorld(3, gamma=0.5)
+    with pytest.raises(ValidationError, match=r"fitted on another MDP \(gamma: fitted 0\.9, given 0\.5\)"):
+        mdp_module.check_signature(grid.signature(), other)
+
+
+def test_validation_does_not_import_the_model_module():
+    tree = ast.parse(Path(mdp_module.__file__).with_name("_validation.py").read_text())
+    imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert not any(name and name.endswith("mdp") for name in imported)
+    with pytest.raises(ValidationError, match="mdp must be a TabularMDP; got dict"):
+        fo.optimal_q({}, np.zeros((2, 2)))

@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.exceptions import ValidationError
+from factirl_opt import planning
+from factirl_opt.exceptions import FactIRLError, ValidationError
+
+PLANNERS = fo.available_planners()
+BETA = 5.0
+EPS = 1e-6
 
 
 @pytest.fixture(params=["grid", "random"])
@@ -157,3 +162,138 @@ def test_policy_evaluation_needs_a_policy(grid4):
 def test_not_an_mdp():
     with pytest.raises(ValidationError, match="mdp must be a TabularMDP; got ndarray"):
         fo.optimal_q(np.zeros((2, 2, 2)), np.zeros((2, 2)))
+
+
+# --- every planner against the dense route (models of tests/planning/conftest.py) ----------------
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+def test_q_star_matches_dense_route_and_value_iteration(twins, name, assert_rel):
+    sparse_mdp, dense_mdp = twins
+    R = np.random.default_rng(1).standard_normal((4, sparse_mdp.n_states, sparse_mdp.n_actions))
+    Q_ref, pol_ref = fo.optimal_q(dense_mdp, R, planner="dense")
+    Q, pol = fo.optimal_q(sparse_mdp, R, planner=name)
+    assert_rel(Q, Q_ref)
+    np.testing.assert_array_equal(pol, pol_ref)
+    assert_rel(Q, fo.value_iteration(sparse_mdp, R, tol=1e-13, planner=name))
+    # warm start from a wrong policy, single task
+    Q1, _ = fo.optimal_q(sparse_mdp, R[0], policy=np.argmin(Q_ref[0], axis=1), planner=name)
+    assert_rel(Q1, Q_ref[0])
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+def test_policy_values_deterministic_and_stochastic(twins, name, assert_rel):
+    sparse_mdp, dense_mdp = twins
+    rng = np.random.default_rng(2)
+    S, A = sparse_mdp.n_states, sparse_mdp.n_actions
+    R = rng.standard_normal((3, S, A))
+    det = rng.integers(0, A, size=(3, S))
+    stoch = rng.dirichlet(np.ones(A), size=(3, S))
+    for policy in (det, stoch):
+        V_ref = fo.policy_evaluation(dense_mdp, R, policy, planner="dense")
+        assert_rel(fo.policy_evaluation(sparse_mdp, R, policy, planner=name), V_ref)
+        # the Bellman equation itself: V = R_pi + gamma P_pi V
+        w = stoch if policy is stoch else np.eye(A)[det]
+        P3 = dense_mdp.transitions
+        np.testing.assert_allclose(V_ref, np.einsum("nsa,nsa->ns", w, R) + dense_mdp.gamma * np.einsum("nsa,sat,nt->ns", w, P3, V_ref),
+                                   rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+def test_loss_and_gradient_match_dense_route(twins, name, make_statistics, assert_rel):
+    sparse_mdp, dense_mdp = twins
+    rng = np.random.default_rng(3)
+    mu, pi_hat = make_statistics(rng, sparse_mdp, 4)
+    R = rng.standard_normal((4, sparse_mdp.n_states, sparse_mdp.n_actions))
+    L_ref, G_ref = fo.policy_matching_loss(dense_mdp, R, mu, pi_hat, BETA, planner="dense")
+    L, G = fo.policy_matching_loss(sparse_mdp, R, mu, pi_hat, BETA, planner=name)
+    assert_rel(L, L_ref)
+    assert_rel(G, G_ref)
+    # warm at nearby rewards (the sparse planner's cache and low-rank updates), then back
+    _, pol = fo.optimal_q(sparse_mdp, R, planner=name)
+    for R2 in (R + 1e-2 * rng.standard_normal(R.shape), R):
+        L_ref, G_ref = fo.policy_matching_loss(dense_mdp, R2, mu, pi_hat, BETA, planner="dense")
+        L, G = fo.policy_matching_loss(sparse_mdp, R2, mu, pi_hat, BETA, policy=pol, planner=name)
+        assert_rel(L, L_ref)
+        assert_rel(G, G_ref)
+
+
+def test_grid_loss_gradient_and_score_match_dense_route(make_statistics, assert_rel):
+    grid = fo.GridWorld(8)
+    dense = fo.TabularMDP(grid.transitions, grid.gamma)
+    rng = np.random.default_rng(4)
+    mu, pi_hat = make_statistics(rng, grid, 3)
+    R = rng.standard_normal((3, grid.n_states, 4))
+    L_ref, G_ref = fo.policy_matching_loss(dense, R, mu, pi_hat, BETA, planner="dense")
+    R_hat = R + 0.3 * rng.standard_normal(R.shape)
+    dev_ref = fo.deviation(dense, R, R_hat, planner="dense")
+    for name in PLANNERS:
+        L, G = fo.policy_matching_loss(grid, R, mu, pi_hat, BETA, planner=name)
+        assert_rel(L, L_ref)
+        assert_rel(G, G_ref)
+        assert_rel(fo.deviation(grid, R, R_hat, planner=name), dev_ref)
+
+
+@pytest.mark.parametrize("name", ["sparse-lu", "dense"])
+def test_gradient_matches_finite_differences_on_sparse_model(twins, name, make_statistics, tie_free_rewards):
+    sparse_mdp, _ = twins
+    rng = np.random.default_rng(5)
+    mu, pi_hat = make_statistics(rng, sparse_mdp, 1)
+    R = tie_free_rewards(rng, sparse_mdp, (sparse_mdp.n_states, sparse_mdp.n_actions))
+    _, G = fo.policy_matching_loss(sparse_mdp, R, mu[0], pi_hat[0], BETA, planner=name)
+    coords = [tuple(c) for c in rng.integers(0, R.shape, size=(12, 2))]
+    for idx in coords:
+        Rp, Rm = R.copy(), R.copy()
+        Rp[idx] += EPS
+        Rm[idx] -= EPS
+        fd = (fo.policy_matching_loss(sparse_mdp, Rp, mu[0], pi_hat[0], BETA, planner=name)[0][0]
+              - fo.policy_matching_loss(sparse_mdp, Rm, mu[0], pi_hat[0], BETA, planner=name)[0][0]) / (2 * EPS)
+        assert abs(G[0][idx] - fd) <= 1e-6 * max(1.0, float(np.max(np.abs(G))))
+
+
+@pytest.mark.parametrize("name", PLANNERS)
+@pytest.mark.parametrize("kind", ["deterministic", "stochastic"])
+def test_adjoint_is_the_transpose_of_tangent(twins, name, kind):
+    sparse_mdp, _ = twins
+    rng = np.random.default_rng(6)
+    n, S, A = 3, sparse_mdp.n_states, sparse_mdp.n_actions
+    pl = planning.get_planner(sparse_mdp, name)
+    policy = rng.integers(0, A, size=(n, S)) if kind == "deterministic" else rng.dirichlet(np.ones(A), size=(n, S))
+    system = pl.system(policy)
+    dR, G = rng.standard_normal((n, S, A)), rng.standard_normal((n, S, A))
+    lhs = np.sum(planning.tangent(pl, system, policy, dR) * G, axis=(1, 2))
+    rhs = np.sum(dR * planning.adjoint(pl, system, policy, G), axis=(1, 2))
+    np.testing.assert_allclose(lhs, rhs, rtol=1e-11)
+    # k directions at once equal k single directions
+    dRk = rng.standard_normal((n, S, A, 2))
+    dQk = planning.tangent(pl, system, policy, dRk)
+    for j in range(2):
+        np.testing.assert_allclose(dQk[..., j], planning.tangent(pl, system, policy, dRk[..., j]), rtol=1e-12, atol=1e-12)
+
+
+def test_value_iteration_raises_when_it_does_not_converge(grid3):
+    slow = fo.GridWorld(3, gamma=0.9999)
+    with pytest.raises(FactIRLError, match=r"value iteration did not reach tol=1e-12 in 50 sweeps"):
+        fo.value_iteration(slow, np.ones((9, 4)), max_iter=50)
+
+
+def test_policy_iteration_sweep_limit(twins):
+    sparse_mdp, _ = twins
+    R = np.random.default_rng(11).standard_normal((2, sparse_mdp.n_states, sparse_mdp.n_actions))
+    Q, pol = fo.optimal_q(sparse_mdp, R, planner="dense")
+    with pytest.raises(FactIRLError, match="policy iteration did not converge in 1 sweeps"):
+        fo.optimal_q(sparse_mdp, R, policy=np.argmin(Q, axis=2), max_iter=1, planner="dense")
+
+
+def test_planners_agree_to_rounding_at_the_same_rewards(make_statistics, tie_free_rewards):
+    """What does not depend on the planner: Q*, the greedy policy (no ties), loss and gradient."""
+    grid = fo.GridWorld(13)
+    rng = np.random.default_rng(7)
+    R = tie_free_rewards(rng, grid, (4, grid.n_states, 4))
+    mu, pi_hat = make_statistics(rng, grid, 4)
+    (Qd, pd), (Qs, ps) = (fo.optimal_q(grid, R, planner=name) for name in ("dense", "sparse-lu"))
+    np.testing.assert_array_equal(pd, ps)
+    np.testing.assert_allclose(Qs, Qd, rtol=0, atol=1e-13 * np.abs(Qd).max())
+    (Ld, Gd), (Ls, Gs) = (fo.policy_matching_loss(grid, R, mu, pi_hat, BETA, planner=name) for name in ("dense", "sparse-lu"))
+    np.testing.assert_allclose(Ls, Ld, rtol=1e-13)
+    np.testing.assert_allclose(Gs, Gd, rtol=0, atol=1e-13 * np.abs(Gd).max())
