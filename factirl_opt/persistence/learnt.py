@@ -25,13 +25,12 @@ from numpy.typing import ArrayLike
 
 from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
+from ..mdp import SIGNATURE_KEYS
 from .archive import check_array
 
 __all__ = ["KINDS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "learnt_attributes", "check_learnt", "features_sha256",
            "fitted_features_sha256", "check_features_digest"]
 
-#: What the learners' ``mdp_signature_`` holds (:meth:`~factirl_opt.TabularMDP.signature`).
-SIGNATURE_KEYS = ("n_states", "n_actions", "gamma", "transitions_sha256")
 
 #: The kinds of learnt attributes that are not arrays, and what each holds.
 KINDS = {
