@@ -310,7 +310,7 @@ class FactIRL:
             self._store(mdp, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
-            raise
+            raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
         self._store(mdp, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
@@ -388,7 +388,7 @@ class FactIRL:
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
-            raise
+            raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
         self._store_transfer(res)
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients

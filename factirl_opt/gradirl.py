@@ -192,7 +192,7 @@ class GradIRL:
             self._store(mdp, F, exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
                                             f"after {self.n_iter_} iterations)")
-            raise
+            raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
         self._store(mdp, F, res, objective)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         return self

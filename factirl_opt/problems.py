@@ -77,6 +77,10 @@ class _SumOverActions:
         return np.repeat(np.asarray(X, dtype=np.float64), self.phi.n_actions, axis=-1)
 
 
+#: largest |entry| of features treated as "of order 1" when naming the cause of an overflow
+FEATURE_SCALE_LIMIT = 1e8
+
+
 def dense_features(features: Any) -> NDArray[np.float64] | None:
     """``features`` as a dense (S*A, p) array (a :class:`StateBroadcast` formed), or None."""
     return features.toarray() if isinstance(features, StateBroadcast) else features
@@ -104,7 +108,8 @@ def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n
     ------
     ValidationError
         When the product overflows float64; the message names both inputs with their largest
-        magnitude and says which to rescale.
+        magnitude and says which to rescale (the features when an entry exceeds
+        ``FEATURE_SCALE_LIMIT``).
     """
     if isinstance(features, StateBroadcast):
         return np.repeat(weights, n_actions, axis=1).reshape(-1, n_states, n_actions)
@@ -112,10 +117,13 @@ def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n
         return task_rewards(features, weights, n_states, n_actions)
     except ValidationError:
         big_f, big_w = _largest(features), _largest(weights)
-        culprit = names[0] if big_f >= big_w else names[1]
+        if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
+            advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
+        else:
+            advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
         raise ValidationError(
-            f"the rewards {names[0]} @ {names[1]} overflow float64: the largest |{names[0]}| is {big_f:.3g} and the "
-            f"largest |{names[1]}| is {big_w:.3g}; rescale the {culprit} (e.g. to entries of order 1)"
+            f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
+            f"|{names[1]}| = {big_w:.3g}): {advice}"
         ) from None
 
 
