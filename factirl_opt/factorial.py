@@ -121,7 +121,7 @@ def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
 
 def _outer_stop(history, gnorm, g0, tol, gtol, it):
     """``(status, reason)`` after outer iteration ``it``, or ``(None, None)`` to go on."""
-    stall = first_step_stall(history, it)  # neither block moved: nothing will
+    stall = first_step_stall(history, it, gnorm)  # neither block moved: nothing will
     if stall is not None:
         return stall
     if solvers.has_converged(history[-2], history[-1], tol):  # a rise is not convergence

@@ -132,12 +132,13 @@ def resolve_step_solver(solver: str | solvers.StepSolver, options: dict | None, 
         return check_solver_applies(solvers.resolve_solver(solver, options), objective, what)
 
 
-def first_step_stall(history: list, iterations: int) -> tuple[str, str] | None:
+def first_step_stall(history: list, iterations: int, gradient_norm: float = float("nan")) -> tuple[str, str] | None:
     """``("stalled", reason)`` when the first iteration of a fit left its total loss unchanged.
 
     Shared by the learners' fits: a first step that changed nothing (no block moved, or every
     accepted step had a zero effect, as with a tiny beta) will not change anything later, and
-    it is not convergence.
+    it is not convergence, unless the start is a stationary point (optimality measure exactly
+    0, e.g. ``h = 0`` under a large L1 penalty).
 
     Parameters
     ----------
@@ -145,8 +146,10 @@ def first_step_stall(history: list, iterations: int) -> tuple[str, str] | None:
         Total loss at the start and after each iteration.
     iterations : int
         Iterations done.
+    gradient_norm : float, optional
+        The optimality measure at the last point (NaN when unknown).
     """
-    if iterations == 1 and len(history) >= 2 and history[1] == history[0]:
+    if iterations == 1 and len(history) >= 2 and history[1] == history[0] and not gradient_norm == 0.0:
         return "stalled", f"stalled: the first iteration changed nothing (total loss {history[0]:.6g} before and after)"
     return None
 

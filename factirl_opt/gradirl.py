@@ -75,7 +75,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
         res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
                                callback=report, tol=tol)
-    stall = first_step_stall(res.loss_history, res.iterations)
+    stall = first_step_stall(res.loss_history, res.iterations, res.gradient_norm)
     if stall is not None:
         res.status, res.reason = stall
     return res

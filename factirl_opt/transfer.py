@@ -128,6 +128,6 @@ def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
     loss = res.loss - solver.penalty(res.coefficients)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
-        status, reason = first_step_stall(res.loss_history, res.iterations) or (status, reason)
+        status, reason = first_step_stall(res.loss_history, res.iterations, res.gradient_norm) or (status, reason)
     return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status,
                        reason)

@@ -100,6 +100,8 @@ def test_objective_reset_plans_as_a_fresh_objective(data):
 def test_first_step_stall_rule():
     assert first_step_stall([2.5, 2.5], 1) == ("stalled", "stalled: the first iteration changed nothing (total loss 2.5 "
                                                 "before and after)")
+    assert first_step_stall([2.5, 2.5], 1, gradient_norm=0.0) is None  # a stationary start has converged
+    assert first_step_stall([2.5, 2.5], 1, gradient_norm=1e-300)[0] == "stalled"
     assert first_step_stall([2.0, 1.0], 1) is None
     assert first_step_stall([2.0, 1.0, 1.0], 2) is None
     assert first_step_stall([2.0], 0) is None
