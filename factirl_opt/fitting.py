@@ -180,7 +180,7 @@ def features_digest(features: np.ndarray | None) -> str | None:
     return h.hexdigest()
 
 
-def check_features_digest(expected: str | None, features: np.ndarray | None, what: str) -> None:
+def check_features_digest(expected: str | None, features: Any, what: str) -> None:
     """Refuse features other than those a model was fitted with (digest ``expected``).
 
     Raises

@@ -79,7 +79,7 @@ class BestRows:
         self._penalty = solver.penalty
         # one tuple, replaced in one assignment: an interrupt never sees it half updated
         self._best = (x0, np.full(x0.shape[0], np.inf), np.full(x0.shape[0], np.nan))
-        self.start_total = None
+        self.start_total: float | None = None
         self.problem = dataclasses.replace(
             problem,
             loss_and_grad=self._recording(problem.loss_and_grad, lambda out: out[0]),
@@ -146,7 +146,7 @@ def run_keeping_best(solver: StepSolver, problem: StepProblem, x0: np.ndarray, m
         return solver.run(tracker.problem, x0, max_iter, callback=report, **options)
     except KeyboardInterrupt as exc:
         x, loss, _ = tracker.best()
-        start = [] if tracker.start_total is None else [tracker.start_total]
+        start: list = [] if tracker.start_total is None else [tracker.start_total]
         result = SolverResult(coefficients=x, status=INTERRUPTED, iterations=len(history), solve_time=float("nan"),
                               loss=loss, n_evaluations=int(problem.n_evaluations() - ev0), loss_history=start + history,
                               reason=INTERRUPTED)

@@ -57,7 +57,7 @@ class StateBroadcast:
 
     def toarray(self) -> NDArray[np.float64]:
         """The dense (S*A, S) matrix (for Jacobians with one column per parameter)."""
-        return np.kron(np.eye(self.n_states), np.ones((self.n_actions, 1)))
+        return np.kron(np.eye(self.n_states), np.ones((self.n_actions, 1))).astype(np.float64)
 
 
 class _SumOverActions:
