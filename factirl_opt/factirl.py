@@ -18,7 +18,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._threads import blas_limited
 from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
-from .dictionary import PCA_MAX_HALVINGS, feature_weights, normalise_dictionary, orient_nonneg, pca_dictionary, shrink_coefficients
+from .dictionary import (
+    PCA_MAX_HALVINGS,
+    feature_weights,
+    normalise_dictionary,
+    orient_nonneg,
+    pca_dictionary,
+    shrink_coefficients,
+)
 from .exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
 from .fitting import (

@@ -192,11 +192,12 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
     Stopping (the rules of :mod:`solvers.stopping`, checked in this order):
 
     - outer loop, after each outer iteration: ``"stalled"`` when the first one changed
-      nothing (:func:`factirl_opt.fitting.first_step_stall`, the rule of every learner); ``"converged"`` when the relative decrease of the total objective (eq. 10, plus
-      a sparse H-solver's penalty) over the iteration is in ``[0, tol]`` (a rise is not
-      convergence), or when the optimality measure over ``(H, D)`` (the norm of the gradient,
-      eqs. 11-12; projected or minimum-norm subgradient for a constrained or penalised
-      H-solver) is at most ``gtol`` times its value at the start; else ``"max_iter"`` after
+      nothing from a start that is not stationary (:func:`factirl_opt.fitting.first_step_stall`,
+      the rule of every learner); ``"converged"`` when the relative decrease of the total
+      objective (eq. 10, plus a sparse H-solver's penalty) over the iteration is in
+      ``[0, tol]`` (a rise is not convergence), or when the optimality measure over ``(H, D)``
+      (the norm of the gradient, eqs. 11-12; projected or minimum-norm subgradient for a
+      constrained or penalised H-solver) is at most ``gtol`` times its value at the start; else ``"max_iter"`` after
       ``max_iter`` iterations. ``reason`` says which rule stopped the fit, with its values.
     - inner runs (each block, each outer iteration): ``inner_steps`` steps, the paper's "fixed
       amount of gradient descent on each sub-problem", ended early only by the gradient rule
