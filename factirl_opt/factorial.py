@@ -121,7 +121,7 @@ def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
 
 def _outer_stop(history, gnorm, g0, tol, gtol, it):
     """``(status, reason)`` after outer iteration ``it``, or ``(None, None)`` to go on."""
-    stall = first_step_stall(history, it, gnorm)  # neither block moved: nothing will
+    stall = first_step_stall(history, it)  # neither block moved: nothing will
     if stall is not None:
         return stall
     if solvers.has_converged(history[-2], history[-1], tol):  # a rise is not convergence
@@ -192,8 +192,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
     Stopping (the rules of :mod:`solvers.stopping`, checked in this order):
 
     - outer loop, after each outer iteration: ``"stalled"`` when the first one changed
-      nothing from a start that is not stationary (:func:`factirl_opt.fitting.first_step_stall`,
-      the rule of every learner); ``"converged"`` when the relative decrease of the total
+      nothing (:func:`factirl_opt.fitting.first_step_stall`, the rule of every learner); ``"converged"`` when the relative decrease of the total
       objective (eq. 10, plus a sparse H-solver's penalty) over the iteration is in
       ``[0, tol]`` (a rise is not convergence), or when the optimality measure over ``(H, D)``
       (the norm of the gradient, eqs. 11-12; projected or minimum-norm subgradient for a

@@ -33,6 +33,7 @@ __all__ = [
     "check_solver_applies",
     "resolve_step_solver",
     "first_step_stall",
+    "held_by_constraint",
     "warn_if_stalled",
     "features_digest",
     "check_features_digest",
@@ -132,13 +133,13 @@ def resolve_step_solver(solver: str | solvers.StepSolver, options: dict | None, 
         return check_solver_applies(solvers.resolve_solver(solver, options), objective, what)
 
 
-def first_step_stall(history: list, iterations: int, gradient_norm: float = float("nan")) -> tuple[str, str] | None:
+def first_step_stall(history: list, iterations: int, held: bool = False) -> tuple[str, str] | None:
     """``("stalled", reason)`` when the first iteration of a fit left its total loss unchanged.
 
     Shared by the learners' fits: a first step that changed nothing (no block moved, or every
-    accepted step had a zero effect, as with a tiny beta) will not change anything later, and
-    it is not convergence, unless the start is a stationary point (optimality measure exactly
-    0, e.g. ``h = 0`` under a large L1 penalty).
+    accepted step had a zero effect, as with a tiny beta or saturated policies) will not
+    change anything later, and it is not convergence, unless the start is held by the
+    solver's constraint or penalty (``held``, :func:`held_by_constraint`).
 
     Parameters
     ----------
@@ -146,12 +147,22 @@ def first_step_stall(history: list, iterations: int, gradient_norm: float = floa
         Total loss at the start and after each iteration.
     iterations : int
         Iterations done.
-    gradient_norm : float, optional
-        The optimality measure at the last point (NaN when unknown).
+    held : bool
+        The start is optimal for the constrained or penalised problem while the gradient is
+        not zero (e.g. ``h = 0`` under a large L1 penalty): the fit has converged.
     """
-    if iterations == 1 and len(history) >= 2 and history[1] == history[0] and not gradient_norm == 0.0:
+    if iterations == 1 and len(history) >= 2 and history[1] == history[0] and not held:
         return "stalled", f"stalled: the first iteration changed nothing (total loss {history[0]:.6g} before and after)"
     return None
+
+
+def held_by_constraint(solver: solvers.StepSolver, result: solvers.SolverResult) -> bool:
+    """Whether a run ended at a point its constraint or penalty holds: a zero optimality measure
+    (projected gradient or minimum-norm subgradient) with a nonzero gradient."""
+    if not result.gradient_norm == 0.0:
+        return False
+    grad = solver.gradient(result.state)
+    return grad is not None and bool(np.any(np.asarray(grad) != 0))
 
 
 def warn_if_stalled(status: str, iterations: int, what: str) -> None:

@@ -21,6 +21,7 @@ from .fitting import (
     check_solver_applies,
     features_digest,
     first_step_stall,
+    held_by_constraint,
     make_objective,
     resolve_step_solver,
     reward_features,
@@ -75,7 +76,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
         res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
                                callback=report, tol=tol)
-    stall = first_step_stall(res.loss_history, res.iterations, res.gradient_norm)
+    stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
     if stall is not None:
         res.status, res.reason = stall
     return res

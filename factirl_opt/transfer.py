@@ -20,7 +20,7 @@ from ._progress import fit_progress
 from ._threads import blas_limited
 from ._validation import check_features, check_int, check_mdp, check_tol
 from .exceptions import translate_solver_errors
-from .fitting import first_step_stall, make_objective, resolve_step_solver, reward_features
+from .fitting import first_step_stall, held_by_constraint, make_objective, resolve_step_solver, reward_features
 from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best
 from .problems import linear_rewards, weights_problem
 
@@ -128,6 +128,6 @@ def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
     loss = res.loss - solver.penalty(res.coefficients)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
-        status, reason = first_step_stall(res.loss_history, res.iterations, res.gradient_norm) or (status, reason)
+        status, reason = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res)) or (status, reason)
     return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status,
                        reason)

@@ -100,8 +100,7 @@ def test_objective_reset_plans_as_a_fresh_objective(data):
 def test_first_step_stall_rule():
     assert first_step_stall([2.5, 2.5], 1) == ("stalled", "stalled: the first iteration changed nothing (total loss 2.5 "
                                                 "before and after)")
-    assert first_step_stall([2.5, 2.5], 1, gradient_norm=0.0) is None  # a stationary start has converged
-    assert first_step_stall([2.5, 2.5], 1, gradient_norm=1e-300)[0] == "stalled"
+    assert first_step_stall([2.5, 2.5], 1, held=True) is None  # a start held by the constraint has converged
     assert first_step_stall([2.0, 1.0], 1) is None
     assert first_step_stall([2.0, 1.0, 1.0], 2) is None
     assert first_step_stall([2.0], 0) is None
@@ -117,6 +116,16 @@ def test_gradirl_with_a_tiny_beta_reports_stalled_like_factirl(data):
         warnings.simplefilter("ignore", ConvergenceWarning)
         fact = fo.FactIRL(n_primitives=K, beta=1e-8, max_iter=5, init="random", rng=0).fit(mdp, demos)
     assert fact.status_ == "stalled" and fact.stop_reason_ == flat.stop_reason_
+
+
+def test_a_start_held_by_an_l1_penalty_converges_and_a_saturated_one_stalls(data):
+    mdp, demos = data
+    D = np.linalg.qr(np.random.default_rng(0).standard_normal((36, K)))[0]
+    held = fo.transfer_coefficients(mdp, demos, D, h_solver="gn-qp-osqp-sparse", h_solver_options={"alpha": 1e3}, max_iter=5)
+    assert held.status == "converged" and np.all(held.coefficients == 0)
+    with pytest.warns(ConvergenceWarning, match="stalled at its first step"):
+        model = fo.FactIRL(n_primitives=K, init=(1e6 * D, np.ones((4, K))), max_iter=3).fit(mdp, demos)
+    assert model.status_ == "stalled"
 
 
 def test_gradirl_records_its_stop_reason(data):
