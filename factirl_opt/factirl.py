@@ -266,7 +266,8 @@ class FactIRL:
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
     def _check_params(self, mdp):
-        """Validate the hyper-parameters; the base features (None, StateBroadcast or (S*A, p))."""
+        """Validate the hyper-parameters; the base features (None, StateBroadcast or (S*A, p)) and
+        the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
         k = check_int(self.n_primitives, "n_primitives", minimum=1)
         Phi = self._features(mdp)
         p = mdp.n_params if Phi is None else Phi.shape[1]
@@ -274,11 +275,9 @@ class FactIRL:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         check_bool(self.pca_shrink, "pca_shrink")
-        check_int(self.max_iter, "max_iter", minimum=0)
-        check_int(self.inner_steps, "inner_steps", minimum=1)
-        check_tol(self.tol)
-        check_tol(self.gtol, "gtol")
-        return Phi
+        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
+                check_tol(self.tol), check_tol(self.gtol, "gtol"))
+        return Phi, loop
 
     @blas_limited
     def fit(self, mdp: Any, demos_per_task: Any, flat_rewards: ArrayLike | None = None) -> FactIRL:
@@ -302,7 +301,7 @@ class FactIRL:
         self
         """
         check_mdp(mdp)
-        Phi = self._check_params(mdp)
+        Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(mdp)
         h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
         d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
         obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
@@ -310,9 +309,8 @@ class FactIRL:
             D, H, init_evals = self._initial(mdp, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
             if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                 D, H = orient_nonneg(D, H, self.init == "random")
-            fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=self.max_iter,
-                                inner_steps=self.inner_steps, tol=self.tol, gtol=self.gtol, callback=self.callback,
-                                verbose=self.verbose)
+            fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter,
+                                inner_steps=inner_steps, tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
         except FitInterrupted as exc:
             self._store(mdp, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
