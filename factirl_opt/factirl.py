@@ -2,417 +2,55 @@
 
 Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
 tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
-leading axis (DESIGN section 8).
-
-- :func:`fit_factorial` minimises ``J_Xi(D, H) = sum_i J_i(Phi D h_i)`` (eq. 10) from a given
-  start by alternating a fixed number of steps on H with D fixed (the H-step, gradient eq. 12)
-  and on D with H fixed (the D-step, gradient eq. 11), each with any registered step solver;
-- :func:`transfer_coefficients` fits the coefficients of new tasks with the dictionary fixed
-  (section 4.2);
-- :class:`FactIRL` is the estimator on top: it validates, initialises (PCA of the flat
-  learner's parameters, or random) and stores the learnt attributes.
+leading axis (docs/maths.md §8). :class:`FactIRL` is the estimator: it validates, builds the
+objective and the solvers once, initialises (PCA of the flat learner's parameters, or random)
+and hands them down to the alternating scheme (:mod:`factirl_opt.factorial`) and to transfer
+(:mod:`factirl_opt.transfer`); the dictionary helpers live in :mod:`factirl_opt.dictionary`.
+The plain functions stay importable from here.
 """
 
-import dataclasses
-from typing import ClassVar
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-import solvers
-
-from ._progress import fit_progress
 from ._threads import blas_limited
-from ._validation import as_rng, check_array, check_bool, check_features, check_int, check_mdp, check_tol
-from .exceptions import NotFittedError, ValidationError, translate_solver_errors
-from .gradirl import GradIRL, check_solver_applies, make_objective, warn_if_stalled
+from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
+from .dictionary import (
+    PCA_MAX_HALVINGS,
+    feature_weights,
+    normalise_dictionary,
+    orient_nonneg,
+    pca_dictionary,
+    shrink_coefficients,
+)
+from .exceptions import NotFittedError, ValidationError
+from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
+from .fitting import (
+    check_features_digest,
+    features_digest,
+    make_objective,
+    resolve_step_solver,
+    reward_features,
+    warn_if_stalled,
+)
+from .gradirl import fit_weights, weights_rewards
+from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
-from .problems import dictionary_problem, weights_problem
-from .synthetic import task_rewards
+from .transfer import TransferFit, run_transfer, transfer_coefficients
 
-__all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit"]
+__all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
+           "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
 
 INITS = ("pca", "random")
-
-#: default gradient-norm tolerance of :func:`fit_factorial` (relative to the start; see its docstring)
-GTOL = 1e-4
 
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
 
-#: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
-PCA_MAX_HALVINGS = 20
-
-
-def pca_dictionary(parameters, n_components, rng=None):
-    """Principal directions of learnt task parameters, as a dictionary and coefficients.
-
-    The factorial model ``theta_i = D h_i`` has no offset, so this is the uncentred PCA
-    (truncated SVD) ``Theta ~ H D^T``: ``D`` holds the first ``n_components`` right singular
-    vectors (orthonormal columns) and ``H = Theta D``. When Theta has fewer independent rows
-    than components, the missing directions are random unit vectors orthogonal to the others.
-
-    Parameters
-    ----------
-    parameters : array_like, shape (n, d)
-        Learnt parameters of n tasks (e.g. flat rewards flattened).
-    n_components : int
-        k.
-    rng : numpy.random.Generator or int or None
-        Used only to complete a rank-deficient basis.
-
-    Returns
-    -------
-    dictionary : ndarray, shape (d, k)
-    coefficients : ndarray, shape (n, k)
-    """
-    X = check_array(parameters, "parameters", ndim=2)
-    if X.shape[0] == 0:
-        raise ValidationError(f"parameters must have shape (n, d) with n >= 1; got {X.shape}")
-    n_components = check_int(n_components, "n_components", minimum=1)
-    n, d = X.shape
-    if n_components > d:
-        raise ValidationError(f"n_components={n_components} exceeds the parameter dimension d={d}")
-    _, s, Vt = np.linalg.svd(X, full_matrices=False)
-    rank = int(np.sum(s > s[0] * 1e-10)) if s.size and s[0] > 0 else 0
-    D = Vt[: min(rank, n_components)].T
-    if D.shape[1] < n_components:
-        extra = as_rng(rng).standard_normal((d, n_components - D.shape[1]))
-        Qm, _ = np.linalg.qr(np.hstack([D, extra]))
-        D = Qm[:, :n_components]
-    return D, X @ D
-
-
-def shrink_coefficients(total_loss, coefficients, max_halvings=PCA_MAX_HALVINGS):
-    """Halve a start's coefficients while the total loss decreases.
-
-    A flat learner fitted to near-deterministic demonstrations grows rewards far larger than
-    the expert's; their rank-k truncation (the PCA start) then lies where the Boltzmann policies
-    are saturated and the gradients of eq. (10) nearly vanish, so descent from it crawls
-    (Objectworld at 32x32: the rank-5 truncation scores a policy-matching loss of 6.50 over 10
-    tasks, 4.77 at 1/32 of its scale, 8.0 at zero). Scaling ``H`` by ``2**-j`` leaves the
-    primitives unchanged; ``j`` is the number of halvings that each lowered the loss (the next
-    one did not; ``j = 0``, the unscaled start, when halving does not help).
-
-    Parameters
-    ----------
-    total_loss : callable
-        ``total_loss(H) -> float``: the objective of eq. (10) at coefficients H (n, k).
-    coefficients : ndarray, shape (n, k)
-    max_halvings : int
-        Largest j tried.
-
-    Returns
-    -------
-    coefficients : ndarray, shape (n, k)
-        ``2**-j H``.
-    halvings : int
-        j.
-    n_calls : int
-        Calls of ``total_loss`` (batched planning evaluations).
-    """
-    H = np.asarray(coefficients, dtype=float)
-    best, j, calls = total_loss(H), 0, 1
-    while j < max_halvings:
-        trial = total_loss(H * 2.0 ** -(j + 1))
-        calls += 1
-        if not trial < best:
-            break
-        best, j = trial, j + 1
-    return H * 2.0 ** -j, j, calls
-
-
-def _orient_nonneg(D, H, fold=False):
-    """Prepare an initialisation for a nonnegative H-step (the model ``H D^T`` is unchanged).
-
-    The sign of each primitive is arbitrary (``D[:, l] -> -D[:, l]``, ``H[:, l] -> -H[:, l]``);
-    flip the primitives whose coefficients sum to a negative value, so that projecting H onto
-    ``H >= 0`` keeps most of each primitive's mass instead of zeroing it. With ``fold`` (the
-    random initialisation, whose H is a fresh draw) take ``|H|`` instead.
-    """
-    if fold:
-        return D, np.abs(H)
-    sign = np.where(H.sum(axis=0) < 0, -1.0, 1.0)
-    return D * sign, H * sign
-
-
-
-
-def normalise_dictionary(D, H, band=2.0):
-    """Rescale the primitives to unit norm (H rescaled to match) once one leaves a band.
-
-    The model is invariant to ``D -> D diag(c), H -> H diag(1/c)``; keeping the columns of D
-    near unit norm keeps the two sub-problems balanced. Rescaling only when a norm leaves
-    ``[1/band, band]`` avoids perturbing the product (in floating point) at every iteration;
-    ``band=1`` rescales always (a sparse H-step's L1 penalty is only meaningful for primitives
-    of fixed norm, so its fits keep ``||D[:, l]|| = 1``).
-    """
-    norms = np.linalg.norm(D, axis=0)
-    if band > 1 and np.all((norms >= 1.0 / band) & (norms <= band)):
-        return D, H
-    norms[norms == 0] = 1.0
-    return D / norms, H * norms
-
-
-@dataclasses.dataclass
-class FactorialFit:
-    """Result of :func:`fit_factorial` (the best point seen).
-
-    Attributes
-    ----------
-    dictionary : ndarray, shape (p, k)
-    coefficients : ndarray, shape (n, k)
-    loss : ndarray, shape (n,)
-        Per-task objective (without a solver's penalty).
-    loss_history : list of float
-        Total objective (with the H-solver's penalty) at the start and after each outer iteration.
-    n_iter : int
-    n_evaluations : int
-    status : str
-        ``"converged"`` (relative decrease below ``tol``, or gradient norm below ``gtol`` times
-        the initial one), ``"max_iter"``, or ``"stalled"`` (the first outer iteration changed
-        nothing).
-    reason : str
-        Why the loop stopped, with the values that met the rule.
-    gradient_norm : float
-        First-order optimality measure of the total objective over ``(H, D)`` at the last point
-        (the norm of the gradient; projected or minimum-norm subgradient for H under a
-        constrained or penalised H-solver).
-    evaluation_history : list of int
-        Q* evaluations used so far at the start and after each outer iteration (aligned with
-        ``loss_history``: plot one against the other).
-    """
-
-    dictionary: np.ndarray
-    coefficients: np.ndarray
-    loss: np.ndarray
-    loss_history: list
-    n_iter: int
-    n_evaluations: int
-    status: str
-    reason: str = ""
-    gradient_norm: float = float("nan")
-    evaluation_history: list = dataclasses.field(default_factory=list)
-
-
-def _rewards(mdp, Phi, D, H):
-    return task_rewards(D if Phi is None else Phi @ D, H, mdp.n_states, mdp.n_actions)
-
-
-def _optimality(y, Phi, D, H, h_solver, unit_norm):
-    """Norm of the first-order optimality measure of eq. (10) over ``(H, D)``, from ``y = dJ/dR``.
-
-    ``dJ/dh_i = F^T y_i`` with ``F = Phi D`` (eq. 12; projected or minimum-norm subgradient
-    for a constrained or penalised H-solver, :meth:`solvers.StepSolver.optimality`) and
-    ``dJ/dD = Phi^T sum_i y_i h_i^T`` (eq. 11), restricted to the tangent space of unit-norm
-    primitives when the D-step keeps them at unit norm.
-    """
-    Y = y.reshape(H.shape[0], -1)
-    with np.errstate(over="ignore", invalid="ignore"):
-        gH = Y @ (D if Phi is None else Phi @ D)
-        gD = Y.T @ H if Phi is None else Phi.T @ (Y.T @ H)
-        if unit_norm:
-            gD = gD - D * np.sum(D * gD, axis=0)
-        norm = float(np.hypot(np.linalg.norm(h_solver.optimality(H, gH)), np.linalg.norm(gD)))
-    return norm if np.isfinite(norm) else np.inf
-
-
-def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
-    """Loss per task at ``(D, H)`` (served from the objective's cache after a D-step), the
-    normalised pair, the total (with the H-solver's penalty) and the optimality measure."""
-    loss, y = objective.loss_and_grad(_rewards(objective.mdp, Phi, D, H))
-    D, H = normalise_dictionary(D, H, band)
-    total = float(loss.sum() + h_solver.penalty(H).sum())
-    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm)
-
-
-def _outer_stop(history, gnorm, g0, tol, gtol, it):
-    """``(status, reason)`` after outer iteration ``it``, or ``(None, None)`` to go on."""
-    if it == 1 and history[1] == history[0]:
-        return "stalled", "stalled: the first outer iteration changed nothing"  # neither block moved: nothing will
-    if solvers.has_converged(history[-2], history[-1], tol):  # a rise is not convergence
-        return "converged", f"relative decrease {solvers.relative_decrease(history[-2], history[-1]):.3g} <= tol={tol:g}"
-    if solvers.gradient_converged(gnorm, g0, gtol):
-        return "converged", f"gradient norm {gnorm:.3g} <= gtol={gtol:g} x initial {g0:.3g}"
-    return None, None
-
-
-def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, tol, gtol, report):
-    """The alternating loop of eqs. (10)-(12); returns the best point seen, the history and the stop.
-
-    Each block runs ``inner_steps`` steps of its solver's alternating form, warm-started by
-    what the solver carries over from its previous run (:meth:`solvers.StepSolver.carry_over`);
-    the inner runs stop early only by the gradient rule or a stall (:func:`fit_factorial`).
-    """
-    penalised = h_solver.constraint == "sparse"
-    band = 1.0 if penalised else 2.0
-    D, H = normalise_dictionary(D, H, band)  # the H-step starts where the loss is evaluated (no band: no rescaling)
-    loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, np.inf, penalised)
-    history, evaluations, gnorm = [total], [objective.n_evaluations], g0
-    best = (total, D, H, loss)
-    h_state = d_state = None
-    status, reason, it = "max_iter", f"max_iter={max_iter} outer iterations done", 0
-    for it in range(1, max_iter + 1):
-        F = D if Phi is None else Phi @ D
-        rh = h_solver.run(weights_problem(objective, F), H, inner_steps, state=h_state, gtol=gtol)
-        H, h_state = rh.coefficients, h_solver.carry_over(rh.state)
-        rd = d_solver.run(dictionary_problem(objective, H, Phi, unit_norm=penalised), D.reshape(1, -1), inner_steps,
-                          state=d_state, gtol=gtol)
-        D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
-        loss, D, H, total, gnorm = _evaluate_point(objective, Phi, D, H, h_solver, band, penalised)
-        history.append(total)
-        evaluations.append(objective.n_evaluations)
-        report(it, total)
-        if total <= best[0]:
-            best = (total, D, H, loss)
-        stop = _outer_stop(history, gnorm, g0, tol, gtol, it)
-        if stop[0] is not None:
-            status, reason = stop
-            break
-    return best, (history, evaluations), it, status, reason, gnorm
-
-
-@blas_limited
-def fit_factorial(mdp, demos_per_task, dictionary, coefficients, *, beta=5.0, base_features=None, h_solver="armijo",
-                  h_solver_options=None, d_solver="armijo", d_solver_options=None, max_iter=100, inner_steps=5,
-                  tol=1e-5, gtol=GTOL, objective="policy-matching", planner="auto", callback=None, verbose=False):
-    """Learn a dictionary and coefficients from a starting point by alternating minimisation.
-
-    Each outer iteration runs up to ``inner_steps`` steps of the H-solver on the coefficients
-    (D fixed; eq. 12), then of the D-solver on ``vec(D)`` (H fixed; eq. 11). Returns the best
-    point seen, so a fit never ends on a worse point than one it visited.
-
-    Stopping (the rules of :mod:`solvers.stopping`, checked in this order):
-
-    - outer loop, after each outer iteration: ``"stalled"`` when the first one changed
-      nothing; ``"converged"`` when the relative decrease of the total objective (eq. 10, plus
-      a sparse H-solver's penalty) over the iteration is in ``[0, tol]`` (a rise is not
-      convergence), or when the optimality measure over ``(H, D)`` (the norm of the gradient,
-      eqs. 11-12; projected or minimum-norm subgradient for a constrained or penalised
-      H-solver) is at most ``gtol`` times its value at the start; else ``"max_iter"`` after
-      ``max_iter`` iterations. ``reason`` says which rule stopped the fit, with its values.
-    - inner runs (each block, each outer iteration): ``inner_steps`` steps, the paper's "fixed
-      amount of gradient descent on each sub-problem", ended early only by the gradient rule
-      (``gtol``, relative to the run's start) or when the solver stalls (no step decreases the
-      block's objective). The relative-decrease rule is not applied inside the loop: stopping
-      a block on ``tol`` saved 9% of the Q* evaluations of an Armijo/Armijo fit on a 5x5 grid
-      (30 tasks) at the same final loss, but it changes the paper's algorithm, which the
-      default (Armijo) fit reproduces unchanged.
-
-    Both solvers are used in their alternating form (``solver.for_alternating()``: the
-    Gauss-Newton solvers take proximal, strongly damped steps there), and each run is
-    warm-started by what the solver carries over from its previous one
-    (``solver.carry_over(state)``: step sizes and damping, but not L-BFGS's curvature pairs,
-    which describe the sub-problem before the other block moved).
-
-    Parameters
-    ----------
-    mdp : TabularMDP
-    demos_per_task : list of n task demonstrations
-    dictionary : array_like, shape (p, k)
-        Initial ``D``; p = S*A (tabular) or the number of base features.
-    coefficients : array_like, shape (n, k)
-        Initial ``H``.
-    beta : float
-    base_features : array_like, shape (S*A, p) or (S, p), optional
-        ``Phi``; None for tabular rewards.
-    h_solver, d_solver : str or solvers.StepSolver
-        Step solvers of the two blocks (``solvers.available_solvers()``); the H-solver is used
-        in its alternating form (``solver.for_alternating()``).
-    h_solver_options, d_solver_options : dict, optional
-    max_iter, inner_steps : int
-    tol : float
-        Relative-decrease tolerance (outer loop and inner runs), >= 0.
-    gtol : float, default=GTOL
-        Gradient-norm tolerance relative to the start (outer loop and inner runs), >= 0.
-        The default stops the long tails of fits whose loss keeps falling geometrically as the
-        Boltzmann policies saturate (rewards growing along the fitted directions) and is never
-        reached by the paper-scale Armijo/Armijo fit (its gradient stays above 5e-4 x the
-        initial one over 100 outer iterations).
-    objective : str
-        See ``factirl_opt.available_objectives()``.
-    planner : str
-    callback : callable, optional
-        ``callback(iteration, total_objective)`` after each outer iteration.
-    verbose : bool
-        Progress bar on stderr.
-
-    Returns
-    -------
-    FactorialFit
-    """
-    check_mdp(mdp)
-    Phi = None if base_features is None else check_features(base_features, mdp.n_params, mdp.n_states)
-    p = mdp.n_params if Phi is None else Phi.shape[1]
-    D = check_array(dictionary, "dictionary", ndim=2)
-    H = check_array(coefficients, "coefficients", ndim=2)
-    if D.shape[0] != p or H.shape[1] != D.shape[1]:
-        raise ValidationError(f"dictionary (p, k) and coefficients (n, k) must have p = {p} and equal k; got {D.shape} and {H.shape}")
-    max_iter, inner_steps = check_int(max_iter, "max_iter", minimum=0), check_int(inner_steps, "inner_steps", minimum=1)
-    tol, gtol = check_tol(tol), check_tol(gtol, "gtol")
-    obj = make_objective(mdp, demos_per_task, beta, objective, planner)
-    if H.shape[0] != obj.n_tasks:
-        raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
-    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
-        h = check_solver_applies(solvers.resolve_solver(h_solver, h_solver_options), objective, "h_solver").for_alternating()
-        d = check_solver_applies(solvers.resolve_solver(d_solver, d_solver_options), objective, "d_solver").for_alternating()
-        best, (history, evaluations), it, status, reason, gnorm = _alternate(obj, Phi, D, h.project(H), h, d, max_iter,
-                                                                             inner_steps, tol, gtol, report)
-    _, D, H, loss = best
-    return FactorialFit(D, H, loss, history, it, int(obj.n_evaluations), status, reason, gnorm, evaluations)
-
-
-@dataclasses.dataclass
-class TransferFit:
-    """Result of :func:`transfer_coefficients`.
-
-    Attributes
-    ----------
-    coefficients : ndarray, shape (n_new, k)
-    rewards : ndarray, shape (n_new, S, A)
-    loss : ndarray, shape (n_new,)
-        Per-task objective, without a solver's penalty.
-    loss_history : list of float
-        Total objective (with the penalty) at the start and after each step.
-    n_iter, n_evaluations : int
-    status : str
-    """
-
-    coefficients: np.ndarray
-    rewards: np.ndarray
-    loss: np.ndarray
-    loss_history: list
-    n_iter: int
-    n_evaluations: int
-    status: str
-
-
-@blas_limited
-def transfer_coefficients(mdp, demos_per_task, dictionary, *, beta=5.0, base_features=None, h_solver="armijo",
-                          h_solver_options=None, max_iter=100, tol=1e-5, objective="policy-matching", planner="auto",
-                          callback=None, verbose=False):
-    """Coefficients of new tasks with the dictionary fixed (section 4.2).
-
-    Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
-    up to ``max_iter`` steps. Parameters as in :func:`fit_factorial`; ``dictionary`` is (p, k).
-
-    Returns
-    -------
-    TransferFit
-    """
-    check_mdp(mdp)
-    Phi = None if base_features is None else check_features(base_features, mdp.n_params, mdp.n_states)
-    D = check_features(dictionary, mdp.n_params if Phi is None else Phi.shape[1], name="dictionary")
-    F = D if Phi is None else Phi @ D
-    max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
-    obj = make_objective(mdp, demos_per_task, beta, objective, planner)
-    problem = weights_problem(obj, F)
-    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
-        solver = check_solver_applies(solvers.resolve_solver(h_solver, h_solver_options), objective, "h_solver")
-        res = solver.run(problem, solver.project(np.zeros((problem.n_rows, problem.n_params))), max_iter, tol=tol,
-                         callback=report)
-    rewards = task_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
-    loss = res.loss - solver.penalty(res.coefficients)
-    return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(obj.n_evaluations), res.status)
+#: the flat learner of the PCA start: GradIRL's default solver and tolerance
+FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
 
 
 class FactIRL:
@@ -470,6 +108,11 @@ class FactIRL:
     features : array_like, shape (S*A, p) or (S, p), optional
         Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
         (state features are repeated over actions). None: tabular, p = S*A.
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
+        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
+        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
+        docs/maths.md §7). Refused together with ``features``.
     objective : str, default="policy-matching"
         Per-task loss (``factirl_opt.available_objectives()``).
     planner : str, default="auto"
@@ -489,6 +132,7 @@ class FactIRL:
     Attributes
     ----------
     dictionary_ : ndarray, shape (p, k)
+        p = S*A (tabular), S (``reward="state"``) or the number of features.
     coefficients_ : ndarray, shape (n, k)
     rewards_ : ndarray, shape (n, S, A)
         ``Phi D h_i`` reshaped.
@@ -501,15 +145,31 @@ class FactIRL:
     n_iter_ : int
         Outer iterations of ``fit``.
     status_ : str
-        ``"converged"``, ``"max_iter"`` or ``"stalled"`` (with a :class:`ConvergenceWarning`).
+        ``"converged"``, ``"max_iter"``, ``"stalled"`` (with a :class:`ConvergenceWarning`) or
+        ``"interrupted"``.
     stop_reason_ : str
-        Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`).
+        Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`);
+        ``"interrupted"`` after Ctrl-C.
     mdp_signature_ : dict
         Signature of the MDP of ``fit``; ``transfer`` refuses another MDP.
+    features_sha256_ : str or None
+        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features);
+        ``transfer`` refuses features that differ from them.
     transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
-    transfer_n_evaluations_, transfer_status_
+    transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
+
+    Notes
+    -----
+    A KeyboardInterrupt (Ctrl-C) during ``fit`` or ``transfer`` keeps the best point seen so
+    far as the fitted state (status and stop reason ``"interrupted"``), warns with
+    :class:`factirl_opt.interruption.InterruptedFitWarning`, and propagates (as
+    :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt). In the
+    alternating loop the best point is the best of the start and the completed outer
+    iterations; during the flat fit of the PCA start it is that start, the PCA of the flat
+    rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
+    best coefficients seen.
     """
 
     #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
@@ -524,11 +184,13 @@ class FactIRL:
         "transfer_stop_reason_": "text",
     }
 
-    def __init__(self, n_primitives=5, beta=5.0, init="pca", pca_shrink=True, max_iter=100, inner_steps=5, tol=1e-5, gtol=GTOL,
-                 h_solver="armijo",
-                 h_solver_options=None, d_solver="armijo", d_solver_options=None, features=None,
-                 objective="policy-matching", planner="auto", flat_max_iter=100, transfer_max_iter=100, rng=None,
-                 verbose=False, callback=None):
+    def __init__(self, n_primitives: int = 5, beta: float = 5.0, init: Any = "pca", pca_shrink: bool = True,
+                 max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL,
+                 h_solver: Any = "armijo", h_solver_options: dict | None = None, d_solver: Any = "armijo",
+                 d_solver_options: dict | None = None, features: Any = None, objective: Any = "policy-matching",
+                 planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
+                 rng: np.random.Generator | int | None = None, verbose: bool = False,
+                 callback: Callable | None = None, reward: str = "state-action") -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
@@ -542,6 +204,7 @@ class FactIRL:
         self.d_solver = d_solver
         self.d_solver_options = d_solver_options
         self.features = features
+        self.reward = reward
         self.objective = objective
         self.planner = planner
         self.flat_max_iter = flat_max_iter
@@ -551,32 +214,53 @@ class FactIRL:
         self.callback = callback
 
     def _features(self, mdp):
-        if self.features is None:
-            return None
-        return check_features(self.features, mdp.n_params, mdp.n_states, min_columns=self.n_primitives)
+        return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
 
-    def _pca_init(self, mdp, demos_per_task, n, Phi, flat_rewards, rng, obj):
-        evals = 0
+    def _flat_start(self, mdp, n, Phi, obj, rng):
+        """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
+        flat_solver = resolve_step_solver(FLAT_SOLVER, None, self.objective, "the flat learner's solver")
+        ev0 = obj.n_evaluations
+        try:
+            res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
+        except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
+            X = weights_rewards(Phi, exc.result.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1)
+            D, H = self._pca(X, Phi, rng)
+            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+            raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
+        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
+        obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
+        return weights_rewards(Phi, res.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1), obj.n_evaluations - ev0
+
+    def _pca(self, X, Phi, rng):
+        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space."""
+        D, H = pca_dictionary(X, self.n_primitives, rng)
+        return (D if Phi is None else feature_weights(Phi, D)), H
+
+    def _pca_init(self, mdp, n, Phi, flat_rewards, rng, obj):
         if flat_rewards is None:
-            flat = GradIRL(beta=self.beta, features=Phi, max_iter=self.flat_max_iter, objective=self.objective,
-                           planner=self.planner).fit(mdp, demos_per_task)
-            X, evals = flat.rewards_.reshape(n, -1), flat.n_evaluations_
+            X, evals = self._flat_start(mdp, n, Phi, obj, rng)
         else:
-            Theta = check_array(flat_rewards, "flat_rewards")
+            Theta, evals = check_array(flat_rewards, "flat_rewards"), 0
             if Theta.shape != (n, mdp.n_states, mdp.n_actions):
                 raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
             X = Theta.reshape(n, -1)
             if Phi is not None:  # the rewards the least-squares feature weights give
-                X = (Phi @ np.linalg.lstsq(Phi, X.T, rcond=None)[0]).T
-        D, H = pca_dictionary(X, self.n_primitives, rng)
-        if Phi is not None:
-            D = np.linalg.lstsq(Phi, D, rcond=None)[0]
+                X = (Phi @ feature_weights(Phi, X.T)).T
+        D, H = self._pca(X, Phi, rng)
         if self.pca_shrink:
-            H, _, calls = shrink_coefficients(lambda Hs: float(np.sum(obj.loss_and_grad(_rewards(mdp, Phi, D, Hs))[0])), H)
+            try:
+                H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)
+            except FitInterrupted as exc:
+                Hs, _, _, loss = exc.result
+                history = [] if loss is None else [float(np.sum(loss))]
+                loss = np.full(n, np.nan) if loss is None else loss
+                start = FactorialFit(D, Hs, loss, history, 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+                raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
             evals += calls
+            obj.reset()
         return D, H, evals
 
-    def _initial(self, mdp, demos_per_task, n, Phi, flat_rewards, rng, obj):
+    def _initial(self, mdp, n, Phi, flat_rewards, rng, obj):
         k, p = self.n_primitives, mdp.n_params if Phi is None else Phi.shape[1]
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
@@ -590,12 +274,29 @@ class FactIRL:
             D0 /= np.linalg.norm(D0, axis=0)
             return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
         if isinstance(self.init, str) and self.init == "pca":
-            return self._pca_init(mdp, demos_per_task, n, Phi, flat_rewards, rng, obj)
+            return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
+    def _check_params(self, mdp):
+        """Validate the hyper-parameters; the base features (None, StateBroadcast or (S*A, p)) and
+        the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
+        k = check_int(self.n_primitives, "n_primitives", minimum=1)
+        Phi = self._features(mdp)
+        p = mdp.n_params if Phi is None else Phi.shape[1]
+        if k > p:
+            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
+        check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
+        check_bool(self.pca_shrink, "pca_shrink")
+        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
+                check_tol(self.tol), check_tol(self.gtol, "gtol"))
+        return Phi, loop
+
     @blas_limited
-    def fit(self, mdp, demos_per_task, flat_rewards=None):
+    def fit(self, mdp: Any, demos_per_task: Any, flat_rewards: ArrayLike | None = None) -> FactIRL:
         """Learn the dictionary and the coefficients of every task.
+
+        The objective (one parse of the demonstrations) and the solvers are built once, here,
+        and serve the PCA start (flat fit and shrinking) and the alternating fit in turn.
 
         Parameters
         ----------
@@ -612,37 +313,55 @@ class FactIRL:
         self
         """
         check_mdp(mdp)
-        k = check_int(self.n_primitives, "n_primitives", minimum=1)
-        Phi = self._features(mdp)
-        p = mdp.n_params if Phi is None else Phi.shape[1]
-        if k > p:
-            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
-        check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
-        check_bool(self.pca_shrink, "pca_shrink")
-        with translate_solver_errors():
-            h_solver = check_solver_applies(solvers.resolve_solver(self.h_solver, self.h_solver_options), self.objective,
-                                            "h_solver")
-            check_solver_applies(solvers.resolve_solver(self.d_solver, self.d_solver_options), self.objective, "d_solver")
+        Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(mdp)
+        h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
+        d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
         obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
-        n = len(obj.mu)
-        D, H, init_evals = self._initial(mdp, demos_per_task, n, Phi, flat_rewards, as_rng(self.rng), obj)
-        if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
-            D, H = _orient_nonneg(D, H, self.init == "random")
-        fit = fit_factorial(mdp, demos_per_task, D, H, beta=self.beta, base_features=Phi, h_solver=h_solver,
-                            d_solver=self.d_solver, d_solver_options=self.d_solver_options, max_iter=self.max_iter,
-                            inner_steps=self.inner_steps, tol=self.tol, gtol=self.gtol, objective=self.objective,
-                            planner=self.planner, callback=self.callback, verbose=self.verbose)
-        self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
-        self.rewards_ = _rewards(mdp, Phi, fit.dictionary, fit.coefficients)
-        self.loss_, self.loss_history_ = fit.loss, fit.loss_history
-        self.n_evaluations_ = int(fit.n_evaluations + init_evals)
-        self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
-        self.mdp_signature_ = mdp.signature()
+        try:
+            D, H, init_evals = self._initial(mdp, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+            if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
+                D, H = orient_nonneg(D, H, self.init == "random")
+            fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter,
+                                inner_steps=inner_steps, tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
+        except FitInterrupted as exc:
+            self._store(mdp, Phi, exc.result, int(obj.n_evaluations))
+            kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
+            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
+            raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
+        self._store(mdp, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
+    def _store(self, mdp, Phi, fit, n_evaluations):
+        self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
+        self.rewards_ = factorial_rewards(mdp, Phi, fit.dictionary, fit.coefficients)
+        self.loss_, self.loss_history_ = fit.loss, fit.loss_history
+        self.n_evaluations_ = n_evaluations
+        self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
+        self.mdp_signature_ = mdp.signature()
+        self.features_sha256_ = None if self.features is None else features_digest(Phi)
+
+    def _transfer_dictionary(self, mdp):
+        """The base features and the validated ``dictionary_`` of a fitted model, for ``transfer``."""
+        if not hasattr(self, "dictionary_"):
+            raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
+        check_mdp(mdp)
+        if getattr(self, "mdp_signature_", None) is not None:
+            check_signature(self.mdp_signature_, mdp, "this FactIRL model")
+        Phi = self._features(mdp)
+        if hasattr(self, "features_sha256_"):
+            check_features_digest(self.features_sha256_, None if self.features is None else Phi, "this FactIRL model")
+        p = mdp.n_params if Phi is None else Phi.shape[1]
+        D = check_array(self.dictionary_, "dictionary_", ndim=2)
+        if D.shape[0] != p:
+            raise ValidationError(f"dictionary_ must have shape (p, k) with p = {p} (the reward dimension); got {D.shape}")
+        if D.shape[1] != self.n_primitives:
+            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
+        return Phi, D
+
     @blas_limited
-    def transfer(self, mdp, demos_per_task, max_iter=None, h_solver=None, h_solver_options=None):
+    def transfer(self, mdp: Any, demos_per_task: Any, max_iter: int | None = None, h_solver: Any = None,
+                 h_solver_options: dict | None = None) -> NDArray[np.float64]:
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
@@ -664,34 +383,43 @@ class FactIRL:
         Returns
         -------
         coefficients : ndarray, shape (n_new, k)
+
+        Raises
+        ------
+        ValidationError
+            When the model's features differ from those of ``fit`` (``features_sha256_``), or
+            ``dictionary_`` does not fit the MDP.
         """
-        if not hasattr(self, "dictionary_"):
-            raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
-        check_mdp(mdp)
-        if getattr(self, "mdp_signature_", None) is not None:
-            check_signature(self.mdp_signature_, mdp, "this FactIRL model")
-        Phi = self._features(mdp)
-        D = check_features(self.dictionary_, mdp.n_params if Phi is None else Phi.shape[1], name="dictionary_")
-        if D.shape[1] != self.n_primitives:
-            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
+        Phi, D = self._transfer_dictionary(mdp)
         if h_solver is None:
             if h_solver_options is not None:
                 raise ValidationError("h_solver_options given without h_solver")
             h_solver, h_solver_options = self.h_solver, self.h_solver_options
-        res = transfer_coefficients(mdp, demos_per_task, D, beta=self.beta, base_features=Phi, h_solver=h_solver,
-                                    h_solver_options=h_solver_options,
-                                    max_iter=self.transfer_max_iter if max_iter is None else max_iter, tol=self.tol,
-                                    objective=self.objective, planner=self.planner, callback=self.callback,
-                                    verbose=self.verbose)
-        self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
-        self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
-        self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
+        max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
+        tol = check_tol(self.tol)
+        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
+        try:
+            res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+                               verbose=self.verbose)
+        except FitInterrupted as exc:
+            self._store_transfer(exc.result)
+            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
+            raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
+        self._store_transfer(res)
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients
 
-    def __repr__(self):
+    def _store_transfer(self, res):
+        self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
+        self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
+        self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
+        self.transfer_stop_reason_ = res.reason
+
+    def __repr__(self) -> str:
+        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
         return (
-            f"FactIRL(n_primitives={self.n_primitives}, beta={self.beta}, init={self.init!r}, "
+            f"FactIRL(n_primitives={self.n_primitives}, beta={self.beta}, init={self.init!r}{reward}, "
             f"h_solver={self.h_solver!r}, d_solver={self.d_solver!r}, objective={self.objective!r}, "
             f"max_iter={self.max_iter}, inner_steps={self.inner_steps})"
         )

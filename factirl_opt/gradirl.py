@@ -1,59 +1,85 @@
-"""GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1)."""
+"""GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1).
 
-import warnings
-from typing import ClassVar
+:class:`GradIRL` is the estimator; :func:`fit_weights` is its fit on an objective and a solver
+already built, which ``FactIRL`` also runs for its PCA start on the same objective.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 import solvers
 
 from ._progress import fit_progress
 from ._threads import blas_limited
-from ._validation import check_beta, check_features, check_int, check_mdp, check_tol
-from .demonstrations import empirical_statistics
-from .exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
-from .objectives import get_objective
-from .problems import weights_problem
-from .synthetic import task_rewards
+from ._validation import check_int, check_mdp, check_tol
+from .exceptions import translate_solver_errors
+from .fitting import (
+    check_solver_applies,
+    features_digest,
+    first_step_stall,
+    held_by_constraint,
+    make_objective,
+    resolve_step_solver,
+    reward_features,
+    warn_if_stalled,
+)
+from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best, warn_interrupted
+from .problems import linear_rewards, weights_problem
 
-__all__ = ["GradIRL", "make_objective", "warn_if_stalled", "check_solver_applies"]
-
-
-def make_objective(mdp, demos_per_task, beta, objective="policy-matching", planner="auto"):
-    """The named objective bound to the empirical statistics of ``demos_per_task``."""
-    mu, pi_hat = empirical_statistics(mdp, demos_per_task)
-    return get_objective(objective)(mdp, mu, pi_hat, check_beta(beta), planner=planner)
-
-
-def _least_squares_only(solver):
-    return solver.needs_jacobian or solver.needs_linearization
+__all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
 
-def check_solver_applies(solver, objective, what):
-    """Refuse, before any work, a least-squares solver on an objective without residuals.
+def weights_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int) -> NDArray[np.float64]:
+    """Rewards (n, S, A) of weights (n, p): ``R_i = F w_i``, or ``w_i`` reshaped when ``F`` is None (tabular)."""
+    if features is None:
+        return weights.reshape(-1, n_states, n_actions)
+    return linear_rewards(features, weights, n_states, n_actions)
 
-    The Gauss-Newton solvers (``gn-qp-*``, ``gn-cg``) need residuals (policy matching has them);
-    a likelihood such as ``"mce"`` does not. The message lists the solvers that apply.
+
+def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_iter: int, tol: float,
+                callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL") -> solvers.SolverResult:
+    """The flat fit on pieces already built: ``solver`` from zero weights on every task at once.
+
+    Parameters
+    ----------
+    objective : Objective
+        Bound to the n tasks' statistics.
+    features : ndarray, shape (S*A, p), or StateBroadcast, optional
+        Validated; None for tabular weights (p = S*A).
+    solver : solvers.StepSolver
+        Resolved and checked against the objective.
+    max_iter : int
+    tol : float
+    callback : callable, optional
+        ``callback(iteration, total_loss)`` after each iteration.
+    verbose : bool
+    what : str
+        Names the fit in the progress bar and in an interruption.
+
+    Returns
+    -------
+    solvers.SolverResult
+        ``coefficients`` (n, p) are the weights. A first iteration that left the total loss
+        unchanged is reported ``"stalled"`` (:func:`factirl_opt.fitting.first_step_stall`).
+
+    Raises
+    ------
+    FitInterrupted
+        A KeyboardInterrupt during the fit; its ``result`` holds each task's best weights seen
+        (status ``"interrupted"``, :func:`factirl_opt.interruption.run_keeping_best`).
     """
-    if _least_squares_only(solver) and not get_objective(objective).least_squares:
-        usable = [name for name in solvers.available_solvers() if not _least_squares_only(solvers.get_solver(name))]
-        raise ValidationError(
-            f"{what} {solver.name!r} is a Gauss-Newton solver: it needs a least-squares objective (residuals), and the "
-            f"{objective!r} objective has none; use a gradient solver: {', '.join(usable)}"
-        )
-    return solver
-
-
-def warn_if_stalled(status, iterations, what):
-    """A :class:`ConvergenceWarning` when a fit stalled before its second step."""
-    if status == "stalled" and iterations <= 1:
-        warnings.warn(
-            f"{what} stalled at its first step: no step decreased the loss. The rewards are probably far "
-            "from the scale where the Boltzmann policy is informative (check the scale of the features or of "
-            "the initialisation, and beta)",
-            ConvergenceWarning,
-            stacklevel=3,
-        )
+    problem = weights_problem(objective, features)
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
+        res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
+                               callback=report, tol=tol)
+    stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
+    if stall is not None:
+        res.status, res.reason = stall
+    return res
 
 
 class GradIRL:
@@ -70,6 +96,12 @@ class GradIRL:
     features : array_like, shape (S*A, p) or (S, p), optional
         Linear reward features ``R = F w`` (state features are repeated over actions); None
         learns tabular rewards (``theta = R``, d = S*A).
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state-action"`` learns ``R(s, a)`` (d = S*A); ``"state"`` learns a
+        reward of the states only, ``R(s, a) = r(s)`` (d = S), at the cost of the tabular fit
+        (the gradient sums ``dJ/dR`` over the actions; no feature matrix is formed). It gives
+        the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))`` (docs/maths.md §7).
+        Refused together with ``features``.
     max_iter : int, default=100
         Maximum descent iterations.
     tol : float, default=1e-5
@@ -90,7 +122,7 @@ class GradIRL:
     Attributes
     ----------
     weights_ : ndarray, shape (n, p)
-        Learnt parameters (tabular theta, p = S*A, or feature weights).
+        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights).
     rewards_ : ndarray, shape (n, S, A)
     loss_ : ndarray, shape (n,)
         Final loss of each task.
@@ -100,10 +132,23 @@ class GradIRL:
         Batched planning evaluations used.
     n_iter_ : int
     status_ : str
-        ``"converged"``, ``"max_iter"`` or ``"stalled"`` (a :class:`ConvergenceWarning` is
-        issued when it stalls at its first step).
+        ``"converged"``, ``"max_iter"``, ``"stalled"`` (the first iteration left the loss
+        unchanged, or no step decreased it; a :class:`ConvergenceWarning` is issued when it
+        stalls at its first step) or ``"interrupted"``.
+    stop_reason_ : str
+        Which stopping rule ended the fit, with its values (``"interrupted"`` after Ctrl-C).
     mdp_signature_ : dict
         The signature of the MDP it was fitted on.
+    features_sha256_ : str or None
+        SHA-256 of the validated features (S*A, p) of the fit
+        (:func:`factirl_opt.fitting.features_digest`); None without features.
+
+    Notes
+    -----
+    A KeyboardInterrupt (Ctrl-C) during ``fit`` leaves the estimator fitted with each task's
+    best weights seen so far (``status_ == stop_reason_ == "interrupted"``, ``loss_`` their
+    loss, NaN for a task never evaluated), warns with :class:`InterruptedFitWarning`, and
+    propagates (as :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt).
     """
 
     #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
@@ -115,10 +160,13 @@ class GradIRL:
         "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
     }
 
-    def __init__(self, beta=5.0, features=None, max_iter=100, tol=1e-5, solver="armijo", solver_options=None,
-                 objective="policy-matching", planner="auto", verbose=False, callback=None):
+    def __init__(self, beta: float = 5.0, features: Any = None, max_iter: int = 100, tol: float = 1e-5,
+                 solver: Any = "armijo", solver_options: dict | None = None, objective: Any = "policy-matching",
+                 planner: str = "auto", verbose: bool = False, callback: Callable | None = None,
+                 reward: str = "state-action") -> None:
         self.beta = beta
         self.features = features
+        self.reward = reward
         self.max_iter = max_iter
         self.tol = tol
         self.solver = solver
@@ -129,7 +177,7 @@ class GradIRL:
         self.callback = callback
 
     @blas_limited
-    def fit(self, mdp, demos_per_task):
+    def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
         """Learn one reward per task.
 
         Parameters
@@ -145,24 +193,34 @@ class GradIRL:
         check_mdp(mdp)
         max_iter = check_int(self.max_iter, "max_iter", minimum=0)
         tol = check_tol(self.tol)
-        F = None if self.features is None else check_features(self.features, mdp.n_params, mdp.n_states)
+        F = reward_features(mdp, self.features, self.reward)
         objective = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
-        problem = weights_problem(objective, F)
-        with translate_solver_errors(), fit_progress(self.callback, self.verbose, max_iter, "GradIRL") as report:
-            solver = check_solver_applies(solvers.resolve_solver(self.solver, self.solver_options), self.objective, "solver")
-            res = solver.run(problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, tol=tol, callback=report)
-        S, A = mdp.n_states, mdp.n_actions
+        solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
+        try:
+            res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
+        except FitInterrupted as exc:
+            self._store(mdp, F, exc.result, objective)
+            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
+                                            f"after {self.n_iter_} iterations)")
+            raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
+        self._store(mdp, F, res, objective)
+        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
+        return self
+
+    def _store(self, mdp, F, res, objective):
         self.weights_ = res.coefficients
-        self.rewards_ = res.coefficients.reshape(-1, S, A) if F is None else task_rewards(F, res.coefficients, S, A)
+        self.rewards_ = weights_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
         self.loss_ = res.loss
         self.loss_history_ = res.loss_history
         self.n_evaluations_ = int(objective.n_evaluations)
         self.n_iter_ = res.iterations
         self.status_ = res.status
+        self.stop_reason_ = INTERRUPTED if res.status == INTERRUPTED else res.reason
         self.mdp_signature_ = mdp.signature()
-        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
-        return self
+        self.features_sha256_ = None if self.features is None else features_digest(F)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         features = "None" if self.features is None else np.shape(self.features)
-        return f"GradIRL(beta={self.beta}, features={features}, max_iter={self.max_iter}, objective={self.objective!r})"
+        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
+        return (f"GradIRL(beta={self.beta}, features={features}{reward}, max_iter={self.max_iter}, "
+                f"objective={self.objective!r})")

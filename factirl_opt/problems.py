@@ -3,39 +3,155 @@
 - :func:`weights_problem`: rows are tasks, ``x_i = w_i`` with ``R_i = F w_i`` (tabular when
   ``F`` is None); used by GradIRL, FactIRL's H-step (``F = Phi D``, eq. 12) and transfer.
 - :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi D h_i``,
-  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11; DESIGN
-  section 8).
+  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11;
+  docs/maths.md §8).
+- :class:`StateBroadcast`: the features of a state-only reward ``R(s, a) = r(s)``,
+  ``Phi = kron(I_S, 1_A)`` (S*A, S), applied without forming the matrix (docs/maths.md §7).
 
 Gradients come from the objective's ``dJ/dR`` (``y_i``) by the chain rule; least-squares
 objectives also provide residuals, Jacobians (for the QP steps, k columns) and Jacobian-vector
 products (for matrix-free Gauss-Newton on the dictionary).
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
+from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
+from .exceptions import ValidationError
 from .synthetic import task_rewards
 
-__all__ = ["weights_problem", "dictionary_problem"]
+__all__ = ["weights_problem", "dictionary_problem", "StateBroadcast", "linear_rewards", "dense_features"]
 
 
-def weights_problem(objective, features=None):
+class StateBroadcast:
+    """``Phi = kron(I_S, 1_A)``, shape (S*A, S): a state reward repeated over the actions, never formed.
+
+    Row ``s * A + a`` of ``Phi`` is the indicator of state ``s``, so ``Phi w`` is the reward
+    ``R(s, a) = w(s)`` and ``Phi^T y`` sums ``y(s, a)`` over the actions: both cost O(S*A)
+    per column, the cost of tabular rewards. Supports the products the learners use,
+    ``Phi @ M`` (S, m) -> (S*A, m), ``Y @ Phi`` (r, S*A) -> (r, S), ``Phi.T @ G``
+    (S*A, m) -> (S, m) and ``X @ Phi.T`` (r, S) -> (r, S*A), and :meth:`toarray`.
+    """
+
+    __array_ufunc__ = None  # ndarray @ StateBroadcast defers to __rmatmul__
+
+    def __init__(self, n_states: int, n_actions: int) -> None:
+        self.n_states, self.n_actions = int(n_states), int(n_actions)
+        self.shape = (self.n_states * self.n_actions, self.n_states)
+
+    def __matmul__(self, M: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.repeat(np.asarray(M, dtype=np.float64), self.n_actions, axis=0)
+
+    def __rmatmul__(self, Y: NDArray[np.float64]) -> NDArray[np.float64]:
+        Y = np.asarray(Y, dtype=np.float64)
+        return Y.reshape(*Y.shape[:-1], self.n_states, self.n_actions).sum(axis=-1)
+
+    @property
+    def T(self) -> "_SumOverActions":
+        return _SumOverActions(self)
+
+    def toarray(self) -> NDArray[np.float64]:
+        """The dense (S*A, S) matrix (for Jacobians with one column per parameter)."""
+        return np.kron(np.eye(self.n_states), np.ones((self.n_actions, 1))).astype(np.float64)
+
+
+class _SumOverActions:
+    """``Phi^T`` of a :class:`StateBroadcast` (S, S*A)."""
+
+    __array_ufunc__ = None
+
+    def __init__(self, phi: StateBroadcast) -> None:
+        self.phi = phi
+        self.shape = phi.shape[::-1]
+
+    def __matmul__(self, G: NDArray[np.float64]) -> NDArray[np.float64]:
+        G = np.asarray(G, dtype=np.float64)
+        return G.reshape(self.phi.n_states, self.phi.n_actions, *G.shape[1:]).sum(axis=1)
+
+    def __rmatmul__(self, X: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.repeat(np.asarray(X, dtype=np.float64), self.phi.n_actions, axis=-1)
+
+
+#: largest |entry| of features treated as "of order 1" when naming the cause of an overflow
+FEATURE_SCALE_LIMIT = 1e8
+
+
+def dense_features(features: Any) -> NDArray[np.float64] | None:
+    """``features`` as a dense (S*A, p) array (a :class:`StateBroadcast` formed), or None."""
+    return features.toarray() if isinstance(features, StateBroadcast) else features
+
+
+def _largest(a: Any) -> float:
+    a = np.asarray(a, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return float(np.max(np.abs(a), initial=0.0))
+
+
+def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int,
+                   names: tuple[str, str] = ("features", "weights")) -> NDArray[np.float64]:
+    """Rewards ``R_i = F w_i`` as (n, S, A) from ``F`` (S*A, p) and ``W`` (n, p).
+
+    Parameters
+    ----------
+    features : ndarray, shape (S*A, p), or StateBroadcast
+    weights : ndarray, shape (n, p)
+    n_states, n_actions : int
+    names : (str, str)
+        What ``F`` and ``W`` are, for the message.
+
+    Raises
+    ------
+    ValidationError
+        When the product overflows float64; the message names both inputs with their largest
+        magnitude and says which to rescale (the features when an entry exceeds
+        ``FEATURE_SCALE_LIMIT``).
+    """
+    if isinstance(features, StateBroadcast):
+        return np.repeat(weights, n_actions, axis=1).reshape(-1, n_states, n_actions)
+    try:
+        return task_rewards(features, weights, n_states, n_actions)
+    except ValidationError:
+        big_f, big_w = _largest(features), _largest(weights)
+        if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
+            advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
+        else:
+            advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
+        raise ValidationError(
+            f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
+            f"|{names[1]}| = {big_w:.3g}): {advice}"
+        ) from None
+
+
+def weights_problem(objective: Any, features: Any = None,
+                    names: tuple[str, str] = ("features", "weights")) -> StepProblem:
     """Problem over per-task weights ``w`` (n, p), rewards ``R_i = F w_i``.
 
     Parameters
     ----------
     objective : Objective
-    features : ndarray, shape (S*A, p), optional
-        Shared features (``Phi D`` in FactIRL's H-step). None: tabular rewards, p = S*A.
+    features : ndarray, shape (S*A, p), or StateBroadcast, optional
+        Shared features (``Phi D`` in FactIRL's H-step; a :class:`StateBroadcast` for
+        state-only rewards, p = S). None: tabular rewards, p = S*A.
+    names : (str, str)
+        What ``F`` and ``w`` are, for the message of an overflow (:func:`linear_rewards`).
+
+    Returns
+    -------
+    StepProblem
+        n rows (the objective's tasks), p parameters each.
     """
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
-    F = None if features is None else np.asarray(features, dtype=np.float64)
+    F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
     p = S * A if F is None else F.shape[1]
 
     def rewards(x):
-        return x.reshape(-1, S, A) if F is None else task_rewards(F, x, S, A)
+        return x.reshape(-1, S, A) if F is None else linear_rewards(F, x, S, A, names)
 
     def loss_and_grad(x, rows):
         loss, y = objective.loss_and_grad(rewards(x), rows)
@@ -43,7 +159,7 @@ def weights_problem(objective, features=None):
         return loss, (y if F is None else y @ F)
 
     def residual_jacobian(x, rows):
-        return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else F)
+        return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else dense_features(F))
 
     def linearize(x, rows):
         lin = objective.linearize(rewards(x), rows)
@@ -68,7 +184,8 @@ def weights_problem(objective, features=None):
     )
 
 
-def dictionary_problem(objective, coefficients, base_features=None, unit_norm=False):
+def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_features: Any = None,
+                       unit_norm: bool = False) -> StepProblem:
     """One-row problem over the dictionary ``vec(D)`` (1, p*k) with ``H`` fixed (eqs. 10-11).
 
     Parameters
@@ -76,20 +193,28 @@ def dictionary_problem(objective, coefficients, base_features=None, unit_norm=Fa
     objective : Objective
     coefficients : ndarray, shape (n, k)
         ``H``, tasks on the leading axis.
-    base_features : ndarray, shape (S*A, p), optional
+    base_features : ndarray, shape (S*A, p), or StateBroadcast, optional
         ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k). None: tabular, p = S*A.
     unit_norm : bool, default=False
         Use the primitives at unit norm: rewards ``R_i = Phi D~ h_i`` with
         ``D~ = D diag(1 / ||D[:, l]||)``, so the step cannot trade the scale of D against that
         of H (needed when H carries a penalty such as L1). The gradient is then
         ``(G - D~ diag(sum_j D~_jl G_jl)) diag(1 / ||D[:, l]||)`` with ``G`` the gradient at ``D~``.
+
+    Returns
+    -------
+    StepProblem
+        One row of ``p * k`` parameters.
     """
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     H = np.asarray(coefficients, dtype=np.float64)
     n, k = H.shape
-    Phi = None if base_features is None else np.asarray(base_features, dtype=np.float64)
+    Phi = base_features
+    if Phi is not None and not isinstance(Phi, StateBroadcast):
+        Phi = np.asarray(Phi, dtype=np.float64)
     p = S * A if Phi is None else Phi.shape[1]
+    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
     all_rows = np.arange(n)
 
     def effective(x):
@@ -103,7 +228,7 @@ def dictionary_problem(objective, coefficients, base_features=None, unit_norm=Fa
         return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
 
     def rewards(D):
-        return task_rewards(D if Phi is None else Phi @ D, H, S, A)
+        return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
 
     def pull(y, D, norms):
         """``Phi^T sum_i y_i h_i^T`` (eq. 11) through the normalisation: (1, p*k)."""

@@ -143,7 +143,7 @@ def test_transfer_validation(data):
     mdp, _, demos = data
     model = fo.FactIRL(n_primitives=K)
     model.dictionary_ = np.ones((35, K))
-    with pytest.raises(ValidationError, match=r"dictionary_ must have shape \(S\*A = 36, p\).*got \(35, 2\)"):
+    with pytest.raises(ValidationError, match=r"dictionary_ must have shape \(p, k\) with p = 36.*got \(35, 2\)"):
         model.transfer(mdp, demos)
     model.dictionary_ = np.ones((36, K))
     with pytest.raises(ValidationError, match=r"max_iter must be an integer >= 0; got -3"):

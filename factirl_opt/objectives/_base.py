@@ -56,6 +56,18 @@ class Objective:
         self._last_loss = np.zeros(self.n_tasks)
         self._last_grad = np.zeros((self.n_tasks, S, A))
 
+    def reset(self):
+        """Forget the warm starts and the last-point cache; keep the statistics and ``n_evaluations``.
+
+        The next evaluations plan from scratch, as those of a new objective over the same data
+        would, so one objective (one parse of the demonstrations) can serve fits in turn with
+        the results of separate objectives (FactIRL's flat start, then its factorial fit).
+        """
+        self._warm = None
+        self._last_R = np.full_like(self._last_R, np.nan)
+        self._last_loss = np.zeros_like(self._last_loss)
+        self._last_grad = np.zeros_like(self._last_grad)
+
     # -- what a subclass implements -----------------------------------------------------------
     def _forward(self, R, rows, warm):  # pragma: no cover - interface
         """Forward pass at rewards R (r, S, A) of tasks ``rows``; an object with ``.loss``.

@@ -17,7 +17,6 @@ A kind is either
 
 from __future__ import annotations
 
-import hashlib
 from typing import Any
 
 import numpy as np
@@ -25,6 +24,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
+from ..fitting import features_digest
 from ..mdp import SIGNATURE_KEYS
 from .archive import check_array
 
@@ -159,10 +159,9 @@ def features_sha256(features: ArrayLike, n_states: int, n_actions: int) -> str:
     ValidationError
         ``features`` is not a finite (S*A, p) or (S, p) matrix.
     """
-    F = np.ascontiguousarray(check_features(features, n_states * n_actions, n_states), dtype=np.float64)
-    h = hashlib.sha256(repr(F.shape).encode())
-    h.update(F.tobytes())
-    return h.hexdigest()
+    digest = features_digest(check_features(features, n_states * n_actions, n_states))
+    assert digest is not None  # features are given here (check_features refuses None)
+    return digest
 
 
 def _mdp_shape(attributes: dict[str, Any]) -> tuple[int, int] | None:

@@ -1,0 +1,153 @@
+"""Interrupted fits keep the best point they have seen.
+
+A Ctrl-C (``KeyboardInterrupt``) raised anywhere inside a fit (by a real SIGINT, a callback,
+the objective) must neither lose the work done nor be swallowed. The fitting functions catch
+it, and raise :class:`FitInterrupted` instead: a ``KeyboardInterrupt`` (so scripts stop as
+before) that carries the best point seen as the function's usual result, with status
+``"interrupted"``. The estimators store that result as their fitted state, warn with
+:class:`InterruptedFitWarning` and let the exception propagate.
+
+For a row-separable step problem (a flat fit, an H-step with the dictionary fixed, transfer)
+the tasks are independent, so the best point is taken per task: :class:`BestRows` records,
+for every task, the lowest objective (with the solver's penalty) among the points at which
+that task was evaluated, and those parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from typing import Any, Callable
+
+import numpy as np
+
+from solvers import Linearization, SolverResult, StepProblem, StepSolver
+
+from .exceptions import ConvergenceWarning
+
+__all__ = ["FitInterrupted", "InterruptedFitWarning", "BestRows", "run_keeping_best", "warn_interrupted"]
+
+#: the ``status`` (and ``stop_reason_``) of a fit stopped by a KeyboardInterrupt
+INTERRUPTED = "interrupted"
+
+
+class FitInterrupted(KeyboardInterrupt):
+    """A KeyboardInterrupt during a fit, carrying the best result seen so far.
+
+    Attributes
+    ----------
+    result : object
+        What the interrupted function returns normally (``SolverResult``, ``FactorialFit``,
+        ``TransferFit``, ...), at the best point seen, with ``status == "interrupted"``.
+    """
+
+    def __init__(self, result: Any, what: str) -> None:
+        super().__init__(f"{what} was interrupted; the best point seen so far is kept")
+        self.result = result
+
+
+class InterruptedFitWarning(ConvergenceWarning):
+    """A fit was interrupted (Ctrl-C): the estimator holds the best point seen, not a finished fit."""
+
+
+def warn_interrupted(what: str, detail: str) -> None:
+    """Issue the :class:`InterruptedFitWarning` of an estimator whose ``what`` was interrupted."""
+    warnings.warn(f"{what} was interrupted: {detail}. The KeyboardInterrupt is raised again.",
+                  InterruptedFitWarning, stacklevel=3)
+
+
+class BestRows:
+    """Per-row best point of a row-separable :class:`solvers.StepProblem` over its evaluations.
+
+    Parameters
+    ----------
+    problem : StepProblem
+    solver : StepSolver
+        Its ``penalty`` is added to each row's loss (the objective the solver minimises).
+    x0 : ndarray, shape (n, p)
+        Kept for rows never evaluated (their loss is NaN).
+
+    Attributes
+    ----------
+    problem : StepProblem
+        The same problem, recording every evaluation of ``loss_and_grad``,
+        ``residual_jacobian`` and ``linearize`` (the values are passed on unchanged).
+    """
+
+    def __init__(self, problem: StepProblem, solver: StepSolver, x0: np.ndarray) -> None:
+        x0 = np.array(x0, dtype=np.float64)
+        self._penalty = solver.penalty
+        # one tuple, replaced in one assignment: an interrupt never sees it half updated
+        self._best = (x0, np.full(x0.shape[0], np.inf), np.full(x0.shape[0], np.nan))
+        self.start_total: float | None = None
+        self.problem = dataclasses.replace(
+            problem,
+            loss_and_grad=self._recording(problem.loss_and_grad, lambda out: out[0]),
+            residual_jacobian=None if problem.residual_jacobian is None
+            else self._recording(problem.residual_jacobian, lambda out: out[0]),
+            linearize=None if problem.linearize is None else self._recording(problem.linearize, _linearization_loss),
+        )
+
+    def _recording(self, func: Callable, loss_of: Callable) -> Callable:
+        def recorded(x_rows, rows):
+            out = func(x_rows, rows)
+            self.record(x_rows, rows, loss_of(out))
+            return out
+
+        return recorded
+
+    def record(self, x_rows: np.ndarray, rows: np.ndarray, loss: np.ndarray) -> None:
+        """Keep ``x_rows`` for the rows whose objective ``loss + penalty`` is their lowest yet."""
+        x_rows, rows = np.asarray(x_rows, dtype=np.float64), np.asarray(rows)
+        with np.errstate(invalid="ignore", over="ignore"):
+            score = np.asarray(loss, dtype=np.float64) + self._penalty(x_rows)
+        X, best, plain = self._best
+        if self.start_total is None and rows.size == X.shape[0] and np.all(np.isfinite(score)):
+            self.start_total = float(np.sum(score))
+        better = np.isfinite(score) & (score < best[rows])
+        if better.any():
+            X, best, plain = X.copy(), best.copy(), plain.copy()
+            X[rows[better]], best[rows[better]] = x_rows[better], score[better]
+            plain[rows[better]] = np.asarray(loss, dtype=np.float64)[better]
+            self._best = (X, best, plain)
+
+    def best(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, objective, loss)``: per row the best parameters (n, p), their objective with the
+        penalty (n,) and without it (n,); NaN objective for rows never evaluated."""
+        X, best, plain = self._best
+        return X.copy(), np.where(np.isfinite(best), best, np.nan), plain.copy()
+
+
+def _linearization_loss(lin: Linearization) -> np.ndarray:
+    return lin.loss
+
+
+def run_keeping_best(solver: StepSolver, problem: StepProblem, x0: np.ndarray, max_iter: int, what: str,
+                     callback: Callable | None = None, **options: Any) -> SolverResult:
+    """``solver.run(problem, x0, max_iter, callback=..., **options)``, keeping the best point on Ctrl-C.
+
+    Returns the solver's result unchanged when the run ends. A KeyboardInterrupt raised
+    during the run (in an evaluation, in ``callback``, or by a signal) becomes a
+    :class:`FitInterrupted` whose ``result`` is a :class:`solvers.SolverResult` at the
+    per-row best point seen (:class:`BestRows`), with ``status == "interrupted"``,
+    ``loss_history`` the start and the iterations completed, and ``loss`` including the
+    solver's penalty, as in a finished run.
+    """
+    tracker = BestRows(problem, solver, x0)
+    history: list = []
+    ev0 = problem.n_evaluations()
+
+    def report(iteration, total):
+        history.append(total)
+        if callback is not None:
+            callback(iteration, total)
+
+    try:
+        return solver.run(tracker.problem, x0, max_iter, callback=report, **options)
+    except KeyboardInterrupt as exc:
+        x, loss, _ = tracker.best()
+        start: list = [] if tracker.start_total is None else [tracker.start_total]
+        result = SolverResult(coefficients=x, status=INTERRUPTED, iterations=len(history), solve_time=float("nan"),
+                              loss=loss, n_evaluations=int(problem.n_evaluations() - ev0), loss_history=start + history,
+                              reason=INTERRUPTED)
+        raise FitInterrupted(result, what) from exc
