@@ -21,6 +21,9 @@ Every function here reads ``data`` through :func:`as_transitions`. Accepted:
   - a pair ``(episode, final_state)``, a tuple or list of an (L, 2) array and an integer:
     the state reached after the last action completes the L-th transition.
 
+  A 3-d array in the list stands for its episodes, so the library's demonstrations (one
+  (m, L, 2) array per task) are accepted as they are; messages number the episodes in order.
+
 Values must be integers (floats holding whole numbers are accepted); states in [0, S) and
 actions in [0, A) when ``n_states``, ``n_actions`` are known. An (N, 2) array is refused: it
 holds (state, action) steps without next states or episode boundaries. Data that gives no
@@ -129,6 +132,7 @@ def _raw_transitions(data: object) -> tuple[np.ndarray, str]:
     if isinstance(data, np.ndarray) and data.ndim == 3 and data.shape[2] in (2, 3):
         data = list(data)
     if isinstance(data, (list, tuple)):
+        data = [ep for item in data for ep in (item if isinstance(item, np.ndarray) and item.ndim == 3 else [item])]
         if len(data) == 0:
             raise ValidationError(f"data is empty: give {_LAYOUTS}")
         if not all(_is_final_pair(ep) or _ndim(ep) == 2 for ep in data):
@@ -186,7 +190,7 @@ def as_transitions(data: ArrayLike | list, n_states: int | None = None, n_action
         bad[~bad] = arr[~bad] != np.round(arr[~bad])
         if bad.any():
             k, col = (int(i) for i in np.argwhere(bad)[0])
-            raise ValidationError(f"data, {unit} {k}: {_COLUMNS[col]} {arr[k, col]!r} is not an integer")
+            raise ValidationError(f"data, {unit} {k}: {_COLUMNS[col]} {arr[k, col].item()!r} is not an integer")
     bounds = (n_states, n_actions, n_states)
     for col, hi in enumerate(bounds):
         values = arr[:, col]
