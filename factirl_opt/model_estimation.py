@@ -402,4 +402,7 @@ def sample_transitions(mdp: TabularMDP, n_transitions: int, rng: object = None) 
     keys = np.repeat(np.arange(S * A, dtype=np.float64), nnz) + within
     pos = np.searchsorted(keys, rows + u, side="right")
     pos = np.clip(pos, P.indptr[rows], P.indptr[rows + 1] - 1)  # round-off at a row's end
-    return np.column_stack((rows // A, rows % A, P.indices[pos])).astype(np.int64)
+    out = np.empty((n, 3), dtype=np.int64)
+    np.divmod(rows, A, out=(out[:, 0], out[:, 1]))
+    out[:, 2] = P.indices[pos]
+    return out

@@ -183,14 +183,12 @@ def test_dense_and_sparse_prior_models_agree(small_data):
 
 
 def test_recovers_a_known_model_with_enough_data():
-    mdp = fo.GridWorld(4, p_success=0.6)
-    errors = []
-    for n in (32_000, 3_200_000):
-        est = estimate_mdp(sample_transitions(mdp, n, rng=1), mdp.n_states, mdp.n_actions, mdp.gamma)
-        errors.append(np.abs(est.transitions - mdp.transitions).max())
-    assert errors[1] < 1e-2 < errors[0]  # recovered to 1e-2 with 50 000 draws per (s, a) row, not with 500
-    mle = estimate_mdp(sample_transitions(mdp, 3_200_000, rng=1), 16, 4, 0.9, pseudo_count=0)
-    assert np.abs(mle.transitions - mdp.transitions).max() < 1e-2
+    mdp = fo.GridWorld(3, p_success=0.6)
+    few, many = sample_transitions(mdp, 18_000, rng=1), sample_transitions(mdp, 1_800_000, rng=2)
+    for c in (1.0, 0.0):
+        err_few, err_many = (np.abs(estimate_mdp(tr, 9, 4, 0.9, pseudo_count=c).transitions - mdp.transitions).max() for tr in (few, many))
+        assert err_many < 1e-2 < err_few  # recovered to 1e-2 with 50 000 draws per (s, a) row, not with 500
+    mle = estimate_mdp(many, 9, 4, 0.9, pseudo_count=0)
     assert mle.transition_matrix.nnz == mdp.transition_matrix.nnz  # no spurious successors
 
 
