@@ -26,6 +26,7 @@ from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficien
 from .gradirl import GradIRL
 from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
+from .minari_adapter import LoggedEpisodes, read_minari
 from .model_estimation import as_transitions, estimate_mdp, sample_transitions, transition_counts, transition_log_likelihood
 from .objectives import (
     available_objectives,
@@ -89,6 +90,8 @@ __all__ = [
     "transition_counts",
     "as_transitions",
     "sample_transitions",
+    "read_minari",
+    "LoggedEpisodes",
     "save_model",
     "load_model",
     "save_demonstrations",
