@@ -52,7 +52,7 @@ maximum-likelihood frequencies and only untried rows come from the prior. Prior 
 from __future__ import annotations
 
 import numbers
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -77,13 +77,14 @@ PRIORS = ("self-loop", "uniform")
 #: Most entries the dense rows of a ``"uniform"`` prior may hold (about 12 bytes each in CSR).
 UNIFORM_ENTRY_LIMIT = 2**25
 _COLUMNS = ("state", "action", "next state")
+_INT64_LIMIT = 2**63  # states and actions must fit in int64
 _LAYOUTS = (
     "an int array (N, 3) of (s, a, s') rows, or a list of episodes: (L, 3) transition arrays, (L, 2) (state, action) "
     "arrays, or (episode, final_state) pairs"
 )
 
 
-def _ndim(value: object) -> int:
+def _ndim(value: Any) -> int:
     """``np.ndim``, or -1 for a ragged nested sequence."""
     try:
         return int(np.ndim(value))
@@ -131,6 +132,8 @@ def _raw_transitions(data: object) -> tuple[np.ndarray, str]:
     """The transitions of ``data`` as a raw (N, 3) array, and how to name a row in messages."""
     if isinstance(data, np.ndarray) and data.ndim == 3 and data.shape[2] in (2, 3):
         data = list(data)
+    if _is_final_pair(data):
+        raise ValidationError("data is a single (episode, final_state) pair: give a list of episodes, [(episode, final_state)]")
     if isinstance(data, (list, tuple)):
         data = [ep for item in data for ep in (item if isinstance(item, np.ndarray) and item.ndim == 3 else [item])]
         if len(data) == 0:
@@ -194,10 +197,10 @@ def as_transitions(data: ArrayLike | list, n_states: int | None = None, n_action
     bounds = (n_states, n_actions, n_states)
     for col, hi in enumerate(bounds):
         values = arr[:, col]
-        bad = (values < 0) | (values >= (np.inf if hi is None else hi))
+        bad = (values < 0) | (values >= (_INT64_LIMIT if hi is None else hi))
         if np.any(bad):
             k = int(np.argmax(bad))
-            rule = f"out of range [0, {hi})" if hi is not None else "negative (states and actions are integers >= 0)"
+            rule = f"out of range [0, {hi})" if hi is not None else "not a valid index (states and actions are integers in [0, 2**63))"
             raise ValidationError(f"data, {unit} {k}: {_COLUMNS[col]} {values[k].item()!r} is {rule}")
     return arr.astype(np.int64)
 
@@ -314,12 +317,12 @@ def estimate_mdp(
     S = check_int(n_states, "n_states", minimum=1)
     A = check_int(n_actions, "n_actions", minimum=1)
     check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
-    prior = _check_prior(prior, S, A)
+    prior_mean = _check_prior(prior, S, A)
     c = check_real(pseudo_count, "pseudo_count", low=0.0)
     counts = transition_counts(data, S, A)
     untried = np.diff(counts.indptr) == 0
     weights = np.full(S * A, c) if c > 0 else untried.astype(np.float64)
-    P = (counts + _prior_part(prior, weights, S, A)).tocsr()
+    P = (counts + _prior_part(prior_mean, weights, S, A)).tocsr()
     sums = np.asarray(P.sum(axis=1)).ravel()  # n(s, a) + c (> 0 on every row), up to round-off
     P.data /= np.repeat(sums, np.diff(P.indptr))
     return TabularMDP(P, gamma)
@@ -373,7 +376,9 @@ def transition_log_likelihood(
     return float(logp.sum() if reduction == "sum" else logp.mean())
 
 
-def sample_transitions(mdp: TabularMDP, n_transitions: int, rng: object = None) -> NDArray[np.int64]:
+def sample_transitions(
+    mdp: TabularMDP, n_transitions: int, rng: np.random.Generator | np.random.SeedSequence | int | None = None
+) -> NDArray[np.int64]:
     """Exploration data: ``n_transitions`` transitions with ``(s, a)`` uniform and ``s' ~ P(. | s, a)``.
 
     Parameters
@@ -391,11 +396,11 @@ def sample_transitions(mdp: TabularMDP, n_transitions: int, rng: object = None) 
     """
     check_mdp(mdp)
     n = check_int(n_transitions, "n_transitions", minimum=0)
-    rng = as_rng(rng)
+    gen: np.random.Generator = as_rng(rng)
     S, A = mdp.n_states, mdp.n_actions
     P = mdp.csr()
-    rows = rng.integers(S * A, size=n)
-    u = rng.random(n)
+    rows = gen.integers(S * A, size=n)
+    u = gen.random(n)
     # cumulative probabilities within each row, offset by the row index: increasing overall
     nnz = np.diff(P.indptr)
     within = np.cumsum(P.data) - np.repeat(np.concatenate(([0.0], np.cumsum(P.data)[P.indptr[1:-1] - 1])), nnz)

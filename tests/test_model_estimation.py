@@ -112,8 +112,15 @@ def test_bad_data_is_refused(data, match):
 
 def test_unbounded_values_must_be_nonnegative():
     np.testing.assert_array_equal(as_transitions([[10**6, 5, 3]]), [[10**6, 5, 3]])
-    with pytest.raises(ValidationError, match=r"row 0: next state -3 is negative"):
+    with pytest.raises(ValidationError, match=r"row 0: next state -3 is not a valid index"):
         as_transitions([[1, 0, -3]])
+    with pytest.raises(ValidationError, match=r"row 0: state 1e\+20 is not a valid index"):
+        as_transitions([[1e20, 0, 3]])
+
+
+def test_a_single_pair_must_be_wrapped():
+    with pytest.raises(ValidationError, match=r"single \(episode, final_state\) pair: give a list of episodes"):
+        as_transitions((np.array([[0, 1], [1, 0]]), 2))
 
 
 def test_transition_counts():
