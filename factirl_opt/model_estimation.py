@@ -4,7 +4,9 @@ When the dynamics are not given, :func:`estimate_mdp` builds a sparse :class:`Ta
 logged transitions ``(s, a, s')``: the posterior mean of ``P(. | s, a)`` under a Dirichlet
 prior, row by row (the model's layout is that of docs/maths.md §1: a (S*A, S) CSR matrix, row
 ``s * A + a``). :func:`transition_log_likelihood` scores held-out transitions under a model,
-to compare estimates (or choose a prior) on data they were not built from.
+to compare estimates (or choose a prior) on data they were not built from. Also here:
+:func:`transition_counts` (the sparse counts themselves) and :func:`sample_transitions`
+(exploration data drawn from a known model, for experiments on model error).
 
 Layouts of logged data
 ----------------------
@@ -39,9 +41,10 @@ and ``c`` the pseudo-count (the Dirichlet concentration of each row, summed over
 A pair never tried (``n(s, a) = 0``) gets the prior mean. With ``c = 0`` the tried rows are the
 maximum-likelihood frequencies and only untried rows come from the prior. Prior means:
 
-- ``"self-loop"`` (default): ``m = e_s``, the agent stays where it is. Rows stay as sparse as
-  the data; untried actions of states never left (terminal states of an episodic task) become
-  absorbing, the convention of :func:`~factirl_opt.from_gymnasium`.
+- ``"self-loop"`` (default): ``m = e_s``, the agent stays where it is (the pseudo-counts all
+  on staying put). Rows keep the data's support plus at most the entry ``s' = s``; untried
+  actions of states never left (terminal states of an episodic task) become absorbing, the
+  convention of :func:`~factirl_opt.from_gymnasium`.
 - ``"uniform"``: ``m = 1/S`` (a symmetric Dirichlet, ``c / S`` per next state). Every row the
   prior touches is dense: with ``c > 0`` the whole (S*A, S) matrix; with ``c = 0`` the untried
   rows only. Refused when those rows would hold more than :data:`UNIFORM_ENTRY_LIMIT` entries.
