@@ -26,6 +26,9 @@ Every function here reads ``data`` through :func:`as_transitions`. Accepted:
   A 3-d array in the list stands for its episodes, so the library's demonstrations (one
   (m, L, 2) array per task) are accepted as they are; messages number the episodes in order.
 
+Logged episodes read by :func:`~factirl_opt.read_minari` (any object with a ``transitions()``
+method returning one of these layouts) are accepted as they are.
+
 Values must be integers (floats holding whole numbers are accepted); states in [0, S) and
 actions in [0, A) when ``n_states``, ``n_actions`` are known. An (N, 2) array is refused: it
 holds (state, action) steps without next states or episode boundaries. Data that gives no
@@ -135,6 +138,8 @@ def _raw_transitions(data: object) -> tuple[np.ndarray, str]:
     """The transitions of ``data`` as a raw (N, 3) array, and how to name a row in messages."""
     if isinstance(data, np.ndarray) and data.ndim == 3 and data.shape[2] in (2, 3):
         data = list(data)
+    if callable(getattr(data, "transitions", None)):  # LoggedEpisodes from read_minari
+        data = data.transitions()  # type: ignore[attr-defined]
     if _is_final_pair(data):
         raise ValidationError("data is a single (episode, final_state) pair: give a list of episodes, [(episode, final_state)]")
     if isinstance(data, (list, tuple)):

@@ -69,13 +69,14 @@ def test_episodes_and_transitions_match_the_recording(recorded):
     np.testing.assert_array_equal(logged.transitions(), expected)
     mdp = fo.from_gymnasium("FrozenLake-v1", is_slippery=True)
     assert np.all(mdp.transitions[expected[:, 0], expected[:, 1], expected[:, 2]] > 0)
+    assert fo.transition_log_likelihood(mdp, logged) == pytest.approx(np.log(mdp.transitions[tuple(expected.T)]).sum())
     mu, pi = fo.empirical_statistics(mdp, [logged.episodes])  # one task's demonstrations, as they are
     assert mu.shape == (1, 16) and pi.shape == (1, 16, 4)
 
 
 def test_a_deterministic_model_is_recovered_exactly(recorded):
     logged = read_minari("test/frozenlake/deterministic-v0")
-    est = fo.estimate_mdp(logged.transitions(), logged.n_states, logged.n_actions, 0.9, pseudo_count=0)
+    est = fo.estimate_mdp(logged, logged.n_states, logged.n_actions, 0.9, pseudo_count=0)  # read as logged.transitions()
     # every (s, a) of a non-terminal state was tried; holes and goal, never left, get the
     # self-loop prior: absorbing, as in from_gymnasium's convention
     np.testing.assert_array_equal(est.transitions, fo.from_gymnasium("FrozenLake-v1", is_slippery=False).transitions)
