@@ -24,7 +24,8 @@ Every function here reads ``data`` through :func:`as_transitions`. Accepted:
     the state reached after the last action completes the L-th transition.
 
   A 3-d array in the list stands for its episodes, so the library's demonstrations (one
-  (m, L, 2) array per task) are accepted as they are; messages number the episodes in order.
+  (m, L, 2) array per task) are accepted as they are; messages number the episodes in order
+  (the m episodes of a 3-d array count as m).
 
 Logged episodes read by :func:`~factirl_opt.read_minari` (any object with a ``transitions()``
 method returning one of these layouts) are accepted as they are.
@@ -134,32 +135,51 @@ def _episode_transitions(ep: object, j: int) -> np.ndarray:
     return np.column_stack((arr[:-1, 0], arr[:-1, 1], arr[1:, 0]))
 
 
+def _is_block(item: object) -> bool:
+    """Whether a list entry is a 3-d array standing for its episodes."""
+    return isinstance(item, np.ndarray) and item.ndim == 3
+
+
+def _list_transitions(data: list | tuple) -> np.ndarray:
+    """The raw transitions of a list of episodes (and 3-d arrays of episodes), in order."""
+    parts, j = [], 0
+    for item in data:
+        if not _is_block(item):
+            parts.append(_episode_transitions(item, j))
+            j += 1
+            continue
+        where = f"data, episodes {j} to {j + len(item) - 1}"
+        block = _array(item, where)
+        if block.shape[2] not in (2, 3):
+            raise ValidationError(f"{where}: a 3-d array of episodes must have shape (m, L, 2) or (m, L, 3); got {block.shape}")
+        if block.shape[2] == 2:  # consecutive steps, vectorised over the m episodes
+            block = np.concatenate((block[:, :-1], block[:, 1:, :1]), axis=2)
+        parts.append(block.reshape(-1, 3))
+        j += len(item)
+    if sum(len(p) for p in parts) == 0:
+        raise ValidationError(
+            "data holds no transitions: an episode of (state, action) steps gives one transition per pair of "
+            "consecutive steps, and these episodes all have length 1; give (episode, final_state) pairs or (L, 3) episodes"
+        )
+    return np.concatenate(parts)
+
+
 def _raw_transitions(data: object) -> tuple[np.ndarray, str]:
     """The transitions of ``data`` as a raw (N, 3) array, and how to name a row in messages."""
-    if isinstance(data, np.ndarray) and data.ndim == 3 and data.shape[2] in (2, 3):
-        data = list(data)
     if callable(getattr(data, "transitions", None)):  # LoggedEpisodes from read_minari
         data = data.transitions()  # type: ignore[attr-defined]
+    if _is_block(data):
+        data = [data]
     if _is_final_pair(data):
         raise ValidationError("data is a single (episode, final_state) pair: give a list of episodes, [(episode, final_state)]")
     if isinstance(data, (list, tuple)):
-        data = [ep for item in data for ep in (item if isinstance(item, np.ndarray) and item.ndim == 3 else [item])]
         if len(data) == 0:
             raise ValidationError(f"data is empty: give {_LAYOUTS}")
-        if not all(_is_final_pair(ep) or _ndim(ep) == 2 for ep in data):
-            arr = _array(data, "data")
-            if arr.ndim != 2:
-                raise ValidationError(f"data must be {_LAYOUTS}; got a list that is neither")
-            data = arr
-        else:
-            parts = [_episode_transitions(ep, j) for j, ep in enumerate(data)]
-            n = sum(len(p) for p in parts)
-            if n == 0:
-                raise ValidationError(
-                    "data holds no transitions: an episode of (state, action) steps gives one transition per pair of "
-                    "consecutive steps, and these episodes all have length 1; give (episode, final_state) pairs or (L, 3) episodes"
-                )
-            return np.concatenate(parts), "transition"
+        if all(_is_final_pair(ep) or _is_block(ep) or _ndim(ep) == 2 for ep in data):
+            return _list_transitions(data), "transition"
+        data = _array(data, "data")
+        if data.ndim != 2:
+            raise ValidationError(f"data must be {_LAYOUTS}; got a list that is neither")
     arr = _array(data, "data")
     if arr.ndim == 2 and arr.shape[1] == 2:
         raise ValidationError(
