@@ -16,7 +16,9 @@ Every function here reads ``data`` through :func:`as_transitions`. Accepted:
 - a list of episodes, or an int array of shape (m, L, 2) or (m, L, 3) (m episodes of equal
   length), each episode being
 
-  - an (L, 3) array of transitions ``(s_t, a_t, s_{t+1})``: all L are used;
+  - an (L, 3) array of transitions ``(s_t, a_t, s_{t+1})``: all L are used (L = 0 too, so
+    extra transitions, e.g. ``sample_transitions(mdp, M)`` with M >= 0, can be appended to
+    the list);
   - an (L, 2) array of (state, action) steps, the library's episode layout: consecutive
     steps give the L - 1 transitions ``(s_t, a_t, s_{t+1})``; the last action's outcome was
     not logged, so that action is not counted;
@@ -127,9 +129,9 @@ def _episode_transitions(ep: object, j: int) -> np.ndarray:
         nxt = np.append(steps[1:, 0], _array(final, f"{where} (final_state)"))
         return np.column_stack((steps[:, 0], steps[:, 1], nxt))
     arr = _array(ep, where)
-    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or len(arr) == 0:
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or (len(arr) == 0 and arr.shape[1] == 2):
         raise ValidationError(f"{where} must be an (L, 3) array of transitions, an (L, 2) array of (state, action) steps "
-                              f"or an (episode, final_state) pair, with L >= 1; got shape {arr.shape}")
+                              f"with L >= 1, or an (episode, final_state) pair; got shape {arr.shape}")
     if arr.shape[1] == 3:
         return arr
     return np.column_stack((arr[:-1, 0], arr[:-1, 1], arr[1:, 0]))

@@ -86,7 +86,8 @@ def test_episodes_from_sample_demonstrations_are_accepted():
         (np.zeros((0, 3), dtype=int), r"no transitions \(shape \(0, 3\)\)"),
         ([np.array([[0, 1]]), np.array([[1, 0]])], "holds no transitions.*length 1"),
         ([np.zeros((3, 4), dtype=int)], r"episode 0 must be an \(L, 3\) array.*got shape \(3, 4\)"),
-        ([np.zeros((0, 2), dtype=int)], r"episode 0 must be .*with L >= 1; got shape \(0, 2\)"),
+        ([np.zeros((0, 2), dtype=int)], r"episode 0 must be .*with L >= 1, or an \(episode, final_state\) pair; got shape \(0, 2\)"),
+        ([np.zeros((0, 3), dtype=int)], "holds no transitions"),
         ([(np.zeros((0, 2), dtype=int), 1)], r"episode 0 is an \(episode, final_state\) pair.*got \(0, 2\)"),
         ([(np.zeros((2, 3), dtype=int), 1)], r"episode 0 is an \(episode, final_state\) pair.*got \(2, 3\)"),
         (np.zeros(5, dtype=int), r"got an array of shape \(5,\)"),
@@ -112,6 +113,16 @@ def test_bad_data_is_refused(data, match):
         as_transitions(data, 4, 2)
     with pytest.raises(ValidationError, match=match):
         estimate_mdp(data, 4, 2, 0.9)
+
+
+def test_demonstrations_plus_exploration_transitions():
+    mdp = fo.GridWorld(3)
+    demos = fo.sample_demonstrations(mdp, np.zeros((2, 9, 4)), 4, 5, rng=0)
+    for M in (0, 30):
+        extra = sample_transitions(mdp, M, rng=1)
+        tr = as_transitions([*demos, extra], 9, 4)
+        np.testing.assert_array_equal(tr, np.vstack([as_transitions(demos), extra]))
+        assert estimate_mdp([*demos, extra], 9, 4, 0.9).n_states == 9
 
 
 def test_unbounded_values_must_be_nonnegative():
