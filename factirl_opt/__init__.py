@@ -26,6 +26,8 @@ from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficien
 from .gradirl import GradIRL
 from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
+from .minari_adapter import LoggedEpisodes, read_minari
+from .model_estimation import as_transitions, estimate_mdp, sample_transitions, transition_counts, transition_log_likelihood
 from .objectives import (
     available_objectives,
     mce_loss,
@@ -109,6 +111,13 @@ __all__ = [
     "SyntheticTasks",
     "from_gymnasium",
     "gymnasium_rewards",
+    "estimate_mdp",
+    "transition_log_likelihood",
+    "transition_counts",
+    "as_transitions",
+    "sample_transitions",
+    "read_minari",
+    "LoggedEpisodes",
     *_MINIGRID_NAMES,
     "save_model",
     "load_model",
