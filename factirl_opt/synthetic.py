@@ -151,4 +151,4 @@ def synthetic_tasks(mdp: TabularMDP, n_tasks: int, n_demos: int, length: int, n_
     H = random_coefficients(n_tasks, D.shape[1], kind=kind, sparsity=sparsity, rng=rng)
     R = task_rewards(D, H, S, A)
     demos = sample_demonstrations(mdp, R, n_demos, length, rng=demo_rng, planner=planner)
-    return SyntheticTasks(dictionary=D, coefficients=H, rewards=R, demos=demos)
+    return SyntheticTasks(dictionary=D, coefficients=H, rewards=R, demos=typing.cast(list, demos))
