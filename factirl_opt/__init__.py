@@ -47,6 +47,7 @@ from .objectworld import (
     plot_objectworld,
     state_action_rewards,
 )
+from .solver_settings import SolverSettings
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
 from .trajectories import demonstrations_from_trajectories
 
@@ -70,6 +71,7 @@ __all__ = [
     "residual_jacobian",
     "GradIRL",
     "FactIRL",
+    "SolverSettings",
     "pca_dictionary",
     "fit_factorial",
     "transfer_coefficients",
