@@ -446,8 +446,8 @@ def run_sweep(preset: Preset | str, out: str | os.PathLike, seeds: int | None = 
     Parameters
     ----------
     preset : Preset or str
-    out : str or path
-        See :func:`run_plan`.
+    out, progress, command
+        See :func:`run_plan` (which gives the returned dict).
     seeds : int, optional
         Number of seeds (default: the preset's); seeds are ``base_seed, base_seed + 1, ...``.
     base_seed : int
@@ -455,13 +455,6 @@ def run_sweep(preset: Preset | str, out: str | os.PathLike, seeds: int | None = 
         See :class:`Execution`.
     solvers : SolverSettings, optional
         The factorial learner's solvers; default: the preset's.
-    progress, command
-        See :func:`run_plan`.
-
-    Returns
-    -------
-    dict
-        See :func:`run_plan`.
     """
     preset = get_preset(preset)
     n_seeds = preset.n_seeds if seeds is None else check_int(seeds, "seeds", minimum=1)

@@ -123,7 +123,7 @@ def _source_files():
 
 
 @functools.lru_cache(maxsize=1)
-def code_stamp():
+def code_stamp() -> dict[str, str]:
     """What identifies the code that computes runs (see the module docstring).
 
     Returns
@@ -144,7 +144,7 @@ def code_stamp():
                 source_sha256=h.hexdigest())
 
 
-def expected_provenance(preset, lineup):
+def expected_provenance(preset: Any, lineup: Any) -> dict[str, Any]:
     """The provenance a reusable record of this preset and line-up must carry (``computed_by`` aside)."""
     return dict(format=RECORD_FORMAT, preset_fingerprint=preset.fingerprint(), lineup=lineup.fingerprint(),
                 code=code_stamp())
@@ -155,7 +155,7 @@ def _checksum(record):
     return "sha256:" + hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def seal(record, provenance, invocation_id):
+def seal(record: dict[str, Any], provenance: dict[str, Any], invocation_id: str) -> dict[str, Any]:
     """The record with its provenance (computed by ``invocation_id``) and checksum added."""
     record = dict(record, provenance=dict(provenance, computed_by=invocation_id))
     record.pop("checksum", None)
@@ -184,7 +184,7 @@ def _check_row(row, columns, where):
             raise ValueError(f"{where}[{c!r}] is {v!r}")
 
 
-def check_record(record, lineup):
+def check_record(record: Any, lineup: Any) -> None:
     """Raise ValueError naming the first structural defect of a run record (None if sound)."""
     if not isinstance(record, dict):
         raise ValueError(f"the record is {type(record).__name__}, not an object")
@@ -220,7 +220,7 @@ def _provenance_mismatch(found, expected):
     return None
 
 
-def load_record(path, key, expected, lineup):
+def load_record(path: str, key: str, expected: dict[str, Any], lineup: Any) -> tuple[dict | None, str | None]:
     """Load a cached run record and check it.
 
     Returns
@@ -259,7 +259,8 @@ def write_record(runs_dir: str, record: dict[str, Any]) -> None:
     write_text_atomic(os.path.join(runs_dir, record["key"] + ".json"), json.dumps(record))
 
 
-def load_records(runs_dir, keys, expected, lineup):
+def load_records(runs_dir: str, keys: list[str], expected: dict[str, Any],
+                 lineup: Any) -> tuple[dict[str, dict], list[str], dict[str, str]]:
     """Load the reusable records of ``keys``; returns (records by key, keys to compute, rejected {file: reason})."""
     records, todo, rejected = {}, [], {}
     for key in keys:
@@ -394,7 +395,7 @@ def locked(out: str | os.PathLike) -> Iterator[None]:
 # --- the manifest -------------------------------------------------------------------------
 
 
-def new_invocation(command, settings):
+def new_invocation(command: str | None, settings: dict[str, Any]) -> dict[str, Any]:
     """This invocation's entry of the manifest's history (completed by :func:`write_manifest`)."""
     now = time.gmtime()
     return dict(id=f"{time.strftime('%Y%m%dT%H%M%SZ', now)}-{os.getpid()}-{secrets.token_hex(3)}", command=command,
@@ -439,7 +440,8 @@ def _git_commit():
         return None
 
 
-def write_manifest(out, preset, lineup, records, invocation, rejected):
+def write_manifest(out: str, preset: Any, lineup: Any, records: list[dict], invocation: dict[str, Any],
+                   rejected: dict[str, str]) -> dict[str, Any]:
     """Write ``out/manifest.json`` describing the tables' runs and every invocation (see the module docstring).
 
     Parameters
