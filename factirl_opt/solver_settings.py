@@ -84,9 +84,9 @@ class SolverSettings:
     """
 
     h_solver: str = "armijo"
-    h_solver_options: str = ""
-    d_solver: str = ""
-    d_solver_options: str = ""
+    h_solver_options: Any = ""  # canonical JSON once constructed, as are the others
+    d_solver: Any = ""
+    d_solver_options: Any = ""
 
     def __post_init__(self) -> None:
         d_solver = "" if self.d_solver is None else self.d_solver
@@ -129,9 +129,9 @@ class SolverSettings:
                 kw["d_solver_options"] = self.d_options
         return kw
 
-    def with_overrides(self, h_solver: str | None = None, h_solver_options: Mapping[str, Any] | None = None,
+    def with_overrides(self, h_solver: str | None = None, h_solver_options: Mapping[str, Any] | str | None = None,
                        d_solver: str | None = None,
-                       d_solver_options: Mapping[str, Any] | None = None) -> SolverSettings:
+                       d_solver_options: Mapping[str, Any] | str | None = None) -> SolverSettings:
         """These settings with some replaced (the command line over a preset's).
 
         A solver not named (None) stays, with the given options or else its own; a named

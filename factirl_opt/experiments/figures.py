@@ -37,7 +37,7 @@ from .tables import load_preset_from_manifest, read_results
 __all__ = ["plot_sweeps", "plot_value_functions", "plot_all", "figure_files", "FIGURES"]
 
 #: one fixed style per learner name, shared by figures 1 and 2
-STYLES = {
+STYLES: dict[str, dict[str, Any]] = {
     FLAT: dict(color="#d62728", marker="o", linestyle="-"),
     FACTORIAL: dict(color="#1f77b4", marker="s", linestyle="-", linewidth=2.2),
     FACTORIAL_RANDOM_INIT: dict(color="#17becf", marker="D", linestyle="--"),

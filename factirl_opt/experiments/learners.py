@@ -418,17 +418,16 @@ def _extended(learners, train, test):
 
 def _mce_rows(flat_name, fact_name, flat_build, flat_solvers, fact_build, transfer_build):
     """The train and test rows of a flat MCE learner and its factorial counterpart."""
-    mce = dict(objective="mce")
-    train = (Learner("train", flat_name, flat_build, solvers=flat_solvers, **mce),
-             Learner("train", fact_name, fact_build, needs=(("train", flat_name),), solvers="factorial", **mce))
-    test = (Learner("test", flat_name, flat_build, per_seed=True, solvers=flat_solvers, **mce),
-            Learner("test", fact_name, transfer_build, needs=(("train", fact_name),), solvers="factorial", **mce))
+    train = (Learner("train", flat_name, flat_build, solvers=flat_solvers, objective="mce"),
+             Learner("train", fact_name, fact_build, needs=(("train", flat_name),), solvers="factorial", objective="mce"))
+    test = (Learner("test", flat_name, flat_build, per_seed=True, solvers=flat_solvers, objective="mce"),
+            Learner("test", fact_name, transfer_build, needs=(("train", fact_name),), solvers="factorial",
+                    objective="mce"))
     return train, test
 
 
 _TRAIN_FLAT = (("train", FLAT),)
-_FEATURES = dict(solvers="flat features")
-_FACTORIAL = dict(solvers="factorial")
+_FEATURES, _FACTORIAL = "flat features", "factorial"
 
 #: line-up name (a preset's ``lineup``) -> Lineup
 LINEUPS = {
@@ -436,15 +435,15 @@ LINEUPS = {
         name="paper",
         learners=(
             Learner("train", FLAT, flat),
-            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, **_FEATURES),
-            Learner("train", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, **_FEATURES),
-            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, **_FACTORIAL),
-            Learner("train", FACTORIAL_RANDOM_INIT, factorial_random_init, **_FACTORIAL),
+            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, solvers=_FEATURES),
+            Learner("train", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_RANDOM_INIT, factorial_random_init, solvers=_FACTORIAL),
             Learner("test", FLAT, flat, per_seed=True),
-            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), **_FACTORIAL),
-            Learner("test", FLAT_FEATURES_FROM_EXAMPLES, flat_features_from_examples, needs=_TRAIN_FLAT, **_FEATURES),
-            Learner("test", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, **_FEATURES),
-            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, **_FEATURES),
+            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), solvers=_FACTORIAL),
+            Learner("test", FLAT_FEATURES_FROM_EXAMPLES, flat_features_from_examples, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("test", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
         value_maps=(FLAT, FACTORIAL),
     ),
@@ -452,17 +451,17 @@ LINEUPS = {
         name="objectworld",
         learners=(
             Learner("train", FLAT, flat),
-            Learner("train", FLAT_FEATURES, flat_features, **_FEATURES),
-            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, **_FEATURES),
-            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, **_FACTORIAL),
-            Learner("train", FACTORIAL_FEATURES, factorial_features, needs=(("train", FLAT_FEATURES),), **_FACTORIAL),
-            Learner("train", FACTORIAL_FEATURES_RANDOM_INIT, factorial_features_random_init, **_FACTORIAL),
+            Learner("train", FLAT_FEATURES, flat_features, solvers=_FEATURES),
+            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, solvers=_FEATURES),
+            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_FEATURES, factorial_features, needs=(("train", FLAT_FEATURES),), solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_FEATURES_RANDOM_INIT, factorial_features_random_init, solvers=_FACTORIAL),
             Learner("test", FLAT, flat, per_seed=True),
-            Learner("test", FLAT_FEATURES, flat_features, per_seed=True, **_FEATURES),
-            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), **_FACTORIAL),
+            Learner("test", FLAT_FEATURES, flat_features, per_seed=True, solvers=_FEATURES),
+            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), solvers=_FACTORIAL),
             Learner("test", FACTORIAL_FEATURES, factorial_features_transfer, needs=(("train", FACTORIAL_FEATURES),),
-                    **_FACTORIAL),
-            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, **_FEATURES),
+                    solvers=_FACTORIAL),
+            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
         value_maps=(FLAT_FEATURES, FACTORIAL_FEATURES),
         worlds=("objectworld",),

@@ -307,12 +307,12 @@ class Preset:
 #: random-init fit ran its 100 outer iterations of CG products) and kept every ordering of the paper.
 #: The PCA start shrinks while the loss decreases (``pca_shrink``): L-BFGS flat fits
 #: reach larger rewards than Armijo's, whose truncation can start FactIRL in a saturated region.
-FAST_SOLVERS = dict(solvers=SolverSettings("gn-qp-clarabel", d_solver="lbfgs"), inner_steps=2, fact_max_iter=50, fact_gtol=1e-3,
+FAST_SOLVERS: dict[str, Any] = dict(solvers=SolverSettings("gn-qp-clarabel", d_solver="lbfgs"), inner_steps=2, fact_max_iter=50, fact_gtol=1e-3,
                     fact_tol=1e-4, flat_solver="lbfgs", flat_features_solver="gn-qp-clarabel", pca_shrink=True)
 
 #: the Objectworld presets' solvers: the ``fast`` preset's, with L-BFGS for the flat fits on features
 #: too (Levine's 217 features at 32x32 make a Gauss-Newton block QP too large to compile)
-OBJECTWORLD_SOLVERS = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
+OBJECTWORLD_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
 
 PRESETS = {
     "paper": Preset(name="paper"),

@@ -1,12 +1,9 @@
 """The one experiment runner: plan the runs of a preset and execute them (in parallel, resumably).
 
-The experiment path, each stage taking the previous stage's output::
-
-    preset (:mod:`.presets`) -> plan_sweep -> SweepPlan -> run_plan: execution (Execution),
-    store (:mod:`.store`), tables (:mod:`.tables`) -> claims and figures (:mod:`.claims`,
-    :mod:`.figures`, from the output directory)
-
-:func:`run_sweep` is the first three stages in one call.
+The experiment path, each stage taking the previous stage's output: preset (:mod:`.presets`)
+-> :func:`plan_sweep` -> :class:`SweepPlan` -> :func:`run_plan` (execution, :mod:`.store`,
+:mod:`.tables`) -> claims and figures (:mod:`.claims`, :mod:`.figures`, from the output
+directory). :func:`run_sweep` plans and runs in one call.
 
 A *run* is one ``(n_tasks, demos_per_task, seed)`` point of a preset with the factorial
 learner's solver settings: generate the ground truth in the preset's world
@@ -35,11 +32,12 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import functools
 import os
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable
 from typing import Any
 
 import numpy as np
@@ -67,8 +65,7 @@ __all__ = ["RunSpec", "SweepPlan", "Execution", "BACKENDS", "DERIVED_OUTPUTS", "
 N_FIGURE3_TASKS = 4
 #: execution backends (``"loky"`` is accepted as the former name of ``"processes"``)
 BACKENDS = ("processes", "dask")
-#: files drawn from the tables (``factirl-opt plot``), relative to the output directory: removed
-#: when a sweep rewrites the tables, so a directory never shows claims or figures of other tables
+#: files drawn from the tables (relative to the output directory): removed when a sweep rewrites them
 DERIVED_OUTPUTS = (CLAIMS_FILE, *(os.path.relpath(path, "OUT") for path in figure_files("OUT")))
 
 
@@ -211,7 +208,11 @@ def run_one(preset: Preset, spec: RunSpec, progress: Callable[[str], Any] | None
         point's first seed, ``figure3`` (value functions of 4 test tasks).
     """
     with limit_blas_threads(1):
-        return _run_one(preset, spec, progress or (lambda label: None), reuse)
+        return _run_one(preset, spec, progress or _no_progress, reuse)
+
+
+def _no_progress(label: str) -> None:
+    """The default progress callback: nothing."""
 
 
 #: per-seed fits kept by a worker process for the runs it executes (see :func:`_run_in_worker`)
@@ -332,16 +333,19 @@ def _dask_records(preset, todo, jobs, scheduler):
             cluster.close()
 
 
-def _execute(preset: Preset, todo: list, execution: Execution, bar: Any) -> Iterator[dict]:
+def _show(bar: Any, key: str, label: str) -> None:
+    """Show the run and the learner being fitted on the progress bar."""
+    bar.set_postfix_str(f"{key} | {label}", refresh=True)
+
+
+def _execute(preset: Preset, todo: list, execution: Execution, bar: Any) -> Generator[dict, None, None]:
     """Yield run records as runs finish: in this process, in worker processes, or on Dask."""
     if execution.backend == "dask":
         yield from _dask_records(preset, todo, execution.jobs, execution.scheduler)
     elif execution.jobs == 1:
         reuse: dict = {}  # this sweep's per-seed fits
         for spec in todo:
-            key = spec.key(preset)
-            yield run_one(preset, spec, progress=lambda label, key=key: bar.set_postfix_str(f"{key} | {label}", refresh=True),
-                          reuse=reuse)
+            yield run_one(preset, spec, progress=functools.partial(_show, bar, spec.key(preset)), reuse=reuse)
     else:
         yield from imap_unordered(_run_in_worker, [(preset, spec) for spec in todo], execution.jobs)
 

@@ -131,7 +131,7 @@ def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> l
         The result rows, sorted.
     """
     out = os.fspath(out)
-    learners = {}
+    learners: dict[tuple[str, str], int] = {}
     for rec in records:
         for r in rec["rows"]:
             learners.setdefault((r["split"], r["learner"]), len(learners))

@@ -198,7 +198,8 @@ def imap_unordered(fn: Callable[..., Any], tasks: Iterable[tuple], jobs: int) ->
             _stop_tracker()
         raise
     try:
-        pending, busy = iter(tasks), {}
+        pending = iter(tasks)
+        busy: dict[Any, Any] = {}
         for proc, conn in workers:
             _submit(pending, proc, conn, busy, fn)
         while busy:
