@@ -125,7 +125,7 @@ def _start(ctx, n):
 
     A SIGTERM received meanwhile is held (an exception raised inside ``Process.start`` could
     lose a started child); once every worker is known, they are stopped and the signal is
-    delivered to the previous handler.
+    delivered to the previous handler (the workers are stopped if it raises or ends the process).
     """
     main = threading.current_thread() is threading.main_thread()
     held = []
@@ -147,9 +147,14 @@ def _start(ctx, n):
         if main:
             signal.signal(signal.SIGINT, previous_int)
             signal.signal(signal.SIGTERM, previous_term)
-    if held:
-        _stop(workers)
-        signal.raise_signal(held[0])  # the previous handler: Terminated inside sigterm_raises
+    if held and previous_term is not signal.SIG_IGN:
+        if previous_term in (signal.SIG_DFL, None):
+            _stop(workers)  # the signal ends this process: stop the workers first
+        try:
+            signal.raise_signal(held[0])  # the previous handler: Terminated inside sigterm_raises
+        except BaseException:
+            _stop(workers)
+            raise
     return workers
 
 

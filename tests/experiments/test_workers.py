@@ -197,3 +197,14 @@ def test_a_sigterm_while_workers_start_stops_them_all():
         workers_mod._stop = original
         timer.join()
     assert started and all(p.exitcode is not None for p in started)
+
+
+def test_an_ignored_sigterm_while_workers_start_changes_nothing():
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    timer = threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGTERM))
+    try:
+        timer.start()
+        assert sorted(imap_unordered(_sleep_then_square, [(i,) for i in range(4)], jobs=2)) == [0, 1, 4, 9]
+    finally:
+        timer.join()
+        signal.signal(signal.SIGTERM, previous)
