@@ -34,6 +34,7 @@ from .objectives import (
     residual_jacobian,
 )
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
+from .solver_settings import SolverSettings
 from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
 from .objectworld import (
     ObjectWorld,
@@ -47,7 +48,6 @@ from .objectworld import (
     plot_objectworld,
     state_action_rewards,
 )
-from .solver_settings import SolverSettings
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
 from .trajectories import demonstrations_from_trajectories
 
