@@ -36,6 +36,7 @@ from .objectives import (
     residual_jacobian,
 )
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
+from .solver_settings import SolverSettings
 from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
 from .objectworld import (
     ObjectWorld,
@@ -98,6 +99,7 @@ __all__ = [
     "residual_jacobian",
     "GradIRL",
     "FactIRL",
+    "SolverSettings",
     "pca_dictionary",
     "fit_factorial",
     "transfer_coefficients",

@@ -13,6 +13,8 @@ Examples
     factirl-opt bench fit --help
 """
 
+from __future__ import annotations
+
 import argparse
 import dataclasses
 import json
@@ -21,6 +23,8 @@ import shlex
 import sys
 import textwrap
 import warnings
+from collections.abc import Sequence
+from typing import Any
 
 from ._validation import check_int
 from .exceptions import FactIRLError, ValidationError
@@ -48,7 +52,7 @@ def _integer(name, minimum, also=(), note=""):
     return parse
 
 
-def parse_solver_options(text):
+def parse_solver_options(text: str) -> dict[str, Any]:
     """Solver options from the command line: a JSON object, or comma-separated ``key=value`` pairs.
 
     Values of the pairs are read as JSON when they parse (numbers, ``true``, ``null``, quoted
@@ -84,8 +88,8 @@ def _presets_epilog():
     lines = ["presets (factirl_opt.experiments.presets):"]
     for name, p in PRESETS.items():
         flat = p.flat_solver if p.flat_solver == p.flat_features_solver else f"{p.flat_solver}/{p.flat_features_solver}"
-        solvers = ("" if (p.h_solver, p.d_solver, flat) == ("armijo", "", "armijo") else
-                   f" [solvers: flat {flat}, H {p.h_solver}, D {p.d_solver or 'armijo'}]")
+        h, d = p.solvers.h_solver, p.solvers.d_solver
+        solvers = "" if (h, d, flat) == ("armijo", "", "armijo") else f" [solvers: flat {flat}, H {h}, D {d or 'armijo'}]"
         lines.append(f"  {name:6s} {len(p.points())} points x {p.n_seeds} seed(s): {PRESET_DESCRIPTIONS[name]}{solvers}")
     return "\n".join(lines)
 
@@ -143,12 +147,14 @@ def _add_reproduce(sub):
     rep.add_argument("--scheduler", default=None, metavar="ADDRESS",
                      help="Dask scheduler address (e.g. tcp://host:8786) for --backend dask (default: a local "
                      "cluster of --jobs workers)")
-    rep.add_argument("--no-plot", action="store_true", help="write the tables only (plot later with `factirl-opt plot DIR`)")
+    rep.add_argument("--no-plot", action="store_true",
+                     help="write the tables only (plot later with `factirl-opt plot DIR`); claims.md and figures drawn "
+                     "from earlier tables in DIR are removed either way, so they never sit beside other tables")
     rep.add_argument("--quiet", action="store_true", help="no progress bar")
     rep.set_defaults(handler=_reproduce)
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``factirl-opt`` (sub-commands reproduce, plot, bench)."""
     parser = argparse.ArgumentParser(
         prog=PROG,
@@ -175,25 +181,41 @@ def build_parser():
     return parser
 
 
-def _reproduce(args, argv):
+def _preset(args):
+    """The preset named on the command line, with the options that override its fields."""
     from .experiments.presets import get_preset
-    from .experiments.runner import run_sweep
-    from .experiments.store import RejectedRunWarning
 
-    out = args.out or os.path.join("runs", args.preset)
     preset = get_preset(args.preset)
     overrides = {f: getattr(args, f) for f in ("planner", "lineup") if getattr(args, f) is not None}
     if args.flat_solver is not None:
         overrides.update(flat_solver=args.flat_solver, flat_features_solver=args.flat_solver)
-    if overrides:
-        preset = dataclasses.replace(preset, **overrides)
+    return dataclasses.replace(preset, **overrides) if overrides else preset
+
+
+def _plan(args, preset):
+    """The planned runs: the preset's points x the seeds, with the preset's solvers and the options' overrides."""
+    from .experiments.runner import plan_sweep
+
+    solvers = preset.solvers.with_overrides(args.h_solver, args.h_solver_options, args.d_solver, args.d_solver_options)
+    n_seeds = preset.n_seeds if args.seeds is None else args.seeds
+    return plan_sweep(preset, range(args.seed, args.seed + n_seeds), solvers)
+
+
+def _reproduce(args, argv):
+    """command line -> preset -> planned runs -> execution, store, tables -> claims and figures."""
+    from .experiments.runner import Execution, SolverSubstitutionWarning, run_plan
+    from .experiments.store import RejectedRunWarning
+
+    out = args.out or os.path.join("runs", args.preset)
+    plan = _plan(args, _preset(args))
+    execution = Execution(args.jobs, args.backend, args.scheduler)
+    for note in plan.substitutions:
+        print(f"{PROG}: warning: {note}", file=sys.stderr)
     command = " ".join([PROG] + [shlex.quote(a) for a in argv])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RejectedRunWarning)  # reported below, one line per record
-        res = run_sweep(preset, out, seeds=args.seeds, base_seed=args.seed, jobs=args.jobs, h_solver=args.h_solver,
-                        h_solver_options=args.h_solver_options, d_solver=args.d_solver,
-                        d_solver_options=args.d_solver_options, backend=args.backend, scheduler=args.scheduler,
-                        progress=not args.quiet, command=command)
+        warnings.simplefilter("ignore", SolverSubstitutionWarning)  # reported above
+        res = run_plan(plan, out, execution, progress=not args.quiet, command=command)
     if res["rejected"]:
         print(f"{PROG}: warning: rejected {len(res['rejected'])} run record(s), recomputed:", file=sys.stderr)
         for name, reason in sorted(res["rejected"].items()):
@@ -206,7 +228,7 @@ def _reproduce(args, argv):
     return 0
 
 
-def _claims_and_figures(out):
+def _claims_and_figures(out: str) -> None:
     """Draw figures 1-3 and write ``out/claims.md`` from a reproduce directory."""
     from .experiments.claims import write_claims
     from .experiments.figures import plot_all
@@ -230,7 +252,7 @@ def _bench(args, argv):
     return bench_main(args.bench_args, prog=f"{PROG} bench")
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``factirl-opt`` console script; returns the exit code.
 
     Mistakes in the options give argparse's usage message; errors raised by the library on bad

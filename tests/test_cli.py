@@ -76,11 +76,10 @@ def test_reproduce_then_plot(tmp_path, capsys):
     assert manifest["command"] == f"factirl-opt reproduce --preset tiny --seeds 1 --out {out} --quiet"
     assert manifest["seeds"] == [0]
     assert sorted(os.listdir(out / "figures")) == sorted(f"figure{i}.{e}" for i in (1, 2, 3) for e in ("png", "svg"))
-    # rerun: everything reused; plot alone redraws
+    # rerun: everything reused, the tables rewritten (and what was drawn from them removed); plot alone redraws
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet", "--no-plot"]) == 0
     assert "3 runs (0 computed, 3 reused)" in capsys.readouterr().out
-    os.remove(out / "figures" / "figure2.png")
-    os.remove(out / "claims.md")
+    assert not (out / "claims.md").exists() and os.listdir(out / "figures") == []
     assert main(["plot", str(out)]) == 0
     assert (out / "figures" / "figure2.png").exists() and (out / "claims.md").exists()
     # a truncated table: a clear error naming the file, not a traceback
@@ -203,3 +202,64 @@ def test_console_script_runs_as_a_module():
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert "factirl-opt: error:" in res.stderr and "Traceback" not in res.stderr
+
+
+# --- reliability: substitutions said, stale outputs removed, clear errors for --out -----------
+
+
+def test_mce_learners_with_a_gauss_newton_solver_say_what_they_take_instead(tmp_path, capsys):
+    out = tmp_path / "mce"
+    code = main(["reproduce", "--preset", "tiny", "--seeds", "1", "--lineup", "paper+mce", "--h-solver", "gn-qp-clarabel",
+                 "--d-solver", "gn-cg", "--out", str(out), "--quiet", "--no-plot"])
+    err = capsys.readouterr().err
+    assert code == 0
+    lines = [line for line in err.splitlines() if line.startswith("factirl-opt: warning:")]
+    assert lines[:2] == [
+        "factirl-opt: warning: train: factorial MCE: H-step solver gn-qp-clarabel replaced by lbfgs (a Gauss-Newton "
+        "solver needs residuals; the 'mce' objective has none)",
+        "factirl-opt: warning: train: factorial MCE: D-step solver gn-cg replaced by lbfgs (a Gauss-Newton solver "
+        "needs residuals; the 'mce' objective has none)"]
+    assert len(lines) == 4 and "Traceback" not in err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["substitutions"] == [line.split("warning: ", 1)[1] for line in lines]
+
+
+def test_no_plot_into_another_presets_directory_removes_its_claims_and_figures(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet"]) == 0
+    assert (out / "claims.md").exists() and len(os.listdir(out / "figures")) == 6
+    assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--lineup", "paper+mce", "--out", str(out), "--quiet",
+                 "--no-plot"]) == 0
+    assert not (out / "claims.md").exists() and os.listdir(out / "figures") == []
+    assert main(["plot", str(out)]) == 0  # drawn again from the new tables
+    assert (out / "claims.md").read_text().startswith("# Paper and MCE claims")
+
+
+def test_an_out_that_is_a_file_or_cannot_be_made_is_a_clear_error(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("keep")
+    for out, message in ((f, f"output directory '{f}' exists and is not a directory"),
+                         (f / "sub", f"cannot create the output directory '{f / 'sub'}': Not a directory")):
+        code = main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet", "--no-plot"])
+        err = capsys.readouterr().err
+        assert code == 2 and err == f"factirl-opt: error: {message}" + ("; choose another --out" if out == f else "") + "\n"
+    assert f.read_text() == "keep"
+
+
+def test_a_directory_that_cannot_be_written_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    """A read-only (or full) directory: the lock cannot be created; a PersistenceError names it."""
+    import errno
+
+    out = tmp_path / "ro"
+    real_open = os.open
+
+    def refuse(path, flags, *args, **kwargs):
+        if str(path).startswith(str(out / ".lock")) and flags & os.O_CREAT:
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", refuse)
+    code = main(["reproduce", "--preset", "tiny", "--out", str(out), "--quiet", "--no-plot"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"factirl-opt: error: cannot create the lock '{out / '.lock'}': Permission denied")
+    assert err.count("\n") == 1 and not (out / "results.csv").exists()

@@ -1,7 +1,7 @@
 """Time fitting the paper-scale training set: flat (GradIRL) for all tasks, then factorial with
 every combination of H-step and D-step solvers, side by side in one run.
 
-Paper-scale defaults (section 4, DESIGN section 2): 10x10 grid, 100 tasks whose rewards mix
+Paper-scale defaults (the paper's section 4; docs/maths.md §9): 10x10 grid, 100 tasks whose rewards mix
 k = 5 random primitives (:func:`factirl_opt.synthetic_tasks`: D ~ N(0, 1), H ~ N(0, 1)), 10
 demonstrations of 10 steps per task, beta = 5. The flat learner fits every task (batched);
 the factorial learner (``init="pca"``) starts from the PCA of those flat rewards (passed as
@@ -39,6 +39,7 @@ from ..factirl import FactIRL
 from ..gradirl import GradIRL
 from ..mdp import GridWorld
 from ..planning import Planner, PolicySystem, get_planner
+from ..solver_settings import SolverSettings
 from ..synthetic import synthetic_tasks
 from . import add_option, resolve_settings
 
@@ -143,16 +144,16 @@ def _entry(learner, planner, elapsed, mdp, true_rewards):
     }
 
 
-def _fit_factorial(s, mdp, tasks, flat, h_solver, d_solver):
-    """One factorial fit from the PCA of the flat rewards (the paper's start, unshrunk: every
-    combination starts from the same point), with its own counting planner."""
+def _fit_factorial(s, mdp, tasks, flat, settings):
+    """One factorial fit with the solver ``settings`` from the PCA of the flat rewards (the paper's
+    start, unshrunk: every combination starts from the same point), with its own counting planner."""
     planner = CountingPlanner(get_planner(mdp))
     fact = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], init="pca", pca_shrink=False, max_iter=s["max_iter"],
-                   inner_steps=s["inner_steps"], tol=s["tol"], h_solver=h_solver, d_solver=d_solver, planner=planner,
-                   rng=np.random.default_rng(s["seed"] + 1))
+                   inner_steps=s["inner_steps"], tol=s["tol"], planner=planner, rng=np.random.default_rng(s["seed"] + 1),
+                   **settings.learner_kwargs())
     _, elapsed = _timed(lambda: fact.fit(mdp, tasks.demos, flat_rewards=flat.rewards_))
     entry = _entry(fact, planner, elapsed, mdp, tasks.rewards)
-    entry.update(h_solver=h_solver, d_solver=d_solver, stop_reason=fact.stop_reason_)
+    entry.update(h_solver=settings.h_solver, d_solver=settings.d_solver, stop_reason=fact.stop_reason_)
     return entry
 
 
@@ -188,7 +189,7 @@ def _fit_all(s, pairs):
     flat, t_flat = _timed(lambda: GradIRL(beta=s["beta"], max_iter=s["flat_max_iter"], tol=s["tol"],
                                           planner=planner).fit(mdp, tasks.demos))
     flat_entry = _entry(flat, planner, t_flat, mdp, tasks.rewards)
-    combos = {f"{h}|{d}": _fit_factorial(s, mdp, tasks, flat, h, d) for h, d in pairs}
+    combos = {f"{h}|{d}": _fit_factorial(s, mdp, tasks, flat, SolverSettings(h, d_solver=d)) for h, d in pairs}
     return flat_entry, combos, t_data
 
 

@@ -3,7 +3,7 @@
 Three routes are timed side by side in one run, for one task per timing, on grids of several
 sizes (d = S*A = 4 * size^2 parameters):
 
-- ``adjoint``: :func:`factirl_opt.policy_matching_loss` (one S x S solve, DESIGN section 3);
+- ``adjoint``: :func:`factirl_opt.policy_matching_loss` (one S x S solve, docs/maths.md §3);
 - ``fixed_point``: the paper's eq. (9), ``phi = dQ*/dtheta`` (S*A x d) by fixed-point
   iteration "similar to dynamic programming" (:func:`policy_matching_grad_reference`,
   ``route="fixed_point"``), then ``g^T phi``;

@@ -43,6 +43,7 @@ from ..gradirl import GradIRL
 from ..mdp import GridWorld
 from ..objectives import PolicyMatchingObjective
 from ..problems import weights_problem
+from ..solver_settings import SolverSettings
 from ..synthetic import random_dictionary, synthetic_tasks
 from . import add_option, resolve_settings
 
@@ -117,7 +118,7 @@ def _gn_names(constraint="none"):
 
 def _transfer(mdp, D, demos, true_R, name, iters, beta, **options):
     """FactIRL.transfer with the dictionary fixed; returns the measurements and the coefficients."""
-    model = FactIRL(n_primitives=D.shape[1], beta=beta, tol=0.0, h_solver=name, h_solver_options=options or None)
+    model = FactIRL(n_primitives=D.shape[1], beta=beta, tol=0.0, **SolverSettings(name, options or None).learner_kwargs())
     model.dictionary_ = D
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", solvers.QPFallbackWarning)
@@ -195,8 +196,8 @@ def _part_fit(mdp, s, rng, D):
             max_iter=s["fit_iter"],
             inner_steps=s["inner_steps"],
             tol=0.0,
-            h_solver=name,
             rng=0,
+            **SolverSettings(name).learner_kwargs(),
         )
         t0 = time.perf_counter()
         model.fit(mdp, demos, flat_rewards=flat.rewards_)

@@ -7,14 +7,23 @@ Module map:
   and the factorial learner's default solvers;
 - :mod:`.worlds`: a run's ground truth (world, true tasks, demonstrations, base features) per
   world (``"grid"``, ``"objectworld"``);
+- :mod:`.learner_names`: the learners' names, as constants;
 - :mod:`.learners`: the learner line-ups as data (named builders: ``"paper"``,
-  ``"objectworld"``, and both ``+mce``), the solver settings;
-- :mod:`.runner`: plan the runs of a preset and execute them;
+  ``"objectworld"``, and both ``+mce``), and which solvers each learner takes;
+- :mod:`.runner`: plan the runs of a preset (:func:`plan_sweep`) and execute them
+  (:func:`run_plan`; :func:`run_sweep` does both);
 - :mod:`.store`: the checked run cache, the lock and the manifest;
 - :mod:`.workers`: worker processes that never outlive the sweep;
 - :mod:`.tables`: the CSV tables written from the run records, read back;
 - :mod:`.claims`: each line-up's claims evaluated on the tables;
 - :mod:`.figures`: figures 1-3 drawn from the tables.
+
+The path from the command line to the figures, each stage taking the previous one's output::
+
+    preset = get_preset("quick")                       # or dataclasses.replace(preset, ...)
+    plan = plan_sweep(preset, seeds=[0], solvers=preset.solvers.with_overrides(h_solver="lbfgs"))
+    result = run_plan(plan, "runs/quick", Execution(jobs=2))   # runs, store, tables
+    plot_all("runs/quick"); write_claims("runs/quick", preset)  # figures and claims
 
 From the command line::
 
@@ -26,7 +35,7 @@ From the command line::
 
 from .learners import LINEUPS, Learner, Lineup, get_lineup
 from .presets import PRESETS, Preset, get_preset
-from .runner import RunSpec, plan_runs, run_one, run_sweep
+from .runner import Execution, RunSpec, SweepPlan, plan_runs, plan_sweep, run_one, run_plan, run_sweep
 from .tables import read_csv, write_tables
 from .worlds import WORLDS, GroundTruth, make_ground_truth
 
@@ -46,6 +55,10 @@ __all__ = [
     "LINEUPS",
     "get_lineup",
     "RunSpec",
+    "SweepPlan",
+    "Execution",
+    "plan_sweep",
+    "run_plan",
     "TRAIN_LEARNERS",
     "TEST_LEARNERS",
     "plan_runs",

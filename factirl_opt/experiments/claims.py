@@ -7,14 +7,23 @@ same demonstrations) is reported next to it, so a reader sees how robust the ord
 :data:`CLAIMS` maps a line-up's name to its claims.
 """
 
+from __future__ import annotations
+
 import os
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..exceptions import ValidationError
-from .tables import read_results, write_atomic
+from ..files import write_text_atomic
+from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+                            FACTORIAL_MCE_FEATURES, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
+                            FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
+                            FLAT_PCA_FEATURES)
+from .tables import read_results
 
-__all__ = ["CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims",
+__all__ = ["CLAIMS_FILE", "CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims",
            "mce_claims"]
 
 
@@ -64,80 +73,89 @@ def _sweep_claims(rows, preset, split, a, b, claim, source, tasks_source=None):
                   for nn in sorted(preset.tasks_sweep) if nn != n]
 
 
-def paper_claims(rows, preset):
+def paper_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
     """The claims of the paper's section 4 (line-up ``"paper"``)."""
     n, m = preset.default_tasks, preset.default_demos
     tasks = sorted(preset.tasks_sweep)
     out = [
-        _less(rows, "train", "factorial", "flat", n, m, "train: factorial beats flat", "4.1, fig. 1"),
-        _less(rows, "train", "factorial", "flat, PCA features", n, m,
+        _less(rows, "train", FACTORIAL, FLAT, n, m, "train: factorial beats flat", "4.1, fig. 1"),
+        _less(rows, "train", FACTORIAL, FLAT_PCA_FEATURES, n, m,
               "train: PCA features alone are not a good dictionary (factorial beats them)", "4.1, fn. 2, sec. 5"),
-        _less(rows, "train", "factorial", "factorial, random init", n, m,
+        _less(rows, "train", FACTORIAL, FACTORIAL_RANDOM_INIT, n, m,
               "train: PCA is an efficient initialisation (beats random init)", "fn. 2, fig. 1"),
-        _less(rows, "train", "flat, ground truth", "factorial", n, m, "train: ground-truth features are the floor", "fig. 1"),
-        _decreasing(rows, "train", "factorial", m, tasks, "train: factorial improves with the number of tasks",
+        _less(rows, "train", FLAT_GROUND_TRUTH, FACTORIAL, n, m, "train: ground-truth features are the floor", "fig. 1"),
+        _decreasing(rows, "train", FACTORIAL, m, tasks, "train: factorial improves with the number of tasks",
                     "4.1, fig. 1"),
     ]
-    out += _sweep_claims(rows, preset, "train", "factorial", "flat", "train: factorial beats flat",
+    out += _sweep_claims(rows, preset, "train", FACTORIAL, FLAT, "train: factorial beats flat",
                          "fig. 1 caption: moderate demos per task", "fig. 1 caption: many tasks")
     out += [
-        _less(rows, "test", "factorial", "flat", n, m, "test: factorial beats flat from scratch", "4.2, fig. 2"),
-        _less(rows, "test", "factorial", "flat, PCA features", n, m, "test: factorial beats flat, PCA features", "4.2"),
-        _less(rows, "test", "factorial", "flat, features from ex.", n, m, "test: factorial beats flat, features from ex.",
+        _less(rows, "test", FACTORIAL, FLAT, n, m, "test: factorial beats flat from scratch", "4.2, fig. 2"),
+        _less(rows, "test", FACTORIAL, FLAT_PCA_FEATURES, n, m, "test: factorial beats flat, PCA features", "4.2"),
+        _less(rows, "test", FACTORIAL, FLAT_FEATURES_FROM_EXAMPLES, n, m, "test: factorial beats flat, features from ex.",
               "4.2"),
-        _less(rows, "test", "flat, ground truth", "factorial", n, m, "test: ground-truth features are the floor",
+        _less(rows, "test", FLAT_GROUND_TRUTH, FACTORIAL, n, m, "test: ground-truth features are the floor",
               "(our addition)"),
-        _decreasing(rows, "test", "factorial", m, tasks, "test: factorial improves with the number of training tasks",
+        _decreasing(rows, "test", FACTORIAL, m, tasks, "test: factorial improves with the number of training tasks",
                     "4.2, fig. 2"),
     ]
-    return out + _sweep_claims(rows, preset, "test", "factorial", "flat", "test: factorial beats flat", "fig. 2")
+    return out + _sweep_claims(rows, preset, "test", FACTORIAL, FLAT, "test: factorial beats flat", "fig. 2")
 
 
-def objectworld_claims(rows, preset):
-    """Issue 11's claims on the multi-task Objectworld (line-up ``"objectworld"``)."""
+#: the "where" column of the claims made by this project's line-ups rather than by the paper
+OBJECTWORLD_SOURCE = "(Objectworld benchmark)"
+MCE_SOURCE = "(MCE line-up)"
+
+
+def objectworld_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
+    """The claims on the multi-task Objectworld (line-up ``"objectworld"``)."""
     n, m = preset.default_tasks, preset.default_demos
-    tasks, source = sorted(preset.tasks_sweep), "issue 11"
+    tasks, source = sorted(preset.tasks_sweep), OBJECTWORLD_SOURCE
     out = []
     for split in ("train", "test"):
         out += [
-            _less(rows, split, "factorial, features", "flat, features", n, m,
+            _less(rows, split, FACTORIAL_FEATURES, FLAT_FEATURES, n, m,
                   f"{split}: factorial on features beats flat on features", source),
-            _less(rows, split, "factorial, features", "flat", n, m, f"{split}: factorial on features beats flat tabular",
+            _less(rows, split, FACTORIAL_FEATURES, FLAT, n, m, f"{split}: factorial on features beats flat tabular",
                   source),
-            _less(rows, split, "factorial, features", "factorial", n, m,
+            _less(rows, split, FACTORIAL_FEATURES, FACTORIAL, n, m,
                   f"{split}: factorial on features beats factorial tabular", "(our addition)"),
-            _less(rows, split, "flat, ground truth", "factorial, features", n, m,
+            _less(rows, split, FLAT_GROUND_TRUTH, FACTORIAL_FEATURES, n, m,
                   f"{split}: the true primitives as features are the floor", "(our addition)"),
-            _decreasing(rows, split, "factorial, features", m, tasks,
+            _decreasing(rows, split, FACTORIAL_FEATURES, m, tasks,
                         f"{split}: factorial on features improves with the number of training tasks", source),
         ]
-    out.insert(4, _less(rows, "train", "factorial, features", "factorial, features, random init", n, m,
+    out.insert(4, _less(rows, "train", FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, n, m,
                         "train: PCA is an efficient initialisation on features (beats random init)", "(paper's fn. 2)"))
-    return out + _sweep_claims(rows, preset, "test", "factorial, features", "flat, features",
+    return out + _sweep_claims(rows, preset, "test", FACTORIAL_FEATURES, FLAT_FEATURES,
                                "test: factorial on features beats flat on features", source)
 
 
-def mce_claims(rows, preset, suffix=""):
-    """Issue 12's claims: the factorial MCE learner beats the flat MCE learner (names + ``suffix``)."""
+def mce_claims(rows: Sequence[dict], preset: Any, flat: str = FLAT_MCE, fact: str = FACTORIAL_MCE) -> list[dict | None]:
+    """The MCE claims: the factorial MCE learner ``fact`` beats the flat MCE learner ``flat``."""
     n, m = preset.default_tasks, preset.default_demos
-    flat, fact = f"flat MCE{suffix}", f"factorial MCE{suffix}"
-    out = [_less(rows, split, fact, flat, n, m, f"{split}: {fact} beats {flat}", "issue 12") for split in ("train", "test")]
+    source = MCE_SOURCE
+    out = [_less(rows, split, fact, flat, n, m, f"{split}: {fact} beats {flat}", source) for split in ("train", "test")]
     out.append(_decreasing(rows, "test", fact, m, sorted(preset.tasks_sweep),
-                           f"test: {fact} improves with the number of training tasks", "issue 12"))
-    return out + _sweep_claims(rows, preset, "test", fact, flat, f"test: {fact} beats {flat}", "issue 12")
+                           f"test: {fact} improves with the number of training tasks", source))
+    return out + _sweep_claims(rows, preset, "test", fact, flat, f"test: {fact} beats {flat}", source)
 
+
+#: the claims' file in a reproduce directory
+CLAIMS_FILE = "claims.md"
 
 #: line-up name -> (what the claims are, the function evaluating them on result rows)
-CLAIMS = {
+CLAIMS: dict[str, tuple[str, Callable[[Sequence[dict], Any], list]]] = {
     "paper": ("Paper claims", paper_claims),
-    "objectworld": ("Objectworld claims (issue 11)", objectworld_claims),
+    "objectworld": ("Objectworld claims", objectworld_claims),
     "paper+mce": ("Paper and MCE claims", lambda rows, preset: paper_claims(rows, preset) + mce_claims(rows, preset)),
-    "objectworld+mce": ("Objectworld and MCE claims (issues 11, 12)",
-                        lambda rows, preset: objectworld_claims(rows, preset) + mce_claims(rows, preset, ", features")),
+    "objectworld+mce": ("Objectworld and MCE claims",
+                        lambda rows, preset: objectworld_claims(rows, preset)
+                        + mce_claims(rows, preset, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES)),
 }
 
 
-def evaluate_claims(rows, preset):
+def evaluate_claims(rows: Sequence[dict], preset: Any) -> list[dict]:
     """The claims of the preset's line-up (:data:`CLAIMS`) evaluated on result rows.
 
     Parameters
@@ -160,7 +178,7 @@ def evaluate_claims(rows, preset):
     return [c for c in claims(rows, preset) if c is not None]
 
 
-def claims_markdown(claims):
+def claims_markdown(claims: Sequence[dict]) -> str:
     """A markdown table of :func:`evaluate_claims`'s output."""
     lines = ["| claim | where | point | ours: mean deviation ± std over seeds | holds | seeds |",
              "|---|---|---|---|---|---|"]
@@ -170,14 +188,14 @@ def claims_markdown(claims):
     return "\n".join(lines) + "\n"
 
 
-def write_claims(out, preset):
+def write_claims(out: str | os.PathLike, preset: Any) -> str:
     """Evaluate the claims on ``out/results.csv`` and write ``out/claims.md``; returns its path."""
     rows = read_results(out)
     solver = sorted({r["h_solver"] for r in rows})[0]
     rows = [r for r in rows if r["h_solver"] == solver]
-    path = os.path.join(out, "claims.md")
+    path = os.path.join(out, CLAIMS_FILE)
     title = CLAIMS.get(preset.lineup, ("Claims",))[0]
-    write_atomic(path, f"# {title} vs this run (H-step solver: {solver})\n\n"
+    write_text_atomic(path, f"# {title} vs this run (H-step solver: {solver})\n\n"
                  "Deviation from the optimal score (eq. 13), lower is better. *holds*: the means are ordered as "
                  "the claim says; *seeds*: seeds in which the paired comparison holds.\n\n"
                  + claims_markdown(evaluate_claims(rows, preset)))

@@ -15,36 +15,46 @@ A figure shows a sweep's panel only when the sweep has at least two points (Obje
 presets sweep the number of training tasks only).
 """
 
+from __future__ import annotations
+
 import json
 import os
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from ..exceptions import ValidationError
+from ..files import atomic_write, os_error
 from ..mdp import GridWorld
 from ..objectworld import make_objectworld, plot_objectworld
+from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+                            FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES, FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH,
+                            FLAT_MCE, FLAT_PCA_FEATURES)
 from .learners import get_lineup
 from .tables import load_preset_from_manifest, read_results
 
-__all__ = ["plot_sweeps", "plot_value_functions", "plot_all"]
+__all__ = ["plot_sweeps", "plot_value_functions", "plot_all", "figure_files", "FIGURES"]
 
 #: one fixed style per learner name, shared by figures 1 and 2
-STYLES = {
-    "flat": dict(color="#d62728", marker="o", linestyle="-"),
-    "factorial": dict(color="#1f77b4", marker="s", linestyle="-", linewidth=2.2),
-    "factorial, random init": dict(color="#17becf", marker="D", linestyle="--"),
-    "flat, ground truth": dict(color="#2ca02c", marker="^", linestyle=":"),
-    "flat, PCA features": dict(color="#ff7f0e", marker="v", linestyle="-."),
-    "flat, features from ex.": dict(color="#9467bd", marker="P", linestyle="--"),
-    "flat, features": dict(color="#e377c2", marker="o", linestyle="--"),
-    "factorial, features": dict(color="#08306b", marker="s", linestyle="-", linewidth=2.2),
-    "factorial, features, random init": dict(color="#6baed6", marker="D", linestyle="--"),
-    "flat MCE": dict(color="#8c564b", marker="o", linestyle=":"),
-    "factorial MCE": dict(color="#bcbd22", marker="s", linestyle="-", linewidth=2.2),
+STYLES: dict[str, dict[str, Any]] = {
+    FLAT: dict(color="#d62728", marker="o", linestyle="-"),
+    FACTORIAL: dict(color="#1f77b4", marker="s", linestyle="-", linewidth=2.2),
+    FACTORIAL_RANDOM_INIT: dict(color="#17becf", marker="D", linestyle="--"),
+    FLAT_GROUND_TRUTH: dict(color="#2ca02c", marker="^", linestyle=":"),
+    FLAT_PCA_FEATURES: dict(color="#ff7f0e", marker="v", linestyle="-."),
+    FLAT_FEATURES_FROM_EXAMPLES: dict(color="#9467bd", marker="P", linestyle="--"),
+    FLAT_FEATURES: dict(color="#e377c2", marker="o", linestyle="--"),
+    FACTORIAL_FEATURES: dict(color="#08306b", marker="s", linestyle="-", linewidth=2.2),
+    FACTORIAL_FEATURES_RANDOM_INIT: dict(color="#6baed6", marker="D", linestyle="--"),
+    FLAT_MCE: dict(color="#8c564b", marker="o", linestyle=":"),
+    FACTORIAL_MCE: dict(color="#bcbd22", marker="s", linestyle="-", linewidth=2.2),
 }
 
 #: figure 3's row labels of the paper's learners (other learners are labelled by their names)
-ROW_NAMES = {"flat": "flat learner", "factorial": "factorial learner"}
+ROW_NAMES = {FLAT: "flat learner", FACTORIAL: "factorial learner"}
+#: the figures :func:`plot_all` writes into ``OUT/figures``, as ``(stem, formats)``
+FIGURES = tuple((f"figure{i}", ("png", "svg")) for i in (1, 2, 3))
 
 
 def _pyplot():
@@ -67,7 +77,12 @@ def _series(rows, learner, x_name, fixed_name, fixed_value):
     return np.array(xs), mean, std, [len(pts[x]) for x in xs]
 
 
-def plot_sweeps(rows, preset, split, path_base, h_solver=None):
+def figure_files(out: str | os.PathLike) -> list[str]:
+    """The paths of every figure :func:`plot_all` may write into ``out/figures``."""
+    return [os.path.join(os.fspath(out), "figures", f"{stem}.{ext}") for stem, formats in FIGURES for ext in formats]
+
+
+def plot_sweeps(rows: Sequence[dict], preset: Any, split: str, path_base: str, h_solver: str | None = None) -> list[str]:
     """Figure 1 (``split="train"``) or 2 (``"test"``): deviation along both sweeps.
 
     Parameters
@@ -149,12 +164,15 @@ def _panels(rows, preset):
 
 
 def _save(plt, fig, path_base, dpi):
-    """Write ``fig`` as PNG and SVG next to each other, close it, return the two paths."""
+    """Write ``fig`` as PNG and SVG next to each other (atomically), close it, return the two paths."""
     written = []
-    for ext in ("png", "svg"):
-        fig.savefig(f"{path_base}.{ext}", dpi=dpi)
-        written.append(f"{path_base}.{ext}")
-    plt.close(fig)
+    try:
+        for ext in ("png", "svg"):
+            with atomic_write(f"{path_base}.{ext}", binary=True) as fh:
+                fig.savefig(fh, format=ext, dpi=dpi)
+            written.append(f"{path_base}.{ext}")
+    finally:
+        plt.close(fig)
     return written
 
 
@@ -192,7 +210,8 @@ def _map_style(data, size):
     return draw, "#17becf", "dark is high"
 
 
-def plot_value_functions(data, path_base, point=None, learners=("flat", "factorial")):
+def plot_value_functions(data: dict, path_base: str, point: tuple[int, int] | None = None,
+                         learners: Sequence[str] = (FLAT, FACTORIAL)) -> list[str]:
     """Figure 3: value-function heat maps of 4 test tasks (rows: the truth, then each learner).
 
     Parameters
@@ -241,16 +260,20 @@ def plot_value_functions(data, path_base, point=None, learners=("flat", "factori
     return _save(plt, fig, path_base, dpi=110)
 
 
-def plot_all(out):
+def plot_all(out: str | os.PathLike) -> list[str]:
     """Draw figures 1-3 into ``out/figures`` from a reproduce directory; returns the files written.
 
-    Reads ``out/results.csv``, ``out/manifest.json`` (the preset) and ``out/figure3.json``.
+    Reads ``out/results.csv``, ``out/manifest.json`` (the preset) and ``out/figure3.json``;
+    without figure3.json, a figure 3 drawn from earlier tables is removed.
     """
     out = os.fspath(out)
     rows = read_results(out)
     preset = load_preset_from_manifest(out)
     fig_dir = os.path.join(out, "figures")
-    os.makedirs(fig_dir, exist_ok=True)
+    try:
+        os.makedirs(fig_dir, exist_ok=True)
+    except OSError as exc:
+        raise os_error(exc, "create the figures directory", fig_dir) from exc
     written = plot_sweeps(rows, preset, "train", os.path.join(fig_dir, "figure1"))
     written += plot_sweeps(rows, preset, "test", os.path.join(fig_dir, "figure2"))
     f3 = os.path.join(out, "figure3.json")
@@ -263,4 +286,9 @@ def plot_all(out):
         written += plot_value_functions(data, os.path.join(fig_dir, "figure3"),
                                         point=(preset.default_tasks, preset.default_demos),
                                         learners=get_lineup(preset.lineup).value_maps)
+    else:
+        for ext in FIGURES[2][1]:
+            path = os.path.join(fig_dir, f"{FIGURES[2][0]}.{ext}")
+            if os.path.exists(path):
+                os.unlink(path)
     return written

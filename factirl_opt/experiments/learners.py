@@ -1,7 +1,8 @@
 """The learners of the experiments, as data: named line-ups of builders.
 
 A *line-up* is an ordered table of :class:`Learner` rows ``(split, name, build, version,
-needs)``. ``build(gt, preset, ctx)`` fits one learner on the ground truth's ``split`` tasks and
+needs, per_seed, objective, solvers)``, named by the constants of :mod:`.learner_names`.
+``build(gt, preset, ctx)`` fits one learner on the ground truth's ``split`` tasks and
 returns a :class:`Fit` (learnt rewards, final loss per task, Q* evaluations); the runner times
 and scores it. Rows run in table order and share a :class:`RunContext` (the run's solver
 settings, random streams, and what earlier rows learnt), so a learner that builds on another
@@ -23,7 +24,7 @@ test tasks (``split = "test"``, one demonstration each)
     learnt flat training rewards, chosen at random, as features); ``flat, PCA features`` (the
     training PCA components); ``flat, ground truth`` (the floor).
 
-Line-up ``"objectworld"`` (issue 11; the world's base features are Levine's discrete distance
+Line-up ``"objectworld"`` (the world's base features are Levine's discrete distance
 features, the true dictionary ELIRL's primitives):
 
 train tasks
@@ -36,32 +37,39 @@ test tasks (one demonstration each)
     ``flat``; ``flat, features``; ``factorial`` and ``factorial, features`` (``transfer`` of
     the training dictionaries); ``flat, ground truth``.
 
-Line-ups ``"paper+mce"`` and ``"objectworld+mce"`` (issue 12): the line-up, plus a flat and a
+Line-ups ``"paper+mce"`` and ``"objectworld+mce"``: the line-up, plus a flat and a
 factorial learner on the maximum causal entropy likelihood (``objective="mce"``), train and
 test: ``flat MCE`` (GradIRL), ``factorial MCE`` (FactIRL from the PCA of ``flat MCE``'s
 rewards; its ``transfer`` on the test tasks); on Objectworld both on the base features
 (``flat MCE, features``, ``factorial MCE, features``). The Gauss-Newton solvers need a
 least-squares objective: where a run names one, the MCE learners take L-BFGS steps
-(:data:`GRADIENT_FALLBACK`, :func:`factorial_options`).
+(:data:`GRADIENT_FALLBACK`), and :func:`substitutions` names every such replacement before the
+runs start (the command line prints it and the manifest records it).
 
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
 
+from __future__ import annotations
+
 import collections
 import dataclasses
-import json
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 import solvers
 
-from ..exceptions import ValidationError, translate_solver_errors
+from ..exceptions import ValidationError
 from ..factirl import FactIRL, pca_dictionary
 from ..gradirl import GradIRL, check_solver_applies
+from ..solver_settings import SolverSettings
+from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+                            FACTORIAL_MCE_FEATURES, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
+                            FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
+                            FLAT_PCA_FEATURES)
 
-__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options",
-           "solver_settings", "decode_options"]
+__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options", "flat_solver",
+           "factorial_solvers", "substitutions", "SOLVER_ROLES"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
@@ -72,6 +80,10 @@ DEFAULT_OBJECTIVE = "policy-matching"
 #: the solver a learner on an objective without residuals (``"mce"``) takes where the run or
 #: preset names a Gauss-Newton one: the quasi-Newton counterpart, which needs only gradients
 GRADIENT_FALLBACK = "lbfgs"
+
+#: which solvers a learner row takes: the preset's ``flat_solver`` (GradIRL, tabular), its
+#: ``flat_features_solver`` (GradIRL on features), or the run's :class:`SolverSettings` (FactIRL)
+SOLVER_ROLES = ("flat", "flat features", "factorial")
 
 #: the learners' random streams, spawned in this order from the ground truth's ``learner_rng``
 #: (append new names at the end: the existing streams then stay the same)
@@ -86,9 +98,9 @@ class Learner:
     ----------
     split : {"train", "test"}
     name : str
-        The learner's name in the tables and figures.
+        The learner's name in the tables and figures (a constant of :mod:`.learner_names`).
     build : callable
-        ``build(gt, preset, ctx) -> Fit``.
+        ``build(gt, preset, ctx) -> Fit``; the row being built is ``ctx.learner``.
     version : int
         Version of the builder's behaviour (part of a cached run's key).
     needs : tuple of (split, name)
@@ -98,14 +110,26 @@ class Learner:
         row that reads nothing from training: ``flat`` from scratch, on fixed features): the
         runner fits it once per seed and worker and scores it in every run of that seed
         (:func:`.runner.run_one`'s ``reuse``).
+    objective : str
+        The loss the learner fits (``"policy-matching"``, eq. 5; ``"mce"``).
+    solvers : {"flat", "flat features", "factorial"}
+        Which solvers it takes (:data:`SOLVER_ROLES`); where they do not apply to the objective
+        it takes :data:`GRADIENT_FALLBACK` (:func:`substitutions`).
     """
 
     split: str
     name: str
-    build: Callable
+    build: Callable[..., Fit]
     version: int = 1
     needs: tuple = ()
     per_seed: bool = False
+    objective: str = DEFAULT_OBJECTIVE
+    solvers: str = "flat"
+
+    def __post_init__(self) -> None:
+        if self.solvers not in SOLVER_ROLES:
+            raise ValidationError(f"learner {self.split}: {self.name}: solvers must be one of "
+                                  f"{', '.join(SOLVER_ROLES)}; got {self.solvers!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,7 +145,7 @@ class Lineup:
     value_maps: tuple = ()
     worlds: tuple = ()
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         seen = set()
         for lr in self.learners:
             if lr.split not in ("train", "test"):
@@ -139,11 +163,11 @@ class Lineup:
             if ("test", name) not in seen:
                 raise ValidationError(f"line-up {self.name!r}: value map of unknown test learner {name!r}")
 
-    def names(self, split):
+    def names(self, split: str) -> tuple[str, ...]:
         """Learner names of one split, in line-up order."""
         return tuple(lr.name for lr in self.learners if lr.split == split)
 
-    def fingerprint(self):
+    def fingerprint(self) -> list[list]:
         """``[[split, name, version], ...]``: what identifies the line-up in a cached run."""
         return [[lr.split, lr.name, lr.version] for lr in self.learners]
 
@@ -155,8 +179,8 @@ class RunContext:
     ----------
     spec : RunSpec
         The run (point, seed, solver settings).
-    split : str
-        Split of the row being built (set by the runner).
+    learner : Learner
+        The row being built (set by the runner); ``split`` is its split.
     rngs : dict
         Named random streams (:data:`STREAMS`), spawned from ``gt.learner_rng``.
     rewards : dict
@@ -165,72 +189,30 @@ class RunContext:
         Fitted estimators that later rows build on (e.g. ``"factorial"``).
     """
 
-    def __init__(self, gt, spec):
+    def __init__(self, gt: Any, spec: Any) -> None:
         self.spec = spec
-        self.split = None
+        self.learner: Learner | None = None
         self.rngs = dict(zip(STREAMS, gt.learner_rng.spawn(len(STREAMS))))
-        self.rewards = {}
-        self.models = {}
-        self._shared = {}
+        self.rewards: dict = {}
+        self.models: dict = {}
+        self._shared: dict = {}
 
-    def shared(self, name, make):
+    @property
+    def split(self) -> str | None:
+        """Split of the row being built."""
+        return None if self.learner is None else self.learner.split
+
+    def shared(self, name: str, make: Callable[[], Any]) -> Any:
         """``make()``, computed once per run and shared by the rows that ask for ``name``."""
         if name not in self._shared:
             self._shared[name] = make()
         return self._shared[name]
 
 
-def _canonical(options):
-    return json.dumps(options, sort_keys=True, separators=(",", ":")) if options else ""
+# --- which solvers a row takes ------------------------------------------------------------
 
 
-def decode_options(text):
-    """Solver options stored as canonical JSON (``""``: none), as a dict."""
-    return json.loads(text) if text else {}
-
-
-
-def _check_options(options, name):
-    if options is None:
-        return {}
-    if not isinstance(options, dict) or not all(isinstance(k, str) and k for k in options):
-        raise ValidationError(f"{name} must be a dict of option names to values; got {options!r}")
-    try:
-        json.dumps(options)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{name} must hold plain values (numbers, strings, booleans, lists); got {options!r}") from None
-    return options
-
-
-def solver_settings(h_solver="armijo", h_solver_options=None, d_solver=None, d_solver_options=None):
-    """Validate the factorial learner's solver settings; returns them as RunSpec (and Preset) fields.
-
-    Every name must be registered (:func:`solvers.available_solvers`) and accept its options;
-    a D-step solver needs a FactIRL with a ``d_solver`` parameter.
-
-    Returns
-    -------
-    dict
-        ``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options``: the names (``""``
-        for FactIRL's default D-step) and the options as canonical JSON (``""``: none).
-    """
-    out = {}
-    for role, name, options in (("h", h_solver, h_solver_options), ("d", d_solver, d_solver_options)):
-        options = _check_options(options, f"{role}_solver_options")
-        if role == "d" and name is None:
-            if options:
-                raise ValidationError("d_solver_options given without d_solver")
-            out.update(d_solver="", d_solver_options="")
-            continue
-        if not isinstance(name, str) or not name:
-            raise ValidationError(f"{role}_solver must be a registered solver name; got {name!r}")
-        with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
-            solvers.get_solver(name, **options)
-        out.update({f"{role}_solver": name, f"{role}_solver_options": _canonical(options)})
-    return out
-
-
-def _applies(name, options, objective):
+def _applies(name: str, options: dict, objective: str) -> bool:
     """Whether the registered solver ``name`` applies to ``objective`` (Gauss-Newton ones need residuals)."""
     try:
         check_solver_applies(solvers.get_solver(name, **options), objective, "solver")
@@ -239,39 +221,78 @@ def _applies(name, options, objective):
     return True
 
 
-def factorial_options(preset, spec, objective=DEFAULT_OBJECTIVE):
+def _replaced(what: str, name: str, objective: str) -> str:
+    return (f"{what} {name} replaced by {GRADIENT_FALLBACK} (a Gauss-Newton solver needs residuals; the "
+            f"{objective!r} objective has none)")
+
+
+def flat_solver(learner: Learner, preset: Any) -> tuple[str, str | None]:
+    """The step solver of a GradIRL row, and a note naming the substitution if there is one."""
+    name = preset.flat_solver if learner.solvers == "flat" else preset.flat_features_solver
+    if _applies(name, {}, learner.objective):
+        return name, None
+    return GRADIENT_FALLBACK, _replaced("solver", name, learner.objective)
+
+
+def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[SolverSettings, list[str]]:
+    """The solver settings a FactIRL on ``objective`` takes, and notes naming the substitutions.
+
+    A learner on an objective without residuals (``"mce"``) cannot take a Gauss-Newton solver
+    (``gn-qp-*``, ``gn-cg``): each such H- or D-step solver is replaced by
+    :data:`GRADIENT_FALLBACK` without options (its table rows keep the run's solver label).
+    """
+    h, h_opts, d, d_opts, notes = (settings.h_solver, settings.h_solver_options, settings.d_solver,
+                                   settings.d_solver_options, [])
+    if not _applies(h, settings.h_options, objective):
+        notes.append(_replaced("H-step solver", h, objective))
+        h, h_opts = GRADIENT_FALLBACK, ""
+    if d and not _applies(d, settings.d_options, objective):
+        notes.append(_replaced("D-step solver", d, objective))
+        d, d_opts = GRADIENT_FALLBACK, ""
+    return (SolverSettings(h, h_opts, d, d_opts) if notes else settings), notes
+
+
+def substitutions(lineup: Lineup, preset: Any, settings: SolverSettings) -> list[str]:
+    """Every solver a row of the line-up takes instead of the one the preset or run names.
+
+    Returns
+    -------
+    list of str
+        One line per substitution, ``"<split>: <learner>: <what> replaced by <solver> (why)"``.
+    """
+    out = []
+    for lr in lineup.learners:
+        if lr.solvers == "factorial":
+            notes = factorial_solvers(settings, lr.objective)[1]
+        else:
+            notes = [note for note in flat_solver(lr, preset)[1:] if note]
+        out += [f"{lr.split}: {lr.name}: {note}" for note in notes]
+    return out
+
+
+def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> dict[str, Any]:
     """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
 
-    Solver options and the D-step solver are passed only when the run names them, so a run
-    with the defaults builds exactly the FactIRL it always did. A learner on an objective
-    without residuals (``"mce"``) cannot take a Gauss-Newton solver (``gn-qp-*``, ``gn-cg``):
-    where the run names one, that learner takes :data:`GRADIENT_FALLBACK`'s steps instead
-    (its table rows keep the run's solver label).
+    Solver options and the D-step solver are passed only when the run names them
+    (:meth:`SolverSettings.learner_kwargs`), so a run with the defaults builds exactly the
+    FactIRL it always did; solvers that do not apply to ``objective`` are replaced
+    (:func:`factorial_solvers`).
     """
     kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
               tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
               inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
-    roles = [("h", spec.h_solver, spec.h_options())]
-    if spec.d_solver:
-        roles.append(("d", spec.d_solver, spec.d_options()))
-    for role, name, options in roles:
-        if not _applies(name, options, objective):
-            name, options = GRADIENT_FALLBACK, {}
-        kw[f"{role}_solver"] = name
-        if options:
-            kw[f"{role}_solver_options"] = options
+    kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
     return kw
 
 
-# --- builders: (gt, preset, ctx) -> Fit ---------------------------------------------------
+# --- builders: (gt, preset, ctx) -> Fit; the row being built is ctx.learner -----------------
 
 
-def _gradirl(gt, preset, ctx, features=None, objective=DEFAULT_OBJECTIVE):
-    solver = preset.flat_solver if features is None else preset.flat_features_solver
-    solver = solver if _applies(solver, {}, objective) else GRADIENT_FALLBACK
+def _gradirl(gt, preset, ctx, features=None):
+    solver, _ = flat_solver(ctx.learner, preset)
     model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, solver=solver,
-                    objective=objective, planner=preset.planner)
+                    objective=ctx.learner.objective, planner=preset.planner)
     model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
@@ -280,9 +301,10 @@ def _pca_features(gt, preset, ctx):
     """The first components of the uncentred PCA of the flat training rewards, (S*A, k)."""
 
     def make():
-        flat = ctx.rewards["train", "flat"]
+        flat_rewards = ctx.rewards["train", FLAT]
         d = gt.mdp.n_params
-        D, _ = pca_dictionary(flat.reshape(flat.shape[0], d), min(preset.n_pca_components, d), rng=ctx.rngs["pca"])
+        D, _ = pca_dictionary(flat_rewards.reshape(flat_rewards.shape[0], d), min(preset.n_pca_components, d),
+                              rng=ctx.rngs["pca"])
         return D
 
     return ctx.shared("pca_features", make)
@@ -305,24 +327,30 @@ def flat_pca_features(gt, preset, ctx):
 
 def flat_features_from_examples(gt, preset, ctx):
     """GradIRL with ``n_features_from_examples`` learnt flat training rewards as features."""
-    flat_train = ctx.rewards["train", "flat"]
+    flat_train = ctx.rewards["train", FLAT]
     n = flat_train.shape[0]
     n_ex = min(preset.n_features_from_examples, n)
     chosen = np.sort(ctx.rngs["examples"].choice(n, size=n_ex, replace=False))
     return _gradirl(gt, preset, ctx, flat_train[chosen].reshape(n_ex, gt.mdp.n_params).T)
 
 
-def _fit_factorial(gt, preset, ctx, name, init, flat=None, features=None, objective=DEFAULT_OBJECTIVE):
-    """Fit a FactIRL on the training tasks, keep it in ``ctx.models[name]`` for its transfer.
+def flat_features(gt, preset, ctx):
+    """GradIRL on the world's base features (Objectworld: the discrete distance features)."""
+    return _gradirl(gt, preset, ctx, gt.features)
+
+
+def _fit_factorial(gt, preset, ctx, init, flat=None, features=None):
+    """Fit a FactIRL on the training tasks, keep it in ``ctx.models`` (under the row's name) for its transfer.
 
     ``init="pca"`` starts from the uncentred PCA of the rewards learnt by the training row
     ``flat`` (random stream ``"pca"``); ``init="random"`` from a random start (stream
     ``"random_init"``). ``features``: the base features of ``R_i = Phi D h_i`` (None: tabular).
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
-    model = FactIRL(init=init, rng=rng, features=features, **factorial_options(preset, ctx.spec, objective))
+    model = FactIRL(init=init, rng=rng, features=features,
+                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective))
     model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
-    ctx.models[name] = model
+    ctx.models[ctx.learner.name] = model
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
 
@@ -335,68 +363,52 @@ def _transfer(gt, ctx, name):
 
 def factorial(gt, preset, ctx):
     """FactIRL from the PCA of the flat training rewards (the paper's heuristic)."""
-    return _fit_factorial(gt, preset, ctx, "factorial", "pca", flat="flat")
+    return _fit_factorial(gt, preset, ctx, "pca", flat=FLAT)
 
 
 def factorial_random_init(gt, preset, ctx):
     """FactIRL from a random start."""
-    return _fit_factorial(gt, preset, ctx, "factorial, random init", "random")
+    return _fit_factorial(gt, preset, ctx, "random")
 
 
 def factorial_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the training dictionary to the test tasks."""
-    return _transfer(gt, ctx, "factorial")
-
-
-def flat_features(gt, preset, ctx):
-    """GradIRL on the world's base features (Objectworld: the discrete distance features)."""
-    return _gradirl(gt, preset, ctx, gt.features)
+    return _transfer(gt, ctx, FACTORIAL)
 
 
 def factorial_features(gt, preset, ctx):
     """FactIRL on the world's base features, from the PCA of ``flat, features``'s weights."""
-    return _fit_factorial(gt, preset, ctx, "factorial, features", "pca", flat="flat, features", features=gt.features)
+    return _fit_factorial(gt, preset, ctx, "pca", flat=FLAT_FEATURES, features=gt.features)
 
 
 def factorial_features_random_init(gt, preset, ctx):
     """FactIRL on the world's base features from a random start."""
-    return _fit_factorial(gt, preset, ctx, "factorial, features, random init", "random", features=gt.features)
+    return _fit_factorial(gt, preset, ctx, "random", features=gt.features)
 
 
 def factorial_features_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the feature-space dictionary to the test tasks."""
-    return _transfer(gt, ctx, "factorial, features")
-
-
-def flat_mce(gt, preset, ctx):
-    """GradIRL on the MCE likelihood, tabular rewards."""
-    return _gradirl(gt, preset, ctx, objective="mce")
+    return _transfer(gt, ctx, FACTORIAL_FEATURES)
 
 
 def factorial_mce(gt, preset, ctx):
     """FactIRL on the MCE likelihood, from the PCA of ``flat MCE``'s rewards."""
-    return _fit_factorial(gt, preset, ctx, "factorial MCE", "pca", flat="flat MCE", objective="mce")
+    return _fit_factorial(gt, preset, ctx, "pca", flat=FLAT_MCE)
 
 
 def factorial_mce_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the MCE dictionary to the test tasks (MCE likelihood)."""
-    return _transfer(gt, ctx, "factorial MCE")
-
-
-def flat_mce_features(gt, preset, ctx):
-    """GradIRL on the MCE likelihood and the world's base features."""
-    return _gradirl(gt, preset, ctx, gt.features, objective="mce")
+    return _transfer(gt, ctx, FACTORIAL_MCE)
 
 
 def factorial_mce_features(gt, preset, ctx):
     """FactIRL on the MCE likelihood and the base features, from the PCA of ``flat MCE, features``."""
-    return _fit_factorial(gt, preset, ctx, "factorial MCE, features", "pca", flat="flat MCE, features",
-                          features=gt.features, objective="mce")
+    return _fit_factorial(gt, preset, ctx, "pca", flat=FLAT_MCE_FEATURES, features=gt.features)
 
 
 def factorial_mce_features_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the MCE feature-space dictionary to the test tasks."""
-    return _transfer(gt, ctx, "factorial MCE, features")
+    return _transfer(gt, ctx, FACTORIAL_MCE_FEATURES)
 
 
 def _extended(learners, train, test):
@@ -404,71 +416,74 @@ def _extended(learners, train, test):
     return tuple(lr for lr in learners if lr.split == "train") + train + tuple(lr for lr in learners if lr.split == "test") + test
 
 
-def _mce_rows(suffix, flat_build, fact_build, transfer_build):
-    """The train and test rows of a flat MCE learner and its factorial counterpart (names + ``suffix``)."""
-    flat_name, fact_name = f"flat MCE{suffix}", f"factorial MCE{suffix}"
-    train = (Learner("train", flat_name, flat_build),
-             Learner("train", fact_name, fact_build, needs=(("train", flat_name),)))
-    test = (Learner("test", flat_name, flat_build, per_seed=True),
-            Learner("test", fact_name, transfer_build, needs=(("train", fact_name),)))
+def _mce_rows(flat_name, fact_name, flat_build, flat_solvers, fact_build, transfer_build):
+    """The train and test rows of a flat MCE learner and its factorial counterpart."""
+    train = (Learner("train", flat_name, flat_build, solvers=flat_solvers, objective="mce"),
+             Learner("train", fact_name, fact_build, needs=(("train", flat_name),), solvers="factorial", objective="mce"))
+    test = (Learner("test", flat_name, flat_build, per_seed=True, solvers=flat_solvers, objective="mce"),
+            Learner("test", fact_name, transfer_build, needs=(("train", fact_name),), solvers="factorial",
+                    objective="mce"))
     return train, test
 
 
-_TRAIN_FLAT = (("train", "flat"),)
+_TRAIN_FLAT = (("train", FLAT),)
+_FEATURES, _FACTORIAL = "flat features", "factorial"
 
 #: line-up name (a preset's ``lineup``) -> Lineup
 LINEUPS = {
     "paper": Lineup(
         name="paper",
         learners=(
-            Learner("train", "flat", flat),
-            Learner("train", "flat, ground truth", flat_ground_truth),
-            Learner("train", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
-            Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
-            Learner("train", "factorial, random init", factorial_random_init),
-            Learner("test", "flat", flat, per_seed=True),
-            Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
-            Learner("test", "flat, features from ex.", flat_features_from_examples, needs=_TRAIN_FLAT),
-            Learner("test", "flat, PCA features", flat_pca_features, needs=_TRAIN_FLAT),
-            Learner("test", "flat, ground truth", flat_ground_truth, per_seed=True),
+            Learner("train", FLAT, flat),
+            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, solvers=_FEATURES),
+            Learner("train", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_RANDOM_INIT, factorial_random_init, solvers=_FACTORIAL),
+            Learner("test", FLAT, flat, per_seed=True),
+            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), solvers=_FACTORIAL),
+            Learner("test", FLAT_FEATURES_FROM_EXAMPLES, flat_features_from_examples, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("test", FLAT_PCA_FEATURES, flat_pca_features, needs=_TRAIN_FLAT, solvers=_FEATURES),
+            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
-        value_maps=("flat", "factorial"),
+        value_maps=(FLAT, FACTORIAL),
     ),
     "objectworld": Lineup(
         name="objectworld",
         learners=(
-            Learner("train", "flat", flat),
-            Learner("train", "flat, features", flat_features),
-            Learner("train", "flat, ground truth", flat_ground_truth),
-            Learner("train", "factorial", factorial, needs=_TRAIN_FLAT),
-            Learner("train", "factorial, features", factorial_features, needs=(("train", "flat, features"),)),
-            Learner("train", "factorial, features, random init", factorial_features_random_init),
-            Learner("test", "flat", flat, per_seed=True),
-            Learner("test", "flat, features", flat_features, per_seed=True),
-            Learner("test", "factorial", factorial_transfer, needs=(("train", "factorial"),)),
-            Learner("test", "factorial, features", factorial_features_transfer,
-                    needs=(("train", "factorial, features"),)),
-            Learner("test", "flat, ground truth", flat_ground_truth, per_seed=True),
+            Learner("train", FLAT, flat),
+            Learner("train", FLAT_FEATURES, flat_features, solvers=_FEATURES),
+            Learner("train", FLAT_GROUND_TRUTH, flat_ground_truth, solvers=_FEATURES),
+            Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_FEATURES, factorial_features, needs=(("train", FLAT_FEATURES),), solvers=_FACTORIAL),
+            Learner("train", FACTORIAL_FEATURES_RANDOM_INIT, factorial_features_random_init, solvers=_FACTORIAL),
+            Learner("test", FLAT, flat, per_seed=True),
+            Learner("test", FLAT_FEATURES, flat_features, per_seed=True, solvers=_FEATURES),
+            Learner("test", FACTORIAL, factorial_transfer, needs=(("train", FACTORIAL),), solvers=_FACTORIAL),
+            Learner("test", FACTORIAL_FEATURES, factorial_features_transfer, needs=(("train", FACTORIAL_FEATURES),),
+                    solvers=_FACTORIAL),
+            Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
-        value_maps=("flat, features", "factorial, features"),
+        value_maps=(FLAT_FEATURES, FACTORIAL_FEATURES),
         worlds=("objectworld",),
     ),
 }
 LINEUPS["paper+mce"] = Lineup(
     name="paper+mce",
-    learners=_extended(LINEUPS["paper"].learners, *_mce_rows("", flat_mce, factorial_mce, factorial_mce_transfer)),
-    value_maps=("flat", "factorial", "flat MCE", "factorial MCE"),
+    learners=_extended(LINEUPS["paper"].learners,
+                       *_mce_rows(FLAT_MCE, FACTORIAL_MCE, flat, "flat", factorial_mce, factorial_mce_transfer)),
+    value_maps=(FLAT, FACTORIAL, FLAT_MCE, FACTORIAL_MCE),
 )
 LINEUPS["objectworld+mce"] = Lineup(
     name="objectworld+mce",
-    learners=_extended(LINEUPS["objectworld"].learners, *_mce_rows(", features", flat_mce_features, factorial_mce_features,
-                                                                   factorial_mce_features_transfer)),
-    value_maps=("flat, features", "factorial, features", "flat MCE, features", "factorial MCE, features"),
+    learners=_extended(LINEUPS["objectworld"].learners,
+                       *_mce_rows(FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES, flat_features, "flat features",
+                                  factorial_mce_features, factorial_mce_features_transfer)),
+    value_maps=(FLAT_FEATURES, FACTORIAL_FEATURES, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES),
     worlds=("objectworld",),
 )
 
 
-def get_lineup(lineup):
+def get_lineup(lineup: str | Lineup) -> Lineup:
     """A :class:`Lineup` from its name (or a Lineup, returned as is)."""
     if isinstance(lineup, Lineup):
         return lineup

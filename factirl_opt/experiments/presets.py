@@ -58,17 +58,21 @@ Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce
 they differ from the paper's (:data:`LATER_FIELDS`), so the paper's runs keep their keys.
 """
 
+from __future__ import annotations
+
 import dataclasses
 import hashlib
 import json
+from collections.abc import Mapping
+from typing import Any
 
 import solvers
 
 from .._validation import check_bool, check_int, check_probability, check_real
 from ..exceptions import FactIRLError, ValidationError, translate_solver_errors
 from ..planning import available_planners
+from ..solver_settings import SolverSettings
 from ..synthetic import COEFFICIENT_KINDS
-from .learners import decode_options, solver_settings
 
 __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_preset"]
 
@@ -77,7 +81,8 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_pres
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05,
                 "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_solver": "armijo", "flat_features_solver": "armijo",
                 "pca_shrink": False}
-#: the solver fields: defaults of a sweep's solvers, part of each run's key, not of the fingerprint
+#: the fields of :class:`~factirl_opt.SolverSettings`, flattened into :meth:`Preset.to_dict`: part of
+#: each run's key, not of the fingerprint
 SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
 
 
@@ -156,14 +161,13 @@ class Preset:
         ``"armijo"``, the paper's, except in ``fast``. A Gauss-Newton solver is replaced by
         L-BFGS for the learners on an objective without residuals (``"mce"``), like the
         factorial ones' (:data:`.learners.GRADIENT_FALLBACK`).
-    h_solver, d_solver : str
-        The factorial learner's H-step and D-step solvers when a sweep names none (names in
-        ``solvers.available_solvers()``; ``d_solver=""``: FactIRL's default D-step).
-    h_solver_options, d_solver_options : dict or str
-        Their options, a dict (or its JSON), stored as canonical JSON (``""``: none). The four
-        solver fields are not part of the fingerprint: they are part of every run's key
+    solvers : SolverSettings
+        The factorial learner's H-step and D-step solvers when a sweep names none
+        (:class:`factirl_opt.SolverSettings`; default: Armijo H-steps, FactIRL's default
+        D-step). Not part of the fingerprint: part of every run's key
         (:class:`.runner.RunSpec`), so a ``fast`` run and a ``paper`` run with the same
-        ``--h-solver`` and ``--d-solver`` are the same run.
+        ``--h-solver`` and ``--d-solver`` are the same run. :meth:`to_dict` flattens it into
+        its four fields (:data:`SOLVER_FIELDS`).
     """
 
     name: str
@@ -196,12 +200,9 @@ class Preset:
     flat_solver: str = "armijo"
     flat_features_solver: str = "armijo"
     pca_shrink: bool = False
-    h_solver: str = "armijo"
-    h_solver_options: str = ""
-    d_solver: str = ""
-    d_solver_options: str = ""
+    solvers: SolverSettings = SolverSettings()
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         where = f"preset {self.name!r}: "
         for f in ("grid_size", "n_primitives", "demo_length", "default_tasks", "default_demos", "n_test_tasks",
                   "n_features_from_examples", "n_pca_components", "flat_max_iter", "fact_max_iter",
@@ -234,20 +235,12 @@ class Preset:
         self._check_solvers(where)
 
     def _check_solvers(self, where):
-        """Validate the solver fields (:func:`.learners.solver_settings`) and store them canonically."""
-
-        def as_dict(f):
-            value = getattr(self, f)
-            if isinstance(value, str):
-                try:
-                    value = json.loads(value) if value else None
-                except ValueError:
-                    raise ValidationError(f"{where}{f} must be a dict or its JSON; got {value!r}") from None
-            return value
-
+        """Validate the solver fields (a mapping of :data:`SOLVER_FIELDS` becomes a SolverSettings)."""
         try:
-            settings = solver_settings(self.h_solver, as_dict("h_solver_options"), self.d_solver or None,
-                                       as_dict("d_solver_options"))
+            if isinstance(self.solvers, Mapping):
+                object.__setattr__(self, "solvers", SolverSettings(**self.solvers))
+            if not isinstance(self.solvers, SolverSettings):
+                raise ValidationError(f"solvers must be a SolverSettings; got {self.solvers!r}")
             for f in ("flat_solver", "flat_features_solver"):
                 name = getattr(self, f)
                 if not isinstance(name, str) or not name:
@@ -256,30 +249,23 @@ class Preset:
                     solvers.get_solver(name)
         except FactIRLError as exc:
             raise type(exc)(where + str(exc)) from None
-        for f, value in settings.items():
-            object.__setattr__(self, f, value)
+        except TypeError as exc:
+            raise ValidationError(f"{where}solvers: {exc}") from None
 
-    def h_options(self):
-        """The H-step solver's options, a dict."""
-        return decode_options(self.h_solver_options)
-
-    def d_options(self):
-        """The D-step solver's options, a dict."""
-        return decode_options(self.d_solver_options)
-
-    def points(self):
+    def points(self) -> list[tuple[int, int]]:
         """Sorted unique ``(n_tasks, demos_per_task)`` points of both sweeps."""
         pts = {(self.default_tasks, m) for m in self.demos_sweep}
         pts |= {(n, self.default_demos) for n in self.tasks_sweep}
         return sorted(pts)
 
-    def to_dict(self):
-        """Plain JSON-able dict of every field."""
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict of every field, the solver settings flattened (:data:`SOLVER_FIELDS`)."""
         d = dataclasses.asdict(self)
         d["demos_sweep"], d["tasks_sweep"] = list(self.demos_sweep), list(self.tasks_sweep)
+        d.update(d.pop("solvers"))
         return d
 
-    def fingerprint(self):
+    def fingerprint(self) -> str:
         """Short hash of every field that changes a run's result (all but name, n_seeds and the
         solvers, which are in the runs' keys).
 
@@ -296,19 +282,22 @@ class Preset:
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:10]
 
     @classmethod
-    def from_dict(cls, d):
+    def from_dict(cls, d: Mapping[str, Any]) -> Preset:
         """Inverse of :meth:`to_dict`."""
         d = dict(d)
         for f in ("demos_sweep", "tasks_sweep"):
             if f in d:
                 d[f] = tuple(d[f])
+        flat_solvers = {f: d.pop(f) for f in SOLVER_FIELDS if f in d}
+        if flat_solvers:
+            d["solvers"] = flat_solvers
         try:
             return cls(**d)
         except TypeError as exc:
             raise ValidationError(f"not a preset: {exc}") from None
 
 
-#: the ``fast`` preset's solvers and stopping rules (issue 13), chosen from runs of its default
+#: the ``fast`` preset's solvers and stopping rules, chosen from runs of its default
 #: point (100 tasks x 10 demos, seed 0, one run each, two at a time on the 2-core machine):
 #: Gauss-Newton QP H-steps (Clarabel; transfer too), L-BFGS D-steps, FactIRL stopping at a
 #: gradient norm 1e-3 x its initial one or a relative decrease 1e-4 per outer iteration, L-BFGS
@@ -318,12 +307,12 @@ class Preset:
 #: random-init fit ran its 100 outer iterations of CG products) and kept every ordering of the paper.
 #: The PCA start shrinks while the loss decreases (``pca_shrink``): L-BFGS flat fits
 #: reach larger rewards than Armijo's, whose truncation can start FactIRL in a saturated region.
-FAST_SOLVERS = dict(h_solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2, fact_max_iter=50, fact_gtol=1e-3,
+FAST_SOLVERS: dict[str, Any] = dict(solvers=SolverSettings("gn-qp-clarabel", d_solver="lbfgs"), inner_steps=2, fact_max_iter=50, fact_gtol=1e-3,
                     fact_tol=1e-4, flat_solver="lbfgs", flat_features_solver="gn-qp-clarabel", pca_shrink=True)
 
 #: the Objectworld presets' solvers: the ``fast`` preset's, with L-BFGS for the flat fits on features
 #: too (Levine's 217 features at 32x32 make a Gauss-Newton block QP too large to compile)
-OBJECTWORLD_SOLVERS = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
+OBJECTWORLD_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
 
 PRESETS = {
     "paper": Preset(name="paper"),
@@ -432,7 +421,7 @@ PRESET_DESCRIPTIONS = {
 }
 
 
-def get_preset(preset):
+def get_preset(preset: str | Preset) -> Preset:
     """A :class:`Preset` from its name (or a Preset, returned as is)."""
     if isinstance(preset, Preset):
         return preset

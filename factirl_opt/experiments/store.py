@@ -25,20 +25,24 @@ Code stamp
     conservative, never stale.
 
 Lock (``OUT/.lock``)
-    Created with ``O_CREAT | O_EXCL`` and holding the writer's pid, host and process start
-    time. A second sweep into the same directory is refused with a clear message while the
+    Created atomically (a complete temporary file hard-linked to the lock's name, which fails
+    if the lock exists) and holding the writer's pid, host and process start time. A second sweep into the same directory is refused with a clear message while the
     holder lives; a lock left by a dead process (same host, pid gone or reused) is stale and
     replaced.
 
 Manifest (``OUT/manifest.json``)
     The last invocation's settings (preset, seeds, solvers, jobs, command, versions, wall time)
     for compatibility, plus ``runs`` (every run of the tables with the invocation that computed
-    it), ``invocations`` (the history of every invocation into the directory), ``rejected`` and
+    it), ``invocations`` (the history of every invocation into the directory), ``substitutions``
+    (solvers the line-up's learners take instead of those named), ``rejected`` and
     ``other_records`` (record files in ``runs/`` that are not part of these tables, e.g. other
     seeds).
 """
 
+from __future__ import annotations
+
 import contextlib
+import errno
 import functools
 import hashlib
 import importlib.metadata as md
@@ -49,9 +53,12 @@ import secrets
 import socket
 import time
 import warnings
+from collections.abc import Iterator
+from typing import Any
 
-from ..exceptions import ValidationError
-from .tables import FLOAT_COLUMNS, INT_COLUMNS, RESULT_COLUMNS, TIMING_COLUMNS, write_atomic
+from ..exceptions import PersistenceError, ValidationError
+from ..files import FILE_MODE, os_error, write_text_atomic
+from .tables import FLOAT_COLUMNS, INT_COLUMNS, RESULT_COLUMNS, TIMING_COLUMNS
 
 __all__ = [
     "RECORD_FORMAT",
@@ -116,7 +123,7 @@ def _source_files():
 
 
 @functools.lru_cache(maxsize=1)
-def code_stamp():
+def code_stamp() -> dict[str, str]:
     """What identifies the code that computes runs (see the module docstring).
 
     Returns
@@ -137,7 +144,7 @@ def code_stamp():
                 source_sha256=h.hexdigest())
 
 
-def expected_provenance(preset, lineup):
+def expected_provenance(preset: Any, lineup: Any) -> dict[str, Any]:
     """The provenance a reusable record of this preset and line-up must carry (``computed_by`` aside)."""
     return dict(format=RECORD_FORMAT, preset_fingerprint=preset.fingerprint(), lineup=lineup.fingerprint(),
                 code=code_stamp())
@@ -148,7 +155,7 @@ def _checksum(record):
     return "sha256:" + hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
-def seal(record, provenance, invocation_id):
+def seal(record: dict[str, Any], provenance: dict[str, Any], invocation_id: str) -> dict[str, Any]:
     """The record with its provenance (computed by ``invocation_id``) and checksum added."""
     record = dict(record, provenance=dict(provenance, computed_by=invocation_id))
     record.pop("checksum", None)
@@ -177,7 +184,7 @@ def _check_row(row, columns, where):
             raise ValueError(f"{where}[{c!r}] is {v!r}")
 
 
-def check_record(record, lineup):
+def check_record(record: Any, lineup: Any) -> None:
     """Raise ValueError naming the first structural defect of a run record (None if sound)."""
     if not isinstance(record, dict):
         raise ValueError(f"the record is {type(record).__name__}, not an object")
@@ -213,7 +220,7 @@ def _provenance_mismatch(found, expected):
     return None
 
 
-def load_record(path, key, expected, lineup):
+def load_record(path: str, key: str, expected: dict[str, Any], lineup: Any) -> tuple[dict | None, str | None]:
     """Load a cached run record and check it.
 
     Returns
@@ -247,12 +254,13 @@ def load_record(path, key, expected, lineup):
     return (None, mismatch) if mismatch else (rec, None)
 
 
-def write_record(runs_dir, record):
-    """Write a sealed record to ``runs_dir/<key>.json`` (atomically)."""
-    write_atomic(os.path.join(runs_dir, record["key"] + ".json"), json.dumps(record))
+def write_record(runs_dir: str, record: dict[str, Any]) -> None:
+    """Write a sealed record to ``runs_dir/<key>.json`` (atomically: :func:`factirl_opt.files.atomic_write`)."""
+    write_text_atomic(os.path.join(runs_dir, record["key"] + ".json"), json.dumps(record))
 
 
-def load_records(runs_dir, keys, expected, lineup):
+def load_records(runs_dir: str, keys: list[str], expected: dict[str, Any],
+                 lineup: Any) -> tuple[dict[str, dict], list[str], dict[str, str]]:
     """Load the reusable records of ``keys``; returns (records by key, keys to compute, rejected {file: reason})."""
     records, todo, rejected = {}, [], {}
     for key in keys:
@@ -298,32 +306,68 @@ def _holder_alive(holder):
     return start is None or _process_start(pid) in (None, start)
 
 
+def _read_holder(path):
+    try:
+        with open(path) as fh:
+            holder = json.load(fh)
+        return holder if isinstance(holder, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _create_lock(path, content):
+    """Create ``path`` holding ``content`` if it does not exist; returns False if it exists.
+
+    The content goes to a temporary file beside the lock, fsynced, then hard-linked to the lock's
+    name (``os.link`` fails if the name exists): the lock appears complete or not at all, so a
+    reader never sees a half-written holder. On a file system without hard links the lock is
+    created with ``O_CREAT | O_EXCL`` and then written.
+    """
+    tmp = f"{path}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(content)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return False
+        except OSError as exc:
+            if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EXDEV):
+                raise
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)  # FileExistsError: held
+            with os.fdopen(fd, "w") as fh:
+                fh.write(content)
+        return True
+    except FileExistsError:
+        return False
+    except OSError as exc:
+        raise os_error(exc, "create the lock", path) from exc
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
 def _try_lock(path):
     """Create the lock file; returns None, or the live holder's description."""
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    except FileExistsError:
-        try:
-            with open(path) as fh:
-                holder = json.load(fh)
-            holder = holder if isinstance(holder, dict) else {}
-        except (OSError, ValueError):
-            holder = {}
+    me = dict(pid=os.getpid(), host=socket.gethostname(), start=_process_start(os.getpid()),
+              since=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
+    for _ in range(100):
+        if _create_lock(path, json.dumps(me)):
+            return None
+        holder = _read_holder(path)
         young = time.time() - os.path.getmtime(path) < 10 if os.path.exists(path) else False
         if (holder and _holder_alive(holder)) or (not holder and young):
             return holder or {"pid": "?", "since": "just now"}
         with contextlib.suppress(FileNotFoundError):
             os.unlink(path)  # stale: its holder is dead
-        return _try_lock(path)
-    me = dict(pid=os.getpid(), host=socket.gethostname(), start=_process_start(os.getpid()),
-              since=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
-    with os.fdopen(fd, "w") as fh:
-        json.dump(me, fh)
-    return None
+    raise PersistenceError(f"cannot create the lock {path!r}: it keeps reappearing")
 
 
 @contextlib.contextmanager
-def locked(out):
+def locked(out: str | os.PathLike) -> Iterator[None]:
     """Hold ``out/.lock`` for the duration of the block (see the module docstring).
 
     Raises
@@ -351,7 +395,7 @@ def locked(out):
 # --- the manifest -------------------------------------------------------------------------
 
 
-def new_invocation(command, settings):
+def new_invocation(command: str | None, settings: dict[str, Any]) -> dict[str, Any]:
     """This invocation's entry of the manifest's history (completed by :func:`write_manifest`)."""
     now = time.gmtime()
     return dict(id=f"{time.strftime('%Y%m%dT%H%M%SZ', now)}-{os.getpid()}-{secrets.token_hex(3)}", command=command,
@@ -396,7 +440,8 @@ def _git_commit():
         return None
 
 
-def write_manifest(out, preset, lineup, records, invocation, rejected):
+def write_manifest(out: str, preset: Any, lineup: Any, records: list[dict], invocation: dict[str, Any],
+                   rejected: dict[str, str]) -> dict[str, Any]:
     """Write ``out/manifest.json`` describing the tables' runs and every invocation (see the module docstring).
 
     Parameters
@@ -421,10 +466,11 @@ def write_manifest(out, preset, lineup, records, invocation, rejected):
     manifest = dict(
         preset=preset.to_dict(), lineup=lineup.fingerprint(), seeds=sorted({r["seed"] for r in runs}),
         **{k: invocation.get(k) for k in ("h_solver", "h_solver_options", "d_solver", "d_solver_options", "jobs",
-                                          "backend", "command", "n_runs", "n_computed", "wall_time_seconds")},
+                                          "backend", "command", "n_runs", "n_computed", "wall_time_seconds",
+                                          "substitutions")},
         cpu_count=os.cpu_count(), platform=platform.platform(), versions=_versions(), code=code_stamp(),
         finished_utc=invocation.get("finished_utc"), runs=runs, rejected=rejected, other_records=others,
         invocations=history,
     )
-    write_atomic(path, json.dumps(manifest, indent=2) + "\n")
+    write_text_atomic(path, json.dumps(manifest, indent=2) + "\n")
     return manifest

@@ -9,26 +9,29 @@
 
 Rows are sorted (split, solver, n_tasks, demos_per_task, learner in line-up order, seed), so
 the tables depend only on the set of run records, not on the order the runs finished in.
-Every file is written atomically (a temporary file in the same directory, then ``os.replace``)
-with the usual permissions (``0o666`` minus the umask).
+Every file is written atomically (:func:`factirl_opt.files.atomic_write`: a temporary file in
+the same directory, fsynced, then renamed) with the usual permissions (``0o666`` minus the umask).
 """
+
+from __future__ import annotations
 
 import csv
 import io
 import json
 import os
-import secrets
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from ..exceptions import ValidationError
+from ..files import os_error, write_text_atomic
 from .presets import Preset
 
 __all__ = [
     "RESULT_COLUMNS",
     "SUMMARY_COLUMNS",
     "TIMING_COLUMNS",
-    "write_atomic",
     "write_tables",
     "read_csv",
     "read_results",
@@ -46,22 +49,6 @@ INT_COLUMNS = ("n_tasks", "demos_per_task", "seed", "n_scored_tasks", "n_evaluat
 FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean")
 
 
-def write_atomic(path, text):
-    """Write ``text`` to ``path`` atomically, with mode ``0o666`` minus the umask."""
-    path = os.fspath(path)
-    d, base = os.path.split(path)
-    tmp = os.path.join(d, f".tmp-{os.getpid()}-{secrets.token_hex(4)}-{base}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def _csv_text(rows, columns):
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(columns), lineterminator="\n", extrasaction="ignore")
@@ -71,7 +58,7 @@ def _csv_text(rows, columns):
     return buf.getvalue()
 
 
-def read_csv(path):
+def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     """Rows of a table written by :func:`write_tables`, with numbers parsed back.
 
     Raises
@@ -127,8 +114,10 @@ def _summary(rows):
     ]
 
 
-def write_tables(out, records):
+def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Write results.csv, summary.csv, timings.csv (and figure3.json) from run records.
+
+    A figure3.json of earlier records is removed when no record has value maps.
 
     Parameters
     ----------
@@ -142,7 +131,7 @@ def write_tables(out, records):
         The result rows, sorted.
     """
     out = os.fspath(out)
-    learners = {}
+    learners: dict[tuple[str, str], int] = {}
     for rec in records:
         for r in rec["rows"]:
             learners.setdefault((r["split"], r["learner"]), len(learners))
@@ -150,16 +139,24 @@ def write_tables(out, records):
     rows = sorted((r for rec in records for r in rec["rows"]), key=key)
     timings = sorted((r for rec in records for r in rec["timings"]), key=key)
     summary = sorted(_summary(rows), key=key)
-    write_atomic(os.path.join(out, "results.csv"), _csv_text(rows, RESULT_COLUMNS))
-    write_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, SUMMARY_COLUMNS))
-    write_atomic(os.path.join(out, "timings.csv"), _csv_text(timings, TIMING_COLUMNS))
+    write_text_atomic(os.path.join(out, "results.csv"), _csv_text(rows, RESULT_COLUMNS))
+    write_text_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, SUMMARY_COLUMNS))
+    write_text_atomic(os.path.join(out, "timings.csv"), _csv_text(timings, TIMING_COLUMNS))
     fig3 = sorted((rec for rec in records if "figure3" in rec), key=lambda rec: (rec["spec"]["h_solver"], rec["spec"]["seed"]))
+    path = os.path.join(out, "figure3.json")
     if fig3:
-        write_atomic(os.path.join(out, "figure3.json"), json.dumps(fig3[0]["figure3"]))
+        write_text_atomic(path, json.dumps(fig3[0]["figure3"]))
+    else:
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            raise os_error(exc, "remove the stale output", path) from exc
     return rows
 
 
-def read_results(out):
+def read_results(out: str | os.PathLike) -> list[dict[str, Any]]:
     """The rows of ``out/results.csv``, checked against the runs ``out/manifest.json`` describes.
 
     Raises
@@ -194,7 +191,7 @@ def _read_manifest(out):
         raise ValidationError(f"{path} is missing or unreadable ({exc}); run `factirl-opt reproduce --out DIR` first") from None
 
 
-def load_preset_from_manifest(out):
+def load_preset_from_manifest(out: str | os.PathLike) -> Preset:
     """The :class:`Preset` recorded in ``out/manifest.json``."""
     manifest = _read_manifest(out)
     try:

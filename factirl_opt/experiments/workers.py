@@ -11,22 +11,31 @@ Here:
   runs a watchdog thread that polls ``os.getppid()`` every :data:`POLL_SECONDS` and exits at
   once when the parent is gone (SIGKILL of the parent: the workers exit within about a
   second); a worker whose pipe closes exits too;
+- a SIGTERM that arrives while the workers start is held until every worker is known, then
+  delivered (so no worker is ever started without being stopped);
 - the parent, on any exit from :func:`imap_unordered` (done, an error, KeyboardInterrupt, or
   :class:`Terminated` raised by SIGTERM inside :func:`sigterm_raises`), terminates and reaps
-  every worker (SIGTERM, then SIGKILL after :data:`GRACE_SECONDS`).
+  every worker (SIGTERM, then SIGKILL after :data:`GRACE_SECONDS`), so none outlives the
+  signal by more than a second.
 
-Python's spawn start method also starts multiprocessing's resource tracker; it exits by itself
-once the parent and the workers are gone (it holds no resources here).
+Python's spawn start method also starts multiprocessing's resource tracker (it holds no
+resources here). When :func:`imap_unordered` started it, it is stopped with the workers;
+otherwise it exits by itself once the parent and the workers are gone.
 """
+
+from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import multiprocessing.resource_tracker
 import os
 import signal
 import threading
 import time
 import traceback
+from collections.abc import Callable, Iterable, Iterator
 from multiprocessing.connection import wait
+from typing import Any
 
 from ..exceptions import FactIRLError
 
@@ -34,8 +43,8 @@ __all__ = ["imap_unordered", "sigterm_raises", "Terminated", "WorkerError", "POL
 
 #: how often a worker checks that its parent is alive (seconds)
 POLL_SECONDS = 0.5
-#: how long a terminated worker gets before SIGKILL (seconds)
-GRACE_SECONDS = 5.0
+#: how long a terminated worker gets before SIGKILL (seconds): workers hold nothing to clean up
+GRACE_SECONDS = 0.5
 
 
 class WorkerError(FactIRLError):
@@ -60,7 +69,7 @@ class _RemoteTraceback(Exception):
 
 
 @contextlib.contextmanager
-def sigterm_raises():
+def sigterm_raises() -> Iterator[None]:
     """Turn SIGTERM into a :class:`Terminated` exception in the main thread for the block.
 
     So ``finally`` clauses run (workers reaped, lock released) when a sweep is terminated. Does
@@ -112,9 +121,17 @@ def _worker_main(conn, parent_pid):
 
 
 def _start(ctx, n):
-    """Start ``n`` workers, with SIGINT ignored from their first instruction (spawned children inherit it)."""
+    """Start ``n`` workers, with SIGINT ignored from their first instruction (spawned children inherit it).
+
+    A SIGTERM received meanwhile is held (an exception raised inside ``Process.start`` could
+    lose a started child); once every worker is known, they are stopped and the signal is
+    delivered to the previous handler (the workers are stopped if it raises or ends the process).
+    """
     main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    held = []
+    if main:
+        previous_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        previous_term = signal.signal(signal.SIGTERM, lambda signum, frame: held.append(signum))
     workers = []
     try:
         for _ in range(n):
@@ -128,7 +145,16 @@ def _start(ctx, n):
         raise
     finally:
         if main:
-            signal.signal(signal.SIGINT, previous)
+            signal.signal(signal.SIGINT, previous_int)
+            signal.signal(signal.SIGTERM, previous_term)
+    if held and previous_term is not signal.SIG_IGN:
+        if previous_term in (signal.SIG_DFL, None):
+            _stop(workers)  # the signal ends this process: stop the workers first
+        try:
+            signal.raise_signal(held[0])  # the previous handler: Terminated inside sigterm_raises
+        except BaseException:
+            _stop(workers)
+            raise
     return workers
 
 
@@ -146,7 +172,20 @@ def _stop(workers):
             proc.join()
 
 
-def imap_unordered(fn, tasks, jobs):
+def _tracker_running():
+    """Whether multiprocessing's resource tracker runs (started by an earlier spawn)."""
+    return getattr(multiprocessing.resource_tracker._resource_tracker, "_fd", None) is not None
+
+
+def _stop_tracker():
+    """Stop the resource tracker the workers' spawn started (best effort: a private stdlib method)."""
+    stop = getattr(multiprocessing.resource_tracker._resource_tracker, "_stop", None)
+    if stop is not None:
+        with contextlib.suppress(Exception):
+            stop()
+
+
+def imap_unordered(fn: Callable[..., Any], tasks: Iterable[tuple], jobs: int) -> Iterator[Any]:
     """Yield ``fn(*args)`` for every ``args`` of ``tasks``, computed by ``jobs`` worker processes.
 
     Results come as they finish. An exception raised by ``fn`` in a worker is re-raised here
@@ -156,9 +195,16 @@ def imap_unordered(fn, tasks, jobs):
     tasks = list(tasks)
     if not tasks:
         return
-    workers = _start(multiprocessing.get_context("spawn"), min(int(jobs), len(tasks)))
+    ours = not _tracker_running()
     try:
-        pending, busy = iter(tasks), {}
+        workers = _start(multiprocessing.get_context("spawn"), min(int(jobs), len(tasks)))
+    except BaseException:
+        if ours:
+            _stop_tracker()
+        raise
+    try:
+        pending = iter(tasks)
+        busy: dict[Any, Any] = {}
         for proc, conn in workers:
             _submit(pending, proc, conn, busy, fn)
         while busy:
@@ -168,6 +214,8 @@ def imap_unordered(fn, tasks, jobs):
                 _submit(pending, proc, conn, busy, fn)
     finally:
         _stop(workers)
+        if ours:
+            _stop_tracker()
 
 
 def _submit(pending, proc, conn, busy, fn):

@@ -30,6 +30,8 @@ the same demonstrations), and the training tasks of a smaller point are the firs
 larger point (paired comparisons across the sweep); nothing depends on which process runs what.
 """
 
+from __future__ import annotations
+
 import dataclasses
 
 import numpy as np
@@ -78,7 +80,7 @@ class GroundTruth:
     test_rewards: np.ndarray
     test_demos: list
     learner_rng: np.random.Generator
-    features: np.ndarray = None
+    features: np.ndarray | None = None
     map_extras: dict = dataclasses.field(default_factory=dict)
 
     def demos(self, split):

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from factirl_opt import FactIRL
+from factirl_opt import FactIRL, SolverSettings
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
 from factirl_opt.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
 from factirl_opt.experiments import learners as learners_mod
@@ -93,9 +93,10 @@ class RecordingFactIRL(FactIRL):
 
 def test_default_settings_build_the_same_factirl():
     spec = plan_runs(TINY, [0])[0]
-    assert (spec.h_solver, spec.h_solver_options, spec.d_solver, spec.d_solver_options) == ("armijo", "", "", "")
+    assert spec.solvers == SolverSettings() == SolverSettings("armijo", None, None, None)
+    assert spec.solvers.fields() == dict(h_solver="armijo", h_solver_options="", d_solver="", d_solver_options="")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
-    assert factorial_options(TINY, spec) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
+    assert factorial_options(TINY, spec.solvers) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
                                                  flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
                                                  planner="auto", gtol=0.0, tol=1e-5, pca_shrink=False)
     import inspect
@@ -104,8 +105,8 @@ def test_default_settings_build_the_same_factirl():
 
 
 def test_h_solver_options_reach_factirl(monkeypatch):
-    spec = plan_runs(TINY, [0], h_solver="armijo", h_solver_options={"initial_step": 0.5})[0]
-    assert spec.h_options() == {"initial_step": 0.5} and spec.solver_label() == 'armijo {"initial_step":0.5}'
+    spec = plan_runs(TINY, [0], SolverSettings("armijo", {"initial_step": 0.5}))[0]
+    assert spec.solvers.h_options == {"initial_step": 0.5} and spec.solver_label() == 'armijo {"initial_step":0.5}'
     assert spec.key(TINY) != plan_runs(TINY, [0])[0].key(TINY)
     RecordingFactIRL.seen = []
     monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
@@ -116,12 +117,13 @@ def test_h_solver_options_reach_factirl(monkeypatch):
 
 
 def test_the_default_d_solver_is_never_passed():
-    assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0])
+    assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)
+    assert SolverSettings().learner_kwargs() == {"h_solver": "armijo"}
 
 
 def test_d_solver_and_its_options_reach_factirl(monkeypatch):
     monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
-    spec = plan_runs(TINY, [0], d_solver="armijo", d_solver_options={"initial_step": 0.25})[0]
+    spec = plan_runs(TINY, [0], SolverSettings(d_solver="armijo", d_solver_options={"initial_step": 0.25}))[0]
     assert spec.solver_label() == 'armijo | d: armijo {"initial_step":0.25}'
     RecordingFactIRL.seen = []
     run_one(TINY, spec)
@@ -129,7 +131,7 @@ def test_d_solver_and_its_options_reach_factirl(monkeypatch):
 
 
 def test_naming_the_default_d_solver_changes_only_the_label():
-    default, named = plan_runs(TINY, [0])[-1], plan_runs(TINY, [0], d_solver="armijo")[-1]
+    default, named = plan_runs(TINY, [0])[-1], plan_runs(TINY, [0], SolverSettings(d_solver="armijo"))[-1]
     a, b = run_one(TINY, default), run_one(TINY, named)
     assert default.key(TINY) != named.key(TINY) and {r["h_solver"] for r in b["rows"]} == {"armijo | d: armijo"}
     strip = [{k: v for k, v in r.items() if k != "h_solver"} for r in a["rows"]]
@@ -138,15 +140,49 @@ def test_naming_the_default_d_solver_changes_only_the_label():
 
 @pytest.mark.parametrize("kw, error, match", [
     (dict(h_solver="nope"), UnknownSolverError, "unknown solver 'nope'"),
+    (dict(h_solver=""), ValidationError, "h_solver must be a registered solver name; got ''"),
     (dict(h_solver_options={"bogus": 1}), ValidationError, "does not accept option"),
     (dict(h_solver_options=[("alpha", 1)]), ValidationError, "h_solver_options must be a dict"),
+    (dict(h_solver_options="{oops"), ValidationError, "h_solver_options must be a dict or its JSON"),
     (dict(h_solver_options={"alpha": np.float32}), ValidationError, "plain values"),
     (dict(d_solver_options={"a": 1}), ValidationError, "d_solver_options given without d_solver"),
-    (dict(d_solver=""), ValidationError, "d_solver must be a registered solver name"),
+    (dict(d_solver=3), ValidationError, "d_solver must be a registered solver name; got 3"),
+    (dict(d_solver="nope"), UnknownSolverError, "unknown solver 'nope'"),
+    (dict(d_solver="lbfgs", d_solver_options={"bogus": 1}), ValidationError, "does not accept option"),
 ])
 def test_bad_solver_settings(kw, error, match):
     with pytest.raises(error, match=match):
-        plan_runs(TINY, [0], **kw)
+        SolverSettings(**kw)
+
+
+def test_solver_settings_are_one_canonical_value():
+    a = SolverSettings("armijo", {"initial_step": 0.5, "c": 1e-4}, "lbfgs")
+    b = SolverSettings("armijo", '{"c": 0.0001, "initial_step": 0.5}', "lbfgs", "")
+    assert a == b and hash(a) == hash(b) and a.h_solver_options == '{"c":0.0001,"initial_step":0.5}'
+    assert a.learner_kwargs() == dict(h_solver="armijo", h_solver_options={"c": 1e-4, "initial_step": 0.5},
+                                      d_solver="lbfgs")
+    assert a.label() == 'armijo {"c":0.0001,"initial_step":0.5} | d: lbfgs'
+    assert a.key_part().startswith("armijo-") and len(a.key_part()) == len("armijo-") + 8
+    assert SolverSettings().key_part() == "armijo" and SolverSettings(d_solver="armijo").key_part() != "armijo"
+    assert a.to_dict() == dict(h_solver="armijo", h_solver_options={"c": 1e-4, "initial_step": 0.5}, d_solver="lbfgs",
+                               d_solver_options={})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.h_solver = "lbfgs"
+    assert sorted([SolverSettings("lbfgs"), SolverSettings()]) == [SolverSettings(), SolverSettings("lbfgs")]
+    import factirl_opt
+
+    assert factirl_opt.SolverSettings is SolverSettings and "SolverSettings" in factirl_opt.__all__
+
+
+def test_a_spec_key_and_record_keep_the_flat_solver_fields():
+    spec = RunSpec(4, 2, 0, SolverSettings("armijo", {"initial_step": 0.5}))
+    assert spec.to_dict() == dict(n_tasks=4, demos_per_task=2, seed=0, h_solver="armijo",
+                                  h_solver_options='{"initial_step":0.5}', d_solver="", d_solver_options="")
+    extra = ('{"initial_step":0.5}', "", "")  # the key's hash of the non-default settings, as before
+    import hashlib
+
+    assert spec.key(TINY) == f"n004-m02-seed0-armijo-{hashlib.sha256(repr(extra).encode()).hexdigest()[:8]}-" \
+        f"{TINY.fingerprint()}"
 
 
 # --- planner -------------------------------------------------------------------------------
@@ -212,20 +248,28 @@ def test_fast_preset_is_the_paper_with_faster_solvers():
     assert same == {f: v for f, v in fast.to_dict().items() if f not in ignored}
     assert paper.fact_gtol == 0.0 < fast.fact_gtol and fast.fingerprint() != paper.fingerprint()
     specs = plan_runs(fast, [0, 1, 2])
-    assert len(specs) == 27 and {(s.h_solver, s.d_solver) for s in specs} == {(fast.h_solver, fast.d_solver)}
+    assert len(specs) == 27 and {s.solvers for s in specs} == {fast.solvers}
     assert {s.key(fast) for s in specs}.isdisjoint(s.key(paper) for s in plan_runs(paper, [0, 1, 2]))
 
 
 def test_a_sweep_overrides_the_presets_solvers():
     fast = PRESETS["fast"]
-    (spec,) = plan_runs(dataclasses.replace(fast, demos_sweep=(10,), tasks_sweep=(100,)), [0], h_solver="armijo")
-    assert (spec.h_solver, spec.h_solver_options, spec.d_solver) == ("armijo", "", fast.d_solver)
-    preset = dataclasses.replace(TINY, h_solver="armijo", h_solver_options={"initial_step": 0.5})
-    assert preset.h_solver_options == '{"initial_step":0.5}' and preset.h_options() == {"initial_step": 0.5}
+    solvers = fast.solvers.with_overrides(h_solver="armijo")
+    (spec,) = plan_runs(dataclasses.replace(fast, demos_sweep=(10,), tasks_sweep=(100,)), [0], solvers)
+    assert spec.solvers == SolverSettings("armijo", None, fast.solvers.d_solver)
+    preset = dataclasses.replace(TINY, solvers=SolverSettings("armijo", {"initial_step": 0.5}))
+    assert preset.solvers.h_solver_options == '{"initial_step":0.5}' and preset.solvers.h_options == {"initial_step": 0.5}
     assert Preset.from_dict(json.loads(json.dumps(preset.to_dict()))) == preset
-    assert plan_runs(preset, [0])[0].h_options() == {"initial_step": 0.5}  # the preset's options with its solver
-    assert plan_runs(preset, [0], h_solver_options={"initial_step": 0.25})[0].h_options() == {"initial_step": 0.25}
-    assert plan_runs(preset, [0], h_solver="armijo")[0].h_options() == {}  # a named solver: its own options only
+    assert preset.to_dict()["h_solver_options"] == '{"initial_step":0.5}' and "solvers" not in preset.to_dict()
+    assert plan_runs(preset, [0])[0].solvers.h_options == {"initial_step": 0.5}  # the preset's options with its solver
+    over = preset.solvers.with_overrides(h_solver_options={"initial_step": 0.25})
+    assert plan_runs(preset, [0], over)[0].solvers.h_options == {"initial_step": 0.25}
+    named = preset.solvers.with_overrides(h_solver="armijo")
+    assert plan_runs(preset, [0], named)[0].solvers.h_options == {}  # a named solver: its own options only
+    with pytest.raises(ValidationError, match="d_solver_options given without d_solver"):
+        preset.solvers.with_overrides(d_solver_options={"a": 1})
+    with pytest.raises(ValidationError, match="solvers must be a SolverSettings; got 'armijo'"):
+        plan_runs(preset, [0], "armijo")
 
 
 @pytest.mark.parametrize("kw, error, match", [
@@ -233,10 +277,18 @@ def test_a_sweep_overrides_the_presets_solvers():
     (dict(h_solver_options="{oops"), ValidationError, "preset 'x': h_solver_options must be a dict or its JSON"),
     (dict(h_solver_options={"bogus": 1}), ValidationError, "preset 'x': .*does not accept option"),
     (dict(d_solver_options={"a": 1}), ValidationError, "preset 'x': d_solver_options given without d_solver"),
+    (dict(x_solver="armijo"), ValidationError, "preset 'x': solvers: .*x_solver"),
 ])
 def test_preset_solver_validation(kw, error, match):
     with pytest.raises(error, match=match):
-        Preset(name="x", **kw)
+        Preset(name="x", solvers=kw)  # a mapping of the four fields, as a manifest holds them
+    with pytest.raises(error, match=match if "x_solver" not in kw else "not a preset"):
+        Preset.from_dict(dict(name="x", **kw))
+
+
+def test_preset_solvers_must_be_settings():
+    with pytest.raises(ValidationError, match="preset 'x': solvers must be a SolverSettings; got 3"):
+        Preset(name="x", solvers=3)
 
 
 def test_fast_solvers_run_at_tiny_scale():
@@ -245,7 +297,7 @@ def test_fast_solvers_run_at_tiny_scale():
     preset = dataclasses.replace(TINY, name="tiny-fast", **FAST_SOLVERS)
     spec = plan_runs(preset, [0])[-1]
     rec = run_one(preset, spec)
-    label = f"{FAST_SOLVERS['h_solver']} | d: {FAST_SOLVERS['d_solver']}"
+    label = f"{FAST_SOLVERS['solvers'].h_solver} | d: {FAST_SOLVERS['solvers'].d_solver}"
     assert {r["h_solver"] for r in rec["rows"]} == {label}
     assert all(np.isfinite(r["deviation"]) and r["n_evaluations"] > 0 for r in rec["rows"])
 
@@ -276,7 +328,7 @@ def test_pca_shrink_reaches_every_factirl_and_is_validated():
     assert [name for name, p in PRESETS.items() if p.pca_shrink] == ["fast", "objectworld", "objectworld-quick",
                                                                       "objectworld-tiny"]
     for preset in (TINY, PRESETS["fast"]):
-        assert factorial_options(preset, plan_runs(preset, [0])[0])["pca_shrink"] is preset.pca_shrink
+        assert factorial_options(preset, plan_runs(preset, [0])[0].solvers)["pca_shrink"] is preset.pca_shrink
     with pytest.raises(ValidationError, match="preset 'x': pca_shrink must be True or False; got 1"):
         Preset(name="x", pca_shrink=1)
 
@@ -337,7 +389,7 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
 
     monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
     preset = dataclasses.replace(TINY, lineup="paper+mce")
-    spec = plan_runs(preset, [0], h_solver="gn-qp-clarabel", d_solver="lbfgs")[-1]
+    spec = plan_runs(preset, [0], SolverSettings("gn-qp-clarabel", d_solver="lbfgs"))[-1]
     rec = run_one(preset, spec)
     assert seen == [("policy-matching", "gn-qp-clarabel", "lbfgs")] * 2 + [("mce", "lbfgs", "lbfgs")]
     assert {r["h_solver"] for r in rec["rows"]} == {"gn-qp-clarabel | d: lbfgs"}
@@ -352,9 +404,8 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
     ("mce", "armijo", "lbfgs", ("armijo", "lbfgs")),
 ])
 def test_factorial_options_use_solvers_that_apply_to_the_objective(objective, h, d, expected):
-    spec = plan_runs(TINY, [0], h_solver=h, h_solver_options={"lam_max": 1e6} if h.startswith("gn") else None,
-                     d_solver=d)[0]
-    kw = factorial_options(TINY, spec, objective)
+    spec = plan_runs(TINY, [0], SolverSettings(h, {"lam_max": 1e6} if h.startswith("gn") else None, d))[0]
+    kw = factorial_options(TINY, spec.solvers, objective)
     assert (kw["h_solver"], kw["d_solver"], kw["objective"]) == (*expected, objective)
     assert ("h_solver_options" in kw) == (expected[0] == h and h.startswith("gn"))
 
@@ -394,3 +445,58 @@ def test_per_seed_rows_are_fitted_once_per_seed_with_the_same_records(monkeypatc
     # another seed is another fit
     run_one(TINY, plan_runs(TINY, [1])[0], reuse=reuse)
     assert len(reuse) == 4
+
+
+# --- solver substitutions, named before any run ---------------------------------------------
+
+
+def test_substitutions_name_what_the_mce_learners_take_instead(monkeypatch):
+    from factirl_opt.experiments import plan_sweep
+    from factirl_opt.experiments.learners import substitutions
+
+    preset = dataclasses.replace(TINY, lineup="paper+mce", flat_solver="gn-qp-clarabel", grid_size=3, fact_max_iter=1,
+                                 flat_max_iter=2, transfer_max_iter=2, n_test_tasks=2)
+    plan = plan_sweep(preset, [0], SolverSettings("gn-qp-clarabel", d_solver="gn-cg"))
+    why = "(a Gauss-Newton solver needs residuals; the 'mce' objective has none)"
+    assert plan.substitutions == (
+        f"train: flat MCE: solver gn-qp-clarabel replaced by lbfgs {why}",
+        f"train: factorial MCE: H-step solver gn-qp-clarabel replaced by lbfgs {why}",
+        f"train: factorial MCE: D-step solver gn-cg replaced by lbfgs {why}",
+        f"test: flat MCE: solver gn-qp-clarabel replaced by lbfgs {why}",
+        f"test: factorial MCE: H-step solver gn-qp-clarabel replaced by lbfgs {why}",
+        f"test: factorial MCE: D-step solver gn-cg replaced by lbfgs {why}",
+    )
+    # what the builders do is what was announced
+    seen = []
+
+    class SpyGradIRL(learners_mod.GradIRL):
+        def __init__(self, **kw):
+            seen.append(("GradIRL", kw["objective"], kw["solver"]))
+            super().__init__(**kw)
+
+    class SpyFactIRL(FactIRL):
+        def __init__(self, d_solver="armijo", **kw):
+            seen.append(("FactIRL", kw["objective"], kw["h_solver"], d_solver))
+            super().__init__(d_solver=d_solver, **kw)
+
+    monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
+    monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
+    run_one(preset, plan.runs[0])
+    assert {s for s in seen if s[1] == "mce"} == {("GradIRL", "mce", "lbfgs"), ("FactIRL", "mce", "lbfgs", "lbfgs")}
+    assert ("FactIRL", "policy-matching", "gn-qp-clarabel", "gn-cg") in seen
+    # solvers that apply: nothing to say
+    assert substitutions(LINEUPS["paper+mce"], TINY, SolverSettings("armijo", d_solver="lbfgs")) == []
+    assert plan_sweep(TINY, [0], SolverSettings("gn-qp-clarabel")).substitutions == ()
+
+
+def test_a_learner_names_a_known_solver_role():
+    with pytest.raises(ValidationError, match="learner train: a: solvers must be one of flat, flat features, factorial"):
+        Learner("train", "a", flat, solvers="gradient")
+
+
+def test_learner_names_are_the_constants():
+    from factirl_opt.experiments import learner_names
+
+    names = {getattr(learner_names, c) for c in learner_names.__all__}
+    for lineup in LINEUPS.values():
+        assert {lr.name for lr in lineup.learners} <= names

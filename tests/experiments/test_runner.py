@@ -6,7 +6,8 @@ import os
 import numpy as np
 import pytest
 
-from factirl_opt.exceptions import UnknownSolverError, ValidationError
+from factirl_opt import SolverSettings
+from factirl_opt.exceptions import PersistenceError, UnknownSolverError, ValidationError
 from factirl_opt.experiments import (
     PRESETS,
     TEST_LEARNERS,
@@ -135,7 +136,7 @@ def test_run_one_scores_every_learner(tiny_sweep):
 
 
 def test_sweep_with_a_gauss_newton_h_step(tmp_path):
-    result = run_sweep("tiny", tmp_path, h_solver="gn-qp-clarabel", seeds=1, progress=False)
+    result = run_sweep("tiny", tmp_path, solvers=SolverSettings("gn-qp-clarabel"), seeds=1, progress=False)
     assert result["rows"] and all(row["h_solver"] == "gn-qp-clarabel" for row in result["rows"])
     learners = {row["learner"] for row in result["rows"]}
     assert {"factorial", "factorial, random init"} <= learners
@@ -143,8 +144,10 @@ def test_sweep_with_a_gauss_newton_h_step(tmp_path):
 
 def test_unknown_h_solver_is_rejected_before_running(tmp_path):
     with pytest.raises(UnknownSolverError, match="armijo"):
-        run_sweep("tiny", tmp_path, h_solver="no-such-solver", progress=False)
-    assert not (tmp_path / "runs").exists() or not os.listdir(tmp_path / "runs")
+        run_sweep("tiny", tmp_path, solvers=SolverSettings("no-such-solver"), progress=False)
+    with pytest.raises(ValidationError, match="solvers must be a SolverSettings"):
+        run_sweep("tiny", tmp_path, solvers={"h_solver": "armijo"}, progress=False)
+    assert not (tmp_path / "runs").exists()
 
 
 @pytest.mark.parametrize("kw, match", [
@@ -156,11 +159,14 @@ def test_run_sweep_validation(tmp_path, kw, match):
         run_sweep("tiny", tmp_path, progress=False, **kw)
 
 
-def test_out_must_be_a_directory(tmp_path):
+def test_out_must_be_a_writable_directory(tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
-    with pytest.raises(ValidationError, match="not a directory"):
+    with pytest.raises(PersistenceError, match=f"output directory '{f}' exists and is not a directory"):
         run_sweep("tiny", f, progress=False)
+    with pytest.raises(PersistenceError, match=f"cannot create the output directory '{f / 'sub'}': Not a directory"):
+        run_sweep("tiny", f / "sub", progress=False)  # a file in the path: the directory cannot be made
+    assert f.read_text() == "x"
 
 
 # --- tables, resume, --jobs invariance --------------------------------------------------
@@ -387,7 +393,7 @@ def test_objectworld_smoke_sweep_tables_figures_and_claims(objectworld_sweep):
     assert "test: factorial on features improves with the number of training tasks" in names
     assert all(isinstance(c["holds"], bool) for c in claims)
     with open(write_claims(out, p)) as fh:
-        assert fh.read().startswith("# Objectworld claims (issue 11) vs this run (H-step solver: gn-qp-clarabel | d: lbfgs)")
+        assert fh.read().startswith("# Objectworld claims vs this run (H-step solver: gn-qp-clarabel | d: lbfgs)")
 
 
 def test_a_single_sweep_draws_one_panel(objectworld_sweep, tiny_sweep, tmp_path):
@@ -458,3 +464,73 @@ def test_value_maps_of_unknown_learners_are_refused(tiny_sweep, tmp_path):
     data = json.loads(_read(out / "figure3.json"))
     with pytest.raises(ValidationError, match="no value maps of \\['factorial MCE'\\]"):
         plot_value_functions(data, str(tmp_path / "f3"), learners=("flat", "factorial MCE"))
+
+
+# --- the plan, stale outputs, substitutions ----------------------------------------------
+
+
+def test_the_experiment_path_stage_by_stage(tiny_sweep, tmp_path):
+    from factirl_opt.experiments import Execution, plan_sweep, run_plan
+
+    ref, _ = tiny_sweep
+    plan = plan_sweep("tiny", [0, 1])
+    assert plan.keys == tuple(s.key(PRESETS["tiny"]) for s in plan.runs) and plan.seeds == (0, 1)
+    assert plan.runs == tuple(plan_runs("tiny", [0, 1])) and plan.solvers == PRESETS["tiny"].solvers
+    res = run_plan(plan, tmp_path, Execution(jobs=1), progress=False)
+    assert res["n_computed"] == len(plan.runs) and res["substitutions"] == []
+    for t in TABLES:
+        assert _read(tmp_path / t) == _read(ref / t)
+    assert Execution(-1).jobs == (os.cpu_count() or 1) and Execution(2, "loky").backend == "processes"
+
+
+def test_a_sweep_removes_outputs_drawn_from_earlier_tables(objectworld_sweep, tmp_path):
+    """Claims and figures of another preset's tables never stay beside new tables."""
+    import shutil
+
+    from factirl_opt.experiments.claims import write_claims
+
+    out = tmp_path / "out"
+    shutil.copytree(objectworld_sweep[0], out)
+    plot_all(out)
+    write_claims(out, PRESETS["objectworld-tiny"])
+    (out / "figures" / "notes.txt").write_text("mine")  # not ours: kept
+    res = run_sweep("tiny", out, seeds=1, progress=False)
+    assert not (out / "claims.md").exists() and sorted(os.listdir(out / "figures")) == ["notes.txt"]
+    assert len(res["removed"]) == 7  # claims.md and the six figures
+    assert json.loads(_read(out / "figure3.json"))["grid_size"] == PRESETS["tiny"].grid_size
+
+
+def test_a_stale_figure3_json_is_removed_with_its_figure(tiny_sweep, tmp_path, monkeypatch):
+    import dataclasses
+    import shutil
+
+    from factirl_opt.experiments import LINEUPS, Learner, Lineup
+    from factirl_opt.experiments.learners import flat
+
+    out = tmp_path / "out"
+    shutil.copytree(tiny_sweep[0], out)
+    plot_all(out)
+    monkeypatch.setitem(LINEUPS, "short", Lineup("short", (Learner("train", "flat", flat),
+                                                           Learner("test", "flat", flat, per_seed=True))))
+    preset = dataclasses.replace(PRESETS["tiny"], lineup="short", flat_max_iter=2)  # no value maps
+    run_sweep(preset, out, seeds=1, progress=False)
+    assert not (out / "figure3.json").exists()
+    written = plot_all(out)
+    assert sorted(os.listdir(out / "figures")) == sorted(os.path.basename(w) for w in written)
+    assert not any(os.path.basename(w).startswith("figure3") for w in written)
+
+
+def test_substitutions_are_warned_and_recorded_in_the_manifest(tmp_path):
+    import dataclasses
+
+    from factirl_opt.experiments.runner import SolverSubstitutionWarning
+
+    preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce", demos_sweep=(5,), tasks_sweep=(8,), n_seeds=1,
+                                 fact_max_iter=1, flat_max_iter=2, transfer_max_iter=2)
+    with pytest.warns(SolverSubstitutionWarning) as caught:
+        res = run_sweep(preset, tmp_path, solvers=SolverSettings("gn-qp-clarabel"), progress=False)
+    assert [str(w.message).split(" replaced")[0] for w in caught] == [
+        "train: factorial MCE: H-step solver gn-qp-clarabel", "test: factorial MCE: H-step solver gn-qp-clarabel"]
+    manifest = json.loads(_read(tmp_path / "manifest.json"))
+    assert manifest["substitutions"] == res["substitutions"] == manifest["invocations"][-1]["substitutions"]
+    assert len(res["substitutions"]) == 2  # train and test rows of factorial MCE

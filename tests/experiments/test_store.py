@@ -214,3 +214,56 @@ def test_cli_refuses_a_second_writer(reference, tmp_path, capsys):
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--out", str(out), "--quiet", "--no-plot"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("factirl-opt: error: ") and "being written by another sweep" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("links", [True, False])
+def test_the_lock_appears_complete_and_leaves_no_temporary_file(tmp_path, monkeypatch, links):
+    import errno
+
+    if not links:  # a file system without hard links: O_CREAT | O_EXCL, then written
+        def no_link(src, dst):
+            raise OSError(errno.EPERM, "Operation not permitted")
+
+        monkeypatch.setattr(os, "link", no_link)
+    seen = []
+    with store.locked(tmp_path):
+        holder = json.loads(_read(tmp_path / ".lock"))
+        seen = sorted(os.listdir(tmp_path))
+        with pytest.raises(store.OutputLockedError):
+            with store.locked(tmp_path):
+                pass
+    assert holder["pid"] == os.getpid() and seen == [".lock"] and os.listdir(tmp_path) == []
+
+
+def test_a_failed_write_keeps_the_previous_record_and_leaves_no_partial_file(reference, tmp_path, monkeypatch):
+    """A full disk while a record or table is rewritten: a PersistenceError naming it, the old file intact."""
+    import errno
+
+    from factirl_opt.exceptions import PersistenceError
+
+    out, files = _copy(reference, tmp_path)
+    rec = json.loads(_read(out / "runs" / files[0]))
+    before = _read(out / "runs" / files[0])
+
+    real_fsync = os.fsync
+
+    def full(fd):  # the disk fills up while a run record or results.csv is written
+        if os.readlink(f"/proc/self/fd/{fd}").endswith((".json", "results.csv")) and "lock" not in os.readlink(
+                f"/proc/self/fd/{fd}"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(PersistenceError, match=f"cannot write '{out / 'runs' / files[0]}': No space left on device"):
+        store.write_record(str(out / "runs"), dict(rec, rows=[]))
+    assert _read(out / "runs" / files[0]) == before and sorted(os.listdir(out / "runs")) == files
+    with pytest.raises(PersistenceError, match="results.csv': No space left on device"):
+        run_sweep("tiny", out, seeds=1, progress=False)
+    assert sorted(os.listdir(out)) == ["runs"]  # no table, no partial file, no lock left
+    assert sorted(os.listdir(out / "runs")) == files
+
+
+def test_tables_has_no_writer_of_its_own():
+    from factirl_opt.experiments import tables
+
+    assert not hasattr(tables, "write_atomic")  # one home: factirl_opt.files

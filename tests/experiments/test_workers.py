@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -106,12 +107,23 @@ def _start_sweep(out):
     return proc, family
 
 
-def _signal_sweep(tmp_path, signum):
+#: how long the sweep's processes may outlive a SIGTERM or Ctrl-C of the parent (seconds)
+BOUND_SECONDS = 1.0
+
+
+def _signal_sweep(tmp_path, signum, bound=None):
+    """Signal the parent; with ``bound``, also return the processes still alive ``bound`` seconds later."""
     out = tmp_path / "out"
     proc, family = _start_sweep(out)
     os.kill(proc.pid, signum)
+    late = set()
+    if bound is not None:
+        deadline = time.monotonic() + bound
+        while _alive(family) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        late = _alive(family)
     stdout, stderr = proc.communicate(timeout=60)  # returns only once nothing holds our pipes
-    return out, proc, family, stderr
+    return out, proc, family, stderr, late
 
 
 def _finished_runs(out):
@@ -120,12 +132,11 @@ def _finished_runs(out):
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_terminating_the_parent_leaves_nothing(tmp_path, signum):
-    out, proc, family, stderr = _signal_sweep(tmp_path, signum)
+    out, proc, family, stderr, late = _signal_sweep(tmp_path, signum, bound=BOUND_SECONDS)
     assert proc.returncode == 128 + signum, stderr
     assert "interrupted; rerun the same command to resume" in stderr and "Traceback" not in stderr
-    deadline = time.monotonic() + 5  # the resource tracker exits once its pipe closes
-    while _alive(family) and time.monotonic() < deadline:
-        time.sleep(0.05)
+    # the workers and the resource tracker are stopped with the sweep, not at the parent's exit
+    assert not late, f"alive {BOUND_SECONDS} s after the signal: {late}"
     assert not _alive(family), f"left alive: {_alive(family)}"
     assert not _shm_entries(family | {proc.pid})
     assert not (out / ".lock").exists()
@@ -133,7 +144,7 @@ def test_terminating_the_parent_leaves_nothing(tmp_path, signum):
 
 
 def test_workers_exit_by_themselves_after_kill_9_of_the_parent(tmp_path):
-    out, proc, family, _ = _signal_sweep(tmp_path, signal.SIGKILL)
+    out, proc, family, _, _ = _signal_sweep(tmp_path, signal.SIGKILL)
     assert proc.returncode == -signal.SIGKILL
     deadline = time.monotonic() + 30  # bound; they poll their parent every POLL_SECONDS
     while _alive(family) and time.monotonic() < deadline:
@@ -144,7 +155,7 @@ def test_workers_exit_by_themselves_after_kill_9_of_the_parent(tmp_path):
 
 @pytest.mark.slow
 def test_resume_after_kill_9_gives_identical_tables(tmp_path):
-    out, proc, family, _ = _signal_sweep(tmp_path, signal.SIGKILL)
+    out, proc, family, _, _ = _signal_sweep(tmp_path, signal.SIGKILL)
     deadline = time.monotonic() + 30
     while _alive(family) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -156,3 +167,44 @@ def test_resume_after_kill_9_gives_identical_tables(tmp_path):
     run_sweep("tiny", ref, seeds=N_SEEDS, jobs=1, progress=False)
     for t in TABLES:
         assert (out / t).read_bytes() == (ref / t).read_bytes()
+
+
+def _sleep_then_square(x):
+    time.sleep(0.2)
+    return x * x
+
+
+def test_a_sigterm_while_workers_start_stops_them_all():
+    """A SIGTERM during the workers' start is held, then every worker is stopped and the signal delivered."""
+    from factirl_opt.experiments.workers import Terminated, sigterm_raises
+
+    import factirl_opt.experiments.workers as workers_mod
+
+    started = []
+    original = workers_mod._stop
+
+    def spy(workers):
+        started.extend(p for p, _ in workers)
+        return original(workers)
+
+    timer = threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGTERM))
+    workers_mod._stop = spy
+    try:
+        with pytest.raises(Terminated), sigterm_raises():
+            timer.start()
+            list(imap_unordered(_sleep_then_square, [(i,) for i in range(4)], jobs=2))
+    finally:
+        workers_mod._stop = original
+        timer.join()
+    assert started and all(p.exitcode is not None for p in started)
+
+
+def test_an_ignored_sigterm_while_workers_start_changes_nothing():
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    timer = threading.Timer(0.01, os.kill, (os.getpid(), signal.SIGTERM))
+    try:
+        timer.start()
+        assert sorted(imap_unordered(_sleep_then_square, [(i,) for i in range(4)], jobs=2)) == [0, 1, 4, 9]
+    finally:
+        timer.join()
+        signal.signal(signal.SIGTERM, previous)
