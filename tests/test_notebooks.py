@@ -1,4 +1,4 @@
-"""Every notebook in notebooks/ executes top to bottom (issue 5): a broken notebook fails the suite.
+"""Every notebook in notebooks/ executes top to bottom: a broken notebook fails the suite.
 
 Each notebook runs in a fresh ``python3`` kernel with its own folder as the working directory
 (as Jupyter runs it), so relative paths such as ``../results`` resolve as they do for a reader,

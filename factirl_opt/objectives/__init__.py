@@ -1,4 +1,4 @@
-"""Objectives: registered per-task losses over rewards (DESIGN section 9).
+"""Objectives: registered per-task losses over rewards (docs/maths.md §5 and §6).
 
 An objective maps (MDP, empirical statistics, beta) to a batched loss per task and ``dJ/dR``;
 the learners take one by name (``objective=``), and the step solvers and the factorial scheme

@@ -1,6 +1,6 @@
 """What every objective shares: a batched per-task loss over rewards, bound to the data.
 
-An objective turns rewards into a loss per task and ``dJ/dR`` (DESIGN section 9); everything
+An objective turns rewards into a loss per task and ``dJ/dR`` (docs/maths.md §5, §6); everything
 else (planning, step solvers, the factorial scheme) is shared and never knows which objective
 runs. Subclasses implement the forward pass (:meth:`Objective._forward`), what warm-starts the
 next one (:meth:`Objective._warm_start`) and the gradient (:meth:`Objective._grad`);

@@ -1,8 +1,8 @@
 """The maximum causal entropy likelihood: soft values, the loss and its adjoint gradient.
 
 Infinite-horizon, discounted maximum causal entropy IRL (Ziebart et al. 2008, 2010), fitted by
-maximum likelihood of the demonstrated pairs (MLIRL, Babes-Vroman et al. 2011; DESIGN section
-9). Batched over tasks on the leading axis, rewards ``R`` (n, S, A):
+maximum likelihood of the demonstrated pairs (MLIRL, Babes-Vroman et al. 2011; docs/maths.md
+§6). Batched over tasks on the leading axis, rewards ``R`` (n, S, A):
 
 - soft Bellman equation ``Q = R + gamma P V``, ``V(s) = (1/beta) log sum_a exp(beta Q(s, a))``
   (the fixed point ``V = T V`` of the soft Bellman operator ``T``), soft-optimal policy
@@ -243,7 +243,7 @@ def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", ma
         ``J_i = -sum_s mu_hat(s) sum_a pi_hat(a|s) log pi_i(a|s)``, ``pi_i`` soft-optimal for
         ``R_i``.
     grad : ndarray, shape (n, S, A)
-        ``dJ_i / dR_i`` by the adjoint route (module docstring; DESIGN section 9).
+        ``dJ_i / dR_i`` by the adjoint route (module docstring; docs/maths.md §6).
     """
     check_mdp(mdp)
     R, _ = check_rewards(mdp, rewards)

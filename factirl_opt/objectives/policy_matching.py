@@ -1,6 +1,6 @@
 """The policy-matching loss of eq. (5), its gradient, and its Gauss-Newton derivatives.
 
-Notation (DESIGN section 3), batched over tasks on the leading axis:
+Notation (docs/maths.md §3 and §5), batched over tasks on the leading axis:
 
 - ``Q = Q*_R`` (n, S, A) and a greedy policy ``pi*`` (n, S); ``pi = softmax(beta Q)``;
 - loss per task ``J = sum_s mu(s) sum_a (pi(a|s) - pi_hat(a|s))^2`` (eq. 5), i.e.
@@ -154,7 +154,7 @@ def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None, pl
     loss : ndarray, shape (n,)
         ``J_i`` (eq. 5) for each task.
     grad : ndarray, shape (n, S, A)
-        ``dJ_i / dR_i`` (eqs. 8-9, computed by the adjoint route of DESIGN section 3).
+        ``dJ_i / dR_i`` (eqs. 8-9, computed by the adjoint route of docs/maths.md §3).
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
     pl = get_planner(mdp, planner)
@@ -170,7 +170,7 @@ def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None,
     ``R_i = F w_i`` the Jacobian ``dr_i/dw_i = sqrt(mu_i) dpi_i/dw`` comes from forward mode
     with p right-hand sides: ``Phi_V = (I - gamma P_pi)^-1 F[greedy rows]``,
     ``dQ*/dw = F + gamma P Phi_V``, ``dpi/dw = beta pi (dQ/dw - sum_a pi dQ/dw)``
-    (DESIGN section 3, Gauss-Newton H-step).
+    (docs/maths.md §5, Gauss-Newton H-step).
 
     Parameters
     ----------
