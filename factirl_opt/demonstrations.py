@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._threads import blas_limited
 from ._validation import RNGLike, as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
 from .planning import get_planner, plan
-from .task_environments import by_environment, environments, is_environment_sequence, per_task_values, task_rewards
+from .task_environments import by_environment, environments, is_environment_sequence, one_for_all, per_task_values, task_rewards
 from .trajectories import parse_demonstrations, task_steps
 
 if typing.TYPE_CHECKING:
@@ -93,7 +93,7 @@ def _sample_per_environment(mdps: Sequence[TabularMDP], rewards: typing.Any, rng
     """:func:`sample_demonstrations` over tasks in many environments, one call per distinct MDP."""
     envs = environments(mdps)
     per_task: dict[str, typing.Any] = {"rewards": task_rewards(envs, rewards, "rewards")}
-    fixed = {"start": start} if start is None or np.ndim(start) == 0 else {}  # one state for every task
+    fixed = {"start": start} if one_for_all(start) else {}  # None, or one state for every task
     if not fixed:
         per_task["start"] = per_task_values(envs, start, "start")
     out = by_environment(

@@ -27,7 +27,7 @@ from ._validation import check_beta, check_mdp, check_rewards, check_start
 from .exceptions import FactIRLError, ValidationError
 from .objectives.mce import soft_values
 from .planning import Planner, get_planner, plan
-from .task_environments import by_environment, environments, is_environment_sequence, per_task_values, task_rewards
+from .task_environments import by_environment, environments, is_environment_sequence, one_for_all, per_task_values, task_rewards
 
 if typing.TYPE_CHECKING:
     from collections.abc import Sequence
@@ -238,7 +238,7 @@ def soft_deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLi
         The values overflowed float64.
     """
     if is_environment_sequence(mdp):
-        shared = start is None or np.ndim(start) == 0  # one state for every task
+        shared = one_for_all(start)  # None, or one state for every task
         return _per_environment(soft_deviation, mdp, {"true_rewards": true_rewards, "learnt_rewards": learnt_rewards},
                                 {} if shared else {"start": start}, beta=beta, planner=planner,
                                 **({"start": start} if shared else {}))

@@ -33,7 +33,7 @@ from .exceptions import FactIRLError, ValidationError
 from .mdp import TabularMDP
 from .task_features import TaskFeatures
 
-__all__ = ["is_environment_sequence", "environments", "task_rewards", "per_task_values", "by_environment",
+__all__ = ["is_environment_sequence", "environments", "task_rewards", "one_for_all", "per_task_values", "by_environment",
            "assemble", "feature_rewards"]
 
 
@@ -46,13 +46,13 @@ def environments(mdps: Sequence[TabularMDP], n_tasks: int | None = None) -> list
     """The validated list of per-task MDPs (one home: :func:`~factirl_opt.objectives.environments.check_environments`)."""
     from .objectives.environments import check_environments  # the objectives import this package's samplers
 
-    return check_environments(list(mdps) if isinstance(mdps, tuple) else mdps, n_tasks)
+    return check_environments(mdps, n_tasks)
 
 
 def _task_items(values: Any, name: str, n: int) -> list[Any]:
     """The n per-task entries of a list or a stacked array (leading task axis)."""
     if isinstance(values, np.ndarray):
-        if values.ndim < 1:
+        if values.ndim == 0:
             raise ValidationError(f"{name} must hold one entry per task ({n}); got a 0-d array")
         items = list(values)
     elif isinstance(values, Sequence) and not isinstance(values, (str, bytes)):
@@ -92,6 +92,11 @@ def task_rewards(mdps: Sequence[TabularMDP], rewards: Any, name: str = "rewards"
                                   f"(S_i,) = ({mdp.n_states},); got shape {np.shape(r)}")
         out.append(R[0])
     return out
+
+
+def one_for_all(value: Any) -> bool:
+    """Whether an optional argument is None or a scalar (e.g. one start state for every task)."""
+    return value is None or np.isscalar(value) or (isinstance(value, np.ndarray) and value.ndim == 0)
 
 
 def per_task_values(mdps: Sequence[TabularMDP], values: Any, name: str) -> list[Any] | None:
@@ -152,7 +157,9 @@ def assemble(mdps: Sequence[TabularMDP], values: list[Any]) -> NDArray[Any] | li
 def _feature_list(features: Any, n: int) -> list[Any]:
     """n per-task feature matrices: one shared 2-d matrix repeated, or the n given."""
     if isinstance(features, np.ndarray):
-        shared = features.ndim == 2
+        if features.ndim != 3:
+            return [check_array(features, "features", ndim=2)] * n
+        shared = False
     elif isinstance(features, Sequence) and not isinstance(features, (str, bytes)) and len(features) > 0:
         shared = np.ndim(features[0]) != 2
     else:
