@@ -92,7 +92,7 @@ def _sample_per_environment(mdps: Sequence[TabularMDP], rewards: typing.Any, rng
                             start: typing.Any, return_final_states: bool, **kwargs: typing.Any) -> typing.Any:
     """:func:`sample_demonstrations` over tasks in many environments, one call per distinct MDP."""
     envs = environments(mdps)
-    per_task: dict[str, typing.Any] = {"rewards": task_rewards(envs, rewards, "rewards")}
+    per_task: dict[str, list[typing.Any] | None] = {"rewards": task_rewards(envs, rewards, "rewards")}
     fixed = {"start": start} if one_for_all(start) else {}  # None, or one state for every task
     if not fixed:
         per_task["start"] = per_task_values(envs, start, "start")
@@ -106,7 +106,7 @@ def _sample_per_environment(mdps: Sequence[TabularMDP], rewards: typing.Any, rng
 @blas_limited
 def sample_demonstrations(
     mdp: TabularMDP | Sequence[TabularMDP],
-    rewards: ArrayLike | Sequence[ArrayLike],
+    rewards: ArrayLike,
     n_demos: int,
     length: int,
     rng: RNGLike = None,
@@ -177,16 +177,16 @@ def sample_demonstrations(
     if is_environment_sequence(mdp):
         return _sample_per_environment(mdp, rewards, as_rng(rng), start, check_bool(return_final_states, "return_final_states"),
                                        n_demos=n_demos, length=length, planner=planner)
-    check_mdp(mdp)
-    R, _ = check_rewards(mdp, rewards)
+    model: TabularMDP = check_mdp(mdp)
+    R, _ = check_rewards(model, rewards)
     n_demos = check_int(n_demos, "n_demos", minimum=1)
     length = check_int(length, "length", minimum=1)
     return_final_states = check_bool(return_final_states, "return_final_states")
     rng = as_rng(rng)
     n, S, A = R.shape
     start_p = check_start(start, n, S)
-    policy = plan(get_planner(mdp, planner), R).policy
-    cum, nxt_state = row_cdfs(mdp)
+    policy = plan(get_planner(model, planner), R).policy
+    cum, nxt_state = row_cdfs(model)
     out = np.empty((n, n_demos, length, 2), dtype=np.int64)
     states = _start_states(start_p, n, n_demos, S, rng)
     task = np.arange(n)[:, None]

@@ -41,7 +41,7 @@ def _per_environment(func: typing.Callable[..., typing.Any], mdps: typing.Any, r
                      per_task: dict[str, typing.Any] | None = None, **kwargs: typing.Any) -> NDArray[np.float64]:
     """``func`` (a scorer of this module) over tasks in many environments: the (n,) scores in task order."""
     envs = environments(mdps)
-    values = {k: task_rewards(envs, v, k) for k, v in rewards.items()}
+    values: dict[str, list[typing.Any] | None] = {k: task_rewards(envs, v, k) for k, v in rewards.items()}
     values.update({k: per_task_values(envs, v, k) for k, v in (per_task or {}).items()})
     return np.array(by_environment(envs, lambda m, **r: func(m, **r, **kwargs), values), dtype=np.float64)
 
@@ -67,7 +67,7 @@ def _greedy_score(planner, Rt, Rl):
 
 
 @blas_limited
-def score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike | Sequence[ArrayLike], learnt_rewards: ArrayLike | Sequence[ArrayLike],
+def score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike, learnt_rewards: ArrayLike,
           planner: str = "auto") -> float | NDArray[np.float64]:
     """Score of learnt rewards on the true tasks (eq. 13).
 
@@ -109,7 +109,7 @@ def score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike | Sequ
 
 
 @blas_limited
-def optimal_score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike | Sequence[ArrayLike], planner: str = "auto") -> float | NDArray[np.float64]:
+def optimal_score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike, planner: str = "auto") -> float | NDArray[np.float64]:
     """The best possible score, ``mean_s V*_{R_true}(s)``.
 
     Parameters
@@ -127,14 +127,14 @@ def optimal_score(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLik
     """
     if is_environment_sequence(mdp):
         return _per_environment(optimal_score, mdp, {"true_rewards": true_rewards}, planner=planner)
-    check_mdp(mdp)
-    Rt, single = check_rewards(mdp, true_rewards, "true_rewards")
-    s = plan(get_planner(mdp, planner), Rt).V.mean(axis=1)
+    model: TabularMDP = check_mdp(mdp)
+    Rt, single = check_rewards(model, true_rewards, "true_rewards")
+    s = plan(get_planner(model, planner), Rt).V.mean(axis=1)
     return float(s[0]) if single else s
 
 
 @blas_limited
-def deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike | Sequence[ArrayLike], learnt_rewards: ArrayLike | Sequence[ArrayLike],
+def deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike, learnt_rewards: ArrayLike,
               planner: str = "auto") -> float | NDArray[np.float64]:
     """Deviation from the optimal score: ``optimal_score - score`` (>= 0; lower is better).
 
@@ -188,9 +188,9 @@ def _soft_value(planner: Planner, R_true: NDArray[np.float64], R: NDArray[np.flo
 
 
 @blas_limited
-def soft_deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike | Sequence[ArrayLike],
-                   learnt_rewards: ArrayLike | Sequence[ArrayLike], beta: float = 1.0,
-                   start: int | ArrayLike | Sequence[ArrayLike] | None = None,
+def soft_deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLike,
+                   learnt_rewards: ArrayLike, beta: float = 1.0,
+                   start: int | ArrayLike | None = None,
                    planner: str = "auto") -> float | NDArray[np.float64]:
     """Value lost by the soft-optimal policy of the learnt reward (docs/maths.md §9).
 
@@ -242,10 +242,11 @@ def soft_deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLi
         return _per_environment(soft_deviation, mdp, {"true_rewards": true_rewards, "learnt_rewards": learnt_rewards},
                                 {} if shared else {"start": start}, beta=beta, planner=planner,
                                 **({"start": start} if shared else {}))
-    Rt, Rl, single = _pair(mdp, true_rewards, learnt_rewards)
+    model: TabularMDP = check_mdp(mdp)
+    Rt, Rl, single = _pair(model, true_rewards, learnt_rewards)
     beta = check_beta(beta)
-    rho = check_start(start, Rt.shape[0], mdp.n_states)
-    pl = get_planner(mdp, planner)
+    rho = check_start(start, Rt.shape[0], model.n_states)
+    pl = get_planner(model, planner)
     dev = _soft_value(pl, Rt, Rt, beta, rho) - _soft_value(pl, Rt, Rl, beta, rho)
     if not np.all(np.isfinite(dev)):
         bad = int(np.argmax(~np.isfinite(dev)))

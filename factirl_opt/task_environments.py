@@ -23,7 +23,7 @@ demonstration was given (docs/maths.md §7, §9).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,7 +37,7 @@ __all__ = ["is_environment_sequence", "environments", "task_rewards", "one_for_a
            "assemble", "feature_rewards"]
 
 
-def is_environment_sequence(mdp: Any) -> bool:
+def is_environment_sequence(mdp: Any) -> TypeGuard[Sequence[TabularMDP]]:
     """Whether ``mdp`` is a sequence of per-task MDPs (a list or tuple, not one model)."""
     return not isinstance(mdp, TabularMDP) and isinstance(mdp, Sequence) and not isinstance(mdp, (str, bytes))
 

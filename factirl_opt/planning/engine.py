@@ -215,7 +215,7 @@ def _optimal_q_per_environment(mdps: Any, rewards: Any, policy: Any, **kwargs: A
 
 
 @blas_limited
-def optimal_q(mdp: Any, rewards: ArrayLike | list[ArrayLike], policy: ArrayLike | list[ArrayLike] | None = None,
+def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None,
               max_iter: int = 1000, planner: str | Planner = "auto") -> tuple[Any, Any]:
     """Exact optimal action values Q* and a greedy policy, by policy iteration.
 
