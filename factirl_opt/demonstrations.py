@@ -233,8 +233,8 @@ def empirical_statistics(mdp: TabularMDP, demos_per_task: typing.Any) -> tuple[N
     for i, task in enumerate(tasks):
         steps = task.steps
         counts[i] = np.bincount(steps[:, 0] * A + steps[:, 1], minlength=S * A)
-    counts = counts.reshape(n, S, A)
-    visits = counts.sum(axis=2)
+    per_pair = counts.reshape(n, S, A)
+    visits = per_pair.sum(axis=2)
     mu_hat = visits / visits.sum(axis=1, keepdims=True)
-    pi_hat = np.divide(counts, visits[:, :, None], out=np.zeros_like(counts), where=visits[:, :, None] > 0)
+    pi_hat = np.divide(per_pair, visits[:, :, None], out=np.zeros_like(per_pair), where=visits[:, :, None] > 0)
     return mu_hat, pi_hat
