@@ -46,6 +46,9 @@ least-squares objective: where a run names one, the MCE learners take L-BFGS ste
 (:data:`GRADIENT_FALLBACK`), and :func:`substitutions` names every such replacement before the
 runs start (the command line prints it and the manifest records it).
 
+Line-up ``"babyai"`` (the BabyAI worlds: a layout per task, its own features) is defined, and
+added to :data:`LINEUPS`, by :mod:`.babyai`.
+
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
 

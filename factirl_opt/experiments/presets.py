@@ -52,6 +52,18 @@ Presets
 ``objectworld-tiny``
     An 8x8 Objectworld (object density 0.15), a few tasks and iterations: seconds, the smoke
     test of the Objectworld machinery; its scores mean nothing.
+``babyai``
+    BabyAI-GoToLocal-v0 (world and line-up ``"babyai"``, :mod:`.babyai`): a layout per task,
+    the BabyAI bot's demonstrations (4 per training layout: from the start and from 3 random
+    starts), training layouts swept over (10, 30, 100), 100 test layouts with new missions and
+    ONE bot demonstration each, 3 seeds; scored by the success rate in the environment of the
+    learnt rewards' greedy policies (:data:`BABYAI_SOLVERS`, k = 8 primitives).
+``babyai-large``
+    BabyAI-GoToOpen-v0 (about 1,250 states per layout): 10 and 30 training layouts x 2 bot
+    demonstrations, 30 test layouts, 1 seed, the same learners.
+``babyai-quick``
+    ``babyai`` with 12 training layouts x 3 demonstrations, 10 test layouts, 1 seed and short
+    budgets: the default test suite's end-to-end run.
 
 Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce")``, or
 ``factirl-opt reproduce --lineup``) or planner; those fields enter the fingerprint only when
@@ -314,6 +326,12 @@ FAST_SOLVERS: dict[str, Any] = dict(solvers=SolverSettings("gn-qp-clarabel", d_s
 #: too (Levine's 217 features at 32x32 make a Gauss-Newton block QP too large to compile)
 OBJECTWORLD_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
 
+#: the BabyAI presets' solvers: Armijo H-steps and L-BFGS D-steps (faster than Gauss-Newton QP
+#: steps on 127 features per layout), L-BFGS for every flat fit, the ``fast`` stopping rules
+BABYAI_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, solvers=SolverSettings("armijo", d_solver="lbfgs"),
+                                      flat_features_solver="lbfgs", n_primitives=8)
+_BABYAI: dict[str, Any] = dict(world="babyai", lineup="babyai", n_seeds=1, **BABYAI_SOLVERS)
+
 PRESETS = {
     "paper": Preset(name="paper"),
     "fast": Preset(name="fast", **FAST_SOLVERS),
@@ -387,6 +405,13 @@ PRESETS = {
         n_seeds=1,
         **dict(OBJECTWORLD_SOLVERS, fact_max_iter=3),
     ),
+    "babyai": Preset(name="babyai", **dict(_BABYAI, demos_sweep=(4,), tasks_sweep=(10, 30, 100), default_tasks=100,
+                                           default_demos=4, n_test_tasks=100, n_seeds=3)),
+    "babyai-large": Preset(name="babyai-large", **dict(_BABYAI, world="babyai-large", demos_sweep=(2,), tasks_sweep=(10, 30),
+                                                       default_tasks=30, default_demos=2, n_test_tasks=30)),
+    "babyai-quick": Preset(name="babyai-quick", **dict(_BABYAI, demos_sweep=(3,), tasks_sweep=(12,), default_tasks=12,
+                                                       default_demos=3, n_test_tasks=10, flat_max_iter=40,
+                                                       transfer_max_iter=40, fact_max_iter=10)),
     "tiny": Preset(
         name="tiny",
         grid_size=5,
@@ -417,6 +442,12 @@ PRESET_DESCRIPTIONS = {
     "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 3 seeds "
                          "(under a minute)",
     "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",
+    "babyai": "BabyAI-GoToLocal-v0: a layout per task, the bot's demonstrations, 10/30/100 training layouts, 100 test "
+              "layouts with one demonstration each, success rate in the environment, 3 seeds",
+    "babyai-large": "BabyAI-GoToOpen-v0 (about 1,250 states per layout): 10/30 training layouts x 2 demos, 30 test "
+                    "layouts, 1 seed",
+    "babyai-quick": "BabyAI-GoToLocal-v0: 12 training layouts x 3 demos, 10 test layouts, short budgets, 1 seed "
+                    "(under a minute)",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
 }
 

@@ -252,10 +252,11 @@ def _run_one(preset, spec, progress, reuse):
         progress(f"{learner.split}: {learner.name}")
         ctx.learner = learner
         fit, elapsed = _build(learner, gt, preset, ctx, reuse)
-        dev = deviation(gt.mdp, gt.rewards(learner.split), fit.rewards, planner=preset.planner)
+        dev, extra = (gt.scores(learner.split, fit.rewards, preset.planner) if hasattr(gt, "scores")  # BabyAI: in the env
+                      else (deviation(gt.mdp, gt.rewards(learner.split), fit.rewards, planner=preset.planner), {}))
         head = dict(split=learner.split, learner=learner.name, **common)
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
-                         loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations)))
+                         loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations), **extra))
         timings.append(dict(head, fit_time=elapsed))
         ctx.rewards[learner.split, learner.name] = fit.rewards
     record = dict(key=spec.key(preset), spec=spec.to_dict(), preset=preset.to_dict(), rows=rows, timings=timings)

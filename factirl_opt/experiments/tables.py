@@ -7,6 +7,10 @@
     OUT/timings.csv   fit time of every learner in every run (varies from run to run)
     OUT/figure3.json  value functions of 4 test tasks (default point, first seed)
 
+In a world scored in its environment (BabyAI, :mod:`.babyai`), results.csv has three more
+columns, ``success_rate``, ``bot_success_rate`` and ``random_success_rate`` (:data:`ENVIRONMENT_COLUMNS`),
+and summary.csv their mean and standard deviation over seeds (``success_rate_mean``, ...).
+
 Rows are sorted (split, solver, n_tasks, demos_per_task, learner in line-up order, seed), so
 the tables depend only on the set of run records, not on the order the runs finished in.
 Every file is written atomically (:func:`factirl_opt.files.atomic_write`: a temporary file in
@@ -45,8 +49,13 @@ RESULT_COLUMNS = (
 )
 SUMMARY_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "h_solver", "n_seeds", "deviation_mean", "deviation_std")
 TIMING_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "seed", "h_solver", "fit_time")
+#: the columns of a world scored in its environment (BabyAI): success rates of the learnt, the bot's and a random policy
+ENVIRONMENT_COLUMNS = ("success_rate", "bot_success_rate", "random_success_rate")
+ENVIRONMENT_RESULT_COLUMNS = RESULT_COLUMNS + ENVIRONMENT_COLUMNS
+ENVIRONMENT_SUMMARY_COLUMNS = SUMMARY_COLUMNS + tuple(f"{c}_{s}" for c in ENVIRONMENT_COLUMNS for s in ("mean", "std"))
 INT_COLUMNS = ("n_tasks", "demos_per_task", "seed", "n_scored_tasks", "n_evaluations", "n_seeds")
-FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean")
+FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean", *ENVIRONMENT_COLUMNS,
+                 *ENVIRONMENT_SUMMARY_COLUMNS[len(SUMMARY_COLUMNS):])
 
 
 def _csv_text(rows, columns):
@@ -72,7 +81,8 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     with open(path, newline="") as fh:
         reader = csv.DictReader(fh)
         try:
-            if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS):
+            if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS,
+                                                      ENVIRONMENT_RESULT_COLUMNS, ENVIRONMENT_SUMMARY_COLUMNS):
                 raise ValueError(f"unexpected header {reader.fieldnames}")
             for r in reader:
                 out.append(_parse_row(r))
@@ -114,6 +124,17 @@ def _summary(rows):
     ]
 
 
+def _environment_summary(rows, group):
+    """Mean and standard deviation over seeds of the environment columns of a summary row's runs."""
+    fields = ("split", "learner", "n_tasks", "demos_per_task", "h_solver")
+    runs = [r for r in rows if all(r[f] == group[f] for f in fields)]
+    out = {}
+    for c in ENVIRONMENT_COLUMNS:
+        v = [r[c] for r in runs]
+        out[f"{c}_mean"], out[f"{c}_std"] = float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+    return out
+
+
 def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Write results.csv, summary.csv, timings.csv (and figure3.json) from run records.
 
@@ -139,8 +160,12 @@ def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> l
     rows = sorted((r for rec in records for r in rec["rows"]), key=key)
     timings = sorted((r for rec in records for r in rec["timings"]), key=key)
     summary = sorted(_summary(rows), key=key)
-    write_text_atomic(os.path.join(out, "results.csv"), _csv_text(rows, RESULT_COLUMNS))
-    write_text_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, SUMMARY_COLUMNS))
+    result_columns, summary_columns = RESULT_COLUMNS, SUMMARY_COLUMNS
+    if rows and ENVIRONMENT_COLUMNS[0] in rows[0]:  # a world scored in its environment
+        summary = [dict(s, **_environment_summary(rows, s)) for s in summary]
+        result_columns, summary_columns = ENVIRONMENT_RESULT_COLUMNS, ENVIRONMENT_SUMMARY_COLUMNS
+    write_text_atomic(os.path.join(out, "results.csv"), _csv_text(rows, result_columns))
+    write_text_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, summary_columns))
     write_text_atomic(os.path.join(out, "timings.csv"), _csv_text(timings, TIMING_COLUMNS))
     fig3 = sorted((rec for rec in records if "figure3" in rec), key=lambda rec: (rec["spec"]["h_solver"], rec["spec"]["seed"]))
     path = os.path.join(out, "figure3.json")

@@ -21,6 +21,10 @@ recipe; a new world is one more entry.
     (:func:`factirl_opt.sample_demonstrations`, uniform start states), planned with the
     preset's planner. ``coefficient_kind`` is not used.
 
+``"babyai"`` and ``"babyai-large"`` (BabyAI GoTo levels: a layout per task, the bot's demonstrations)
+    See :mod:`.babyai`: their ground truth is a :class:`.babyai.BabyAIGroundTruth` (per-task
+    MDPs, features and mission rewards), which scores the learners itself, in the environment.
+
 Randomness: the run's seed makes a ``numpy.random.SeedSequence`` whose spawned children feed
 independent streams, in this order: dictionary (Objectworld: the object layout), training
 coefficients, test coefficients, training demonstrations, test demonstrations, learners
@@ -41,6 +45,7 @@ from ..exceptions import ValidationError
 from ..mdp import GridWorld, TabularMDP
 from ..objectworld import MOVES, make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
 from ..synthetic import random_dictionary, synthetic_tasks
+from .babyai import babyai_large_world, babyai_world
 
 __all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "objectworld", "N_STREAMS"]
 
@@ -162,6 +167,7 @@ def objectworld(preset, n_tasks, demos_per_task, seed):
 
 #: world name (a preset's ``world``) -> recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``
 WORLDS = {"grid": grid_world, "objectworld": objectworld}
+WORLDS.update({"babyai": babyai_world, "babyai-large": babyai_large_world})
 
 
 def make_ground_truth(preset, n_tasks, demos_per_task, seed):
