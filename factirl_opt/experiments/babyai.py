@@ -19,8 +19,11 @@ Protocol (:func:`babyai_world`)
   :func:`factirl_opt.minigrid.bot_demonstration` allows). A GoToLocal bot episode is a few
   steps long (the target is in sight), so the extra starts show the mission from elsewhere.
 - **Test**: ``n_test_tasks`` further layouts (seeds never used in training) with their own
-  missions, ONE bot episode each, from the environment's start. A mission may repeat a
-  training mission's (colour, type): there are 18 GoTo targets (6 colours x 3 types).
+  missions, ONE bot episode each, from a uniform non-terminal start other than the
+  environment's; the learnt policy is then run from the environment's start. (A
+  demonstration from the start itself would be solved by copying it: a tabular reward on its
+  few states already succeeds, which measures nothing.) A mission may repeat a training
+  mission's (colour, type): there are 18 GoTo targets (6 colours x 3 types).
 - Layout seeds are drawn one by one (test first, then training, skipping test seeds and
   layouts the model refuses, e.g. the agent starting in front of its target), so the training
   layouts of a smaller point are the first ones of a larger point, and every point of a seed
@@ -40,7 +43,8 @@ Scores (:meth:`BabyAIGroundTruth.scores`; the columns of the tables)
     against the mission's reward: 1 for a step that enters a state where the episode ends
     with success, 0 otherwise (its greedy policy is a shortest path to the target).
 ``bot_success_rate``
-    The ceiling: the fraction of the split's bot episodes the environment judged successful.
+    The ceiling: the fraction of the split's layouts where the bot, run from the environment's
+    start, succeeds (as the environment judges).
 ``random_success_rate``
     The floor: the probability that the uniformly random policy over left/right/forward
     succeeds within ``max_steps`` from the start, computed exactly on the enumerated model
@@ -86,8 +90,8 @@ __all__ = ["ENV_IDS", "BabyAIGroundTruth", "babyai_world", "babyai_large_world",
 #: world name -> BabyAI level
 ENV_IDS = {"babyai": "BabyAI-GoToLocal-v0", "babyai-large": "BabyAI-GoToOpen-v0"}
 #: children spawned from a run's SeedSequence: test layouts, training layouts, training
-#: starts, learners
-N_STREAMS = 4
+#: starts, learners, test starts
+N_STREAMS = 5
 #: layout seeds are drawn from [0, SEED_RANGE)
 SEED_RANGE = 2**31 - 1
 SPLITS = ("train", "test")
@@ -140,7 +144,7 @@ class BabyAIGroundTruth:
     train_rewards, test_rewards : list of (S_i, A) arrays
         The missions' rewards (:func:`mission_rewards`).
     bot_success : dict
-        ``split -> (n,) bool``, the success of each task's first bot episode (from the start).
+        ``split -> (n,) bool``, the success of the bot from each layout's start.
     learner_rng : numpy.random.Generator
     """
 
@@ -220,32 +224,38 @@ def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: fl
     return seeds, models
 
 
-def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.random.Generator | None,
-                  gamma: float) -> tuple[list, bool]:
-    """``m`` bot episodes in a layout: from its start, then from uniform non-terminal starts."""
+def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.random.Generator, gamma: float,
+                  from_start: bool) -> tuple[list, bool]:
+    """``m`` bot episodes in a layout, and whether the bot succeeds from the layout's start.
+
+    With ``from_start`` the first episode is the one from the start, the others from uniform
+    non-terminal starts; without, every episode starts from a uniform non-terminal state
+    other than the layout's start.
+    """
     first = bot_demonstration(env, seed=seed, gamma=gamma)
-    episodes = [first.demonstration]
-    if m > 1:
-        candidates = np.flatnonzero(~model.terminal)
-        for s in rng.choice(candidates, size=m - 1):
-            start = tuple(int(v) for v in model.states[s])
-            episodes.append(bot_demonstration(env, seed=seed, start=start, gamma=gamma).demonstration)
+    episodes = [first.demonstration] if from_start else []
+    candidates = np.flatnonzero(~model.terminal)
+    if not from_start:
+        candidates = candidates[candidates != model.start]
+    for s in rng.choice(candidates, size=m - len(episodes)):
+        start = tuple(int(v) for v in model.states[s])
+        episodes.append(bot_demonstration(env, seed=seed, start=start, gamma=gamma).demonstration)
     return episodes, bool(first.success)
 
 
 def _world(env_id: str, preset: Any, n_tasks: int, demos_per_task: int, seed: int) -> BabyAIGroundTruth:
     require_minigrid("the BabyAI world")
     env = importlib.import_module("gymnasium").make(env_id)
-    s_test, s_train, s_starts, s_learn = np.random.SeedSequence(seed).spawn(N_STREAMS)
+    s_test, s_train, s_train_starts, s_learn, s_test_starts = np.random.SeedSequence(seed).spawn(N_STREAMS)
     test_seeds, test_models = _layouts(env, preset.n_test_tasks, np.random.default_rng(s_test), set(), preset.gamma)
     train_seeds, train_models = _layouts(env, n_tasks, np.random.default_rng(s_train), set(test_seeds), preset.gamma)
-    starts = np.random.default_rng(s_starts)
     demos: dict = {"train": [], "test": []}
     bot: dict = {"train": [], "test": []}
-    for split, seeds, models, m in (("train", train_seeds, train_models, demos_per_task),
-                                    ("test", test_seeds, test_models, 1)):
+    for split, seeds, models, m, s_starts in (("train", train_seeds, train_models, demos_per_task, s_train_starts),
+                                              ("test", test_seeds, test_models, 1, s_test_starts)):
+        starts = np.random.default_rng(s_starts)
         for layout, model in zip(seeds, models):
-            episodes, ok = _bot_episodes(env, layout, model, m, starts if split == "train" else None, preset.gamma)
+            episodes, ok = _bot_episodes(env, layout, model, m, starts, preset.gamma, from_start=split == "train")
             demos[split].append(episodes)
             bot[split].append(ok)
     return BabyAIGroundTruth(env, dict(train=train_seeds, test=test_seeds), dict(train=train_models, test=test_models),
@@ -268,7 +278,7 @@ def babyai_world(preset: Any, n_tasks: int, demos_per_task: int, seed: int) -> B
         Bot episodes per training layout (the first from the start, the others from random starts).
     seed : int
         Entropy of the run's SeedSequence (streams: test layouts, training layouts, training
-        starts, learners).
+        starts, learners, test starts).
 
     Returns
     -------
