@@ -16,7 +16,8 @@ Protocol (:func:`babyai_world`)
 - **Training**: ``n_tasks`` layouts, ``demos_per_task`` bot episodes each: the first from the
   environment's start, the others from start states drawn uniformly among the layout's
   non-terminal states (the agent is moved there after the reset, as
-  :func:`factirl_opt.minigrid.bot_demonstration` allows). A GoToLocal bot episode is a few
+  :func:`factirl_opt.minigrid.bot_demonstration` allows; a start from which the bot would pick
+  up or move an object, which the model does not hold, is redrawn). A GoToLocal bot episode is a few
   steps long (the target is in sight), so the extra starts show the mission from elsewhere.
 - **Test**: ``n_test_tasks`` further layouts (seeds never used in training) with their own
   missions, ONE bot episode each, from a uniform non-terminal start other than the
@@ -230,16 +231,23 @@ def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.ran
 
     With ``from_start`` the first episode is the one from the start, the others from uniform
     non-terminal starts; without, every episode starts from a uniform non-terminal state
-    other than the layout's start.
+    other than the layout's start. A start from which the bot leaves the model (it would pick
+    up an object in its way) is redrawn.
     """
     first = bot_demonstration(env, seed=seed, gamma=gamma)
     episodes = [first.demonstration] if from_start else []
     candidates = np.flatnonzero(~model.terminal)
     if not from_start:
         candidates = candidates[candidates != model.start]
-    for s in rng.choice(candidates, size=m - len(episodes)):
-        start = tuple(int(v) for v in model.states[s])
-        episodes.append(bot_demonstration(env, seed=seed, start=start, gamma=gamma).demonstration)
+    refused = 0
+    while len(episodes) < m:
+        start = tuple(int(v) for v in model.states[rng.choice(candidates)])
+        try:
+            episodes.append(bot_demonstration(env, seed=seed, start=start, gamma=gamma).demonstration)
+        except ValidationError:  # the bot would pick up or move an object: redraw the start
+            refused += 1
+            if refused > 20 * m:
+                raise
     return episodes, bool(first.success)
 
 
