@@ -82,11 +82,12 @@ from ..minigrid import bot_demonstration, from_minigrid, parse_goto_mission, run
 from ..minigrid.model import ACTIONS, MiniGridModel, base_env, require_minigrid
 from ..planning import optimal_q
 from .learner_names import FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT, FLAT_FEATURES, FLAT_MCE_FEATURES
+from .claims import CLAIMS
 from .learners import LINEUPS, Fit, Learner, Lineup, factorial_options, flat_solver
 
 __all__ = ["ENV_IDS", "BabyAIGroundTruth", "babyai_world", "babyai_large_world", "mission_rewards",
            "random_success_probability", "flat_tabular", "flat_features", "factorial_features",
-           "factorial_features_transfer", "LINEUP", "babyai_figure_data", "plot_babyai_layout"]
+           "factorial_features_transfer", "LINEUP", "babyai_claims"]
 
 #: world name -> BabyAI level
 ENV_IDS = {"babyai": "BabyAI-GoToLocal-v0", "babyai-large": "BabyAI-GoToOpen-v0"}
@@ -370,3 +371,31 @@ LINEUP = Lineup(
     worlds=("babyai", "babyai-large"),
 )
 LINEUPS[LINEUP.name] = LINEUP
+
+
+def _success(rows: Any, learner: str, n: int, m: int) -> dict:
+    return {r["seed"]: r["success_rate"] for r in rows
+            if r["split"] == "test" and r["learner"] == learner and r["n_tasks"] == n and r["demos_per_task"] == m}
+
+
+def babyai_claims(rows: Any, preset: Any) -> list[dict | None]:
+    """The BabyAI claims: on new layouts with one demonstration each, each factorial learner on
+    features reaches a higher success rate in the environment than its flat counterpart, at
+    every number of training layouts (:mod:`.claims`' format; ``measured`` gives success rates)."""
+    out: list[dict | None] = []
+    m = preset.default_demos
+    for fact, flat in ((FACTORIAL_FEATURES, FLAT_FEATURES), (FACTORIAL_MCE_FEATURES, FLAT_MCE_FEATURES)):
+        for n in sorted(preset.tasks_sweep):
+            a, b = _success(rows, fact, n, m), _success(rows, flat, n, m)
+            seeds = sorted(set(a) & set(b))
+            if not seeds:
+                continue
+            va, vb = np.array([a[s] for s in seeds]), np.array([b[s] for s in seeds])
+            out.append(dict(claim=f"test: {fact} succeeds more often than {flat} (success rate in the environment)",
+                            source="BabyAI benchmark", point=f"{n} tasks, {m} demos",
+                            measured=f"success {fact}: {va.mean():.2f}; {flat}: {vb.mean():.2f}",
+                            holds=bool(va.mean() > vb.mean()), seeds=f"{int(np.sum(va > vb))}/{len(seeds)}"))
+    return out
+
+
+CLAIMS[LINEUP.name] = ("BabyAI claims", babyai_claims)
