@@ -69,7 +69,7 @@ def babyai_figure_data(preset: str | Preset = "babyai", seed: int = 0, n_tasks: 
     Returns
     -------
     dict
-        ``grid_size``, ``mission``, ``objects`` (rows x, y, colour, type), ``states`` (S, 3),
+        ``grid_size``, ``mission``, ``objects`` (rows x, y, colour, type), ``states`` (S, 3), ``start``,
         ``demo`` (the states of the bot's demonstration, its last state included) and, per
         learner, ``values`` (S,), ``path`` (states visited in the environment), ``success``.
     """
@@ -86,7 +86,7 @@ def babyai_figure_data(preset: str | Preset = "babyai", seed: int = 0, n_tasks: 
         Q, policy = optimal_q(model.mdp, R, planner=preset.planner)
         run = run_policy(gt.env, np.asarray(policy, dtype=np.int64), seed=layout, model=model)
         data["learners"][name] = dict(values=Q.max(axis=-1).tolist(), path=run.states.tolist(), success=run.success)
-    data["seed"], data["layout_seed"], data["n_tasks"] = seed, layout, n
+    data.update(seed=seed, layout_seed=layout, n_tasks=n, start=model.start)
     return data
 
 
