@@ -242,7 +242,8 @@ def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.ran
         candidates = candidates[candidates != model.start]
     refused = 0
     while len(episodes) < m:
-        start = tuple(int(v) for v in model.states[rng.choice(candidates)])
+        x, y, d = (int(v) for v in model.states[rng.choice(candidates)])
+        start = (x, y, d)
         try:
             episodes.append(bot_demonstration(env, seed=seed, start=start, gamma=gamma).demonstration)
         except ValidationError:  # the bot would pick up or move an object: redraw the start

@@ -160,7 +160,8 @@ def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> l
     rows = sorted((r for rec in records for r in rec["rows"]), key=key)
     timings = sorted((r for rec in records for r in rec["timings"]), key=key)
     summary = sorted(_summary(rows), key=key)
-    result_columns, summary_columns = RESULT_COLUMNS, SUMMARY_COLUMNS
+    result_columns: tuple[str, ...] = RESULT_COLUMNS
+    summary_columns: tuple[str, ...] = SUMMARY_COLUMNS
     if rows and ENVIRONMENT_COLUMNS[0] in rows[0]:  # a world scored in its environment
         summary = [dict(s, **_environment_summary(rows, s)) for s in summary]
         result_columns, summary_columns = ENVIRONMENT_RESULT_COLUMNS, ENVIRONMENT_SUMMARY_COLUMNS
