@@ -21,17 +21,24 @@ from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, 
 from .dictionary import (
     PCA_MAX_HALVINGS,
     feature_weights,
+    metric_pca_dictionary,
     normalise_dictionary,
     orient_nonneg,
     pca_dictionary,
     shrink_coefficients,
+    task_feature_weights,
 )
 from .exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
 from .fitting import (
+    Environments,
     check_features_digest,
+    environment_signatures,
+    environments_setup,
     features_digest,
     make_objective,
+    one_environment,
+    reward_dimension,
     resolve_step_solver,
     reward_features,
     warn_if_stalled,
@@ -39,6 +46,7 @@ from .fitting import (
 from .gradirl import fit_weights, weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
+from .task_features import TaskFeatures
 from .transfer import TransferFit, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -51,6 +59,13 @@ RANDOM_INIT_SCALE = 0.3
 
 #: the flat learner of the PCA start: GradIRL's default solver and tolerance
 FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+
+
+def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """What the PCA start decomposes: the flat rewards (n, S*A), or with per-task features the weights (n, p)."""
+    if isinstance(Phi, TaskFeatures):
+        return weights
+    return weights_rewards(Phi, weights, mdp.n_states, mdp.n_actions).reshape(len(weights), -1)
 
 
 class FactIRL:
@@ -223,22 +238,26 @@ class FactIRL:
         try:
             res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
         except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
-            X = weights_rewards(Phi, exc.result.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1)
-            D, H = self._pca(X, Phi, rng)
+            D, H = self._pca(_flat_points(mdp, Phi, exc.result.coefficients), Phi, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
             raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
-        return weights_rewards(Phi, res.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1), obj.n_evaluations - ev0
+        return _flat_points(mdp, Phi, res.coefficients), obj.n_evaluations - ev0
 
     def _pca(self, X, Phi, rng):
-        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space."""
+        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space; with
+        per-task features, of the flat weights X (n, p) (:func:`metric_pca_dictionary`)."""
+        if isinstance(Phi, TaskFeatures):
+            return metric_pca_dictionary(X, Phi, self.n_primitives, rng)
         D, H = pca_dictionary(X, self.n_primitives, rng)
         return (D if Phi is None else feature_weights(Phi, D)), H
 
     def _pca_init(self, mdp, n, Phi, flat_rewards, rng, obj):
         if flat_rewards is None:
             X, evals = self._flat_start(mdp, n, Phi, obj, rng)
+        elif isinstance(Phi, TaskFeatures):
+            X, evals = task_feature_weights(Phi, flat_rewards), 0
         else:
             Theta, evals = check_array(flat_rewards, "flat_rewards"), 0
             if Theta.shape != (n, mdp.n_states, mdp.n_actions):
@@ -261,7 +280,7 @@ class FactIRL:
         return D, H, evals
 
     def _initial(self, mdp, n, Phi, flat_rewards, rng, obj):
-        k, p = self.n_primitives, mdp.n_params if Phi is None else Phi.shape[1]
+        k, p = self.n_primitives, reward_dimension(mdp, Phi)
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
@@ -277,12 +296,12 @@ class FactIRL:
             return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
-    def _check_params(self, mdp):
-        """Validate the hyper-parameters; the base features (None, StateBroadcast or (S*A, p)) and
-        the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
+    def _check_params(self, mdp, task_features=None):
+        """Validate the hyper-parameters; the base features (None, StateBroadcast, (S*A, p), or
+        ``task_features`` given) and the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
         k = check_int(self.n_primitives, "n_primitives", minimum=1)
-        Phi = self._features(mdp)
-        p = mdp.n_params if Phi is None else Phi.shape[1]
+        Phi = self._features(mdp) if task_features is None else task_features
+        p = reward_dimension(mdp, Phi)
         if k > p:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
@@ -312,33 +331,43 @@ class FactIRL:
         -------
         self
         """
-        check_mdp(mdp)
-        Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(mdp)
+        one = one_environment(mdp, demos_per_task, self.features)
+        if one is None:  # tasks in several environments: ``where`` is their Environments
+            obj, where = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta, self.objective,
+                                            self.planner)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(None, where.features)
+        else:
+            where = check_mdp(one)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
         h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
         d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
-        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        if one is not None:
+            obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
-            D, H, init_evals = self._initial(mdp, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+            D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
             if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                 D, H = orient_nonneg(D, H, self.init == "random")
             fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter,
                                 inner_steps=inner_steps, tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
         except FitInterrupted as exc:
-            self._store(mdp, Phi, exc.result, int(obj.n_evaluations))
+            self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
             raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
-        self._store(mdp, Phi, fit, int(fit.n_evaluations + init_evals))
+        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
-    def _store(self, mdp, Phi, fit, n_evaluations):
+    def _store(self, where, Phi, fit, n_evaluations):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
-        self.rewards_ = factorial_rewards(mdp, Phi, fit.dictionary, fit.coefficients)
+        self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
-        self.mdp_signature_ = mdp.signature()
+        if isinstance(where, Environments):
+            self.mdp_signature_, self.features_sha256_ = environment_signatures(where.mdps), where.digest
+            return
+        self.mdp_signature_ = where.signature()
         self.features_sha256_ = None if self.features is None else features_digest(Phi)
 
     def _transfer_dictionary(self, mdp):
