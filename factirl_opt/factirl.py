@@ -47,7 +47,7 @@ from .gradirl import fit_weights, weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
 from .task_features import TaskFeatures
-from .transfer import TransferFit, run_transfer, transfer_coefficients
+from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
@@ -375,7 +375,7 @@ class FactIRL:
         if not hasattr(self, "dictionary_"):
             raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
         check_mdp(mdp)
-        if getattr(self, "mdp_signature_", None) is not None:
+        if isinstance(getattr(self, "mdp_signature_", None), dict):  # a list: fitted on several environments
             check_signature(self.mdp_signature_, mdp, "this FactIRL model")
         Phi = self._features(mdp)
         if hasattr(self, "features_sha256_"):
@@ -389,8 +389,8 @@ class FactIRL:
         return Phi, D
 
     @blas_limited
-    def transfer(self, mdp: Any, demos_per_task: Any, max_iter: int | None = None, h_solver: Any = None,
-                 h_solver_options: dict | None = None) -> NDArray[np.float64]:
+    def transfer(self, mdp: Any, demos_per_task: Any, features: Any = None, max_iter: int | None = None,
+                 h_solver: Any = None, h_solver_options: dict | None = None) -> NDArray[np.float64]:
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
@@ -398,9 +398,16 @@ class FactIRL:
 
         Parameters
         ----------
-        mdp : TabularMDP
-            The MDP of ``fit`` (checked against ``mdp_signature_`` when the model has one).
+        mdp : TabularMDP or sequence of n_new TabularMDP
+            The MDP of ``fit`` (checked against ``mdp_signature_`` for a model fitted on one
+            MDP, when no ``features`` are given), or the new tasks' own environments (one MDP
+            per new task, or one shared), with the number of actions of ``fit``.
         demos_per_task : list of n_new task demonstrations
+        features : array_like or sequence of n_new array_like, optional
+            The new environments' features, over the p features of ``fit``: one shared
+            matrix, or one (S_i*A, p) or (S_i, p) per new task. Required for a model fitted
+            with per-task features; with them no MDP signature is checked (the dictionary is
+            carried to the new environments). Default: the model's own (shared) features.
         max_iter : int, optional
             Default ``transfer_max_iter``.
         h_solver : str or solvers.StepSolver, optional
@@ -412,21 +419,29 @@ class FactIRL:
         Returns
         -------
         coefficients : ndarray, shape (n_new, k)
+            ``transfer_rewards_`` holds the new tasks' rewards: (n_new, S, A), or a list of
+            (S_i, A) arrays when their environments differ in size.
 
         Raises
         ------
         ValidationError
-            When the model's features differ from those of ``fit`` (``features_sha256_``), or
-            ``dictionary_`` does not fit the MDP.
+            When the model's features differ from those of ``fit`` (``features_sha256_``),
+            ``dictionary_`` does not fit the MDP, ``features`` are missing for a per-task
+            model or have another p, or the environments another number of actions.
         """
-        Phi, D = self._transfer_dictionary(mdp)
+        new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
+        if new is None:
+            Phi, D = self._transfer_dictionary(mdp)
         if h_solver is None:
             if h_solver_options is not None:
                 raise ValidationError("h_solver_options given without h_solver")
             h_solver, h_solver_options = self.h_solver, self.h_solver_options
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol = check_tol(self.tol)
-        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        if new is None:
+            obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        else:
+            obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
         try:
             res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
