@@ -37,8 +37,8 @@ KINDS = {
     "count": "an integer >= 0",
     "history": "a list of finite numbers",
     "text": "a string",
-    "mdp-signature": f"None, a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature) or a non-empty list of such "
-                     "dicts (one per task, tasks in several environments)",
+    "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature), or a non-empty list "
+                     "of such dicts (one per task, tasks in several environments)",
     "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
 }
 
