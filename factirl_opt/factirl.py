@@ -2,7 +2,8 @@
 
 Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
 tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
-leading axis (docs/maths.md §8). :class:`FactIRL` is the estimator: it validates, builds the
+leading axis (docs/maths.md §8). Tasks in several environments (a sequence of MDPs, one
+feature matrix ``Phi_i`` per task) share the dictionary in feature space: ``R_i = Phi_i D h_i``. :class:`FactIRL` is the estimator: it validates, builds the
 objective and the solvers once, initialises (PCA of the flat learner's parameters, or random)
 and hands them down to the alternating scheme (:mod:`factirl_opt.factorial`) and to transfer
 (:mod:`factirl_opt.transfer`); the dictionary helpers live in :mod:`factirl_opt.dictionary`.
@@ -84,7 +85,10 @@ class FactIRL:
         flat learner's feature weights measured by the rewards they give: the PCA of the
         rewards ``Phi w_i`` (the weights' PCA in the metric ``Phi^T Phi``; nested or constant
         features such as Objectworld's leave the weights themselves ill-determined), mapped
-        back to feature space by minimum-norm least squares. ``"random"``: Gaussian primitives normalised to unit
+        back to feature space by minimum-norm least squares. With one feature matrix per
+        task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
+        (:func:`~factirl_opt.dictionary.metric_pca_dictionary`; the same start, up to the signs
+        of the primitives, when every task has the same features). ``"random"``: Gaussian primitives normalised to unit
         norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
         grid) and the Boltzmann policies start far from saturation, where the gradients are
         informative (a unit-scale random start saturates them and the descent stalls). A tuple
@@ -120,9 +124,12 @@ class FactIRL:
     d_solver : str or solvers.StepSolver, default="armijo"
         D-step solver (same registry; ``"armijo"`` is the paper's).
     d_solver_options : dict, optional
-    features : array_like, shape (S*A, p) or (S, p), optional
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
         Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
-        (state features are repeated over actions). None: tabular, p = S*A.
+        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
+        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
+        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
+        ``transfer`` then needs the new environments' features.
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
         (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
@@ -149,8 +156,9 @@ class FactIRL:
     dictionary_ : ndarray, shape (p, k)
         p = S*A (tabular), S (``reward="state"``) or the number of features.
     coefficients_ : ndarray, shape (n, k)
-    rewards_ : ndarray, shape (n, S, A)
-        ``Phi D h_i`` reshaped.
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        ``Phi D h_i`` reshaped; a list when the tasks' environments differ in their number of
+        states (stacked otherwise; ``transfer_rewards_`` likewise).
     loss_ : ndarray, shape (n,)
     loss_history_ : list of float
         Total loss (eq. 10, plus a sparse solver's penalty) after the initialisation and after
@@ -165,11 +173,14 @@ class FactIRL:
     stop_reason_ : str
         Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`);
         ``"interrupted"`` after Ctrl-C.
-    mdp_signature_ : dict
-        Signature of the MDP of ``fit``; ``transfer`` refuses another MDP.
+    mdp_signature_ : dict or list of dict
+        Signature of the MDP of ``fit``; ``transfer`` without ``features`` refuses another
+        MDP. Fitted on a sequence of MDPs (not all the same object): one signature per task,
+        and ``transfer`` checks only the number of actions and the feature dimension p.
     features_sha256_ : str or None
-        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features);
-        ``transfer`` refuses features that differ from them.
+        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features and with
+        per-task features); ``transfer`` without ``features`` refuses model features that
+        differ from them.
     transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
     transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
@@ -319,10 +330,14 @@ class FactIRL:
 
         Parameters
         ----------
-        mdp : TabularMDP
+        mdp : TabularMDP or sequence of n TabularMDP
+            One MDP shared by every task, or one per task (tasks in several environments,
+            with the same number of actions; tasks given the same object are planned as one
+            batch). Several environments need ``features``: one shared matrix (equal-sized
+            environments) or one per task.
         demos_per_task : list of n task demonstrations
-            Each an int array (m, L, 2) or a list of (L_j, 2) episodes.
-        flat_rewards : array_like, shape (n, S, A), optional
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes, on its task's MDP.
+        flat_rewards : array_like, shape (n, S, A), or list of n arrays (S_i, A), optional
             Rewards already learnt by the flat learner on these demonstrations; with
             ``init="pca"`` they are used instead of fitting the flat learner again (with
             ``features``, their least-squares feature weights are).
@@ -332,6 +347,7 @@ class FactIRL:
         self
         """
         one = one_environment(mdp, demos_per_task, self.features)
+        obj: Any
         if one is None:  # tasks in several environments: ``where`` is their Environments
             obj, where = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta, self.objective,
                                             self.planner)

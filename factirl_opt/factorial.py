@@ -277,6 +277,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
         best point seen (status ``"interrupted"``).
     """
     one = one_environment(mdp, demos_per_task, base_features)
+    obj: Any
     if one is None:
         obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
         Phi: Any = envs.features
@@ -313,8 +314,9 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     h_solver, d_solver : solvers.StepSolver
         Resolved and checked (:func:`factirl_opt.fitting.resolve_step_solver`); used in their
         alternating form.
-    base_features : ndarray, shape (S*A, p), or StateBroadcast, optional
-        Validated ``Phi``.
+    base_features : ndarray, shape (S*A, p), StateBroadcast or TaskFeatures, optional
+        Validated ``Phi``; TaskFeatures (one matrix per task) with a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`.
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
 

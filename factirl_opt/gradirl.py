@@ -96,9 +96,11 @@ class GradIRL:
     ----------
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
-    features : array_like, shape (S*A, p) or (S, p), optional
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
         Linear reward features ``R = F w`` (state features are repeated over actions); None
-        learns tabular rewards (``theta = R``, d = S*A).
+        learns tabular rewards (``theta = R``, d = S*A). A sequence gives one matrix per task,
+        (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i w_i`` on task i's own
+        environment (tasks in several environments; docs/maths.md §7).
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state-action"`` learns ``R(s, a)`` (d = S*A); ``"state"`` learns a
         reward of the states only, ``R(s, a) = r(s)`` (d = S), at the cost of the tabular fit
@@ -125,8 +127,11 @@ class GradIRL:
     Attributes
     ----------
     weights_ : ndarray, shape (n, p)
-        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights).
-    rewards_ : ndarray, shape (n, S, A)
+        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights,
+        also with per-task features, so a reward can be carried to another map).
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        A list when the tasks' environments differ in their number of states; stacked
+        otherwise.
     loss_ : ndarray, shape (n,)
         Final loss of each task.
     loss_history_ : list of float
@@ -140,11 +145,13 @@ class GradIRL:
         stalls at its first step) or ``"interrupted"``.
     stop_reason_ : str
         Which stopping rule ended the fit, with its values (``"interrupted"`` after Ctrl-C).
-    mdp_signature_ : dict
-        The signature of the MDP it was fitted on.
+    mdp_signature_ : dict or list of dict
+        The signature of the MDP it was fitted on; with a sequence of MDPs (not all the same
+        object) one signature per task.
     features_sha256_ : str or None
         SHA-256 of the validated features (S*A, p) of the fit
-        (:func:`factirl_opt.fitting.features_digest`); None without features.
+        (:func:`factirl_opt.fitting.features_digest`); None without features and with
+        per-task features.
 
     Notes
     -----
@@ -201,6 +208,7 @@ class GradIRL:
         if one is not None:
             check_mdp(one)
         loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
+        objective: Any
         if one is None:
             objective, envs = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta,
                                                  self.objective, self.planner)

@@ -5,6 +5,10 @@
 - :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi D h_i``,
   loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11;
   docs/maths.md §8).
+- :func:`task_weights_problem` and :func:`task_dictionary_problem`: the same with one feature
+  matrix per task (:class:`~factirl_opt.task_features.TaskFeatures`, tasks in several
+  environments, ``R_i = Phi_i w_i``; least-squares residuals padded to the largest ``S_i*A``);
+  :func:`weights_problem` and :func:`dictionary_problem` hand such features to them;
 - :class:`StateBroadcast`: the features of a state-only reward ``R(s, a) = r(s)``,
   ``Phi = kron(I_S, 1_A)`` (S*A, S), applied without forming the matrix (docs/maths.md §7).
 

@@ -92,6 +92,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
         task's best coefficients seen (status ``"interrupted"``).
     """
     one = one_environment(mdp, demos_per_task, base_features)
+    obj: Any
     if one is None:
         obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
         Phi: Any = envs.features
@@ -129,6 +130,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     TransferFit
     """
     mdp = objective.mdp
+    F: Any
     if isinstance(base_features, TaskFeatures):
         F = base_features.times(dictionary)
     else:
