@@ -126,6 +126,18 @@ def test_factorial_fit_on_mixed_sizes(worlds, h_solver, d_solver, objective):
     assert again.dictionary_.shape == (3, 2)
 
 
+@pytest.mark.parametrize("h_solver", ["armijo-nonneg", "gn-qp-clarabel-nonneg", "gn-qp-osqp-sparse"])
+def test_constrained_and_sparse_h_steps_on_mixed_sizes(worlds, h_solver):
+    mdps, Phis, demos = worlds
+    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=2, flat_max_iter=3, h_solver=h_solver).fit(mdps, demos)
+    assert model.loss_history_[-1] < model.loss_history_[0]
+    h = model.transfer(mdps, demos, features=Phis, max_iter=2)
+    if h_solver.endswith("nonneg"):
+        assert model.coefficients_.min() >= 0 and h.min() >= 0
+    else:  # the L1 penalty keeps unit-norm primitives
+        np.testing.assert_allclose(np.linalg.norm(model.dictionary_, axis=0), 1.0, rtol=1e-12)
+
+
 # ----------------------------------------------------------------------------- gradients
 
 
