@@ -3,7 +3,8 @@
 Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
 tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
 leading axis (docs/maths.md §8). Tasks in several environments (a sequence of MDPs, one
-feature matrix ``Phi_i`` per task) share the dictionary in feature space: ``R_i = Phi_i D h_i``. :class:`FactIRL` is the estimator: it validates, builds the
+feature matrix ``Phi_i`` per task) share the dictionary in feature space:
+``R_i = Phi_i D h_i``. :class:`FactIRL` is the estimator: it validates, builds the
 objective and the solvers once, initialises (PCA of the flat learner's parameters, or random)
 and hands them down to the alternating scheme (:mod:`factirl_opt.factorial`) and to transfer
 (:mod:`factirl_opt.transfer`); the dictionary helpers live in :mod:`factirl_opt.dictionary`.
@@ -88,8 +89,8 @@ class FactIRL:
         back to feature space by minimum-norm least squares. With one feature matrix per
         task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
         (:func:`~factirl_opt.dictionary.metric_pca_dictionary`; the same start, up to the signs
-        of the primitives, when every task has the same features). ``"random"``: Gaussian primitives normalised to unit
-        norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
+        of the primitives, when every task has the same features). ``"random"``: Gaussian
+        primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
         grid) and the Boltzmann policies start far from saturation, where the gradients are
         informative (a unit-scale random start saturates them and the descent stalls). A tuple
         gives the initial arrays D0 (p, k) and H0 (n, k).
