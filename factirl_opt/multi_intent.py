@@ -47,9 +47,6 @@ def parse_episodes(mdp: Any, episodes: Any) -> tuple[NDArray[np.int64], NDArray[
     task = parse_demonstrations([episodes], mdp.n_states, mdp.n_actions, name="episodes")[0]
     if len(task.lengths) == 0:
         raise ValidationError("episodes is empty: give at least one episode")
-    if np.any(task.lengths < 1):
-        j = int(np.argmax(task.lengths < 1))
-        raise ValidationError(f"episode {j} is empty: every episode needs at least one (state, action) step")
     return task.steps, task.lengths
 
 
