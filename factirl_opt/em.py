@@ -11,7 +11,9 @@ Plain functions over arrays behind :class:`factirl_opt.multi_intent.MultiIntentI
   the total log-likelihood, by log-sum-exp;
 - :func:`weighted_statistics`: the responsibility-weighted empirical statistics (the hats of
   eq. 5) of each intention and its share of the demonstrated steps;
-- :func:`kmeans`: k-means++ seeding and Lloyd iterations, the clustering of the start.
+- :func:`agreement_clustering` (the default start): episodes that take the same action in a
+  state they share are pulled together, episodes that take different ones pushed apart;
+- :func:`kmeans`: k-means++ seeding and Lloyd iterations (the ``"frequencies"`` start).
 
 The likelihood of an episode ``tau = ((s_0, a_0), ..., (s_{L-1}, a_{L-1}))`` under intention c
 is ``prod_t pi_c(a_t | s_t)`` times the start and transition probabilities, which do not depend
@@ -31,7 +33,10 @@ from .objectives import soft_values
 from .planning import plan
 
 __all__ = ["episode_counts", "log_policies", "e_step", "weighted_statistics", "kmeans", "kmeans_plus_plus",
-           "POLICY_OBJECTIVES"]
+           "agreement_clustering", "POLICY_OBJECTIVES", "DISAGREEMENT_PENALTY"]
+
+#: weight of a state where two episodes take different actions against one where they take the same
+DISAGREEMENT_PENALTY = 3.0
 
 #: the objectives whose policy scores an episode: policy matching's Boltzmann policy of Q*, MCE's soft-optimal one
 POLICY_OBJECTIVES = ("policy-matching", "mce")
@@ -207,3 +212,58 @@ def kmeans(X: NDArray[np.float64], k: int, rng: np.random.Generator, n_seeds: in
         if inertia < best_inertia:
             best, best_inertia = labels, inertia
     return np.asarray(best, dtype=np.int64)
+
+
+def _merge_to(score, k):
+    """Greedy agglomeration of a symmetric (n, n) score into k groups: merge the pair of largest total."""
+    n = len(score)
+    T = score.astype(np.float64).copy()
+    np.fill_diagonal(T, -np.inf)
+    alive = np.ones(n, dtype=bool)
+    owner = np.arange(n)
+    for _ in range(n - k):
+        i, j = np.unravel_index(np.argmax(T), T.shape)
+        i, j = min(i, j), max(i, j)
+        owner[owner == j] = i
+        T[i] += T[j]
+        T[:, i] += T[:, j]
+        T[i, i] = -np.inf
+        T[j], T[:, j], alive[j] = -np.inf, -np.inf, False
+    return np.searchsorted(np.flatnonzero(alive), owner)
+
+
+def agreement_clustering(counts: Any, n_states: int, n_actions: int, k: int, rng: np.random.Generator,
+                         penalty: float = DISAGREEMENT_PENALTY) -> NDArray[np.int64]:
+    """Labels (n,) from the actions episodes take in the states they share.
+
+    An expert acting on one intention takes the same action whenever it visits a state (a
+    deterministic greedy policy exactly, a Boltzmann one mostly), so two of its episodes agree
+    wherever their states overlap; episodes of different intentions often disagree. The score
+    of a pair is the number of states where they take a common action minus ``penalty`` times
+    the number of shared states where they do not; the groups are merged greedily, the pair of
+    groups of largest total score first, down to k. Pairs that share no state score 0; ``rng``
+    shuffles the episodes first, which breaks the ties among them (so restarts differ).
+    Cost O(n^3) for n episodes.
+
+    Parameters
+    ----------
+    counts : sparse or ndarray, shape (n, S*A)
+        :func:`episode_counts`.
+    n_states, n_actions : int
+    k : int
+        Groups, ``1 <= k <= n``.
+    rng : numpy.random.Generator
+    penalty : float
+        Weight of a disagreement.
+    """
+    n = counts.shape[0]
+    B = sp.csr_matrix(counts, dtype=np.float64)
+    B.data[:] = 1.0
+    V = sp.csr_matrix(B.toarray().reshape(n, n_states, n_actions).sum(axis=2) > 0, dtype=np.float64)
+    agree = np.asarray((B @ B.T).todense())
+    disagree = np.asarray((V @ V.T).todense()) - agree
+    order = rng.permutation(n)
+    score = (agree - penalty * disagree)[np.ix_(order, order)]
+    labels = np.empty(n, dtype=np.int64)
+    labels[order] = _merge_to(score, k)
+    return labels

@@ -22,7 +22,7 @@ import solvers
 
 from ._validation import check_beta, check_int, check_tol
 from .dictionary import feature_weights, pca_dictionary, shrink_coefficients
-from .em import POLICY_OBJECTIVES, e_step, episode_counts, kmeans, log_policies, weighted_statistics
+from .em import POLICY_OBJECTIVES, agreement_clustering, e_step, episode_counts, kmeans, log_policies, weighted_statistics
 from .exceptions import ValidationError, translate_solver_errors
 from .factorial import GTOL, factorial_rewards, run_factorial
 from .fitting import resolve_step_solver, reward_features
@@ -182,8 +182,9 @@ def factorial_m_step(objective: WeightedObjective, settings: EMSettings, params:
 
 def start_responsibilities(counts: Any, lengths: NDArray[np.int64], K: int, init: str,
                            rng: np.random.Generator, n_actions: int) -> NDArray[np.float64]:
-    """Starting responsibilities (n, K): k-means of the episodes' frequencies, or random.
+    """Starting responsibilities (n, K): the episodes' agreements, k-means of their frequencies, or random.
 
+    ``"agreement"``: hard labels of :func:`factirl_opt.em.agreement_clustering`.
     ``"frequencies"``: each episode is described by its normalised state-action counts next to
     its action frequencies (which episodes of one intention share even where they visit
     different states); k-means++ and Lloyd (:func:`factirl_opt.em.kmeans`) give hard labels.
@@ -192,6 +193,8 @@ def start_responsibilities(counts: Any, lengths: NDArray[np.int64], K: int, init
     n = len(lengths)
     if init == "random":
         return rng.dirichlet(np.ones(K), size=n)
+    if init == "agreement":
+        return np.eye(K)[agreement_clustering(counts, counts.shape[1] // n_actions, n_actions, K, rng)]
     freq = np.asarray(counts.todense()) / lengths[:, None]
     actions = freq.reshape(n, -1, n_actions).sum(axis=1)
     return np.eye(K)[kmeans(np.hstack([freq, actions]), K, rng)]

@@ -242,3 +242,17 @@ def test_wrong_mdp_and_non_policy_objective():
 
     with pytest.raises(fo.ValidationError, match="scores"):
         fo.MultiIntentIRL(2, objective=Other).fit(fo.GridWorld(4), np.concatenate(demos))
+
+
+def test_agreement_clustering_separates_conflicting_episodes():
+    from factirl_opt.em import agreement_clustering
+
+    S, A = 5, 2
+    # episodes 0-1 take action 0 in states 0-2, episodes 2-3 action 1 there; 4 agrees with 0 on state 3
+    eps = [np.array([[0, 0], [1, 0]]), np.array([[1, 0], [2, 0], [3, 0]]), np.array([[0, 1], [2, 1]]),
+           np.array([[1, 1], [2, 1]]), np.array([[3, 0], [4, 0]])]
+    counts = episode_counts(np.concatenate(eps), np.array([len(e) for e in eps]), S, A)
+    for seed in range(5):
+        labels = agreement_clustering(counts, S, A, 2, np.random.default_rng(seed))
+        assert fo.adjusted_rand_index([0, 0, 1, 1, 0], labels) == 1.0
+    assert sorted(agreement_clustering(counts, S, A, 5, np.random.default_rng(0))) == [0, 1, 2, 3, 4]
