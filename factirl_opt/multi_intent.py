@@ -193,6 +193,14 @@ class MultiIntentIRL:
         Returns
         -------
         self
+
+        Raises
+        ------
+        ValidationError
+            Naming the bad input: ``mdp`` not a TabularMDP; episodes of a wrong layout, empty,
+            or with states or actions out of range; ``n_intentions`` below 1 or above the number
+            of episodes; an objective without a policy to score episodes; a bad ``init`` or
+            hyper-parameter.
         """
         check_mdp(mdp)
         K = check_int(self.n_intentions, "n_intentions", minimum=1)
@@ -225,7 +233,7 @@ class MultiIntentIRL:
         self.n_iter_ = len(run.history)
         self.converged_ = run.converged
         self.mdp_signature_ = mdp.signature()
-        self.features_sha256_ = None if settings.features is None else features_digest(settings.features)
+        self.features_sha256_ = None if self.features is None else features_digest(settings.features)
 
     def to_factirl(self) -> FactIRL:
         """A fitted :class:`FactIRL` holding the learnt dictionary, ready for :meth:`FactIRL.transfer`.

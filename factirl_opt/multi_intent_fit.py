@@ -165,12 +165,13 @@ def factorial_m_step(objective: WeightedObjective, settings: EMSettings, params:
     The first start is FactIRL's: the uncentred PCA of flat rewards fitted to the same weighted
     statistics, its coefficients halved while the loss decreases (:mod:`factirl_opt.dictionary`).
     """
-    mdp, Phi = objective.mdp, settings.features
+    mdp, Phi, k = objective.mdp, settings.features, settings.n_primitives
+    assert k is not None  # the caller's branch; never user input
     if params is None:
         p = mdp.n_params if Phi is None else Phi.shape[1]
         W = flat_m_step(objective, settings, np.zeros((objective.n_tasks, p)))
         X = weights_rewards(Phi, W, mdp.n_states, mdp.n_actions).reshape(objective.n_tasks, -1)
-        D, H = pca_dictionary(X, settings.n_primitives, rng)
+        D, H = pca_dictionary(X, k, rng)
         D = D if Phi is None else feature_weights(Phi, D)
         H = shrink_coefficients(lambda Hs: objective.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)[0]
     else:
@@ -226,7 +227,10 @@ def run_em(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], setti
     counts = episode_counts(steps, lengths, mdp.n_states, mdp.n_actions)
     resp = given if given is not None else start_responsibilities(counts, lengths, settings.n_intentions, init, rng,
                                                                   mdp.n_actions)
-    params, history, best, converged = None, [], None, False
+    params: Any = None
+    history: list[float] = []
+    best: tuple | None = None
+    converged = False
     for it in range(1, settings.max_iter + 1):
         params, R, mix = _m_step(mdp, counts, resp, settings, params, rng)
         _, resp, ll = e_step(counts, log_policies(settings.planner, R, settings.beta, settings.objective_name), mix)
@@ -238,5 +242,6 @@ def run_em(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], setti
         if it > 1 and abs(ll - history[-2]) <= settings.tol * max(1.0, abs(history[-2])):
             converged = True
             break
+    assert best is not None  # max_iter >= 1
     ll, R, params, resp, mix = best
     return EMRun(R, params, resp, mix, history, ll, converged)

@@ -256,3 +256,17 @@ def test_agreement_clustering_separates_conflicting_episodes():
         labels = agreement_clustering(counts, S, A, 2, np.random.default_rng(seed))
         assert fo.adjusted_rand_index([0, 0, 1, 1, 0], labels) == 1.0
     assert sorted(agreement_clustering(counts, S, A, 5, np.random.default_rng(0))) == [0, 1, 2, 3, 4]
+
+
+def test_features_state_rewards_and_callback():
+    mdp, _, demos = _separated_problem(n_demos=3, length=5)
+    eps = np.concatenate(demos)
+    rng = np.random.default_rng(6)
+    seen = []
+    em = fo.MultiIntentIRL(2, features=rng.normal(size=(mdp.n_states, 3)), rng=0, max_iter=3, m_step_max_iter=5,
+                           callback=lambda it, ll: seen.append((it, ll))).fit(mdp, eps)
+    assert em.weights_.shape == (2, 3) and em.features_sha256_ is not None
+    assert [it for it, _ in seen] == list(range(1, em.n_iter_ + 1)) and [ll for _, ll in seen] == em.log_likelihood_
+    em = fo.MultiIntentIRL(2, n_primitives=2, reward="state", rng=0, max_iter=2, m_step_max_iter=5).fit(mdp, eps)
+    assert em.dictionary_.shape == (mdp.n_states, 2)
+    np.testing.assert_array_equal(em.rewards_[:, :, 0], em.rewards_[:, :, 1])
