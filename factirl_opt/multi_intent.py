@@ -68,7 +68,7 @@ class MultiIntentIRL:
         with policy matching it is monitored and the best point kept.
     beta : float, default=5.0
         Inverse temperature of both the objective and the E-step's policy.
-    max_iter : int, default=30
+    max_iter : int, default=20
         EM iterations (each one M-step and one E-step).
     tol : float, default=1e-6
         Stop when the log-likelihood changes by at most ``tol * max(1, |log-likelihood|)``.
@@ -84,7 +84,7 @@ class MultiIntentIRL:
         responsibilities (n_episodes, K). On the paper's grid (8 tasks x 10 episodes of 10
         steps) the agreement start is the closest to the true tasks (adjusted Rand index about
         0.25-0.4, against 0.1-0.2 for the frequencies).
-    m_step_max_iter : int, default=50
+    m_step_max_iter : int, default=20
         Solver iterations of a flat M-step; outer iterations of a factorial one.
     m_step_tol : float, default=1e-5
         Relative-decrease tolerance of each M-step's solver.
@@ -137,8 +137,8 @@ class MultiIntentIRL:
     """
 
     def __init__(self, n_intentions: int, n_primitives: int | None = None, objective: str = "policy-matching",
-                 beta: float = 5.0, max_iter: int = 30, tol: float = 1e-6, n_init: int = 1, init: Any = "agreement",
-                 m_step_max_iter: int = 50, m_step_tol: float = 1e-5, inner_steps: int = 5,
+                 beta: float = 5.0, max_iter: int = 20, tol: float = 1e-6, n_init: int = 1, init: Any = "agreement",
+                 m_step_max_iter: int = 20, m_step_tol: float = 1e-5, inner_steps: int = 5,
                  solver: str | solvers.StepSolver = "armijo", features: Any = None, reward: str = "state-action",
                  planner: str = "auto", rng: np.random.Generator | int | None = None,
                  callback: Callable | None = None) -> None:
