@@ -6,7 +6,8 @@ episode under each intention's policy (:mod:`factirl_opt.em`); the M-step fits t
 the responsibility-weighted statistics by the learners' machinery, warm-started from the
 previous parameters: the flat step problem of GradIRL (each intention its own reward,
 ``n_primitives=None``), or the factorial scheme of FactIRL (``R_c = Phi D h_c``, a dictionary
-shared by the intentions; docs/maths.md §8). :class:`WeightedObjective` weights each
+shared by the intentions; docs/maths.md §8); the loop and its M-steps are in
+:mod:`factirl_opt.multi_intent_fit`, whose :class:`~factirl_opt.multi_intent_fit.WeightedObjective` weights each
 intention's loss by its expected number of steps, so that with the MCE objective the M-step
 minimises exactly minus EM's expected complete-data log-likelihood (docs/maths.md §6).
 
