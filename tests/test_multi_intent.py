@@ -288,3 +288,16 @@ def test_weighted_mce_loss_is_the_expected_complete_data_negative_log_likelihood
     obj = WeightedObjective(MCEObjective(mdp, mu, pi, 2.0), steps / steps.sum())
     L, _, _ = e_step(counts, log_policies(get_planner(mdp), R, 2.0, "mce"), np.full(K, 1.0 / K))
     assert obj.loss_and_grad(R)[0].sum() == pytest.approx(-np.sum(resp * L) / lengths.sum(), rel=1e-10)
+
+
+def test_sparse_model_gives_the_dense_fit():
+    import scipy.sparse as sp
+
+    mdp, _, demos = _separated_problem(n_demos=3, length=5)
+    S, A = mdp.n_states, mdp.n_actions
+    sparse = fo.TabularMDP(sp.csr_matrix(mdp.transitions.reshape(S * A, S)), mdp.gamma)
+    kw = dict(rng=0, max_iter=3, m_step_max_iter=5)
+    a = fo.MultiIntentIRL(2, **kw).fit(mdp, np.concatenate(demos))
+    b = fo.MultiIntentIRL(2, planner="sparse-lu", **kw).fit(sparse, np.concatenate(demos))
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=1e-6, atol=1e-8)
