@@ -52,6 +52,15 @@ Presets
 ``objectworld-tiny``
     An 8x8 Objectworld (object density 0.15), a few tasks and iterations: seconds, the smoke
     test of the Objectworld machinery; its scores mean nothing.
+``objectworld-per-task``
+    ELIRL's benchmark as its script runs it (world and line-up ``"objectworld-per-task"``):
+    every task on its own map (the ``objectworld`` preset's size, colours, density, dynamics,
+    demonstrations, sweeps, test tasks, seeds, solvers and budgets), the test tasks on maps
+    never seen in training; every learner on feature weights, scored on the tasks' own maps
+    (``deviation``) and on fresh maps of the same tasks (``new_maps_deviation``).
+``objectworld-per-task-quick``
+    The same at 8x8 (object density 0.15) with ``objectworld-quick``'s points, test tasks,
+    seeds and budgets: the regression test's orderings.
 
 Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce")``, or
 ``factirl-opt reproduce --lineup``) or planner; those fields enter the fingerprint only when
@@ -387,6 +396,37 @@ PRESETS = {
         n_seeds=1,
         **dict(OBJECTWORLD_SOLVERS, fact_max_iter=3),
     ),
+    "objectworld-per-task": Preset(
+        name="objectworld-per-task",
+        world="objectworld-per-task",
+        lineup="objectworld-per-task",
+        grid_size=32,
+        demo_length=16,
+        demos_sweep=(32,),
+        tasks_sweep=(10, 20, 50, 100),
+        default_tasks=100,
+        default_demos=32,
+        n_test_tasks=100,
+        n_seeds=3,
+        **OBJECTWORLD_SOLVERS,
+    ),
+    "objectworld-per-task-quick": Preset(
+        name="objectworld-per-task-quick",
+        world="objectworld-per-task",
+        lineup="objectworld-per-task",
+        grid_size=8,
+        object_density=0.15,
+        demo_length=16,
+        demos_sweep=(16,),
+        tasks_sweep=(5, 20),
+        default_tasks=20,
+        default_demos=16,
+        n_test_tasks=20,
+        flat_max_iter=40,
+        transfer_max_iter=40,
+        n_seeds=3,
+        **dict(OBJECTWORLD_SOLVERS, fact_max_iter=15),
+    ),
     "tiny": Preset(
         name="tiny",
         grid_size=5,
@@ -417,6 +457,11 @@ PRESET_DESCRIPTIONS = {
     "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 3 seeds "
                          "(under a minute)",
     "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",
+    "objectworld-per-task": "ELIRL's benchmark as its script runs it: every task on its own 32x32 map, 100 training "
+                            "tasks x 32 demos, tasks sweep 10-100, 100 test tasks on unseen maps, scored on own and "
+                            "fresh maps, 3 seeds",
+    "objectworld-per-task-quick": "a map per task at 8x8: 20 training tasks x 16 demos, 20 test tasks, short budgets, "
+                                  "3 seeds (about a minute)",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
 }
 

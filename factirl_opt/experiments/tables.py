@@ -4,6 +4,10 @@
 
     OUT/results.csv   one row per (run, split, learner); deterministic columns only
     OUT/summary.csv   mean and standard deviation over seeds per (split, learner, point, solver)
+
+In a world with a map per task, results.csv and summary.csv have two more columns, the scores
+on fresh maps (``new_maps_deviation``, ``new_maps_deviation_std``; summary: their mean and
+standard deviation over seeds, ``new_maps_deviation_mean``, ``new_maps_deviation_std``).
     OUT/timings.csv   fit time of every learner in every run (varies from run to run)
     OUT/figure3.json  value functions of 4 test tasks (default point, first seed)
 
@@ -26,12 +30,15 @@ import numpy as np
 
 from ..exceptions import ValidationError
 from ..files import os_error, write_text_atomic
+from .per_task import NEW_MAP_COLUMNS
 from .presets import Preset
 
 __all__ = [
     "RESULT_COLUMNS",
     "SUMMARY_COLUMNS",
     "TIMING_COLUMNS",
+    "NEW_MAP_RESULT_COLUMNS",
+    "NEW_MAP_SUMMARY_COLUMNS",
     "write_tables",
     "read_csv",
     "read_results",
@@ -45,8 +52,12 @@ RESULT_COLUMNS = (
 )
 SUMMARY_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "h_solver", "n_seeds", "deviation_mean", "deviation_std")
 TIMING_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "seed", "h_solver", "fit_time")
+#: the columns added in a world with a map per task (:mod:`.per_task`): the scores on fresh maps
+NEW_MAP_RESULT_COLUMNS = RESULT_COLUMNS + NEW_MAP_COLUMNS
+NEW_MAP_SUMMARY_COLUMNS = SUMMARY_COLUMNS + ("new_maps_deviation_mean", "new_maps_deviation_std")
 INT_COLUMNS = ("n_tasks", "demos_per_task", "seed", "n_scored_tasks", "n_evaluations", "n_seeds")
-FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean")
+FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean", *NEW_MAP_SUMMARY_COLUMNS[-2:],
+                 *NEW_MAP_COLUMNS)
 
 
 def _csv_text(rows, columns):
@@ -72,7 +83,8 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     with open(path, newline="") as fh:
         reader = csv.DictReader(fh)
         try:
-            if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS):
+            if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS,
+                                                      NEW_MAP_RESULT_COLUMNS, NEW_MAP_SUMMARY_COLUMNS):
                 raise ValueError(f"unexpected header {reader.fieldnames}")
             for r in reader:
                 out.append(_parse_row(r))
@@ -103,15 +115,23 @@ def _order(learners):
     return key
 
 
-def _summary(rows):
+def _mean_std(v):
+    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+
+
+def _summary(rows, new_maps=False):
+    """Mean and std over seeds per (split, learner, point, solver); with ``new_maps``, of the fresh-map scores too."""
     groups = {}
     for r in rows:
-        groups.setdefault((r["split"], r["learner"], r["n_tasks"], r["demos_per_task"], r["h_solver"]), []).append(r["deviation"])
-    return [
-        dict(split=s, learner=lr, n_tasks=n, demos_per_task=m, h_solver=h, n_seeds=len(v),
-             deviation_mean=float(np.mean(v)), deviation_std=float(np.std(v, ddof=1)) if len(v) > 1 else 0.0)
-        for (s, lr, n, m, h), v in groups.items()
-    ]
+        groups.setdefault((r["split"], r["learner"], r["n_tasks"], r["demos_per_task"], r["h_solver"]), []).append(r)
+    out = []
+    for (s, lr, n, m, h), g in groups.items():
+        row = dict(split=s, learner=lr, n_tasks=n, demos_per_task=m, h_solver=h, n_seeds=len(g))
+        row["deviation_mean"], row["deviation_std"] = _mean_std([r["deviation"] for r in g])
+        if new_maps:
+            row["new_maps_deviation_mean"], row["new_maps_deviation_std"] = _mean_std([r["new_maps_deviation"] for r in g])
+        out.append(row)
+    return out
 
 
 def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -138,9 +158,12 @@ def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> l
     key = _order(learners)
     rows = sorted((r for rec in records for r in rec["rows"]), key=key)
     timings = sorted((r for rec in records for r in rec["timings"]), key=key)
-    summary = sorted(_summary(rows), key=key)
-    write_text_atomic(os.path.join(out, "results.csv"), _csv_text(rows, RESULT_COLUMNS))
-    write_text_atomic(os.path.join(out, "summary.csv"), _csv_text(summary, SUMMARY_COLUMNS))
+    new_maps = any(NEW_MAP_COLUMNS[0] in r for r in rows)  # a world with a map per task: fresh-map scores
+    summary = sorted(_summary(rows, new_maps), key=key)
+    write_text_atomic(os.path.join(out, "results.csv"),
+                      _csv_text(rows, NEW_MAP_RESULT_COLUMNS if new_maps else RESULT_COLUMNS))
+    write_text_atomic(os.path.join(out, "summary.csv"),
+                      _csv_text(summary, NEW_MAP_SUMMARY_COLUMNS if new_maps else SUMMARY_COLUMNS))
     write_text_atomic(os.path.join(out, "timings.csv"), _csv_text(timings, TIMING_COLUMNS))
     fig3 = sorted((rec for rec in records if "figure3" in rec), key=lambda rec: (rec["spec"]["h_solver"], rec["spec"]["seed"]))
     path = os.path.join(out, "figure3.json")
