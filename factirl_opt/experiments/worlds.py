@@ -126,7 +126,8 @@ class GroundTruth:
         """
         if _check_split(split) not in self.task_maps:
             raise ValidationError("this world has one map for every task: it has no fresh maps")
-        return fresh_maps(self.task_maps[split], rng=np.random.default_rng(self.fresh_seeds[split]))
+        seq = self.fresh_seeds[split]  # a copy: spawning from the maps' generator advances its SeedSequence
+        return fresh_maps(self.task_maps[split], rng=np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key))
 
 
 def _check_split(split):
