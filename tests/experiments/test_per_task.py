@@ -156,3 +156,29 @@ def test_presets_at_elirls_scale_and_quick():
                                                                            "objectworld-per-task")
     names = ("objectworld", "objectworld-quick", "objectworld-per-task", "objectworld-per-task-quick")
     assert len({PRESETS[n].fingerprint() for n in names}) == 4
+
+
+# --- the quick preset's orderings ----------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def quick_scores(tmp_path_factory):
+    out = tmp_path_factory.mktemp("per-task-quick")
+    run_sweep(QUICK, out, jobs=1, progress=False)
+    rows = [r for r in read_csv(out / "summary.csv")
+            if (r["n_tasks"], r["demos_per_task"]) == (QUICK.default_tasks, QUICK.default_demos)]
+    return {(r["split"], r["learner"], where): r[column] for r in rows
+            for where, column in (("own", "deviation_mean"), ("new", "new_maps_deviation_mean"))}
+
+
+def test_quick_the_true_primitives_are_the_floor_on_own_maps(quick_scores):
+    train = [v for (s, lr, w), v in quick_scores.items() if s == "train" and w == "own" and lr != FLAT_GROUND_TRUTH]
+    assert quick_scores["train", FLAT_GROUND_TRUTH, "own"] < 0.5 * min(train)
+    assert quick_scores["test", FLAT_GROUND_TRUTH, "own"] < 0.8 * quick_scores["test", FACTORIAL_FEATURES, "own"]
+
+
+def test_quick_factorial_mce_carries_better_to_new_maps(quick_scores):
+    """On fresh maps of the training tasks, the MCE dictionary beats flat MCE and its random start."""
+    fact = quick_scores["train", FACTORIAL_MCE_FEATURES, "new"]
+    assert fact < 0.9 * quick_scores["train", FLAT_MCE_FEATURES, "new"]
+    assert fact < 0.9 * quick_scores["train", "factorial MCE, features, random init", "new"]
