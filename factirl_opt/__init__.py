@@ -9,7 +9,7 @@ Internal modules (not public API; any module of the package may import their nam
 """
 
 from .demonstrations import empirical_statistics, sample_demonstrations
-from .evaluation import deviation, optimal_score, score
+from .evaluation import deviation, optimal_score, score, soft_deviation
 from .exceptions import (
     ConvergenceWarning,
     FactIRLError,
@@ -54,6 +54,7 @@ from .objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectwo
 from .objectives.environments import MultiEnvironmentObjective, multi_environment_objective
 from .successors import from_successors, to_successors
 from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
+from .task_environments import feature_rewards
 from .task_features import TaskFeatures
 from .trajectories import demonstrations_from_trajectories
 
@@ -106,6 +107,8 @@ __all__ = [
     "score",
     "optimal_score",
     "deviation",
+    "soft_deviation",
+    "feature_rewards",
     "random_dictionary",
     "random_coefficients",
     "task_rewards",

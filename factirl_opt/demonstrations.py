@@ -20,9 +20,12 @@ from numpy.typing import ArrayLike, NDArray
 from ._threads import blas_limited
 from ._validation import RNGLike, as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
 from .planning import get_planner, plan
+from .task_environments import by_environment, environments, is_environment_sequence, one_for_all, per_task_values, task_rewards
 from .trajectories import parse_demonstrations, task_steps
 
 if typing.TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from .mdp import TabularMDP
 
 __all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
@@ -85,9 +88,24 @@ def _start_states(start: int | NDArray[np.float64] | None, n: int, m: int, S: in
     return np.minimum(states, last[:, None]).astype(np.int64)
 
 
+def _sample_per_environment(mdps: Sequence[TabularMDP], rewards: typing.Any, rng: np.random.Generator,
+                            start: typing.Any, return_final_states: bool, **kwargs: typing.Any) -> typing.Any:
+    """:func:`sample_demonstrations` over tasks in many environments, one call per distinct MDP."""
+    envs = environments(mdps)
+    per_task: dict[str, list[typing.Any] | None] = {"rewards": task_rewards(envs, rewards, "rewards")}
+    fixed = {"start": start} if one_for_all(start) else {}  # None, or one state for every task
+    if not fixed:
+        per_task["start"] = per_task_values(envs, start, "start")
+    out = by_environment(
+        envs, lambda m, **args: sample_demonstrations(m, rng=rng, return_final_states=True, **args, **fixed, **kwargs), per_task
+    )
+    demos = [d for d, _ in out]
+    return (demos, np.stack([f for _, f in out])) if return_final_states else demos
+
+
 @blas_limited
 def sample_demonstrations(
-    mdp: TabularMDP,
+    mdp: TabularMDP | Sequence[TabularMDP],
     rewards: ArrayLike,
     n_demos: int,
     length: int,
@@ -102,14 +120,22 @@ def sample_demonstrations(
     state drawn from ``start`` (uniform by default) and follows the MDP's dynamics for
     ``length`` steps.
 
+    With a sequence of MDPs, tasks given the same MDP object are sampled by one call on that
+    MDP, the calls made in order of each MDP's first task and drawing from the one ``rng`` in
+    turn; so the demonstrations equal those of one call per distinct MDP with the same
+    generator, and n references to one MDP give exactly the demonstrations of that MDP.
+
     Parameters
     ----------
-    mdp : TabularMDP
+    mdp : TabularMDP or sequence of n TabularMDP
+        One MDP shared by every task, or one per task (the same number of actions).
     rewards : array_like, shape (n, S, A), (S, A), (n, S) or (S,)
         The tasks' true rewards; state rewards (n, S) or (S,) (e.g. from
         :func:`~factirl_opt.objectworld.multitask_rewards`) are repeated over the actions. A
         2-d array of shape (S, A) is always one (S, A) reward: on an MDP with ``A == S``, pass
         S state rewards as (S, S, A) (:func:`~factirl_opt.objectworld.state_action_rewards`).
+        With a sequence of MDPs: a list of n arrays, task ``i``'s (S_i, A) or (S_i,), or a
+        stacked (n, S, A) or (n, S) array when every ``S_i`` is S.
     n_demos : int
         Demonstrations per task, m >= 1.
     length : int
@@ -122,7 +148,9 @@ def sample_demonstrations(
         ``rng`` gives the same demonstrations); a uniform vector draws exactly as None. An int:
         every episode starts in that state (no random draw). A probability vector (S,): the
         start distribution of every task; (n, S): one per task. Probabilities must be
-        nonnegative and sum to 1; states of probability 0 are never drawn.
+        nonnegative and sum to 1; states of probability 0 are never drawn. With a sequence
+        of MDPs: None, an int (a state of every environment), or one distribution per task
+        (a list of n (S_i,) arrays, or stacked (n, S)).
     return_final_states : bool, default=False
         Also return the state reached after the last action of each demonstration (the final
         observation that trajectory formats such as imitation's ``Trajectory`` carry). Drawing
@@ -131,7 +159,8 @@ def sample_demonstrations(
     Returns
     -------
     demos_per_task : list of n ndarrays of int64, each of shape (m, L, 2)
-        ``demos[i][j, t] = (state, action)`` at step t of demonstration j of task i.
+        ``demos[i][j, t] = (state, action)`` at step t of demonstration j of task i (states
+        of task i's own MDP); a list also for a sequence of MDPs.
     final_states : ndarray of int64, shape (n, m)
         Only with ``return_final_states=True``: ``final_states[i, j]`` is the state reached
         after the last action of demonstration j of task i.
@@ -141,18 +170,23 @@ def sample_demonstrations(
     ValidationError
         Naming the bad argument: rewards of an unknown shape, ``n_demos`` or ``length`` below
         1, a start state out of range, or a start distribution of the wrong shape, with a
-        negative entry, or not summing to 1.
+        negative entry, or not summing to 1. With a sequence of MDPs: a wrong count of
+        rewards or start distributions, a reward that does not fit its task's MDP, or a
+        number of actions that differs from task 0's (naming the task).
     """
-    check_mdp(mdp)
-    R, _ = check_rewards(mdp, rewards)
+    if is_environment_sequence(mdp):
+        return _sample_per_environment(mdp, rewards, as_rng(rng), start, check_bool(return_final_states, "return_final_states"),
+                                       n_demos=n_demos, length=length, planner=planner)
+    model: TabularMDP = check_mdp(mdp)
+    R, _ = check_rewards(model, rewards)
     n_demos = check_int(n_demos, "n_demos", minimum=1)
     length = check_int(length, "length", minimum=1)
     return_final_states = check_bool(return_final_states, "return_final_states")
     rng = as_rng(rng)
     n, S, A = R.shape
     start_p = check_start(start, n, S)
-    policy = plan(get_planner(mdp, planner), R).policy
-    cum, nxt_state = row_cdfs(mdp)
+    policy = plan(get_planner(model, planner), R).policy
+    cum, nxt_state = row_cdfs(model)
     out = np.empty((n, n_demos, length, 2), dtype=np.int64)
     states = _start_states(start_p, n, n_demos, S, rng)
     task = np.arange(n)[:, None]
@@ -199,8 +233,8 @@ def empirical_statistics(mdp: TabularMDP, demos_per_task: typing.Any) -> tuple[N
     for i, task in enumerate(tasks):
         steps = task.steps
         counts[i] = np.bincount(steps[:, 0] * A + steps[:, 1], minlength=S * A)
-    counts = counts.reshape(n, S, A)
-    visits = counts.sum(axis=2)
+    per_pair = counts.reshape(n, S, A)
+    visits = per_pair.sum(axis=2)
     mu_hat = visits / visits.sum(axis=1, keepdims=True)
-    pi_hat = np.divide(counts, visits[:, :, None], out=np.zeros_like(counts), where=visits[:, :, None] > 0)
+    pi_hat = np.divide(per_pair, visits[:, :, None], out=np.zeros_like(per_pair), where=visits[:, :, None] > 0)
     return mu_hat, pi_hat

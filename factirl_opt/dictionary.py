@@ -4,6 +4,8 @@ Helpers of the factorial learner (docs/maths.md §8) that act on a dictionary ``
 coefficients ``H`` (n, k), tasks on the leading axis, with rewards ``R_i = Phi D h_i``:
 
 - :func:`pca_dictionary`: the uncentred PCA of learnt task parameters (the paper's start);
+- :func:`metric_pca_dictionary`: the same for feature weights of tasks in several
+  environments, in the metric of the mean Gram matrix of their features;
 - :func:`shrink_coefficients`: halve a start's coefficients while the total loss decreases;
 - :func:`orient_nonneg`: sign-flip primitives before a nonnegative H-step;
 - :func:`normalise_dictionary`: unit-norm primitives, H rescaled to match.
@@ -20,8 +22,9 @@ from ._validation import as_rng, check_array, check_int
 from .exceptions import ValidationError
 from .interruption import FitInterrupted
 from .problems import StateBroadcast
+from .task_features import TaskFeatures
 
-__all__ = ["pca_dictionary", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
+__all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
            "PCA_MAX_HALVINGS"]
 
 #: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
@@ -86,6 +89,65 @@ def feature_weights(features: Any, rewards: NDArray[np.float64]) -> NDArray[np.f
     if isinstance(features, StateBroadcast):
         return (features.T @ rewards) / features.n_actions
     return np.linalg.lstsq(features, rewards, rcond=None)[0]
+
+
+def metric_pca_dictionary(weights: ArrayLike, features: TaskFeatures, n_components: int,
+                          rng: np.random.Generator | int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The PCA start of feature weights of tasks in several environments (docs/maths.md §8).
+
+    With one feature matrix ``Phi`` the start is the PCA of the rewards ``Phi w_i``, which is
+    the PCA of the weights in the metric ``G = Phi^T Phi``. With per-task features ``Phi_i``
+    the metric is their mean Gram matrix ``G = mean_i Phi_i^T Phi_i`` (state features counted
+    once per action): ``D`` (p, k) and ``H`` (n, k) come from the uncentred PCA of
+    ``W G^{1/2}`` mapped back by the minimum-norm pre-image, so ``G^{1/2} D`` has orthonormal
+    columns and ``H = W G D``. When every task has the same features this is the shared
+    start, up to the signs of the primitives.
+
+    Parameters
+    ----------
+    weights : array_like, shape (n, p)
+        The flat learner's feature weights.
+    features : TaskFeatures
+    n_components : int
+        k, at most the rank of ``G``.
+    rng : numpy.random.Generator or int or None
+        Used only to complete a rank-deficient basis.
+
+    Returns
+    -------
+    dictionary : ndarray, shape (p, k)
+    coefficients : ndarray, shape (n, k)
+    """
+    W = check_array(weights, "weights", ndim=2)
+    G = np.zeros((features.n_features, features.n_features))
+    for i in range(features.n_tasks):
+        F = features.matrix(i)
+        G += (features.n_actions if features.state_features[i] else 1) * (F.T @ F)
+    e, V = np.linalg.eigh(G / features.n_tasks)
+    keep = e > max(float(e.max()), 0.0) * 1e-12
+    if int(keep.sum()) < n_components:
+        raise ValidationError(f"n_components={n_components} exceeds the rank {int(keep.sum())} of the features' mean "
+                              "Gram matrix: the features span fewer reward directions than primitives")
+    root = np.sqrt(e[keep])
+    Dr, H = pca_dictionary(W @ (V[:, keep] * root), n_components, rng)
+    return V[:, keep] @ (Dr / root[:, None]), H
+
+
+def task_feature_weights(features: TaskFeatures, rewards: Any) -> NDArray[np.float64]:
+    """Minimum-norm least-squares weights ``w_i`` with ``Phi_i w_i ~ R_i`` (n, p), one task at a time.
+
+    ``rewards`` is a stacked (n, S, A) array or a list of (S_i, A) arrays.
+    """
+    if len(rewards) != features.n_tasks:
+        raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({features.n_tasks}); got {len(rewards)}")
+    out = np.empty((features.n_tasks, features.n_features))
+    for i, (F, R) in enumerate(zip(features.dense(), rewards)):
+        R = check_array(R, f"flat_rewards[{i}] (task {i})")
+        shape = (int(features.n_states[i]), features.n_actions)
+        if R.shape != shape:
+            raise ValidationError(f"flat_rewards of task {i} must have shape (S_i, A) = {shape} (its MDP); got {R.shape}")
+        out[i] = np.linalg.lstsq(F, R.reshape(-1), rcond=None)[0]
+    return out
 
 
 def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: ArrayLike,

@@ -2,7 +2,9 @@
 
 Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
 tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
-leading axis (docs/maths.md §8). :class:`FactIRL` is the estimator: it validates, builds the
+leading axis (docs/maths.md §8). Tasks in several environments (a sequence of MDPs, one
+feature matrix ``Phi_i`` per task) share the dictionary in feature space:
+``R_i = Phi_i D h_i``. :class:`FactIRL` is the estimator: it validates, builds the
 objective and the solvers once, initialises (PCA of the flat learner's parameters, or random)
 and hands them down to the alternating scheme (:mod:`factirl_opt.factorial`) and to transfer
 (:mod:`factirl_opt.transfer`); the dictionary helpers live in :mod:`factirl_opt.dictionary`.
@@ -21,17 +23,24 @@ from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, 
 from .dictionary import (
     PCA_MAX_HALVINGS,
     feature_weights,
+    metric_pca_dictionary,
     normalise_dictionary,
     orient_nonneg,
     pca_dictionary,
     shrink_coefficients,
+    task_feature_weights,
 )
 from .exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
 from .fitting import (
+    Environments,
     check_features_digest,
+    environment_signatures,
+    environments_setup,
     features_digest,
     make_objective,
+    one_environment,
+    reward_dimension,
     resolve_step_solver,
     reward_features,
     warn_if_stalled,
@@ -39,7 +48,8 @@ from .fitting import (
 from .gradirl import fit_weights, weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
-from .transfer import TransferFit, run_transfer, transfer_coefficients
+from .task_features import TaskFeatures
+from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
@@ -51,6 +61,13 @@ RANDOM_INIT_SCALE = 0.3
 
 #: the flat learner of the PCA start: GradIRL's default solver and tolerance
 FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+
+
+def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """What the PCA start decomposes: the flat rewards (n, S*A), or with per-task features the weights (n, p)."""
+    if isinstance(Phi, TaskFeatures):
+        return weights
+    return weights_rewards(Phi, weights, mdp.n_states, mdp.n_actions).reshape(len(weights), -1)
 
 
 class FactIRL:
@@ -69,8 +86,11 @@ class FactIRL:
         flat learner's feature weights measured by the rewards they give: the PCA of the
         rewards ``Phi w_i`` (the weights' PCA in the metric ``Phi^T Phi``; nested or constant
         features such as Objectworld's leave the weights themselves ill-determined), mapped
-        back to feature space by minimum-norm least squares. ``"random"``: Gaussian primitives normalised to unit
-        norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
+        back to feature space by minimum-norm least squares. With one feature matrix per
+        task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
+        (:func:`~factirl_opt.dictionary.metric_pca_dictionary`; the same start, up to the signs
+        of the primitives, when every task has the same features). ``"random"``: Gaussian
+        primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
         grid) and the Boltzmann policies start far from saturation, where the gradients are
         informative (a unit-scale random start saturates them and the descent stalls). A tuple
         gives the initial arrays D0 (p, k) and H0 (n, k).
@@ -105,9 +125,12 @@ class FactIRL:
     d_solver : str or solvers.StepSolver, default="armijo"
         D-step solver (same registry; ``"armijo"`` is the paper's).
     d_solver_options : dict, optional
-    features : array_like, shape (S*A, p) or (S, p), optional
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
         Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
-        (state features are repeated over actions). None: tabular, p = S*A.
+        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
+        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
+        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
+        ``transfer`` then needs the new environments' features.
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
         (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
@@ -134,8 +157,9 @@ class FactIRL:
     dictionary_ : ndarray, shape (p, k)
         p = S*A (tabular), S (``reward="state"``) or the number of features.
     coefficients_ : ndarray, shape (n, k)
-    rewards_ : ndarray, shape (n, S, A)
-        ``Phi D h_i`` reshaped.
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        ``Phi D h_i`` reshaped; a list when the tasks' environments differ in their number of
+        states (stacked otherwise; ``transfer_rewards_`` likewise).
     loss_ : ndarray, shape (n,)
     loss_history_ : list of float
         Total loss (eq. 10, plus a sparse solver's penalty) after the initialisation and after
@@ -150,11 +174,14 @@ class FactIRL:
     stop_reason_ : str
         Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`);
         ``"interrupted"`` after Ctrl-C.
-    mdp_signature_ : dict
-        Signature of the MDP of ``fit``; ``transfer`` refuses another MDP.
+    mdp_signature_ : dict or list of dict
+        Signature of the MDP of ``fit``; ``transfer`` without ``features`` refuses another
+        MDP. Fitted on a sequence of MDPs (not all the same object): one signature per task,
+        and ``transfer`` checks only the number of actions and the feature dimension p.
     features_sha256_ : str or None
-        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features);
-        ``transfer`` refuses features that differ from them.
+        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features and with
+        per-task features); ``transfer`` without ``features`` refuses model features that
+        differ from them.
     transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
     transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
@@ -223,22 +250,26 @@ class FactIRL:
         try:
             res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
         except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
-            X = weights_rewards(Phi, exc.result.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1)
-            D, H = self._pca(X, Phi, rng)
+            D, H = self._pca(_flat_points(mdp, Phi, exc.result.coefficients), Phi, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
             raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
-        return weights_rewards(Phi, res.coefficients, mdp.n_states, mdp.n_actions).reshape(n, -1), obj.n_evaluations - ev0
+        return _flat_points(mdp, Phi, res.coefficients), obj.n_evaluations - ev0
 
     def _pca(self, X, Phi, rng):
-        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space."""
+        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space; with
+        per-task features, of the flat weights X (n, p) (:func:`metric_pca_dictionary`)."""
+        if isinstance(Phi, TaskFeatures):
+            return metric_pca_dictionary(X, Phi, self.n_primitives, rng)
         D, H = pca_dictionary(X, self.n_primitives, rng)
         return (D if Phi is None else feature_weights(Phi, D)), H
 
     def _pca_init(self, mdp, n, Phi, flat_rewards, rng, obj):
         if flat_rewards is None:
             X, evals = self._flat_start(mdp, n, Phi, obj, rng)
+        elif isinstance(Phi, TaskFeatures):
+            X, evals = task_feature_weights(Phi, flat_rewards), 0
         else:
             Theta, evals = check_array(flat_rewards, "flat_rewards"), 0
             if Theta.shape != (n, mdp.n_states, mdp.n_actions):
@@ -261,7 +292,7 @@ class FactIRL:
         return D, H, evals
 
     def _initial(self, mdp, n, Phi, flat_rewards, rng, obj):
-        k, p = self.n_primitives, mdp.n_params if Phi is None else Phi.shape[1]
+        k, p = self.n_primitives, reward_dimension(mdp, Phi)
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
@@ -277,12 +308,12 @@ class FactIRL:
             return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
-    def _check_params(self, mdp):
-        """Validate the hyper-parameters; the base features (None, StateBroadcast or (S*A, p)) and
-        the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
+    def _check_params(self, mdp, task_features=None):
+        """Validate the hyper-parameters; the base features (None, StateBroadcast, (S*A, p), or
+        ``task_features`` given) and the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
         k = check_int(self.n_primitives, "n_primitives", minimum=1)
-        Phi = self._features(mdp)
-        p = mdp.n_params if Phi is None else Phi.shape[1]
+        Phi = self._features(mdp) if task_features is None else task_features
+        p = reward_dimension(mdp, Phi)
         if k > p:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
@@ -300,10 +331,14 @@ class FactIRL:
 
         Parameters
         ----------
-        mdp : TabularMDP
+        mdp : TabularMDP or sequence of n TabularMDP
+            One MDP shared by every task, or one per task (tasks in several environments,
+            with the same number of actions; tasks given the same object are planned as one
+            batch). Several environments need ``features``: one shared matrix (equal-sized
+            environments) or one per task.
         demos_per_task : list of n task demonstrations
-            Each an int array (m, L, 2) or a list of (L_j, 2) episodes.
-        flat_rewards : array_like, shape (n, S, A), optional
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes, on its task's MDP.
+        flat_rewards : array_like, shape (n, S, A), or list of n arrays (S_i, A), optional
             Rewards already learnt by the flat learner on these demonstrations; with
             ``init="pca"`` they are used instead of fitting the flat learner again (with
             ``features``, their least-squares feature weights are).
@@ -312,33 +347,44 @@ class FactIRL:
         -------
         self
         """
-        check_mdp(mdp)
-        Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(mdp)
+        one = one_environment(mdp, demos_per_task, self.features)
+        obj: Any
+        if one is None:  # tasks in several environments: ``where`` is their Environments
+            obj, where = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta, self.objective,
+                                            self.planner)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(None, where.features)
+        else:
+            where = check_mdp(one)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
         h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
         d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
-        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        if one is not None:
+            obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
-            D, H, init_evals = self._initial(mdp, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+            D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
             if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                 D, H = orient_nonneg(D, H, self.init == "random")
             fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter,
                                 inner_steps=inner_steps, tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
         except FitInterrupted as exc:
-            self._store(mdp, Phi, exc.result, int(obj.n_evaluations))
+            self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
             raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
-        self._store(mdp, Phi, fit, int(fit.n_evaluations + init_evals))
+        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
-    def _store(self, mdp, Phi, fit, n_evaluations):
+    def _store(self, where, Phi, fit, n_evaluations):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
-        self.rewards_ = factorial_rewards(mdp, Phi, fit.dictionary, fit.coefficients)
+        self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
-        self.mdp_signature_ = mdp.signature()
+        if isinstance(where, Environments):
+            self.mdp_signature_, self.features_sha256_ = environment_signatures(where.mdps), where.digest
+            return
+        self.mdp_signature_ = where.signature()
         self.features_sha256_ = None if self.features is None else features_digest(Phi)
 
     def _transfer_dictionary(self, mdp):
@@ -346,7 +392,7 @@ class FactIRL:
         if not hasattr(self, "dictionary_"):
             raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
         check_mdp(mdp)
-        if getattr(self, "mdp_signature_", None) is not None:
+        if isinstance(getattr(self, "mdp_signature_", None), dict):  # a list: fitted on several environments
             check_signature(self.mdp_signature_, mdp, "this FactIRL model")
         Phi = self._features(mdp)
         if hasattr(self, "features_sha256_"):
@@ -360,8 +406,8 @@ class FactIRL:
         return Phi, D
 
     @blas_limited
-    def transfer(self, mdp: Any, demos_per_task: Any, max_iter: int | None = None, h_solver: Any = None,
-                 h_solver_options: dict | None = None) -> NDArray[np.float64]:
+    def transfer(self, mdp: Any, demos_per_task: Any, features: Any = None, max_iter: int | None = None,
+                 h_solver: Any = None, h_solver_options: dict | None = None) -> NDArray[np.float64]:
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
@@ -369,9 +415,16 @@ class FactIRL:
 
         Parameters
         ----------
-        mdp : TabularMDP
-            The MDP of ``fit`` (checked against ``mdp_signature_`` when the model has one).
+        mdp : TabularMDP or sequence of n_new TabularMDP
+            The MDP of ``fit`` (checked against ``mdp_signature_`` for a model fitted on one
+            MDP, when no ``features`` are given), or the new tasks' own environments (one MDP
+            per new task, or one shared), with the number of actions of ``fit``.
         demos_per_task : list of n_new task demonstrations
+        features : array_like or sequence of n_new array_like, optional
+            The new environments' features, over the p features of ``fit``: one shared
+            matrix, or one (S_i*A, p) or (S_i, p) per new task. Required for a model fitted
+            with per-task features; with them no MDP signature is checked (the dictionary is
+            carried to the new environments). Default: the model's own (shared) features.
         max_iter : int, optional
             Default ``transfer_max_iter``.
         h_solver : str or solvers.StepSolver, optional
@@ -383,21 +436,29 @@ class FactIRL:
         Returns
         -------
         coefficients : ndarray, shape (n_new, k)
+            ``transfer_rewards_`` holds the new tasks' rewards: (n_new, S, A), or a list of
+            (S_i, A) arrays when their environments differ in size.
 
         Raises
         ------
         ValidationError
-            When the model's features differ from those of ``fit`` (``features_sha256_``), or
-            ``dictionary_`` does not fit the MDP.
+            When the model's features differ from those of ``fit`` (``features_sha256_``),
+            ``dictionary_`` does not fit the MDP, ``features`` are missing for a per-task
+            model or have another p, or the environments another number of actions.
         """
-        Phi, D = self._transfer_dictionary(mdp)
+        new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
+        if new is None:
+            Phi, D = self._transfer_dictionary(mdp)
         if h_solver is None:
             if h_solver_options is not None:
                 raise ValidationError("h_solver_options given without h_solver")
             h_solver, h_solver_options = self.h_solver, self.h_solver_options
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol = check_tol(self.tol)
-        obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        if new is None:
+            obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        else:
+            obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
         try:
             res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,

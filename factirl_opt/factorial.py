@@ -24,9 +24,18 @@ from ._threads import blas_limited
 from ._validation import check_array, check_int, check_mdp, check_tol
 from .dictionary import normalise_dictionary
 from .exceptions import ValidationError, translate_solver_errors
-from .fitting import first_step_stall, make_objective, resolve_step_solver, reward_features
+from .fitting import (
+    environments_setup,
+    first_step_stall,
+    make_objective,
+    one_environment,
+    resolve_step_solver,
+    reward_dimension,
+    reward_features,
+)
 from .interruption import INTERRUPTED, FitInterrupted
 from .problems import dictionary_problem, linear_rewards, weights_problem
+from .task_features import TaskFeatures
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "factorial_rewards", "GTOL"]
 
@@ -79,8 +88,12 @@ class FactorialFit:
 def factorial_rewards(mdp: Any, Phi: Any, D: NDArray[np.float64], H: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rewards ``R_i = Phi D h_i`` (n, S, A) from D (p, k) and H (n, k); ``Phi`` None is tabular.
 
-    An overflow names the inputs (:func:`factirl_opt.problems.linear_rewards`).
+    An overflow names the inputs (:func:`factirl_opt.problems.linear_rewards`). With per-task
+    features ``Phi`` (:class:`~factirl_opt.task_features.TaskFeatures`; ``mdp`` unused) the
+    rewards are stacked (n, S, A) for equal-sized environments, else a list of (S_i, A).
     """
+    if isinstance(Phi, TaskFeatures):
+        return Phi.times(D).rewards(H)
     if Phi is None:
         return linear_rewards(D, H, mdp.n_states, mdp.n_actions, ("dictionary", "coefficients"))
     with np.errstate(over="ignore", invalid="ignore"):
@@ -100,10 +113,14 @@ def _optimality(y, Phi, D, H, h_solver, unit_norm):
     ``dJ/dD = Phi^T sum_i y_i h_i^T`` (eq. 11), restricted to the tangent space of unit-norm
     primitives when the D-step keeps them at unit norm.
     """
-    Y = y.reshape(H.shape[0], -1)
     with np.errstate(over="ignore", invalid="ignore"):
-        gH = Y @ (D if Phi is None else Phi @ D)
-        gD = Y.T @ H if Phi is None else Phi.T @ (Y.T @ H)
+        if isinstance(Phi, TaskFeatures):
+            G = Phi.pull(y)  # Phi_i^T y_i (n, p)
+            gH, gD = G @ D, G.T @ H
+        else:
+            Y = y.reshape(H.shape[0], -1)
+            gH = Y @ (D if Phi is None else Phi @ D)
+            gD = Y.T @ H if Phi is None else Phi.T @ (Y.T @ H)
         if unit_norm:
             gD = gD - D * np.sum(D * gD, axis=0)
         norm = float(np.hypot(np.linalg.norm(h_solver.optimality(H, gH)), np.linalg.norm(gD)))
@@ -154,7 +171,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
         h_state = d_state = None
         status, reason = "max_iter", f"max_iter={max_iter} outer iterations done"
         for it in range(1, max_iter + 1):
-            F = D if Phi is None else Phi @ D
+            F = D if Phi is None else Phi.times(D) if isinstance(Phi, TaskFeatures) else Phi @ D
             rh = h_solver.run(weights_problem(objective, F, names), H, inner_steps, state=h_state, gtol=gtol)
             H, h_state = rh.coefficients, h_solver.carry_over(rh.state)
             rd = d_solver.run(dictionary_problem(objective, H, Phi, unit_norm=penalised), D.reshape(1, -1),
@@ -214,15 +231,17 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
 
     Parameters
     ----------
-    mdp : TabularMDP
+    mdp : TabularMDP or sequence of n TabularMDP
+        One MDP shared by every task, or one per task (then ``base_features`` are needed; see
+        :func:`factirl_opt.fitting.environments_setup`).
     demos_per_task : list of n task demonstrations
     dictionary : array_like, shape (p, k)
         Initial ``D``; p = S*A (tabular) or the number of base features.
     coefficients : array_like, shape (n, k)
         Initial ``H``.
     beta : float
-    base_features : array_like, shape (S*A, p) or (S, p), optional
-        ``Phi``; None for tabular rewards.
+    base_features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
+        ``Phi``, shared or one per task (each (S_i*A, p) or (S_i, p)); None for tabular rewards.
     reward : {"state-action", "state"}, default="state-action"
         Without ``base_features``: ``"state"`` learns rewards of the states only (p = S),
         ``Phi = kron(I_S, 1_A)`` applied without forming it (docs/maths.md §7).
@@ -257,16 +276,22 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
         A KeyboardInterrupt during the fit; its ``result`` is the :class:`FactorialFit` of the
         best point seen (status ``"interrupted"``).
     """
-    check_mdp(mdp)
-    Phi = reward_features(mdp, base_features, reward)
-    p = mdp.n_params if Phi is None else Phi.shape[1]
+    one = one_environment(mdp, demos_per_task, base_features)
+    obj: Any
+    if one is None:
+        obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
+        Phi: Any = envs.features
+    else:
+        Phi = reward_features(check_mdp(one), base_features, reward)
+    p = reward_dimension(one, Phi)
     D = check_array(dictionary, "dictionary", ndim=2)
     H = check_array(coefficients, "coefficients", ndim=2)
     if D.shape[0] != p or H.shape[1] != D.shape[1]:
         raise ValidationError(f"dictionary (p, k) and coefficients (n, k) must have p = {p} and equal k; got {D.shape} and {H.shape}")
     max_iter, inner_steps = check_int(max_iter, "max_iter", minimum=0), check_int(inner_steps, "inner_steps", minimum=1)
     tol, gtol = check_tol(tol), check_tol(gtol, "gtol")
-    obj = make_objective(mdp, demos_per_task, beta, objective, planner)
+    if one is not None:
+        obj = make_objective(one, demos_per_task, beta, objective, planner)
     if H.shape[0] != obj.n_tasks:
         raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
     h = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
@@ -289,8 +314,9 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     h_solver, d_solver : solvers.StepSolver
         Resolved and checked (:func:`factirl_opt.fitting.resolve_step_solver`); used in their
         alternating form.
-    base_features : ndarray, shape (S*A, p), or StateBroadcast, optional
-        Validated ``Phi``.
+    base_features : ndarray, shape (S*A, p), StateBroadcast or TaskFeatures, optional
+        Validated ``Phi``; TaskFeatures (one matrix per task) with a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`.
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
 

@@ -9,13 +9,19 @@ One home for each piece the flat and the factorial learners both use:
 - :func:`first_step_stall`: the rule that calls a fit "stalled" when its first iteration left
   the total loss unchanged, and :func:`warn_if_stalled`, its warning;
 - :func:`features_digest`: a SHA-256 of the base features a model was fitted with, checked
-  before the features are used again (``FactIRL.transfer``).
+  before the features are used again (``FactIRL.transfer``);
+- :func:`one_environment` and :func:`environments_setup`: tasks in several environments (a
+  sequence of MDPs, or one feature matrix per task), bound to one
+  :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` and their
+  :class:`~factirl_opt.task_features.TaskFeatures` (docs/maths.md §7-8).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -25,8 +31,11 @@ import solvers
 from ._validation import check_beta, check_features
 from .demonstrations import empirical_statistics
 from .exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
+from .mdp import TabularMDP
 from .objectives import Objective, get_objective
+from .objectives.environments import MultiEnvironmentObjective, check_environments, multi_environment_objective
 from .problems import StateBroadcast
+from .task_features import TaskFeatures
 
 __all__ = [
     "make_objective",
@@ -39,6 +48,12 @@ __all__ = [
     "check_features_digest",
     "REWARDS",
     "reward_features",
+    "reward_dimension",
+    "per_task_features",
+    "one_environment",
+    "Environments",
+    "environments_setup",
+    "environment_signatures",
 ]
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
@@ -212,3 +227,128 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
         f"{actual[:12]}... instead of {expected[:12]}...): the dictionary only means something on the features it was "
         "learnt with; restore those features or fit again"
     )
+
+
+def reward_dimension(mdp: Any, features: Any) -> int:
+    """p, the number of reward parameters per task: ``S*A`` (tabular), or the features' columns."""
+    if isinstance(features, TaskFeatures):
+        return features.n_features
+    return mdp.n_params if features is None else features.shape[1]
+
+
+def per_task_features(features: Any) -> bool:
+    """Whether ``features`` is one matrix per task (a sequence of 2-d arrays, or a 3-d array)."""
+    if isinstance(features, np.ndarray):
+        return features.ndim == 3
+    return (isinstance(features, Sequence) and not isinstance(features, (str, bytes)) and len(features) > 0
+            and np.ndim(features[0]) == 2)
+
+
+def _n_tasks(demos_per_task: Any) -> int | None:
+    try:
+        return len(demos_per_task)
+    except TypeError:
+        return None
+
+
+def one_environment(mdp: Any, demos_per_task: Any, features: Any) -> Any:
+    """The MDP of a fit whose tasks all share one MDP object and one feature matrix (or none), else None.
+
+    That fit runs the one-MDP code path, so ``fit([mdp] * n, ...)`` with the same object is
+    ``fit(mdp, ...)`` bit for bit. Anything that is neither a TabularMDP nor a sequence is
+    returned as is, for the one-MDP path to refuse.
+    """
+    if per_task_features(features):
+        return None
+    if isinstance(mdp, TabularMDP) or not isinstance(mdp, Sequence) or isinstance(mdp, (str, bytes)):
+        return mdp
+    mdps = check_environments(mdp, _n_tasks(demos_per_task))
+    return mdps[0] if all(m is mdps[0] for m in mdps) else None
+
+
+@dataclasses.dataclass
+class Environments:
+    """What a fit over tasks in several environments is built on.
+
+    Attributes
+    ----------
+    mdps : list of n TabularMDP
+    features : TaskFeatures
+        ``Phi_i`` of every task (one shared matrix is referenced n times, never copied).
+    digest : str or None
+        :func:`features_digest` of one shared feature matrix; None for per-task features.
+    """
+
+    mdps: list
+    features: TaskFeatures
+    digest: str | None
+
+
+def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> tuple[TaskFeatures, str | None]:
+    if reward != "state-action":
+        raise ValidationError(f"reward={reward!r} learns one free reward per state of one MDP; tasks in several "
+                              "environments need features (pass state features (S_i, p) per task instead)")
+    if features is None:
+        raise ValidationError(
+            "tasks in several environments need features (one shared (S*A, p) matrix, or one (S_i*A, p) or (S_i, p) "
+            "matrix per task): tabular rewards are defined on one MDP")
+    S = [m.n_states for m in mdps]
+    if per_task_features(features):
+        tf = TaskFeatures(list(features), S, mdps[0].n_actions)
+        digest = None
+    else:
+        F = check_features(features, mdps[0].n_params, mdps[0].n_states, min_columns=min_columns)
+        bad = [i for i, s in enumerate(S) if s != S[0]]
+        if bad:
+            raise ValidationError(f"one shared feature matrix ({np.shape(features)}) cannot fit every environment: task 0 "
+                                  f"has S = {S[0]} states, task {bad[0]} has {S[bad[0]]}; give one feature matrix per task")
+        tf, digest = TaskFeatures([F] * len(mdps), S, mdps[0].n_actions), features_digest(F)
+    if tf.n_features < min_columns:
+        raise ValidationError(f"features must have p >= {min_columns} columns; got p = {tf.n_features}")
+    return tf, digest
+
+
+def environments_setup(mdp: Any, demos_per_task: Any, features: Any, reward: str, beta: float,
+                       objective: Any = "policy-matching", planner: Any = "auto",
+                       min_columns: int = 1) -> tuple[MultiEnvironmentObjective, Environments]:
+    """The objective and the features of a fit over tasks in several environments.
+
+    Parameters
+    ----------
+    mdp : TabularMDP or sequence of n TabularMDP
+        One per task (tasks given the same object are planned as one batch).
+    demos_per_task : list of n task demonstrations
+        Each on its own task's MDP.
+    features : array_like or sequence of n array_like
+        One (S*A, p) or (S, p) matrix shared by every task (equal-sized environments), or one
+        (S_i*A, p) or (S_i, p) matrix per task, with the same p.
+    reward : str
+        Must be ``"state-action"``.
+    beta, objective, planner
+        As in :func:`make_objective`.
+    min_columns : int
+        Smallest accepted p.
+
+    Raises
+    ------
+    ValidationError
+        For a wrong count of MDPs, features or demonstrations, numbers of actions that differ,
+        features with another p or that do not fit their task's MDP, no features, or a state
+        out of range of its task's MDP (each naming the task).
+    """
+    n = _n_tasks(demos_per_task)
+    if n is None:
+        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
+    mdps = check_environments(mdp, n)
+    tf, digest = _task_features(mdps, features, reward, min_columns)
+    obj = multi_environment_objective(mdps, demos_per_task, beta, objective, planner)
+    return obj, Environments(mdps, tf, digest)
+
+
+def environment_signatures(mdps: Sequence[TabularMDP]) -> list[dict]:
+    """One :meth:`TabularMDP.signature` per task (computed once per distinct MDP object)."""
+    seen: dict[int, dict] = {}
+    for m in mdps:
+        if id(m) not in seen:
+            seen[id(m)] = m.signature()
+    return [dict(seen[id(m)]) for m in mdps]

@@ -19,10 +19,13 @@ from ._validation import check_int, check_mdp, check_tol
 from .exceptions import translate_solver_errors
 from .fitting import (
     check_solver_applies,
+    environment_signatures,
+    environments_setup,
     features_digest,
     first_step_stall,
     held_by_constraint,
     make_objective,
+    one_environment,
     resolve_step_solver,
     reward_features,
     warn_if_stalled,
@@ -93,9 +96,11 @@ class GradIRL:
     ----------
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
-    features : array_like, shape (S*A, p) or (S, p), optional
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
         Linear reward features ``R = F w`` (state features are repeated over actions); None
-        learns tabular rewards (``theta = R``, d = S*A).
+        learns tabular rewards (``theta = R``, d = S*A). A sequence gives one matrix per task,
+        (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i w_i`` on task i's own
+        environment (tasks in several environments; docs/maths.md §7).
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state-action"`` learns ``R(s, a)`` (d = S*A); ``"state"`` learns a
         reward of the states only, ``R(s, a) = r(s)`` (d = S), at the cost of the tabular fit
@@ -122,8 +127,11 @@ class GradIRL:
     Attributes
     ----------
     weights_ : ndarray, shape (n, p)
-        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights).
-    rewards_ : ndarray, shape (n, S, A)
+        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights,
+        also with per-task features, so a reward can be carried to another map).
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        A list when the tasks' environments differ in their number of states; stacked
+        otherwise.
     loss_ : ndarray, shape (n,)
         Final loss of each task.
     loss_history_ : list of float
@@ -137,11 +145,13 @@ class GradIRL:
         stalls at its first step) or ``"interrupted"``.
     stop_reason_ : str
         Which stopping rule ended the fit, with its values (``"interrupted"`` after Ctrl-C).
-    mdp_signature_ : dict
-        The signature of the MDP it was fitted on.
+    mdp_signature_ : dict or list of dict
+        The signature of the MDP it was fitted on; with a sequence of MDPs (not all the same
+        object) one signature per task.
     features_sha256_ : str or None
         SHA-256 of the validated features (S*A, p) of the fit
-        (:func:`factirl_opt.fitting.features_digest`); None without features.
+        (:func:`factirl_opt.fitting.features_digest`); None without features and with
+        per-task features.
 
     Notes
     -----
@@ -182,42 +192,66 @@ class GradIRL:
 
         Parameters
         ----------
-        mdp : TabularMDP
+        mdp : TabularMDP or sequence of n TabularMDP
+            One MDP shared by every task, or one per task (tasks in several environments, with
+            the same number of actions; tasks given the same object are planned as one batch).
+            Several environments need ``features``: one shared matrix (equal-sized
+            environments) or one per task.
         demos_per_task : list of n task demonstrations
-            Each an int array (m, L, 2) or a list of (L_j, 2) episodes.
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes, on its task's MDP.
 
         Returns
         -------
         self
         """
-        check_mdp(mdp)
-        max_iter = check_int(self.max_iter, "max_iter", minimum=0)
-        tol = check_tol(self.tol)
-        F = reward_features(mdp, self.features, self.reward)
-        objective = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        one = one_environment(mdp, demos_per_task, self.features)
+        if one is not None:
+            check_mdp(one)
+        loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
+        objective: Any
+        if one is None:
+            objective, envs = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta,
+                                                 self.objective, self.planner)
+            return self._run(objective, envs.features, loop, lambda res: self._store_environments(envs, res, objective))
+        F = reward_features(one, self.features, self.reward)
+        objective = make_objective(one, demos_per_task, self.beta, self.objective, self.planner)
+        return self._run(objective, F, loop, lambda res: self._store(one, F, res, objective))
+
+    def _run(self, objective, F, loop, store):
+        max_iter, tol = loop
         solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
         try:
             res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
-            self._store(mdp, F, exc.result, objective)
+            store(exc.result)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
                                             f"after {self.n_iter_} iterations)")
             raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
-        self._store(mdp, F, res, objective)
+        store(res)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         return self
 
     def _store(self, mdp, F, res, objective):
         self.weights_ = res.coefficients
         self.rewards_ = weights_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
+        self._store_run(res, objective)
+        self.mdp_signature_ = mdp.signature()
+        self.features_sha256_ = None if self.features is None else features_digest(F)
+
+    def _store_environments(self, envs, res, objective):
+        self.weights_ = res.coefficients
+        self.rewards_ = envs.features.rewards(res.coefficients)
+        self._store_run(res, objective)
+        self.mdp_signature_ = environment_signatures(envs.mdps)
+        self.features_sha256_ = envs.digest
+
+    def _store_run(self, res, objective):
         self.loss_ = res.loss
         self.loss_history_ = res.loss_history
         self.n_evaluations_ = int(objective.n_evaluations)
         self.n_iter_ = res.iterations
         self.status_ = res.status
         self.stop_reason_ = INTERRUPTED if res.status == INTERRUPTED else res.reason
-        self.mdp_signature_ = mdp.signature()
-        self.features_sha256_ = None if self.features is None else features_digest(F)
 
     def __repr__(self) -> str:
         features = "None" if self.features is None else np.shape(self.features)

@@ -251,6 +251,19 @@ class TabularMDP:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(n_states={self.n_states}, n_actions={self.n_actions}, gamma={self.gamma})"
 
+    @classmethod
+    def from_successors(cls, sa_s: ArrayLike, sa_p: ArrayLike, gamma: float, index_base: int = 0) -> TabularMDP:
+        """A sparse :class:`TabularMDP` from successor lists (S, A, K), summing repeated successors.
+
+        The dynamics of Levine's IRL toolkit and ELIRL (``index_base=1`` for their MATLAB
+        data); see :func:`factirl_opt.successors.from_successors`, which this calls, for the
+        parameters and errors. Always returns a :class:`TabularMDP` (also when called on a
+        subclass).
+        """
+        from .successors import from_successors  # successors builds models of this module
+
+        return from_successors(sa_s, sa_p, gamma, index_base=index_base)
+
 
 def check_signature(expected: Any, mdp: TabularMDP, what: str = "this model") -> None:
     """Raise :class:`ValidationError` unless ``mdp`` has the signature ``expected``.

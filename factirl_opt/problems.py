@@ -5,6 +5,10 @@
 - :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi D h_i``,
   loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11;
   docs/maths.md §8).
+- :func:`task_weights_problem` and :func:`task_dictionary_problem`: the same with one feature
+  matrix per task (:class:`~factirl_opt.task_features.TaskFeatures`, tasks in several
+  environments, ``R_i = Phi_i w_i``; least-squares residuals padded to the largest ``S_i*A``);
+  :func:`weights_problem` and :func:`dictionary_problem` hand such features to them;
 - :class:`StateBroadcast`: the features of a state-only reward ``R(s, a) = r(s)``,
   ``Phi = kron(I_S, 1_A)`` (S*A, S), applied without forming the matrix (docs/maths.md §7).
 
@@ -24,8 +28,9 @@ from solvers import Linearization, StepProblem
 
 from .exceptions import ValidationError
 from .synthetic import task_rewards
+from .task_features import TaskFeatures
 
-__all__ = ["weights_problem", "dictionary_problem", "StateBroadcast", "linear_rewards", "dense_features"]
+__all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem", "StateBroadcast", "linear_rewards", "dense_features"]
 
 
 class StateBroadcast:
@@ -145,6 +150,8 @@ def weights_problem(objective: Any, features: Any = None,
     StepProblem
         n rows (the objective's tasks), p parameters each.
     """
+    if isinstance(features, TaskFeatures):
+        return task_weights_problem(objective, features)
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
@@ -206,6 +213,8 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
     StepProblem
         One row of ``p * k`` parameters.
     """
+    if isinstance(base_features, TaskFeatures):
+        return task_dictionary_problem(objective, coefficients, base_features, unit_norm)
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     H = np.asarray(coefficients, dtype=np.float64)
@@ -247,6 +256,101 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
         def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
             dD = normalisation_map(D, norms, V.reshape(p, k))
             return lin.jvp(rewards(dD)).reshape(1, -1)
+
+        def vjp(U):
+            return pull(lin.vjp(U.reshape(n, -1)), D, norms)
+
+        return Linearization(np.array([lin.loss.sum()]), lin.residual.reshape(1, -1), jvp, vjp)
+
+    return StepProblem(
+        loss_and_grad=loss_and_grad,
+        linearize=linearize if objective.least_squares else None,
+        n_evaluations=lambda: objective.n_evaluations,
+        n_rows=1,
+        n_params=p * k,
+    )
+
+
+def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
+    """:func:`weights_problem` with one feature matrix per task: ``R_i = Phi_i w_i``, w (n, p).
+
+    Parameters
+    ----------
+    objective : MultiEnvironmentObjective
+        Over the tasks of ``features`` (one environment each; see
+        :mod:`factirl_opt.objectives.environments`).
+    features : TaskFeatures
+        ``Phi_i`` (or ``Phi_i D`` in the H-step, :meth:`TaskFeatures.times`).
+
+    Returns
+    -------
+    StepProblem
+        n rows, p parameters each; the gradient is ``Phi_i^T y_i`` (docs/maths.md §7) and the
+        least-squares residuals are padded to the largest ``S_i * A``.
+    """
+    tf = features
+
+    def loss_and_grad(x, rows):
+        loss, y = objective.loss_and_grad(tf.rewards(x, rows), rows)
+        return loss, tf.pull(y, rows)
+
+    def residual_jacobian(x, rows):
+        return objective.residual_jacobian(tf.rewards(x, rows), rows, tf.dense(rows))
+
+    def linearize(x, rows):
+        lin = objective.linearize(tf.rewards(x, rows), rows)
+        return Linearization(lin.loss, lin.residual, lambda V: lin.jvp(tf.rewards(V, rows)),
+                             lambda U: tf.pull(lin.vjp(U), rows))
+
+    ls = objective.least_squares
+    return StepProblem(
+        loss_and_grad=loss_and_grad,
+        residual_jacobian=residual_jacobian if ls else None,
+        linearize=linearize if ls else None,
+        n_evaluations=lambda: objective.n_evaluations,
+        n_rows=objective.n_tasks,
+        n_params=tf.n_features,
+    )
+
+
+def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], features: TaskFeatures,
+                            unit_norm: bool = False) -> StepProblem:
+    """:func:`dictionary_problem` with one feature matrix per task: ``R_i = Phi_i D h_i``.
+
+    The gradient is ``sum_i Phi_i^T y_i h_i^T`` (eq. 11, :meth:`TaskFeatures.dictionary_gradient`);
+    ``unit_norm`` as in :func:`dictionary_problem`. Least-squares residuals are the tasks'
+    padded residuals (n, max S_i*A) as one row.
+    """
+    tf, H = features, np.asarray(coefficients, dtype=np.float64)
+    n, k = H.shape
+    p = tf.n_features
+    all_rows = np.arange(n)
+
+    def effective(x):
+        D = x.reshape(p, k)
+        norms = np.where((nrm := np.linalg.norm(D, axis=0)) > 0, nrm, 1.0) if unit_norm else np.ones(k)
+        return D / norms, norms
+
+    def normalisation_map(D, norms, G):
+        return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
+
+    def rewards(D):
+        return tf.rewards(H @ D.T)
+
+    def pull(y, D, norms):
+        return normalisation_map(D, norms, tf.pull(y).T @ H).reshape(1, -1)
+
+    def loss_and_grad(x, rows):
+        D, norms = effective(x)
+        loss, y = objective.loss_and_grad(rewards(D), all_rows)
+        return np.array([loss.sum()]), pull(y, D, norms)
+
+    def linearize(x, rows):
+        D, norms = effective(x)
+        lin = objective.linearize(rewards(D), all_rows)
+
+        def jvp(V):
+            return lin.jvp(rewards(normalisation_map(D, norms, V.reshape(p, k)))).reshape(1, -1)
 
         def vjp(U):
             return pull(lin.vjp(U.reshape(n, -1)), D, norms)

@@ -78,6 +78,35 @@ class TaskFeatures:
         self.state_features = np.array([F.shape[0] == s and s * self.n_actions != s for F, s in zip(self._F, S)])
         self.ragged = bool(np.any(S != S[0]))
 
+    @classmethod
+    def _trusted(cls, matrices: list[NDArray[np.float64]], like: TaskFeatures) -> TaskFeatures:
+        """Matrices already validated (products of ``like``'s), with ``like``'s sizes and kinds."""
+        out = cls.__new__(cls)
+        out._F, out.n_actions, out.n_states, out.n_tasks = matrices, like.n_actions, like.n_states, like.n_tasks
+        out.n_features, out.state_features, out.ragged = matrices[0].shape[1], like.state_features, like.ragged
+        return out
+
+    def times(self, M: ArrayLike) -> TaskFeatures:
+        """The per-task features ``Phi_i M`` (p, k) -> (S_i or S_i*A, k), kept per state where ``Phi_i`` is.
+
+        E.g. ``Phi_i D``, the features of the H-step (eq. 12): per-state products stay (S_i, k).
+        """
+        Mx = check_array(M, "M", ndim=2)
+        if Mx.shape[0] != self.n_features:
+            raise ValidationError(f"M must have shape ({self.n_features}, k); got {Mx.shape}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            prods = [F @ Mx for F in self._F]
+        if not all(np.all(np.isfinite(P)) for P in prods):
+            raise ValidationError(
+                f"the product features @ dictionary overflows float64: the largest |dictionary entry| is "
+                f"{np.max(np.abs(Mx)):.3g}; rescale the features (e.g. to entries of order 1)")
+        return TaskFeatures._trusted(prods, self)
+
+    def dense(self, rows: ArrayLike | None = None) -> list[NDArray[np.float64]]:
+        """Task features of ``rows`` as (S_i*A, p) matrices (per-state features repeated over the actions)."""
+        return [np.repeat(self._F[i], self.n_actions, axis=0) if self.state_features[i] else self._F[i]
+                for i in self._rows(rows)]
+
     def _rows(self, rows: ArrayLike | None) -> NDArray[np.intp]:
         return np.arange(self.n_tasks) if rows is None else np.asarray(rows, dtype=np.intp).reshape(-1)
 

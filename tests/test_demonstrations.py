@@ -292,3 +292,71 @@ def test_sampling_from_threads_matches_sequential(rng):
     for got in results:
         for x, y in zip(got, expected):
             np.testing.assert_array_equal(x, y)
+
+
+# -- tasks in many environments ----------------------------------------------------------------
+def _envs(rng):
+    other = fo.TabularMDP(rng.dirichlet(np.ones(7), size=(7, 4)), 0.85)
+    g3, g4 = fo.GridWorld(3), fo.GridWorld(4)
+    mdps = [g3, g4, g3, other]
+    rewards = [rng.standard_normal((9, 4)), rng.standard_normal(16), rng.standard_normal((9, 4)), rng.standard_normal((7, 4))]
+    return mdps, rewards
+
+
+def test_per_task_mdps_sample_as_one_call_per_environment(rng):
+    mdps, rewards = _envs(rng)
+    demos, final = fo.sample_demonstrations(mdps, rewards, 3, 5, rng=7, return_final_states=True)
+    assert isinstance(demos, list) and [d.shape for d in demos] == [(3, 5, 2)] * 4 and final.shape == (4, 3)
+    # the same draws as one call per distinct MDP, in order of first appearance, from one generator
+    gen = np.random.default_rng(7)
+    groups = [(mdps[0], [0, 2]), (mdps[1], [1]), (mdps[3], [3])]
+    for mdp, idx in groups:
+        R = [np.repeat(rewards[i][:, None], 4, axis=1) if rewards[i].ndim == 1 else rewards[i] for i in idx]
+        ref, ref_final = fo.sample_demonstrations(mdp, np.stack(R), 3, 5, rng=gen, return_final_states=True)
+        for j, i in enumerate(idx):
+            np.testing.assert_array_equal(demos[i], ref[j])
+            np.testing.assert_array_equal(final[i], ref_final[j])
+    # states stay in each task's own MDP, and the expert is greedy on its own Q*
+    _, policies = fo.optimal_q(mdps, rewards)
+    for d, mdp, pol in zip(demos, mdps, policies):
+        assert d[..., 0].max() < mdp.n_states
+        np.testing.assert_array_equal(d[..., 1], pol[d[..., 0]])
+    plain = fo.sample_demonstrations(mdps, rewards, 3, 5, rng=7)
+    for a, b in zip(plain, demos):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_one_shared_mdp_object_samples_bit_identically(rng, grid4):
+    R = rng.standard_normal((4, 16, 4))
+    ref, ref_final = fo.sample_demonstrations(grid4, R, 3, 6, rng=11, return_final_states=True)
+    got, final = fo.sample_demonstrations([grid4] * 4, list(R), 3, 6, rng=11, return_final_states=True)
+    np.testing.assert_array_equal(final, ref_final)
+    for a, b in zip(got, ref):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_per_task_start_states(rng):
+    mdps, rewards = _envs(rng)
+    starts = [np.eye(m.n_states)[m.n_states - 1] for m in mdps]
+    demos = fo.sample_demonstrations(mdps, rewards, 2, 3, rng=0, start=starts)
+    assert [int(d[0, 0, 0]) for d in demos] == [8, 15, 8, 6]
+    assert all(np.all(d[:, 0, 0] == 2) for d in fo.sample_demonstrations(mdps, rewards, 2, 3, rng=0, start=np.int64(2)))
+    with pytest.raises(ValidationError, match=r"start describes 3 tasks but 4 MDPs"):
+        fo.sample_demonstrations(mdps, rewards, 2, 3, rng=0, start=starts[:3])
+    with pytest.raises(ValidationError, match=r"tasks \[0, 2\] \(one MDP, S = 9; .*\): start must be an integer >= 0 and <= 8"):
+        fo.sample_demonstrations(mdps, rewards, 2, 3, rng=0, start=12)
+
+
+def test_per_task_mdps_errors(rng):
+    mdps, rewards = _envs(rng)
+    with pytest.raises(ValidationError, match=r"rewards describes 3 tasks but 4 MDPs"):
+        fo.sample_demonstrations(mdps, rewards[:3], 2, 3)
+    with pytest.raises(ValidationError, match=r"rewards\[3\] \(task 3, S = 7\) must have shape \(S, A\) = \(7, 4\)"):
+        fo.sample_demonstrations(mdps, [*rewards[:3], np.zeros((9, 4))], 2, 3)
+    five = fo.TabularMDP(rng.dirichlet(np.ones(7), size=(7, 5)), 0.85)
+    with pytest.raises(ValidationError, match=r"task 3 has 5, task 0 has 4"):
+        fo.sample_demonstrations([*mdps[:3], five], [*rewards[:3], np.zeros((7, 5))], 2, 3)
+    with pytest.raises(ValidationError, match=r"n_demos"):
+        fo.sample_demonstrations(mdps, rewards, 0, 3)
+    with pytest.raises(ValidationError, match=r"return_final_states must be True or False"):
+        fo.sample_demonstrations(mdps, rewards, 2, 3, return_final_states=1)

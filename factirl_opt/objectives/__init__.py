@@ -40,7 +40,7 @@ __all__ = [
     "get_objective",
 ]
 
-_REGISTRY = {}
+_REGISTRY: dict[str, type] = {}
 
 
 def register_objective(name, cls, overwrite=False):

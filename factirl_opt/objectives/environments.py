@@ -184,6 +184,11 @@ class MultiEnvironmentObjective:
         """Batched planning evaluations so far, summed over the groups (one per group and call)."""
         return int(sum(obj.n_evaluations for obj in self.objectives))
 
+    def reset(self) -> None:
+        """Forget every group's warm starts and last-point cache (statistics and counts kept)."""
+        for obj in self.objectives:
+            obj.reset()
+
     # -- rows, groups and per-task arrays ----------------------------------------------------------
     def _rows(self, rows: ArrayLike | None) -> NDArray[np.intp]:
         if rows is None:

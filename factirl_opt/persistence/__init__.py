@@ -32,6 +32,15 @@ that it can refuse other features of the same shape. Both are saved with the mod
 without a signature loads with ``mdp_signature_ = None`` (unknown, not checked); one without
 a digest gets the digest of its saved features.
 
+Tasks in several environments. A model fitted on a sequence of MDPs has a list
+``mdp_signature_`` (one signature per task, saved as a JSON list); one fitted with one feature
+matrix per task stores its ``features`` parameter as ``{"per_task": n}`` in ``"params"`` and
+the matrices as members ``param/features/<i>``, and has ``features_sha256_ = None`` (transfer
+to new environments checks the feature dimension p and the number of actions instead). Per-task
+arrays of environments of different sizes (``rewards_``, ``transfer_rewards_``: lists of
+(S_i, A) arrays) are stored as members ``attr/<name>/<i>``, listed with their count in the
+header's ``"array_list_attributes"``.
+
 Parameters that do not fit in JSON:
 
 - a solver, objective or planner given as an object rather than a registry name (``solver``,

@@ -37,7 +37,8 @@ KINDS = {
     "count": "an integer >= 0",
     "history": "a list of finite numbers",
     "text": "a string",
-    "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature)",
+    "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature), or a non-empty list "
+                     "of such dicts (one per task, tasks in several environments)",
     "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
 }
 
@@ -59,8 +60,16 @@ def _is_sha256(value: Any) -> bool:
 
 
 def _check_signature(sig: Any, context: str) -> None:
-    """``mdp_signature_``: None or a :meth:`TabularMDP.signature` dict."""
+    """``mdp_signature_``: None, a :meth:`TabularMDP.signature` dict, or a list of one per task."""
     if sig is None:
+        return
+    if isinstance(sig, list) and sig:
+        for one in sig:
+            _check_signature(one, context)
+            if not isinstance(one, dict):
+                raise PersistenceError(f"{context}: mdp_signature_ must be {KINDS['mdp-signature']}; got a list holding {one!r:.60}")
+        if len({one["n_actions"] for one in sig}) != 1:
+            raise PersistenceError(f"{context}: the per-task MDP signatures of mdp_signature_ differ in their numbers of actions")
         return
     if not isinstance(sig, dict) or sorted(sig) != sorted(SIGNATURE_KEYS):
         raise PersistenceError(f"{context}: mdp_signature_ must be {KINDS['mdp-signature']}; got {sig!r:.120}")
@@ -101,6 +110,9 @@ def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dic
     """Axes of the same name have the same length; ``axes`` holds the lengths known beforehand."""
     for key, kind in declared.items():
         value = attributes.get(key)
+        if is_array_kind(kind) and isinstance(value, list):  # per-task (S_i, A) arrays: their count and A
+            value = np.empty((len(value), 0, value[0].shape[1]) if value else (0, 0, 0))
+            kind = (kind[0], "S_i", kind[2])
         if not (is_array_kind(kind) and isinstance(value, np.ndarray)):
             continue
         for i, axis in enumerate(kind):
@@ -120,6 +132,11 @@ def _known_axes(attributes: dict[str, Any], n_feature_columns: int | None) -> di
     if isinstance(sig, dict):
         where = f"the MDP of mdp_signature_ (S, A) = ({sig['n_states']}, {sig['n_actions']})"
         axes["S"], axes["A"] = (sig["n_states"], where), (sig["n_actions"], where)
+    elif isinstance(sig, list) and sig:  # one per task: n tasks with A actions (their S may differ)
+        axes["n"] = (len(sig), f"the {len(sig)} per-task MDP signatures of mdp_signature_")
+        axes["A"] = (sig[0]["n_actions"], f"the MDPs of mdp_signature_ (A = {sig[0]['n_actions']})")
+        if len({s["n_states"] for s in sig}) == 1:
+            axes["S"] = (sig[0]["n_states"], f"the MDPs of mdp_signature_ (S = {sig[0]['n_states']})")
     if n_feature_columns is not None:
         axes["p"] = (n_feature_columns, "the columns of the features parameter")
     return axes
@@ -139,7 +156,10 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
             raise PersistenceError(f"{context}: {key!r:.60} is not a learnt attribute of {cls.__name__} "
                                    f"(declared in {cls.__name__}.learnt_attributes: {', '.join(declared)})")
         kind = declared[key]
-        if isinstance(kind, tuple):
+        if isinstance(kind, tuple) and isinstance(value, list) and kind[1:] == ("S", "A"):  # per-task (S_i, A) arrays
+            for i, v in enumerate(value):
+                check_array(v, f"attribute {key}[{i}]", context, len(kind) - 1, "f")
+        elif isinstance(kind, tuple):
             check_array(value, f"attribute {key}", context, len(kind), "f")
         else:
             _check_value(key, kind, value, context)

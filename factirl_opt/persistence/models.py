@@ -8,6 +8,7 @@ import numpy as np
 
 from ..exceptions import PersistenceError, ValidationError
 from ..factirl import FactIRL
+from ..fitting import per_task_features
 from ..gradirl import GradIRL
 from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
@@ -20,16 +21,22 @@ MODEL_CLASSES: dict[str, type] = {cls.__name__: cls for cls in (GradIRL, FactIRL
 
 
 def _feature_columns(features: Any) -> int | None:
-    """Columns of a features parameter (None without features, or if it is not a matrix)."""
+    """Columns of a features parameter (None without features, or if it is not a matrix); per-task: of the first."""
     if features is None:
         return None
-    shape = np.shape(features)
+    shape = np.shape(features[0]) if per_task_features(features) else np.shape(features)
     return int(shape[1]) if len(shape) == 2 else None
 
 
 def _check(cls: type, attributes: dict[str, Any], features: Any, context: str) -> None:
     check_learnt(cls, attributes, context, _feature_columns(features))
-    check_features_digest(attributes, None if features is None else np.asarray(features), context)
+    if not per_task_features(features):
+        check_features_digest(attributes, None if features is None else np.asarray(features), context)
+
+
+def _is_array_list(value: Any) -> bool:
+    """A per-task list of arrays (environments of different sizes)."""
+    return isinstance(value, list) and len(value) > 0 and all(isinstance(v, np.ndarray) for v in value)
 
 
 def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -42,6 +49,8 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
         if isinstance(value, np.ndarray):
             if value.dtype.hasobject:
                 raise PersistenceError(f"cannot save {name} attribute {key}: it is an object array")
+            arrays[key] = value
+        elif _is_array_list(value):
             arrays[key] = value
         else:
             attributes[key] = to_json(value, f"{name} attribute {key}")
@@ -86,9 +95,16 @@ def save_model(model: GradIRL | FactIRL, path: Target) -> str | IO[bytes]:
         raise ValidationError(f"model must be a GradIRL or FactIRL; got {cls.__name__}")
     params, arrays, array_params = encode_params(model, cls.__name__)
     attributes, array_attributes = _encode_attributes(model, cls)
-    arrays.update({f"attr/{key}": value for key, value in array_attributes.items()})
+    lists = {key: len(value) for key, value in array_attributes.items() if isinstance(value, list)}
+    for key, value in array_attributes.items():
+        if key in lists:
+            arrays.update({f"attr/{key}/{i}": v for i, v in enumerate(value)})
+        else:
+            arrays[f"attr/{key}"] = value
     header = {"kind": "model", "class": cls.__name__, "params": params, "array_params": array_params,
-              "attributes": attributes, "array_attributes": list(array_attributes)}
+              "attributes": attributes, "array_attributes": [key for key in array_attributes if key not in lists]}
+    if lists:
+        header["array_list_attributes"] = lists
     return write_archive(path, header, arrays)
 
 
@@ -100,6 +116,13 @@ def _decode_attributes(cls: type, header: dict, contents: dict[str, np.ndarray],
         if key in attributes:
             raise PersistenceError(f"{label} is malformed: attribute {key} is stored twice (in the header and as an array)")
         attributes[key] = require(contents, f"attr/{key}", label, "the archive")
+    lists = header.get("array_list_attributes", {})
+    if not isinstance(lists, dict):
+        raise PersistenceError(f"{label} is malformed: 'array_list_attributes' in the header must be a dict")
+    for key, n in lists.items():
+        if key in attributes or isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise PersistenceError(f"{label} is malformed: array list attribute {key!r:.40} stored twice or with count {n!r:.20}")
+        attributes[key] = [require(contents, f"attr/{key}/{i}", label, "the archive") for i in range(n)]
     _check(cls, attributes, features, f"{label} is malformed")
     return attributes
 

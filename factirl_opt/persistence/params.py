@@ -10,6 +10,7 @@ import solvers
 
 from .._validation import check_int
 from ..exceptions import PersistenceError
+from ..fitting import per_task_features
 from .archive import check_array, require, to_json
 
 __all__ = ["NAMED_PARAMS", "RUNTIME_PARAMS", "ARRAY_PARAMS", "encode_params", "decode_params", "encode_rng", "decode_rng"]
@@ -95,6 +96,10 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
             raise _named_param_error(name, key, value)
         if key == "rng":
             params[key] = encode_rng(value)
+        elif key == "features" and per_task_features(value):  # one matrix per task: members features/0, 1, ...
+            params[key] = {"per_task": len(value)}
+            arrays.update({f"param/features/{i}": np.asarray(F) for i, F in enumerate(value)})
+            array_params.append(key)
         elif key == "features" and value is not None:
             arrays["param/features"] = np.asarray(value)
             array_params.append(key)
@@ -106,6 +111,15 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
         else:
             params[key] = to_json(value, f"{name} parameter {key}={value!r:.80}")
     return params, arrays, array_params
+
+
+def _per_task_features(spec: dict, contents: dict[str, np.ndarray], label: str) -> list[np.ndarray]:
+    """The per-task feature matrices stored as members ``param/features/i``."""
+    n = spec.get("per_task")
+    if sorted(spec) != ["per_task"] or isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise PersistenceError(f"{label} is malformed: the features parameter must be {{'per_task': n >= 1}}; got {spec!r:.80}")
+    return [check_array(require(contents, f"param/features/{i}", label, "the archive"), f"parameter features[{i}]",
+                        f"{label} is malformed", ndim=2) for i in range(n)]
 
 
 def decode_params(header: dict, contents: dict[str, np.ndarray], label: str) -> dict[str, Any]:
@@ -123,6 +137,8 @@ def decode_params(header: dict, contents: dict[str, np.ndarray], label: str) -> 
                 check_array(require(contents, f"param/init/{i}", label, "the archive"), f"parameter init[{i}]", context, ndim=2)
                 for i in (0, 1)
             )
+        elif key == "features" and isinstance(params.get("features"), dict):
+            params["features"] = _per_task_features(params["features"], contents, label)
         else:
             params[key] = check_array(require(contents, f"param/{key}", label, "the archive"), f"parameter {key}", context, ndim=2)
     if "rng" in params:

@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._threads import blas_limited
 from .._validation import check_array, check_beta, check_int, check_mdp, check_policy, check_real, check_rewards, check_stochastic_policy
 from ..exceptions import FactIRLError, ValidationError
+from ..task_environments import assemble, by_environment, environments, is_environment_sequence, per_task_values, task_rewards
 from .base import Planner, PolicySystem
 from .registry import get_planner
 
@@ -205,9 +206,17 @@ def policy_evaluation(mdp: Any, rewards: ArrayLike, policy: ArrayLike, planner: 
     return V[0] if single else V
 
 
+def _optimal_q_per_environment(mdps: Any, rewards: Any, policy: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """:func:`optimal_q` over tasks in many environments, one call per distinct MDP."""
+    envs = environments(mdps)
+    per_task = {"rewards": task_rewards(envs, rewards, "rewards"), "policy": per_task_values(envs, policy, "policy")}
+    out = by_environment(envs, lambda m, **args: optimal_q(m, **args, **kwargs), per_task)
+    return assemble(envs, [q for q, _ in out]), assemble(envs, [p for _, p in out])
+
+
 @blas_limited
-def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None, max_iter: int = 1000,
-              planner: str | Planner = "auto") -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None,
+              max_iter: int = 1000, planner: str | Planner = "auto") -> tuple[Any, Any]:
     """Exact optimal action values Q* and a greedy policy, by policy iteration.
 
     Policy iteration (Howard) evaluates each policy exactly, so the result is exact up to
@@ -220,13 +229,21 @@ def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None, max
     greedy policy too, except in states where actions tie within 1e-12 (see the module
     docstring for what a fit's result depends on).
 
+    Tasks in many environments: with a sequence of MDPs, tasks given the same MDP object are
+    planned as one batch (:mod:`factirl_opt.task_environments`), with the results of one call
+    per distinct MDP put back in task order.
+
     Parameters
     ----------
-    mdp : TabularMDP
+    mdp : TabularMDP or sequence of n TabularMDP
+        One MDP for every task, or one per task (the same number of actions).
     rewards : array_like, shape (S, A) or (n, S, A)
-        One reward or a batch of rewards (tasks on the leading axis).
+        One reward or a batch of rewards (tasks on the leading axis). With a sequence of MDPs:
+        a list of n arrays, task ``i``'s (S_i, A) or (S_i,) state reward, or a stacked
+        (n, S, A) or (n, S) array when every ``S_i`` is S.
     policy : array_like of int, shape (S,) or (n, S), optional
         Initial deterministic policy (warm start). Default: greedy on the immediate reward.
+        With a sequence of MDPs: one per task (a list of (S_i,) arrays, or stacked (n, S)).
     max_iter : int, default=1000
         Maximum policy-iteration sweeps (never reached in practice: the number of policies
         is finite and each sweep strictly improves).
@@ -238,8 +255,11 @@ def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None, max
     Q : ndarray, shape (S, A) or (n, S, A)
         ``Q*`` (paper eq. 3).
     policy : ndarray of intp, shape (S,) or (n, S)
-        A greedy policy on ``Q*``.
+        A greedy policy on ``Q*``. With a sequence of MDPs: ``Q`` (n, S, A) and ``policy``
+        (n, S) when every ``S_i`` is S, else lists of n arrays (S_i, A) and (S_i,).
     """
+    if is_environment_sequence(mdp):
+        return _optimal_q_per_environment(mdp, rewards, policy, max_iter=max_iter, planner=planner)
     check_mdp(mdp)
     R, single = check_rewards(mdp, rewards)
     pol = check_policy(mdp, policy, R.shape[0])

@@ -297,3 +297,42 @@ def test_planners_agree_to_rounding_at_the_same_rewards(make_statistics, tie_fre
     (Ld, Gd), (Ls, Gs) = (fo.policy_matching_loss(grid, R, mu, pi_hat, BETA, planner=name) for name in ("dense", "sparse-lu"))
     np.testing.assert_allclose(Ls, Ld, rtol=1e-13)
     np.testing.assert_allclose(Gs, Gd, rtol=0, atol=1e-13 * np.abs(Gd).max())
+
+
+# -- tasks in many environments ----------------------------------------------------------------
+def test_optimal_q_per_task_mdps(rng, grid3, grid4, random_mdp):
+    other = fo.TabularMDP(rng.dirichlet(np.ones(6), size=(6, 4)), 0.8)
+    mdps = [grid3, grid4, other, grid3]
+    R = [rng.standard_normal((m.n_states, 4)) for m in mdps]
+    Q, pol = fo.optimal_q(mdps, R)
+    assert isinstance(Q, list) and [q.shape for q in Q] == [(9, 4), (16, 4), (6, 4), (9, 4)]
+    assert [p.shape for p in pol] == [(9,), (16,), (6,), (9,)]
+    Q3, pol3 = fo.optimal_q(grid3, np.stack([R[0], R[3]]))
+    np.testing.assert_array_equal(np.stack([Q[0], Q[3]]), Q3)
+    np.testing.assert_array_equal(np.stack([pol[0], pol[3]]), pol3)
+    for i, mdp in enumerate(mdps):
+        Qi, pi = fo.optimal_q(mdp, R[i])
+        np.testing.assert_allclose(Q[i], Qi, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(pol[i], pi)
+    # warm start per task: the same Q*
+    Qw, _ = fo.optimal_q(mdps, R, policy=[np.zeros(m.n_states, dtype=int) for m in mdps])
+    for a, b in zip(Qw, Q):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    with pytest.raises(ValidationError, match=r"policy describes 2 tasks but 4 MDPs"):
+        fo.optimal_q(mdps, R, policy=[np.zeros(9, dtype=int)] * 2)
+    with pytest.raises(ValidationError, match=r"rewards\[2\] \(task 2, S = 6\) must have shape"):
+        fo.optimal_q(mdps, [R[0], R[1], R[0], R[3]])
+    with pytest.raises(ValidationError, match=r"task 1 has 3, task 0 has 4"):
+        fo.optimal_q([grid3, random_mdp], [R[0], np.zeros((6, 3))])
+
+
+def test_optimal_q_shared_or_equal_sized_mdps_are_stacked(rng, grid4):
+    R = rng.standard_normal((3, 16, 4))
+    Q, pol = fo.optimal_q(grid4, R)
+    Qs, pols = fo.optimal_q([grid4] * 3, R)
+    np.testing.assert_array_equal(Qs, Q)
+    np.testing.assert_array_equal(pols, pol)
+    twin = fo.GridWorld(4, p_success=0.9)
+    Qt, polt = fo.optimal_q([grid4, twin, grid4], R)
+    assert isinstance(Qt, np.ndarray) and Qt.shape == (3, 16, 4) and polt.shape == (3, 16)
+    np.testing.assert_array_equal(Qt[1], fo.optimal_q(twin, R[1:2])[0][0])
