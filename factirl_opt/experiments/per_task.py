@@ -35,6 +35,7 @@ from ..evaluation import deviation
 from ..factirl import FactIRL
 from ..gradirl import GradIRL
 from ..objectworld import state_action_rewards
+from ..task_environments import feature_rewards
 from .learner_names import (FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE_FEATURES,
                             FACTORIAL_MCE_FEATURES_RANDOM_INIT, FLAT_FEATURES, FLAT_GROUND_TRUTH, FLAT_MCE_FEATURES)
 from .learner_solvers import factorial_options, flat_solver
@@ -151,8 +152,6 @@ def add_new_map_scores(gt: Any, preset: Any, fits: dict, rows: Sequence[dict]) -
     rows : list of dict
         The run's result rows (``split``, ``learner``), updated in place.
     """
-    from ..task_environments import feature_rewards  # TEMPORARY: at the top once main has it
-
     for split in ("train", "test"):
         names = [r["learner"] for r in rows if r["split"] == split]
         if not names:
