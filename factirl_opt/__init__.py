@@ -28,6 +28,7 @@ from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
 from .minari_adapter import LoggedEpisodes, read_minari
 from .model_estimation import as_transitions, estimate_mdp, sample_transitions, transition_counts, transition_log_likelihood
+from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .objectives import (
     available_objectives,
     mce_loss,
@@ -117,6 +118,9 @@ __all__ = [
     "from_gymnasium",
     "gymnasium_rewards",
     "estimate_mdp",
+    "MultiIntentIRL",
+    "adjusted_rand_index",
+    "match_intentions",
     "transition_log_likelihood",
     "transition_counts",
     "as_transitions",
