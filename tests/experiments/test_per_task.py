@@ -17,6 +17,9 @@ from factirl_opt.experiments.tables import (NEW_MAP_RESULT_COLUMNS, NEW_MAP_SUMM
                                             SUMMARY_COLUMNS, write_tables)
 from factirl_opt.objectworld import state_action_rewards
 
+#: the MCE rows take L-BFGS for the presets' Gauss-Newton H-steps (tested in test_runner)
+pytestmark = pytest.mark.filterwarnings("ignore::factirl_opt.experiments.runner.SolverSubstitutionWarning")
+
 QUICK = PRESETS["objectworld-per-task-quick"]
 #: a per-task world small enough for unit tests (seconds)
 TINY = dataclasses.replace(QUICK, name="per-task-tiny", grid_size=6, object_density=0.2, demo_length=6,
