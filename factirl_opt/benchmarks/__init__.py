@@ -16,6 +16,7 @@ BENCHMARKS = {
     "fit": "fit",
     "solvers": "solvers",
     "scale": "scale",
+    "robustness": "robustness",
 }
 
 
