@@ -133,3 +133,14 @@ def test_bad_extra_is_a_usage_error(value, capsys):
     with pytest.raises(SystemExit):
         bench.build_parser().parse_args(["robustness", "--extra", value])
     assert "--extra" in capsys.readouterr().err
+
+
+@pytest.mark.filterwarnings("ignore:FactIRL.transfer stalled")  # 2 demos of 2 tasks: a meaningless dictionary
+def test_objectworld_runs():
+    args = bench.build_parser().parse_args(["robustness", "--quick", "--world", "objectworld", "--size", "8", "--n-tasks", "2",
+                                            "--n-demos", "2", "--n-test-tasks", "1", "--extra", "0", "--n-heldout", "100"])
+    out = rb.run(args)
+    assert out["settings"]["preset"] == "objectworld-quick" and out["settings"]["grid_size"] == 8
+    assert {(r["M"], r["learner"], r["split"]) for r in out["rows"]} == {(m, lr, sp) for m in ("true", 0) for lr, sp in rb.LEARNERS}
+    assert all(math.isfinite(r["deviation"]) and r["deviation"] >= 0 for r in out["rows"])
+    assert out["models"][1]["n_transitions"] == 2 * 2 * 15 + 15  # demonstrations of 16 steps
