@@ -38,7 +38,8 @@ deterministic in its seed and options.
 
 ``--out DIR`` writes ``robustness.csv`` (seed, M, learner, split, deviation),
 ``models.csv`` (the estimated models' scores), ``summary.csv`` (mean and std over seeds) and
-``robustness.png`` (deviation vs M, log x-axis, the true model's level as a horizontal line).
+``robustness.png`` (deviation vs M, one panel per learner and split, log x-axis with M = 0 a
+decade below the smallest M > 0, the true model's level as a horizontal line).
 ``--quick`` is a tiny configuration for tests (options given explicitly keep their value).
 """
 
@@ -241,32 +242,42 @@ def _write_csv(path: str, rows: list[dict]) -> None:
         writer.writerows({k: repr(v) if isinstance(v, float) else v for k, v in r.items()} for r in rows)
 
 
+def _x(M: int, zero_at: float) -> float:
+    """Where M sits on the log x-axis (M = 0 at ``zero_at``)."""
+    return float(M) if M > 0 else zero_at
+
+
 def plot_summary(summary: list[dict], path: str) -> None:
-    """Deviation vs M (symmetric-log x-axis, so that M = 0 shows), one panel per split, the
-    true model's level as a dashed horizontal line in the learner's colour."""
+    """Deviation vs M, one panel per learner and split (log x-axis, M = 0 drawn a decade below the
+    smallest M > 0), mean and std over seeds; the true model's level as a dashed horizontal line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=False)
-    colours = {"flat": "tab:blue", "factorial": "tab:red"}
-    for ax, split in zip(axes, ("train", "test")):
-        for learner, colour in colours.items():
-            pts = [r for r in summary if r["learner"] == learner and r["split"] == split]
-            est = [r for r in pts if r["M"] != TRUE]
-            ax.errorbar([r["M"] for r in est], [r["deviation_mean"] for r in est], yerr=[r["deviation_std"] for r in est],
-                        marker="o", capsize=3, color=colour, label=f"{learner}, estimated model")
-            for r in pts:
-                if r["M"] == TRUE:
-                    ax.axhline(r["deviation_mean"], color=colour, linestyle="--", label=f"{learner}, true model")
-        ax.set_xscale("symlog", linthresh=1000)
-        ax.set_xlabel("M, exploration transitions added to the demonstrations'")
-        ax.set_ylabel("deviation on the true model (eq. 13)")
-        ax.set_title("train tasks" if split == "train" else "test tasks (one demonstration; factorial: transfer)")
+    positive = sorted({r["M"] for r in summary if r["M"] != TRUE and r["M"] > 0}) or [10]
+    zero_at = positive[0] / 10
+    fig, axes = plt.subplots(2, 2, figsize=(10, 7), sharex=True)
+    for ax, (learner, split) in zip(axes.T.ravel(), LEARNERS):
+        colour = "tab:red" if learner == "factorial" else "tab:blue"
+        pts = [r for r in summary if r["learner"] == learner and r["split"] == split]
+        est = [r for r in pts if r["M"] != TRUE]
+        ax.errorbar([_x(r["M"], zero_at) for r in est], [r["deviation_mean"] for r in est],
+                    yerr=[r["deviation_std"] for r in est], marker="o", capsize=3, color=colour, label="estimated model")
+        for r in pts:
+            if r["M"] == TRUE:
+                ax.axhline(r["deviation_mean"], color="k", linestyle="--", label="true model")
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.set_xticks([zero_at] + positive, ["0"] + [f"$10^{{{np.log10(m):g}}}$" if np.log10(m).is_integer() else str(m)
+                                                     for m in positive])
+        ax.set_title(f"{learner}, {split} tasks" + (" (transfer)" if (learner, split) == ("factorial", "test") else ""))
+        ax.set_ylabel("deviation on the true model")
         ax.legend(fontsize=8)
+    for ax in axes[1]:
+        ax.set_xlabel("M, exploration transitions added to the demonstrations'")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
