@@ -63,13 +63,20 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
     Notes
     -----
     The new file gets mode ``0o666`` minus the umask, like a file made by ``open``, and the
-    directory is synced after the rename where the platform allows it.
+    directory is synced after the rename where the platform allows it. A symbolic link is
+    followed: the file it points to is replaced and the link kept. A path that exists but is
+    not a regular file (a device such as ``/dev/full``, a FIFO) is refused.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
         exc = IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
         raise os_error(exc, "write", path) from exc
-    directory, base = os.path.split(os.path.abspath(path))
+    if os.path.exists(path) and not os.path.isfile(path):
+        # a device, FIFO or socket: renaming over it would replace the special file itself
+        raise PersistenceError(f"cannot write {path!r}: not a regular file (a device, FIFO or socket); "
+                               "give the path of a file")
+    # through a symbolic link, replace the file it points to (beside it), not the link
+    directory, base = os.path.split(os.path.realpath(path))
     # a unique name (O_EXCL) of bounded length beside the target, created inside the try so
     # that an interrupt right after its creation still removes it
     tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(8)}-{base[:100]}")
@@ -80,7 +87,7 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, os.path.join(directory, base))
     except OSError as exc:
         _remove_quietly(tmp)
         raise os_error(exc, "write", path) from exc

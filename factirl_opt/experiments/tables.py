@@ -66,10 +66,16 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     ValidationError
         If the file is not such a table (a missing column or value, an unparsable number, a
         truncated last line), naming the file and the line.
+    PersistenceError
+        If the file cannot be opened (missing, a directory, no permission), naming it and the cause.
     """
     path = os.fspath(path)
     out = []
-    with open(path, newline="") as fh:
+    try:
+        fh = open(path, newline="")
+    except OSError as exc:  # missing, a directory, unreadable
+        raise os_error(exc, "read", path) from exc
+    with fh:
         reader = csv.DictReader(fh)
         try:
             if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS):
