@@ -208,9 +208,14 @@ def feature_rewards(features: ArrayLike | Sequence[ArrayLike], weights: ArrayLik
     """
     W = check_array(weights, "weights", ndim=2)
     n = W.shape[0]
+    if n == 0:
+        raise ValidationError(f"weights must have shape (n, p) with n >= 1 (one row per task); got {W.shape}")
     F = _feature_list(features, n)
     if mdps is None:
         rows = [np.shape(f)[0] for f in F]
+        if 0 in rows:
+            raise ValidationError(f"features of task {rows.index(0)} have no rows (shape {np.shape(F[rows.index(0)])}); "
+                                  "give one row per state")
         R = TaskFeatures(F, rows, 1).rewards(W)
         return [r[:, 0] for r in R] if isinstance(R, list) else R[:, :, 0]
     envs = environments([mdps] * n if isinstance(mdps, TabularMDP) else mdps, n)
