@@ -4,6 +4,8 @@ Every public function either handles such input (an empty result of the right sh
 raises a ValidationError naming it; none raises numpy's IndexError/ValueError.
 """
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -62,3 +64,25 @@ def test_policy_matching_grad_reference_of_no_tasks(grid3, statistics):
     except ValidationError:
         return
     assert np.shape(g)[0] == 0
+
+
+@pytest.mark.parametrize("with_mdps", [False, True])
+def test_feature_rewards_that_overflow_name_the_task_and_the_scales(grid3, with_mdps):
+    features = [np.ones((9, 2)), np.ones((9, 2)) * 1e200]
+    mdps = [grid3, grid3] if with_mdps else None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy overflow warning either: the error says it
+        with pytest.raises(ValidationError, match=r"task 1 overflow float64 \(largest \|features\| entry 1e\+200, "
+                                                  r"largest \|weights\[1\]\| entry 1e\+200\)"):
+            fo.feature_rewards(features, np.ones((2, 2)) * 1e200, mdps)
+
+
+@pytest.mark.xfail(strict=True, reason="factirl.py/dictionary.py: an init D0 of scale 1e200 is reported as 'largest "
+                                       "|dictionary| = 0, largest |coefficients| = inf: the coefficients grew to inf' "
+                                       "(after normalise_dictionary overflowed); the message should name init D0 and its scale")
+def test_an_overflowing_init_is_named(grid3):
+    demos = fo.sample_demonstrations(grid3, np.ones((2, 9, 4)), 2, 4, rng=0)
+    with pytest.raises(ValidationError, match=r"init D0.*1e\+200"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fo.FactIRL(n_primitives=2, max_iter=2, init=(np.ones((36, 2)) * 1e200, np.ones((2, 2)))).fit(grid3, demos)
