@@ -124,3 +124,15 @@ def test_plot_all_names_a_stale_figure_it_cannot_remove(tmp_path, monkeypatch):
     stale.mkdir(parents=True)  # a directory where the stale figure should be: unlink fails
     with pytest.raises(PersistenceError, match="stale figure"):
         figures.plot_all(tmp_path)
+
+
+def test_a_directory_in_place_of_the_lock_is_named(tmp_path):
+    from factirl_opt.experiments import store
+
+    lock = tmp_path / store.LOCK_NAME
+    lock.mkdir()
+    os.utime(lock, (0, 0))  # old: taken for a stale lock
+    with pytest.raises(PersistenceError, match="cannot remove the stale lock") as info:
+        with store.locked(tmp_path):
+            pass
+    assert str(lock) in str(info.value) and lock.is_dir()
