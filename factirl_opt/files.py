@@ -17,6 +17,7 @@ import contextlib
 import errno
 import os
 import secrets
+import stat
 from collections.abc import Iterator
 from typing import IO
 
@@ -62,7 +63,8 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
 
     Notes
     -----
-    The new file gets mode ``0o666`` minus the umask, like a file made by ``open``, and the
+    A new file gets mode ``0o666`` minus the umask, like a file made by ``open``; a replaced
+    file keeps its permissions (a private ``0o600`` model stays private). The
     directory is synced after the rename where the platform allows it. A symbolic link is
     followed: the file it points to is replaced and the link kept. A path that exists but is
     not a regular file (a device such as ``/dev/full``, a FIFO) is refused.
@@ -82,6 +84,7 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
     tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(8)}-{base[:100]}")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)  # the kernel applies the umask
+        _keep_mode(fd, os.path.join(directory, base))
         fh: IO = os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")
         with fh:
             yield fh
@@ -112,6 +115,16 @@ def open_for_reading(path: str | os.PathLike, binary: bool = True) -> IO:
         return open(os.fspath(path), "rb" if binary else "r")
     except OSError as exc:
         raise os_error(exc, "read", path) from exc
+
+
+def _keep_mode(fd: int, target: str) -> None:
+    """Give the new file the permissions of the file it replaces (a private 0o600 file stays private)."""
+    try:
+        mode = os.stat(target).st_mode
+    except OSError:
+        return  # no previous file: 0o666 minus the umask
+    if hasattr(os, "fchmod"):  # POSIX
+        os.fchmod(fd, stat.S_IMODE(mode))
 
 
 def _remove_quietly(path: str) -> None:

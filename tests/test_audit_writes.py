@@ -136,3 +136,14 @@ def test_a_directory_in_place_of_the_lock_is_named(tmp_path):
         with store.locked(tmp_path):
             pass
     assert str(lock) in str(info.value) and lock.is_dir()
+
+
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o444])
+def test_replacing_a_file_keeps_its_permissions(model, tmp_path, mode):
+    fitted, _ = model
+    path = tmp_path / "private.npz"
+    path.write_bytes(b"old")
+    os.chmod(path, mode)
+    fo.save_model(fitted, path)
+    assert stat.S_IMODE(os.stat(path).st_mode) == mode
+    np.testing.assert_array_equal(fo.load_model(path).rewards_, fitted.rewards_)
