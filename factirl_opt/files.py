@@ -106,13 +106,19 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
         fh.write(text)
 
 
-def open_for_reading(path: str | os.PathLike, binary: bool = True) -> IO:
+def open_for_reading(path: str | os.PathLike, binary: bool = True, newline: str | None = None) -> IO:
     """``open(path)`` for reading, with ``OSError`` raised as :class:`PersistenceError`.
 
     A missing file, a directory or a file without read permission is named with its cause.
+    A FIFO or socket is refused (reading it would wait for a writer, possibly forever).
+    ``newline`` is passed to ``open`` in text mode (``""`` for CSV files).
     """
+    path = os.fspath(path)
     try:
-        return open(os.fspath(path), "rb" if binary else "r")
+        mode = os.stat(path).st_mode
+        if stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode):
+            raise PersistenceError(f"cannot read {path!r}: not a regular file (a FIFO or socket); give the path of a file")
+        return open(path, "rb") if binary else open(path, "r", newline=newline)
     except OSError as exc:
         raise os_error(exc, "read", path) from exc
 

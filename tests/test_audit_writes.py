@@ -147,3 +147,12 @@ def test_replacing_a_file_keeps_its_permissions(model, tmp_path, mode):
     fo.save_model(fitted, path)
     assert stat.S_IMODE(os.stat(path).st_mode) == mode
     np.testing.assert_array_equal(fo.load_model(path).rewards_, fitted.rewards_)
+
+
+@pytest.mark.parametrize("reader", ["model", "demonstrations", "table"])
+def test_reading_a_fifo_is_refused_instead_of_waiting_for_a_writer(tmp_path, reader):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    read = {"model": fo.load_model, "demonstrations": fo.load_demonstrations, "table": tables.read_csv}[reader]
+    with pytest.raises(PersistenceError, match="not a regular file"):
+        read(fifo)

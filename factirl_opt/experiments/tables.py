@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import ValidationError
-from ..files import os_error, write_text_atomic
+from ..files import open_for_reading, os_error, write_text_atomic
 from .presets import Preset
 
 __all__ = [
@@ -71,11 +71,7 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     """
     path = os.fspath(path)
     out = []
-    try:
-        fh = open(path, newline="")
-    except OSError as exc:  # missing, a directory, unreadable
-        raise os_error(exc, "read", path) from exc
-    with fh:
+    with open_for_reading(path, binary=False, newline="") as fh:  # PersistenceError: missing, a directory, ...
         reader = csv.DictReader(fh)
         try:
             if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS):
