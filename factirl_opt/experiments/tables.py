@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import ValidationError
-from ..files import os_error, write_text_atomic
+from ..files import open_for_reading, os_error, write_text_atomic
 from .per_task import NEW_MAP_COLUMNS
 from .presets import Preset
 
@@ -77,10 +77,12 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     ValidationError
         If the file is not such a table (a missing column or value, an unparsable number, a
         truncated last line), naming the file and the line.
+    PersistenceError
+        If the file cannot be opened (missing, a directory, no permission), naming it and the cause.
     """
     path = os.fspath(path)
     out = []
-    with open(path, newline="") as fh:
+    with open_for_reading(path, binary=False, newline="") as fh:  # PersistenceError: missing, a directory, ...
         reader = csv.DictReader(fh)
         try:
             if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS,
