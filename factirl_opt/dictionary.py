@@ -260,7 +260,7 @@ def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
 
 
 def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> None:
-    """Refuse a dictionary whose column norms overflow float64 (they cannot be normalised).
+    """Refuse a dictionary whose column norms overflow float64 when computed (it cannot be normalised).
 
     :func:`normalise_dictionary` divides the primitives by their norms and multiplies the
     coefficients by them: with an infinite norm the primitives would become zero and the
@@ -281,5 +281,6 @@ def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> 
     with np.errstate(over="ignore"):
         norms = np.linalg.norm(D, axis=0)
     if not np.all(np.isfinite(norms)):
-        raise ValidationError(f"{name} has primitives (columns) whose norms overflow float64 (largest |{name}| entry "
-                              f"{np.max(np.abs(D)):.3g}); rescale it: D -> D c, H -> H / c gives the same rewards")
+        raise ValidationError(f"{name} is too large to normalise: the squared norms of its columns overflow float64 "
+                              f"(largest |{name}| entry {np.max(np.abs(D)):.3g}); rescale it (D -> D c, H -> H / c "
+                              f"gives the same rewards)")

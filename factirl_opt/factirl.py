@@ -195,8 +195,8 @@ class FactIRL:
     :class:`factirl_opt.interruption.InterruptedFitWarning`, and propagates (as
     :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt). In the
     alternating loop the best point is the best of the start and the completed outer
-    iterations; during the flat fit of the PCA start it is that start, the PCA of the flat
-    rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
+    iterations; during the flat fit of the PCA start (or its PCA) it is that start, the PCA of
+    the flat rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
     best coefficients seen.
     """
 
