@@ -77,9 +77,6 @@ def test_feature_rewards_that_overflow_name_the_task_and_the_scales(grid3, with_
             fo.feature_rewards(features, np.ones((2, 2)) * 1e200, mdps)
 
 
-@pytest.mark.xfail(strict=True, reason="factirl.py/dictionary.py: an init D0 of scale 1e200 is reported as 'largest "
-                                       "|dictionary| = 0, largest |coefficients| = inf: the coefficients grew to inf' "
-                                       "(after normalise_dictionary overflowed); the message should name init D0 and its scale")
 def test_an_overflowing_init_is_named(grid3):
     demos = fo.sample_demonstrations(grid3, np.ones((2, 9, 4)), 2, 4, rng=0)
     with pytest.raises(ValidationError, match=r"init D0.*1e\+200"):
@@ -88,10 +85,6 @@ def test_an_overflowing_init_is_named(grid3):
             fo.FactIRL(n_primitives=2, max_iter=2, init=(np.ones((36, 2)) * 1e200, np.ones((2, 2)))).fit(grid3, demos)
 
 
-@pytest.mark.xfail(strict=True, reason="fitting.py first_step_stall compares the losses with ==: with objective='mce' and "
-                                       "beta=1e-8 the first step changes the loss by one ulp (2.7725887222397803 -> "
-                                       "...794) and the fit reports 'converged' after 1 iteration, without a warning; "
-                                       "compare within a few ulps")
 def test_a_rounding_level_first_step_is_a_stall_for_mce(grid3):
     demos = fo.sample_demonstrations(grid3, np.random.default_rng(0).normal(size=(2, 9, 4)), 2, 4, rng=0)
     with pytest.warns(fo.ConvergenceWarning, match="stalled"):

@@ -90,8 +90,6 @@ def test_infinite_losses_are_refused_for_an_interrupted_fit(data, tmp_path):
 
 
 @pytest.mark.parametrize("where", ["pca_dictionary", "feature_weights"])
-@pytest.mark.xfail(strict=True, reason="factirl.py: a KeyboardInterrupt inside the PCA of the flat start (after the "
-                                       "flat fit) propagates as a plain KeyboardInterrupt and loses the flat fit")
 def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     mdp, demos = data
     features = None if where == "pca_dictionary" else np.eye(36)[:, :30]
@@ -102,3 +100,10 @@ def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     except KeyboardInterrupt:  # not FitInterrupted: nothing kept (caught, or pytest itself would stop)
         pytest.fail("a plain KeyboardInterrupt escaped FactIRL.fit: the flat fit is lost")
     assert model.stop_reason_ == "interrupted" and model.dictionary_.shape[1] == 2
+    assert model.n_iter_ == 0 and np.all(np.isnan(model.loss_)) and model.loss_history_ == []
+    monkeypatch.undo()  # the kept state is the PCA start of the whole flat fit (GradIRL's), before the shrinking
+    flat = fo.GradIRL(max_iter=5, features=features).fit(mdp, demos).rewards_.reshape(len(demos), -1)
+    D, H = fo.pca_dictionary(flat, 2, np.random.default_rng(0))
+    np.testing.assert_allclose(model.dictionary_, D if features is None else factirl_module.feature_weights(features, D),
+                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(model.coefficients_, H, rtol=1e-12, atol=1e-12)

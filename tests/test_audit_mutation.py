@@ -79,9 +79,6 @@ def test_deep_copies_and_pickles_of_a_model_handed_out_matrix(grid3):
     assert sparse.csr().data.sum() == pytest.approx(36.0)
 
 
-@pytest.mark.xfail(strict=True, reason="factirl.py: FactIRL.transfer returns res.coefficients itself, the array stored as "
-                                       "transfer_coefficients_: scaling the result in place changes the model (and its "
-                                       "saved file) while transfer_rewards_ keep the old values; return a copy")
 def test_the_array_transfer_returns_is_not_the_models(grid3, rng):
     demos = fo.sample_demonstrations(grid3, rng.normal(size=(2, 9, 4)), 2, 4, rng)
     model = fo.FactIRL(n_primitives=2, max_iter=2, rng=0).fit(grid3, demos)
