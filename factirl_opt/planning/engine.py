@@ -322,6 +322,8 @@ def value_iteration(mdp: Any, rewards: ArrayLike, tol: float = 1e-12, max_iter: 
     max_iter = check_int(max_iter, "max_iter", minimum=1)
     pl = get_planner(mdp, planner)
     Q = R.copy()
+    if R.shape[0] == 0:  # no tasks: nothing to iterate (as optimal_q returns (0, S, A))
+        return Q
     for _ in range(max_iter):
         Q_new = pl.q_from_values(R, Q.max(axis=2))
         delta = np.max(np.abs(Q_new - Q))
