@@ -17,6 +17,7 @@ BENCHMARKS = {
     "solvers": "solvers",
     "scale": "scale",
     "environments": "environments",
+    "unlabeled": "unlabeled",
 }
 
 
