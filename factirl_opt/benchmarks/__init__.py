@@ -18,6 +18,7 @@ BENCHMARKS = {
     "scale": "scale",
     "environments": "environments",
     "robustness": "robustness",
+    "unlabeled": "unlabeled",
 }
 
 
