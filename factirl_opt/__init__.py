@@ -24,6 +24,7 @@ from .exceptions import (
 )
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
+from .interruption import FitInterrupted, InterruptedFitWarning
 from .gym_adapter import from_gymnasium, gymnasium_rewards
 from .mdp import GridWorld, TabularMDP
 from .minari_adapter import LoggedEpisodes, read_minari
@@ -153,6 +154,8 @@ __all__ = [
     "TaskFeatures",
     "FactIRLError",
     "ConvergenceWarning",
+    "InterruptedFitWarning",
+    "FitInterrupted",
     "ValidationError",
     "NotFittedError",
     "SolverError",

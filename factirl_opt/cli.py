@@ -20,6 +20,7 @@ import dataclasses
 import json
 import os
 import shlex
+import signal
 import sys
 import textwrap
 import warnings
@@ -206,6 +207,8 @@ def _reproduce(args, argv):
     from .experiments.runner import Execution, SolverSubstitutionWarning, run_plan
     from .experiments.store import RejectedRunWarning
 
+    if args.out is not None and not args.out.strip():
+        raise ValidationError("--out is empty; give an output directory, or leave --out out for runs/PRESET")
     out = args.out or os.path.join("runs", args.preset)
     plan = _plan(args, _preset(args))
     execution = Execution(args.jobs, args.backend, args.scheduler)
@@ -276,7 +279,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as exc:
         print(f"{PROG}: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 128 + getattr(exc, "signum", 2)
+        return 128 + interrupt_signal(exc)
+
+
+def interrupt_signal(exc: BaseException) -> int:
+    """The signal that caused the interrupt ``exc``: 2 (SIGINT) unless a SIGTERM is found.
+
+    A fit interrupted in this process keeps its best point and raises its own
+    ``FitInterrupted`` in place of the ``Terminated`` that SIGTERM raised, chained as its
+    cause or context: the chain is searched for the ``signum`` of the original.
+    """
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        signum = getattr(current, "signum", None)
+        if isinstance(signum, int):
+            return signum
+        current = current.__cause__ or current.__context__
+    return int(signal.SIGINT)
 
 
 if __name__ == "__main__":

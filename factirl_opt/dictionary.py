@@ -8,7 +8,8 @@ coefficients ``H`` (n, k), tasks on the leading axis, with rewards ``R_i = Phi D
   environments, in the metric of the mean Gram matrix of their features;
 - :func:`shrink_coefficients`: halve a start's coefficients while the total loss decreases;
 - :func:`orient_nonneg`: sign-flip primitives before a nonnegative H-step;
-- :func:`normalise_dictionary`: unit-norm primitives, H rescaled to match.
+- :func:`normalise_dictionary`: unit-norm primitives, H rescaled to match;
+- :func:`check_dictionary_norms`: refuse a dictionary whose primitives' norms overflow.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from .problems import StateBroadcast
 from .task_features import TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
-           "PCA_MAX_HALVINGS"]
+           "check_dictionary_norms", "PCA_MAX_HALVINGS"]
 
 #: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
 PCA_MAX_HALVINGS = 20
@@ -256,3 +257,30 @@ def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
         return D, H
     norms[norms == 0] = 1.0
     return D / norms, H * norms
+
+
+def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> None:
+    """Refuse a dictionary whose column norms overflow float64 when computed (it cannot be normalised).
+
+    :func:`normalise_dictionary` divides the primitives by their norms and multiplies the
+    coefficients by them: with an infinite norm the primitives would become zero and the
+    coefficients infinite, a failure the fit would then blame on the coefficients.
+
+    Parameters
+    ----------
+    D : ndarray, shape (p, k)
+        Finite (already validated) dictionary.
+    name : str
+        How the error message names ``D`` (e.g. ``"init D0"``).
+
+    Raises
+    ------
+    ValidationError
+        When a column norm of ``D`` is not finite, naming ``name`` and its largest entry.
+    """
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(D, axis=0)
+    if not np.all(np.isfinite(norms)):
+        raise ValidationError(f"{name} is too large to normalise: the squared norms of its columns overflow float64 "
+                              f"(largest |{name}| entry {np.max(np.abs(D)):.3g}); rescale it (D -> D c, H -> H / c "
+                              f"gives the same rewards)")

@@ -22,6 +22,7 @@ from ._threads import blas_limited
 from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
 from .dictionary import (
     PCA_MAX_HALVINGS,
+    check_dictionary_norms,
     feature_weights,
     metric_pca_dictionary,
     normalise_dictionary,
@@ -194,8 +195,8 @@ class FactIRL:
     :class:`factirl_opt.interruption.InterruptedFitWarning`, and propagates (as
     :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt). In the
     alternating loop the best point is the best of the start and the completed outer
-    iterations; during the flat fit of the PCA start it is that start, the PCA of the flat
-    rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
+    iterations; during the flat fit of the PCA start (or its PCA) it is that start, the PCA of
+    the flat rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
     best coefficients seen.
     """
 
@@ -277,7 +278,15 @@ class FactIRL:
             X = Theta.reshape(n, -1)
             if Phi is not None:  # the rewards the least-squares feature weights give
                 X = (Phi @ feature_weights(Phi, X.T)).T
-        D, H = self._pca(X, Phi, rng)
+        try:
+            D, H = self._pca(X, Phi, rng)
+        except KeyboardInterrupt as exc:
+            if isinstance(exc, FitInterrupted):
+                raise
+            # Ctrl-C in the PCA itself: redo it, and keep it as the start (not evaluated)
+            D, H = self._pca(X, Phi, rng)
+            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+            raise FitInterrupted(start, "FactIRL.fit") from exc
         if self.pca_shrink:
             try:
                 H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)
@@ -299,6 +308,7 @@ class FactIRL:
             D0, H0 = check_array(self.init[0], "init D0"), check_array(self.init[1], "init H0")
             if D0.shape != (p, k) or H0.shape != (n, k):
                 raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
+            check_dictionary_norms(D0, "init D0")
             return D0.copy(), H0.copy(), 0
         if isinstance(self.init, str) and self.init == "random":
             D0 = rng.standard_normal((p, k))
@@ -469,7 +479,7 @@ class FactIRL:
             raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
         self._store_transfer(res)
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
-        return res.coefficients
+        return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 
     def _store_transfer(self, res):
         self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards

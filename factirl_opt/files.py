@@ -17,6 +17,7 @@ import contextlib
 import errno
 import os
 import secrets
+import stat
 from collections.abc import Iterator
 from typing import IO
 
@@ -62,25 +63,34 @@ def atomic_write(path: str | os.PathLike, binary: bool = False) -> Iterator[IO]:
 
     Notes
     -----
-    The new file gets mode ``0o666`` minus the umask, like a file made by ``open``, and the
-    directory is synced after the rename where the platform allows it.
+    A new file gets mode ``0o666`` minus the umask, like a file made by ``open``; a replaced
+    file keeps its permissions (a private ``0o600`` model stays private). The
+    directory is synced after the rename where the platform allows it. A symbolic link is
+    followed: the file it points to is replaced and the link kept. A path that exists but is
+    not a regular file (a device such as ``/dev/full``, a FIFO) is refused.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
         exc = IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
         raise os_error(exc, "write", path) from exc
-    directory, base = os.path.split(os.path.abspath(path))
+    if os.path.exists(path) and not os.path.isfile(path):
+        # a device, FIFO or socket: renaming over it would replace the special file itself
+        raise PersistenceError(f"cannot write {path!r}: not a regular file (a device, FIFO or socket); "
+                               "give the path of a file")
+    # through a symbolic link, replace the file it points to (beside it), not the link
+    directory, base = os.path.split(os.path.realpath(path))
     # a unique name (O_EXCL) of bounded length beside the target, created inside the try so
     # that an interrupt right after its creation still removes it
     tmp = os.path.join(directory, f".tmp-{os.getpid()}-{secrets.token_hex(8)}-{base[:100]}")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)  # the kernel applies the umask
+        _keep_mode(fd, os.path.join(directory, base))
         fh: IO = os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline="")
         with fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, os.path.join(directory, base))
     except OSError as exc:
         _remove_quietly(tmp)
         raise os_error(exc, "write", path) from exc
@@ -96,15 +106,31 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
         fh.write(text)
 
 
-def open_for_reading(path: str | os.PathLike, binary: bool = True) -> IO:
+def open_for_reading(path: str | os.PathLike, binary: bool = True, newline: str | None = None) -> IO:
     """``open(path)`` for reading, with ``OSError`` raised as :class:`PersistenceError`.
 
     A missing file, a directory or a file without read permission is named with its cause.
+    A FIFO or socket is refused (reading it would wait for a writer, possibly forever).
+    ``newline`` is passed to ``open`` in text mode (``""`` for CSV files).
     """
+    path = os.fspath(path)
     try:
-        return open(os.fspath(path), "rb" if binary else "r")
+        mode = os.stat(path).st_mode
+        if stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode):
+            raise PersistenceError(f"cannot read {path!r}: not a regular file (a FIFO or socket); give the path of a file")
+        return open(path, "rb") if binary else open(path, "r", newline=newline)
     except OSError as exc:
         raise os_error(exc, "read", path) from exc
+
+
+def _keep_mode(fd: int, target: str) -> None:
+    """Give the new file the permissions of the file it replaces (a private 0o600 file stays private)."""
+    try:
+        mode = os.stat(target).st_mode
+    except OSError:
+        return  # no previous file: 0o666 minus the umask
+    if hasattr(os, "fchmod"):  # POSIX
+        os.fchmod(fd, stat.S_IMODE(mode))
 
 
 def _remove_quietly(path: str) -> None:

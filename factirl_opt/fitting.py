@@ -42,6 +42,7 @@ __all__ = [
     "check_solver_applies",
     "resolve_step_solver",
     "first_step_stall",
+    "same_loss",
     "held_by_constraint",
     "warn_if_stalled",
     "features_digest",
@@ -58,6 +59,9 @@ __all__ = [
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
 REWARDS = ("state-action", "state")
+
+#: a first step that moves the total loss by at most this many units of ``eps |loss|`` changed nothing
+STALL_ULPS = 4
 
 
 def reward_features(mdp: Any, features: Any = None, reward: str = "state-action",
@@ -149,7 +153,8 @@ def resolve_step_solver(solver: str | solvers.StepSolver, options: dict | None, 
 
 
 def first_step_stall(history: list, iterations: int, held: bool = False) -> tuple[str, str] | None:
-    """``("stalled", reason)`` when the first iteration of a fit left its total loss unchanged.
+    """``("stalled", reason)`` when the first iteration of a fit left its total loss unchanged
+    (up to rounding, :func:`same_loss`).
 
     Shared by the learners' fits: a first step that changed nothing (no block moved, or every
     accepted step had a zero effect, as with a tiny beta or saturated policies) will not
@@ -166,9 +171,18 @@ def first_step_stall(history: list, iterations: int, held: bool = False) -> tupl
         The start is optimal for the constrained or penalised problem while the gradient is
         not zero (e.g. ``h = 0`` under a large L1 penalty): the fit has converged.
     """
-    if iterations == 1 and len(history) >= 2 and history[1] == history[0] and not held:
+    if iterations == 1 and len(history) >= 2 and not held and same_loss(history[0], history[1]):
         return "stalled", f"stalled: the first iteration changed nothing (total loss {history[0]:.6g} before and after)"
     return None
+
+
+def same_loss(before: float, after: float) -> bool:
+    """Whether two total losses differ by rounding only: equal, or within ``4 eps |before|``.
+
+    A first step that moves the loss by a few units in the last place (e.g. MCE at a tiny
+    beta, where every reward change is rounded away) changed nothing.
+    """
+    return bool(before == after or abs(after - before) <= STALL_ULPS * np.finfo(float).eps * abs(before))
 
 
 def held_by_constraint(solver: solvers.StepSolver, result: solvers.SolverResult) -> bool:

@@ -66,6 +66,32 @@ def _read_only(*arrays):
         arr.setflags(write=False)
 
 
+def _freeze_csr(P):
+    """Make the CSR's arrays read-only owners of their data (a read-only view of a writable
+    array could be made writable again through ``setflags``)."""
+    P.data, P.indices, P.indptr = P.data.copy(), P.indices.copy(), P.indptr.copy()
+    _read_only(P.data, P.indices, P.indptr)
+
+
+def _frozen_view(arr):
+    """A read-only view of a read-only array owned by a model: ``setflags(write=True)`` on it fails."""
+    view = arr.view()
+    view.setflags(write=False)
+    return view
+
+
+def _csr_view(P):
+    """A new CSR object over the model's read-only arrays.
+
+    Reassigning its ``data``/``indices``/``indptr``, ``resize`` or re-sorting it changes the
+    copy only, never the model (whose dynamics and caches would otherwise go stale).
+    """
+    view = sp.csr_matrix((_frozen_view(P.data), _frozen_view(P.indices), _frozen_view(P.indptr)), shape=P.shape, copy=False)
+    view.has_sorted_indices = True
+    view.has_canonical_format = True
+    return view
+
+
 def _check_sparse(transitions):
     """A validated canonical CSR copy (S*A, S) of a scipy.sparse matrix, never densified."""
     if transitions.dtype.kind not in "biuf":  # complex would lose its imaginary part with a mere warning
@@ -90,7 +116,7 @@ def _check_sparse(transitions):
         r = int(np.argmax(err > _ROW_SUM_TOL))
         raise ValidationError(f"each row of the (S*A, S) transitions must sum to 1 (within {_ROW_SUM_TOL}); "
                               f"row {r} (s={r // A}, a={r % A}) sums to {float(sums[r])!r}")
-    _read_only(P.data, P.indices, P.indptr)
+    _freeze_csr(P)
     return P, A
 
 
@@ -196,7 +222,7 @@ class TabularMDP:
     @property
     def transitions(self) -> np.ndarray:
         if not self.is_sparse:
-            return self._dense
+            return _frozen_view(self._dense)
         size = self.n_states * self.n_params * 8
         if size > DENSE_COPY_LIMIT:
             raise ValidationError(
@@ -204,14 +230,14 @@ class TabularMDP:
                 "use mdp.transition_matrix (CSR, (S*A, S))"
             )
         if "_dense_cache" not in self.__dict__:
-            dense = self._P.toarray().reshape(self.n_states, self.n_actions, self.n_states)
+            dense = self._P.toarray().reshape(self.n_states, self.n_actions, self.n_states).copy()  # owns its data
             _read_only(dense)
             self._init("_dense_cache", dense)
-        return self._dense_cache
+        return _frozen_view(self._dense_cache)
 
     @property
     def transition_matrix(self) -> Any:
-        return self._P if self.is_sparse else self._dense.reshape(self.n_params, self.n_states)
+        return _csr_view(self._P) if self.is_sparse else _frozen_view(self._dense).reshape(self.n_params, self.n_states)
 
     @property
     def transitions_flat(self) -> np.ndarray:
@@ -223,14 +249,14 @@ class TabularMDP:
     def csr(self) -> sp.csr_matrix:
         """The dynamics as a CSR (S*A, S) matrix (built once and cached for a dense model)."""
         if self.is_sparse:
-            return self._P
+            return _csr_view(self._P)
         if "_csr_cache" not in self.__dict__:
             P = sp.csr_matrix(self.transition_matrix)
             P.eliminate_zeros()
             P.sort_indices()
-            _read_only(P.data, P.indices, P.indptr)
+            _freeze_csr(P)
             self._init("_csr_cache", P)
-        return self._csr_cache
+        return _csr_view(self._csr_cache)
 
     def signature(self) -> dict[str, Any]:
         """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics

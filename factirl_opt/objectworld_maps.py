@@ -93,6 +93,10 @@ def block_cells(transitions: Any, cells: ArrayLike) -> sp.csr_matrix:
     transitions : scipy.sparse.csr_matrix, shape (S*A, S)
         Rows still sum to one; duplicates summed, explicit zeros removed, indices sorted.
     """
+    if not sp.issparse(transitions) and not (isinstance(transitions, np.ndarray) and transitions.ndim == 2):
+        hint = ("; pass the model's transition_matrix (mdp.transition_matrix, world.mdp().transition_matrix)"
+                if hasattr(transitions, "transition_matrix") or hasattr(transitions, "mdp") else "")
+        raise ValidationError(f"transitions must be a scipy.sparse (S*A, S) matrix; got {type(transitions).__name__}{hint}")
     P = sp.coo_matrix(transitions)
     rows, S = P.shape
     if S == 0 or rows % S:

@@ -203,15 +203,34 @@ def feature_rewards(features: ArrayLike | Sequence[ArrayLike], weights: ArrayLik
     Raises
     ------
     ValidationError
-        For weights that are not (n, p), a wrong number of matrices or MDPs, or features
-        whose rows or columns do not fit (naming the task).
+        For weights that are not (n, p) with n >= 1, a wrong number of matrices or MDPs,
+        features whose rows or columns do not fit, or rewards that overflow float64 (naming
+        the task).
     """
     W = check_array(weights, "weights", ndim=2)
     n = W.shape[0]
+    if n == 0:
+        raise ValidationError(f"weights must have shape (n, p) with n >= 1 (one row per task); got {W.shape}")
     F = _feature_list(features, n)
     if mdps is None:
         rows = [np.shape(f)[0] for f in F]
-        R = TaskFeatures(F, rows, 1).rewards(W)
+        if 0 in rows:
+            raise ValidationError(f"features of task {rows.index(0)} have no rows (shape {np.shape(F[rows.index(0)])}); "
+                                  "give one row per state")
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported below, naming the task
+            R = _check_overflow(TaskFeatures(F, rows, 1).rewards(W), F, W)
         return [r[:, 0] for r in R] if isinstance(R, list) else R[:, :, 0]
     envs = environments([mdps] * n if isinstance(mdps, TabularMDP) else mdps, n)
-    return TaskFeatures(F, [m.n_states for m in envs], envs[0].n_actions).rewards(W)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _check_overflow(TaskFeatures(F, [m.n_states for m in envs], envs[0].n_actions).rewards(W), F, W)
+
+
+def _check_overflow(R: Any, F: list[Any], W: NDArray[np.float64]) -> Any:
+    """``R`` (an array or a list of per-task arrays), or a ValidationError naming the first task whose rewards overflow."""
+    for i, r in enumerate(R):
+        if not np.all(np.isfinite(r)):
+            raise ValidationError(
+                f"the rewards features @ weights of task {i} overflow float64 (largest |features| entry "
+                f"{np.max(np.abs(np.asarray(F[i], dtype=float))):.3g}, largest |weights[{i}]| entry {np.max(np.abs(W[i])):.3g}): "
+                "rescale the features or the weights towards order 1")
+    return R

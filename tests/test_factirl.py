@@ -1,5 +1,7 @@
 """FactIRL, the factorial learner: fit, initialisations, transfer."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -324,3 +326,16 @@ def test_d_solvers_fit_and_never_worsen_the_best_point(data, d_solver):
     assert min(fit.loss_history) == pytest.approx(fit.loss.sum(), rel=1e-12)
     assert fit.loss.sum() < 0.1 * fit.loss_history[0]
     assert fit.status in ("converged", "max_iter") and fit.reason
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e160])
+def test_an_init_dictionary_too_large_to_normalise_is_refused(scale):
+    from factirl_opt.dictionary import check_dictionary_norms
+
+    D0 = np.ones((36, 2))
+    check_dictionary_norms(D0 * 1e150, "init D0")  # large, but its norms are finite
+    D0[3, 1] = scale
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy overflow warning: the error says it
+        with pytest.raises(ValidationError, match=rf"init D0 is too large to normalise.*entry {scale:.3g}".replace("+", r"\+")):
+            check_dictionary_norms(D0, "init D0")

@@ -112,3 +112,15 @@ def test_fit_needs_an_mdp(data):
     _, _, demos = data
     with pytest.raises(ValidationError, match="mdp must be a TabularMDP"):
         fo.GradIRL().fit("grid", demos)
+
+
+def test_first_step_stall_allows_a_few_ulps_of_rounding_only():
+    from factirl_opt.fitting import first_step_stall
+
+    h0 = 2.7725887222397803
+    assert first_step_stall([h0, np.nextafter(h0, 0)], 1) is not None  # one ulp: nothing moved
+    assert first_step_stall([h0, h0 - 2 * np.spacing(h0)], 1) is not None
+    assert first_step_stall([h0, h0 - 1e-12], 1) is None  # a real (tiny) decrease
+    assert first_step_stall([h0, np.nextafter(h0, 0)], 2) is None  # only the first iteration counts
+    assert first_step_stall([h0, np.nextafter(h0, 0)], 1, held=True) is None
+    assert first_step_stall([0.0, 0.0], 1) is not None

@@ -25,3 +25,15 @@ def test_readme_gives_the_two_setup_commands():
     assert 'pip install -e ".[test]" && python -m pytest' in text
     ci = (README.parent / ".ci" / "run").read_text()
     assert 'pip install -e ".[test]" && python -m pytest' in ci
+
+
+def test_readme_many_environments_example_runs(capsys):
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    example = next(b for b in blocks if "objectworld_maps" in b)
+    namespace = {}
+    exec(compile(example, "README.md", "exec"), namespace)
+    dev = float(capsys.readouterr().out.split()[-1])
+    assert np.isfinite(dev) and dev >= 0.0
+    assert namespace["h"].shape == (5, 3)
+    assert namespace["fact"].dictionary_.shape == (namespace["feats"][0].shape[1], 3)
+    assert [np.shape(r) for r in namespace["R_new"]] == [(m.n_states, m.n_actions) for m in namespace["new_mdps"]]

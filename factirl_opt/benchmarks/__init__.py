@@ -17,6 +17,8 @@ BENCHMARKS = {
     "solvers": "solvers",
     "scale": "scale",
     "environments": "environments",
+    "robustness": "robustness",
+    "unlabeled": "unlabeled",
 }
 
 

@@ -52,6 +52,7 @@ import numpy as np
 from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
 from ..evaluation import deviation
+from ..files import atomic_write
 from ..mdp import GridWorld
 from ..objectives import policy_matching_loss
 from ..planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optimal_q
@@ -190,8 +191,12 @@ def _plot(per_size, path, tasks):
     ax.set_title(f"GridWorld, {tasks} tasks, one run (auto: dense up to {AUTO_DENSE_MAX_STATES} states)", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    fmt = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
+    try:
+        with atomic_write(path, binary=True) as fh:  # an interrupt or a full disk keeps the old figure
+            fig.savefig(fh, format=fmt, dpi=120)
+    finally:
+        plt.close(fig)
 
 
 def _measure_all(args):

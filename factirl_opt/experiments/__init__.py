@@ -3,13 +3,16 @@
 Module map:
 
 - :mod:`.presets`: experiment configurations as data (``paper``, ``fast``, ``quick``, ``test``,
-  ``tiny``, ``objectworld``, ``objectworld-quick``, ``objectworld-tiny``), with their planner
-  and the factorial learner's default solvers;
+  ``tiny``, ``objectworld``, ``objectworld-quick``, ``objectworld-tiny``,
+  ``objectworld-per-task``, ``objectworld-per-task-quick``), with their planner and the
+  factorial learner's default solvers;
 - :mod:`.worlds`: a run's ground truth (world, true tasks, demonstrations, base features) per
-  world (``"grid"``, ``"objectworld"``);
+  world (``"grid"``, ``"objectworld"``, ``"objectworld-per-task"``: a map per task);
 - :mod:`.learner_names`: the learners' names, as constants;
 - :mod:`.learners`: the learner line-ups as data (named builders: ``"paper"``,
-  ``"objectworld"``, and both ``+mce``), and which solvers each learner takes;
+  ``"objectworld"``, both ``+mce``, and ``"objectworld-per-task"``);
+- :mod:`.learner_solvers`: which solvers each learner takes;
+- :mod:`.per_task`: the learners of the world with a map per task and their scores on fresh maps;
 - :mod:`.runner`: plan the runs of a preset (:func:`plan_sweep`) and execute them
   (:func:`run_plan`; :func:`run_sweep` does both);
 - :mod:`.store`: the checked run cache, the lock and the manifest;
@@ -29,6 +32,7 @@ From the command line::
 
     factirl-opt reproduce --preset quick --out runs/quick
     factirl-opt reproduce --preset objectworld-quick --out runs/objectworld-quick
+    factirl-opt reproduce --preset objectworld-per-task-quick --out runs/objectworld-per-task-quick
     factirl-opt reproduce --preset paper --lineup paper+mce --jobs 2 --out runs/paper-mce
     factirl-opt plot runs/quick
 """

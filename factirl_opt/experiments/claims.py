@@ -18,17 +18,17 @@ import numpy as np
 from ..exceptions import ValidationError
 from ..files import write_text_atomic
 from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
-                            FACTORIAL_MCE_FEATURES, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
+                            FACTORIAL_MCE_FEATURES, FACTORIAL_MCE_FEATURES_RANDOM_INIT, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
                             FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
                             FLAT_PCA_FEATURES)
 from .tables import read_results
 
 __all__ = ["CLAIMS_FILE", "CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims",
-           "mce_claims"]
+           "mce_claims", "per_task_claims"]
 
 
-def _by_seed(rows, split, learner, n, m):
-    return {r["seed"]: r["deviation"] for r in rows
+def _by_seed(rows, split, learner, n, m, column="deviation"):
+    return {r["seed"]: r[column] for r in rows
             if r["split"] == split and r["learner"] == learner and r["n_tasks"] == n and r["demos_per_task"] == m}
 
 
@@ -37,8 +37,8 @@ def _fmt(values):
     return f"{v.mean():.2f} ± {v.std(ddof=1):.2f}" if v.size > 1 else f"{v.mean():.2f}"
 
 
-def _less(rows, split, a, b, n, m, claim, source):
-    da, db = _by_seed(rows, split, a, n, m), _by_seed(rows, split, b, n, m)
+def _less(rows, split, a, b, n, m, claim, source, column="deviation"):
+    da, db = _by_seed(rows, split, a, n, m, column), _by_seed(rows, split, b, n, m, column)
     seeds = sorted(set(da) & set(db))
     if not seeds:
         return None
@@ -141,6 +141,30 @@ def mce_claims(rows: Sequence[dict], preset: Any, flat: str = FLAT_MCE, fact: st
     return out + _sweep_claims(rows, preset, "test", fact, flat, f"test: {fact} beats {flat}", source)
 
 
+def per_task_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
+    """The claims on the world with a map per task (line-up ``"objectworld-per-task"``).
+
+    Factorial on features beats flat on features, for policy matching and MCE, on the tasks'
+    own maps (``deviation``) and on fresh maps (``new_maps_deviation``), at the default point
+    (test tasks: also along the tasks sweep); PCA beats random starts; the true primitives are
+    the floor.
+    """
+    n, m = preset.default_tasks, preset.default_demos
+    source, out = "(map per task)", []
+    for fact, flat, rand in ((FACTORIAL_FEATURES, FLAT_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT),
+                             (FACTORIAL_MCE_FEATURES, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES_RANDOM_INIT)):
+        for column, where in (("deviation", "own maps"), ("new_maps_deviation", "new maps")):
+            out += [_less(rows, split, fact, flat, n, m, f"{split}, {where}: {fact} beats {flat}", source, column)
+                    for split in ("train", "test")]
+            out.append(_less(rows, "train", fact, rand, n, m, f"train, {where}: PCA start beats random init ({fact})",
+                             "(paper's fn. 2)", column))
+            out += [_less(rows, "test", fact, flat, nn, m, f"test, {where}: {fact} beats {flat} (tasks sweep)", source,
+                          column) for nn in sorted(preset.tasks_sweep) if nn != n]
+    return out + [_less(rows, split, FLAT_GROUND_TRUTH, FACTORIAL_FEATURES, n, m,
+                        f"{split}, own maps: the true primitives as features are the floor", source)
+                  for split in ("train", "test")]
+
+
 #: the claims' file in a reproduce directory
 CLAIMS_FILE = "claims.md"
 
@@ -152,6 +176,7 @@ CLAIMS: dict[str, tuple[str, Callable[[Sequence[dict], Any], list]]] = {
     "objectworld+mce": ("Objectworld and MCE claims",
                         lambda rows, preset: objectworld_claims(rows, preset)
                         + mce_claims(rows, preset, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES)),
+    "objectworld-per-task": ("Claims with a map per task", per_task_claims),
 }
 
 

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import ValidationError
-from ..files import atomic_write, os_error
+from ..exceptions import PersistenceError, ValidationError
+from ..files import atomic_write, open_for_reading, os_error
 from ..mdp import GridWorld
 from ..objectworld import make_objectworld, plot_objectworld
 from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
@@ -279,8 +279,10 @@ def plot_all(out: str | os.PathLike) -> list[str]:
     f3 = os.path.join(out, "figure3.json")
     if os.path.exists(f3):
         try:
-            with open(f3) as fh:
+            with open_for_reading(f3, binary=False) as fh:
                 data = json.load(fh)
+        except PersistenceError:  # cannot be opened (a ValueError too): named as such
+            raise
         except ValueError as exc:
             raise ValidationError(f"{f3} is not valid JSON ({exc}); rerun `factirl-opt reproduce` to rewrite it") from None
         written += plot_value_functions(data, os.path.join(fig_dir, "figure3"),
@@ -290,5 +292,8 @@ def plot_all(out: str | os.PathLike) -> list[str]:
         for ext in FIGURES[2][1]:
             path = os.path.join(fig_dir, f"{FIGURES[2][0]}.{ext}")
             if os.path.exists(path):
-                os.unlink(path)
+                try:
+                    os.unlink(path)
+                except OSError as exc:
+                    raise os_error(exc, "remove the stale figure", path) from exc
     return written

@@ -10,7 +10,7 @@ from __future__ import annotations
 __all__ = [
     "FLAT", "FLAT_GROUND_TRUTH", "FLAT_PCA_FEATURES", "FLAT_FEATURES_FROM_EXAMPLES", "FLAT_FEATURES",
     "FACTORIAL", "FACTORIAL_RANDOM_INIT", "FACTORIAL_FEATURES", "FACTORIAL_FEATURES_RANDOM_INIT",
-    "FLAT_MCE", "FACTORIAL_MCE", "FLAT_MCE_FEATURES", "FACTORIAL_MCE_FEATURES",
+    "FLAT_MCE", "FACTORIAL_MCE", "FLAT_MCE_FEATURES", "FACTORIAL_MCE_FEATURES", "FACTORIAL_MCE_FEATURES_RANDOM_INIT",
 ]
 
 #: GradIRL on tabular rewards, one task at a time (the paper's flat learner)
@@ -39,3 +39,5 @@ FACTORIAL_MCE = "factorial MCE"
 FLAT_MCE_FEATURES = "flat MCE, features"
 #: FactIRL on the MCE likelihood and the base features
 FACTORIAL_MCE_FEATURES = "factorial MCE, features"
+#: FactIRL on the MCE likelihood and the base features from a random start
+FACTORIAL_MCE_FEATURES_RANDOM_INIT = "factorial MCE, features, random init"

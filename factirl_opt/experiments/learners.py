@@ -46,6 +46,8 @@ least-squares objective: where a run names one, the MCE learners take L-BFGS ste
 (:data:`GRADIENT_FALLBACK`), and :func:`substitutions` names every such replacement before the
 runs start (the command line prints it and the manifest records it).
 
+Line-up ``"objectworld-per-task"`` (the world with a map per task; every learner on feature
+weights, scored on its tasks' own maps and on fresh maps): see :mod:`.per_task`.
 Line-up ``"babyai"`` (the BabyAI worlds: a layout per task, its own features) is defined, and
 added to :data:`LINEUPS`, by :mod:`.babyai`.
 
@@ -60,33 +62,23 @@ from typing import Any, Callable
 
 import numpy as np
 
-import solvers
-
 from ..exceptions import ValidationError
 from ..factirl import FactIRL, pca_dictionary
-from ..gradirl import GradIRL, check_solver_applies
-from ..solver_settings import SolverSettings
+from ..gradirl import GradIRL
+from .learner_solvers import (DEFAULT_OBJECTIVE, GRADIENT_FALLBACK, SOLVER_ROLES, factorial_options, factorial_solvers,
+                              flat_solver, substitutions)
+from .per_task import per_task_rows
 from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
                             FACTORIAL_MCE_FEATURES, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
                             FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
                             FLAT_PCA_FEATURES)
 
 __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options", "flat_solver",
-           "factorial_solvers", "substitutions", "SOLVER_ROLES"]
+           "factorial_solvers", "substitutions", "SOLVER_ROLES", "GRADIENT_FALLBACK", "DEFAULT_OBJECTIVE"]
 
 #: what a builder returns: rewards (n, S, A), final loss per task (n,), Q* evaluations (int)
 Fit = collections.namedtuple("Fit", "rewards loss n_evaluations")
 
-#: the objective of the paper's learners (eq. 5)
-DEFAULT_OBJECTIVE = "policy-matching"
-
-#: the solver a learner on an objective without residuals (``"mce"``) takes where the run or
-#: preset names a Gauss-Newton one: the quasi-Newton counterpart, which needs only gradients
-GRADIENT_FALLBACK = "lbfgs"
-
-#: which solvers a learner row takes: the preset's ``flat_solver`` (GradIRL, tabular), its
-#: ``flat_features_solver`` (GradIRL on features), or the run's :class:`SolverSettings` (FactIRL)
-SOLVER_ROLES = ("flat", "flat features", "factorial")
 
 #: the learners' random streams, spawned in this order from the ground truth's ``learner_rng``
 #: (append new names at the end: the existing streams then stay the same)
@@ -210,83 +202,6 @@ class RunContext:
         if name not in self._shared:
             self._shared[name] = make()
         return self._shared[name]
-
-
-# --- which solvers a row takes ------------------------------------------------------------
-
-
-def _applies(name: str, options: dict, objective: str) -> bool:
-    """Whether the registered solver ``name`` applies to ``objective`` (Gauss-Newton ones need residuals)."""
-    try:
-        check_solver_applies(solvers.get_solver(name, **options), objective, "solver")
-    except ValidationError:
-        return False
-    return True
-
-
-def _replaced(what: str, name: str, objective: str) -> str:
-    return (f"{what} {name} replaced by {GRADIENT_FALLBACK} (a Gauss-Newton solver needs residuals; the "
-            f"{objective!r} objective has none)")
-
-
-def flat_solver(learner: Learner, preset: Any) -> tuple[str, str | None]:
-    """The step solver of a GradIRL row, and a note naming the substitution if there is one."""
-    name = preset.flat_solver if learner.solvers == "flat" else preset.flat_features_solver
-    if _applies(name, {}, learner.objective):
-        return name, None
-    return GRADIENT_FALLBACK, _replaced("solver", name, learner.objective)
-
-
-def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[SolverSettings, list[str]]:
-    """The solver settings a FactIRL on ``objective`` takes, and notes naming the substitutions.
-
-    A learner on an objective without residuals (``"mce"``) cannot take a Gauss-Newton solver
-    (``gn-qp-*``, ``gn-cg``): each such H- or D-step solver is replaced by
-    :data:`GRADIENT_FALLBACK` without options (its table rows keep the run's solver label).
-    """
-    h, h_opts, d, d_opts, notes = (settings.h_solver, settings.h_solver_options, settings.d_solver,
-                                   settings.d_solver_options, [])
-    if not _applies(h, settings.h_options, objective):
-        notes.append(_replaced("H-step solver", h, objective))
-        h, h_opts = GRADIENT_FALLBACK, ""
-    if d and not _applies(d, settings.d_options, objective):
-        notes.append(_replaced("D-step solver", d, objective))
-        d, d_opts = GRADIENT_FALLBACK, ""
-    return (SolverSettings(h, h_opts, d, d_opts) if notes else settings), notes
-
-
-def substitutions(lineup: Lineup, preset: Any, settings: SolverSettings) -> list[str]:
-    """Every solver a row of the line-up takes instead of the one the preset or run names.
-
-    Returns
-    -------
-    list of str
-        One line per substitution, ``"<split>: <learner>: <what> replaced by <solver> (why)"``.
-    """
-    out = []
-    for lr in lineup.learners:
-        if lr.solvers == "factorial":
-            notes = factorial_solvers(settings, lr.objective)[1]
-        else:
-            notes = [note for note in flat_solver(lr, preset)[1:] if note]
-        out += [f"{lr.split}: {lr.name}: {note}" for note in notes]
-    return out
-
-
-def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> dict[str, Any]:
-    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
-
-    Solver options and the D-step solver are passed only when the run names them
-    (:meth:`SolverSettings.learner_kwargs`), so a run with the defaults builds exactly the
-    FactIRL it always did; solvers that do not apply to ``objective`` are replaced
-    (:func:`factorial_solvers`).
-    """
-    kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
-              tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
-              inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
-              transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
-    kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
-    return kw
 
 
 # --- builders: (gt, preset, ctx) -> Fit; the row being built is ctx.learner -----------------
@@ -484,6 +399,9 @@ LINEUPS["objectworld+mce"] = Lineup(
     value_maps=(FLAT_FEATURES, FACTORIAL_FEATURES, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES),
     worlds=("objectworld",),
 )
+
+LINEUPS["objectworld-per-task"] = Lineup(name="objectworld-per-task", learners=per_task_rows(Learner),
+                                         worlds=("objectworld-per-task",))
 
 
 def get_lineup(lineup: str | Lineup) -> Lineup:

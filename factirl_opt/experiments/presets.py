@@ -52,18 +52,19 @@ Presets
 ``objectworld-tiny``
     An 8x8 Objectworld (object density 0.15), a few tasks and iterations: seconds, the smoke
     test of the Objectworld machinery; its scores mean nothing.
-``babyai``
-    BabyAI-GoToLocal-v0 (world and line-up ``"babyai"``, :mod:`.babyai`): a layout per task,
-    the BabyAI bot's demonstrations (4 per training layout: from the start and from 3 random
-    starts), training layouts swept over (10, 30, 100), 100 test layouts with new missions and
-    ONE bot demonstration each, 3 seeds; scored by the success rate in the environment of the
-    learnt rewards' greedy policies (:data:`BABYAI_SOLVERS`, k = 8 primitives).
-``babyai-large``
-    BabyAI-GoToOpen-v0 (about 1,250 states per layout): 10 and 30 training layouts x 2 bot
-    demonstrations, 30 test layouts, 1 seed, the same learners.
-``babyai-quick``
-    ``babyai`` with 12 training layouts x 3 demonstrations, 10 test layouts, 1 seed and short
-    budgets: the default test suite's end-to-end run.
+``objectworld-per-task``
+    ELIRL's benchmark as its script runs it (world and line-up ``"objectworld-per-task"``):
+    every task on its own map (the ``objectworld`` preset's size, colours, density, dynamics,
+    demonstrations, sweeps, test tasks, seeds, solvers and budgets), the test tasks on maps
+    never seen in training; every learner on feature weights, scored on the tasks' own maps
+    (``deviation``) and on fresh maps of the same tasks (``new_maps_deviation``).
+``objectworld-per-task-quick``
+    The same at 8x8 (object density 0.15) with ``objectworld-quick``'s points, test tasks,
+    seeds and budgets: the regression test's orderings.
+``babyai`` / ``babyai-large`` / ``babyai-quick``
+    BabyAI-GoToLocal-v0 / GoToOpen-v0 (world and line-up ``"babyai"``, :mod:`.babyai`; k = 8,
+    :data:`BABYAI_SOLVERS`): 10-30-100 / 10-30 / 12 training layouts x 4 / 2 / 3 bot
+    demonstrations, 100 / 30 / 10 test layouts with ONE each, 3 / 1 / 1 seeds; scored by success.
 
 Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce")``, or
 ``factirl-opt reproduce --lineup``) or planner; those fields enter the fingerprint only when
@@ -326,8 +327,7 @@ FAST_SOLVERS: dict[str, Any] = dict(solvers=SolverSettings("gn-qp-clarabel", d_s
 #: too (Levine's 217 features at 32x32 make a Gauss-Newton block QP too large to compile)
 OBJECTWORLD_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, flat_features_solver="lbfgs")
 
-#: the BabyAI presets' solvers: Armijo H-steps and L-BFGS D-steps (faster than Gauss-Newton QP
-#: steps on 127 features per layout), L-BFGS for every flat fit, the ``fast`` stopping rules
+#: BabyAI: Armijo H-steps, L-BFGS D-steps and flat fits (faster than Gauss-Newton QP on 127 features), ``fast``'s rules
 BABYAI_SOLVERS: dict[str, Any] = dict(FAST_SOLVERS, solvers=SolverSettings("armijo", d_solver="lbfgs"),
                                       flat_features_solver="lbfgs", n_primitives=8)
 _BABYAI: dict[str, Any] = dict(world="babyai", lineup="babyai", n_seeds=1, **BABYAI_SOLVERS)
@@ -405,6 +405,37 @@ PRESETS = {
         n_seeds=1,
         **dict(OBJECTWORLD_SOLVERS, fact_max_iter=3),
     ),
+    "objectworld-per-task": Preset(
+        name="objectworld-per-task",
+        world="objectworld-per-task",
+        lineup="objectworld-per-task",
+        grid_size=32,
+        demo_length=16,
+        demos_sweep=(32,),
+        tasks_sweep=(10, 20, 50, 100),
+        default_tasks=100,
+        default_demos=32,
+        n_test_tasks=100,
+        n_seeds=3,
+        **OBJECTWORLD_SOLVERS,
+    ),
+    "objectworld-per-task-quick": Preset(
+        name="objectworld-per-task-quick",
+        world="objectworld-per-task",
+        lineup="objectworld-per-task",
+        grid_size=8,
+        object_density=0.15,
+        demo_length=16,
+        demos_sweep=(16,),
+        tasks_sweep=(5, 20),
+        default_tasks=20,
+        default_demos=16,
+        n_test_tasks=20,
+        flat_max_iter=40,
+        transfer_max_iter=40,
+        n_seeds=3,
+        **dict(OBJECTWORLD_SOLVERS, fact_max_iter=15),
+    ),
     "babyai": Preset(name="babyai", **dict(_BABYAI, demos_sweep=(4,), tasks_sweep=(10, 30, 100), default_tasks=100,
                                            default_demos=4, n_test_tasks=100, n_seeds=3)),
     "babyai-large": Preset(name="babyai-large", **dict(_BABYAI, world="babyai-large", demos_sweep=(2,), tasks_sweep=(10, 30),
@@ -442,6 +473,11 @@ PRESET_DESCRIPTIONS = {
     "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 3 seeds "
                          "(under a minute)",
     "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",
+    "objectworld-per-task": "ELIRL's benchmark as its script runs it: every task on its own 32x32 map, 100 training "
+                            "tasks x 32 demos, tasks sweep 10-100, 100 test tasks on unseen maps, scored on own and "
+                            "fresh maps, 3 seeds",
+    "objectworld-per-task-quick": "a map per task at 8x8: 20 training tasks x 16 demos, 20 test tasks, short budgets, "
+                                  "3 seeds (about a minute)",
     "babyai": "BabyAI-GoToLocal-v0: a layout per task, the bot's demonstrations, 10/30/100 training layouts, 100 test "
               "layouts with one demonstration each, success rate in the environment, 3 seeds",
     "babyai-large": "BabyAI-GoToOpen-v0 (about 1,250 states per layout): 10/30 training layouts x 2 demos, 30 test "

@@ -9,7 +9,8 @@ A *run* is one ``(n_tasks, demos_per_task, seed)`` point of a preset with the fa
 learner's solver settings: generate the ground truth in the preset's world
 (:func:`.worlds.make_ground_truth`), build every learner of the preset's line-up
 (:mod:`.learners`: fits on the training tasks, figure 1; transfers to the test tasks, figure 2),
-and score each by the mean deviation (:func:`factirl_opt.deviation`) over the run's tasks.
+and score each by the mean deviation (:func:`factirl_opt.deviation`) over the run's tasks (in a
+world with a map per task, also on fresh maps: :func:`.per_task.add_new_map_scores`).
 
 Output directory layout::
 
@@ -53,6 +54,7 @@ from . import store
 from .claims import CLAIMS_FILE
 from .figures import figure_files
 from .learners import Lineup, RunContext, get_lineup, substitutions
+from .per_task import add_new_map_scores
 from .presets import Preset, get_preset
 from .tables import write_tables
 from .workers import imap_unordered, sigterm_raises
@@ -208,11 +210,7 @@ def run_one(preset: Preset, spec: RunSpec, progress: Callable[[str], Any] | None
         point's first seed, ``figure3`` (value functions of 4 test tasks).
     """
     with limit_blas_threads(1):
-        return _run_one(preset, spec, progress or _no_progress, reuse)
-
-
-def _no_progress(label: str) -> None:
-    """The default progress callback: nothing."""
+        return _run_one(preset, spec, progress or (lambda label: None), reuse)
 
 
 #: per-seed fits kept by a worker process for the runs it executes (see :func:`_run_in_worker`)
@@ -247,18 +245,20 @@ def _run_one(preset, spec, progress, reuse):
     lineup = get_lineup(preset.lineup)
     ctx = RunContext(gt, spec)
     common = dict(n_tasks=spec.n_tasks, demos_per_task=spec.demos_per_task, seed=spec.seed, h_solver=spec.solver_label())
-    rows, timings = [], []
+    rows, timings, fits = [], [], {}
     for learner in lineup.learners:
         progress(f"{learner.split}: {learner.name}")
         ctx.learner = learner
         fit, elapsed = _build(learner, gt, preset, ctx, reuse)
         dev, extra = (gt.scores(learner.split, fit.rewards, preset.planner) if hasattr(gt, "scores")  # BabyAI: in the env
-                      else (deviation(gt.mdp, gt.rewards(learner.split), fit.rewards, planner=preset.planner), {}))
+                      else (deviation(gt.mdps(learner.split), gt.rewards(learner.split), fit.rewards, planner=preset.planner), {}))
         head = dict(split=learner.split, learner=learner.name, **common)
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
                          loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations), **extra))
         timings.append(dict(head, fit_time=elapsed))
-        ctx.rewards[learner.split, learner.name] = fit.rewards
+        ctx.rewards[learner.split, learner.name], fits[learner.split, learner.name] = fit.rewards, fit
+    if gt.task_maps:  # a map per task: the learnt weights are scored on fresh maps too
+        add_new_map_scores(gt, preset, fits, rows)
     record = dict(key=spec.key(preset), spec=spec.to_dict(), preset=preset.to_dict(), rows=rows, timings=timings)
     if (spec.n_tasks, spec.demos_per_task) == (preset.default_tasks, preset.default_demos) and lineup.value_maps:
         record["figure3"] = _figure3(gt, preset, spec, ctx, lineup.value_maps)

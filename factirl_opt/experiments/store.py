@@ -361,8 +361,12 @@ def _try_lock(path):
         young = time.time() - os.path.getmtime(path) < 10 if os.path.exists(path) else False
         if (holder and _holder_alive(holder)) or (not holder and young):
             return holder or {"pid": "?", "since": "just now"}
-        with contextlib.suppress(FileNotFoundError):
+        try:
             os.unlink(path)  # stale: its holder is dead
+        except FileNotFoundError:
+            pass
+        except OSError as exc:  # e.g. a directory named like the lock
+            raise os_error(exc, "remove the stale lock", path) from exc
     raise PersistenceError(f"cannot create the lock {path!r}: it keeps reappearing")
 
 

@@ -4,6 +4,10 @@
 
     OUT/results.csv   one row per (run, split, learner); deterministic columns only
     OUT/summary.csv   mean and standard deviation over seeds per (split, learner, point, solver)
+
+In a world with a map per task, results.csv and summary.csv have two more columns, the scores
+on fresh maps (``new_maps_deviation``, ``new_maps_deviation_std``; summary: their mean and
+standard deviation over seeds, ``new_maps_deviation_mean``, ``new_maps_deviation_std``).
     OUT/timings.csv   fit time of every learner in every run (varies from run to run)
     OUT/figure3.json  value functions of 4 test tasks (default point, first seed)
 
@@ -29,13 +33,16 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import ValidationError
-from ..files import os_error, write_text_atomic
+from ..files import open_for_reading, os_error, write_text_atomic
+from .per_task import NEW_MAP_COLUMNS
 from .presets import Preset
 
 __all__ = [
     "RESULT_COLUMNS",
     "SUMMARY_COLUMNS",
     "TIMING_COLUMNS",
+    "NEW_MAP_RESULT_COLUMNS",
+    "NEW_MAP_SUMMARY_COLUMNS",
     "write_tables",
     "read_csv",
     "read_results",
@@ -49,13 +56,16 @@ RESULT_COLUMNS = (
 )
 SUMMARY_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "h_solver", "n_seeds", "deviation_mean", "deviation_std")
 TIMING_COLUMNS = ("split", "learner", "n_tasks", "demos_per_task", "seed", "h_solver", "fit_time")
+#: the columns added in a world with a map per task (:mod:`.per_task`): the scores on fresh maps
+NEW_MAP_RESULT_COLUMNS = RESULT_COLUMNS + NEW_MAP_COLUMNS
+NEW_MAP_SUMMARY_COLUMNS = SUMMARY_COLUMNS + ("new_maps_deviation_mean", "new_maps_deviation_std")
 #: the columns of a world scored in its environment (BabyAI): success rates of the learnt, the bot's and a random policy
 ENVIRONMENT_COLUMNS = ("success_rate", "bot_success_rate", "random_success_rate")
 ENVIRONMENT_RESULT_COLUMNS = RESULT_COLUMNS + ENVIRONMENT_COLUMNS
 ENVIRONMENT_SUMMARY_COLUMNS = SUMMARY_COLUMNS + tuple(f"{c}_{s}" for c in ENVIRONMENT_COLUMNS for s in ("mean", "std"))
 INT_COLUMNS = ("n_tasks", "demos_per_task", "seed", "n_scored_tasks", "n_evaluations", "n_seeds")
-FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean", *ENVIRONMENT_COLUMNS,
-                 *ENVIRONMENT_SUMMARY_COLUMNS[len(SUMMARY_COLUMNS):])
+FLOAT_COLUMNS = ("deviation", "deviation_std", "loss", "fit_time", "deviation_mean", *NEW_MAP_SUMMARY_COLUMNS[-2:],
+                 *NEW_MAP_COLUMNS, *ENVIRONMENT_COLUMNS, *ENVIRONMENT_SUMMARY_COLUMNS[len(SUMMARY_COLUMNS):])
 
 
 def _csv_text(rows, columns):
@@ -75,13 +85,16 @@ def read_csv(path: str | os.PathLike) -> list[dict[str, Any]]:
     ValidationError
         If the file is not such a table (a missing column or value, an unparsable number, a
         truncated last line), naming the file and the line.
+    PersistenceError
+        If the file cannot be opened (missing, a directory, no permission), naming it and the cause.
     """
     path = os.fspath(path)
     out = []
-    with open(path, newline="") as fh:
+    with open_for_reading(path, binary=False, newline="") as fh:  # PersistenceError: missing, a directory, ...
         reader = csv.DictReader(fh)
         try:
             if tuple(reader.fieldnames or ()) not in (RESULT_COLUMNS, SUMMARY_COLUMNS, TIMING_COLUMNS,
+                                                      NEW_MAP_RESULT_COLUMNS, NEW_MAP_SUMMARY_COLUMNS,
                                                       ENVIRONMENT_RESULT_COLUMNS, ENVIRONMENT_SUMMARY_COLUMNS):
                 raise ValueError(f"unexpected header {reader.fieldnames}")
             for r in reader:
@@ -113,15 +126,23 @@ def _order(learners):
     return key
 
 
-def _summary(rows):
+def _mean_std(v):
+    return float(np.mean(v)), float(np.std(v, ddof=1)) if len(v) > 1 else 0.0
+
+
+def _summary(rows, new_maps=False):
+    """Mean and std over seeds per (split, learner, point, solver); with ``new_maps``, of the fresh-map scores too."""
     groups = {}
     for r in rows:
-        groups.setdefault((r["split"], r["learner"], r["n_tasks"], r["demos_per_task"], r["h_solver"]), []).append(r["deviation"])
-    return [
-        dict(split=s, learner=lr, n_tasks=n, demos_per_task=m, h_solver=h, n_seeds=len(v),
-             deviation_mean=float(np.mean(v)), deviation_std=float(np.std(v, ddof=1)) if len(v) > 1 else 0.0)
-        for (s, lr, n, m, h), v in groups.items()
-    ]
+        groups.setdefault((r["split"], r["learner"], r["n_tasks"], r["demos_per_task"], r["h_solver"]), []).append(r)
+    out = []
+    for (s, lr, n, m, h), g in groups.items():
+        row = dict(split=s, learner=lr, n_tasks=n, demos_per_task=m, h_solver=h, n_seeds=len(g))
+        row["deviation_mean"], row["deviation_std"] = _mean_std([r["deviation"] for r in g])
+        if new_maps:
+            row["new_maps_deviation_mean"], row["new_maps_deviation_std"] = _mean_std([r["new_maps_deviation"] for r in g])
+        out.append(row)
+    return out
 
 
 def _environment_summary(rows, group):
@@ -159,9 +180,10 @@ def write_tables(out: str | os.PathLike, records: Sequence[dict[str, Any]]) -> l
     key = _order(learners)
     rows = sorted((r for rec in records for r in rec["rows"]), key=key)
     timings = sorted((r for rec in records for r in rec["timings"]), key=key)
-    summary = sorted(_summary(rows), key=key)
-    result_columns: tuple[str, ...] = RESULT_COLUMNS
-    summary_columns: tuple[str, ...] = SUMMARY_COLUMNS
+    new_maps = any(NEW_MAP_COLUMNS[0] in r for r in rows)  # a world with a map per task: fresh-map scores
+    summary = sorted(_summary(rows, new_maps), key=key)
+    result_columns: tuple[str, ...] = NEW_MAP_RESULT_COLUMNS if new_maps else RESULT_COLUMNS
+    summary_columns: tuple[str, ...] = NEW_MAP_SUMMARY_COLUMNS if new_maps else SUMMARY_COLUMNS
     if rows and ENVIRONMENT_COLUMNS[0] in rows[0]:  # a world scored in its environment
         summary = [dict(s, **_environment_summary(rows, s)) for s in summary]
         result_columns, summary_columns = ENVIRONMENT_RESULT_COLUMNS, ENVIRONMENT_SUMMARY_COLUMNS

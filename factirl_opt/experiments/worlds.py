@@ -21,6 +21,19 @@ recipe; a new world is one more entry.
     (:func:`factirl_opt.sample_demonstrations`, uniform start states), planned with the
     preset's planner. ``coefficient_kind`` is not used.
 
+``"objectworld-per-task"`` (ELIRL's benchmark as its script ``multitask_transfer_objectworld.m`` runs it)
+    Every task on its *own* map (:func:`factirl_opt.objectworld_maps`: the objects placed anew
+    per task, the same size, colours, density and dynamics as ``"objectworld"``), its own
+    discrete features (S, (N-1)(c1+c2)) and true primitives, coefficients by ELIRL's rule; the
+    test tasks on further maps never seen in training, one demonstration each. Every map has
+    the same dynamics, so the tasks of a split share one MDP object (planned as one batch).
+    Each split's tasks are also scored on *fresh maps* (:meth:`GroundTruth.fresh`,
+    :func:`factirl_opt.fresh_maps`: the same coefficients on newly drawn maps), where a learnt
+    reward is carried as feature weights: ELIRL's and Levine's "transfer" score. Protocol
+    differences with ELIRL's script: the greedy expert demonstrates (ELIRL samples the
+    soft-optimal policy at temperature 1), no bias column, every colour present on every map.
+    Streams: training maps and coefficients, test maps and coefficients, training
+    demonstrations, test demonstrations, learners, training fresh maps, test fresh maps.
 ``"babyai"`` and ``"babyai-large"`` (BabyAI GoTo levels: a layout per task, the bot's demonstrations)
     See :mod:`.babyai`: their ground truth is a :class:`.babyai.BabyAIGroundTruth` (per-task
     MDPs, features and mission rewards), which scores the learners itself, in the environment.
@@ -44,10 +57,11 @@ from ..demonstrations import sample_demonstrations
 from ..exceptions import ValidationError
 from ..mdp import GridWorld, TabularMDP
 from ..objectworld import MOVES, make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
+from ..objectworld_maps import fresh_maps, objectworld_maps
 from ..synthetic import random_dictionary, synthetic_tasks
 from .babyai import babyai_large_world, babyai_world
 
-__all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "objectworld", "N_STREAMS"]
+__all__ = ["GroundTruth", "WORLDS", "make_ground_truth", "grid_world", "objectworld", "objectworld_per_task", "N_STREAMS"]
 
 #: children spawned from a run's SeedSequence (see the module docstring for their order)
 N_STREAMS = 6
@@ -76,6 +90,12 @@ class GroundTruth:
     map_extras : dict
         What the value-map figure needs besides the values, as plain JSON values (Objectworld:
         ``objects``, ``n_inner``, ``n_outer`` and the actions' ``moves``); empty for the grid.
+    task_maps : dict
+        Worlds with a map per task: ``split -> ObjectWorldMaps`` (:func:`factirl_opt.objectworld_maps`),
+        each task's MDP, features and true primitives; empty when every task lives in ``mdp``.
+    fresh_seeds : dict
+        Worlds with a map per task: ``split -> SeedSequence`` of the fresh maps the learnt
+        rewards are also scored on (:meth:`fresh`).
     """
 
     mdp: TabularMDP
@@ -87,6 +107,8 @@ class GroundTruth:
     learner_rng: np.random.Generator
     features: np.ndarray | None = None
     map_extras: dict = dataclasses.field(default_factory=dict)
+    task_maps: dict = dataclasses.field(default_factory=dict)
+    fresh_seeds: dict = dataclasses.field(default_factory=dict)
 
     def demos(self, split):
         """Demonstrations of the ``"train"`` or ``"test"`` tasks."""
@@ -95,6 +117,21 @@ class GroundTruth:
     def rewards(self, split):
         """True rewards (n, S, A) of the ``"train"`` or ``"test"`` tasks."""
         return self.train_rewards if _check_split(split) == "train" else self.test_rewards
+
+    def mdps(self, split):
+        """The MDP the ``split`` tasks are fitted and scored on: ``mdp``, or one per task (a list)."""
+        maps = self.task_maps.get(_check_split(split))
+        return self.mdp if maps is None else list(maps.mdps)
+
+    def fresh(self, split):
+        """The ``split`` tasks on maps never seen (same true coefficients; :func:`factirl_opt.fresh_maps`).
+
+        Drawn anew at each call, from the split's fresh-map seed (same maps every time).
+        """
+        if _check_split(split) not in self.task_maps:
+            raise ValidationError("this world has one map for every task: it has no fresh maps")
+        seq = self.fresh_seeds[split]  # a copy: spawning from the maps' generator advances its SeedSequence
+        return fresh_maps(self.task_maps[split], rng=np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key))
 
 
 def _check_split(split):
@@ -165,8 +202,49 @@ def objectworld(preset, n_tasks, demos_per_task, seed):
                        features=objectworld_features(world), map_extras=extras)
 
 
+#: children spawned from the SeedSequence of a run in the world with a map per task
+N_PER_TASK_STREAMS = 7
+
+
+def objectworld_per_task(preset, n_tasks, demos_per_task, seed):
+    """Objectworld with a map per task, as ELIRL's benchmark script draws it (see the module docstring).
+
+    Parameters
+    ----------
+    preset : Preset
+    n_tasks : int
+        Training tasks (each on its own map).
+    demos_per_task : int
+        Demonstrations of each training task (test tasks, on maps of their own, get one each).
+    seed : int
+        Entropy of the run's SeedSequence.
+
+    Returns
+    -------
+    GroundTruth
+        ``task_maps`` holds the training and test tasks' :class:`~factirl_opt.ObjectWorldMaps`
+        (``mdp`` is the training maps' shared MDP, ``dictionary`` the training maps' true
+        primitives, ``features`` None: the features are per task) and ``fresh_seeds`` the
+        seeds of their fresh maps.
+    """
+    streams = np.random.SeedSequence(seed).spawn(N_PER_TASK_STREAMS)
+    s_train, s_test, s_train_demo, s_test_demo, s_learn, s_train_fresh, s_test_fresh = streams
+    kw = dict(size=preset.grid_size, n_inner=preset.n_primitives, n_outer=preset.n_outer_colours,
+              object_density=preset.object_density, determinism=preset.p_success, gamma=preset.gamma)
+    split, maps = {}, {}
+    for name, n, m, s_maps, s_demos in (("train", n_tasks, demos_per_task, s_train, s_train_demo),
+                                        ("test", preset.n_test_tasks, 1, s_test, s_test_demo)):
+        maps[name] = objectworld_maps(n, rng=np.random.default_rng(s_maps), **kw)
+        mdps = list(maps[name].mdps)
+        R = state_action_rewards(maps[name].rewards, mdps[0].n_actions)
+        split[name] = (R, sample_demonstrations(mdps, R, m, preset.demo_length, rng=np.random.default_rng(s_demos),
+                                                planner=preset.planner))
+    return GroundTruth(maps["train"].mdps[0], maps["train"].primitives, *split["train"], *split["test"],
+                       np.random.default_rng(s_learn), task_maps=maps, fresh_seeds=dict(train=s_train_fresh, test=s_test_fresh))
+
+
 #: world name (a preset's ``world``) -> recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``
-WORLDS = {"grid": grid_world, "objectworld": objectworld}
+WORLDS = {"grid": grid_world, "objectworld": objectworld, "objectworld-per-task": objectworld_per_task}
 WORLDS.update({"babyai": babyai_world, "babyai-large": babyai_large_world})
 
 

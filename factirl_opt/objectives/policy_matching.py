@@ -267,6 +267,9 @@ def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, featu
         ``p = S*A`` for tabular rewards.
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
+    if R.shape[0] == 0:  # no tasks: empty loss and gradient, as policy_matching_loss returns
+        p = mdp.n_params if features is None else np.shape(features)[1]
+        return np.zeros(0), np.zeros((0, p))
     point = forward_point(get_planner(mdp), R, mu, pi_hat, beta)
     g = softmax_vjp(point.pi, 2.0 * mu[:, :, None] * point.diff, beta).reshape(R.shape[0], -1)
     grads = [g[i] @ dq_dtheta(mdp, point.plan.policy[i], features, route=route) for i in range(R.shape[0])]

@@ -142,11 +142,24 @@ def _known_axes(attributes: dict[str, Any], n_feature_columns: int | None) -> di
     return axes
 
 
+def _unevaluated_loss(key: str, value: Any, attributes: dict[str, Any]) -> bool:
+    """Whether ``value`` is the per-task loss of an interrupted fit, where NaN means "never evaluated".
+
+    A fit stopped by Ctrl-C keeps every task's best point; a task the fit never evaluated
+    keeps its start with a NaN loss (:class:`factirl_opt.interruption.BestRows`). Such a
+    model is usable, so it is saved and loaded with those NaNs (infinities are still refused).
+    """
+    prefix = key[: -len("loss_")] if key.endswith("loss_") else None
+    return (prefix is not None and attributes.get(f"{prefix}stop_reason_") == "interrupted"
+            and isinstance(value, np.ndarray) and value.dtype.kind == "f")
+
+
 def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_columns: int | None = None) -> None:
     """Check learnt ``attributes`` against the declaration of ``cls``; PersistenceError naming the bad one.
 
     Every name must be declared; each value must be of its kind (an array kind's array
-    finite, float, with the declared number of axes); axes of the same name must agree, with
+    finite, float, with the declared number of axes; the per-task loss of an interrupted fit
+    may hold NaN for tasks never evaluated); axes of the same name must agree, with
     each other and with the MDP signature and ``n_feature_columns`` (the features
     parameter's columns, if any). Declared attributes may be missing.
     """
@@ -160,6 +173,8 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
             for i, v in enumerate(value):
                 check_array(v, f"attribute {key}[{i}]", context, len(kind) - 1, "f")
         elif isinstance(kind, tuple):
+            if _unevaluated_loss(key, value, attributes):
+                value = np.where(np.isnan(value), 0.0, value)
             check_array(value, f"attribute {key}", context, len(kind), "f")
         else:
             _check_value(key, kind, value, context)

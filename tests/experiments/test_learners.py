@@ -59,9 +59,9 @@ def test_a_new_lineup_is_a_table_row(monkeypatch):
 
 
 def test_preset_names_its_world_and_lineup(monkeypatch):
-    with pytest.raises(ValidationError, match="world must be one of grid, objectworld(, [a-z-]+)*; got 'gridworld'"):
+    with pytest.raises(ValidationError, match="world must be one of grid, objectworld, objectworld-per-task(, [a-z-]+)*; got 'gridworld'"):
         Preset(name="x", world="gridworld")
-    with pytest.raises(ValidationError, match="lineup must be one of paper, objectworld, paper\\+mce, objectworld\\+mce"):
+    with pytest.raises(ValidationError, match="lineup must be one of paper, objectworld, paper\\+mce, objectworld\\+mce, objectworld-per-task"):
         Preset(name="x", lineup="mce")
     calls = []
 
@@ -325,8 +325,9 @@ def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(fie
 
 
 def test_pca_shrink_reaches_every_factirl_and_is_validated():
-    assert [name for name, p in PRESETS.items() if p.pca_shrink and p.world != "babyai" and p.world != "babyai-large"] == [
-        "fast", "objectworld", "objectworld-quick", "objectworld-tiny"]
+    assert [name for name, p in PRESETS.items() if p.pca_shrink and not p.world.startswith("babyai")] == ["fast", "objectworld", "objectworld-quick",
+                                                                      "objectworld-tiny", "objectworld-per-task",
+                                                                      "objectworld-per-task-quick"]
     for preset in (TINY, PRESETS["fast"]):
         assert factorial_options(preset, plan_runs(preset, [0])[0].solvers)["pca_shrink"] is preset.pca_shrink
     with pytest.raises(ValidationError, match="preset 'x': pca_shrink must be True or False; got 1"):

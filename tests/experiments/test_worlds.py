@@ -21,7 +21,7 @@ def _world(gt, preset):
 
 
 def test_objectworld_is_a_world():
-    assert {"grid", "objectworld"} <= set(WORLDS)  # and the BabyAI worlds (tests/experiments/test_babyai.py)
+    assert set(WORLDS) == {"grid", "objectworld", "objectworld-per-task", "babyai", "babyai-large"}
     for name in ("objectworld", "objectworld-quick", "objectworld-tiny"):
         p = PRESETS[name]
         assert (p.world, p.lineup, p.n_primitives, p.n_outer_colours, p.p_success, p.gamma) == (
