@@ -86,6 +86,20 @@ class _SumOverActions:
 FEATURE_SCALE_LIMIT = 1e8
 
 
+def effective_dictionary(x: np.ndarray, p: int, k: int, unit_norm: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The dictionary (p, k) the rewards use from ``vec(D)`` (unit-norm columns if asked), and the
+    column norms (ones without ``unit_norm``; a zero column keeps norm 1)."""
+    D = x.reshape(p, k)
+    norms = np.where((nrm := np.linalg.norm(D, axis=0)) > 0, nrm, 1.0) if unit_norm else np.ones(k)
+    return D / norms, norms
+
+
+def unit_norm_map(D: np.ndarray, norms: np.ndarray, G: np.ndarray, unit_norm: bool) -> np.ndarray:
+    """Derivative of ``D -> D~`` (unit-norm columns) applied to G (it is symmetric):
+    ``(G - D~ diag(D~^T G)) / norms``; G itself without ``unit_norm``."""
+    return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
+
+
 def dense_features(features: Any) -> NDArray[np.float64] | None:
     """``features`` as a dense (S*A, p) array (a :class:`StateBroadcast` formed), or None."""
     return features.toarray() if isinstance(features, StateBroadcast) else features
@@ -227,14 +241,10 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
     all_rows = np.arange(n)
 
     def effective(x):
-        """The dictionary the rewards use (unit-norm columns if asked) and the column norms."""
-        D = x.reshape(p, k)
-        norms = np.where((nrm := np.linalg.norm(D, axis=0)) > 0, nrm, 1.0) if unit_norm else np.ones(k)
-        return D / norms, norms
+        return effective_dictionary(x, p, k, unit_norm)
 
     def normalisation_map(D, norms, G):
-        """Derivative of ``D -> D~`` applied to G (it is symmetric): ``(G - D~ diag(D~^T G)) / norms``."""
-        return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
+        return unit_norm_map(D, norms, G, unit_norm)
 
     def rewards(D):
         return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
@@ -327,12 +337,10 @@ def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], f
     all_rows = np.arange(n)
 
     def effective(x):
-        D = x.reshape(p, k)
-        norms = np.where((nrm := np.linalg.norm(D, axis=0)) > 0, nrm, 1.0) if unit_norm else np.ones(k)
-        return D / norms, norms
+        return effective_dictionary(x, p, k, unit_norm)
 
     def normalisation_map(D, norms, G):
-        return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
+        return unit_norm_map(D, norms, G, unit_norm)
 
     def rewards(D):
         return tf.rewards(H @ D.T)
