@@ -175,7 +175,11 @@ def test_a_real_sigint_keeps_the_fit(data):
             signal.raise_signal(signal.SIGINT)  # the default handler raises KeyboardInterrupt here
 
     model = fo.GradIRL(max_iter=20, callback=sigint_at_2)
-    interrupted(model.fit, mdp, demos)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # ignored in a shell's background job
+    try:
+        interrupted(model.fit, mdp, demos)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert model.status_ == "interrupted" and model.n_iter_ == 2
     assert np.all(np.isfinite(model.rewards_)) and np.sum(model.loss_) <= min(model.loss_history_)
 

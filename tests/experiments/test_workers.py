@@ -96,7 +96,10 @@ def _start_sweep(out):
     cmd = [sys.executable, "-m", "factirl_opt.cli", "reproduce", "--preset", "tiny", "--seeds", str(N_SEEDS),
            "--jobs", "2", "--out", str(out), "--no-plot", "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # a shell's background job starts with SIGINT ignored, and a child inherits that: give the
+    # sweep the default disposition, as a foreground command has
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not (out / "runs").is_dir() or not any(f.endswith(".json") for f in os.listdir(out / "runs")):
         assert proc.poll() is None, proc.communicate()
