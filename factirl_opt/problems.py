@@ -100,6 +100,45 @@ def unit_norm_map(D: np.ndarray, norms: np.ndarray, G: np.ndarray, unit_norm: bo
     return (G - D * np.sum(D * G, axis=0)) / norms if unit_norm else G
 
 
+def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_norm: bool,
+                                   rewards: Any, gradient: Any) -> StepProblem:
+    """The one-row problem over ``vec(D)`` (1, p*k) shared by the dictionary problems (eqs. 10-11).
+
+    ``rewards(D)`` gives every task's rewards from the effective dictionary (p, k) and
+    ``gradient(y)`` the raw dictionary gradient (p, k) from ``dJ/dR`` of every task; both pass
+    through the unit-norm normalisation when ``unit_norm`` (:func:`unit_norm_map`).
+    """
+    all_rows = np.arange(n)
+
+    def pull(y, D, norms):
+        return unit_norm_map(D, norms, gradient(y), unit_norm).reshape(1, -1)
+
+    def loss_and_grad(x, rows):
+        D, norms = effective_dictionary(x, p, k, unit_norm)
+        loss, y = objective.loss_and_grad(rewards(D), all_rows)
+        return np.array([loss.sum()]), pull(y, D, norms)
+
+    def linearize(x, rows):
+        D, norms = effective_dictionary(x, p, k, unit_norm)
+        lin = objective.linearize(rewards(D), all_rows)
+
+        def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
+            return lin.jvp(rewards(unit_norm_map(D, norms, V.reshape(p, k), unit_norm))).reshape(1, -1)
+
+        def vjp(U):
+            return pull(lin.vjp(U.reshape(n, -1)), D, norms)
+
+        return Linearization(np.array([lin.loss.sum()]), lin.residual.reshape(1, -1), jvp, vjp)
+
+    return StepProblem(
+        loss_and_grad=loss_and_grad,
+        linearize=linearize if objective.least_squares else None,
+        n_evaluations=lambda: objective.n_evaluations,
+        n_rows=1,
+        n_params=p * k,
+    )
+
+
 def dense_features(features: Any) -> NDArray[np.float64] | None:
     """``features`` as a dense (S*A, p) array (a :class:`StateBroadcast` formed), or None."""
     return features.toarray() if isinstance(features, StateBroadcast) else features
@@ -238,47 +277,16 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
         Phi = np.asarray(Phi, dtype=np.float64)
     p = S * A if Phi is None else Phi.shape[1]
     names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
-    all_rows = np.arange(n)
-
-    def effective(x):
-        return effective_dictionary(x, p, k, unit_norm)
-
-    def normalisation_map(D, norms, G):
-        return unit_norm_map(D, norms, G, unit_norm)
 
     def rewards(D):
         return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
 
-    def pull(y, D, norms):
-        """``Phi^T sum_i y_i h_i^T`` (eq. 11) through the normalisation: (1, p*k)."""
+    def gradient(y):
+        """``Phi^T sum_i y_i h_i^T`` (eq. 11), (p, k)."""
         g = y.reshape(n, S * A).T @ H
-        return normalisation_map(D, norms, g if Phi is None else Phi.T @ g).reshape(1, -1)
+        return g if Phi is None else Phi.T @ g
 
-    def loss_and_grad(x, rows):
-        D, norms = effective(x)
-        loss, y = objective.loss_and_grad(rewards(D), all_rows)
-        return np.array([loss.sum()]), pull(y, D, norms)
-
-    def linearize(x, rows):
-        D, norms = effective(x)
-        lin = objective.linearize(rewards(D), all_rows)
-
-        def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
-            dD = normalisation_map(D, norms, V.reshape(p, k))
-            return lin.jvp(rewards(dD)).reshape(1, -1)
-
-        def vjp(U):
-            return pull(lin.vjp(U.reshape(n, -1)), D, norms)
-
-        return Linearization(np.array([lin.loss.sum()]), lin.residual.reshape(1, -1), jvp, vjp)
-
-    return StepProblem(
-        loss_and_grad=loss_and_grad,
-        linearize=linearize if objective.least_squares else None,
-        n_evaluations=lambda: objective.n_evaluations,
-        n_rows=1,
-        n_params=p * k,
-    )
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
 
 
 def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
@@ -334,41 +342,11 @@ def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], f
     tf, H = features, np.asarray(coefficients, dtype=np.float64)
     n, k = H.shape
     p = tf.n_features
-    all_rows = np.arange(n)
-
-    def effective(x):
-        return effective_dictionary(x, p, k, unit_norm)
-
-    def normalisation_map(D, norms, G):
-        return unit_norm_map(D, norms, G, unit_norm)
 
     def rewards(D):
         return tf.rewards(H @ D.T)
 
-    def pull(y, D, norms):
-        return normalisation_map(D, norms, tf.pull(y).T @ H).reshape(1, -1)
+    def gradient(y):
+        return tf.pull(y).T @ H
 
-    def loss_and_grad(x, rows):
-        D, norms = effective(x)
-        loss, y = objective.loss_and_grad(rewards(D), all_rows)
-        return np.array([loss.sum()]), pull(y, D, norms)
-
-    def linearize(x, rows):
-        D, norms = effective(x)
-        lin = objective.linearize(rewards(D), all_rows)
-
-        def jvp(V):
-            return lin.jvp(rewards(normalisation_map(D, norms, V.reshape(p, k)))).reshape(1, -1)
-
-        def vjp(U):
-            return pull(lin.vjp(U.reshape(n, -1)), D, norms)
-
-        return Linearization(np.array([lin.loss.sum()]), lin.residual.reshape(1, -1), jvp, vjp)
-
-    return StepProblem(
-        loss_and_grad=loss_and_grad,
-        linearize=linearize if objective.least_squares else None,
-        n_evaluations=lambda: objective.n_evaluations,
-        n_rows=1,
-        n_params=p * k,
-    )
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
