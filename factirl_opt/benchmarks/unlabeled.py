@@ -47,6 +47,7 @@ import time
 from typing import Any, Callable
 
 import numpy as np
+from scipy.special import logsumexp
 
 from .._validation import check_int
 from ..evaluation import deviation
@@ -55,11 +56,12 @@ from ..experiments.presets import get_preset
 from ..experiments.worlds import objectworld
 from ..factirl import FactIRL
 from ..mdp import GridWorld, TabularMDP
+from ..planning import optimal_q
 from ..multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from ..synthetic import synthetic_tasks
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "matched_deviation", "Draw", "draw_grid", "draw_objectworld", "LEARNERS", "WORLDS",
+__all__ = ["add_arguments", "run", "settings", "matched_deviation", "oracle_labels", "Draw", "draw_grid", "draw_objectworld", "LEARNERS", "WORLDS",
            "WORLD_DEFAULTS", "WORLD_QUICK"]
 
 DEFAULTS = {"n_tasks": [4, 10, 20], "seeds": [0], "world": "grid", "n_primitives": 5,
@@ -177,13 +179,41 @@ def matched_deviation(mdp: Any, true_rewards: np.ndarray, learnt_rewards: np.nda
     return float(cost[np.arange(n), match].mean())
 
 
-def _transfer(draw, model):
+def oracle_labels(mdp: TabularMDP, rewards: np.ndarray, episodes: list, beta: float) -> np.ndarray:
+    """Each episode's most likely true task: the ceiling of any clustering of the episodes.
+
+    The log-likelihood of episode j under task i is ``sum_t log pi_i(a_t | s_t)`` with ``pi_i``
+    the Boltzmann policy (eq. 7, inverse temperature ``beta``) of ``Q*`` of the true reward
+    ``rewards[i]`` (docs/maths.md §2); each episode goes to the task of highest log-likelihood
+    (first on ties).
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    rewards : ndarray, shape (n, S, A)
+        True rewards of the n tasks.
+    episodes : list of int arrays, each (L, 2)
+        ``(state, action)`` rows.
+    beta : float
+
+    Returns
+    -------
+    labels : ndarray of int, shape (n_episodes,)
+    """
+    Q, _ = optimal_q(mdp, rewards)
+    z = beta * np.asarray(Q)
+    log_pi = z - logsumexp(z, axis=-1, keepdims=True)  # (n, S, A)
+    loglik = np.array([log_pi[:, ep[:, 0], ep[:, 1]].sum(axis=1) for ep in episodes])  # (n_episodes, n)
+    return np.argmax(loglik, axis=1)
+
+
+def _transfer(draw: Draw, model: FactIRL) -> float:
     """Mean deviation of one-demo transfer to the draw's test tasks."""
     model.transfer(draw.mdp, draw.test_demos)
     return float(np.mean(deviation(draw.mdp, draw.test_rewards, model.transfer_rewards_)))
 
 
-def _one(draw, seed, s):
+def _one(draw: Draw, seed: int, s: dict) -> dict[str, Any]:
     """The three learners on one draw of n tasks: ARI, matched train deviation, transfer, seconds."""
     k, n, mdp, features = s["n_primitives"], len(draw.demos), draw.mdp, draw.features
     episodes = [ep for demos in draw.demos for ep in demos]
@@ -208,8 +238,14 @@ def _one(draw, seed, s):
 def run(args: argparse.Namespace) -> dict:
     s = settings(args)
     draw = WORLDS[s["world"]]
-    rows = [{"n_tasks": n, "seed": seed, "learners": _one(draw(s, n, seed), seed, s)}
-            for n in s["n_tasks"] for seed in s["seeds"]]
+    rows = []
+    for n in s["n_tasks"]:
+        for seed in s["seeds"]:
+            d = draw(s, n, seed)
+            truth = np.repeat(np.arange(n), [len(demos) for demos in d.demos])
+            oracle = oracle_labels(d.mdp, d.rewards, [ep for demos in d.demos for ep in demos], s["beta"])
+            rows.append({"n_tasks": n, "seed": seed, "oracle_ari": adjusted_rand_index(truth, oracle),
+                         "learners": _one(d, seed, s)})
     return {"benchmark": "unlabeled", "rows": rows, "settings": s}
 
 
