@@ -32,7 +32,10 @@ labelled learner), the mean train deviation (eq. 13, docs/maths.md §9) of the r
 with intentions matched to true tasks by the Hungarian algorithm on the deviation matrix
 (:func:`factirl_opt.match_intentions`), and, for the learners with a dictionary, the mean
 deviation of one-demonstration transfer (:meth:`factirl_opt.FactIRL.transfer`, docs/maths.md §8)
-to the test tasks, one demonstration of ``length`` steps each.
+to the test tasks, one demonstration of ``length`` steps each. Each row also gives
+``oracle_ari``, the adjusted Rand index of :func:`oracle_labels` (every episode assigned to the
+true task under whose Boltzmann policy it is most likely): how far the demonstrations can be
+told apart at all.
 
 ``--size``, ``--n-demos`` and ``--length`` default to the world's values (:data:`WORLD_DEFAULTS`;
 with ``--quick``, :data:`WORLD_QUICK`). ``--quick`` is a tiny configuration for tests (options
@@ -180,7 +183,11 @@ def matched_deviation(mdp: Any, true_rewards: np.ndarray, learnt_rewards: np.nda
 
 
 def oracle_labels(mdp: TabularMDP, rewards: np.ndarray, episodes: list, beta: float) -> np.ndarray:
-    """Each episode's most likely true task: the ceiling of any clustering of the episodes.
+    """Each episode's most likely true task: how well the episodes can be told apart when the rewards are known.
+
+    The upper bound of an E-step at the true rewards (its labels with uniform mixture weights):
+    an EM with learnt rewards can get further from the truth, and an EM kept near the true
+    partition can score above it.
 
     The log-likelihood of episode j under task i is ``sum_t log pi_i(a_t | s_t)`` with ``pi_i``
     the Boltzmann policy (eq. 7, inverse temperature ``beta``) of ``Q*`` of the true reward
