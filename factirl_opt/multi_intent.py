@@ -252,6 +252,8 @@ class MultiIntentIRL:
             if K > len(lengths):
                 raise ValidationError(f"n_intentions={K} exceeds the number of episodes ({len(lengths)})")
             run = None
+            for stale in ("n_intentions_candidates_", "n_intentions_scores_"):  # of an earlier "auto" fit
+                self.__dict__.pop(stale, None)
         settings = EMSettings.build(self, mdp, K)
         if run is None:
             given = self._given_start(len(lengths), K) if init == "given" else None
@@ -271,10 +273,10 @@ class MultiIntentIRL:
         n_folds = check_int(self.n_folds, "n_folds", minimum=2) if self.selection == "held-out" else None
         if n_folds is not None and n_folds > n:
             raise ValidationError(f"n_folds={n_folds} exceeds the number of episodes ({n})")
-        rng_range = self.n_intentions_range
-        if rng_range is None:
-            rng_range = (1, min(DEFAULT_MAX_INTENTIONS, n if n_folds is None else n - -(-n // n_folds)))
-        candidates = check_candidates(rng_range, n, n_folds)
+        bounds = self.n_intentions_range
+        if bounds is None:
+            bounds = (1, min(DEFAULT_MAX_INTENTIONS, n if n_folds is None else n - -(-n // n_folds)))
+        candidates = check_candidates(bounds, n, n_folds)
         settings = {int(K): EMSettings.build(self, mdp, int(K)) for K in candidates}
 
         def fit(idx, K):

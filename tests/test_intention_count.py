@@ -103,6 +103,9 @@ def test_auto_default_range_and_given_k_records_it():
     np.testing.assert_array_equal(em.n_intentions_candidates_, np.arange(1, 7))
     fixed = fo.MultiIntentIRL(2, features=tasks.dictionary, max_iter=2, m_step_max_iter=3, rng=0).fit(mdp, episodes[:6])
     assert fixed.n_intentions_ == 2 and not hasattr(fixed, "n_intentions_scores_")
+    em.n_intentions = 2  # refitting with a given K drops the earlier selection's record
+    em.fit(mdp, episodes[:6])
+    assert em.n_intentions_ == 2 and not hasattr(em, "n_intentions_candidates_")
 
 
 @pytest.mark.parametrize("kwargs, match", [
