@@ -11,6 +11,9 @@ shared by the intentions; docs/maths.md §8); the loop and its M-steps are in
 intention's loss by its expected number of steps, so that with the MCE objective the M-step
 minimises exactly minus EM's expected complete-data log-likelihood (docs/maths.md §6).
 
+``n_intentions="auto"`` chooses K over a range by held-out log-likelihood or BIC
+(:mod:`factirl_opt.intention_count`).
+
 :func:`adjusted_rand_index` and :func:`match_intentions` score a clustering against true
 labels and pair recovered intentions with true tasks.
 """
