@@ -11,6 +11,9 @@ shared by the intentions; docs/maths.md §8); the loop and its M-steps are in
 intention's loss by its expected number of steps, so that with the MCE objective the M-step
 minimises exactly minus EM's expected complete-data log-likelihood (docs/maths.md §6).
 
+``n_intentions="auto"`` chooses K over a range by held-out log-likelihood or BIC
+(:mod:`factirl_opt.intention_count`).
+
 :func:`adjusted_rand_index` and :func:`match_intentions` score a clustering against true
 labels and pair recovered intentions with true tasks.
 """
@@ -30,13 +33,18 @@ from ._validation import as_rng, check_array, check_int, check_mdp
 from .exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
 from .fitting import features_digest
-from .multi_intent_fit import EMSettings, run_em
+from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
+                              free_parameters, held_out_scores, one_standard_error_choice)
+from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
 from .trajectories import parse_demonstrations
 
 __all__ = ["MultiIntentIRL", "adjusted_rand_index", "match_intentions", "INITS"]
 
 #: starts of :class:`MultiIntentIRL`: the episodes' agreements, k-means of their frequencies, or random
 INITS = ("agreement", "frequencies", "random")
+
+#: largest K tried by ``n_intentions="auto"`` when no ``n_intentions_range`` is given
+DEFAULT_MAX_INTENTIONS = 10
 
 
 def parse_episodes(mdp: Any, episodes: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -56,8 +64,9 @@ class MultiIntentIRL:
 
     Parameters
     ----------
-    n_intentions : int
-        K, at least 1 and at most the number of episodes.
+    n_intentions : int or "auto"
+        K, at least 1 and at most the number of episodes; ``"auto"`` chooses K over
+        ``n_intentions_range`` by ``selection`` (:mod:`factirl_opt.intention_count`).
     n_primitives : int, optional
         None: each intention has its own reward (Babes-Vroman's EM; the M-step is GradIRL's
         fit). k: ``R_c = Phi D h_c`` with a dictionary D (p, k) shared by the intentions (the
@@ -101,7 +110,25 @@ class MultiIntentIRL:
     rng : numpy.random.Generator or int or None
         Randomness of the starts (and of completing a rank-deficient PCA).
     callback : callable, optional
-        ``callback(iteration, log_likelihood)`` after each EM iteration.
+        ``callback(iteration, log_likelihood)`` after each EM iteration (of the final fit only:
+        not of the fits that choose K with ``n_intentions="auto"``; with ``selection="bic"``
+        the kept fit is one of those).
+    n_intentions_range : (int, int), optional
+        ``(low, high)``, both included: the K tried by ``n_intentions="auto"``. Default
+        ``(1, min(10, m))`` with m the episodes one fit sees (all of them for the BIC, those
+        outside the largest fold when held out).
+    selection : {"held-out", "bic"}, default="held-out"
+        Criterion of ``n_intentions="auto"``. ``"held-out"``: the episodes are split at random
+        into ``n_folds`` folds, EM is fitted on all folds but one and scored by the
+        log-likelihood of the held-out one; the smallest K whose total held-out log-likelihood
+        is within one standard error (over the episodes) of the best is refitted on all
+        episodes (``n_folds`` x m + 1 EM fits for m candidates). ``"bic"``:
+        ``-2 log L + n_free log N`` of the fit on all episodes (N demonstrated steps, n_free
+        from :func:`factirl_opt.intention_count.free_parameters`), lowest kept (m fits); its
+        count of ``S*A`` parameters per tabular reward penalises K heavily, so prefer it with
+        a few reward features.
+    n_folds : int, default=3
+        Folds of ``selection="held-out"``, at least 2.
 
     Attributes
     ----------
@@ -125,6 +152,13 @@ class MultiIntentIRL:
         That of the kept parameters (the maximum of ``log_likelihood_``).
     n_iter_ : int
         EM iterations of the kept run.
+    n_intentions_ : int
+        K of the fit (the chosen one with ``n_intentions="auto"``).
+    n_intentions_candidates_ : ndarray of int, shape (m,)
+        (``n_intentions="auto"`` only.) The K tried.
+    n_intentions_scores_ : ndarray, shape (m,)
+        (``n_intentions="auto"`` only.) Their scores: held-out log-likelihood summed over the
+        folds (higher is better) or BIC (lower is better).
     converged_ : bool
         Whether the kept run stopped on ``tol``.
     mdp_signature_ : dict
@@ -137,13 +171,17 @@ class MultiIntentIRL:
     :meth:`FactIRL.transfer` fits new tasks' coefficients.
     """
 
-    def __init__(self, n_intentions: int, n_primitives: int | None = None, objective: str = "policy-matching",
+    def __init__(self, n_intentions: int | str, n_primitives: int | None = None, objective: str = "policy-matching",
                  beta: float = 5.0, max_iter: int = 20, tol: float = 1e-6, n_init: int = 1, init: Any = "agreement",
                  m_step_max_iter: int = 20, m_step_tol: float = 1e-5, inner_steps: int = 5,
                  solver: str | solvers.StepSolver = "armijo", features: Any = None, reward: str = "state-action",
                  planner: str = "auto", rng: np.random.Generator | int | None = None,
-                 callback: Callable | None = None) -> None:
+                 callback: Callable | None = None, n_intentions_range: tuple[int, int] | None = None,
+                 selection: str = "held-out", n_folds: int = 3) -> None:
         self.n_intentions = n_intentions
+        self.n_intentions_range = n_intentions_range
+        self.selection = selection
+        self.n_folds = n_folds
         self.n_primitives = n_primitives
         self.objective = objective
         self.beta = beta
@@ -200,25 +238,68 @@ class MultiIntentIRL:
         ValidationError
             Naming the bad input: ``mdp`` not a TabularMDP; episodes of a wrong layout, empty,
             or with states or actions out of range; ``n_intentions`` below 1 or above the number
-            of episodes; an objective without a policy to score episodes; a bad ``init`` or
-            hyper-parameter.
+            of episodes (or a string other than ``"auto"``); with ``"auto"``, an
+            ``n_intentions_range`` that is not ``1 <= low <= high`` integers with ``high`` at most
+            the episodes a fit sees, a bad ``selection`` or ``n_folds``, or an array ``init``;
+            an objective without a policy to score episodes; a bad ``init`` or hyper-parameter.
         """
         check_mdp(mdp)
-        K = check_int(self.n_intentions, "n_intentions", minimum=1)
         steps, lengths = parse_episodes(mdp, episodes)
-        if K > len(lengths):
-            raise ValidationError(f"n_intentions={K} exceeds the number of episodes ({len(lengths)})")
-        settings = EMSettings.build(self, mdp, K)
         init = self._check_init()
-        given = self._given_start(len(lengths), K) if init == "given" else None
+        n_init = check_int(self.n_init, "n_init", minimum=1)
         rng = as_rng(self.rng)
-        best = None
-        for _ in range(check_int(self.n_init, "n_init", minimum=1)):
-            run = run_em(mdp, steps, lengths, settings, init, given, rng, self.callback)
-            if best is None or run.best_log_likelihood > best.best_log_likelihood:
-                best = run
-        self._store(mdp, settings, best)
+        if isinstance(self.n_intentions, str):
+            K, run = self._select(mdp, steps, lengths, init, n_init, rng)
+        else:
+            K = check_int(self.n_intentions, "n_intentions", minimum=1)
+            if K > len(lengths):
+                raise ValidationError(f"n_intentions={K} exceeds the number of episodes ({len(lengths)})")
+            run = None
+            for stale in ("n_intentions_candidates_", "n_intentions_scores_"):  # of an earlier "auto" fit
+                self.__dict__.pop(stale, None)
+        settings = EMSettings.build(self, mdp, K)
+        if run is None:
+            given = self._given_start(len(lengths), K) if init == "given" else None
+            run = best_of_runs(mdp, steps, lengths, settings, init, given, rng, n_init, self.callback)
+        self._store(mdp, settings, run)
         return self
+
+    def _select(self, mdp, steps, lengths, init, n_init, rng):
+        """``n_intentions="auto"``: K chosen over ``n_intentions_range``; the BIC's fit of that K, or None."""
+        if self.n_intentions != "auto":
+            raise ValidationError(f"n_intentions must be a positive integer or 'auto'; got {self.n_intentions!r}")
+        if init == "given":
+            raise ValidationError("n_intentions='auto' needs a named init (a given start fixes K); got an array")
+        if self.selection not in SELECTIONS:
+            raise ValidationError(f"selection must be one of {', '.join(map(repr, SELECTIONS))}; got {self.selection!r}")
+        n = len(lengths)
+        n_folds = check_int(self.n_folds, "n_folds", minimum=2) if self.selection == "held-out" else None
+        if n_folds is not None and n_folds > n:
+            raise ValidationError(f"n_folds={n_folds} exceeds the number of episodes ({n})")
+        bounds = self.n_intentions_range
+        if bounds is None:
+            bounds = (1, min(DEFAULT_MAX_INTENTIONS, n if n_folds is None else n - -(-n // n_folds)))
+        candidates = check_candidates(bounds, n, n_folds)
+        settings = {int(K): EMSettings.build(self, mdp, int(K)) for K in candidates}
+
+        def fit(idx, K):
+            st, ln = episode_subset(steps, lengths, idx)
+            return best_of_runs(mdp, st, ln, settings[K], init, None, rng, n_init)
+
+        if n_folds is not None:
+            folds = fold_assignment(n, n_folds, rng)
+            per_episode = held_out_scores(fit, lambda run, idx: episode_log_likelihoods(
+                mdp, *episode_subset(steps, lengths, idx), settings[int(candidates[0])], run), candidates, folds)
+            scores, best, runs = per_episode.sum(axis=1), one_standard_error_choice(per_episode), None
+        else:
+            first = settings[int(candidates[0])]
+            p = mdp.n_params if first.features is None else first.features.shape[1]
+            scores, runs = bic_scores(fit, lambda run: run.best_log_likelihood,
+                                      lambda K: free_parameters(K, p, first.n_primitives), candidates, n,
+                                      int(lengths.sum()))
+            best = best_candidate(scores)
+        self.n_intentions_candidates_, self.n_intentions_scores_ = candidates, scores
+        return int(candidates[best]), None if runs is None else runs[best]
 
     def _store(self, mdp, settings, run):
         self.rewards_ = run.rewards
@@ -233,6 +314,7 @@ class MultiIntentIRL:
         self.best_log_likelihood_ = run.best_log_likelihood
         self.n_iter_ = len(run.history)
         self.converged_ = run.converged
+        self.n_intentions_ = run.rewards.shape[0]
         self.mdp_signature_ = mdp.signature()
         self.features_sha256_ = None if self.features is None else features_digest(settings.features)
 

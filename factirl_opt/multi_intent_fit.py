@@ -17,6 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import logsumexp
 
 import solvers
 
@@ -33,7 +34,7 @@ from .planning import get_planner
 from .problems import weights_problem
 
 __all__ = ["WeightedObjective", "EMSettings", "EMRun", "flat_m_step", "factorial_m_step", "run_em",
-           "start_responsibilities"]
+           "start_responsibilities", "best_of_runs", "episode_subset", "episode_log_likelihoods"]
 
 WHAT = "MultiIntentIRL.fit"
 
@@ -245,3 +246,39 @@ def run_em(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], setti
     assert best is not None  # max_iter >= 1
     ll, R, params, resp, mix = best
     return EMRun(R, params, resp, mix, history, ll, converged)
+
+
+def best_of_runs(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], settings: EMSettings, init: str,
+                 given: NDArray[np.float64] | None, rng: np.random.Generator, n_init: int,
+                 callback: Callable | None = None) -> EMRun:
+    """The run of highest best log-likelihood among ``n_init`` runs of :func:`run_em`."""
+    best = None
+    for _ in range(n_init):
+        run = run_em(mdp, steps, lengths, settings, init, given, rng, callback)
+        if best is None or run.best_log_likelihood > best.best_log_likelihood:
+            best = run
+    assert best is not None  # n_init >= 1, validated by the caller
+    return best
+
+
+def episode_subset(steps: NDArray[np.int64], lengths: NDArray[np.int64],
+                   indices: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Concatenated steps (N', 2) and lengths (m,) of the episodes ``indices`` (m,), in that order."""
+    ends = np.cumsum(lengths)
+    starts = ends - lengths
+    rows = np.concatenate([np.arange(starts[j], ends[j]) for j in indices]) if len(indices) else np.zeros(0, np.int64)
+    return steps[rows.astype(np.int64)], lengths[indices]
+
+
+def episode_log_likelihoods(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], settings: EMSettings,
+                            run: EMRun) -> NDArray[np.float64]:
+    """Mixture log-likelihood (m,) ``log sum_c w_c prod_t pi_c(a_t | s_t)`` of each episode under a fitted run.
+
+    The episodes are given as concatenated steps (N, 2) and lengths (m,); the per-intention
+    terms are those of :func:`factirl_opt.em.e_step`.
+    """
+    counts = episode_counts(steps, lengths, mdp.n_states, mdp.n_actions)
+    log_pi = log_policies(settings.planner, run.rewards, settings.beta, settings.objective_name)
+    L = e_step(counts, log_pi, run.mixture_weights)[0]
+    with np.errstate(divide="ignore"):
+        return logsumexp(L + np.log(run.mixture_weights)[None, :], axis=1)
