@@ -26,13 +26,14 @@ never nested by accident.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
 import threading
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -151,7 +152,8 @@ class InProcessShard:
         self.pending = (method, args)
 
     def result(self) -> Any:
-        assert self.pending is not None  # internal protocol: submit comes first
+        if self.pending is None:
+            raise FactIRLError("internal: a shard's result was asked for before its call was sent")
         (method, args), self.pending = self.pending, None
         return self.host.call(method, args)
 
@@ -253,31 +255,34 @@ def _lost_dask_worker(exc: BaseException) -> bool:
     return isinstance(exc, (CommClosedError, OSError)) or any(w in text for w in ("lost", "closed", "not found", "no longer"))
 
 
+@contextlib.contextmanager
+def _lost_as_shard_lost() -> Iterator[None]:
+    try:
+        yield
+    except Exception as exc:
+        if _lost_dask_worker(exc):
+            raise ShardLost(f"a Dask worker holding a shard was lost ({exc})") from exc
+        raise
+
+
 class DaskShard:
     """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``."""
 
     def __init__(self, spec: tuple, client: Any, k: int) -> None:
         workers = sorted(client.scheduler_info()["workers"])
         target = [workers[k % len(workers)]] if workers else None
-        try:
+        with _lost_as_shard_lost():
             self.actor = client.submit(ShardHost, *spec, actor=True, workers=target, allow_other_workers=True,
                                        pure=False).result()
-        except Exception as exc:
-            if _lost_dask_worker(exc):
-                raise ShardLost(f"shard {k}: its Dask worker was lost while building it") from exc
-            raise
         self.future: Any = None
 
     def submit(self, method: str, args: tuple) -> None:
-        self.future = self.actor.call(method, args)
+        with _lost_as_shard_lost():
+            self.future = self.actor.call(method, args)
 
     def result(self) -> Any:
-        try:
+        with _lost_as_shard_lost():
             return self.future.result()
-        except Exception as exc:
-            if _lost_dask_worker(exc):
-                raise ShardLost("a Dask worker holding a shard was lost") from exc
-            raise
 
     def close(self) -> None:
         self.actor = self.future = None

@@ -147,7 +147,8 @@ class ShardedObjective:
     def _map(self, method: str, R: NDArray[np.float64], rows: NDArray[np.intp], *extra: Any) -> tuple:
         """``method`` on every shard with rows; returns the splits and their results."""
         split = self._split(rows)
-        out = self.shards.call([(k, method, (R[pos], self.local[rows[pos]], *extra)) for k, pos in split])
+        out = self.shards.call([(k, method, (R[pos], self.local[rows[pos]], *extra)) for k, pos in split],
+                               on_restart=self._relinearize)
         return split, out
 
     @staticmethod
