@@ -189,6 +189,7 @@ def _serve(conn: Any, spec: tuple, parent_pid: int) -> None:
                 return
             if task is None:
                 return
+            reply: tuple
             try:
                 reply = ("ok", host.call(*task))
             except Exception as exc:

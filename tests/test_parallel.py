@@ -16,7 +16,7 @@ import factirl_opt as fo
 from factirl_opt import parallel
 from factirl_opt.exceptions import FactIRLError, ValidationError
 from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
-from factirl_opt.objectives.distributed import ShardedObjective, sharded
+from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares, sharded
 from factirl_opt.parallel import Shards, check_backend, contiguous_shards, effective_n_jobs
 
 TOL = dict(rtol=1e-10, atol=1e-12)
@@ -94,7 +94,9 @@ def test_sharded_least_squares_products(data):
     mdp, _, F, R = data
     ref = objective(data)
     with sharded(objective(data), 3) as obj:
-        for x, y in zip(ref.residual_jacobian(R, None, F), obj.residual_jacobian(R, None, F)):
+        (la, ra, Ja), (lb, rb, Jb) = ref.residual_jacobian(R, None, F), obj.residual_jacobian(R, None, F)
+        np.testing.assert_allclose(lb, la, **TOL)
+        for x, y in zip(reduced_least_squares(ra, Ja), (rb, Jb)):  # the reduced form travels
             np.testing.assert_allclose(y, x, **TOL)
         la, lb = ref.linearize(R), obj.linearize(R)
         np.testing.assert_allclose(lb.residual, la.residual, **TOL)
@@ -178,3 +180,16 @@ def test_worker_error_is_raised_and_the_shards_stay_usable():
         assert shards.bytes_sent == 2 * 16  # shard 1 only (the failed call sent no array): 16 B in, 16 B out
     finally:
         shards.close()
+
+
+def test_reduced_least_squares_keeps_the_normal_equations():
+    rng = np.random.default_rng(1)
+    r, J = rng.standard_normal((3, 20)), rng.standard_normal((3, 20, 4))
+    r2, J2 = reduced_least_squares(r, J)
+    assert r2.shape == (3, 5) and J2.shape == (3, 5, 4)
+    np.testing.assert_allclose(np.einsum("nmk,nml->nkl", J2, J2), np.einsum("nmk,nml->nkl", J, J), rtol=1e-12)
+    np.testing.assert_allclose(np.einsum("nmk,nm->nk", J2, r2), np.einsum("nmk,nm->nk", J, r), rtol=1e-12)
+    np.testing.assert_allclose(np.sum(r2**2, axis=1), np.sum(r**2, axis=1), rtol=1e-12)
+    r3, J3 = reduced_least_squares(r[:, :2], J[:, :2])  # fewer residuals than k+1: zero rows
+    assert J3.shape == (3, 5, 4) and np.all(J3[:, 2:] == 0)
+    np.testing.assert_allclose(np.einsum("nmk,nm->nk", J3, r3), np.einsum("nmk,nm->nk", J[:, :2], r[:, :2]), rtol=1e-12)

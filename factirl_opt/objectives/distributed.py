@@ -31,10 +31,31 @@ from solvers import Linearization
 from ..parallel import Shards, contiguous_shards, effective_n_jobs
 from ._base import Objective
 
-__all__ = ["ShardState", "ShardedObjective", "sharded", "KEEP_LINEARIZATIONS"]
+__all__ = ["ShardState", "ShardedObjective", "sharded", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
 
 #: linearisations a shard keeps for Jacobian products (a Gauss-Newton CG step uses the latest few)
 KEEP_LINEARIZATIONS = 4
+
+
+def reduced_least_squares(residual: NDArray[np.float64], jacobian: NDArray[np.float64]) -> tuple:
+    """Residuals (n, k+1) and Jacobians (n, k+1, k) with the normal equations of ``(residual, jacobian)``.
+
+    ``[J_i r_i] = Q_i T_i`` (thin QR, ``T_i`` upper triangular (k+1, k+1)): ``J'_i = T_i[:, :k]``
+    and ``r'_i = T_i[:, k]`` give ``J'^T J' = J^T J``, ``J'^T r' = J^T r`` and
+    ``||r'||^2 = ||r||^2``, everything a Gauss-Newton step uses (docs/maths.md §5), in
+    ``k+1`` rows per task instead of ``S*A``: what a shard sends back for the Gauss-Newton
+    QP steps. Rows beyond ``m`` (a task with fewer residuals than k+1) are zeros.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n, m)
+    jacobian : ndarray, shape (n, m, k)
+    """
+    n, m, k = jacobian.shape
+    T = np.linalg.qr(np.concatenate([jacobian, residual[:, :, None]], axis=2), mode="r")
+    if T.shape[1] < k + 1:
+        T = np.concatenate([T, np.zeros((n, k + 1 - T.shape[1], k + 1))], axis=1)
+    return np.ascontiguousarray(T[:, :, k]), np.ascontiguousarray(T[:, :, :k])
 
 
 class ShardState:
@@ -61,7 +82,9 @@ class ShardState:
         return self.objective.loss_and_grad(R, rows)
 
     def residual_jacobian(self, R: NDArray[np.float64], rows: NDArray[np.intp], features: NDArray[np.float64]) -> tuple:
-        return self.objective.residual_jacobian(R, rows, features)
+        """Loss and the :func:`reduced_least_squares` form of the residuals and Jacobian (k+1 rows per task)."""
+        loss, residual, jacobian = self.objective.residual_jacobian(R, rows, features)
+        return (loss, *reduced_least_squares(residual, jacobian))
 
     def linearize(self, R: NDArray[np.float64], rows: NDArray[np.intp], token: int) -> tuple:
         lin = self.objective.linearize(R, rows)
@@ -173,7 +196,8 @@ class ShardedObjective:
         return loss, grad
 
     def residual_jacobian(self, rewards: ArrayLike, rows: ArrayLike | None, features: ArrayLike) -> tuple:
-        """Loss (r,), residuals (r, m) and Jacobian (r, m, p), as :meth:`Objective.residual_jacobian`."""
+        """Loss (r,), residuals (r, p+1) and Jacobian (r, p+1, p): the :func:`reduced_least_squares` form
+        of :meth:`Objective.residual_jacobian`'s (the same Gauss-Newton steps; p+1 rows per task travel)."""
         rows = self._rows(rows)
         F = np.asarray(features, dtype=np.float64)
         split, out = self._map("residual_jacobian", np.asarray(rewards, dtype=np.float64), rows, F)
