@@ -52,7 +52,7 @@ def reduced_least_squares(residual: NDArray[np.float64], jacobian: NDArray[np.fl
     jacobian : ndarray, shape (n, m, k)
     """
     n, m, k = jacobian.shape
-    T = np.linalg.qr(np.concatenate([jacobian, residual[:, :, None]], axis=2), mode="r")
+    T: NDArray[np.float64] = np.asarray(np.linalg.qr(np.concatenate([jacobian, residual[:, :, None]], axis=2), mode="r"))
     if T.shape[1] < k + 1:
         T = np.concatenate([T, np.zeros((n, k + 1 - T.shape[1], k + 1))], axis=1)
     return np.ascontiguousarray(T[:, :, k]), np.ascontiguousarray(T[:, :, :k])
@@ -60,6 +60,9 @@ def reduced_least_squares(residual: NDArray[np.float64], jacobian: NDArray[np.fl
 
 class ShardState:
     """One shard's objective on its worker: a registered objective over the shard's tasks.
+
+    Every evaluating call returns its result and how many evaluations the shard's objective
+    made (0 when served from its last-point cache), from which the driver counts.
 
     Parameters
     ----------
@@ -77,29 +80,68 @@ class ShardState:
                  planner: str) -> None:
         self.objective = cls(mdp, mu_hat, pi_hat, beta, planner=planner)
         self.linearizations: dict[int, Linearization] = {}
+        self.features: dict[int, Any] = {}
+        self.problems: dict[int, Any] = {}
+
+    def _counted(self, fn: Any, *args: Any) -> tuple:
+        before = self.objective.n_evaluations
+        out = fn(*args)
+        return out, self.objective.n_evaluations - before
+
+    def _keep(self, store: dict, token: int, value: Any) -> None:
+        store[token] = value
+        for old in sorted(store)[:-KEEP_LINEARIZATIONS]:
+            del store[old]
 
     def loss_and_grad(self, R: NDArray[np.float64], rows: NDArray[np.intp]) -> tuple:
-        return self.objective.loss_and_grad(R, rows)
+        return self._counted(self.objective.loss_and_grad, R, rows)
 
     def residual_jacobian(self, R: NDArray[np.float64], rows: NDArray[np.intp], features: NDArray[np.float64]) -> tuple:
         """Loss and the :func:`reduced_least_squares` form of the residuals and Jacobian (k+1 rows per task)."""
-        loss, residual, jacobian = self.objective.residual_jacobian(R, rows, features)
-        return (loss, *reduced_least_squares(residual, jacobian))
+        (loss, residual, jacobian), n = self._counted(self.objective.residual_jacobian, R, rows, features)
+        return (loss, *reduced_least_squares(residual, jacobian)), n
 
     def linearize(self, R: NDArray[np.float64], rows: NDArray[np.intp], token: int) -> tuple:
-        lin = self.objective.linearize(R, rows)
-        self.linearizations[token] = lin
-        for old in sorted(self.linearizations)[:-KEEP_LINEARIZATIONS]:
-            del self.linearizations[old]
-        return lin.loss, lin.residual
+        lin, n = self._counted(self.objective.linearize, R, rows)
+        self._keep(self.linearizations, token, lin)
+        return (lin.loss, lin.residual), n
 
     def product(self, token: int, name: str, X: NDArray[np.float64]) -> NDArray[np.float64]:
         """``jvp`` or ``vjp`` (``name``) of the linearisation ``token`` applied to X."""
         return getattr(self.linearizations[token], name)(X)
 
+    def make_problem(self, token: int, build: Any, args: tuple, key: int, features: Any, keep: tuple) -> None:
+        """``build(objective, features, *args)``, a step problem over the shard's tasks, kept as ``token``.
+
+        ``features`` None means those already kept under ``key``; only the features of ``keep``
+        (the driver's kept problems) stay.
+        """
+        if features is not None:
+            self.features[key] = None if isinstance(features, NoFeatures) else features
+        self.features = {kk: v for kk, v in self.features.items() if kk in keep}
+        self.problems[token] = build(self.objective, self.features[key], *args)
+        for old in sorted(self.problems)[:-KEEP_LINEARIZATIONS]:
+            del self.problems[old]
+
+    def problem_call(self, x: NDArray[np.float64], rows: NDArray[np.intp], token: int, method: str,
+                     lin_token: int = 0) -> tuple:
+        """The step problem ``token``'s ``method`` at ``x`` (its rows ``rows``); Jacobians in reduced form,
+        a linearisation kept as ``lin_token`` (its loss and residuals returned)."""
+        out, n = self._counted(getattr(self.problems[token], method), x, rows)
+        if method == "residual_jacobian":
+            out = (out[0], *reduced_least_squares(out[1], out[2]))
+        elif method == "linearize":
+            self._keep(self.linearizations, lin_token, out)
+            out = (out.loss, out.residual)
+        return out, n
+
     def reset(self) -> None:
         self.objective.reset()
         self.linearizations.clear()
+
+
+class NoFeatures:
+    """Tabular rewards' features (None) as sent to a shard, where None means "already kept"."""
 
 
 class ShardedObjective:
@@ -107,7 +149,12 @@ class ShardedObjective:
 
     Offers what the step problems use of an :class:`~factirl_opt.objectives.Objective`:
     ``loss_and_grad``, ``residual_jacobian``, ``linearize``, ``reset``, ``n_evaluations``,
-    ``n_tasks``, ``mdp``, ``name`` and ``least_squares``.
+    ``n_tasks``, ``mdp``, ``name`` and ``least_squares``; and the step problems themselves
+    (:meth:`weights_problem`, :meth:`dictionary_problem`,
+    :mod:`factirl_opt.objectives.shard_problems`), evaluated on the shards from the weights,
+    so that per evaluation only O(n p) numbers travel. A call counts as one evaluation when
+    some shard's objective evaluated (not served from its last-point cache): the rule of
+    :class:`~factirl_opt.objectives.Objective`, task by task.
 
     Parameters
     ----------
@@ -138,11 +185,11 @@ class ShardedObjective:
         specs = [(ShardState, (type(objective), objective.mdp, objective.mu[rows], objective.pi_hat[rows],
                                objective.beta, name)) for rows in self.parts]
         self.shards = Shards(specs, backend, client)
-        S, A = self.mdp.n_states, self.mdp.n_actions
-        self._last_R = np.full((self.n_tasks, S, A), np.nan)
-        self._last_loss, self._last_grad = np.zeros(self.n_tasks), np.zeros((self.n_tasks, S, A))
         self._token = 0
-        self._replay: dict[int, tuple] = {}  # token -> (rewards, rows) to linearise a rebuilt shard again
+        self._problems: dict[int, tuple] = {}  # token -> (build, features id, shard_args) of the kept problems
+        self._lins: dict[int, Any] = {}  # token -> k -> (method, args) linearising shard k again, or None
+        self._features: dict[int, Any] = {}  # id -> features kept (the id stays theirs while kept)
+        self._sent: list[set] = [set() for _ in self.parts]  # features ids each shard holds
 
     @property
     def n_shards(self) -> int:
@@ -154,28 +201,43 @@ class ShardedObjective:
 
     def reset(self) -> None:
         """As :meth:`Objective.reset`, on every shard."""
-        self._last_R[:] = np.nan
-        self._last_loss[:], self._last_grad[:] = 0.0, 0.0
-        self._replay.clear()
-        self.shards.call([(k, "reset", ()) for k in range(self.n_shards)])
+        self._lins.clear()
+        self.shards.call([(k, "reset", ()) for k in range(self.n_shards)], on_restart=self.rebuilt)
+
+    def keep_linearization(self, again: Any) -> int:
+        """A token for a new linearisation; ``again(k)`` gives the ``(method, args)`` that makes it again on a
+        rebuilt shard k (None: shard k has none of its tasks)."""
+        return self._next_token(self._lins, (again,))
+
+    def _next_token(self, store: dict, entry: tuple) -> int:
+        """A new token for ``entry`` in ``store`` (the latest :data:`KEEP_LINEARIZATIONS` kept, as on the shards)."""
+        self._token += 1
+        store[self._token] = entry
+        for old in sorted(store)[:-KEEP_LINEARIZATIONS]:
+            del store[old]
+        return self._token
 
     def _rows(self, rows: ArrayLike | None) -> NDArray[np.intp]:
         return np.arange(self.n_tasks) if rows is None else np.asarray(rows)
 
-    def _split(self, rows: NDArray[np.intp]) -> list[tuple[int, NDArray[np.intp]]]:
+    def split(self, rows: NDArray[np.intp]) -> list[tuple[int, NDArray[np.intp]]]:
         """``(shard, positions in rows)`` for every shard with tasks among ``rows``."""
         owners = self.owner[rows]
         return [(k, pos) for k in range(self.n_shards) if (pos := np.flatnonzero(owners == k)).size]
 
-    def _map(self, method: str, R: NDArray[np.float64], rows: NDArray[np.intp], *extra: Any) -> tuple:
-        """``method`` on every shard with rows; returns the splits and their results."""
-        split = self._split(rows)
-        out = self.shards.call([(k, method, (R[pos], self.local[rows[pos]], *extra)) for k, pos in split],
-                               on_restart=self._relinearize)
-        return split, out
+    def call(self, method: str, calls: list[tuple[int, tuple]]) -> list:
+        """``method`` on shards ``(k, args)``; counts one evaluation if any shard evaluated."""
+        out = self.shards.call([(k, method, args) for k, args in calls], on_restart=self.rebuilt)
+        self.n_evaluations += int(any(n > 0 for _, n in out))
+        return [res for res, _ in out]
+
+    def map_tasks(self, method: str, R: NDArray[np.float64], rows: NDArray[np.intp], *extra: Any) -> tuple:
+        split = self.split(rows)
+        return split, self.call(method, [(k, (R[pos], self.local[rows[pos]], *extra)) for k, pos in split])
 
     @staticmethod
-    def _gather(split: list, parts: list, n: int) -> NDArray[np.float64]:
+    def gather(split: list, parts: list, n: int) -> NDArray[np.float64]:
+        """Per-shard arrays (rows of ``split``) placed into one (n, ...) array."""
         first = np.asarray(parts[0])
         out = np.empty((n, *first.shape[1:]), dtype=first.dtype)
         for (_, pos), part in zip(split, parts):
@@ -185,54 +247,83 @@ class ShardedObjective:
     def loss_and_grad(self, rewards: ArrayLike, rows: ArrayLike | None = None) -> tuple:
         """Loss per task (r,) and ``dJ/dR`` (r, S, A), as :meth:`Objective.loss_and_grad`."""
         rows = self._rows(rows)
-        rewards = np.asarray(rewards, dtype=np.float64)
-        if np.array_equal(self._last_R[rows], rewards):
-            return self._last_loss[rows].copy(), self._last_grad[rows].copy()
-        split, out = self._map("loss_and_grad", rewards, rows)
-        self.n_evaluations += 1
-        loss = self._gather(split, [o[0] for o in out], len(rows))
-        grad = self._gather(split, [o[1] for o in out], len(rows))
-        self._last_R[rows], self._last_loss[rows], self._last_grad[rows] = rewards, loss, grad
-        return loss, grad
+        split, out = self.map_tasks("loss_and_grad", np.asarray(rewards, dtype=np.float64), rows)
+        return tuple(self.gather(split, [o[j] for o in out], len(rows)) for j in range(2))
 
     def residual_jacobian(self, rewards: ArrayLike, rows: ArrayLike | None, features: ArrayLike) -> tuple:
         """Loss (r,), residuals (r, p+1) and Jacobian (r, p+1, p): the :func:`reduced_least_squares` form
         of :meth:`Objective.residual_jacobian`'s (the same Gauss-Newton steps; p+1 rows per task travel)."""
         rows = self._rows(rows)
         F = np.asarray(features, dtype=np.float64)
-        split, out = self._map("residual_jacobian", np.asarray(rewards, dtype=np.float64), rows, F)
-        self.n_evaluations += 1
-        return tuple(self._gather(split, [o[j] for o in out], len(rows)) for j in range(3))
-
-    def _relinearize(self, k: int) -> None:
-        """A rebuilt shard ``k`` linearised again at the kept points (its linearisations were lost)."""
-        for token, (R, rows) in sorted(self._replay.items()):
-            pos = np.flatnonzero(self.owner[rows] == k)
-            if pos.size:
-                self.shards.handles[k].submit("linearize", (R[pos], self.local[rows[pos]], token))
-                self.shards.handles[k].result()
+        split, out = self.map_tasks("residual_jacobian", np.asarray(rewards, dtype=np.float64), rows, F)
+        return tuple(self.gather(split, [o[j] for o in out], len(rows)) for j in range(3))
 
     def linearize(self, rewards: ArrayLike, rows: ArrayLike | None = None) -> Linearization:
         """A :class:`solvers.Linearization` whose products run on the shards (:meth:`Objective.linearize`)."""
         rows = self._rows(rows)
         R = np.asarray(rewards, dtype=np.float64)
-        self._token += 1
-        token = self._token
-        self._replay[token] = (R, rows)
-        for old in sorted(self._replay)[:-KEEP_LINEARIZATIONS]:
-            del self._replay[old]
-        split, out = self._map("linearize", R, rows, token)
-        self.n_evaluations += 1
-        n = len(rows)
-        loss, residual = (self._gather(split, [o[j] for o in out], n) for j in range(2))
+        token: int = self.keep_linearization(lambda k: self.task_call(k, "linearize", R, rows, token))
+        split, out = self.map_tasks("linearize", R, rows, token)
+        loss, residual = (self.gather(split, [o[j] for o in out], len(rows)) for j in range(2))
+        return Linearization(loss, residual, lambda dR: self.product(token, split, "jvp", dR),
+                             lambda U: self.product(token, split, "vjp", U))
 
-        def product(name: str, X: ArrayLike) -> NDArray[np.float64]:
-            X = np.asarray(X, dtype=np.float64)
-            parts = self.shards.call([(k, "product", (token, name, X[pos])) for k, pos in split],
-                                     on_restart=self._relinearize)
-            return self._gather(split, parts, n)
+    def product(self, token: int, split: list, name: str, X: ArrayLike) -> NDArray[np.float64]:
+        """``jvp`` or ``vjp`` of the shards' linearisation ``token`` at the rows of ``split``."""
+        X = np.asarray(X, dtype=np.float64)
+        parts = self.shards.call([(k, "product", (token, name, X[pos])) for k, pos in split], on_restart=self.rebuilt)
+        return self.gather(split, parts, len(X))
 
-        return Linearization(loss, residual, lambda dR: product("jvp", dR), lambda U: product("vjp", U))
+    def make_problem(self, build: Any, features: Any, shard_args: Any) -> int:
+        """A step problem ``build(objective, features, *shard_args(k))`` on every shard; its token.
+
+        The features travel to a shard once while a problem kept by the driver uses them.
+        """
+        key = id(features)
+        self._features[key] = features  # kept: its id is not reused while a problem uses it
+        token = self._next_token(self._problems, (build, key, shard_args))
+        keep = {entry[1] for entry in self._problems.values()}
+        self._features = {kk: v for kk, v in self._features.items() if kk in keep}
+        self.shards.call([(k, "make_problem", self._problem_args(k, token)) for k in range(self.n_shards)],
+                         on_restart=self.rebuilt)
+        return token
+
+    def _problem_args(self, k: int, token: int) -> tuple:
+        build, key, shard_args = self._problems[token]
+        features = self._features[key]
+        payload = None if key in self._sent[k] else NoFeatures() if features is None else features
+        keep = tuple(self._features)
+        self._sent[k] = {kk for kk in self._sent[k] if kk in self._features} | {key}
+        return (token, build, shard_args(k), key, payload, keep)
+
+    def rebuilt(self, k: int) -> None:
+        """A rebuilt shard ``k`` gets the kept problems and linearisations again (its state was lost)."""
+        self._sent[k] = set()
+        for token in sorted(self._problems):
+            self.shards.handles[k].submit("make_problem", self._problem_args(k, token))
+            self.shards.handles[k].result()
+        for token, (again,) in sorted(self._lins.items()):
+            call = again(k)
+            if call is not None:
+                self.shards.handles[k].submit(*call)
+                self.shards.handles[k].result()
+
+    def task_call(self, k: int, method: str, X: NDArray[np.float64], rows: NDArray[np.intp], *extra: Any) -> tuple | None:
+        """``(method, (X[pos], local rows, *extra))`` for shard k's tasks among ``rows``; None without any."""
+        pos = np.flatnonzero(self.owner[rows] == k)
+        return (method, (X[pos], self.local[rows[pos]], *extra)) if pos.size else None
+
+    def weights_problem(self, features: Any, names: tuple[str, str]) -> Any:
+        """:func:`factirl_opt.problems.weights_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
+        from .shard_problems import sharded_weights_problem
+
+        return sharded_weights_problem(self, features, names)
+
+    def dictionary_problem(self, coefficients: NDArray[np.float64], base_features: Any, unit_norm: bool) -> Any:
+        """:func:`factirl_opt.problems.dictionary_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
+        from .shard_problems import sharded_dictionary_problem
+
+        return sharded_dictionary_problem(self, coefficients, base_features, unit_norm)
 
 
 @contextlib.contextmanager
