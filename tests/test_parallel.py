@@ -193,3 +193,21 @@ def test_reduced_least_squares_keeps_the_normal_equations():
     r3, J3 = reduced_least_squares(r[:, :2], J[:, :2])  # fewer residuals than k+1: zero rows
     assert J3.shape == (3, 5, 4) and np.all(J3[:, 2:] == 0)
     np.testing.assert_allclose(np.einsum("nmk,nm->nk", J3, r3), np.einsum("nmk,nm->nk", J[:, :2], r[:, :2]), rtol=1e-12)
+
+
+def test_interrupted_fit_stops_its_shards_and_keeps_the_best_point(data):
+    mdp, demos, F, _ = data
+
+    def stop(iteration, total):
+        if iteration == 2:
+            raise KeyboardInterrupt
+
+    fits = []
+    for n_jobs in (1, 2):
+        model = fo.FactIRL(n_primitives=2, max_iter=5, init="random", rng=0, features=F, callback=stop, n_jobs=n_jobs)
+        with pytest.warns(fo.InterruptedFitWarning), pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+        assert not multiprocessing.active_children()
+        fits.append(model)
+    np.testing.assert_allclose(fits[1].dictionary_, fits[0].dictionary_, **TOL)
+    assert fits[0].status_ == fits[1].status_ == "interrupted" and fits[0].n_iter_ == fits[1].n_iter_
