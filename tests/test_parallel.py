@@ -211,3 +211,9 @@ def test_interrupted_fit_stops_its_shards_and_keeps_the_best_point(data):
         fits.append(model)
     np.testing.assert_allclose(fits[1].dictionary_, fits[0].dictionary_, **TOL)
     assert fits[0].status_ == fits[1].status_ == "interrupted" and fits[0].n_iter_ == fits[1].n_iter_
+
+
+def test_sweep_workers_run_fits_with_one_job():
+    from factirl_opt.experiments.workers import imap_unordered
+
+    assert sorted(imap_unordered(effective_n_jobs, [(-1,), (2,)], 2)) == [1, 1]

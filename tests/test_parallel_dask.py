@@ -79,3 +79,9 @@ def test_killed_worker_is_recovered(client, data):
         assert obj.shards.n_restarts >= 1 and ref.n_evaluations == obj.n_evaluations == 3
     finally:
         obj.close()
+
+
+def test_dask_workers_run_fits_with_one_job(client):
+    from factirl_opt.parallel import effective_n_jobs
+
+    assert client.submit(effective_n_jobs, -1, pure=False).result() == 1
