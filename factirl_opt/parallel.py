@@ -30,6 +30,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -67,10 +68,10 @@ def in_worker() -> bool:
     """Whether this process is a worker: a shard or sweep worker (:func:`mark_worker`), or a Dask worker."""
     if os.environ.get(WORKER_ENV):
         return True
-    try:
-        from distributed import get_worker
-    except ImportError:
+    if "distributed" not in sys.modules:  # a Dask worker has imported it; importing it here would cost a second
         return False
+    from distributed import get_worker
+
     try:
         get_worker()
     except ValueError:
