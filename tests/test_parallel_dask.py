@@ -85,3 +85,27 @@ def test_dask_workers_run_fits_with_one_job(client):
     from factirl_opt.parallel import effective_n_jobs
 
     assert client.submit(effective_n_jobs, -1, pure=False).result() == 1
+
+
+def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypatch):
+    mdp, demos, F = data
+    restarts = []
+    close = ShardedObjective.close
+    monkeypatch.setattr(ShardedObjective, "close", lambda self: (restarts.append(self.shards.n_restarts), close(self)))
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F,
+              h_solver="gn-qp-clarabel", d_solver="lbfgs")
+    a = fo.FactIRL(**kw).fit(mdp, demos)
+
+    def kill(iteration, total):
+        if iteration == 1:
+            victim = sorted(client.scheduler_info()["workers"])[-1]
+            try:
+                client.run(os._exit, 1, workers=[victim])
+            except Exception:  # noqa: BLE001 - the worker dies while answering
+                pass
+            time.sleep(0.5)
+
+    b = fo.FactIRL(backend="dask", client=client, callback=kill, **kw).fit(mdp, demos)
+    assert restarts == [1]  # the lost shard was rebuilt once
+    for name in ("dictionary_", "coefficients_", "loss_"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
