@@ -40,6 +40,7 @@ def test_factirl_on_local_cluster_equals_local_fit(client, data, h_solver):
     kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F, h_solver=h_solver,
               d_solver="lbfgs")
     a = fo.FactIRL(**kw).fit(mdp, demos)
+    client.wait_for_workers(2)
     b = fo.FactIRL(backend="dask", client=client, **kw).fit(mdp, demos)
     for name in ("dictionary_", "coefficients_", "loss_"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
@@ -59,6 +60,7 @@ def test_killed_worker_is_recovered(client, data):
     mu, pi = fo.empirical_statistics(mdp, demos)
     R = np.random.default_rng(4).standard_normal((6, mdp.n_states, mdp.n_actions))
     ref = PolicyMatchingObjective(mdp, mu, pi, 5.0, planner="sparse-lu")
+    client.wait_for_workers(2)  # a worker killed by another test is back
     obj = ShardedObjective(ref, 2, "dask", client)
     try:
         for x, y in zip(ref.loss_and_grad(R), obj.loss_and_grad(R)):
@@ -105,7 +107,8 @@ def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypa
                 pass
             time.sleep(0.5)
 
-    b = fo.FactIRL(backend="dask", client=client, callback=kill, **kw).fit(mdp, demos)
+    client.wait_for_workers(2)  # a worker killed by another test is back
+    b = fo.FactIRL(backend="dask", client=client, n_jobs=2, callback=kill, **kw).fit(mdp, demos)
     assert restarts == [1]  # the lost shard was rebuilt once
     for name in ("dictionary_", "coefficients_", "loss_"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)

@@ -110,16 +110,17 @@ class ShardState:
         """``jvp`` or ``vjp`` (``name``) of the linearisation ``token`` applied to X."""
         return getattr(self.linearizations[token], name)(X)
 
-    def make_problem(self, token: int, build: Any, args: tuple, key: int, features: Any, keep: tuple) -> None:
-        """``build(objective, features, *args)``, a step problem over the shard's tasks, kept as ``token``.
-
-        ``features`` None means those already kept under ``key``; only the features of ``keep``
-        (the driver's kept problems) stay.
-        """
+    def receive(self, key: int, features: Any, keep: tuple) -> Any:
+        """The features kept under ``key`` (``features`` None: those already kept); only ``keep`` stay."""
         if features is not None:
             self.features[key] = None if isinstance(features, NoFeatures) else features
         self.features = {kk: v for kk, v in self.features.items() if kk in keep}
-        self.problems[token] = build(self.objective, self.features[key], *args)
+        return self.features[key]
+
+    def make_problem(self, token: int, build: Any, args: tuple, key: int, features: Any, keep: tuple) -> None:
+        """``build(objective, features, *args)``, a step problem over the shard's tasks, kept as ``token``
+        (features as in :meth:`receive`)."""
+        self.problems[token] = build(self.objective, self.receive(key, features, keep), *args)
         for old in sorted(self.problems)[:-KEEP_LINEARIZATIONS]:
             del self.problems[old]
 
@@ -134,6 +135,16 @@ class ShardState:
             self._keep(self.linearizations, lin_token, out)
             out = (out.loss, out.residual)
         return out, n
+
+    def factorial_point(self, features: tuple, D: NDArray[np.float64], H: NDArray[np.float64]) -> tuple:
+        """Loss (m,) at the rewards ``Phi D h_i`` of the shard's tasks and ``Phi^T y_i`` (m, p)
+        (features as in :meth:`receive`): what the factorial loop's optimality measure needs."""
+        from ..factorial import factorial_rewards
+
+        Phi = self.receive(*features)
+        (loss, y), n = self._counted(self.objective.loss_and_grad, factorial_rewards(self.objective.mdp, Phi, D, H), None)
+        Y = y.reshape(len(H), -1)
+        return (loss, Y if Phi is None else Y @ Phi), n
 
     def reset(self) -> None:
         self.objective.reset()
@@ -190,6 +201,7 @@ class ShardedObjective:
         self._lins: dict[int, Any] = {}  # token -> k -> (method, args) linearising shard k again, or None
         self._features: dict[int, Any] = {}  # id -> features kept (the id stays theirs while kept)
         self._sent: list[set] = [set() for _ in self.parts]  # features ids each shard holds
+        self._point_key: int | None = None  # the features of the last factorial_point
 
     @property
     def n_shards(self) -> int:
@@ -282,23 +294,45 @@ class ShardedObjective:
         key = id(features)
         self._features[key] = features  # kept: its id is not reused while a problem uses it
         token = self._next_token(self._problems, (build, key, shard_args))
-        keep = {entry[1] for entry in self._problems.values()}
-        self._features = {kk: v for kk, v in self._features.items() if kk in keep}
+        self._prune_features()
         self.shards.call([(k, "make_problem", self._problem_args(k, token)) for k in range(self.n_shards)],
                          on_restart=self.rebuilt)
         return token
 
-    def _problem_args(self, k: int, token: int) -> tuple:
-        build, key, shard_args = self._problems[token]
+    def _prune_features(self) -> None:
+        keep = {entry[1] for entry in self._problems.values()} | {self._point_key}
+        self._features = {kk: v for kk, v in self._features.items() if kk in keep}
+
+    def _features_args(self, k: int, key: int) -> tuple:
+        """``(key, payload, keep)`` for :meth:`ShardState.receive` on shard k: the features travel once."""
         features = self._features[key]
         payload = None if key in self._sent[k] else NoFeatures() if features is None else features
-        keep = tuple(self._features)
         self._sent[k] = {kk for kk in self._sent[k] if kk in self._features} | {key}
-        return (token, build, shard_args(k), key, payload, keep)
+        return key, payload, tuple(self._features)
+
+    def _problem_args(self, k: int, token: int) -> tuple:
+        build, key, shard_args = self._problems[token]
+        return (token, build, shard_args(k), *self._features_args(k, key))
+
+    def factorial_point(self, base_features: Any, D: NDArray[np.float64], H: NDArray[np.float64]) -> tuple:
+        """Loss (n,) at ``R_i = Phi D h_i`` and ``G = [Phi^T y_i]`` (n, p), rewards formed on the shards.
+
+        What the factorial loop's optimality measure needs (``dJ/dH = G D``, ``dJ/dD = G^T H``,
+        eqs. 11-12), with O(n p) numbers back instead of ``dJ/dR`` (n, S, A).
+        """
+        key = self._point_key = id(base_features)
+        self._features[key] = base_features
+        self._prune_features()
+        out = self.call("factorial_point", [(k, (self._features_args(k, key), D, H[rows]))
+                                            for k, rows in enumerate(self.parts)])
+        return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
 
     def rebuilt(self, k: int) -> None:
         """A rebuilt shard ``k`` gets the kept problems and linearisations again (its state was lost)."""
         self._sent[k] = set()
+        if self._point_key in self._features:
+            self.shards.handles[k].submit("receive", self._features_args(k, self._point_key))
+            self.shards.handles[k].result()
         for token in sorted(self._problems):
             self.shards.handles[k].submit("make_problem", self._problem_args(k, token))
             self.shards.handles[k].result()
