@@ -153,7 +153,7 @@ class FactIRL:
     callback : callable, optional
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
-    n_jobs, backend, client : parallel ``fit`` over task shards, as in :class:`~factirl_opt.GradIRL`
+    n_jobs, backend, client : ``fit`` and ``transfer`` over task shards, as in :class:`~factirl_opt.GradIRL`
 
     Attributes
     ----------
@@ -473,8 +473,9 @@ class FactIRL:
             obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
         try:
-            res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                               verbose=self.verbose)
+            with sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
+                res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+                                   verbose=self.verbose)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")

@@ -217,3 +217,16 @@ def test_sweep_workers_run_fits_with_one_job():
     from factirl_opt.experiments.workers import imap_unordered
 
     assert sorted(imap_unordered(effective_n_jobs, [(-1,), (2,)], 2)) == [1, 1]
+
+
+def test_transfer_n_jobs_equals_serial_transfer(data):
+    mdp, demos, F, _ = data
+    model = fo.FactIRL(n_primitives=2, max_iter=2, init="random", rng=0, features=F, h_solver="gn-qp-clarabel")
+    model.fit(mdp, demos[:3])
+    a = model.transfer(mdp, demos[3:], max_iter=4)
+    evaluations = model.transfer_n_evaluations_
+    model.n_jobs = 2
+    b = model.transfer(mdp, demos[3:], max_iter=4)
+    np.testing.assert_allclose(b, a, **TOL)
+    assert model.transfer_n_evaluations_ == evaluations
+    assert not multiprocessing.active_children()
