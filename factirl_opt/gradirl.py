@@ -132,7 +132,7 @@ class GradIRL:
         rewards go in and losses and gradients come out; the result equals ``n_jobs=1``'s to
         rounding, with the same number of evaluations. Inside a worker process (a shard's,
         a ``reproduce --jobs`` or Dask sweep worker) it is 1: pools never nest. Tasks in
-        several environments are evaluated in this process.
+        several environments are sharded by whole environments.
     backend : {"processes", "dask"}, default="processes"
         Where the shards run: shard 0 in this process and the others in processes of this
         machine, started at the beginning of ``fit`` and stopped at its end (also on an error

@@ -380,9 +380,11 @@ def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes
     ------
     Objective or ShardedObjective
         ``objective`` itself when one shard is asked for (``n_jobs=1``: today's code path),
-        inside a worker process, for a single task, and for objectives over several
-        environments; else a :class:`ShardedObjective`, closed when the block exits (also on
-        an error or a KeyboardInterrupt).
+        inside a worker process, for a single task or a single environment; else a
+        :class:`ShardedObjective` (tasks of one MDP) or a
+        :class:`~factirl_opt.objectives.sharded_environments.ShardedEnvironments` (whole
+        environments per shard), closed when the block exits (also on an error or a
+        KeyboardInterrupt).
     """
     from ..parallel import check_backend, in_worker
 
@@ -391,10 +393,17 @@ def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes
         n = len(client.scheduler_info()["workers"])
     else:
         n = effective_n_jobs(n_jobs)
-    if n <= 1 or not isinstance(objective, Objective) or objective.n_tasks <= 1:
+    from .environments import MultiEnvironmentObjective
+    from .sharded_environments import ShardedEnvironments
+
+    sharded_obj: Any
+    if n > 1 and isinstance(objective, MultiEnvironmentObjective) and len(objective.group_mdps) > 1:
+        sharded_obj = ShardedEnvironments(objective, n, backend, client, planner if isinstance(planner, str) else "auto")
+    elif n > 1 and isinstance(objective, Objective) and objective.n_tasks > 1:
+        sharded_obj = ShardedObjective(objective, n, backend, client, planner if isinstance(planner, str) else None)
+    else:
         yield objective
         return
-    sharded_obj = ShardedObjective(objective, n, backend, client, None if not isinstance(planner, str) else planner)
     try:
         yield sharded_obj
     finally:
