@@ -253,6 +253,8 @@ def _lost_dask_worker(exc: BaseException) -> bool:
     """Whether ``exc`` says an actor's worker went away (not an error of the computation)."""
     from distributed.comm.core import CommClosedError
 
+    if isinstance(exc, FactIRLError):  # the library's own errors come from the computation
+        return False
     text = str(exc).lower()
     return isinstance(exc, (CommClosedError, OSError)) or any(w in text for w in ("lost", "closed", "not found", "no longer"))
 

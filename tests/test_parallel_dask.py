@@ -112,3 +112,15 @@ def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypa
     assert restarts == [1]  # the lost shard was rebuilt once
     for name in ("dictionary_", "coefficients_", "loss_"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
+
+
+def test_errors_of_the_computation_are_raised_not_retried(client):
+    from factirl_opt.parallel import Shards
+
+    shards = Shards([(dict, ()), (dict, ())], "dask", client)
+    try:
+        with pytest.raises(KeyError, match="missing"):
+            shards.call([(0, "pop", ("missing",)), (1, "pop", ("missing", 7))])
+        assert shards.call([(1, "pop", ("missing", 7))]) == [7] and shards.n_restarts == 0
+    finally:
+        shards.close()
