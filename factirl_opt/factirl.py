@@ -49,6 +49,7 @@ from .fitting import (
 from .gradirl import fit_weights, weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
+from .objectives.distributed import sharded
 from .task_features import TaskFeatures
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
@@ -152,6 +153,7 @@ class FactIRL:
     callback : callable, optional
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
+    n_jobs, backend, client : ``fit`` and ``transfer`` over task shards, as in :class:`~factirl_opt.GradIRL`
 
     Attributes
     ----------
@@ -218,15 +220,13 @@ class FactIRL:
                  d_solver_options: dict | None = None, features: Any = None, objective: Any = "policy-matching",
                  planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
                  rng: np.random.Generator | int | None = None, verbose: bool = False,
-                 callback: Callable | None = None, reward: str = "state-action") -> None:
+                 callback: Callable | None = None, reward: str = "state-action", n_jobs: int | None = None,
+                 backend: str = "processes", client: Any = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
         self.pca_shrink = pca_shrink
-        self.max_iter = max_iter
-        self.inner_steps = inner_steps
-        self.tol = tol
-        self.gtol = gtol
+        self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
         self.h_solver = h_solver
         self.h_solver_options = h_solver_options
         self.d_solver = d_solver
@@ -240,6 +240,7 @@ class FactIRL:
         self.rng = rng
         self.verbose = verbose
         self.callback = callback
+        self.n_jobs, self.backend, self.client = n_jobs, backend, client
 
     def _features(self, mdp):
         return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
@@ -371,11 +372,12 @@ class FactIRL:
         if one is not None:
             obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
-            D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
-            if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
-                D, H = orient_nonneg(D, H, self.init == "random")
-            fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter,
-                                inner_steps=inner_steps, tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
+            with sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:  # n_jobs=1: obj itself
+                D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+                if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
+                    D, H = orient_nonneg(D, H, self.init == "random")
+                fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
+                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
         except FitInterrupted as exc:
             self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
@@ -471,8 +473,9 @@ class FactIRL:
             obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
         try:
-            res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                               verbose=self.verbose)
+            with sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
+                res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+                                   verbose=self.verbose)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")

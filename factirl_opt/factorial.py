@@ -105,7 +105,7 @@ def factorial_rewards(mdp: Any, Phi: Any, D: NDArray[np.float64], H: NDArray[np.
     return linear_rewards(F, H, mdp.n_states, mdp.n_actions, ("features @ dictionary", "coefficients"))
 
 
-def _optimality(y, Phi, D, H, h_solver, unit_norm):
+def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None):
     """Norm of the first-order optimality measure of eq. (10) over ``(H, D)``, from ``y = dJ/dR``.
 
     ``dJ/dh_i = F^T y_i`` with ``F = Phi D`` (eq. 12; projected or minimum-norm subgradient
@@ -114,8 +114,8 @@ def _optimality(y, Phi, D, H, h_solver, unit_norm):
     primitives when the D-step keeps them at unit norm.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        if isinstance(Phi, TaskFeatures):
-            G = Phi.pull(y)  # Phi_i^T y_i (n, p)
+        if G is not None or isinstance(Phi, TaskFeatures):
+            G = Phi.pull(y) if G is None else G  # Phi_i^T y_i (n, p)
             gH, gD = G @ D, G.T @ H
         else:
             Y = y.reshape(H.shape[0], -1)
@@ -130,10 +130,13 @@ def _optimality(y, Phi, D, H, h_solver, unit_norm):
 def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
     """Loss per task at ``(D, H)`` (served from the objective's cache after a D-step), the
     normalised pair, the total (with the H-solver's penalty) and the optimality measure."""
-    loss, y = objective.loss_and_grad(factorial_rewards(objective.mdp, Phi, D, H))
+    if hasattr(objective, "factorial_point"):  # a sharded objective: G = Phi^T y_i formed where the tasks are
+        (loss, G), y = objective.factorial_point(Phi, D, H), None
+    else:
+        (loss, y), G = objective.loss_and_grad(factorial_rewards(objective.mdp, Phi, D, H)), None
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + h_solver.penalty(H).sum())
-    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm)
+    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm, G)
 
 
 def _outer_stop(history, gnorm, g0, tol, gtol, it):

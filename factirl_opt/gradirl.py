@@ -31,6 +31,7 @@ from .fitting import (
     warn_if_stalled,
 )
 from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best, warn_interrupted
+from .objectives.distributed import sharded
 from .problems import linear_rewards, weights_problem
 
 __all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
@@ -123,6 +124,23 @@ class GradIRL:
         Show a progress bar (iterations, loss) on stderr.
     callback : callable, optional
         Called as ``callback(iteration, total_loss)`` after each iteration.
+    n_jobs : int or None, default=None
+        Task shards evaluated in parallel during ``fit`` (:mod:`factirl_opt.parallel`,
+        :mod:`factirl_opt.objectives.distributed`): None means 1 (one process, the serial code
+        path), -1 every core, -2 all but one, as in scikit-learn. Each shard's worker keeps
+        its tasks' statistics, warm starts and factorisations between evaluations, so only
+        rewards go in and losses and gradients come out; the result equals ``n_jobs=1``'s to
+        rounding, with the same number of evaluations. Inside a worker process (a shard's,
+        a ``reproduce --jobs`` or Dask sweep worker) it is 1: pools never nest. Tasks in
+        several environments are sharded by whole environments.
+    backend : {"processes", "dask"}, default="processes"
+        Where the shards run: shard 0 in this process and the others in processes of this
+        machine, started at the beginning of ``fit`` and stopped at its end (also on an error
+        or Ctrl-C); or Dask actors on the workers of ``client`` (with ``n_jobs`` None or -1,
+        one shard per worker), a shard whose worker is lost being rebuilt and its evaluation
+        retried.
+    client : dask.distributed.Client, optional
+        The cluster of ``backend="dask"``.
 
     Attributes
     ----------
@@ -173,7 +191,8 @@ class GradIRL:
     def __init__(self, beta: float = 5.0, features: Any = None, max_iter: int = 100, tol: float = 1e-5,
                  solver: Any = "armijo", solver_options: dict | None = None, objective: Any = "policy-matching",
                  planner: str = "auto", verbose: bool = False, callback: Callable | None = None,
-                 reward: str = "state-action") -> None:
+                 reward: str = "state-action", n_jobs: int | None = None, backend: str = "processes",
+                 client: Any = None) -> None:
         self.beta = beta
         self.features = features
         self.reward = reward
@@ -185,6 +204,7 @@ class GradIRL:
         self.planner = planner
         self.verbose = verbose
         self.callback = callback
+        self.n_jobs, self.backend, self.client = n_jobs, backend, client
 
     @blas_limited
     def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
@@ -212,22 +232,23 @@ class GradIRL:
         if one is None:
             objective, envs = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta,
                                                  self.objective, self.planner)
-            return self._run(objective, envs.features, loop, lambda res: self._store_environments(envs, res, objective))
+            return self._run(objective, envs.features, loop, lambda res, obj: self._store_environments(envs, res, obj))
         F = reward_features(one, self.features, self.reward)
         objective = make_objective(one, demos_per_task, self.beta, self.objective, self.planner)
-        return self._run(objective, F, loop, lambda res: self._store(one, F, res, objective))
+        return self._run(objective, F, loop, lambda res, obj: self._store(one, F, res, obj))
 
     def _run(self, objective, F, loop, store):
         max_iter, tol = loop
         solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
         try:
-            res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
+            with sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
+                res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
-            store(exc.result)
+            store(exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
                                             f"after {self.n_iter_} iterations)")
             raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
-        store(res)
+        store(res, objective)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         return self
 

@@ -205,6 +205,8 @@ def weights_problem(objective: Any, features: Any = None,
     """
     if isinstance(features, TaskFeatures):
         return task_weights_problem(objective, features)
+    if hasattr(objective, "weights_problem"):  # evaluated where its tasks are (objectives.shard_problems)
+        return objective.weights_problem(features, names)
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
@@ -268,6 +270,8 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
     """
     if isinstance(base_features, TaskFeatures):
         return task_dictionary_problem(objective, coefficients, base_features, unit_norm)
+    if hasattr(objective, "dictionary_problem"):  # evaluated where its tasks are (objectives.shard_problems)
+        return objective.dictionary_problem(coefficients, base_features, unit_norm)
     mdp = objective.mdp
     S, A = mdp.n_states, mdp.n_actions
     H = np.asarray(coefficients, dtype=np.float64)

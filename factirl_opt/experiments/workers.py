@@ -38,6 +38,7 @@ from multiprocessing.connection import wait
 from typing import Any
 
 from ..exceptions import FactIRLError
+from ..parallel import mark_worker
 
 __all__ = ["imap_unordered", "sigterm_raises", "Terminated", "WorkerError", "POLL_SECONDS"]
 
@@ -99,6 +100,7 @@ def _watch_parent(parent_pid):
 def _worker_main(conn, parent_pid):
     """A worker's loop: receive ``(fn, args)``, send back ``("ok", result)`` or ``("error", exc, tb)``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    mark_worker()  # a fit in a sweep worker runs with n_jobs=1: pools never nest
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
     while True:
         try:

@@ -23,8 +23,9 @@ NAMED_PARAMS = {
     "objective": "a registered objective name (factirl_opt.objectives.register_objective, fo.available_objectives())",
     "planner": "a planner name (fo.available_planners())",
 }
-#: Parameters that are not part of the model and are not saved (the loaded model has the default).
-RUNTIME_PARAMS = ("callback",)
+#: Parameters that are not part of the model and are not saved (the loaded model has the default):
+#: how a fit is watched and where its evaluations run.
+RUNTIME_PARAMS = ("callback", "n_jobs", "backend", "client")
 #: Parameters stored as arrays when given as arrays.
 ARRAY_PARAMS = ("features", "init")
 

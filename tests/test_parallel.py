@@ -1,0 +1,232 @@
+"""Task shards on worker processes (n_jobs): the same results as n_jobs=1, and the backend's rules.
+
+Reference: the unsharded objective and the ``n_jobs=1`` fit (today's code path). A shard's
+sub-objective plans the same tasks with the same planner, so results agree to rounding and the
+evaluation counts are equal.
+"""
+
+import multiprocessing
+import os
+import signal
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt import parallel
+from factirl_opt.exceptions import FactIRLError, ValidationError
+from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
+from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares, sharded
+from factirl_opt.parallel import Shards, check_backend, contiguous_shards, effective_n_jobs
+
+TOL = dict(rtol=1e-10, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(2)
+    mdp = fo.GridWorld(size=5, p_success=0.7, gamma=0.9)
+    demos = fo.sample_demonstrations(mdp, rng.standard_normal((5, mdp.n_states, mdp.n_actions)), 4, 6, rng)
+    R = rng.standard_normal((5, mdp.n_states, mdp.n_actions))
+    return mdp, demos, rng.random((mdp.n_states, 4)), R
+
+
+def objective(data, cls=PolicyMatchingObjective, planner="sparse-lu"):
+    mdp, demos, _, _ = data
+    mu, pi = fo.empirical_statistics(mdp, demos)
+    return cls(mdp, mu, pi, 5.0, planner=planner)
+
+
+def test_effective_n_jobs(monkeypatch):
+    monkeypatch.delenv(parallel.WORKER_ENV, raising=False)
+    assert effective_n_jobs(None) == 1 and effective_n_jobs(3) == 3
+    assert effective_n_jobs(-1) == (os.cpu_count() or 1)
+    for bad in (0, 1.5, "2", True):
+        with pytest.raises(ValidationError, match="n_jobs"):
+            effective_n_jobs(bad)
+    with pytest.raises(ValidationError, match="leaves no core"):
+        effective_n_jobs(-(os.cpu_count() or 1) - 1)
+    monkeypatch.setenv(parallel.WORKER_ENV, "1")  # inside a worker: never nested
+    assert parallel.in_worker() and effective_n_jobs(-1) == 1 and effective_n_jobs(4) == 1
+
+
+def test_check_backend_and_shards():
+    assert check_backend("processes", None) == "processes"
+    with pytest.raises(ValidationError, match="backend"):
+        check_backend("threads", None)
+    with pytest.raises(ValidationError, match="only used with backend='dask'"):
+        check_backend("processes", object())
+    with pytest.raises(ValidationError, match="backend=.dask. needs"):  # a Client (or the dask extra)
+        check_backend("dask", "tcp://127.0.0.1:8786")
+    parts = contiguous_shards(7, 3)
+    assert [p.tolist() for p in parts] == [[0, 1, 2], [3, 4], [5, 6]]
+    assert len(contiguous_shards(2, 5)) == 2
+
+
+def test_n_jobs_one_is_the_objective_itself(data):
+    obj = objective(data)
+    with sharded(obj, None) as a, sharded(obj, 1) as b:
+        assert a is obj and b is obj
+
+
+@pytest.mark.parametrize("cls", [PolicyMatchingObjective, MCEObjective])
+def test_sharded_objective_equals_objective(data, cls):
+    R = data[3]
+    ref = objective(data, cls)
+    with sharded(objective(data, cls), 2) as obj:
+        assert isinstance(obj, ShardedObjective) and obj.n_shards == 2
+        for x, y in zip(ref.loss_and_grad(R), obj.loss_and_grad(R)):
+            np.testing.assert_allclose(y, x, **TOL)
+        rows = np.array([4, 0, 3])  # rows of both shards, out of order
+        for x, y in zip(ref.loss_and_grad(R[rows] + 0.1, rows), obj.loss_and_grad(R[rows] + 0.1, rows)):
+            np.testing.assert_allclose(y, x, **TOL)
+        obj.loss_and_grad(R[rows] + 0.1, rows)  # the last point: served from the cache, not counted
+        ref.loss_and_grad(R[rows] + 0.1, rows)
+        assert obj.n_evaluations == ref.n_evaluations == 2
+        obj.reset()
+        ref.reset()
+        for x, y in zip(ref.loss_and_grad(R), obj.loss_and_grad(R)):
+            np.testing.assert_allclose(y, x, **TOL)
+        assert obj.shards.bytes_sent > 0 and obj.n_evaluations == 3
+
+
+def test_sharded_least_squares_products(data):
+    mdp, _, F, R = data
+    ref = objective(data)
+    with sharded(objective(data), 3) as obj:
+        (la, ra, Ja), (lb, rb, Jb) = ref.residual_jacobian(R, None, F), obj.residual_jacobian(R, None, F)
+        np.testing.assert_allclose(lb, la, **TOL)
+        for x, y in zip(reduced_least_squares(ra, Ja), (rb, Jb)):  # the reduced form travels
+            np.testing.assert_allclose(y, x, **TOL)
+        la, lb = ref.linearize(R), obj.linearize(R)
+        np.testing.assert_allclose(lb.residual, la.residual, **TOL)
+        dR = np.random.default_rng(0).standard_normal(R.shape)
+        np.testing.assert_allclose(lb.jvp(dR), la.jvp(dR), **TOL)
+        np.testing.assert_allclose(lb.vjp(la.residual), la.vjp(la.residual), **TOL)
+        assert obj.n_evaluations == ref.n_evaluations == 2
+
+
+@pytest.mark.parametrize("h_solver, features", [("gn-qp-clarabel", True), ("gn-cg", True), ("armijo", False)])
+def test_factirl_n_jobs_equals_serial_fit(data, h_solver, features):
+    mdp, demos, F, _ = data
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, h_solver=h_solver, d_solver="lbfgs",
+              features=F if features else None)
+    a = fo.FactIRL(**kw).fit(mdp, demos)
+    b = fo.FactIRL(n_jobs=2, **kw).fit(mdp, demos)
+    for name in ("dictionary_", "coefficients_", "loss_", "rewards_"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), **TOL, err_msg=name)
+    assert a.n_evaluations_ == b.n_evaluations_ and a.n_iter_ == b.n_iter_
+    assert not multiprocessing.active_children()  # the shards' processes stop with the fit
+
+
+def test_factirl_pca_start_and_gradirl_n_jobs(data):
+    mdp, demos, F, _ = data
+    a = fo.FactIRL(n_primitives=2, max_iter=2, flat_max_iter=3, rng=0).fit(mdp, demos)
+    b = fo.FactIRL(n_primitives=2, max_iter=2, flat_max_iter=3, rng=0, n_jobs=-1).fit(mdp, demos)
+    np.testing.assert_allclose(b.dictionary_, a.dictionary_, **TOL)
+    assert a.n_evaluations_ == b.n_evaluations_
+    a = fo.GradIRL(max_iter=4, features=F, solver="gn-qp-clarabel").fit(mdp, demos)
+    b = fo.GradIRL(max_iter=4, features=F, solver="gn-qp-clarabel", n_jobs=5).fit(mdp, demos)
+    np.testing.assert_allclose(b.weights_, a.weights_, **TOL)
+    assert a.n_evaluations_ == b.n_evaluations_
+
+
+def test_fit_refuses_bad_parallel_parameters(data):
+    mdp, demos, _, _ = data
+    with pytest.raises(ValidationError, match="n_jobs"):
+        fo.GradIRL(max_iter=1, n_jobs=0).fit(mdp, demos)
+    with pytest.raises(ValidationError, match="backend"):
+        fo.FactIRL(n_primitives=2, max_iter=1, init="random", backend="mpi").fit(mdp, demos)
+
+
+def test_killed_shard_process_is_rebuilt(data):
+    R = data[3]
+    ref = objective(data)
+    obj = ShardedObjective(objective(data), 2)
+    try:
+        obj.loss_and_grad(R)
+        lin = obj.linearize(R)
+        proc = obj.shards.handles[1].proc
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.join()
+        for x, y in zip(ref.loss_and_grad(R + 0.01), obj.loss_and_grad(R + 0.01)):
+            np.testing.assert_allclose(y, x, **TOL)
+        dR = np.ones_like(R)
+        np.testing.assert_allclose(lin.jvp(dR), ref.linearize(R).jvp(dR), **TOL)  # linearisation replayed
+        assert obj.shards.n_restarts == 1
+    finally:
+        obj.close()
+    with pytest.raises(FactIRLError, match="closed"):
+        obj.loss_and_grad(R)
+
+
+class Failing:
+    """A shard state whose ``boom`` raises (in a worker process for shard 1)."""
+
+    def ok(self, x):
+        return np.asarray(x) * 2
+
+    def boom(self, x):
+        raise ValidationError(f"bad value {x}")
+
+
+def test_worker_error_is_raised_and_the_shards_stay_usable():
+    shards = Shards([(Failing, ()), (Failing, ())])
+    try:
+        with pytest.raises(ValidationError, match="bad value 3"):
+            shards.call([(0, "ok", (np.ones(2),)), (1, "boom", (3,))])
+        out = shards.call([(0, "ok", (np.ones(2),)), (1, "ok", (np.arange(2.0),))])
+        np.testing.assert_array_equal(out[1], [0.0, 2.0])
+        assert shards.bytes_sent == 2 * 16  # shard 1 only (the failed call sent no array): 16 B in, 16 B out
+    finally:
+        shards.close()
+
+
+def test_reduced_least_squares_keeps_the_normal_equations():
+    rng = np.random.default_rng(1)
+    r, J = rng.standard_normal((3, 20)), rng.standard_normal((3, 20, 4))
+    r2, J2 = reduced_least_squares(r, J)
+    assert r2.shape == (3, 5) and J2.shape == (3, 5, 4)
+    np.testing.assert_allclose(np.einsum("nmk,nml->nkl", J2, J2), np.einsum("nmk,nml->nkl", J, J), rtol=1e-12)
+    np.testing.assert_allclose(np.einsum("nmk,nm->nk", J2, r2), np.einsum("nmk,nm->nk", J, r), rtol=1e-12)
+    np.testing.assert_allclose(np.sum(r2**2, axis=1), np.sum(r**2, axis=1), rtol=1e-12)
+    r3, J3 = reduced_least_squares(r[:, :2], J[:, :2])  # fewer residuals than k+1: zero rows
+    assert J3.shape == (3, 5, 4) and np.all(J3[:, 2:] == 0)
+    np.testing.assert_allclose(np.einsum("nmk,nm->nk", J3, r3), np.einsum("nmk,nm->nk", J[:, :2], r[:, :2]), rtol=1e-12)
+
+
+def test_interrupted_fit_stops_its_shards_and_keeps_the_best_point(data):
+    mdp, demos, F, _ = data
+
+    def stop(iteration, total):
+        if iteration == 2:
+            raise KeyboardInterrupt
+
+    fits = []
+    for n_jobs in (1, 2):
+        model = fo.FactIRL(n_primitives=2, max_iter=5, init="random", rng=0, features=F, callback=stop, n_jobs=n_jobs)
+        with pytest.warns(fo.InterruptedFitWarning), pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+        assert not multiprocessing.active_children()
+        fits.append(model)
+    np.testing.assert_allclose(fits[1].dictionary_, fits[0].dictionary_, **TOL)
+    assert fits[0].status_ == fits[1].status_ == "interrupted" and fits[0].n_iter_ == fits[1].n_iter_
+
+
+def test_sweep_workers_run_fits_with_one_job():
+    from factirl_opt.experiments.workers import imap_unordered
+
+    assert sorted(imap_unordered(effective_n_jobs, [(-1,), (2,)], 2)) == [1, 1]
+
+
+def test_transfer_n_jobs_equals_serial_transfer(data):
+    mdp, demos, F, _ = data
+    model = fo.FactIRL(n_primitives=2, max_iter=2, init="random", rng=0, features=F, h_solver="gn-qp-clarabel")
+    model.fit(mdp, demos[:3])
+    a = model.transfer(mdp, demos[3:], max_iter=4)
+    evaluations = model.transfer_n_evaluations_
+    model.n_jobs = 2
+    b = model.transfer(mdp, demos[3:], max_iter=4)
+    np.testing.assert_allclose(b, a, **TOL)
+    assert model.transfer_n_evaluations_ == evaluations
+    assert not multiprocessing.active_children()

@@ -1,0 +1,126 @@
+"""Task shards on a Dask LocalCluster: a fit equals the local one, and a killed worker is recovered.
+
+Reference: the same objective or fit without Dask (``n_jobs=1``). A rebuilt shard plans from
+scratch (no warm start), so after a worker is killed the results agree to rounding.
+"""
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.objectives import PolicyMatchingObjective
+from factirl_opt.objectives.distributed import ShardedObjective
+
+distributed = pytest.importorskip("distributed")
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(2)
+    mdp = fo.GridWorld(size=5, p_success=0.7, gamma=0.9)
+    demos = fo.sample_demonstrations(mdp, rng.standard_normal((6, mdp.n_states, mdp.n_actions)), 4, 6, rng)
+    return mdp, demos, rng.random((25, 4))
+
+
+@pytest.mark.parametrize("h_solver", ["gn-qp-clarabel", "gn-cg"])
+def test_factirl_on_local_cluster_equals_local_fit(client, data, h_solver):
+    mdp, demos, F = data
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F, h_solver=h_solver,
+              d_solver="lbfgs")
+    a = fo.FactIRL(**kw).fit(mdp, demos)
+    client.wait_for_workers(2)
+    b = fo.FactIRL(backend="dask", client=client, **kw).fit(mdp, demos)
+    for name in ("dictionary_", "coefficients_", "loss_"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
+    assert a.n_evaluations_ == b.n_evaluations_
+
+
+def test_gradirl_on_local_cluster_equals_local_fit(client, data):
+    mdp, demos, _ = data
+    a = fo.GradIRL(max_iter=4).fit(mdp, demos)
+    b = fo.GradIRL(max_iter=4, backend="dask", client=client, n_jobs=3).fit(mdp, demos)
+    np.testing.assert_allclose(b.weights_, a.weights_, rtol=1e-10, atol=1e-12)
+    assert a.n_evaluations_ == b.n_evaluations_
+
+
+def test_killed_worker_is_recovered(client, data):
+    mdp, demos, _ = data
+    mu, pi = fo.empirical_statistics(mdp, demos)
+    R = np.random.default_rng(4).standard_normal((6, mdp.n_states, mdp.n_actions))
+    ref = PolicyMatchingObjective(mdp, mu, pi, 5.0, planner="sparse-lu")
+    client.wait_for_workers(2)  # a worker killed by another test is back
+    obj = ShardedObjective(ref, 2, "dask", client)
+    try:
+        for x, y in zip(ref.loss_and_grad(R), obj.loss_and_grad(R)):
+            np.testing.assert_allclose(y, x, rtol=1e-12, atol=1e-14)
+        # rewards and local rows in, losses and gradients out
+        assert obj.shards.bytes_sent == 2 * R.nbytes + 6 * 8 + 6 * 8
+        lin_b = obj.linearize(R)
+        victim = sorted(client.scheduler_info()["workers"])[0]
+        with pytest.raises(Exception):  # the worker dies while answering
+            client.run(os._exit, 1, workers=[victim])
+        time.sleep(0.5)
+        R2 = R + 0.01
+        for x, y in zip(ref.loss_and_grad(R2), obj.loss_and_grad(R2)):
+            np.testing.assert_allclose(y, x, rtol=1e-11, atol=1e-13)
+        lin_a = ref.linearize(R)
+        np.testing.assert_allclose(lin_b.jvp(R2), lin_a.jvp(R2), rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(lin_b.vjp(lin_a.residual), lin_a.vjp(lin_a.residual), rtol=1e-11, atol=1e-13)
+        assert obj.shards.n_restarts >= 1 and ref.n_evaluations == obj.n_evaluations == 3
+    finally:
+        obj.close()
+
+
+def test_dask_workers_run_fits_with_one_job(client):
+    from factirl_opt.parallel import effective_n_jobs
+
+    assert client.submit(effective_n_jobs, -1, pure=False).result() == 1
+
+
+def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypatch):
+    mdp, demos, F = data
+    restarts = []
+    close = ShardedObjective.close
+    monkeypatch.setattr(ShardedObjective, "close", lambda self: (restarts.append(self.shards.n_restarts), close(self)))
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F,
+              h_solver="gn-qp-clarabel", d_solver="lbfgs")
+    a = fo.FactIRL(**kw).fit(mdp, demos)
+
+    def kill(iteration, total):
+        if iteration == 1:
+            victim = sorted(client.scheduler_info()["workers"])[-1]
+            try:
+                client.run(os._exit, 1, workers=[victim])
+            except Exception:  # noqa: BLE001 - the worker dies while answering
+                pass
+            time.sleep(0.5)
+
+    client.wait_for_workers(2)  # a worker killed by another test is back
+    b = fo.FactIRL(backend="dask", client=client, n_jobs=2, callback=kill, **kw).fit(mdp, demos)
+    assert restarts == [1]  # the lost shard was rebuilt once
+    for name in ("dictionary_", "coefficients_", "loss_"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
+
+
+def test_errors_of_the_computation_are_raised_not_retried(client):
+    from factirl_opt.parallel import Shards
+
+    shards = Shards([(dict, ()), (dict, ())], "dask", client)
+    try:
+        with pytest.raises(KeyError, match="missing"):
+            shards.call([(0, "pop", ("missing",)), (1, "pop", ("missing", 7))])
+        assert shards.call([(1, "pop", ("missing", 7))]) == [7] and shards.n_restarts == 0
+    finally:
+        shards.close()
