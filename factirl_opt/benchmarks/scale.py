@@ -50,7 +50,8 @@ no stopping rule before N (``tol=0``, ``gtol=0``), under the planning budget ``-
 ``demonstrations_s``, ``fit_s``, ``fit_s_per_iter``, ``n_iter``, ``n_evaluations``,
 ``loss_history``, ``planning_bytes_per_task`` (the budget's estimate for a Jacobian),
 ``tasks_per_chunk`` (of the H-step's Jacobians and of the gradients; ``--tasks`` when all
-fit) and ``peak_rss_mb``; and
+fit), ``peak_rss_before_fit_mb`` (the world and the demonstrations: ``ru_maxrss`` before the
+fit) and ``peak_rss_mb`` (after it); and
 ``peak_rss_summed_mb``, the peaks of this process and of the size's process added (a sum over
 processes, not the peak of one). ``--max-bytes`` applies to fits only.
 """
@@ -203,6 +204,7 @@ def _one_fit(size, args):
 
         t_demos, demos_per_task = _timed(demos)
         del R
+        before = _peak_rss_mb()
         clear_caches(mdp)
         features = objectworld_features(world)
         model = FactIRL(beta=args.beta, max_iter=args.fit_iter, features=features, rng=args.seed, **FIT_OPTIONS)
@@ -217,7 +219,7 @@ def _one_fit(size, args):
         "n_iter": model.n_iter_, "n_evaluations": model.n_evaluations_, "status": model.status_,
         "loss_history": [float(v) for v in model.loss_history_],
         "planning_bytes_per_task": task_bytes(planner, FIT_OPTIONS["n_primitives"]), "tasks_per_chunk": chunks,
-        "peak_rss_mb": _peak_rss_mb(),
+        "peak_rss_before_fit_mb": before, "peak_rss_mb": _peak_rss_mb(),
     }
 
 
