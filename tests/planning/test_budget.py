@@ -184,14 +184,19 @@ def test_mce_under_budget_equals_unbounded(problem):
     assert tight.n_evaluations == free.n_evaluations == 2
 
 
-def test_many_environments_under_context_budget(problem):
+@pytest.mark.parametrize("how", ["options", "context"])
+def test_many_environments_under_budget(problem, how):
     mdp, mu, pi, R = problem[:4]
     other = fo.GridWorld(size=6, p_success=0.8, gamma=0.9)
     mdps = [mdp, other, mdp, other, mdp, mdp, other]
     free = MultiEnvironmentObjective(mdps, mu, pi, 2.0, planner="sparse-lu")
-    tight = MultiEnvironmentObjective(mdps, mu, pi, 2.0, planner="sparse-lu")
-    with planning.planning_budget(1):
+    options = {"max_bytes": 1} if how == "options" else None
+    tight = MultiEnvironmentObjective(mdps, mu, pi, 2.0, planner="sparse-lu", planner_options=options)
+    assert all(o.max_bytes == (1 if how == "options" else None) for o in tight.objectives)
+    with planning.planning_budget(1 if how == "context" else None):
         assert_close(tight.loss_and_grad(R), free.loss_and_grad(R))
+        lin_free, lin_tight = free.linearize(R), tight.linearize(R)
+        np.testing.assert_allclose(lin_tight.jvp(R), lin_free.jvp(R), **TOL)
 
 
 def test_factirl_fit_under_budget_equals_unbounded():
