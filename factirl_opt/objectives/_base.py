@@ -130,20 +130,25 @@ class Objective:
         return chunk_size(n, task_bytes(self.planner, directions), effective_budget(self.max_bytes))
 
     def _chunked(self, rewards, rows, work, size):
-        """``[(positions, loss, work(point)), ...]`` over chunks of ``size`` tasks, in order; one
-        evaluation counted. Each chunk is planned with a transient factorisation cache and its
-        point dropped before the next, so at most one chunk's factorisations are alive (this
-        thread's own cache is emptied first: a budget keeps nothing between calls)."""
+        """Loss (r,) and the arrays of ``work(point)`` (a tuple, tasks first) over chunks of ``size``
+        tasks, written in place in task order; one evaluation counted. Each chunk is planned with
+        a transient factorisation cache and its point dropped before the next, so at most one
+        chunk's factorisations are alive (this thread's own cache is emptied first: a budget
+        keeps nothing between calls)."""
         self.planner.clear_thread_cache()
-        out = []
-        for lo in range(0, len(rows), size):
-            c = slice(lo, lo + size)
+        loss, stacked = np.empty(len(rows)), None
+        for c in _slices(len(rows), size):
             with self.planner.transient_cache():
                 point = self._point(rewards[c], rows[c])
-                out.append((c, point.loss, work(point)))
+                loss[c], parts = point.loss, work(point)
                 del point
+            if stacked is None:
+                stacked = tuple(np.empty((len(rows), *np.shape(x)[1:]), dtype=np.asarray(x).dtype) for x in parts)
+            for out, x in zip(stacked, parts):
+                out[c] = x
+            del parts
         self.n_evaluations += 1
-        return out
+        return (loss, *stacked)
 
     def loss_and_grad(self, rewards, rows=None):
         """Loss per task (r,) and ``dJ/dR`` (r, S, A) at ``rewards`` of tasks ``rows``.
@@ -160,8 +165,7 @@ class Objective:
             point = self._evaluate(rewards, rows)
             loss, grad = point.loss, self._grad(point)
         else:
-            parts = self._chunked(rewards, rows, self._grad, size)
-            loss, grad = _joined(parts, 1), _joined(parts, 2)
+            loss, grad = self._chunked(rewards, rows, lambda point: (self._grad(point),), size)
         self._last_R[rows], self._last_loss[rows], self._last_grad[rows] = rewards, loss, grad
         return loss, grad
 
@@ -187,10 +191,8 @@ class Objective:
         if size >= len(rows):
             point = self._evaluate(rewards, rows)
             return point.loss, self._linearize(point).residual, self._jacobian(point, features)
-        parts = self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
-                                                            self._jacobian(point, features)), size)
-        blocks = [(c, loss, res) for c, loss, (res, _) in parts], [(c, loss, jac) for c, loss, (_, jac) in parts]
-        return _joined(parts, 1), _joined(blocks[0], 2), _joined(blocks[1], 2)
+        return self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
+                                                           self._jacobian(point, features)), size)
 
     def linearize(self, rewards, rows=None):
         """``solvers.Linearization`` at ``rewards`` of tasks ``rows``, in reward space.
@@ -207,17 +209,16 @@ class Objective:
         size = self._chunk(len(rows))
         if size >= len(rows):
             return self._linearize(self._evaluate(rewards, rows))
-        parts = self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
-                                                            self._warm_start(point)), size)
-        replays = [(c, rewards[c], rows[c], warm) for c, _, (_, warm) in parts]
+        loss, residual, warm = self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
+                                                                           self._warm_start(point)), size)
+        rewards, rows = rewards.copy(), rows.copy()  # the caller may reuse its arrays before the products
 
         def product(name, X):
             X = np.asarray(X)
-            return np.concatenate([self._replayed(name, R, r, warm, X[c]) for c, R, r, warm in replays])
+            return np.concatenate([self._replayed(name, rewards[c], rows[c], warm[c], X[c])
+                                   for c in _slices(len(rows), size)])
 
-        residual = _joined([(c, loss, res) for c, loss, (res, _) in parts], 2)
-        return Linearization(_joined(parts, 1), residual, functools.partial(product, "jvp"),
-                             functools.partial(product, "vjp"))
+        return Linearization(loss, residual, functools.partial(product, "jvp"), functools.partial(product, "vjp"))
 
     def _replayed(self, name, R, rows, warm, X):
         """The Jacobian product ``name`` (``"jvp"`` or ``"vjp"``) of X at tasks ``rows``, planned
@@ -226,6 +227,6 @@ class Objective:
             return getattr(self._linearize(self._forward(R, rows, warm)), name)(X)
 
 
-def _joined(parts, field):
-    """The ``field``-th entries of a chunked evaluation's parts, stacked in task order."""
-    return np.concatenate([part[field] for part in parts])
+def _slices(n, size):
+    """Consecutive slices of ``size`` positions covering ``range(n)``."""
+    return [slice(lo, lo + size) for lo in range(0, n, size)]
