@@ -39,10 +39,26 @@ planner's fitted exponent ``warm_s ~ S^e`` (log-log least squares over the sizes
 ``--fit-min-size``, default 32), the same two for ``warm_perturbed_s`` (``..._perturbed``), and the load average before and after the run (the timings
 are wall times on a possibly shared machine). ``--plot PATH`` writes a log-log figure
 (matplotlib, Agg backend). BLAS threads are limited to ``--blas-threads`` (default 1).
+
+Fits (``--fit-iter N``, instead of the planner timings): per size, an Objectworld of that side
+(5 inner and 2 outer colours, object density 0.05) with ``--tasks`` tasks
+(``multitask_rewards``) and their demonstrations (``--n-demos`` x ``--length``, sampled 100 tasks
+at a time), then a FactIRL fit on the world's features (``objectworld_features``) for N outer
+iterations: random start, Gauss-Newton QP H-steps (Clarabel), L-BFGS D-steps, 2 inner steps,
+no stopping rule before N (``tol=0``, ``gtol=0``), under the planning budget ``--max-bytes``
+(:mod:`factirl_opt.planning.budget`; default none). Reported per size: ``build_s``,
+``demonstrations_s``, ``fit_s``, ``fit_s_per_iter``, ``n_iter``, ``n_evaluations``,
+``loss_history``, ``planning_bytes_per_task`` (the budget's estimate for a Jacobian),
+``tasks_per_chunk`` (of the H-step's Jacobians and of the gradients; ``--tasks`` when all
+fit), ``peak_rss_before_fit_mb`` (the world and the demonstrations: ``ru_maxrss`` before the
+fit) and ``peak_rss_mb`` (after it); and
+``peak_rss_summed_mb``, the peaks of this process and of the size's process added (a sum over
+processes, not the peak of one). ``--max-bytes`` applies to fits only.
 """
 
 import argparse
 import multiprocessing
+import sys
 import os
 import resource
 import time
@@ -52,10 +68,14 @@ import numpy as np
 from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
 from ..evaluation import deviation
+from ..exceptions import ValidationError
+from ..factirl import FactIRL
 from ..files import atomic_write
 from ..mdp import GridWorld
 from ..objectives import policy_matching_loss
-from ..planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optimal_q
+from ..objectworld import make_objectworld, multitask_rewards, objectworld_features, state_action_rewards
+from ..planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optimal_q, planning_budget
+from ..planning.budget import check_max_bytes, chunk_size, task_bytes
 from ..synthetic import random_coefficients, random_dictionary, task_rewards
 
 __all__ = ["add_arguments", "run"]
@@ -79,6 +99,11 @@ def add_arguments(parser):
     parser.add_argument("--plot", default=None, metavar="PATH", help="write a log-log plot of the timings to PATH")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--blas-threads", type=int, default=1, help="OpenBLAS threads (0: leave as is; default 1)")
+    parser.add_argument("--fit-iter", type=int, default=0, metavar="N",
+                        help="instead of the planner timings, fit FactIRL on an Objectworld's features for N outer "
+                             "iterations per size (default 0: timings)")
+    parser.add_argument("--max-bytes", type=float, default=None,
+                        help="planning memory budget of the fits in bytes, e.g. 16e9 (default: none)")
 
 
 def _timed(fn):
@@ -152,8 +177,56 @@ def _one_size(size, args):
         "changed_tasks": int(np.count_nonzero(changes)),
         "max_changed_states": int(changes.max()),
         "grad_max_rel_diff": diffs,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "peak_rss_mb": _peak_rss_mb(),
     }
+
+
+#: tasks sampled at once by the fits' demonstrations (their planning is not budgeted)
+DEMO_CHUNK = 100
+#: the fits' primitives and solvers (the Objectworld presets' FactIRL on features, from a random start)
+FIT_OPTIONS = dict(n_primitives=5, init="random", h_solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2,
+                   tol=0.0, gtol=0.0)
+
+
+def _one_fit(size, args):
+    """A FactIRL fit on an Objectworld of side ``size`` (see the module docstring)."""
+    with limit_blas_threads(args.blas_threads):
+        rng = np.random.default_rng([args.seed, size])
+        t_build, world = _timed(lambda: make_objectworld(size, 5, 2, 0.05, rng=rng))
+        mdp = world.mdp()
+        R = state_action_rewards(multitask_rewards(world, args.tasks, rng=rng)[0], mdp.n_actions)
+
+        def demos():
+            out = []
+            for lo in range(0, args.tasks, DEMO_CHUNK):
+                out += sample_demonstrations(mdp, R[lo:lo + DEMO_CHUNK], args.n_demos, args.length, rng)
+            return out
+
+        t_demos, demos_per_task = _timed(demos)
+        del R
+        before = _peak_rss_mb()
+        clear_caches(mdp)
+        features = objectworld_features(world)
+        model = FactIRL(beta=args.beta, max_iter=args.fit_iter, features=features, rng=args.seed, **FIT_OPTIONS)
+        with planning_budget(args.max_bytes):
+            t_fit, _ = _timed(lambda: model.fit(mdp, demos_per_task))
+        planner = get_planner(mdp)
+        chunks = {what: chunk_size(args.tasks, task_bytes(planner, d), args.max_bytes)
+                  for what, d in (("jacobian", FIT_OPTIONS["n_primitives"]), ("gradient", 0))}
+    return {
+        "n_states": mdp.n_states, "n_actions": mdp.n_actions, "n_features": int(features.shape[1]),
+        "build_s": t_build, "demonstrations_s": t_demos, "fit_s": t_fit, "fit_s_per_iter": t_fit / max(1, model.n_iter_),
+        "n_iter": model.n_iter_, "n_evaluations": model.n_evaluations_, "status": model.status_,
+        "loss_history": [float(v) for v in model.loss_history_],
+        "planning_bytes_per_task": task_bytes(planner, FIT_OPTIONS["n_primitives"]), "tasks_per_chunk": chunks,
+        "peak_rss_before_fit_mb": before, "peak_rss_mb": _peak_rss_mb(),
+    }
+
+
+def _peak_rss_mb():
+    """This process's peak resident memory (MiB; ``ru_maxrss`` is in KiB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0
 
 
 def _fit_exponent(per_size, min_size, key="warm_s"):
@@ -199,21 +272,58 @@ def _plot(per_size, path, tasks):
         plt.close(fig)
 
 
-def _measure_all(args):
+def _measure_all(args, measure):
     if args.in_process:
-        return {f"{s}x{s}": _one_size(s, args) for s in args.sizes}
+        return {f"{s}x{s}": measure(s, args) for s in args.sizes}
     ctx = multiprocessing.get_context("spawn")
     per_size = {}
     plain = argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
     for s in args.sizes:
         with ctx.Pool(1) as pool:  # a fresh process per size: its own peak memory
-            per_size[f"{s}x{s}"] = pool.apply(_one_size, (s, plain))
+            per_size[f"{s}x{s}"] = pool.apply(measure, (s, plain))
     return per_size
 
 
-def run(args):
+def _check_fit_args(args):
+    """Validated ``--fit-iter`` and ``--max-bytes`` (ValidationError naming the value)."""
+    if isinstance(args.fit_iter, bool) or not isinstance(args.fit_iter, int) or args.fit_iter < 0:
+        raise ValidationError(f"--fit-iter must be an integer >= 0; got {args.fit_iter!r}")
+    if args.max_bytes is not None and not args.fit_iter:
+        raise ValidationError(f"--max-bytes {args.max_bytes!r} applies to fits only: give --fit-iter N too")
+    max_bytes = check_max_bytes(args.max_bytes, "--max-bytes")
+    if args.tasks < 1:
+        raise ValidationError(f"--tasks must be >= 1; got {args.tasks!r}")
+    return max_bytes
+
+
+def run_fits(args):
+    """The ``--fit-iter`` mode: one FactIRL fit per size (see the module docstring)."""
     load_before = os.getloadavg()
-    per_size = _measure_all(args)
+    per_size = _measure_all(args, _one_fit)
+    own = _peak_rss_mb()
+    return {
+        "benchmark": "scale",
+        "mode": "fit",
+        "sizes": per_size,
+        "peak_rss_summed_mb": {name: own + (0.0 if args.in_process else e["peak_rss_mb"]) for name, e in per_size.items()},
+        "load_average": {"before": list(load_before), "after": list(os.getloadavg())},
+        "settings": {
+            "sizes": list(args.sizes), "tasks": args.tasks, "n_demos": args.n_demos, "length": args.length,
+            "beta": args.beta, "fit_iter": args.fit_iter, "max_bytes": args.max_bytes, "seed": args.seed,
+            "blas_threads": args.blas_threads, "fit": {k: v for k, v in FIT_OPTIONS.items()},
+            "world": "make_objectworld(size, 5, 2, 0.05), multitask_rewards, objectworld_features",
+            "memory": "ru_maxrss of the process that measured the size"
+                      + (" (this process: the peak so far)" if args.in_process else " (a fresh process per size)"),
+        },
+    }
+
+
+def run(args):
+    args.max_bytes = _check_fit_args(args)
+    if args.fit_iter:
+        return run_fits(args)
+    load_before = os.getloadavg()
+    per_size = _measure_all(args, _one_size)
     if args.plot:
         _plot(per_size, args.plot, args.tasks)
     return {

@@ -6,13 +6,24 @@ runs. Subclasses implement the forward pass (:meth:`Objective._forward`), what w
 next one (:meth:`Objective._warm_start`) and the gradient (:meth:`Objective._grad`);
 least-squares objectives (``least_squares = True``) also give residuals and their
 derivatives, which the Gauss-Newton solvers need.
+
+Under a planning memory budget (``planner_options={"max_bytes": ...}`` or
+:func:`factirl_opt.planning.planning_budget`) that the tasks of a call do not fit in, every
+operation runs chunk by chunk, each chunk's factorisations released before the next
+(:mod:`factirl_opt.planning.budget`); without one, or when they fit, every task is planned at
+once, as always.
 """
 
+import functools
+
 import numpy as np
+
+from solvers import Linearization
 
 from .._validation import check_beta, check_mdp, check_statistics
 from ..exceptions import ValidationError
 from ..planning import get_planner
+from ..planning.budget import check_planner_options, chunk_size, effective_budget, task_bytes
 
 __all__ = ["Objective"]
 
@@ -30,6 +41,10 @@ class Objective:
     beta : float
         Inverse temperature.
     planner : str or Planner, default="auto"
+    planner_options : dict, optional
+        ``{"max_bytes": int}``: this objective's planning memory budget in bytes (see
+        :mod:`factirl_opt.planning.budget`; default None: the :func:`~factirl_opt.planning.planning_budget`
+        in force where a method is called, if any).
 
     Attributes
     ----------
@@ -37,14 +52,17 @@ class Objective:
         Batched planning evaluations so far (one call plans every task it is asked about at
         once; a repeated call at the same rewards is served from a cache and not counted).
     n_tasks : int
+    max_bytes : int or None
+        This objective's own planning budget (from ``planner_options``).
     """
 
     name = "base"
     #: whether the loss is ``||residual||^2`` per task (Gauss-Newton solvers apply)
     least_squares = False
 
-    def __init__(self, mdp, mu_hat, pi_hat, beta, planner="auto"):
+    def __init__(self, mdp, mu_hat, pi_hat, beta, planner="auto", planner_options=None):
         self.mdp = check_mdp(mdp)
+        self.max_bytes = check_planner_options(planner_options)["max_bytes"]
         self.mu, self.pi_hat = check_statistics(mdp, mu_hat, pi_hat)
         self.beta = check_beta(beta)
         self.planner = get_planner(mdp, planner)
@@ -107,6 +125,31 @@ class Objective:
         self.n_evaluations += 1
         return point
 
+    def _chunk(self, n, directions=0):
+        """Tasks per chunk under the planning budget in force (``n``: one chunk, as without a budget)."""
+        return chunk_size(n, task_bytes(self.planner, directions), effective_budget(self.max_bytes))
+
+    def _chunked(self, rewards, rows, work, size):
+        """Loss (r,) and the arrays of ``work(point)`` (a tuple, tasks first) over chunks of ``size``
+        tasks, written in place in task order; one evaluation counted. Each chunk is planned with
+        a transient factorisation cache and its point dropped before the next, so at most one
+        chunk's factorisations are alive (this thread's own cache is emptied first: a budget
+        keeps nothing between calls)."""
+        self.planner.clear_thread_cache()
+        loss, stacked = np.empty(len(rows)), None
+        for c in _slices(len(rows), size):
+            with self.planner.transient_cache():
+                point = self._point(rewards[c], rows[c])
+                loss[c], parts = point.loss, work(point)
+                del point
+            if stacked is None:
+                stacked = tuple(np.empty((len(rows), *np.shape(x)[1:]), dtype=np.asarray(x).dtype) for x in parts)
+            for out, x in zip(stacked, parts):
+                out[c] = x
+            del parts
+        self.n_evaluations += 1
+        return (loss, *stacked)
+
     def loss_and_grad(self, rewards, rows=None):
         """Loss per task (r,) and ``dJ/dR`` (r, S, A) at ``rewards`` of tasks ``rows``.
 
@@ -117,10 +160,14 @@ class Objective:
         rewards = np.asarray(rewards, dtype=np.float64)
         if np.array_equal(self._last_R[rows], rewards):
             return self._last_loss[rows].copy(), self._last_grad[rows].copy()
-        point = self._evaluate(rewards, rows)
-        grad = self._grad(point)
-        self._last_R[rows], self._last_loss[rows], self._last_grad[rows] = rewards, point.loss, grad
-        return point.loss, grad
+        size = self._chunk(len(rows))
+        if size >= len(rows):
+            point = self._evaluate(rewards, rows)
+            loss, grad = point.loss, self._grad(point)
+        else:
+            loss, grad = self._chunked(rewards, rows, lambda point: (self._grad(point),), size)
+        self._last_R[rows], self._last_loss[rows], self._last_grad[rows] = rewards, loss, grad
+        return loss, grad
 
     def _require_least_squares(self, what):
         if not self.least_squares:
@@ -138,14 +185,48 @@ class Objective:
             ``F``: the Jacobian is with respect to the weights ``w``.
         """
         self._require_least_squares("residual_jacobian")
-        point = self._evaluate(rewards, self._rows(rows))
-        return point.loss, self._linearize(point).residual, self._jacobian(point, features)
+        rows = self._rows(rows)
+        rewards = np.asarray(rewards, dtype=np.float64)
+        size = self._chunk(len(rows), np.shape(features)[-1])
+        if size >= len(rows):
+            point = self._evaluate(rewards, rows)
+            return point.loss, self._linearize(point).residual, self._jacobian(point, features)
+        return self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
+                                                           self._jacobian(point, features)), size)
 
     def linearize(self, rewards, rows=None):
         """``solvers.Linearization`` at ``rewards`` of tasks ``rows``, in reward space.
 
         ``residual`` is (r, m); ``jvp`` maps reward directions (r, S, A) to (r, m) (forward mode,
         one solve per task); ``vjp`` maps (r, m) to (r, S, A) (one transposed solve per task).
+        Under a planning budget that the tasks do not fit in, only each task's greedy policy is
+        kept, and every product plans each chunk again from it (one factorisation per task, the
+        same policy), applies the product and releases the chunk.
         """
         self._require_least_squares("linearize")
-        return self._linearize(self._evaluate(rewards, self._rows(rows)))
+        rows = self._rows(rows)
+        rewards = np.asarray(rewards, dtype=np.float64)
+        size = self._chunk(len(rows))
+        if size >= len(rows):
+            return self._linearize(self._evaluate(rewards, rows))
+        loss, residual, warm = self._chunked(rewards, rows, lambda point: (self._linearize(point).residual,
+                                                                           self._warm_start(point)), size)
+        rewards, rows = rewards.copy(), rows.copy()  # the caller may reuse its arrays before the products
+
+        def product(name, X):
+            X = np.asarray(X)
+            return np.concatenate([self._replayed(name, rewards[c], rows[c], warm[c], X[c])
+                                   for c in _slices(len(rows), size)])
+
+        return Linearization(loss, residual, functools.partial(product, "jvp"), functools.partial(product, "vjp"))
+
+    def _replayed(self, name, R, rows, warm, X):
+        """The Jacobian product ``name`` (``"jvp"`` or ``"vjp"``) of X at tasks ``rows``, planned
+        again from their greedy policies ``warm`` with a transient cache (not counted)."""
+        with self.planner.transient_cache():
+            return getattr(self._linearize(self._forward(R, rows, warm)), name)(X)
+
+
+def _slices(n, size):
+    """Consecutive slices of ``size`` positions covering ``range(n)``."""
+    return [slice(lo, lo + size) for lo in range(0, n, size)]

@@ -137,6 +137,9 @@ class MultiEnvironmentObjective:
     objective : str or Objective subclass, default="policy-matching"
         The per-group objective (see :func:`factirl_opt.available_objectives`).
     planner : str, default="auto"
+    planner_options : dict, optional
+        Given to every group's objective (``{"max_bytes": ...}``: each group's planning budget,
+        :mod:`factirl_opt.planning.budget`).
 
     Attributes
     ----------
@@ -161,7 +164,7 @@ class MultiEnvironmentObjective:
     """
 
     def __init__(self, mdps: TabularMDP | Sequence[TabularMDP], mu_hat: Any, pi_hat: Any, beta: float,
-                 objective: Any = "policy-matching", planner: Any = "auto") -> None:
+                 objective: Any = "policy-matching", planner: Any = "auto", planner_options: dict | None = None) -> None:
         cls = get_objective(objective)
         self.mdps = check_environments(mdps, len(mu_hat))
         mus, pis = _task_statistics(self.mdps, mu_hat, pi_hat)
@@ -170,7 +173,8 @@ class MultiEnvironmentObjective:
         self.objectives = []
         for g, mdp in enumerate(self.group_mdps):
             tasks = np.flatnonzero(self.task_group == g)
-            self.objectives.append(cls(mdp, np.stack([mus[i] for i in tasks]), np.stack([pis[i] for i in tasks]), beta, planner=planner))
+            self.objectives.append(cls(mdp, np.stack([mus[i] for i in tasks]), np.stack([pis[i] for i in tasks]), beta,
+                                       planner=planner, planner_options=planner_options))
         self.name, self.least_squares = cls.name, cls.least_squares
         self.n_tasks = len(self.mdps)
         self.n_actions = self.mdps[0].n_actions
@@ -328,7 +332,8 @@ class MultiEnvironmentObjective:
 
 
 def multi_environment_objective(mdps: TabularMDP | Sequence[TabularMDP], demos_per_task: Sequence[Any], beta: float,
-                                objective: Any = "policy-matching", planner: Any = "auto") -> MultiEnvironmentObjective:
+                                objective: Any = "policy-matching", planner: Any = "auto",
+                                planner_options: dict | None = None) -> MultiEnvironmentObjective:
     """The named objective over tasks in several environments, bound to their demonstrations.
 
     Parameters
@@ -340,6 +345,8 @@ def multi_environment_objective(mdps: TabularMDP | Sequence[TabularMDP], demos_p
     beta : float
     objective : str, default="policy-matching"
     planner : str, default="auto"
+    planner_options : dict, optional
+        See :class:`MultiEnvironmentObjective`.
 
     Raises
     ------
@@ -362,4 +369,4 @@ def multi_environment_objective(mdps: TabularMDP | Sequence[TabularMDP], demos_p
         mu, pi = empirical_statistics(mdp, [demos_per_task[int(t)] for t in tasks])
         for j, t in enumerate(tasks):
             mus[t], pis[t] = mu[j], pi[j]
-    return MultiEnvironmentObjective(envs, mus, pis, beta, objective, planner)
+    return MultiEnvironmentObjective(envs, mus, pis, beta, objective, planner, planner_options)

@@ -21,6 +21,10 @@ Planners (``planner=`` by name everywhere; :func:`available_planners`,
     crossover measured on GridWorld with 100 tasks (``python -m factirl_opt.bench scale``), so
     the paper's 10x10 grid keeps the dense arithmetic.
 
+Memory. A planning budget (an objective's ``planner_options={"max_bytes": ...}``, or the
+:func:`planning_budget` context manager) makes objectives plan, solve and release their tasks
+chunk by chunk instead of keeping every task's factorisations (:mod:`~factirl_opt.planning.budget`).
+
 Modules: :mod:`~factirl_opt.planning.engine` (policy iteration, policy values, adjoint and
 tangent), :mod:`~factirl_opt.planning.base` (the planner interface),
 :mod:`~factirl_opt.planning.registry`, one module per planner, the low-rank updates, the caches
@@ -35,6 +39,7 @@ sequential ones.
 """
 
 from .base import Planner, PolicySystem
+from .budget import get_planning_budget, planning_budget
 from .cache import CACHE_GROUPS_PER_TASK, FACTOR_CACHE_BYTES, FactorCache, clear_caches
 from .dense import DENSE_CHUNK_BYTES, DensePlanner
 from .engine import PlanResult, adjoint, boltzmann_policy, optimal_q, plan, policy_evaluation, tangent, value_iteration
@@ -56,6 +61,8 @@ __all__ = [
     "unregister_planner",
     "resolve_planner",
     "clear_caches",
+    "planning_budget",
+    "get_planning_budget",
     "optimal_q",
     "policy_evaluation",
     "boltzmann_policy",

@@ -11,7 +11,9 @@ values (n, S, A), deterministic policies (n, S) of action indices, stochastic on
 from __future__ import annotations
 
 import abc
+import contextlib
 import weakref
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -91,6 +93,22 @@ class Planner(abc.ABC):
 
     def clear_cache(self) -> None:
         """Forget any factorisations kept between calls (no-op for planners that keep none)."""
+
+    def clear_thread_cache(self) -> None:
+        """Forget the factorisations this thread keeps between calls (no-op for planners that keep none)."""
+
+    @contextlib.contextmanager
+    def transient_cache(self) -> Iterator[None]:
+        """Inside the block, what this thread's planning would cache goes to a cache that is
+        dropped on exit (a memory budget's chunks, :mod:`factirl_opt.planning.budget`); a no-op
+        for planners that keep nothing between calls."""
+        yield
+
+    def task_bytes(self) -> int:
+        """Estimated planning memory of one task during an evaluation (bytes), what a memory
+        budget divides (:mod:`factirl_opt.planning.budget`): here one dense (S, S) system, the
+        size of what the dense planner builds per task while it solves."""
+        return 8 * self.S * self.S
 
     def q_from_values(self, R: NDArray[np.float64], V: NDArray[np.float64]) -> NDArray[np.float64]:
         """``Q = R + gamma P V``: R (n, S, A), V (n, S) -> (n, S, A)."""

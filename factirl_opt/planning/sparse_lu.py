@@ -6,8 +6,10 @@ Memory and time per task grow like the factorisation of ``M = I - gamma P_pi``, 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import weakref
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -18,7 +20,7 @@ from numpy.typing import NDArray
 from ..exceptions import FactIRLError
 from .allocator import mapped_allocations, release_free_memory
 from .base import Planner, PolicySystem
-from .cache import FactorCache
+from .cache import CACHE_GROUPS_PER_TASK, FactorCache
 from .lowrank import UPDATE_MAX_RANK, UpdatedFactor
 
 __all__ = ["SparseLUPlanner", "FactorSystem", "TaskFactor", "greedy_actions",
@@ -155,11 +157,13 @@ class SparseLUPlanner(Planner):
         union = (sp.csr_matrix((np.ones(S * A), (np.arange(S * A) // A, np.arange(S * A))), shape=(S, S * A)) @ union)
         union = (union + sp.identity(S, format="csr")).tocsr()
         density = (union.nnz / S) / ((self.P.nnz + S * A) / (S * A))
+        self._union_nnz = None
         if density > FIXED_ORDER_MAX_DENSITY:
             return np.arange(S), "MMD_AT_PLUS_A"
         union.data[:] = 1.0
         union = sp.diags(1.0 / np.asarray(union.sum(axis=1)).ravel()) @ union
         union_lu = lu(sp.csc_matrix(sp.identity(S) - self.gamma * union), "MMD_AT_PLUS_A")
+        self._union_nnz = int(union_lu.nnz)  # any policy's fill in this order is a subset of the union's
         return np.argsort(union_lu.perm_c), "NATURAL"
 
     def _augmented(self):
@@ -260,7 +264,10 @@ class SparseLUPlanner(Planner):
     @property
     def factor_cache(self) -> FactorCache:
         """This thread's :class:`~factirl_opt.planning.cache.FactorCache` (created on first use;
-        dropped with the thread or the planner)."""
+        dropped with the thread or the planner), or inside :meth:`transient_cache` the block's."""
+        transient = getattr(self._local, "transient", None)
+        if transient is not None:
+            return transient
         cache = getattr(self._local, "cache", None)
         if cache is None:
             cache = self._local.cache = FactorCache()
@@ -287,6 +294,32 @@ class SparseLUPlanner(Planner):
             since_trim = 0
         self._local.since_trim = since_trim
         return factor
+
+    def clear_thread_cache(self) -> None:
+        """Forget this thread's cached factorisations (other threads keep theirs)."""
+        cache = getattr(self._local, "cache", None)
+        if cache is not None:
+            cache.clear()
+
+    @contextlib.contextmanager
+    def transient_cache(self) -> Iterator[None]:
+        """Inside the block, this thread's factorisations are cached in a fresh
+        :class:`~factirl_opt.planning.cache.FactorCache` (the thread's own is neither read nor
+        written), dropped on exit: once the caller drops its systems, their memory is freed."""
+        previous = getattr(self._local, "transient", None)
+        self._local.transient = FactorCache()
+        try:
+            yield
+        finally:
+            self._local.transient = previous
+
+    def task_bytes(self) -> int:
+        """Estimated planning memory of one task during an evaluation: ``CACHE_GROUPS_PER_TASK + 1``
+        factorisations (the cached groups and the one in use) at 16 bytes per entry, each at most
+        the fill of the actions' union pattern in the fixed ordering, else SuperLU's own first
+        estimate ``20 nnz(M)``."""
+        nnz = self._union_nnz if self._union_nnz is not None else 20 * (self.P.nnz // self.A + self.S)
+        return (CACHE_GROUPS_PER_TASK + 1) * 16 * nnz
 
     def clear_cache(self) -> None:
         """Forget the cached factorisations of every thread."""

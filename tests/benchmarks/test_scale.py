@@ -13,6 +13,7 @@ import pytest
 
 from factirl_opt import bench
 from factirl_opt.benchmarks import BENCHMARKS, scale
+from factirl_opt.exceptions import ValidationError
 
 PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_perturbed_s", "runs"}
 SIZE_KEYS = {"n_states", "n_actions", "default_resolves_to", "build_s", "demonstrations_s", "score_s", "planners",
@@ -95,3 +96,45 @@ def test_fresh_process_per_size():
     assert "fresh process" in out["settings"]["memory"]
     entry = out["sizes"]["3x3"]
     assert entry["n_states"] == 9 and entry["peak_rss_mb"] > 0
+
+
+FIT_KEYS = {"n_states", "n_actions", "n_features", "build_s", "demonstrations_s", "fit_s", "fit_s_per_iter", "n_iter",
+            "n_evaluations", "status", "loss_history", "planning_bytes_per_task", "tasks_per_chunk", "peak_rss_before_fit_mb", "peak_rss_mb"}
+
+
+def run_fit(capsys, *extra):
+    argv = ["scale", "--sizes", "5", "--tasks", "4", "--n-demos", "3", "--length", "4", "--fit-iter", "2", "--in-process",
+            *extra]
+    assert bench.main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_fit_mode_under_a_budget_matches_the_unbounded_fit(capsys):
+    free = run_fit(capsys)
+    tight = run_fit(capsys, "--max-bytes", "1")  # one task per chunk
+    assert free["mode"] == tight["mode"] == "fit" and set(free["sizes"]) == {"5x5"}
+    a, b = free["sizes"]["5x5"], tight["sizes"]["5x5"]
+    assert set(a) == set(b) == FIT_KEYS
+    assert a["n_states"] == 25 and a["n_actions"] == 5 and a["n_features"] == 4 * 7  # (N - 1)(c1 + c2)
+    assert a["n_iter"] == b["n_iter"] == 2 and len(a["loss_history"]) == 3 and a["n_evaluations"] == b["n_evaluations"]
+    np.testing.assert_allclose(b["loss_history"], a["loss_history"], rtol=1e-10)
+    assert a["tasks_per_chunk"] == {"jacobian": 4, "gradient": 4} and b["tasks_per_chunk"] == {"jacobian": 1, "gradient": 1}
+    assert a["fit_s_per_iter"] == pytest.approx(a["fit_s"] / 2) and a["planning_bytes_per_task"] > 0
+    assert free["settings"]["max_bytes"] is None and tight["settings"]["max_bytes"] == 1
+    assert tight["settings"]["fit_iter"] == 2 and tight["settings"]["fit"]["h_solver"] == "gn-qp-clarabel"
+    # in one process, the summed peak is that process's
+    assert tight["peak_rss_summed_mb"]["5x5"] >= b["peak_rss_mb"] >= b["peak_rss_before_fit_mb"] > 0
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--max-bytes", "0", "--fit-iter", "1"], "--max-bytes .*got 0"),
+    (["--max-bytes", "2.5", "--fit-iter", "1"], "--max-bytes .*got 2.5"),
+    (["--max-bytes", "1e9"], "--max-bytes 1000000000.0 applies to fits only"),
+    (["--fit-iter", "-1"], "--fit-iter must be an integer >= 0; got -1"),
+    (["--tasks", "0", "--fit-iter", "1"], "--tasks must be >= 1; got 0"),
+])
+def test_bad_fit_options_are_refused(extra, message):
+    parser = argparse.ArgumentParser()
+    scale.add_arguments(parser)
+    with pytest.raises(ValidationError, match=message):
+        scale.run(parser.parse_args(["--sizes", "3", *extra]))
