@@ -50,6 +50,7 @@ from .gradirl import fit_weights, weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
 from .objectives.distributed import sharded
+from .planning.budget import options_budget
 from .task_features import TaskFeatures
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
@@ -153,7 +154,7 @@ class FactIRL:
     callback : callable, optional
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
-    n_jobs, backend, client : ``fit`` and ``transfer`` over task shards, as in :class:`~factirl_opt.GradIRL`
+    n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
 
     Attributes
     ----------
@@ -221,7 +222,7 @@ class FactIRL:
                  planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
                  rng: np.random.Generator | int | None = None, verbose: bool = False,
                  callback: Callable | None = None, reward: str = "state-action", n_jobs: int | None = None,
-                 backend: str = "processes", client: Any = None) -> None:
+                 backend: str = "processes", client: Any = None, planner_options: dict | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
@@ -240,7 +241,7 @@ class FactIRL:
         self.rng = rng
         self.verbose = verbose
         self.callback = callback
-        self.n_jobs, self.backend, self.client = n_jobs, backend, client
+        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
 
     def _features(self, mdp):
         return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
@@ -372,7 +373,7 @@ class FactIRL:
         if one is not None:
             obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
-            with sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:  # n_jobs=1: obj itself
+            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
@@ -473,7 +474,7 @@ class FactIRL:
             obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
         try:
-            with sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
+            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
                                    verbose=self.verbose)
         except FitInterrupted as exc:

@@ -32,6 +32,7 @@ from .fitting import (
 )
 from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best, warn_interrupted
 from .objectives.distributed import sharded
+from .planning.budget import options_budget
 from .problems import linear_rewards, weights_problem
 
 __all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
@@ -141,6 +142,13 @@ class GradIRL:
         retried.
     client : dask.distributed.Client, optional
         The cluster of ``backend="dask"``.
+    planner_options : dict, optional
+        ``{"max_bytes": B}``: the planning memory budget of ``fit`` (and of FactIRL's
+        ``transfer``), per process (:mod:`factirl_opt.planning.budget`): above it the tasks are
+        planned, solved and released chunk by chunk, with the same result to rounding and more
+        factorisations. Shards in other processes or on Dask workers each get this budget.
+        None: no budget of the estimator's own (one set around the call with
+        ``factirl_opt.planning.planning_budget`` applies).
 
     Attributes
     ----------
@@ -192,7 +200,7 @@ class GradIRL:
                  solver: Any = "armijo", solver_options: dict | None = None, objective: Any = "policy-matching",
                  planner: str = "auto", verbose: bool = False, callback: Callable | None = None,
                  reward: str = "state-action", n_jobs: int | None = None, backend: str = "processes",
-                 client: Any = None) -> None:
+                 client: Any = None, planner_options: dict | None = None) -> None:
         self.beta = beta
         self.features = features
         self.reward = reward
@@ -205,6 +213,7 @@ class GradIRL:
         self.verbose = verbose
         self.callback = callback
         self.n_jobs, self.backend, self.client = n_jobs, backend, client
+        self.planner_options = planner_options
 
     @blas_limited
     def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
@@ -241,7 +250,8 @@ class GradIRL:
         max_iter, tol = loop
         solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
         try:
-            with sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
+            with options_budget(self.planner_options), \
+                    sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
                 res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
             store(exc.result, objective)

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from solvers import Linearization
 
 from ..parallel import Shards, contiguous_shards, effective_n_jobs
+from ..planning.budget import budget_options
 from ._base import Objective
 
 __all__ = ["ShardState", "ShardedObjective", "sharded", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
@@ -74,11 +75,14 @@ class ShardState:
     beta : float
     planner : str
         A registered planner name.
+    planner_options : dict, optional
+        The sharded objective's planning options (its budget, ``{"max_bytes": ...}``), applied in
+        the shard's process.
     """
 
     def __init__(self, cls: type, mdp: Any, mu_hat: NDArray[np.float64], pi_hat: NDArray[np.float64], beta: float,
-                 planner: str) -> None:
-        self.objective = cls(mdp, mu_hat, pi_hat, beta, planner=planner)
+                 planner: str, planner_options: dict | None = None) -> None:
+        self.objective = cls(mdp, mu_hat, pi_hat, beta, planner=planner, planner_options=planner_options)
         self.linearizations: dict[int, Linearization] = {}
         self.features: dict[int, Any] = {}
         self.problems: dict[int, Any] = {}
@@ -193,8 +197,9 @@ class ShardedObjective:
         for k, rows in enumerate(self.parts):
             self.owner[rows], self.local[rows] = k, np.arange(rows.size)
         name = objective.planner.name if planner is None else planner
+        options = budget_options(objective)
         specs = [(ShardState, (type(objective), objective.mdp, objective.mu[rows], objective.pi_hat[rows],
-                               objective.beta, name)) for rows in self.parts]
+                               objective.beta, name, options)) for rows in self.parts]
         self.shards = Shards(specs, backend, client)
         self._token = 0
         self._problems: dict[int, tuple] = {}  # token -> (build, features id, shard_args) of the kept problems

@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from solvers import Linearization
 
 from ..parallel import Shards
+from ..planning.budget import budget_options
 from .distributed import reduced_least_squares
 from .environments import MultiEnvironmentObjective
 
@@ -46,8 +47,9 @@ def _take(arrays: Any, pos: NDArray[np.intp]) -> Any:
 class EnvironmentShardState:
     """A shard's ``MultiEnvironmentObjective`` over its groups; evaluating calls return their evaluation count."""
 
-    def __init__(self, mdps: list, mu_hat: list, pi_hat: list, beta: float, cls: type, planner: Any) -> None:
-        self.objective = MultiEnvironmentObjective(mdps, mu_hat, pi_hat, beta, cls, planner)
+    def __init__(self, mdps: list, mu_hat: list, pi_hat: list, beta: float, cls: type, planner: Any,
+                 planner_options: dict | None = None) -> None:
+        self.objective = MultiEnvironmentObjective(mdps, mu_hat, pi_hat, beta, cls, planner, planner_options)
         self.linearizations: dict[int, Linearization] = {}
 
     def _counted(self, fn: Any, *args: Any) -> tuple:
@@ -101,13 +103,15 @@ class ShardedEnvironments:
         for k, tasks in enumerate(self.parts):
             self.owner[tasks], self.local[tasks] = k, np.arange(tasks.size)
         cls, beta = type(src.objectives[0]), src.objectives[0].beta
+        options = budget_options(src.objectives[0])  # every group's objective has the same planner options
 
         def stats(i):
             obj = src.objectives[src.task_group[i]]
             return obj.mu[src.local_index[i]], obj.pi_hat[src.local_index[i]]
 
         specs = [(EnvironmentShardState, ([src.mdps[i] for i in tasks], [stats(i)[0] for i in tasks],
-                                          [stats(i)[1] for i in tasks], beta, cls, planner)) for tasks in self.parts]
+                                          [stats(i)[1] for i in tasks], beta, cls, planner, options))
+                 for tasks in self.parts]
         self.shards = Shards(specs, backend, client)
         self._token = 0
         self._lins: dict[int, tuple] = {}  # token -> (rewards, rows): linearised again on a rebuilt shard

@@ -25,7 +25,7 @@ NAMED_PARAMS = {
 }
 #: Parameters that are not part of the model and are not saved (the loaded model has the default):
 #: how a fit is watched and where its evaluations run.
-RUNTIME_PARAMS = ("callback", "n_jobs", "backend", "client")
+RUNTIME_PARAMS = ("callback", "n_jobs", "backend", "client", "planner_options")
 #: Parameters stored as arrays when given as arrays.
 ARRAY_PARAMS = ("features", "init")
 

@@ -36,7 +36,7 @@ from typing import Any
 
 from ..exceptions import ValidationError
 
-__all__ = ["check_max_bytes", "check_planner_options", "planning_budget", "get_planning_budget",
+__all__ = ["budget_options", "options_budget", "check_max_bytes", "check_planner_options", "planning_budget", "get_planning_budget",
            "effective_budget", "chunk_size", "task_bytes", "WORK_ARRAYS_PER_TASK", "ARRAYS_PER_DIRECTION", "PLANNER_OPTIONS"]
 
 #: (S, A) float arrays an objective's evaluation holds per task besides its factorisations (Q,
@@ -128,3 +128,29 @@ def chunk_size(n_tasks: int, per_task: int, budget: int | None) -> int:
     if budget is None or n_tasks * per_task <= budget:
         return max(1, n_tasks)
     return max(1, min(n_tasks, budget // max(1, per_task)))
+
+
+def budget_options(objective: Any) -> dict | None:
+    """The ``planner_options`` that carry ``objective``'s budget into another process.
+
+    Its own ``max_bytes`` if it has one, else the budget of the calling context
+    (:func:`planning_budget`), read when the shards are built: a shard in a worker process or on a
+    Dask worker then plans under the budget the fit was started with. None without a budget.
+    """
+    budget = effective_budget(getattr(objective, "max_bytes", None))
+    return None if budget is None else {"max_bytes": budget}
+
+
+def options_budget(planner_options: Any) -> contextlib.AbstractContextManager:
+    """The budget of an estimator's ``planner_options`` as a context for its fit.
+
+    :func:`planning_budget` with ``planner_options["max_bytes"]`` when one is given; otherwise
+    a context that changes nothing (a budget set around the fit by the caller stays in force).
+
+    Raises
+    ------
+    ValidationError
+        As :func:`check_planner_options`.
+    """
+    max_bytes = check_planner_options(planner_options)["max_bytes"]
+    return contextlib.nullcontext() if max_bytes is None else planning_budget(max_bytes)

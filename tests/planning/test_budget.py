@@ -212,3 +212,65 @@ def test_factirl_fit_under_budget_equals_unbounded():
     for name in ("dictionary_", "coefficients_", "loss_"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
     assert a.n_evaluations_ == b.n_evaluations_ and a.n_iter_ == b.n_iter_ == 3
+
+
+def test_estimators_take_a_budget_of_their_own():
+    rng = np.random.default_rng(3)
+    mdp = fo.GridWorld(size=5, p_success=0.7, gamma=0.9)
+    demos = fo.sample_demonstrations(mdp, rng.standard_normal((6, mdp.n_states, mdp.n_actions)), 4, 6, rng)
+    F = rng.random((25, 4))
+    kw = dict(n_primitives=2, max_iter=2, init="random", rng=0, planner="sparse-lu", features=F,
+              h_solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2)
+    seen = []
+    spy = PolicyMatchingObjective._chunk  # the chunk rule every evaluation asks: record the budget it sees
+
+    def recording(self, *args, **kwargs):
+        seen.append(effective_budget(self.max_bytes))
+        return spy(self, *args, **kwargs)
+
+    a = fo.FactIRL(**kw).fit(mdp, demos)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(PolicyMatchingObjective, "_chunk", recording)
+        b = fo.FactIRL(planner_options={"max_bytes": 1}, **kw).fit(mdp, demos)
+    assert seen and set(seen) == {1}
+    assert planning.get_planning_budget() is None  # the estimator's budget ends with its fit
+    for name in ("dictionary_", "coefficients_", "loss_"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-10, atol=1e-12, err_msg=name)
+    assert a.n_evaluations_ == b.n_evaluations_
+    new = demos[:2]
+    np.testing.assert_allclose(b.transfer(mdp, new), a.transfer(mdp, new), rtol=1e-10, atol=1e-12)
+    flat_a = fo.GradIRL(features=F, max_iter=5, planner="sparse-lu").fit(mdp, demos)
+    flat_b = fo.GradIRL(features=F, max_iter=5, planner="sparse-lu", planner_options={"max_bytes": 1}).fit(mdp, demos)
+    np.testing.assert_allclose(flat_b.weights_, flat_a.weights_, rtol=1e-10, atol=1e-12)
+
+
+def test_shards_plan_under_the_fit_budget():
+    from factirl_opt.objectives.distributed import ShardedObjective
+    from factirl_opt.planning.budget import budget_options
+
+    grid = fo.GridWorld(size=3)
+    mu, pi = random_statistics(np.random.default_rng(0), grid, 4)
+    obj = PolicyMatchingObjective(grid, mu, pi, 2.0)
+    assert budget_options(obj) is None
+    with planning.planning_budget(5000):
+        assert budget_options(obj) == {"max_bytes": 5000}
+        sharded = ShardedObjective(obj, 2)
+    try:
+        assert [spec[1][-1] for spec in sharded.shards.specs] == [{"max_bytes": 5000}] * 2
+    finally:
+        sharded.close()
+    own = PolicyMatchingObjective(grid, mu, pi, 2.0, planner_options={"max_bytes": 7000})
+    with planning.planning_budget(5000):
+        assert budget_options(own) == {"max_bytes": 7000}  # an objective's own budget wins
+
+
+@pytest.mark.parametrize("options, match", [({"max_memory": 5}, "unknown planner_options 'max_memory'"),
+                                            (5, "planner_options must be a dict or None"),
+                                            ({"max_bytes": -1}, r"planner_options\['max_bytes'\]")])
+def test_estimators_refuse_bad_planner_options(options, match):
+    mdp = fo.GridWorld(size=3)
+    demos = fo.sample_demonstrations(mdp, np.random.default_rng(0).standard_normal((2, 9, 4)), 2, 3, 0)
+    for model in (fo.GradIRL(max_iter=1, planner_options=options), fo.FactIRL(n_primitives=1, max_iter=1,
+                                                                              planner_options=options)):
+        with pytest.raises(ValidationError, match=match):
+            model.fit(mdp, demos)
