@@ -19,7 +19,8 @@ processes during each fit: finished children's ``RUSAGE_CHILDREN`` plus, with ps
 growth of the live ones', e.g. the cluster's workers), ``n_evaluations`` and ``n_iter`` of the
 fit, and, when the objective was sharded, ``bytes_sent`` (array bytes sent to and received from
 the shards by the calls), ``bytes_setup`` (the shards' specs sent at their start),
-``bytes_per_evaluation`` and ``n_restarts`` of the last fit (:class:`factirl_opt.parallel.Shards`);
+``bytes_per_evaluation`` and ``n_restarts`` of the last fit (:class:`factirl_opt.parallel.Shards`;
+with ``n_jobs``, the first shard runs in this process and sends nothing);
 ``max_abs_diff``: the largest absolute difference of the last fit's ``dictionary_`` and
 ``coefficients_`` from the reference's.
 """
@@ -56,7 +57,7 @@ def check_jobs(jobs: list) -> None:
 def configurations(jobs: list | None, dask: bool) -> list[tuple[str, dict]]:
     """``(label, FactIRL keyword arguments)`` per configuration, the reference first; the dask one's
     ``client`` is filled in later."""
-    out = [(f"n_jobs={j}", {"n_jobs": int(j)}) for j in (jobs or [1])]
+    out: list[tuple[str, dict]] = [(f"n_jobs={j}", {"n_jobs": int(j)}) for j in (jobs or [1])]
     if dask:
         out.append(("dask", {"backend": "dask"}))
     return out
@@ -99,7 +100,7 @@ def record_traffic() -> Iterator[list]:
 def _live_children() -> dict[int, float]:
     """CPU seconds (user + system) of this process's live descendants, by pid ({} without psutil)."""
     try:
-        import psutil
+        import psutil  # type: ignore[import-untyped,unused-ignore]
     except ImportError:
         return {}
     out = {}
