@@ -16,9 +16,10 @@ cluster's workers), then ``--repeats`` rounds, each running every configuration 
 ``wall_s`` (every fit), ``median_s``, ``speed_up`` (the reference's median over this one's),
 ``cpu_driver_s`` and ``cpu_children_s`` (user + system CPU of this process and of its child
 processes during each fit: finished children's ``RUSAGE_CHILDREN`` plus, with psutil, the
-growth of the live ones', e.g. the cluster's workers), ``n_evaluations`` and ``n_iter`` of the
-fit, and, when the objective was sharded, ``bytes_sent`` (array bytes sent to and received from
-the shards by the calls), ``bytes_setup`` (the shards' specs sent at their start),
+growth of the live ones', e.g. the cluster's workers), ``n_evaluations``, ``n_iter`` and
+``final_loss`` (the last entry of ``loss_history_``) of the fit, and, when the objective was
+sharded, ``bytes_sent`` (array bytes sent to and received from the shards by the calls),
+``bytes_setup`` (the shards' specs sent at their start),
 ``bytes_per_evaluation`` and ``n_restarts`` of the last fit (:class:`factirl_opt.parallel.Shards`;
 with ``n_jobs``, the first shard runs in this process and sends nothing);
 ``max_abs_diff``: the largest absolute difference of the last fit's ``dictionary_`` and
@@ -155,6 +156,7 @@ def _entry(extra: dict, runs: list, model: Any, ref_model: Any, ref_median: floa
         "speed_up": (ref_median if ref_median is not None else median) / median,
         "cpu_driver_s": [r["cpu_driver_s"] for r in runs], "cpu_children_s": [r["cpu_children_s"] for r in runs],
         "n_evaluations": int(model.n_evaluations_), "n_iter": int(model.n_iter_),
+        "final_loss": float(model.loss_history_[-1]),
         "sharded": traffic is not None, "bytes_sent": None, "bytes_setup": None, "bytes_per_evaluation": None,
         "n_restarts": None, "max_abs_diff": _max_abs_diff(model, ref_model),
     }

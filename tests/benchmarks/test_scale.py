@@ -144,7 +144,7 @@ def test_bad_fit_options_are_refused(extra, message):
 
 
 CONFIG_KEYS = {"n_jobs", "backend", "wall_s", "median_s", "speed_up", "cpu_driver_s", "cpu_children_s", "n_evaluations",
-               "n_iter", "sharded", "bytes_sent", "bytes_setup", "bytes_per_evaluation", "n_restarts", "max_abs_diff"}
+               "n_iter", "final_loss", "sharded", "bytes_sent", "bytes_setup", "bytes_per_evaluation", "n_restarts", "max_abs_diff"}
 SIDE_ARGS = ["--sizes", "8", "--tasks", "4", "--n-demos", "3", "--length", "4", "--fit-iter", "1", "--in-process"]
 
 
@@ -162,6 +162,7 @@ def check_configuration(entry, ref, repeats):
     # the same fit: same evaluations and iterations, same learnt arrays
     assert entry["n_evaluations"] == ref["n_evaluations"] and entry["n_iter"] == ref["n_iter"] == 1
     assert entry["max_abs_diff"] < 1e-10
+    assert entry["final_loss"] == pytest.approx(ref["final_loss"], rel=1e-10)
 
 
 def test_fits_side_by_side_per_n_jobs(capsys):
@@ -184,6 +185,7 @@ def test_fits_side_by_side_per_n_jobs(capsys):
     plain = run_side(capsys)["sizes"]["8x8"]
     assert (plain["n_states"], plain["n_features"], plain["n_evaluations"]) == (size["n_states"], size["n_features"],
                                                                                 one["n_evaluations"])
+    assert plain["loss_history"][-1] == one["final_loss"]
 
 
 def test_fit_on_a_local_dask_cluster_matches_n_jobs_1(capsys):
