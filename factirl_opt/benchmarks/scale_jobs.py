@@ -16,7 +16,8 @@ cluster's workers), then ``--repeats`` rounds, each running every configuration 
 ``wall_s`` (every fit), ``median_s``, ``speed_up`` (the reference's median over this one's),
 ``cpu_driver_s`` and ``cpu_children_s`` (user + system CPU of this process and of its child
 processes during each fit: finished children's ``RUSAGE_CHILDREN`` plus, with psutil, the
-growth of the live ones', e.g. the cluster's workers), ``n_evaluations``, ``n_iter`` and
+growth of the live ones', e.g. the cluster's workers, whose idle background work then counts in
+every configuration's figure), ``n_evaluations``, ``n_iter`` and
 ``final_loss`` (the last entry of ``loss_history_``) of the fit, and, when the objective was
 sharded, ``bytes_sent`` (array bytes sent to and received from the shards by the calls),
 ``bytes_setup`` (the shards' specs sent at their start),
