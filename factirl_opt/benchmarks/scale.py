@@ -54,7 +54,14 @@ fit), ``peak_rss_before_fit_mb`` (the world and the demonstrations: ``ru_maxrss`
 fit) and ``peak_rss_mb`` (after it); and
 ``peak_rss_summed_mb``, the peaks of this process and of the size's process added (a sum over
 processes, not the peak of one). ``--max-bytes`` applies to fits only.
+
+Fits side by side (``--fit-iter N --jobs J [J ...]`` and/or ``--dask``): the same fit per size for
+each ``FactIRL(n_jobs=J)`` and on a 2-worker dask ``LocalCluster``, ``--repeats`` rounds in this
+one process, with wall times, medians, speed-ups, CPU, bytes sent to the shards and the learnt
+arrays' differences: :mod:`factirl_opt.benchmarks.scale_jobs`.
 """
+
+from __future__ import annotations
 
 import argparse
 import multiprocessing
@@ -77,6 +84,7 @@ from ..objectworld import make_objectworld, multitask_rewards, objectworld_featu
 from ..planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optimal_q, planning_budget
 from ..planning.budget import check_max_bytes, chunk_size, task_bytes
 from ..synthetic import random_coefficients, random_dictionary, task_rewards
+from .scale_jobs import check_jobs, run_side_by_side as _side_by_side
 
 __all__ = ["add_arguments", "run"]
 
@@ -104,6 +112,11 @@ def add_arguments(parser):
                              "iterations per size (default 0: timings)")
     parser.add_argument("--max-bytes", type=float, default=None,
                         help="planning memory budget of the fits in bytes, e.g. 16e9 (default: none)")
+    parser.add_argument("--jobs", type=int, nargs="+", default=None, metavar="J",
+                        help="with --fit-iter: the same fit side by side for each FactIRL n_jobs J (positive or -1), "
+                             "in this process, --repeats times alternating (default: one fit, n_jobs=1)")
+    parser.add_argument("--dask", action="store_true",
+                        help="with --fit-iter: also the fit on a 2-worker dask LocalCluster (needs the dask extra)")
 
 
 def _timed(fn):
@@ -188,26 +201,49 @@ FIT_OPTIONS = dict(n_primitives=5, init="random", h_solver="gn-qp-clarabel", d_s
                    tol=0.0, gtol=0.0)
 
 
+def fit_problem(size: int, args: argparse.Namespace) -> dict:
+    """The fits' Objectworld of side ``size``, its demonstrations and features (see the module docstring).
+
+    Returns
+    -------
+    dict
+        ``mdp``, ``demos`` (per task), ``features`` (S, F), ``build_s`` and ``demonstrations_s``;
+        the MDP's planning caches emptied.
+    """
+    rng = np.random.default_rng([args.seed, size])
+    t_build, world = _timed(lambda: make_objectworld(size, 5, 2, 0.05, rng=rng))
+    mdp = world.mdp()
+    R = state_action_rewards(multitask_rewards(world, args.tasks, rng=rng)[0], mdp.n_actions)
+
+    def demos():
+        out = []
+        for lo in range(0, args.tasks, DEMO_CHUNK):
+            out += sample_demonstrations(mdp, R[lo:lo + DEMO_CHUNK], args.n_demos, args.length, rng)
+        return out
+
+    t_demos, demos_per_task = _timed(demos)
+    del R
+    clear_caches(mdp)
+    return {"mdp": mdp, "demos": demos_per_task, "features": objectworld_features(world), "build_s": t_build,
+            "demonstrations_s": t_demos}
+
+
+def fit_model(args: argparse.Namespace, features: np.ndarray, **extra) -> FactIRL:
+    """The fits' FactIRL (``FIT_OPTIONS``, ``--fit-iter`` outer iterations) on ``features``; ``extra``:
+    more keyword arguments (``n_jobs``, ``backend``, ``client``, or overrides such as ``max_iter``)."""
+    options = dict(beta=args.beta, max_iter=args.fit_iter, features=features, rng=args.seed, **FIT_OPTIONS)
+    options.update(extra)
+    return FactIRL(**options)
+
+
 def _one_fit(size, args):
     """A FactIRL fit on an Objectworld of side ``size`` (see the module docstring)."""
     with limit_blas_threads(args.blas_threads):
-        rng = np.random.default_rng([args.seed, size])
-        t_build, world = _timed(lambda: make_objectworld(size, 5, 2, 0.05, rng=rng))
-        mdp = world.mdp()
-        R = state_action_rewards(multitask_rewards(world, args.tasks, rng=rng)[0], mdp.n_actions)
-
-        def demos():
-            out = []
-            for lo in range(0, args.tasks, DEMO_CHUNK):
-                out += sample_demonstrations(mdp, R[lo:lo + DEMO_CHUNK], args.n_demos, args.length, rng)
-            return out
-
-        t_demos, demos_per_task = _timed(demos)
-        del R
+        problem = fit_problem(size, args)
+        mdp, demos_per_task, features = problem["mdp"], problem["demos"], problem["features"]
+        t_build, t_demos = problem["build_s"], problem["demonstrations_s"]
         before = _peak_rss_mb()
-        clear_caches(mdp)
-        features = objectworld_features(world)
-        model = FactIRL(beta=args.beta, max_iter=args.fit_iter, features=features, rng=args.seed, **FIT_OPTIONS)
+        model = fit_model(args, features)
         with planning_budget(args.max_bytes):
             t_fit, _ = _timed(lambda: model.fit(mdp, demos_per_task))
         planner = get_planner(mdp)
@@ -293,6 +329,10 @@ def _check_fit_args(args):
     max_bytes = check_max_bytes(args.max_bytes, "--max-bytes")
     if args.tasks < 1:
         raise ValidationError(f"--tasks must be >= 1; got {args.tasks!r}")
+    if (args.jobs or args.dask) and not args.fit_iter:
+        raise ValidationError("--jobs and --dask apply to fits only: give --fit-iter N too")
+    if args.jobs is not None:
+        check_jobs(args.jobs)
     return max_bytes
 
 
@@ -318,8 +358,16 @@ def run_fits(args):
     }
 
 
+def run_side_by_side(args):
+    """The ``--fit-iter N --jobs J [J ...] [--dask]`` mode: the same fit side by side per n_jobs and on a
+    2-worker dask cluster, in this process (:mod:`factirl_opt.benchmarks.scale_jobs`)."""
+    return _side_by_side(args, fit_problem, fit_model)
+
+
 def run(args):
     args.max_bytes = _check_fit_args(args)
+    if args.fit_iter and (args.jobs or args.dask):
+        return run_side_by_side(args)
     if args.fit_iter:
         return run_fits(args)
     load_before = os.getloadavg()

@@ -7,13 +7,16 @@ numbers (gradient agreement between planners, policy changes) are.
 import argparse
 import json
 import math
+import re
+import sys
 
 import numpy as np
 import pytest
 
 from factirl_opt import bench
-from factirl_opt.benchmarks import BENCHMARKS, scale
-from factirl_opt.exceptions import ValidationError
+from factirl_opt.benchmarks import BENCHMARKS, scale, scale_jobs
+from factirl_opt.exceptions import MissingDependencyError, ValidationError
+from factirl_opt.objectives import distributed
 
 PLANNER_KEYS = {"resolved", "cold_plan_s", "warm_s", "warm_perturbed_s", "runs"}
 SIZE_KEYS = {"n_states", "n_actions", "default_resolves_to", "build_s", "demonstrations_s", "score_s", "planners",
@@ -138,3 +141,94 @@ def test_bad_fit_options_are_refused(extra, message):
     scale.add_arguments(parser)
     with pytest.raises(ValidationError, match=message):
         scale.run(parser.parse_args(["--sizes", "3", *extra]))
+
+
+CONFIG_KEYS = {"n_jobs", "backend", "wall_s", "median_s", "speed_up", "cpu_driver_s", "cpu_children_s", "n_evaluations",
+               "n_iter", "final_loss", "sharded", "bytes_sent", "bytes_setup", "bytes_per_evaluation", "n_restarts", "max_abs_diff"}
+SIDE_ARGS = ["--sizes", "8", "--tasks", "4", "--n-demos", "3", "--length", "4", "--fit-iter", "1", "--in-process"]
+
+
+def run_side(capsys, *extra):
+    assert bench.main(["scale", *SIDE_ARGS, *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def check_configuration(entry, ref, repeats):
+    assert set(entry) == CONFIG_KEYS
+    assert len(entry["wall_s"]) == len(entry["cpu_driver_s"]) == len(entry["cpu_children_s"]) == repeats
+    assert entry["median_s"] == pytest.approx(float(np.median(entry["wall_s"])))
+    assert entry["speed_up"] == pytest.approx(ref["median_s"] / entry["median_s"])
+    assert all(t > 0 for t in entry["wall_s"]) and all(c >= 0 for c in entry["cpu_driver_s"])
+    # the same fit: same evaluations and iterations, same learnt arrays
+    assert entry["n_evaluations"] == ref["n_evaluations"] and entry["n_iter"] == ref["n_iter"] == 1
+    assert entry["max_abs_diff"] < 1e-10
+    assert entry["final_loss"] == pytest.approx(ref["final_loss"], rel=1e-10)
+
+
+def test_fits_side_by_side_per_n_jobs(capsys):
+    out = run_side(capsys, "--jobs", "1", "2", "--repeats", "2")
+    assert out["mode"] == "fit-jobs" and set(out["sizes"]) == {"8x8"}
+    size = out["sizes"]["8x8"]
+    assert size["reference"] == "n_jobs=1" and list(size["configurations"]) == ["n_jobs=1", "n_jobs=2"]
+    one, two = size["configurations"]["n_jobs=1"], size["configurations"]["n_jobs=2"]
+    for entry in (one, two):
+        check_configuration(entry, one, 2)
+    assert one["speed_up"] == 1.0 and one["max_abs_diff"] == 0.0
+    assert (one["n_jobs"], one["backend"], two["n_jobs"], two["backend"]) == (1, "processes", 2, "processes")
+    # n_jobs=1 evaluates in this process: nothing sharded; n_jobs=2 reports the bytes sent to its worker
+    assert not one["sharded"] and one["bytes_sent"] is one["bytes_per_evaluation"] is None
+    assert two["sharded"] and two["bytes_sent"] > 0 and two["bytes_setup"] > 0 and two["n_restarts"] == 0
+    assert 0 < two["bytes_per_evaluation"] <= two["bytes_sent"]
+    assert out["settings"]["configurations"] == ["n_jobs=1", "n_jobs=2"] and out["settings"]["repeats"] == 2
+    assert out["settings"]["dask_cluster"] is None
+    # the same world, demonstrations and fit as the plain --fit-iter mode
+    plain = run_side(capsys)["sizes"]["8x8"]
+    assert (plain["n_states"], plain["n_features"], plain["n_evaluations"]) == (size["n_states"], size["n_features"],
+                                                                                one["n_evaluations"])
+    assert plain["loss_history"][-1] == one["final_loss"]
+
+
+def test_fit_on_a_local_dask_cluster_matches_n_jobs_1(capsys):
+    pytest.importorskip("distributed")
+    out = run_side(capsys, "--dask", "--repeats", "1")  # --dask alone: compared with n_jobs=1
+    size = out["sizes"]["8x8"]
+    assert list(size["configurations"]) == ["n_jobs=1", "dask"]
+    one, dask = size["configurations"]["n_jobs=1"], size["configurations"]["dask"]
+    check_configuration(dask, one, 1)
+    assert dask["backend"] == "dask" and dask["n_jobs"] is None
+    assert dask["sharded"] and dask["bytes_sent"] > 0 and dask["n_restarts"] == 0
+    assert "LocalCluster(n_workers=2" in out["settings"]["dask_cluster"]
+
+
+def test_dask_without_the_extra_names_the_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed raises ImportError
+    parser = argparse.ArgumentParser()
+    scale.add_arguments(parser)
+    with pytest.raises(MissingDependencyError, match=re.escape('pip install -e ".[dask]"')):
+        scale.run(parser.parse_args(["--sizes", "3", "--fit-iter", "1", "--dask"]))
+
+
+def test_traffic_recorder_restores_close():
+    original = distributed.ShardedObjective.close
+    with scale_jobs.record_traffic() as records:
+        assert distributed.ShardedObjective.close is not original and records == []
+    assert distributed.ShardedObjective.close is original
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--jobs", "0", "--fit-iter", "1"], "--jobs values must be positive integers or -1 .*got 0"),
+    (["--jobs", "1", "-2", "--fit-iter", "1"], "--jobs values .*got -2"),
+    (["--jobs", "1", "2"], "--jobs and --dask apply to fits only"),
+    (["--dask"], "--jobs and --dask apply to fits only"),
+])
+def test_bad_jobs_options_are_refused(extra, message):
+    parser = argparse.ArgumentParser()
+    scale.add_arguments(parser)
+    with pytest.raises(ValidationError, match=message):
+        scale.run(parser.parse_args(["--sizes", "3", *extra]))
+
+
+@pytest.mark.parametrize("bad", [True, 1.5, "2"])
+def test_check_jobs_refuses_non_integers(bad):
+    with pytest.raises(ValidationError, match="--jobs values must be positive integers or -1"):
+        scale_jobs.check_jobs([1, bad])
