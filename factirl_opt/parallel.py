@@ -41,7 +41,7 @@ import numpy as np
 
 from .exceptions import FactIRLError, ValidationError
 
-__all__ = ["BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
+__all__ = ["become_worker", "serve_calls", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -169,13 +169,44 @@ def _watch_parent(parent_pid: int) -> None:
             os._exit(3)
 
 
+def become_worker(parent_pid: int) -> None:
+    """Make this child process a worker: Ctrl-C ignored (it reaches the whole process group; the
+    parent decides), marked as a worker (fits inside run with one job), and exited when its
+    parent ``parent_pid`` dies (a thread polls every :data:`POLL_SECONDS`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    mark_worker()
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+
+
+def serve_calls(conn: Any, handle: Callable[[Any], Any], error: type[Exception] = FactIRLError) -> None:
+    """Answer each message of ``conn`` with ``("ok", handle(message))`` or ``("error", exc, tb)``
+    until ``None`` arrives or the pipe closes; a reply that cannot be pickled is answered with an
+    ``error`` saying so."""
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        reply: tuple
+        try:
+            reply = ("ok", handle(task))
+        except Exception as exc:
+            reply = ("error", exc, traceback.format_exc())
+        try:
+            conn.send(reply)
+        except (OSError, ValueError):
+            return
+        except Exception as exc:  # an unpicklable result or exception
+            conn.send(("error", error(f"cannot send the result back: {exc}"), traceback.format_exc()))
+
+
 def _serve(conn: Any, spec: tuple, parent_pid: int) -> None:
     """A shard process: build the state, then answer ``(method, args)`` with ``("ok", result)`` or ``("error", exc, tb)``."""
     from ._threads import blas_thread_limit, limit_blas_threads
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C reaches the process group: the driver decides
-    mark_worker()
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
+    become_worker(parent_pid)
     with limit_blas_threads(blas_thread_limit()):
         try:
             host = ShardHost(*spec)
@@ -183,19 +214,7 @@ def _serve(conn: Any, spec: tuple, parent_pid: int) -> None:
             conn.send(("error", exc, traceback.format_exc()))
             return
         conn.send(("ok", None))
-        while True:
-            try:
-                task = conn.recv()
-            except (EOFError, OSError):
-                return
-            if task is None:
-                return
-            reply: tuple
-            try:
-                reply = ("ok", host.call(*task))
-            except Exception as exc:
-                reply = ("error", exc, traceback.format_exc())
-            conn.send(reply)
+        serve_calls(conn, lambda task: host.call(*task))
 
 
 def _context() -> Any:

@@ -32,18 +32,16 @@ import os
 import signal
 import threading
 import time
-import traceback
 from collections.abc import Callable, Iterable, Iterator
 from multiprocessing.connection import wait
 from typing import Any
 
 from ..exceptions import FactIRLError
-from ..parallel import mark_worker
+from ..parallel import POLL_SECONDS, become_worker, serve_calls
 
 __all__ = ["imap_unordered", "sigterm_raises", "Terminated", "WorkerError", "POLL_SECONDS"]
 
 #: how often a worker checks that its parent is alive (seconds)
-POLL_SECONDS = 0.5
 #: how long a terminated worker gets before SIGKILL (seconds): workers hold nothing to clean up
 GRACE_SECONDS = 0.5
 
@@ -90,36 +88,10 @@ def sigterm_raises() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _watch_parent(parent_pid):
-    while True:
-        time.sleep(POLL_SECONDS)
-        if os.getppid() != parent_pid:
-            os._exit(3)
-
-
 def _worker_main(conn, parent_pid):
     """A worker's loop: receive ``(fn, args)``, send back ``("ok", result)`` or ``("error", exc, tb)``."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    mark_worker()  # a fit in a sweep worker runs with n_jobs=1: pools never nest
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
-    while True:
-        try:
-            task = conn.recv()
-        except (EOFError, OSError):
-            return
-        if task is None:
-            return
-        fn, args = task
-        try:
-            reply = ("ok", fn(*args))
-        except Exception as exc:
-            reply = ("error", exc, traceback.format_exc())
-        try:
-            conn.send(reply)
-        except (OSError, ValueError):
-            return
-        except Exception as exc:  # an unpicklable result or exception
-            conn.send(("error", WorkerError(f"cannot send the result back: {exc}"), traceback.format_exc()))
+    become_worker(parent_pid)  # a fit in a sweep worker runs with n_jobs=1: pools never nest
+    serve_calls(conn, lambda task: task[0](*task[1]), WorkerError)
 
 
 def _start(ctx, n):

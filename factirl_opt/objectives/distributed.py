@@ -32,7 +32,7 @@ from ..parallel import Shards, contiguous_shards, effective_n_jobs
 from ..planning.budget import budget_options
 from ._base import Objective
 
-__all__ = ["ShardState", "ShardedObjective", "sharded", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
+__all__ = ["ShardState", "ShardedBase", "ShardedObjective", "sharded", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
 
 #: linearisations a shard keeps for Jacobian products (a Gauss-Newton CG step uses the latest few)
 KEEP_LINEARIZATIONS = 4
@@ -159,7 +159,33 @@ class NoFeatures:
     """Tabular rewards' features (None) as sent to a shard, where None means "already kept"."""
 
 
-class ShardedObjective:
+class ShardedBase:
+    """What the sharded objectives share: their ``parts`` (task indices per shard), ``shards``
+    (:class:`~factirl_opt.parallel.Shards`), the kept linearisations ``_lins`` and
+    :meth:`rebuilt`, which restores a rebuilt shard's state."""
+
+    parts: list
+    shards: Shards
+    _lins: dict
+
+    @property
+    def n_shards(self) -> int:
+        return len(self.parts)
+
+    def close(self) -> None:
+        """Stop the shards' workers."""
+        self.shards.close()
+
+    def reset(self) -> None:
+        """As :meth:`Objective.reset`, on every shard."""
+        self._lins.clear()
+        self.shards.call([(k, "reset", ()) for k in range(self.n_shards)], on_restart=self.rebuilt)
+
+    def rebuilt(self, k: int) -> None:  # pragma: no cover - every subclass defines it
+        raise NotImplementedError
+
+
+class ShardedObjective(ShardedBase):
     """An objective's tasks evaluated shard by shard on :class:`~factirl_opt.parallel.Shards`.
 
     Offers what the step problems use of an :class:`~factirl_opt.objectives.Objective`:
@@ -207,19 +233,6 @@ class ShardedObjective:
         self._features: dict[int, Any] = {}  # id -> features kept (the id stays theirs while kept)
         self._sent: list[set] = [set() for _ in self.parts]  # features ids each shard holds
         self._point_key: int | None = None  # the features of the last factorial_point
-
-    @property
-    def n_shards(self) -> int:
-        return len(self.parts)
-
-    def close(self) -> None:
-        """Stop the shards' workers."""
-        self.shards.close()
-
-    def reset(self) -> None:
-        """As :meth:`Objective.reset`, on every shard."""
-        self._lins.clear()
-        self.shards.call([(k, "reset", ()) for k in range(self.n_shards)], on_restart=self.rebuilt)
 
     def keep_linearization(self, again: Any) -> int:
         """A token for a new linearisation; ``again(k)`` gives the ``(method, args)`` that makes it again on a

@@ -23,7 +23,7 @@ from solvers import Linearization
 
 from ..parallel import Shards
 from ..planning.budget import budget_options
-from .distributed import reduced_least_squares
+from .distributed import ShardedBase, reduced_least_squares
 from .environments import MultiEnvironmentObjective
 
 __all__ = ["EnvironmentShardState", "ShardedEnvironments", "deal_groups"]
@@ -77,7 +77,7 @@ class EnvironmentShardState:
         self.linearizations.clear()
 
 
-class ShardedEnvironments:
+class ShardedEnvironments(ShardedBase):
     """A :class:`MultiEnvironmentObjective`'s environments evaluated shard by shard (see the module docstring).
 
     Parameters
@@ -116,18 +116,7 @@ class ShardedEnvironments:
         self._token = 0
         self._lins: dict[int, tuple] = {}  # token -> (rewards, rows): linearised again on a rebuilt shard
 
-    @property
-    def n_shards(self) -> int:
-        return len(self.parts)
-
-    def close(self) -> None:
-        self.shards.close()
-
-    def reset(self) -> None:
-        self._lins.clear()
-        self.shards.call([(k, "reset", ()) for k in range(self.n_shards)], on_restart=self._rebuilt)
-
-    def _rebuilt(self, k: int) -> None:
+    def rebuilt(self, k: int) -> None:
         """A rebuilt shard ``k`` linearises its tasks again at the kept points (its state was lost)."""
         for token, (R, rows) in sorted(self._lins.items()):
             pos = np.flatnonzero(self.owner[rows] == k)
@@ -145,7 +134,7 @@ class ShardedEnvironments:
         split = self._split(rows)
         calls = [(k, method, (_take(R, pos), self.local[rows[pos]], *extra,
                               *(() if per_row is None else (per_row(pos),)))) for k, pos in split]
-        out = self.shards.call(calls, on_restart=self._rebuilt)
+        out = self.shards.call(calls, on_restart=self.rebuilt)
         self.n_evaluations += sum(n for _, n in out)
         return rows, split, [res for res, _ in out]
 
@@ -202,13 +191,13 @@ class ShardedEnvironments:
 
         def jvp(dR: Any) -> NDArray[np.float64]:
             parts = self.shards.call([(k, "product", (token, "jvp", _take(dR, pos))) for k, pos in split],
-                                     on_restart=self._rebuilt)
+                                     on_restart=self.rebuilt)
             return self._padded(split, parts, len(idx))
 
         def vjp(U: ArrayLike) -> Any:
             U = np.asarray(U, dtype=np.float64)
             parts = self.shards.call([(k, "product", (token, "vjp", U[pos, :w])) for (k, pos), w in zip(split, widths)],
-                                     on_restart=self._rebuilt)
+                                     on_restart=self.rebuilt)
             return self._tasks(idx, split, parts)
 
         return Linearization(loss, residual, jvp, vjp)
