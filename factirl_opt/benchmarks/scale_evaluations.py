@@ -185,7 +185,7 @@ def _one_point(size: int, n: int, args: argparse.Namespace, configs: list, fit_p
     """Every configuration's evaluations on the problem of side ``size`` with ``n`` tasks."""
     problem = fit_problem(size, argparse.Namespace(**dict(vars(args), tasks=n)))
     mdp = problem["mdp"]
-    Phi = reward_features(mdp, problem["features"], min_columns=N_PRIMITIVES)
+    Phi: Any = reward_features(mdp, problem["features"], min_columns=N_PRIMITIVES)  # (S*A, p)
     objective = make_objective(mdp, problem["demos"], args.beta)
     del problem["demos"]
     rng = np.random.default_rng([args.seed, size, n])
