@@ -31,7 +31,9 @@ platform allows: each then counts, in its resident memory, pages it shares with 
 so the sum overstates; ``workers_uss_mb``, the shard processes' or workers' private memory
 (psutil's USS) at the end, gives the part that is their own (None without psutil). Where a
 peak cannot be reset (``peak_reset`` False) it is the process's peak so far; off Linux the
-figures are None.
+figures are None. A reset peak starts from the current resident memory, which includes the
+problem and memory an earlier configuration freed but the allocator kept (the configurations
+run in order, in this process and on the same cluster).
 
 Growth exponents (``exponents``), per configuration: the least-squares slopes of
 log(``warm_median_s``) and log(``peak_rss_summed_mb``) against log(tasks) at each size (over
