@@ -338,3 +338,10 @@ def test_bad_evaluations_options_are_refused(extra, message):
     scale.add_arguments(parser)
     with pytest.raises(ValidationError, match=message):
         scale.run(parser.parse_args(["--sizes", "3", *extra]))
+
+
+def test_evaluations_under_a_planning_budget(capsys):
+    out = run_evaluations(capsys, "--evaluations", "--sizes", "6", "--tasks", "3", "--n-demos", "2", "--length", "3",
+                          "--jobs", "1", "2", "--repeats", "1", "--max-bytes", "1")  # one task per chunk
+    assert out["settings"]["max_bytes"] == 1
+    assert out["sizes"]["6x6"]["3"]["configurations"]["n_jobs=2"]["max_abs_diff"] < 1e-10
