@@ -59,6 +59,11 @@ Fits side by side (``--fit-iter N --jobs J [J ...]`` and/or ``--dask``): the sam
 each ``FactIRL(n_jobs=J)`` and on a 2-worker dask ``LocalCluster``, ``--repeats`` rounds in this
 one process, with wall times, medians, speed-ups, CPU, bytes sent to the shards and the learnt
 arrays' differences: :mod:`factirl_opt.benchmarks.scale_jobs`.
+
+Evaluations (``--evaluations --tasks N [N ...]``, with ``--jobs`` and/or ``--dask``): per size and
+number of tasks, the fits' problem, then one policy-matching evaluation's time and peak memory
+(summed over the processes involved) per configuration, and the growth exponents against tasks
+and states: :mod:`factirl_opt.benchmarks.scale_evaluations`.
 """
 
 from __future__ import annotations
@@ -84,6 +89,7 @@ from ..objectworld import make_objectworld, multitask_rewards, objectworld_featu
 from ..planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optimal_q, planning_budget
 from ..planning.budget import check_max_bytes, chunk_size, task_bytes
 from ..synthetic import random_coefficients, random_dictionary, task_rewards
+from .scale_evaluations import run_evaluations
 from .scale_jobs import check_jobs, run_side_by_side as _side_by_side
 
 __all__ = ["add_arguments", "run"]
@@ -93,7 +99,8 @@ DEFAULT_PLANNER = "auto"
 
 def add_arguments(parser):
     parser.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 32, 64, 100], help="grid sides (default: 10 20 32 64 100)")
-    parser.add_argument("--tasks", type=int, default=100, help="tasks (default 100)")
+    parser.add_argument("--tasks", type=int, nargs="+", default=[100],
+                        help="tasks (default 100); several values only with --evaluations")
     parser.add_argument("--n-demos", type=int, default=10, help="demonstrations per task (default 10)")
     parser.add_argument("--length", type=int, default=10, help="steps per demonstration (default 10)")
     parser.add_argument("--beta", type=float, default=5.0)
@@ -117,6 +124,9 @@ def add_arguments(parser):
                              "in this process, --repeats times alternating (default: one fit, n_jobs=1)")
     parser.add_argument("--dask", action="store_true",
                         help="with --fit-iter: also the fit on a 2-worker dask LocalCluster (needs the dask extra)")
+    parser.add_argument("--evaluations", action="store_true",
+                        help="instead of the planner timings, one objective evaluation's time and peak memory per size, "
+                             "number of --tasks and configuration (--jobs, --dask), with growth exponents")
 
 
 def _timed(fn):
@@ -321,16 +331,25 @@ def _measure_all(args, measure):
 
 
 def _check_fit_args(args):
-    """Validated ``--fit-iter`` and ``--max-bytes`` (ValidationError naming the value)."""
+    """Validated ``--fit-iter``, ``--tasks``, ``--jobs``, ``--evaluations`` and ``--max-bytes`` (ValidationError
+    naming the value); ``args.tasks`` made an int except with ``--evaluations``."""
     if isinstance(args.fit_iter, bool) or not isinstance(args.fit_iter, int) or args.fit_iter < 0:
         raise ValidationError(f"--fit-iter must be an integer >= 0; got {args.fit_iter!r}")
-    if args.max_bytes is not None and not args.fit_iter:
-        raise ValidationError(f"--max-bytes {args.max_bytes!r} applies to fits only: give --fit-iter N too")
+    evaluations = getattr(args, "evaluations", False)
+    if evaluations and args.fit_iter:
+        raise ValidationError(f"--evaluations and --fit-iter {args.fit_iter} are separate modes: give one")
+    if args.max_bytes is not None and not (args.fit_iter or evaluations):
+        raise ValidationError(f"--max-bytes {args.max_bytes!r} applies to fits only (or --evaluations): give --fit-iter N too")
     max_bytes = check_max_bytes(args.max_bytes, "--max-bytes")
-    if args.tasks < 1:
-        raise ValidationError(f"--tasks must be >= 1; got {args.tasks!r}")
-    if (args.jobs or args.dask) and not args.fit_iter:
-        raise ValidationError("--jobs and --dask apply to fits only: give --fit-iter N too")
+    tasks = list(args.tasks) if isinstance(args.tasks, (list, tuple)) else [args.tasks]
+    for n in tasks:
+        if n < 1:
+            raise ValidationError(f"--tasks must be >= 1; got {n!r}")
+    if len(set(tasks)) != len(tasks) or (len(tasks) > 1 and not evaluations):
+        raise ValidationError(f"--tasks takes several distinct values with --evaluations only; got {tasks}")
+    args.tasks = tasks if evaluations else tasks[0]
+    if (args.jobs or args.dask) and not (args.fit_iter or evaluations):
+        raise ValidationError("--jobs and --dask apply to fits only (or --evaluations): give --fit-iter N too")
     if args.jobs is not None:
         check_jobs(args.jobs)
     return max_bytes
@@ -366,6 +385,8 @@ def run_side_by_side(args):
 
 def run(args):
     args.max_bytes = _check_fit_args(args)
+    if getattr(args, "evaluations", False):
+        return run_evaluations(args, fit_problem)
     if args.fit_iter and (args.jobs or args.dask):
         return run_side_by_side(args)
     if args.fit_iter:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from factirl_opt import bench
-from factirl_opt.benchmarks import BENCHMARKS, scale, scale_jobs
+from factirl_opt.benchmarks import BENCHMARKS, scale, scale_evaluations, scale_jobs
 from factirl_opt.exceptions import MissingDependencyError, ValidationError
 from factirl_opt.objectives import distributed
 
@@ -232,3 +232,116 @@ def test_bad_jobs_options_are_refused(extra, message):
 def test_check_jobs_refuses_non_integers(bad):
     with pytest.raises(ValidationError, match="--jobs values must be positive integers or -1"):
         scale_jobs.check_jobs([1, bad])
+
+
+EVAL_ARGS = ["--evaluations", "--sizes", "6", "8", "--tasks", "3", "6", "--n-demos", "3", "--length", "4"]
+EVAL_CONFIG_KEYS = {"n_jobs", "backend", "cold_s", "warm_s", "warm_median_s", "peak_rss_mb", "peak_rss_summed_mb",
+                    "workers_uss_mb", "peak_reset", "max_abs_diff"}
+
+
+def run_evaluations(capsys, *argv):
+    assert bench.main(["scale", *argv]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def check_exponents(out, label, sizes, tasks):
+    """The exponents are the least-squares slopes of the logs, against tasks per size and states per tasks."""
+    for key in ("warm_median_s", "peak_rss_summed_mb"):
+        exps = out["exponents"][label][key]
+        assert set(exps["tasks"]) == {f"{s}x{s}" for s in sizes} and set(exps["states"]) == {str(n) for n in tasks}
+        for s in sizes:
+            pts = [(out["sizes"][f"{s}x{s}"][str(n)]["n_tasks"], out["sizes"][f"{s}x{s}"][str(n)]["configurations"][label][key])
+                   for n in tasks]
+            expected = np.polyfit(*np.log(np.array(pts).T), 1)[0] if len(tasks) > 1 else None
+            assert exps["tasks"][f"{s}x{s}"] == (None if expected is None else pytest.approx(expected))
+            assert expected is None or math.isfinite(expected)
+        for n in tasks:
+            pts = [(out["sizes"][f"{s}x{s}"][str(n)]["n_states"], out["sizes"][f"{s}x{s}"][str(n)]["configurations"][label][key])
+                   for s in sizes]
+            expected = np.polyfit(*np.log(np.array(pts).T), 1)[0] if len(sizes) > 1 else None
+            assert exps["states"][str(n)] == (None if expected is None else pytest.approx(expected))
+
+
+def test_evaluations_per_tasks_states_and_n_jobs(capsys):
+    out = run_evaluations(capsys, *EVAL_ARGS, "--jobs", "1", "2", "--repeats", "2")
+    assert out["mode"] == "evaluations" and set(out["sizes"]) == {"6x6", "8x8"}
+    for side in (6, 8):
+        for n in (3, 6):
+            point = out["sizes"][f"{side}x{side}"][str(n)]
+            assert (point["n_states"], point["n_actions"], point["n_tasks"]) == (side * side, 5, n)
+            assert point["n_features"] == (side - 1) * 7  # the fits' Objectworld features
+            assert list(point["configurations"]) == ["n_jobs=1", "n_jobs=2"]
+            one, two = point["configurations"]["n_jobs=1"], point["configurations"]["n_jobs=2"]
+            for entry in (one, two):
+                assert set(entry) == EVAL_CONFIG_KEYS and entry["backend"] == "processes"
+                assert len(entry["warm_s"]) == 2 and entry["warm_median_s"] == pytest.approx(np.median(entry["warm_s"]))
+                assert entry["cold_s"] > 0 and all(t > 0 for t in entry["warm_s"])
+                assert entry["peak_reset"] is True
+                assert entry["peak_rss_summed_mb"] == pytest.approx(sum(entry["peak_rss_mb"].values()))
+                assert all(v > 0 for v in entry["peak_rss_mb"].values())
+            # n_jobs=1 is this process alone; n_jobs=2 adds its shard process
+            assert list(one["peak_rss_mb"]) == ["driver"] and one["workers_uss_mb"] == []
+            assert list(two["peak_rss_mb"]) == ["driver", "shard 1"] and len(two["workers_uss_mb"]) == 1
+            # the sharded evaluation is the serial one
+            assert one["max_abs_diff"] == 0.0 and two["max_abs_diff"] < 1e-10
+    for label in ("n_jobs=1", "n_jobs=2"):
+        check_exponents(out, label, [6, 8], [3, 6])
+    settings = out["settings"]
+    assert settings["tasks"] == [3, 6] and settings["configurations"] == ["n_jobs=1", "n_jobs=2"]
+    assert settings["repeats"] == 2 and settings["dask_cluster"] is None and "VmHWM" in settings["memory"]
+
+
+def test_evaluations_on_a_local_dask_cluster_match_n_jobs_1(capsys):
+    pytest.importorskip("distributed")
+    out = run_evaluations(capsys, "--evaluations", "--sizes", "6", "--tasks", "4", "--n-demos", "2", "--length", "3",
+                          "--dask", "--repeats", "1")
+    point = out["sizes"]["6x6"]["4"]
+    assert list(point["configurations"]) == ["n_jobs=1", "dask"]
+    dask = point["configurations"]["dask"]
+    assert set(dask) == EVAL_CONFIG_KEYS and dask["backend"] == "dask" and dask["n_jobs"] is None
+    assert list(dask["peak_rss_mb"]) == ["driver", "worker 0", "worker 1"] and len(dask["workers_uss_mb"]) == 2
+    assert dask["peak_rss_summed_mb"] == pytest.approx(sum(dask["peak_rss_mb"].values()))
+    assert dask["max_abs_diff"] < 1e-10
+    # one size and one number of tasks: no exponent
+    assert out["exponents"]["dask"]["warm_median_s"] == {"tasks": {"6x6": None}, "states": {"4": None}}
+    assert "LocalCluster(n_workers=2" in out["settings"]["dask_cluster"]
+
+
+def test_growth_exponent_is_the_log_log_slope():
+    x = [3, 6, 12]
+    assert scale_evaluations.growth_exponent(x, [2.0 * v**1.5 for v in x]) == pytest.approx(1.5)
+    assert scale_evaluations.growth_exponent([3, 3], [1.0, 2.0]) is None  # one distinct x
+    assert scale_evaluations.growth_exponent([3, 6], [1.0, None]) is None  # a figure missing
+
+
+def test_peak_memory_of_processes():
+    peak = scale_evaluations.peak_rss_mb()
+    assert peak is None or peak > 0
+    if peak is not None:  # Linux: the peak resets to at most what it was
+        assert scale_evaluations.reset_peak() is True
+        assert 0 < scale_evaluations.peak_rss_mb() <= peak + 1
+    gone = 2**22 + 12345  # above Linux's default pid_max: no such process
+    assert scale_evaluations.peak_rss_mb(gone) is None and scale_evaluations.reset_peak(gone) is False
+    memory = scale_evaluations.process_memory([gone])
+    assert memory["peak_rss_summed_mb"] is None and list(memory["peak_rss_mb"]) == ["driver", "shard 1"]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--tasks", "3", "6"], r"--tasks takes several distinct values with --evaluations only; got \[3, 6\]"),
+    (["--tasks", "3", "3", "--evaluations"], r"several distinct values .*got \[3, 3\]"),
+    (["--tasks", "3", "0", "--evaluations"], "--tasks must be >= 1; got 0"),
+    (["--evaluations", "--fit-iter", "1"], "--evaluations and --fit-iter 1 are separate modes"),
+    (["--evaluations", "--jobs", "0"], "--jobs values must be positive integers or -1 .*got 0"),
+])
+def test_bad_evaluations_options_are_refused(extra, message):
+    parser = argparse.ArgumentParser()
+    scale.add_arguments(parser)
+    with pytest.raises(ValidationError, match=message):
+        scale.run(parser.parse_args(["--sizes", "3", *extra]))
+
+
+def test_evaluations_under_a_planning_budget(capsys):
+    out = run_evaluations(capsys, "--evaluations", "--sizes", "6", "--tasks", "3", "--n-demos", "2", "--length", "3",
+                          "--jobs", "1", "2", "--repeats", "1", "--max-bytes", "1")  # one task per chunk
+    assert out["settings"]["max_bytes"] == 1
+    assert out["sizes"]["6x6"]["3"]["configurations"]["n_jobs=2"]["max_abs_diff"] < 1e-10
