@@ -229,6 +229,10 @@ def orient_nonneg(D: NDArray[np.float64], H: NDArray[np.float64],
 
 
 
+#: relative slack of :func:`normalise_dictionary`'s band edges (far above round-off, far below any real change)
+BAND_SLACK = 1e-9
+
+
 def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
                          band: float = 2.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Rescale the primitives to unit norm (H rescaled to match) once one leaves a band.
@@ -237,7 +241,10 @@ def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
     near unit norm keeps the two sub-problems balanced. Rescaling only when a norm leaves
     ``[1/band, band]`` avoids perturbing the product (in floating point) at every iteration;
     ``band=1`` rescales always (a sparse H-step's L1 penalty is only meaningful for primitives
-    of fixed norm, so its fits keep ``||D[:, l]|| = 1``).
+    of fixed norm, so its fits keep ``||D[:, l]|| = 1``). The band's edges are widened by a
+    relative :data:`BAND_SLACK`, so that a norm at an edge up to round-off (state rewards give
+    ``1/sqrt(A)``, exactly ``1/band`` for four actions) takes the same branch whichever route
+    computed it.
 
     Parameters
     ----------
@@ -253,7 +260,8 @@ def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
         the inputs unchanged.
     """
     norms = np.linalg.norm(D, axis=0)
-    if band > 1 and np.all((norms >= 1.0 / band) & (norms <= band)):
+    low, high = (1.0 - BAND_SLACK) / band, (1.0 + BAND_SLACK) * band
+    if band > 1 and np.all((norms >= low) & (norms <= high)):
         return D, H
     norms[norms == 0] = 1.0
     return D / norms, H * norms

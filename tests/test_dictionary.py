@@ -76,3 +76,17 @@ def test_normalise_dictionary_only_outside_the_band(rng):
     np.testing.assert_allclose(np.linalg.norm(D3, axis=0), 1.0)
     D4, H4 = normalise_dictionary(np.zeros((6, 2)), np.ones((4, 2)), band=1.0)  # zero columns are kept
     assert np.all(D4 == 0) and np.all(H4 == 1)
+
+
+@pytest.mark.parametrize("edge", [0.5, 2.0])
+def test_a_norm_at_a_band_edge_up_to_round_off_takes_one_branch(rng, edge):
+    # state rewards with four actions give primitives of norm exactly 1/sqrt(4) = 1/band: two
+    # routes to the same dictionary must not rescale it differently over the last bit
+    D, H = rng.standard_normal((6, 2)), rng.standard_normal((4, 2))
+    D *= edge / np.linalg.norm(D, axis=0)
+    for factor in (1.0 - 4e-16, 1.0, 1.0 + 4e-16):
+        D2, H2 = normalise_dictionary(D * factor, H)
+        np.testing.assert_array_equal(D2, D * factor)
+        np.testing.assert_array_equal(H2, H)
+    D5, _ = normalise_dictionary(D * (1.0 + 1e-6) ** (1 if edge > 1 else -1), H)  # past the slack: rescaled
+    np.testing.assert_allclose(np.linalg.norm(D5, axis=0), 1.0)
