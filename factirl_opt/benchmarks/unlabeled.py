@@ -10,6 +10,16 @@ demonstrations:
 - ``em_shared``: :class:`factirl_opt.MultiIntentIRL` with ``n_primitives=k`` (a dictionary shared
   by the intentions, the paper's model).
 
+Two more learners, chosen by ``--learners``, bound what the shared EM could reach by fixing the
+dictionary it learns: EM over K intentions whose rewards are ``Phi_fixed h_c`` with the k
+columns of ``Phi_fixed`` given as features (k coefficients per intention, nothing shared to
+learn):
+
+- ``em_true_dictionary``: the true primitives (the grid's dictionary; Objectworld's colour
+  primitives);
+- ``em_labelled_dictionary``: the dictionary of the ``labelled`` learner (``Phi D`` on the
+  world's features), learnt with the task labels.
+
 Worlds (:data:`WORLDS`):
 
 ``"grid"`` (the paper's)
@@ -68,6 +78,7 @@ __all__ = ["add_arguments", "run", "settings", "matched_deviation", "oracle_labe
            "WORLD_DEFAULTS", "WORLD_QUICK"]
 
 DEFAULTS = {"n_tasks": [4, 10, 20], "seeds": [0], "world": "grid", "n_primitives": 5,
+            "learners": ["labelled", "em_flat", "em_shared"],
             "beta": 5.0, "em_max_iter": 20, "m_step_max_iter": 20, "n_test": 5}
 QUICK = {"n_tasks": [2], "n_primitives": 2, "em_max_iter": 2, "m_step_max_iter": 3, "n_test": 1}
 #: world -> defaults of the options whose value depends on the world
@@ -78,7 +89,8 @@ WORLD_QUICK = {"grid": {"size": 4, "n_demos": 3, "length": 5},
                "objectworld": {"size": 5, "n_demos": 3, "length": 5}}
 #: the Objectworld experiments' preset whose colours, density, dynamics and planner the world takes
 OBJECTWORLD_PRESET = "objectworld-quick"
-LEARNERS = ("labelled", "em_flat", "em_shared")
+#: every learner ``--learners`` can name; the first three are the default line-up
+LEARNERS = ("labelled", "em_flat", "em_shared", "em_true_dictionary", "em_labelled_dictionary")
 
 
 @dataclasses.dataclass
@@ -96,6 +108,8 @@ class Draw:
     test_rewards : ndarray, shape (n_test, S, A)
         True rewards of the transfer tasks.
     test_demos : list of n_test int arrays, each (1, length, 2)
+    dictionary : ndarray, shape (S*A, k) or (S, k)
+        The true primitive rewards (the tasks' rewards are combinations of its columns).
     """
 
     mdp: TabularMDP
@@ -104,6 +118,7 @@ class Draw:
     demos: list
     test_rewards: np.ndarray
     test_demos: list
+    dictionary: np.ndarray
 
 
 def draw_grid(s: dict, n: int, seed: int) -> Draw:
@@ -111,7 +126,8 @@ def draw_grid(s: dict, n: int, seed: int) -> Draw:
     mdp = GridWorld(s["size"])
     tasks = synthetic_tasks(mdp, n, s["n_demos"], s["length"], n_primitives=s["n_primitives"], rng=seed)
     test = synthetic_tasks(mdp, s["n_test"], 1, s["length"], dictionary=tasks.dictionary, rng=seed + 10_000)
-    return Draw(mdp, None, np.asarray(tasks.rewards), tasks.demos, np.asarray(test.rewards), test.demos)
+    return Draw(mdp, None, np.asarray(tasks.rewards), tasks.demos, np.asarray(test.rewards), test.demos,
+                np.asarray(tasks.dictionary))
 
 
 def draw_objectworld(s: dict, n: int, seed: int) -> Draw:
@@ -120,7 +136,7 @@ def draw_objectworld(s: dict, n: int, seed: int) -> Draw:
                                  n_primitives=s["n_primitives"], demo_length=s["length"], n_test_tasks=s["n_test"],
                                  beta=s["beta"])
     gt = objectworld(preset, n, s["n_demos"], seed)
-    return Draw(gt.mdp, gt.features, gt.train_rewards, gt.train_demos, gt.test_rewards, gt.test_demos)
+    return Draw(gt.mdp, gt.features, gt.train_rewards, gt.train_demos, gt.test_rewards, gt.test_demos, gt.dictionary)
 
 
 #: world name -> ``(settings, n_tasks, seed) -> Draw``
@@ -131,6 +147,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_option(parser, "--n-tasks", type=int, nargs="+", defaults=DEFAULTS, quick=QUICK, help="numbers of tasks")
     add_option(parser, "--seeds", type=int, nargs="+", defaults=DEFAULTS, help="task and demonstration seeds")
     add_option(parser, "--world", choices=sorted(WORLDS), defaults=DEFAULTS, help="the paper's grid or one Objectworld map")
+    add_option(parser, "--learners", nargs="+", choices=LEARNERS, defaults=DEFAULTS,
+               help="learners to run (em_true_dictionary, em_labelled_dictionary: EM with that dictionary fixed)")
     for flag, what in (("--size", "grid side"), ("--n-demos", "demonstrations per task"),
                        ("--length", "steps per demonstration")):
         dest = flag[2:].replace("-", "_")
@@ -165,6 +183,7 @@ def settings(args: argparse.Namespace) -> dict:
     s["size"] = check_int(s["size"], "size", minimum=2)
     s["n_tasks"] = [check_int(n, "n_tasks", minimum=1) for n in s["n_tasks"]]
     s["quick"] = bool(s["quick"])
+    s["learners"] = list(dict.fromkeys(s["learners"]))  # each once, in the order given
     return s
 
 
@@ -220,20 +239,38 @@ def _transfer(draw: Draw, model: FactIRL) -> float:
     return float(np.mean(deviation(draw.mdp, draw.test_rewards, model.transfer_rewards_)))
 
 
+def _fixed_dictionary(draw: Draw, name: str, labelled: FactIRL | None) -> np.ndarray:
+    """The columns the fixed-dictionary learner ``name`` takes as features: (S*A, k) or (S, k)."""
+    if name == "em_true_dictionary":
+        return np.asarray(draw.dictionary)
+    assert labelled is not None  # fitted by _one whenever this learner is asked for
+    D = labelled.dictionary_
+    return D if draw.features is None else np.asarray(draw.features) @ D
+
+
 def _one(draw: Draw, seed: int, s: dict) -> dict[str, Any]:
-    """The three learners on one draw of n tasks: ARI, matched train deviation, transfer, seconds."""
+    """The chosen learners on one draw of n tasks: ARI, matched train deviation, transfer, seconds."""
     k, n, mdp, features = s["n_primitives"], len(draw.demos), draw.mdp, draw.features
     episodes = [ep for demos in draw.demos for ep in demos]
     truth = np.repeat(np.arange(n), [len(demos) for demos in draw.demos])
     out: dict[str, Any] = {}
-    t0 = time.perf_counter()
-    lab = FactIRL(n_primitives=k, beta=s["beta"], features=features, rng=seed).fit(mdp, draw.demos)
-    out["labelled"] = {"ari": 1.0, "train_deviation": float(np.mean(deviation(mdp, draw.rewards, lab.rewards_))),
-                       "transfer_deviation": _transfer(draw, lab), "seconds": time.perf_counter() - t0}
-    for name, kk in (("em_flat", None), ("em_shared", k)):
+    lab = None
+    if {"labelled", "em_labelled_dictionary"} & set(s["learners"]):
         t0 = time.perf_counter()
+        lab = FactIRL(n_primitives=k, beta=s["beta"], features=features, rng=seed).fit(mdp, draw.demos)
+        seconds = time.perf_counter() - t0
+        if "labelled" in s["learners"]:
+            out["labelled"] = {"ari": 1.0, "train_deviation": float(np.mean(deviation(mdp, draw.rewards, lab.rewards_))),
+                               "transfer_deviation": _transfer(draw, lab), "seconds": seconds}
+    for name in s["learners"]:
+        if name == "labelled":
+            continue
+        t0 = time.perf_counter()
+        kk = k if name == "em_shared" else None
+        fixed = name in ("em_true_dictionary", "em_labelled_dictionary")
         em = MultiIntentIRL(n, n_primitives=kk, beta=s["beta"], max_iter=s["em_max_iter"],
-                            m_step_max_iter=s["m_step_max_iter"], features=features, rng=seed).fit(mdp, episodes)
+                            m_step_max_iter=s["m_step_max_iter"],
+                            features=_fixed_dictionary(draw, name, lab) if fixed else features, rng=seed).fit(mdp, episodes)
         out[name] = {"ari": adjusted_rand_index(truth, em.labels_),
                      "train_deviation": matched_deviation(mdp, draw.rewards, em.rewards_),
                      "transfer_deviation": None if kk is None else _transfer(draw, em.to_factirl()),

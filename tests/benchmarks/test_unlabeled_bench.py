@@ -16,7 +16,7 @@ def test_unlabeled_benchmark_quick(capsys):
     assert out["benchmark"] == "unlabeled" and out["settings"]["quick"]
     assert [(r["n_tasks"], r["seed"]) for r in out["rows"]] == [(2, 0)]
     learners = out["rows"][0]["learners"]
-    assert set(learners) == set(unlabeled.LEARNERS) and learners["labelled"]["ari"] == 1.0
+    assert set(learners) == set(unlabeled.DEFAULTS["learners"]) and learners["labelled"]["ari"] == 1.0
     for name, row in learners.items():
         assert -1.0 <= row["ari"] <= 1.0 and row["train_deviation"] >= 0
         assert (row["transfer_deviation"] is None) == (name == "em_flat")
@@ -57,7 +57,7 @@ def test_objectworld_quick_runs_every_learner_on_the_maps_features(capsys, monke
     assert seen == [("FactIRL", (q["size"] ** 2, p)), ("MultiIntentIRL", (q["size"] ** 2, p)),
                     ("MultiIntentIRL", (q["size"] ** 2, p))]
     learners = out["rows"][0]["learners"]
-    assert set(learners) == set(unlabeled.LEARNERS)
+    assert set(learners) == set(unlabeled.DEFAULTS["learners"])
     for name, row in learners.items():
         assert -1.0 <= row["ari"] <= 1.0 and row["train_deviation"] >= 0
         assert (row["transfer_deviation"] is None) == (name == "em_flat")
@@ -136,3 +136,48 @@ def test_rows_carry_the_oracle_ari(capsys):
     assert bench.main(["unlabeled", "--quick", "--em-max-iter", "1"]) == 0
     row = json.loads(capsys.readouterr().out)["rows"][0]
     assert -1.0 <= row["oracle_ari"] <= 1.0
+
+
+def test_default_line_up_is_the_three_learners():
+    assert _settings()["learners"] == ["labelled", "em_flat", "em_shared"]
+    assert _settings("--learners", "em_flat", "labelled", "em_flat")["learners"] == ["em_flat", "labelled"]
+
+
+def test_unknown_learner_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit):
+        bench.build_parser().parse_args(["unlabeled", "--learners", "em_magic"])
+    assert "--learners" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("world", ["grid", "objectworld"])
+def test_fixed_dictionary_learners_take_the_true_and_the_labelled_dictionaries(capsys, monkeypatch, world):
+    seen = {}
+
+    class Spy(fo.MultiIntentIRL):
+        def fit(self, mdp, episodes):
+            seen[len(seen)] = np.array(self.features, copy=True)
+            return super().fit(mdp, episodes)
+
+    fitted = []
+
+    class LabSpy(fo.FactIRL):
+        def fit(self, mdp, demos, *args, **kwargs):
+            fitted.append(super().fit(mdp, demos, *args, **kwargs))
+            return fitted[-1]
+
+    monkeypatch.setattr(unlabeled, "MultiIntentIRL", Spy)
+    monkeypatch.setattr(unlabeled, "FactIRL", LabSpy)
+    argv = ["unlabeled", "--quick", "--world", world, "--learners", "em_true_dictionary", "em_labelled_dictionary"]
+    assert bench.main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    s = _settings("--quick", "--world", world)
+    draw = unlabeled.WORLDS[world](s, s["n_tasks"][0], 0)
+    k = s["n_primitives"]
+    np.testing.assert_array_equal(seen[0], draw.dictionary)
+    assert seen[0].shape[1] == k and len(fitted) == 1  # the labelled fit is made (once) for its dictionary
+    want = fitted[0].dictionary_ if draw.features is None else draw.features @ fitted[0].dictionary_
+    np.testing.assert_allclose(seen[1], want, rtol=1e-12)
+    learners = out["rows"][0]["learners"]
+    assert list(learners) == ["em_true_dictionary", "em_labelled_dictionary"]  # labelled not reported
+    for row in learners.values():
+        assert -1.0 <= row["ari"] <= 1.0 and row["train_deviation"] >= 0 and row["transfer_deviation"] is None
