@@ -20,6 +20,10 @@ learn):
 - ``em_labelled_dictionary``: the dictionary of the ``labelled`` learner (``Phi D`` on the
   world's features), learnt with the task labels.
 
+And one tells whether the likelihood itself points at the tasks: ``em_shared_true_start``, the
+shared EM started from the true labels instead of its default start (compare its
+``best_log_likelihood`` and ARI with ``em_shared``'s).
+
 Worlds (:data:`WORLDS`):
 
 ``"grid"`` (the paper's)
@@ -90,7 +94,7 @@ WORLD_QUICK = {"grid": {"size": 4, "n_demos": 3, "length": 5},
 #: the Objectworld experiments' preset whose colours, density, dynamics and planner the world takes
 OBJECTWORLD_PRESET = "objectworld-quick"
 #: every learner ``--learners`` can name; the first three are the default line-up
-LEARNERS = ("labelled", "em_flat", "em_shared", "em_true_dictionary", "em_labelled_dictionary")
+LEARNERS = ("labelled", "em_flat", "em_shared", "em_true_dictionary", "em_labelled_dictionary", "em_shared_true_start")
 
 
 @dataclasses.dataclass
@@ -148,7 +152,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_option(parser, "--seeds", type=int, nargs="+", defaults=DEFAULTS, help="task and demonstration seeds")
     add_option(parser, "--world", choices=sorted(WORLDS), defaults=DEFAULTS, help="the paper's grid or one Objectworld map")
     add_option(parser, "--learners", nargs="+", choices=LEARNERS, defaults=DEFAULTS,
-               help="learners to run (em_true_dictionary, em_labelled_dictionary: EM with that dictionary fixed)")
+               help="learners to run (em_true_dictionary, em_labelled_dictionary: EM with that dictionary fixed; "
+                    "em_shared_true_start: the shared EM started from the true labels)")
     for flag, what in (("--size", "grid side"), ("--n-demos", "demonstrations per task"),
                        ("--length", "steps per demonstration")):
         dest = flag[2:].replace("-", "_")
@@ -266,11 +271,12 @@ def _one(draw: Draw, seed: int, s: dict) -> dict[str, Any]:
         if name == "labelled":
             continue
         t0 = time.perf_counter()
-        kk = k if name == "em_shared" else None
+        kk = k if name in ("em_shared", "em_shared_true_start") else None
         fixed = name in ("em_true_dictionary", "em_labelled_dictionary")
         em = MultiIntentIRL(n, n_primitives=kk, beta=s["beta"], max_iter=s["em_max_iter"],
                             m_step_max_iter=s["m_step_max_iter"],
-                            features=_fixed_dictionary(draw, name, lab) if fixed else features, rng=seed).fit(mdp, episodes)
+                            features=_fixed_dictionary(draw, name, lab) if fixed else features,
+                            init=truth if name == "em_shared_true_start" else "agreement", rng=seed).fit(mdp, episodes)
         out[name] = {"ari": adjusted_rand_index(truth, em.labels_),
                      "train_deviation": matched_deviation(mdp, draw.rewards, em.rewards_),
                      "transfer_deviation": None if kk is None else _transfer(draw, em.to_factirl()),

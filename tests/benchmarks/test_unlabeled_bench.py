@@ -181,3 +181,20 @@ def test_fixed_dictionary_learners_take_the_true_and_the_labelled_dictionaries(c
     assert list(learners) == ["em_true_dictionary", "em_labelled_dictionary"]  # labelled not reported
     for row in learners.values():
         assert -1.0 <= row["ari"] <= 1.0 and row["train_deviation"] >= 0 and row["transfer_deviation"] is None
+
+
+def test_the_true_start_learner_starts_the_shared_em_from_the_true_labels(capsys, monkeypatch):
+    inits = []
+
+    class Spy(fo.MultiIntentIRL):
+        def fit(self, mdp, episodes):
+            inits.append((self.n_primitives, self.init if isinstance(self.init, str) else np.asarray(self.init).tolist()))
+            return super().fit(mdp, episodes)
+
+    monkeypatch.setattr(unlabeled, "MultiIntentIRL", Spy)
+    assert bench.main(["unlabeled", "--quick", "--learners", "em_shared", "em_shared_true_start"]) == 0
+    s = _settings("--quick")
+    n, k = s["n_tasks"][0], s["n_primitives"]
+    assert inits == [(k, "agreement"), (k, np.repeat(np.arange(n), s["n_demos"]).tolist())]
+    learners = json.loads(capsys.readouterr().out)["rows"][0]["learners"]
+    assert learners["em_shared_true_start"]["transfer_deviation"] is not None
