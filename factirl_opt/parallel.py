@@ -18,6 +18,11 @@ under it; it knows nothing of objectives:
   and :class:`DaskShard` (a Dask actor holding the state on a worker of a
   ``dask.distributed.Client``).
 
+Warnings a worker raises (a stalled fit in a sweep worker, an overflow while a shard plans)
+are recorded there (:func:`recording_warnings`), sent back with the reply and raised again in
+the driver (:func:`replay_warnings`), where the user's warning filters apply: ``-W error``
+or ``warnings.catch_warnings`` see them as in a run with one job.
+
 ``n_jobs`` follows scikit-learn: None means 1, -1 every core (``os.cpu_count()``), -2 all
 but one, and so on (:func:`effective_n_jobs`). Inside a worker process (a shard's, a sweep
 worker of ``reproduce --jobs``, or a Dask worker, see :func:`in_worker`) it is 1: pools are
@@ -29,11 +34,13 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import pickle
 import signal
 import sys
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -41,7 +48,7 @@ import numpy as np
 
 from .exceptions import FactIRLError, ValidationError
 
-__all__ = ["become_worker", "serve_calls", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
+__all__ = ["become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -132,6 +139,38 @@ def array_bytes(value: Any) -> int:
     return 0
 
 
+def recording_warnings(fn: Callable[..., Any], *args: Any) -> tuple[Any, list[tuple[type[Warning], str]]]:
+    """``fn(*args)`` and the warnings it raised, as distinct ``(category, message)`` pairs in order.
+
+    Every warning is recorded (filter ``"always"``, whatever this process's filters say), to be
+    raised again in the driver by :func:`replay_warnings`; one raised many times is sent once.
+    A category the driver could not unpickle is sent as its nearest base class that it can.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = fn(*args)
+    return result, list(dict.fromkeys((_picklable(w.category), str(w.message)) for w in caught))
+
+
+def _picklable(category: type[Warning]) -> type[Warning]:
+    """``category`` or its nearest base that the driver can unpickle (not one of a script's ``__main__``)."""
+    for cls in category.__mro__:
+        if cls.__module__ in ("__main__", "__mp_main__"):
+            continue
+        try:
+            pickle.loads(pickle.dumps(cls))
+        except Exception:
+            continue
+        return cls
+    return UserWarning
+
+
+def replay_warnings(records: Sequence[tuple[type[Warning], str]]) -> None:
+    """Raise again, in this process and under its filters, warnings recorded by :func:`recording_warnings`."""
+    for category, message in records:
+        warnings.warn(message, category, stacklevel=2)
+
+
 class ShardHost:
     """A shard's state built from its spec, called by method name (also the Dask actor class)."""
 
@@ -140,6 +179,10 @@ class ShardHost:
 
     def call(self, method: str, args: tuple) -> Any:
         return getattr(self.state, method)(*args)
+
+    def call_recording(self, method: str, args: tuple) -> tuple[Any, list[tuple[type[Warning], str]]]:
+        """:meth:`call` and the warnings it raised (:func:`recording_warnings`)."""
+        return recording_warnings(self.call, method, args)
 
 
 class InProcessShard:
@@ -179,9 +222,10 @@ def become_worker(parent_pid: int) -> None:
 
 
 def serve_calls(conn: Any, handle: Callable[[Any], Any], error: type[Exception] = FactIRLError) -> None:
-    """Answer each message of ``conn`` with ``("ok", handle(message))`` or ``("error", exc, tb)``
-    until ``None`` arrives or the pipe closes; a reply that cannot be pickled is answered with an
-    ``error`` saying so."""
+    """Answer each message of ``conn`` with ``("ok", handle(message), warnings)`` or ``("error", exc, tb)``
+    until ``None`` arrives or the pipe closes; ``warnings`` are those the call raised
+    (:func:`recording_warnings`; the receiver raises them again with :func:`replay_warnings`). A reply that cannot
+    be pickled is answered with an ``error`` saying so."""
     while True:
         try:
             task = conn.recv()
@@ -191,7 +235,7 @@ def serve_calls(conn: Any, handle: Callable[[Any], Any], error: type[Exception] 
             return
         reply: tuple
         try:
-            reply = ("ok", handle(task))
+            reply = ("ok", *recording_warnings(handle, task))
         except Exception as exc:
             reply = ("error", exc, traceback.format_exc())
         try:
@@ -209,11 +253,11 @@ def _serve(conn: Any, spec: tuple, parent_pid: int) -> None:
     become_worker(parent_pid)
     with limit_blas_threads(blas_thread_limit()):
         try:
-            host = ShardHost(*spec)
+            host, caught = recording_warnings(ShardHost, *spec)
         except Exception as exc:
             conn.send(("error", exc, traceback.format_exc()))
             return
-        conn.send(("ok", None))
+        conn.send(("ok", None, caught))
         serve_calls(conn, lambda task: host.call(*task))
 
 
@@ -242,6 +286,7 @@ class ProcessShard:
             raise ShardLost(f"shard process {self.proc.pid} died (exit code {self.proc.exitcode})") from exc
         if reply[0] == "error":
             raise reply[1]
+        replay_warnings(reply[2])
         return reply[1]
 
     def submit(self, method: str, args: tuple) -> None:
@@ -301,11 +346,13 @@ class DaskShard:
 
     def submit(self, method: str, args: tuple) -> None:
         with _lost_as_shard_lost():
-            self.future = self.actor.call(method, args)
+            self.future = self.actor.call_recording(method, args)
 
     def result(self) -> Any:
         with _lost_as_shard_lost():
-            return self.future.result()
+            result, caught = self.future.result()
+        replay_warnings(caught)
+        return result
 
     def close(self) -> None:
         self.actor = self.future = None

@@ -230,3 +230,41 @@ def test_transfer_n_jobs_equals_serial_transfer(data):
     np.testing.assert_allclose(b, a, **TOL)
     assert model.transfer_n_evaluations_ == evaluations
     assert not multiprocessing.active_children()
+
+
+def test_recording_warnings_keeps_distinct_warnings_in_order_and_picklable_categories():
+    import warnings
+
+    class ScriptWarning(RuntimeWarning):  # as if defined in a user's script: the driver could not unpickle it
+        pass
+
+    ScriptWarning.__module__ = "__main__"
+
+    def noisy():
+        for _ in range(3):
+            warnings.warn("again", UserWarning)
+        warnings.warn("script", ScriptWarning)
+        return 7
+
+    result, caught = parallel.recording_warnings(noisy)
+    assert result == 7 and caught == [(UserWarning, "again"), (RuntimeWarning, "script")]
+
+
+def test_warnings_of_shard_processes_are_raised_in_the_driver():
+    import importlib
+    import warnings
+
+    shards = Shards([(importlib.import_module, ("warnings",)), (importlib.import_module, ("warnings",))])
+    try:
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
+            shards.call([(0, "warn", ("from shard 0",)), (1, "warn", ("from shard 1", RuntimeWarning))])
+        # shard 0 runs in this process; shard 1's warning crossed the pipe
+        assert sorted((str(w.message), w.category) for w in record) == [("from shard 0", UserWarning),
+                                                                        ("from shard 1", RuntimeWarning)]
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # the driver's filters decide, as in a run with one job
+            with pytest.raises(UserWarning, match="from shard 1 again"):
+                shards.call([(1, "warn", ("from shard 1 again",))])
+    finally:
+        shards.close()

@@ -124,3 +124,17 @@ def test_errors_of_the_computation_are_raised_not_retried(client):
         assert shards.call([(1, "pop", ("missing", 7))]) == [7] and shards.n_restarts == 0
     finally:
         shards.close()
+
+
+def test_warnings_of_dask_shards_are_raised_in_the_driver(client):
+    import importlib
+
+    from factirl_opt.parallel import Shards
+
+    client.wait_for_workers(2)
+    shards = Shards([(importlib.import_module, ("warnings",))], "dask", client)
+    try:
+        with pytest.warns(RuntimeWarning, match="from a Dask worker"):
+            assert shards.call([(0, "warn", ("from a Dask worker", RuntimeWarning))]) == [None]
+    finally:
+        shards.close()

@@ -37,7 +37,7 @@ from multiprocessing.connection import wait
 from typing import Any
 
 from ..exceptions import FactIRLError
-from ..parallel import POLL_SECONDS, become_worker, serve_calls
+from ..parallel import POLL_SECONDS, become_worker, replay_warnings, serve_calls
 
 __all__ = ["imap_unordered", "sigterm_raises", "Terminated", "WorkerError", "POLL_SECONDS"]
 
@@ -89,7 +89,7 @@ def sigterm_raises() -> Iterator[None]:
 
 
 def _worker_main(conn, parent_pid):
-    """A worker's loop: receive ``(fn, args)``, send back ``("ok", result)`` or ``("error", exc, tb)``."""
+    """A worker's loop: receive ``(fn, args)``, send back ``("ok", result, warnings)`` or ``("error", exc, tb)``."""
     become_worker(parent_pid)  # a fit in a sweep worker runs with n_jobs=1: pools never nest
     serve_calls(conn, lambda task: task[0](*task[1]), WorkerError)
 
@@ -207,4 +207,5 @@ def _receive(conn, proc, args):
         raise WorkerError(f"worker process {proc.pid} died (exit code {proc.exitcode}) while running {args!r}") from None
     if reply[0] == "error":
         raise reply[1] from _RemoteTraceback(reply[2])
+    replay_warnings(reply[2])
     return reply[1]

@@ -211,3 +211,10 @@ def test_an_ignored_sigterm_while_workers_start_changes_nothing():
     finally:
         timer.join()
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_warnings_of_sweep_workers_are_raised_in_the_parent():
+    import warnings
+
+    with pytest.warns(UserWarning, match="from a sweep worker"):
+        assert list(imap_unordered(warnings.warn, [("from a sweep worker",)], 1)) == [None]
