@@ -198,3 +198,22 @@ def test_the_true_start_learner_starts_the_shared_em_from_the_true_labels(capsys
     assert inits == [(k, "agreement"), (k, np.repeat(np.arange(n), s["n_demos"]).tolist())]
     learners = json.loads(capsys.readouterr().out)["rows"][0]["learners"]
     assert learners["em_shared_true_start"]["transfer_deviation"] is not None
+
+
+def test_objective_reaches_every_learner(capsys, monkeypatch):
+    seen = []
+
+    def spy(cls):
+        class Spy(cls):
+            def fit(self, mdp, demos, *args, **kwargs):
+                seen.append((cls.__name__, self.objective))
+                return super().fit(mdp, demos, *args, **kwargs)
+        return Spy
+
+    monkeypatch.setattr(unlabeled, "FactIRL", spy(fo.FactIRL))
+    monkeypatch.setattr(unlabeled, "MultiIntentIRL", spy(fo.MultiIntentIRL))
+    assert bench.main(["unlabeled", "--quick", "--objective", "mce", "--em-max-iter", "1"]) == 0
+    assert json.loads(capsys.readouterr().out)["settings"]["objective"] == "mce"
+    assert seen == [("FactIRL", "mce"), ("MultiIntentIRL", "mce"), ("MultiIntentIRL", "mce")]
+    with pytest.raises(SystemExit):
+        bench.build_parser().parse_args(["unlabeled", "--objective", "maxent"])
