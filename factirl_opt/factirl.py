@@ -18,7 +18,6 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._threads import blas_limited
 from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
 from .dictionary import (
     PCA_MAX_HALVINGS,
@@ -34,6 +33,7 @@ from .dictionary import (
 from .exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
 from .fitting import (
+    learner_entry,
     Environments,
     check_features_digest,
     environment_signatures,
@@ -334,7 +334,7 @@ class FactIRL:
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
         return Phi, loop
 
-    @blas_limited
+    @learner_entry
     def fit(self, mdp: Any, demos_per_task: Any, flat_rewards: ArrayLike | None = None) -> FactIRL:
         """Learn the dictionary and the coefficients of every task.
 
@@ -418,7 +418,7 @@ class FactIRL:
             raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
         return Phi, D
 
-    @blas_limited
+    @learner_entry
     def transfer(self, mdp: Any, demos_per_task: Any, features: Any = None, max_iter: int | None = None,
                  h_solver: Any = None, h_solver_options: dict | None = None) -> NDArray[np.float64]:
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).

@@ -20,11 +20,11 @@ from numpy.typing import ArrayLike, NDArray
 import solvers
 
 from ._progress import fit_progress
-from ._threads import blas_limited
 from ._validation import check_array, check_int, check_mdp, check_tol
 from .dictionary import normalise_dictionary
 from .exceptions import ValidationError, translate_solver_errors
 from .fitting import (
+    learner_entry,
     environments_setup,
     first_step_stall,
     make_objective,
@@ -196,7 +196,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
     return best, (history, evaluations), it, status, reason, gnorm
 
 
-@blas_limited
+@learner_entry
 def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coefficients: ArrayLike, *, beta: float = 5.0,
                   base_features: ArrayLike | None = None, h_solver: Any = "armijo", h_solver_options: dict | None = None,
                   d_solver: Any = "armijo", d_solver_options: dict | None = None, max_iter: int = 100,

@@ -22,22 +22,25 @@ import dataclasses
 import hashlib
 import warnings
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 import solvers
 
+from ._threads import blas_limited
 from ._validation import check_beta, check_features
 from .demonstrations import empirical_statistics
 from .exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
 from .mdp import TabularMDP
 from .objectives import Objective, get_objective
 from .objectives.environments import MultiEnvironmentObjective, check_environments, multi_environment_objective
+from .planning.cache import isolated_planning
 from .problems import StateBroadcast
 from .task_features import TaskFeatures
 
 __all__ = [
+    "learner_entry",
     "make_objective",
     "check_solver_applies",
     "resolve_step_solver",
@@ -56,6 +59,16 @@ __all__ = [
     "environments_setup",
     "environment_signatures",
 ]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def learner_entry(fn: F) -> F:
+    """Decorator of the learners' entry points (``fit``, ``transfer``, ``fit_factorial``,
+    ``transfer_coefficients``): BLAS threads limited (:func:`factirl_opt._threads.blas_limited`)
+    and planning caches of the call's own (:func:`factirl_opt.planning.cache.isolated_planning`:
+    the result does not depend on what the thread planned before)."""
+    return isolated_planning(blas_limited(fn))
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
 REWARDS = ("state-action", "state")

@@ -14,10 +14,10 @@ from numpy.typing import NDArray
 import solvers
 
 from ._progress import fit_progress
-from ._threads import blas_limited
 from ._validation import check_int, check_mdp, check_tol
 from .exceptions import translate_solver_errors
 from .fitting import (
+    learner_entry,
     check_solver_applies,
     environment_signatures,
     environments_setup,
@@ -215,7 +215,7 @@ class GradIRL:
         self.n_jobs, self.backend, self.client = n_jobs, backend, client
         self.planner_options = planner_options
 
-    @blas_limited
+    @learner_entry
     def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
         """Learn one reward per task.
 

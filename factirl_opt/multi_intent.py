@@ -28,11 +28,10 @@ from scipy.optimize import linear_sum_assignment
 
 import solvers
 
-from ._threads import blas_limited
 from ._validation import as_rng, check_array, check_int, check_mdp
 from .exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
-from .fitting import features_digest
+from .fitting import features_digest, learner_entry
 from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
@@ -219,7 +218,7 @@ class MultiIntentIRL:
             return self.init
         return "given"
 
-    @blas_limited
+    @learner_entry
     def fit(self, mdp: Any, episodes: Any) -> MultiIntentIRL:
         """Cluster the episodes into intentions and learn their rewards.
 

@@ -17,10 +17,10 @@ from numpy.typing import ArrayLike, NDArray
 import solvers
 
 from ._progress import fit_progress
-from ._threads import blas_limited
 from ._validation import check_array, check_features, check_int, check_mdp, check_tol
 from .exceptions import NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
+    learner_entry,
     environments_setup,
     first_step_stall,
     held_by_constraint,
@@ -68,7 +68,7 @@ class TransferFit:
     reason: str = ""
 
 
-@blas_limited
+@learner_entry
 def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, *, beta: float = 5.0,
                           base_features: ArrayLike | None = None, h_solver: Any = "armijo",
                           h_solver_options: dict | None = None, max_iter: int = 100, tol: float = 1e-5,

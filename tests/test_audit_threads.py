@@ -56,10 +56,6 @@ def test_save_one_fitted_model_from_threads(fitted, tmp_path):
     assert not [f for f in (p.name for p in tmp_path.iterdir()) if f.startswith(".tmp")]
 
 
-@pytest.mark.xfail(strict=True, reason="planning (sparse_lu.py/cache.py): results depend on the per-thread factorisation "
-                                       "cache's history (a low-rank update from a factorisation cached by the fit vs a fresh "
-                                       "LU): transfer right after fit differs by ~2.5e-12 from the same transfer in a new "
-                                       "thread, on a loaded copy, or after planning.clear_caches")
 def test_transfer_does_not_depend_on_what_the_thread_planned_before(fitted):
     mdp, demos, model = fitted
     warm = model.transfer(mdp, demos[:1])  # in the thread whose cache holds the fit's factorisations

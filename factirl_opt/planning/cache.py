@@ -17,16 +17,32 @@ per task of the largest batch the thread planned. Per-thread caches mean that co
 threads never share a factorisation or an eviction decision: what a thread computes is exactly
 what it would compute alone, and a cache hit costs no lock contention. :func:`clear_caches`
 empties the caches of every thread.
+
+**The factorisations of one fit** (:func:`isolated_caches`, :func:`isolated_planning`). The
+learners' entry points (``GradIRL.fit``, ``FactIRL.fit`` and ``transfer``,
+``MultiIntentIRL.fit``, :func:`~factirl_opt.fit_factorial`,
+:func:`~factirl_opt.transfer_coefficients`) plan with caches of their own, one per planner,
+made empty when the outermost of them starts and dropped when it returns. A low-rank update of
+a cached factorisation and a fresh LU agree only to round-off (about 1e-12), so a fit that
+could reuse what an earlier call left in the thread's cache would depend, in the last digits,
+on that history; isolated, a fit computes exactly what it computes in a new thread or a new
+process, and its factorisations are freed when it returns. Planning outside a fit
+(``optimal_q``, the evaluation functions) keeps using the thread's cache.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
+import functools
 import threading
 import weakref
-from typing import Any, Callable
+from typing import Any, Callable, Iterator, TypeVar
 
-__all__ = ["FactorCache", "cached_planner", "clear_caches", "FACTOR_CACHE_BYTES", "CACHE_GROUPS_PER_TASK"]
+__all__ = ["FactorCache", "cached_planner", "clear_caches", "isolated_caches", "isolated_planning", "scoped_cache",
+           "FACTOR_CACHE_BYTES", "CACHE_GROUPS_PER_TASK"]
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 #: a sparse planner's cache of factorisations of recent policies, per thread (estimated bytes)
 FACTOR_CACHE_BYTES = 768 * 2**20
@@ -35,6 +51,7 @@ CACHE_GROUPS_PER_TASK = 2
 
 _PLANNERS: weakref.WeakKeyDictionary[Any, dict[str, Any]] = weakref.WeakKeyDictionary()
 _PLANNERS_LOCK = threading.Lock()
+_SCOPE = threading.local()  # .caches: planner -> FactorCache of the outermost isolated call of this thread
 
 
 class FactorCache:
@@ -144,3 +161,43 @@ def clear_caches(mdp: Any) -> None:
         planners = list(_PLANNERS.get(mdp, {}).values())
     for planner in planners:
         planner.clear_cache()
+
+
+@contextlib.contextmanager
+def isolated_caches() -> Iterator[None]:
+    """Inside the block, every planner of this thread caches its factorisations in a cache of the
+    block's own (made on first use, dropped on exit); nested blocks share the outermost one's.
+
+    What the block plans then depends only on what it does, not on what the thread planned before
+    (see the module docstring).
+    """
+    if getattr(_SCOPE, "caches", None) is not None:
+        yield
+        return
+    _SCOPE.caches = weakref.WeakKeyDictionary()
+    try:
+        yield
+    finally:
+        _SCOPE.caches = None
+
+
+def scoped_cache(planner: Any) -> FactorCache | None:
+    """``planner``'s cache in this thread's :func:`isolated_caches` block, or None outside one."""
+    caches = getattr(_SCOPE, "caches", None)
+    if caches is None:
+        return None
+    cache = caches.get(planner)
+    if cache is None:
+        cache = caches[planner] = FactorCache()
+    return cache
+
+
+def isolated_planning(fn: F) -> F:
+    """Decorator: ``fn`` runs inside :func:`isolated_caches` (the learners' entry points)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with isolated_caches():
+            return fn(*args, **kwargs)
+
+    return wrapper  # type: ignore[return-value]

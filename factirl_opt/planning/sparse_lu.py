@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from ..exceptions import FactIRLError
 from .allocator import mapped_allocations, release_free_memory
 from .base import Planner, PolicySystem
-from .cache import CACHE_GROUPS_PER_TASK, FactorCache
+from .cache import CACHE_GROUPS_PER_TASK, FactorCache, scoped_cache
 from .lowrank import UPDATE_MAX_RANK, UpdatedFactor
 
 __all__ = ["SparseLUPlanner", "FactorSystem", "TaskFactor", "greedy_actions",
@@ -264,10 +264,14 @@ class SparseLUPlanner(Planner):
     @property
     def factor_cache(self) -> FactorCache:
         """This thread's :class:`~factirl_opt.planning.cache.FactorCache` (created on first use;
-        dropped with the thread or the planner), or inside :meth:`transient_cache` the block's."""
+        dropped with the thread or the planner); inside :meth:`transient_cache` the block's, and
+        else inside :func:`~factirl_opt.planning.cache.isolated_caches` the isolated call's."""
         transient = getattr(self._local, "transient", None)
         if transient is not None:
             return transient
+        scoped = scoped_cache(self)
+        if scoped is not None:
+            return scoped
         cache = getattr(self._local, "cache", None)
         if cache is None:
             cache = self._local.cache = FactorCache()
@@ -296,10 +300,11 @@ class SparseLUPlanner(Planner):
         return factor
 
     def clear_thread_cache(self) -> None:
-        """Forget this thread's cached factorisations (other threads keep theirs)."""
-        cache = getattr(self._local, "cache", None)
-        if cache is not None:
-            cache.clear()
+        """Forget this thread's cached factorisations (other threads keep theirs), and those of
+        the isolated call it is in (:func:`~factirl_opt.planning.cache.isolated_caches`)."""
+        for cache in (getattr(self._local, "cache", None), scoped_cache(self)):
+            if cache is not None:
+                cache.clear()
 
     @contextlib.contextmanager
     def transient_cache(self) -> Iterator[None]:

@@ -93,3 +93,38 @@ def test_four_concurrent_fits_equal_the_sequential_fits(racy, planner):
     for (rewards, history), (rewards_seq, history_seq) in zip(concurrent, sequential):
         np.testing.assert_array_equal(rewards, rewards_seq)
         assert history == history_seq
+
+
+def test_a_fit_plans_with_caches_of_its_own_whatever_the_thread_planned_before():
+    grid = fo.GridWorld(8)
+    rng = np.random.default_rng(4)
+    demos = fo.sample_demonstrations(grid, rng.standard_normal((3, grid.n_states, 4)), 3, 8, rng)
+    pl = planning.get_planner(grid, "sparse-lu")
+    pl.clear_cache()
+    kw = dict(n_primitives=2, max_iter=4, planner="sparse-lu", rng=0)
+    first = fo.FactIRL(**kw).fit(grid, demos)
+    assert len(pl.factor_cache) == 0  # the fit's factorisations went with it
+    # the thread now caches policies near the fit's: a fit that reused them would differ by round-off
+    fo.optimal_q(grid, first.rewards_ + 1e-3 * rng.standard_normal(first.rewards_.shape), planner="sparse-lu")
+    assert len(pl.factor_cache) > 0
+    again = fo.FactIRL(**kw).fit(grid, demos)
+    np.testing.assert_array_equal(again.rewards_, first.rewards_)
+    h = [first.transfer(grid, demos[:1]) for _ in range(2)]
+    np.testing.assert_array_equal(h[0], h[1])
+
+
+def test_isolated_blocks_nest_and_leave_the_thread_cache_alone():
+    grid = fo.GridWorld(6)
+    pl = planning.get_planner(grid, "sparse-lu")
+    pl.clear_cache()
+    R = np.random.default_rng(1).standard_normal((2, grid.n_states, 4))
+    assert cache.scoped_cache(pl) is None  # outside a block: the thread's own cache
+    with cache.isolated_caches():
+        outer = cache.scoped_cache(pl)
+        fo.optimal_q(grid, R, planner="sparse-lu")
+        assert pl.factor_cache is outer and len(outer) > 0
+        with cache.isolated_caches():
+            assert cache.scoped_cache(pl) is outer  # nested: the outermost block's
+        pl.clear_thread_cache()
+        assert len(outer) == 0
+    assert cache.scoped_cache(pl) is None and len(pl.factor_cache) == 0
