@@ -227,8 +227,6 @@ def orient_nonneg(D: NDArray[np.float64], H: NDArray[np.float64],
     return D * sign, H * sign
 
 
-
-
 #: relative slack of :func:`normalise_dictionary`'s band edges (far above round-off, far below any real change)
 BAND_SLACK = 1e-9
 

@@ -33,12 +33,12 @@ from .dictionary import (
 from .exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, factorial_rewards, fit_factorial, run_factorial
 from .fitting import (
-    learner_entry,
     Environments,
     check_features_digest,
     environment_signatures,
     environments_setup,
     features_digest,
+    learner_entry,
     make_objective,
     one_environment,
     reward_dimension,

@@ -24,9 +24,9 @@ from ._validation import check_array, check_int, check_mdp, check_tol
 from .dictionary import normalise_dictionary
 from .exceptions import ValidationError, translate_solver_errors
 from .fitting import (
-    learner_entry,
     environments_setup,
     first_step_stall,
+    learner_entry,
     make_objective,
     one_environment,
     resolve_step_solver,

@@ -40,7 +40,6 @@ from .problems import StateBroadcast
 from .task_features import TaskFeatures
 
 __all__ = [
-    "learner_entry",
     "make_objective",
     "check_solver_applies",
     "resolve_step_solver",
@@ -58,6 +57,7 @@ __all__ = [
     "Environments",
     "environments_setup",
     "environment_signatures",
+    "learner_entry",
 ]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -69,6 +69,7 @@ def learner_entry(fn: F) -> F:
     and planning caches of the call's own (:func:`factirl_opt.planning.cache.isolated_planning`:
     the result does not depend on what the thread planned before)."""
     return isolated_planning(blas_limited(fn))
+
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
 REWARDS = ("state-action", "state")

@@ -17,13 +17,13 @@ from ._progress import fit_progress
 from ._validation import check_int, check_mdp, check_tol
 from .exceptions import translate_solver_errors
 from .fitting import (
-    learner_entry,
     check_solver_applies,
     environment_signatures,
     environments_setup,
     features_digest,
     first_step_stall,
     held_by_constraint,
+    learner_entry,
     make_objective,
     one_environment,
     resolve_step_solver,

@@ -20,10 +20,10 @@ from ._progress import fit_progress
 from ._validation import check_array, check_features, check_int, check_mdp, check_tol
 from .exceptions import NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
-    learner_entry,
     environments_setup,
     first_step_stall,
     held_by_constraint,
+    learner_entry,
     make_objective,
     one_environment,
     per_task_features,

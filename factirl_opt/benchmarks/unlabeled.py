@@ -77,13 +77,13 @@ from ..experiments.presets import get_preset
 from ..experiments.worlds import objectworld
 from ..factirl import FactIRL
 from ..mdp import GridWorld, TabularMDP
-from ..planning import optimal_q
 from ..em import POLICY_OBJECTIVES
+from ..planning import optimal_q
 from ..multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from ..synthetic import synthetic_tasks
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "settings", "matched_deviation", "oracle_labels", "Draw", "draw_grid", "draw_objectworld", "LEARNERS", "WORLDS",
+__all__ = ["add_arguments", "run", "settings", "matched_deviation", "oracle_labels", "Draw", "draw_grid", "draw_objectworld", "LEARNERS", "EM_LEARNERS", "WORLDS",
            "WORLD_DEFAULTS", "WORLD_QUICK"]
 
 DEFAULTS = {"n_tasks": [4, 10, 20], "seeds": [0], "world": "grid", "n_primitives": 5,
@@ -98,8 +98,12 @@ WORLD_QUICK = {"grid": {"size": 4, "n_demos": 3, "length": 5},
                "objectworld": {"size": 5, "n_demos": 3, "length": 5}}
 #: the Objectworld experiments' preset whose colours, density, dynamics and planner the world takes
 OBJECTWORLD_PRESET = "objectworld-quick"
+#: EM learner -> (learns a shared dictionary, dictionary held fixed as its features or None, starts from the true labels)
+EM_LEARNERS = {"em_flat": (False, None, False), "em_shared": (True, None, False),
+               "em_true_dictionary": (False, "true", False), "em_labelled_dictionary": (False, "labelled", False),
+               "em_shared_true_start": (True, None, True)}
 #: every learner ``--learners`` can name; the first three are the default line-up
-LEARNERS = ("labelled", "em_flat", "em_shared", "em_true_dictionary", "em_labelled_dictionary", "em_shared_true_start")
+LEARNERS = ("labelled", *EM_LEARNERS)
 
 
 @dataclasses.dataclass
@@ -251,9 +255,9 @@ def _transfer(draw: Draw, model: FactIRL) -> float:
     return float(np.mean(deviation(draw.mdp, draw.test_rewards, model.transfer_rewards_)))
 
 
-def _fixed_dictionary(draw: Draw, name: str, labelled: FactIRL | None) -> np.ndarray:
-    """The columns the fixed-dictionary learner ``name`` takes as features: (S*A, k) or (S, k)."""
-    if name == "em_true_dictionary":
+def _fixed_dictionary(draw: Draw, which: str, labelled: FactIRL | None) -> np.ndarray:
+    """The ``"true"`` or ``"labelled"`` dictionary's columns, taken as features: (S*A, k) or (S, k)."""
+    if which == "true":
         return np.asarray(draw.dictionary)
     assert labelled is not None  # fitted by _one whenever this learner is asked for
     D = labelled.dictionary_
@@ -279,12 +283,12 @@ def _one(draw: Draw, seed: int, s: dict) -> dict[str, Any]:
         if name == "labelled":
             continue
         t0 = time.perf_counter()
-        kk = k if name in ("em_shared", "em_shared_true_start") else None
-        fixed = name in ("em_true_dictionary", "em_labelled_dictionary")
+        shared, fixed, true_start = EM_LEARNERS[name]
+        kk = k if shared else None
         em = MultiIntentIRL(n, n_primitives=kk, beta=s["beta"], objective=s["objective"], max_iter=s["em_max_iter"],
                             m_step_max_iter=s["m_step_max_iter"],
-                            features=_fixed_dictionary(draw, name, lab) if fixed else features,
-                            init=truth if name == "em_shared_true_start" else "agreement", rng=seed).fit(mdp, episodes)
+                            features=features if fixed is None else _fixed_dictionary(draw, fixed, lab),
+                            init=truth if true_start else "agreement", rng=seed).fit(mdp, episodes)
         out[name] = {"ari": adjusted_rand_index(truth, em.labels_),
                      "train_deviation": matched_deviation(mdp, draw.rewards, em.rewards_),
                      "transfer_deviation": None if kk is None else _transfer(draw, em.to_factirl()),
