@@ -8,7 +8,7 @@ Internal modules (not public API; any module of the package may import their nam
 (progress bars and callbacks of long fits).
 """
 
-from .demonstrations import empirical_statistics, sample_demonstrations
+from .tasks.demonstrations import empirical_statistics, sample_demonstrations
 from .evaluation import deviation, optimal_score, score, soft_deviation
 from .exceptions import (
     ConvergenceWarning,
@@ -22,14 +22,14 @@ from .exceptions import (
     UnknownSolverError,
     ValidationError,
 )
-from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
-from .gradirl import GradIRL
+from .learners.factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
+from .learners.gradirl import GradIRL
 from .interruption import FitInterrupted, InterruptedFitWarning
-from .gym_adapter import from_gymnasium, gymnasium_rewards
-from .mdp import GridWorld, TabularMDP
-from .minari_adapter import LoggedEpisodes, read_minari
-from .model_estimation import as_transitions, estimate_mdp, sample_transitions, transition_counts, transition_log_likelihood
-from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
+from .adapters.gymnasium import from_gymnasium, gymnasium_rewards
+from .mdp.tabular import GridWorld, TabularMDP
+from .adapters.minari import LoggedEpisodes, read_minari
+from .mdp.estimation import as_transitions, estimate_mdp, sample_transitions, transition_counts, transition_log_likelihood
+from .learners.multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .objectives import (
     available_objectives,
     mce_loss,
@@ -38,9 +38,9 @@ from .objectives import (
     residual_jacobian,
 )
 from .persistence import load_demonstrations, load_model, save_demonstrations, save_model
-from .solver_settings import SolverSettings
+from .learners.solver_settings import SolverSettings
 from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
-from .objectworld import (
+from .datasets.objectworld import (
     ObjectWorld,
     levine_reward,
     make_objectworld,
@@ -52,18 +52,19 @@ from .objectworld import (
     plot_objectworld,
     state_action_rewards,
 )
-from .objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
+from .datasets.objectworld.maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
 from .objectives.environments import MultiEnvironmentObjective, multi_environment_objective
-from .successors import from_successors, to_successors
-from .synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks, task_rewards
-from .task_environments import feature_rewards
-from .task_features import TaskFeatures
-from .trajectories import demonstrations_from_trajectories
+from .mdp import from_successors, to_successors
+from .datasets.synthetic import SyntheticTasks, random_coefficients, random_dictionary, synthetic_tasks
+from .tasks.features import task_rewards
+from .tasks.features import feature_rewards
+from .tasks.features import TaskFeatures
+from .tasks.trajectories import demonstrations_from_trajectories
 
 __version__ = "0.1.0"
 
 #: Public names of the optional BabyAI/MiniGrid adapter, loaded on first access (PEP 562) so
-#: that ``import factirl_opt`` does not import minigrid; loading :mod:`factirl_opt.minigrid`
+#: that ``import factirl_opt`` does not import minigrid; loading :mod:`factirl_opt.adapters.minigrid`
 #: imports minigrid when it is installed, which registers its environments with gymnasium.
 _MINIGRID_NAMES = (
     "from_minigrid", "MiniGridModel", "minigrid_feature_names", "parse_goto_mission",

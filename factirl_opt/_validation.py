@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from .exceptions import ValidationError
 
 if typing.TYPE_CHECKING:
-    from .mdp import TabularMDP
+    from .mdp.tabular import TabularMDP
 
 #: What ``rng=`` accepts everywhere: a Generator, a seed, a SeedSequence or None (see :func:`as_rng`).
 RNGLike = np.random.Generator | int | np.random.SeedSequence | None
@@ -149,7 +149,7 @@ def check_array(value, name, ndim=None, dtype=np.float64):
 
 
 def check_mdp(mdp):
-    """``mdp`` if it is a :class:`~factirl_opt.mdp.TabularMDP` (or a subclass), else raise.
+    """``mdp`` if it is a :class:`~factirl_opt.mdp.tabular.TabularMDP` (or a subclass), else raise.
 
     The class is looked up among the loaded modules, not imported: this module is a leaf that
     the model module imports (no import cycle), and no model can exist before its module loads.
@@ -176,7 +176,7 @@ def check_rewards(mdp: TabularMDP, rewards: ArrayLike, name: str = "rewards") ->
     ======================  ==============================  =============================
 
     State rewards are broadcast over the actions (``R(s, a) = r(s)``, docs/maths.md §1),
-    as :func:`~factirl_opt.objectworld.multitask_rewards` returns them. A 2-d array is read
+    as :func:`~factirl_opt.datasets.objectworld.multitask_rewards` returns them. A 2-d array is read
     as (S, A) whenever its shape is (S, A): when ``A == S``, an (S, S) array is one
     state-action reward, never S state rewards; pass n == S state rewards over S actions as
     (n, S, A) (e.g. ``state_action_rewards(r, A)``). A 2-d array of another shape whose last

@@ -3,11 +3,11 @@
 Rewards enter as (n, S, A) or (S, A) state-action rewards, or as (n, S) or (S,) state rewards
 repeated over the actions. A 2-d array of shape (S, A) is always one (S, A) reward: on an MDP
 with ``A == S``, pass S state rewards as (S, S, A)
-(:func:`~factirl_opt.objectworld.state_action_rewards`).
+(:func:`~factirl_opt.datasets.objectworld.state_action_rewards`).
 
 Tasks in many environments: every function also takes a sequence of n MDPs, one per task,
 with per-task rewards, a list of n (S_i, A) or (S_i,) arrays or a stacked array when all
-``S_i`` are equal (:mod:`factirl_opt.task_environments`); the scores are then an (n,) array.
+``S_i`` are equal (:mod:`factirl_opt.mdp.environments`); the scores are then an (n,) array.
 
 Two scores: :func:`score` / :func:`deviation` act greedily on the learnt reward (the paper's
 eq. 13, Levine's "standard MDP" value), :func:`soft_deviation` with the soft-optimal (maximum
@@ -27,12 +27,15 @@ from ._validation import check_beta, check_mdp, check_rewards, check_start
 from .exceptions import FactIRLError, ValidationError
 from .objectives.mce import soft_values
 from .planning import Planner, get_planner, plan
-from .task_environments import by_environment, environments, is_environment_sequence, one_for_all, per_task_values, task_rewards
+from .mdp.environments import (
+    by_environment, environments, is_environment_sequence, one_for_all, per_task_values,
+    check_task_rewards,
+)
 
 if typing.TYPE_CHECKING:
     from collections.abc import Sequence
 
-    from .mdp import TabularMDP
+    from .mdp.tabular import TabularMDP
 
 __all__ = ["score", "optimal_score", "deviation", "soft_deviation"]
 
@@ -41,7 +44,7 @@ def _per_environment(func: typing.Callable[..., typing.Any], mdps: typing.Any, r
                      per_task: dict[str, typing.Any] | None = None, **kwargs: typing.Any) -> NDArray[np.float64]:
     """``func`` (a scorer of this module) over tasks in many environments: the (n,) scores in task order."""
     envs = environments(mdps)
-    values: dict[str, list[typing.Any] | None] = {k: task_rewards(envs, v, k) for k, v in rewards.items()}
+    values: dict[str, list[typing.Any] | None] = {k: check_task_rewards(envs, v, k) for k, v in rewards.items()}
     values.update({k: per_task_values(envs, v, k) for k, v in (per_task or {}).items()})
     return np.array(by_environment(envs, lambda m, **r: func(m, **r, **kwargs), values), dtype=np.float64)
 

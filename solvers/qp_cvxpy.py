@@ -14,7 +14,7 @@ parameter times a parameter-free affine expression, so the problem is DPP and cv
 canonicalises it once; every later ``solve`` only maps the new parameter values to the
 backend's data (and, for OSQP, updates the cached factorisation). A fresh ``cp.Problem`` per
 task per step would pay the canonicalisation every time; the block form pays it once per
-shape (measured by ``python -m factirl_opt.bench solvers``). The maths: docs/maths.md §5.
+shape (measured by ``python -m factirl_opt.lab.bench solvers``). The maths: docs/maths.md §5.
 """
 
 import time

@@ -7,8 +7,8 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt import cli
-from factirl_opt.experiments import runner
-from factirl_opt.experiments.workers import Terminated
+from factirl_opt.lab.experiments import runner
+from factirl_opt.lab.experiments.workers import Terminated
 
 
 def terminated_fit(*args, **kwargs):

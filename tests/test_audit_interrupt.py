@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-import factirl_opt.factirl as factirl_module
+import factirl_opt.learners.factirl as factirl_module
 from factirl_opt.interruption import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
 

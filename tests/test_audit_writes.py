@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.benchmarks import scale
+from factirl_opt.lab.benchmarks import scale
 from factirl_opt.exceptions import PersistenceError
-from factirl_opt.experiments import figures, tables
+from factirl_opt.lab.experiments import figures, tables
 from factirl_opt.files import atomic_write
 
 
@@ -127,7 +127,7 @@ def test_plot_all_names_a_stale_figure_it_cannot_remove(tmp_path, monkeypatch):
 
 
 def test_a_directory_in_place_of_the_lock_is_named(tmp_path):
-    from factirl_opt.experiments import store
+    from factirl_opt.lab.experiments import store
 
     lock = tmp_path / store.LOCK_NAME
     lock.mkdir()

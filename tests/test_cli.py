@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from factirl_opt.cli import main
+from factirl_opt.lab.cli import main
 
 
 REPRODUCE_OPTIONS = ("--preset", "--seed", "--seeds", "--jobs", "--out", "--h-solver", "--h-solver-options",
@@ -49,7 +49,7 @@ def test_help_explains_every_reproduce_option(capsys):
 
 
 def test_help_documents_every_preset(capsys):
-    from factirl_opt.experiments.presets import PRESET_DESCRIPTIONS, PRESETS
+    from factirl_opt.lab.experiments.presets import PRESET_DESCRIPTIONS, PRESETS
 
     text = " ".join(_reproduce_help(capsys).split())  # unwrapped
     assert set(PRESET_DESCRIPTIONS) == set(PRESETS)
@@ -131,7 +131,7 @@ def test_library_errors_are_one_line_messages(tmp_path, capsys):
 
 
 def test_planner_option_overrides_the_presets(tmp_path, capsys):
-    from factirl_opt.experiments import PRESETS
+    from factirl_opt.lab.experiments import PRESETS
 
     out = tmp_path / "dense"
     assert main(["reproduce", "--preset", "tiny", "--seeds", "1", "--planner", "dense", "--out", str(out), "--quiet",
@@ -168,13 +168,13 @@ def test_flat_solver_option_overrides_the_presets(tmp_path, capsys):
 def test_presets_print_their_solvers(capsys):
     text = " ".join(_reproduce_help(capsys).split())
     assert "[solvers: flat lbfgs/gn-qp-clarabel, H gn-qp-clarabel, D lbfgs]" in text and "objectworld-quick" in text
-    from factirl_opt.experiments.presets import PRESET_DESCRIPTIONS
+    from factirl_opt.lab.experiments.presets import PRESET_DESCRIPTIONS
 
     assert f"{PRESET_DESCRIPTIONS['paper']} [solvers" not in text  # the paper's Armijo steps are not listed
 
 
 def test_solver_options_parse_json_or_pairs():
-    from factirl_opt.cli import parse_solver_options
+    from factirl_opt.lab.cli import parse_solver_options
 
     assert parse_solver_options('{"alpha": 0.03, "interface": "direct"}') == {"alpha": 0.03, "interface": "direct"}
     assert parse_solver_options("alpha=0.03, interface=direct,warm=true,n=3") == dict(
@@ -198,7 +198,7 @@ def test_bench_forwards_to_the_benchmarks(capsys):
 
 
 def test_console_script_runs_as_a_module():
-    res = subprocess.run([sys.executable, "-m", "factirl_opt.cli", "plot", "/nonexistent/dir"],
+    res = subprocess.run([sys.executable, "-m", "factirl_opt.lab.cli", "plot", "/nonexistent/dir"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert "factirl-opt: error:" in res.stderr and "Traceback" not in res.stderr

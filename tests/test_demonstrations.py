@@ -230,7 +230,7 @@ def test_a_cdf_ending_below_one_never_picks_a_zero_probability_state(grid3, monk
         def integers(self, *args, **kwargs):
             return self.rng.integers(*args, **kwargs)
 
-    import factirl_opt.demonstrations as demonstrations
+    import factirl_opt.tasks.demonstrations as demonstrations
 
     monkeypatch.setattr(demonstrations, "as_rng", lambda rng: Top())
     demos = fo.sample_demonstrations(grid3, np.zeros((9, 4)), 3, 1, start=p)
@@ -258,7 +258,7 @@ def test_row_cdfs_cached_outside_the_mdp_and_freed_with_it(rng):
     import gc
     import weakref
 
-    from factirl_opt.demonstrations import _ROW_CDFS, row_cdfs
+    from factirl_opt.tasks.demonstrations import _ROW_CDFS, row_cdfs
 
     mdp = fo.GridWorld(size=3, gamma=0.9)
     fo.sample_demonstrations(mdp, rng.standard_normal((9, 4)), 2, 2, rng=rng)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from factirl_opt.dictionary import (
+from factirl_opt.learners.dictionary import (
     feature_weights,
     normalise_dictionary,
     orient_nonneg,
@@ -11,7 +11,7 @@ from factirl_opt.dictionary import (
     shrink_coefficients,
 )
 from factirl_opt.interruption import FitInterrupted
-from factirl_opt.problems import StateBroadcast
+from factirl_opt.tasks.features import StateBroadcast
 
 
 def test_pca_dictionary_is_the_truncated_svd(rng):

@@ -219,7 +219,7 @@ def test_factorial_beats_flat_on_train_tasks(seed):
 
 @pytest.mark.slow
 def test_factorial_beats_flat_at_paper_scale():
-    # 10x10 grid, 100 tasks, 10 demos of 10 steps (python -m factirl_opt.bench fit); ~0.15
+    # 10x10 grid, 100 tasks, 10 demos of 10 steps (python -m factirl_opt.lab.bench fit); ~0.15
     flat, fact = train_deviations(0, size=10, n_tasks=100, n_demos=10, length=10)
     assert fact < 0.5 * flat, (flat, fact)
 
@@ -268,8 +268,8 @@ def test_fit_records_the_stop_and_the_evaluations(data):
 def test_gradient_norm_rule_and_measure(data):
     """fit.gradient_norm is the norm of (dJ/dH, dJ/dD) at the last point (eqs. 11-12, computed
     here by the step problems); gtol stops the loop once it falls to gtol x its initial value."""
-    from factirl_opt.gradirl import make_objective
-    from factirl_opt.problems import dictionary_problem, weights_problem
+    from factirl_opt.learners.gradirl import make_objective
+    from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 
     mdp, _, demos = data
     D0, H0 = _pca_start(mdp, demos)
@@ -330,7 +330,7 @@ def test_d_solvers_fit_and_never_worsen_the_best_point(data, d_solver):
 
 @pytest.mark.parametrize("scale", [1e200, 1e160])
 def test_an_init_dictionary_too_large_to_normalise_is_refused(scale):
-    from factirl_opt.dictionary import check_dictionary_norms
+    from factirl_opt.learners.dictionary import check_dictionary_norms
 
     D0 = np.ones((36, 2))
     check_dictionary_norms(D0 * 1e150, "init D0")  # large, but its norms are finite

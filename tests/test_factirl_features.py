@@ -12,7 +12,7 @@ import factirl_opt as fo
 import solvers
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.objectives import PolicyMatchingObjective
-from factirl_opt.problems import dictionary_problem, weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 
 K = 2
 

@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-import factirl_opt.demonstrations as demonstrations_module
+import factirl_opt.tasks.demonstrations as demonstrations_module
 import solvers
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
-from factirl_opt.fitting import (
+from factirl_opt.learners.fitting import (
     check_features_digest,
     features_digest,
     first_step_stall,
     reward_features,
 )
 from factirl_opt.objectives import Objective
-from factirl_opt.problems import StateBroadcast
+from factirl_opt.tasks.features import StateBroadcast
 
 K = 2
 

@@ -115,7 +115,7 @@ def test_fit_needs_an_mdp(data):
 
 
 def test_first_step_stall_allows_a_few_ulps_of_rounding_only():
-    from factirl_opt.fitting import first_step_stall
+    from factirl_opt.learners.fitting import first_step_stall
 
     h0 = 2.7725887222397803
     assert first_step_stall([h0, np.nextafter(h0, 0)], 1) is not None  # one ulp: nothing moved

@@ -10,7 +10,7 @@ import scipy.sparse as sp
 
 import factirl_opt as fo
 from factirl_opt.exceptions import MissingDependencyError, ValidationError
-from factirl_opt.gym_adapter import _tabular_model, from_gymnasium, gymnasium_rewards
+from factirl_opt.adapters.gymnasium import _tabular_model, from_gymnasium, gymnasium_rewards
 
 gym = pytest.importorskip("gymnasium")
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.intention_count import (best_candidate, bic, check_candidates, fold_assignment, free_parameters,
+from factirl_opt.learners.intention_count import (best_candidate, bic, check_candidates, fold_assignment, free_parameters,
                                          held_out_scores, one_standard_error_choice)
 
 

@@ -7,11 +7,11 @@ import pytest
 from helpers import central_difference, rel_err
 
 import factirl_opt as fo
-from factirl_opt.dictionary import feature_weights, metric_pca_dictionary, pca_dictionary
+from factirl_opt.learners.dictionary import feature_weights, metric_pca_dictionary, pca_dictionary
 from factirl_opt.exceptions import NotFittedError, ValidationError
-from factirl_opt.fitting import environments_setup
-from factirl_opt.problems import task_dictionary_problem, task_weights_problem
-from factirl_opt.task_features import TaskFeatures
+from factirl_opt.learners.fitting import environments_setup
+from factirl_opt.objectives.problems import task_dictionary_problem, task_weights_problem
+from factirl_opt.tasks.features import TaskFeatures
 
 
 @pytest.fixture(scope="module")

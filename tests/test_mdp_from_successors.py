@@ -1,11 +1,11 @@
-"""TabularMDP.from_successors: the classmethod form of factirl_opt.successors.from_successors."""
+"""TabularMDP.from_successors: the classmethod form of factirl_opt.mdp.from_successors."""
 
 import numpy as np
 import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.successors import from_successors, to_successors
+from factirl_opt.mdp import from_successors, to_successors
 
 
 def test_classmethod_equals_the_function_and_sums_repeated_successors():

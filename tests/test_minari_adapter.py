@@ -12,7 +12,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import MissingDependencyError, ValidationError
-from factirl_opt.minari_adapter import LoggedEpisodes, read_minari
+from factirl_opt.adapters.minari import LoggedEpisodes, read_minari
 
 
 def _record(minari, dataset_id, env, n_episodes, seed, observation_space=None):

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 import factirl_opt as fo
 from factirl_opt import model_estimation
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.model_estimation import (
+from factirl_opt.mdp.estimation import (
     as_transitions,
     estimate_mdp,
     sample_transitions,

@@ -6,8 +6,8 @@ import pytest
 from scipy.special import logsumexp
 
 import factirl_opt as fo
-from factirl_opt.em import e_step, episode_counts, kmeans, kmeans_plus_plus, log_policies, weighted_statistics
-from factirl_opt.multi_intent_fit import WeightedObjective
+from factirl_opt.learners.em import e_step, episode_counts, kmeans, kmeans_plus_plus, log_policies, weighted_statistics
+from factirl_opt.learners.multi_intent_fit import WeightedObjective
 from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
 from factirl_opt.planning import get_planner
 
@@ -246,7 +246,7 @@ def test_wrong_mdp_and_non_policy_objective():
 
 
 def test_agreement_clustering_separates_conflicting_episodes():
-    from factirl_opt.em import agreement_clustering
+    from factirl_opt.learners.em import agreement_clustering
 
     S, A = 5, 2
     # episodes 0-1 take action 0 in states 0-2, episodes 2-3 action 1 there; 4 agrees with 0 on state 3

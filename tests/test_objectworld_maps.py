@@ -7,8 +7,8 @@ import scipy.sparse as sp
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives.environments import multi_environment_objective
-from factirl_opt.objectworld import ELIRL_SCALE, objectworld_transitions
-from factirl_opt.objectworld_maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
+from factirl_opt.datasets.objectworld import ELIRL_SCALE, objectworld_transitions
+from factirl_opt.datasets.objectworld.maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
 
 SMALL = dict(size=8, n_inner=3, n_outer=2, object_density=0.1)
 

@@ -16,8 +16,9 @@ import factirl_opt as fo
 from factirl_opt import parallel
 from factirl_opt.exceptions import FactIRLError, ValidationError
 from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
-from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares, sharded
-from factirl_opt.parallel import Shards, check_backend, contiguous_shards, effective_n_jobs
+from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares
+from factirl_opt.objectives.sharding import sharded
+from factirl_opt.parallel.shards import Shards, check_backend, contiguous_shards, effective_n_jobs
 
 TOL = dict(rtol=1e-10, atol=1e-12)
 
@@ -214,7 +215,7 @@ def test_interrupted_fit_stops_its_shards_and_keeps_the_best_point(data):
 
 
 def test_sweep_workers_run_fits_with_one_job():
-    from factirl_opt.experiments.workers import imap_unordered
+    from factirl_opt.lab.experiments.workers import imap_unordered
 
     assert sorted(imap_unordered(effective_n_jobs, [(-1,), (2,)], 2)) == [1, 1]
 

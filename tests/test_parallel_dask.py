@@ -84,7 +84,7 @@ def test_killed_worker_is_recovered(client, data):
 
 
 def test_dask_workers_run_fits_with_one_job(client):
-    from factirl_opt.parallel import effective_n_jobs
+    from factirl_opt.parallel.shards import effective_n_jobs
 
     assert client.submit(effective_n_jobs, -1, pure=False).result() == 1
 
@@ -115,7 +115,7 @@ def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypa
 
 
 def test_errors_of_the_computation_are_raised_not_retried(client):
-    from factirl_opt.parallel import Shards
+    from factirl_opt.parallel.shards import Shards
 
     shards = Shards([(dict, ()), (dict, ())], "dask", client)
     try:
@@ -129,7 +129,7 @@ def test_errors_of_the_computation_are_raised_not_retried(client):
 def test_warnings_of_dask_shards_are_raised_in_the_driver(client):
     import importlib
 
-    from factirl_opt.parallel import Shards
+    from factirl_opt.parallel.shards import Shards
 
     client.wait_for_workers(2)
     shards = Shards([(importlib.import_module, ("warnings",))], "dask", client)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.objectives.distributed import sharded
+from factirl_opt.objectives.sharding import sharded
 from factirl_opt.objectives.environments import multi_environment_objective
 from factirl_opt.objectives.sharded_environments import ShardedEnvironments, deal_groups
 

@@ -1,7 +1,7 @@
 """Step problems of a sharded objective: built on the shards, evaluated from the parameters.
 
-Reference: the same problem (:func:`factirl_opt.problems.weights_problem`,
-:func:`~factirl_opt.problems.dictionary_problem`) on the unsharded objective; Jacobians compare
+Reference: the same problem (:func:`factirl_opt.objectives.problems.weights_problem`,
+:func:`~factirl_opt.objectives.problems.dictionary_problem`) on the unsharded objective; Jacobians compare
 through their normal equations (the shards send them in reduced form).
 """
 
@@ -14,7 +14,8 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares
-from factirl_opt.problems import StateBroadcast, dictionary_problem, weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
+from factirl_opt.tasks.features import StateBroadcast
 
 TOL = dict(rtol=1e-10, atol=1e-12)
 

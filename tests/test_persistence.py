@@ -13,10 +13,10 @@ import pytest
 import factirl_opt as fo
 import solvers
 from factirl_opt.exceptions import PersistenceError, ValidationError
-from factirl_opt.mdp import check_signature
+from factirl_opt.mdp.tabular import check_signature
 from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.persistence import FORMAT_VERSION
-from factirl_opt.trajectories import parse_demonstrations
+from factirl_opt.tasks.trajectories import parse_demonstrations
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.fitting import make_objective
-from factirl_opt.problems import StateBroadcast, dictionary_problem, weights_problem
+from factirl_opt.learners.fitting import make_objective
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
+from factirl_opt.tasks.features import StateBroadcast
 from helpers import central_difference
 
 S, A, K = 9, 4, 2

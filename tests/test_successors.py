@@ -6,8 +6,8 @@ import scipy.sparse as sp
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.objectworld import objectworld_transitions
-from factirl_opt.successors import from_successors, to_successors
+from factirl_opt.datasets.objectworld import objectworld_transitions
+from factirl_opt.mdp import from_successors, to_successors
 
 
 def toolkit_objectworld_lists(n, determinism):

@@ -7,8 +7,8 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
-from factirl_opt.synthetic import task_rewards
-from factirl_opt.task_features import TaskFeatures
+from factirl_opt.tasks.features import task_rewards
+from factirl_opt.tasks.features import TaskFeatures
 
 
 @pytest.fixture

@@ -7,7 +7,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import PersistenceError, ValidationError
-from factirl_opt.trajectories import demonstrations_from_trajectories, parse_demonstrations, task_steps
+from factirl_opt.tasks.trajectories import demonstrations_from_trajectories, parse_demonstrations, task_steps
 
 
 class Trajectory:

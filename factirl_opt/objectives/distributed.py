@@ -6,7 +6,7 @@ and Gauss-Newton products are per task, and every sum over tasks happens in the 
 as :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` composes
 per-environment ones: the tasks are cut into contiguous shards, and each shard's objective,
 of the same registered class over the shard's tasks (renumbered 0..m-1), lives on a worker
-(:mod:`factirl_opt.parallel`: this process for shard 0 and processes for the others, or Dask
+(:mod:`factirl_opt.parallel.shards`: this process for shard 0 and processes for the others, or Dask
 actors). The worker keeps the MDP, the shard's statistics, its warm starts and its planner's
 factorisations; per evaluation only the shard's rewards go in and its losses, gradients,
 residuals and Jacobians (or Jacobian products) come out.
@@ -19,8 +19,6 @@ round differently by batch size), and the number of evaluations is counted by th
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -28,11 +26,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from solvers import Linearization
 
-from ..parallel import Shards, contiguous_shards, effective_n_jobs
+from ..parallel.shards import Shards, contiguous_shards, effective_n_jobs
 from ..planning.budget import budget_options
 from ._base import Objective
 
-__all__ = ["ShardState", "ShardedBase", "ShardedObjective", "sharded", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
+__all__ = ["ShardState", "ShardedBase", "ShardedObjective", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
 
 #: linearisations a shard keeps for Jacobian products (a Gauss-Newton CG step uses the latest few)
 KEEP_LINEARIZATIONS = 4
@@ -143,7 +141,7 @@ class ShardState:
     def factorial_point(self, features: tuple, D: NDArray[np.float64], H: NDArray[np.float64]) -> tuple:
         """Loss (m,) at the rewards ``Phi D h_i`` of the shard's tasks and ``Phi^T y_i`` (m, p)
         (features as in :meth:`receive`): what the factorial loop's optimality measure needs."""
-        from ..factorial import factorial_rewards
+        from ..tasks.features import factorial_rewards
 
         Phi = self.receive(*features)
         (loss, y), n = self._counted(self.objective.loss_and_grad, factorial_rewards(self.objective.mdp, Phi, D, H), None)
@@ -161,7 +159,7 @@ class NoFeatures:
 
 class ShardedBase:
     """What the sharded objectives share: their ``parts`` (task indices per shard), ``shards``
-    (:class:`~factirl_opt.parallel.Shards`), the kept linearisations ``_lins`` and
+    (:class:`~factirl_opt.parallel.shards.Shards`), the kept linearisations ``_lins`` and
     :meth:`rebuilt`, which restores a rebuilt shard's state."""
 
     parts: list
@@ -186,7 +184,7 @@ class ShardedBase:
 
 
 class ShardedObjective(ShardedBase):
-    """An objective's tasks evaluated shard by shard on :class:`~factirl_opt.parallel.Shards`.
+    """An objective's tasks evaluated shard by shard on :class:`~factirl_opt.parallel.shards.Shards`.
 
     Offers what the step problems use of an :class:`~factirl_opt.objectives.Objective`:
     ``loss_and_grad``, ``residual_jacobian``, ``linearize``, ``reset``, ``n_evaluations``,
@@ -366,63 +364,13 @@ class ShardedObjective(ShardedBase):
         return (method, (X[pos], self.local[rows[pos]], *extra)) if pos.size else None
 
     def weights_problem(self, features: Any, names: tuple[str, str]) -> Any:
-        """:func:`factirl_opt.problems.weights_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
+        """:func:`factirl_opt.objectives.problems.weights_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
         from .shard_problems import sharded_weights_problem
 
         return sharded_weights_problem(self, features, names)
 
     def dictionary_problem(self, coefficients: NDArray[np.float64], base_features: Any, unit_norm: bool) -> Any:
-        """:func:`factirl_opt.problems.dictionary_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
+        """:func:`factirl_opt.objectives.problems.dictionary_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
         from .shard_problems import sharded_dictionary_problem
 
         return sharded_dictionary_problem(self, coefficients, base_features, unit_norm)
-
-
-@contextlib.contextmanager
-def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes", client: Any = None,
-            planner: Any = None) -> Iterator[Any]:
-    """The objective evaluated over task shards while the block is open, its workers stopped after.
-
-    Parameters
-    ----------
-    objective : Objective
-    n_jobs : int or None
-        Shards (:func:`factirl_opt.parallel.effective_n_jobs`: None is 1, -1 every core); with
-        ``backend="dask"``, None or -1 is one shard per worker of ``client``.
-    backend : {"processes", "dask"}
-    client : dask.distributed.Client, optional
-    planner : str, optional
-        The planner name the shards use (default the objective's).
-
-    Yields
-    ------
-    Objective or ShardedObjective
-        ``objective`` itself when one shard is asked for (``n_jobs=1``: today's code path),
-        inside a worker process, for a single task or a single environment; else a
-        :class:`ShardedObjective` (tasks of one MDP) or a
-        :class:`~factirl_opt.objectives.sharded_environments.ShardedEnvironments` (whole
-        environments per shard), closed when the block exits (also on an error or a
-        KeyboardInterrupt).
-    """
-    from ..parallel import check_backend, in_worker
-
-    check_backend(backend, client)
-    if backend == "dask" and n_jobs in (None, -1) and not in_worker():
-        n = len(client.scheduler_info()["workers"])
-    else:
-        n = effective_n_jobs(n_jobs)
-    from .environments import MultiEnvironmentObjective
-    from .sharded_environments import ShardedEnvironments
-
-    sharded_obj: Any
-    if n > 1 and isinstance(objective, MultiEnvironmentObjective) and len(objective.group_mdps) > 1:
-        sharded_obj = ShardedEnvironments(objective, n, backend, client, planner if isinstance(planner, str) else "auto")
-    elif n > 1 and isinstance(objective, Objective) and objective.n_tasks > 1:
-        sharded_obj = ShardedObjective(objective, n, backend, client, planner if isinstance(planner, str) else None)
-    else:
-        yield objective
-        return
-    try:
-        yield sharded_obj
-    finally:
-        sharded_obj.close()

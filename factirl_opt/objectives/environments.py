@@ -25,83 +25,16 @@ from numpy.typing import ArrayLike, NDArray
 from solvers import Linearization
 
 from .._validation import check_beta, check_mdp, check_statistics
-from ..demonstrations import empirical_statistics, task_steps
+from ..tasks.demonstrations import empirical_statistics, task_steps
 from ..exceptions import ValidationError
-from ..mdp import TabularMDP
+from ..mdp.environments import check_environments, group_tasks
+from ..mdp.tabular import TabularMDP
 from . import get_objective
 
-__all__ = ["MultiEnvironmentObjective", "multi_environment_objective", "check_environments", "group_tasks"]
+__all__ = ["MultiEnvironmentObjective", "multi_environment_objective"]
 
 #: per-task arrays: a stacked (r, S, A, ...) array, or a sequence of r arrays (S_i, A, ...)
 TaskArrays = NDArray[np.float64] | Sequence[NDArray[np.float64]]
-
-
-def check_environments(mdps: TabularMDP | Sequence[TabularMDP], n_tasks: int | None = None) -> list[TabularMDP]:
-    """One :class:`TabularMDP` per task, all with the same number of actions.
-
-    Parameters
-    ----------
-    mdps : TabularMDP or sequence of TabularMDP
-        One MDP shared by every task (needs ``n_tasks``), or one MDP per task.
-    n_tasks : int, optional
-        The number of tasks the MDPs must describe.
-
-    Returns
-    -------
-    mdps : list of n TabularMDP
-
-    Raises
-    ------
-    ValidationError
-        For a wrong count, an entry that is not a TabularMDP, or a number of actions that
-        differs from task 0's (naming the task).
-    """
-    if isinstance(mdps, TabularMDP):
-        if n_tasks is None:
-            raise ValidationError("one shared MDP needs the number of tasks; pass a sequence of one MDP per task")
-        return [mdps] * int(n_tasks)
-    if isinstance(mdps, (str, bytes)) or not isinstance(mdps, Sequence) or len(mdps) == 0:
-        raise ValidationError(f"mdps must be a TabularMDP or a non-empty sequence of TabularMDP (one per task); got {type(mdps).__name__}")
-    if n_tasks is not None and len(mdps) != n_tasks:
-        raise ValidationError(f"got {len(mdps)} MDPs for {n_tasks} tasks: give one MDP per task (or one shared MDP)")
-    out = []
-    for i, mdp in enumerate(mdps):
-        if not isinstance(mdp, TabularMDP):
-            raise ValidationError(f"mdps[{i}] (task {i}) must be a TabularMDP; got {type(mdp).__name__}")
-        if mdp.n_actions != mdps[0].n_actions:
-            raise ValidationError(
-                f"every environment must have the same number of actions: task {i} has {mdp.n_actions}, task 0 has "
-                f"{mdps[0].n_actions}"
-            )
-        out.append(mdp)
-    return out
-
-
-def group_tasks(mdps: Sequence[TabularMDP]) -> tuple[list[TabularMDP], NDArray[np.intp], NDArray[np.intp]]:
-    """Group tasks by MDP object (identity), groups in order of first appearance.
-
-    Returns
-    -------
-    group_mdps : list of TabularMDP
-        The distinct MDP objects.
-    task_group : ndarray of intp, shape (n,)
-        The group of each task.
-    local_index : ndarray of intp, shape (n,)
-        Each task's position within its group (the row of the group's objective).
-    """
-    index: dict[int, int] = {}
-    group_mdps: list[TabularMDP] = []
-    sizes: list[int] = []
-    task_group = np.empty(len(mdps), dtype=np.intp)
-    local_index = np.empty(len(mdps), dtype=np.intp)
-    for i, mdp in enumerate(mdps):
-        g = index.setdefault(id(mdp), len(group_mdps))
-        if g == len(group_mdps):
-            group_mdps.append(mdp)
-            sizes.append(0)
-        task_group[i], local_index[i] = g, sizes[g]
-        sizes[g] += 1
-    return group_mdps, task_group, local_index
 
 
 def _task_statistics(mdps: list[TabularMDP], mu_hat: Any, pi_hat: Any) -> tuple[list, list]:

@@ -1,6 +1,6 @@
 """Step problems evaluated on the shards of a :class:`~factirl_opt.objectives.distributed.ShardedObjective`.
 
-:func:`factirl_opt.problems.weights_problem` and :func:`~factirl_opt.problems.dictionary_problem`
+:func:`factirl_opt.objectives.problems.weights_problem` and :func:`~factirl_opt.objectives.problems.dictionary_problem`
 hand a sharded objective's problems to :func:`sharded_weights_problem` and
 :func:`sharded_dictionary_problem`. Each shard builds the same problem over its own tasks
 (its objective, the features, its rows of ``H``) once per step run, and every evaluation
@@ -32,21 +32,21 @@ __all__ = ["sharded_weights_problem", "sharded_dictionary_problem"]
 
 
 def _weights_build(objective: Any, features: Any, names: tuple[str, str]) -> StepProblem:
-    """On a shard: :func:`factirl_opt.problems.weights_problem` over its tasks."""
-    from ..problems import weights_problem
+    """On a shard: :func:`factirl_opt.objectives.problems.weights_problem` over its tasks."""
+    from .problems import weights_problem
 
     return weights_problem(objective, features, names)
 
 
 def _dictionary_build(objective: Any, base_features: Any, coefficients: NDArray[np.float64], unit_norm: bool) -> StepProblem:
-    """On a shard: :func:`factirl_opt.problems.dictionary_problem` over its tasks (its rows of H)."""
-    from ..problems import dictionary_problem
+    """On a shard: :func:`factirl_opt.objectives.problems.dictionary_problem` over its tasks (its rows of H)."""
+    from .problems import dictionary_problem
 
     return dictionary_problem(objective, coefficients, base_features, unit_norm)
 
 
 def sharded_weights_problem(sobj: Any, features: Any, names: tuple[str, str]) -> StepProblem:
-    """:func:`factirl_opt.problems.weights_problem` on the shards of ``sobj`` (rows: tasks; x (r, p))."""
+    """:func:`factirl_opt.objectives.problems.weights_problem` on the shards of ``sobj`` (rows: tasks; x (r, p))."""
     S, A = sobj.mdp.n_states, sobj.mdp.n_actions
     p = S * A if features is None else features.shape[1]
     token = sobj.make_problem(_weights_build, features, lambda k: (names,))
@@ -76,7 +76,7 @@ def sharded_weights_problem(sobj: Any, features: Any, names: tuple[str, str]) ->
 
 def sharded_dictionary_problem(sobj: Any, coefficients: NDArray[np.float64], base_features: Any,
                                unit_norm: bool) -> StepProblem:
-    """:func:`factirl_opt.problems.dictionary_problem` on the shards of ``sobj`` (one row, ``vec(D)``)."""
+    """:func:`factirl_opt.objectives.problems.dictionary_problem` on the shards of ``sobj`` (one row, ``vec(D)``)."""
     H = np.asarray(coefficients, dtype=np.float64)
     S, A = sobj.mdp.n_states, sobj.mdp.n_actions
     p = S * A if base_features is None else base_features.shape[1]

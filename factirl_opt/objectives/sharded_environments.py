@@ -4,7 +4,7 @@ A :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` plans 
 tasks sharing one MDP object as one batch and counts one evaluation per group and call.
 :class:`ShardedEnvironments` gives every group wholly to one shard (groups dealt to the
 least-loaded shard, largest first), and each shard keeps a ``MultiEnvironmentObjective`` over
-its groups on its worker (:mod:`factirl_opt.parallel`). A group is planned exactly as in the
+its groups on its worker (:mod:`factirl_opt.parallel.shards`). A group is planned exactly as in the
 unsharded objective (the same tasks in the same order), so losses and gradients agree, and
 the evaluations, summed over the shards, are counted by the same rule. Rewards and gradients
 travel per task (stacked, or lists for environments of different sizes); Gauss-Newton
@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from solvers import Linearization
 
-from ..parallel import Shards
+from ..parallel.shards import Shards
 from ..planning.budget import budget_options
 from .distributed import ShardedBase, reduced_least_squares
 from .environments import MultiEnvironmentObjective
@@ -86,7 +86,7 @@ class ShardedEnvironments(ShardedBase):
     n_shards : int
         At most the number of groups are used.
     backend, client
-        As for :class:`~factirl_opt.parallel.Shards`.
+        As for :class:`~factirl_opt.parallel.shards.Shards`.
     planner : str
         The planner name the objective was built with (``"auto"`` resolves per environment).
     """

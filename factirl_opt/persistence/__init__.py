@@ -25,7 +25,7 @@ optional in a file, so files written before an attribute existed still load (see
 The MDP signature and the features digest. A fitted model carries ``mdp_signature_``, the
 :meth:`~factirl_opt.TabularMDP.signature` of the MDP it was fitted on (S, A, gamma and a
 SHA-256 of the transitions), so that it can refuse another MDP
-(:func:`~factirl_opt.mdp.check_signature`), and ``features_sha256_``, the SHA-256 of the
+(:func:`~factirl_opt.mdp.tabular.check_signature`), and ``features_sha256_``, the SHA-256 of the
 ``features`` it was fitted with (:func:`.learnt.features_sha256`; None without features), so
 that it can refuse other features of the same shape. Both are saved with the model, and
 :func:`load_model` checks the digest against the saved ``features``. A fitted model's file
@@ -61,7 +61,7 @@ whether each task was an (m, L, 2) array (``"array"``) or a list of episodes (``
 and :func:`load_demonstrations` gives back the same form. Lists of episodes of different
 lengths are therefore saved as they are; trajectories of other libraries are saved as their
 (state, action) steps. (Format version 1 also wrote ``"episode"``, a task given as a single
-(L, 2) array, which the nesting rule of :mod:`factirl_opt.trajectories` now refuses; such a
+(L, 2) array, which the nesting rule of :mod:`factirl_opt.tasks.trajectories` now refuses; such a
 task loads as a list of one episode.)
 
 Writing is atomic: a path is written to a temporary file in the same directory, flushed,

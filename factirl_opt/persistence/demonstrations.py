@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..exceptions import PersistenceError, ValidationError
-from ..trajectories import parse_demonstrations
+from ..tasks.trajectories import parse_demonstrations
 from .archive import Target, read_archive, require, write_archive
 
 __all__ = ["save_demonstrations", "load_demonstrations"]
@@ -20,7 +20,7 @@ def save_demonstrations(demos_per_task: object, path: Target) -> str | IO[bytes]
     Parameters
     ----------
     demos_per_task : list of n task demonstrations, or ndarray (n, m, L, 2)
-        Any layout the learners accept (:mod:`factirl_opt.trajectories`): each task an int
+        Any layout the learners accept (:mod:`factirl_opt.tasks.trajectories`): each task an int
         array (m, L, 2) or a list of episodes, each (L_j, 2) pairs (lengths may differ) or a
         trajectory with integer ``obs`` and ``acts`` (saved as its (state, action) steps).
     path : str or os.PathLike or writable binary file

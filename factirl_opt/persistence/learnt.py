@@ -24,8 +24,8 @@ from numpy.typing import ArrayLike
 
 from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
-from ..fitting import features_digest
-from ..mdp import SIGNATURE_KEYS
+from ..learners.fitting import features_digest
+from ..mdp.tabular import SIGNATURE_KEYS
 from .archive import check_array
 
 __all__ = ["KINDS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "learnt_attributes", "check_learnt", "features_sha256",

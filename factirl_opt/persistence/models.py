@@ -7,9 +7,9 @@ from typing import IO, Any
 import numpy as np
 
 from ..exceptions import PersistenceError, ValidationError
-from ..factirl import FactIRL
-from ..fitting import per_task_features
-from ..gradirl import GradIRL
+from ..learners.factirl import FactIRL
+from ..learners.fitting import per_task_features
+from ..learners.gradirl import GradIRL
 from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params

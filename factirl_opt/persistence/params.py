@@ -10,7 +10,7 @@ import solvers
 
 from .._validation import check_int
 from ..exceptions import PersistenceError
-from ..fitting import per_task_features
+from ..learners.fitting import per_task_features
 from .archive import check_array, require, to_json
 
 __all__ = ["NAMED_PARAMS", "RUNTIME_PARAMS", "ARRAY_PARAMS", "encode_params", "decode_params", "encode_rng", "decode_rng"]

@@ -18,7 +18,7 @@ Planners (``planner=`` by name everywhere; :func:`available_planners`,
     :mod:`~factirl_opt.planning.lowrank`, :mod:`~factirl_opt.planning.cache`).
 ``"auto"`` (default)
     ``"dense"`` up to :data:`AUTO_DENSE_MAX_STATES` states, ``"sparse-lu"`` above: the
-    crossover measured on GridWorld with 100 tasks (``python -m factirl_opt.bench scale``), so
+    crossover measured on GridWorld with 100 tasks (``python -m factirl_opt.lab.bench scale``), so
     the paper's 10x10 grid keeps the dense arithmetic.
 
 Memory. A planning budget (an objective's ``planner_options={"max_bytes": ...}``, or the

@@ -38,7 +38,10 @@ from numpy.typing import ArrayLike, NDArray
 from .._threads import blas_limited
 from .._validation import check_array, check_beta, check_int, check_mdp, check_policy, check_real, check_rewards, check_stochastic_policy
 from ..exceptions import FactIRLError, ValidationError
-from ..task_environments import assemble, by_environment, environments, is_environment_sequence, per_task_values, task_rewards
+from ..mdp.environments import (
+    assemble, by_environment, environments, is_environment_sequence, per_task_values,
+    check_task_rewards,
+)
 from .base import Planner, PolicySystem
 from .registry import get_planner
 
@@ -213,7 +216,7 @@ def policy_evaluation(mdp: Any, rewards: ArrayLike, policy: ArrayLike, planner: 
 def _optimal_q_per_environment(mdps: Any, rewards: Any, policy: Any, **kwargs: Any) -> tuple[Any, Any]:
     """:func:`optimal_q` over tasks in many environments, one call per distinct MDP."""
     envs = environments(mdps)
-    per_task = {"rewards": task_rewards(envs, rewards, "rewards"), "policy": per_task_values(envs, policy, "policy")}
+    per_task = {"rewards": check_task_rewards(envs, rewards, "rewards"), "policy": per_task_values(envs, policy, "policy")}
     out = by_environment(envs, lambda m, **args: optimal_q(m, **args, **kwargs), per_task)
     return assemble(envs, [q for q, _ in out]), assemble(envs, [p for _, p in out])
 
@@ -235,7 +238,7 @@ def optimal_q(mdp: Any, rewards: ArrayLike, policy: ArrayLike | None = None,
     docstring for what a fit's result depends on).
 
     Tasks in many environments: with a sequence of MDPs, tasks given the same MDP object are
-    planned as one batch (:mod:`factirl_opt.task_environments`), with the results of one call
+    planned as one batch (:mod:`factirl_opt.mdp.environments`), with the results of one call
     per distinct MDP put back in task order.
 
     Parameters

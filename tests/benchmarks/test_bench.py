@@ -11,10 +11,10 @@ import math
 import pytest
 
 from factirl_opt import bench
-from factirl_opt.benchmarks import BENCHMARKS, add_option, resolve_settings
-from factirl_opt.benchmarks import fit as fit_bench
-from factirl_opt.benchmarks import solvers as solvers_bench
-from factirl_opt.cli import main as cli_main
+from factirl_opt.lab.benchmarks import BENCHMARKS, add_option, resolve_settings
+from factirl_opt.lab.benchmarks import fit as fit_bench
+from factirl_opt.lab.benchmarks import solvers as solvers_bench
+from factirl_opt.lab.cli import main as cli_main
 
 FIT_ENTRY = {"time_s", "n_evaluations", "n_linear_solves", "n_iter", "status", "final_loss", "mean_train_deviation"}
 COMBO_ENTRY = FIT_ENTRY | {"h_solver", "d_solver", "stop_reason", "deviation_ratio_over_flat", "evaluations_ratio_vs_reference",
@@ -191,7 +191,7 @@ def test_one_parser_for_both_entry_points(capsys):
     with pytest.raises(SystemExit):
         cli_main(["bench", "--help"])
     via_cli = capsys.readouterr().out
-    assert direct.startswith("usage: python -m factirl_opt.bench") and via_cli.startswith("usage: factirl-opt bench")
+    assert direct.startswith("usage: python -m factirl_opt.lab.bench") and via_cli.startswith("usage: factirl-opt bench")
     assert direct.split("\n", 1)[1] == via_cli.split("\n", 1)[1]  # same parser, only the program name differs
     for name in BENCHMARKS:
         assert name in direct

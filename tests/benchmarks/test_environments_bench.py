@@ -3,7 +3,7 @@
 import json
 
 from factirl_opt import bench
-from factirl_opt.benchmarks import environments as env_bench
+from factirl_opt.lab.benchmarks import environments as env_bench
 
 
 def test_environments_benchmark_quick_in_process(capsys):

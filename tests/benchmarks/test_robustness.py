@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from factirl_opt import GridWorld, bench, estimate_mdp, sample_transitions
-from factirl_opt.benchmarks import robustness as rb
+from factirl_opt.lab.benchmarks import robustness as rb
 from factirl_opt.exceptions import ValidationError
 
 BIG = 1_000_000

@@ -7,7 +7,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt import bench
-from factirl_opt.benchmarks import unlabeled
+from factirl_opt.lab.benchmarks import unlabeled
 
 
 def test_unlabeled_benchmark_quick(capsys):

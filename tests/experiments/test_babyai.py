@@ -12,12 +12,14 @@ pytest.importorskip("minigrid")
 import gymnasium as gym  # noqa: E402
 
 from factirl_opt.exceptions import ValidationError  # noqa: E402
-from factirl_opt.experiments import babyai  # noqa: E402
-from factirl_opt.experiments.babyai_figure import babyai_figure_data, plot_babyai_layout  # noqa: E402
-from factirl_opt.experiments.presets import PRESETS  # noqa: E402
-from factirl_opt.experiments.runner import run_sweep  # noqa: E402
-from factirl_opt.experiments.tables import ENVIRONMENT_COLUMNS, read_csv  # noqa: E402
-from factirl_opt.minigrid import from_minigrid  # noqa: E402
+from factirl_opt.datasets.babyai import mission_rewards, random_success_probability  # noqa: E402
+from factirl_opt.lab.experiments import babyai  # noqa: E402
+from factirl_opt.lab.experiments.worlds import babyai_world  # noqa: E402
+from factirl_opt.lab.experiments.babyai_figure import babyai_figure_data, plot_babyai_layout  # noqa: E402
+from factirl_opt.lab.experiments.presets import PRESETS  # noqa: E402
+from factirl_opt.lab.experiments.runner import run_sweep  # noqa: E402
+from factirl_opt.lab.experiments.tables import ENVIRONMENT_COLUMNS, read_csv  # noqa: E402
+from factirl_opt.adapters.minigrid import from_minigrid  # noqa: E402
 
 SMALL = dataclasses.replace(PRESETS["babyai-quick"], n_test_tasks=3, n_primitives=2, flat_max_iter=5, fact_max_iter=2,
                             transfer_max_iter=5)
@@ -32,11 +34,11 @@ def model():
 
 @pytest.fixture(scope="module")
 def world():
-    return babyai.babyai_world(SMALL, 3, 2, 0)
+    return babyai_world(SMALL, 3, 2, 0)
 
 
 def test_mission_rewards_pay_entering_success(model):
-    R = babyai.mission_rewards(model)
+    R = mission_rewards(model)
     P = model.mdp.transition_matrix
     for s in range(model.n_states):
         for a in range(3):
@@ -57,11 +59,11 @@ def _reference_random_success(model, T):
 
 @pytest.mark.parametrize("T", [0, 1, 5, 64])
 def test_random_success_probability_matches_backward_recursion(model, T):
-    assert babyai.random_success_probability(model, T) == pytest.approx(_reference_random_success(model, T), abs=1e-12)
+    assert random_success_probability(model, T) == pytest.approx(_reference_random_success(model, T), abs=1e-12)
 
 
 def test_random_success_probability_grows_with_steps(model):
-    p = [babyai.random_success_probability(model, T) for T in (0, 10, 64, 1000)]
+    p = [random_success_probability(model, T) for T in (0, 10, 64, 1000)]
     assert p[0] == 0.0 and np.all(np.diff(p) >= 0) and 0 < p[-1] <= 1 + 1e-12
 
 
@@ -84,12 +86,12 @@ def test_world_layouts_and_demonstrations(world):
 
 
 def test_world_points_share_test_layouts_and_prefixes(world):
-    smaller = babyai.babyai_world(SMALL, 2, 2, 0)
+    smaller = babyai_world(SMALL, 2, 2, 0)
     assert smaller.seeds["test"] == world.seeds["test"]
     assert smaller.seeds["train"] == world.seeds["train"][:2]
     for a, b in zip(smaller.test_demos, world.test_demos):
         np.testing.assert_array_equal(a[0], b[0])
-    assert babyai.babyai_world(SMALL, 2, 2, 1).seeds["test"] != world.seeds["test"]
+    assert babyai_world(SMALL, 2, 2, 1).seeds["test"] != world.seeds["test"]
 
 
 def test_scores_of_the_missions_rewards(world):

@@ -8,11 +8,11 @@ import pytest
 
 from factirl_opt import FactIRL, SolverSettings
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
-from factirl_opt.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
-from factirl_opt.experiments import learners as learners_mod
-from factirl_opt.experiments.learners import Fit, factorial_options, flat
-from factirl_opt.experiments.presets import LATER_FIELDS
-from factirl_opt.experiments.worlds import grid_world
+from factirl_opt.lab.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
+from factirl_opt.lab.experiments import learners as learners_mod
+from factirl_opt.lab.experiments.learners import Fit, factorial_options, flat
+from factirl_opt.lab.experiments.presets import LATER_FIELDS
+from factirl_opt.lab.experiments.worlds import grid_world
 
 TINY = PRESETS["tiny"]
 
@@ -205,7 +205,7 @@ def test_unknown_planner_is_rejected():
 
 def test_planner_reaches_every_learner_and_score(monkeypatch):
     from factirl_opt import GradIRL
-    from factirl_opt.experiments import runner as runner_mod
+    from factirl_opt.lab.experiments import runner as runner_mod
 
     seen = []
 
@@ -239,7 +239,7 @@ def test_planner_reaches_every_learner_and_score(monkeypatch):
 
 
 def test_fast_preset_is_the_paper_with_faster_solvers():
-    from factirl_opt.experiments.presets import FAST_SOLVERS, SOLVER_FIELDS
+    from factirl_opt.lab.experiments.presets import FAST_SOLVERS, SOLVER_FIELDS
 
     paper, fast = PRESETS["paper"], PRESETS["fast"]
     assert {f: getattr(fast, f) for f in FAST_SOLVERS} == FAST_SOLVERS
@@ -292,7 +292,7 @@ def test_preset_solvers_must_be_settings():
 
 
 def test_fast_solvers_run_at_tiny_scale():
-    from factirl_opt.experiments.presets import FAST_SOLVERS
+    from factirl_opt.lab.experiments.presets import FAST_SOLVERS
 
     preset = dataclasses.replace(TINY, name="tiny-fast", **FAST_SOLVERS)
     spec = plan_runs(preset, [0])[-1]
@@ -452,8 +452,8 @@ def test_per_seed_rows_are_fitted_once_per_seed_with_the_same_records(monkeypatc
 
 
 def test_substitutions_name_what_the_mce_learners_take_instead(monkeypatch):
-    from factirl_opt.experiments import plan_sweep
-    from factirl_opt.experiments.learners import substitutions
+    from factirl_opt.lab.experiments import plan_sweep
+    from factirl_opt.lab.experiments.learners import substitutions
 
     preset = dataclasses.replace(TINY, lineup="paper+mce", flat_solver="gn-qp-clarabel", grid_size=3, fact_max_iter=1,
                                  flat_max_iter=2, transfer_max_iter=2, n_test_tasks=2)
@@ -496,7 +496,7 @@ def test_a_learner_names_a_known_solver_role():
 
 
 def test_learner_names_are_the_constants():
-    from factirl_opt.experiments import learner_names
+    from factirl_opt.lab.experiments import learner_names
 
     names = {getattr(learner_names, c) for c in learner_names.__all__}
     for lineup in LINEUPS.values():

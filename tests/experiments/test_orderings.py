@@ -11,7 +11,7 @@ learning. The ``objectworld-quick`` preset's orderings run by default (about 35 
 
 import pytest
 
-from factirl_opt.experiments import read_csv, run_sweep
+from factirl_opt.lab.experiments import read_csv, run_sweep
 
 
 @pytest.fixture(scope="module")
@@ -44,9 +44,9 @@ def test_test_ground_truth_is_best(scores):
 @pytest.mark.slow
 def test_quick_preset_runs_every_learner_and_figure_with_the_papers_orderings(tmp_path):
     """The README's first command: every learner and figure; the main orderings at its default point."""
-    from factirl_opt.experiments import PRESETS, TEST_LEARNERS, TRAIN_LEARNERS
-    from factirl_opt.experiments.claims import evaluate_claims
-    from factirl_opt.experiments.figures import plot_all
+    from factirl_opt.lab.experiments import PRESETS, TEST_LEARNERS, TRAIN_LEARNERS
+    from factirl_opt.lab.experiments.claims import evaluate_claims
+    from factirl_opt.lab.experiments.figures import plot_all
 
     run_sweep("quick", tmp_path, progress=False)
     rows = read_csv(tmp_path / "results.csv")
@@ -66,7 +66,7 @@ def test_objectworld_quick_preset_orderings(tmp_path):
     on features 8.30, flat tabular 9.69, true primitives 4.03; train 1.08, 1.05, 1.38, 0.17 (on
     training tasks the factorial learner only ties flat on features at this size).
     """
-    from factirl_opt.experiments import PRESETS
+    from factirl_opt.lab.experiments import PRESETS
 
     p = PRESETS["objectworld-quick"]
     run_sweep(p, tmp_path, progress=False)

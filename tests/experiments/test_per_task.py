@@ -7,18 +7,18 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.experiments import PRESETS, Preset, get_lineup, make_ground_truth, read_csv, run_one, run_sweep
-from factirl_opt.experiments.claims import evaluate_claims
-from factirl_opt.experiments.learner_names import (FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT_FEATURES,
+from factirl_opt.lab.experiments import PRESETS, Preset, get_lineup, make_ground_truth, read_csv, run_one, run_sweep
+from factirl_opt.lab.experiments.claims import evaluate_claims
+from factirl_opt.lab.experiments.learner_names import (FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT_FEATURES,
                                                    FLAT_GROUND_TRUTH, FLAT_MCE_FEATURES)
-from factirl_opt.experiments.per_task import NEW_MAP_COLUMNS, PRIMITIVES, WeightsFit, add_new_map_scores
-from factirl_opt.experiments.runner import RunSpec
-from factirl_opt.experiments.tables import (NEW_MAP_RESULT_COLUMNS, NEW_MAP_SUMMARY_COLUMNS, RESULT_COLUMNS,
+from factirl_opt.lab.experiments.per_task import NEW_MAP_COLUMNS, PRIMITIVES, WeightsFit, add_new_map_scores
+from factirl_opt.lab.experiments.runner import RunSpec
+from factirl_opt.lab.experiments.tables import (NEW_MAP_RESULT_COLUMNS, NEW_MAP_SUMMARY_COLUMNS, RESULT_COLUMNS,
                                             SUMMARY_COLUMNS, write_tables)
-from factirl_opt.objectworld import state_action_rewards
+from factirl_opt.datasets.objectworld import state_action_rewards
 
 #: the MCE rows take L-BFGS for the presets' Gauss-Newton H-steps (tested in test_runner)
-pytestmark = pytest.mark.filterwarnings("ignore::factirl_opt.experiments.runner.SolverSubstitutionWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::factirl_opt.lab.experiments.runner.SolverSubstitutionWarning")
 
 QUICK = PRESETS["objectworld-per-task-quick"]
 #: a per-task world small enough for unit tests (seconds)
@@ -134,7 +134,7 @@ def test_tables_add_the_new_map_columns_only_for_that_world(tmp_path):
 
 
 def test_per_task_sweep_end_to_end_writes_tables_and_claims(tmp_path):
-    from factirl_opt.experiments.claims import write_claims
+    from factirl_opt.lab.experiments.claims import write_claims
 
     res = run_sweep(TINY, tmp_path, progress=False)
     assert res["n_runs"] == 2

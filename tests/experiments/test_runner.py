@@ -8,7 +8,7 @@ import pytest
 
 from factirl_opt import SolverSettings
 from factirl_opt.exceptions import PersistenceError, UnknownSolverError, ValidationError
-from factirl_opt.experiments import (
+from factirl_opt.lab.experiments import (
     PRESETS,
     TEST_LEARNERS,
     TRAIN_LEARNERS,
@@ -20,9 +20,9 @@ from factirl_opt.experiments import (
     run_one,
     run_sweep,
 )
-from factirl_opt.experiments import runner as runner_mod
-from factirl_opt.experiments.figures import plot_all
-from factirl_opt.experiments.store import RejectedRunWarning
+from factirl_opt.lab.experiments import runner as runner_mod
+from factirl_opt.lab.experiments.figures import plot_all
+from factirl_opt.lab.experiments.store import RejectedRunWarning
 
 TABLES = ("results.csv", "summary.csv")
 
@@ -287,7 +287,7 @@ def test_plot_all_without_results(tmp_path):
 
 
 def test_claims_are_computed_from_the_rows(tiny_sweep):
-    from factirl_opt.experiments.claims import claims_markdown, evaluate_claims
+    from factirl_opt.lab.experiments.claims import claims_markdown, evaluate_claims
 
     out, _ = tiny_sweep
     p = PRESETS["tiny"]
@@ -313,7 +313,7 @@ def test_progress_is_weighted_by_run_cost(tmp_path, monkeypatch):
     """The bar advances by each run's estimated cost, so a cheap first run does not fool the ETA."""
     import tqdm.auto
 
-    from factirl_opt.experiments.runner import run_cost
+    from factirl_opt.lab.experiments.runner import run_cost
 
     bars = []
 
@@ -368,8 +368,8 @@ def objectworld_sweep(tmp_path_factory):
 
 
 def test_objectworld_smoke_sweep_tables_figures_and_claims(objectworld_sweep):
-    from factirl_opt.experiments import LINEUPS
-    from factirl_opt.experiments.claims import evaluate_claims, write_claims
+    from factirl_opt.lab.experiments import LINEUPS
+    from factirl_opt.lab.experiments.claims import evaluate_claims, write_claims
 
     out, res = objectworld_sweep
     p = PRESETS["objectworld-tiny"]
@@ -402,7 +402,7 @@ def test_a_single_sweep_draws_one_panel(objectworld_sweep, tiny_sweep, tmp_path)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from factirl_opt.experiments.figures import plot_sweeps
+    from factirl_opt.lab.experiments.figures import plot_sweeps
 
     out, _ = objectworld_sweep
     rows = read_csv(out / "results.csv")
@@ -426,7 +426,7 @@ def test_a_single_sweep_draws_one_panel(objectworld_sweep, tiny_sweep, tmp_path)
 def test_paper_with_mce_smoke_sweep(tmp_path):
     import dataclasses
 
-    from factirl_opt.experiments.claims import evaluate_claims
+    from factirl_opt.lab.experiments.claims import evaluate_claims
 
     preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce")
     run_sweep(preset, tmp_path, seeds=1, progress=False)
@@ -446,7 +446,7 @@ def test_paper_with_mce_smoke_sweep(tmp_path):
 def test_claims_need_a_known_lineup():
     import dataclasses
 
-    from factirl_opt.experiments import claims as claims_mod
+    from factirl_opt.lab.experiments import claims as claims_mod
 
     preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce")
     saved = claims_mod.CLAIMS.pop("paper+mce")
@@ -458,7 +458,7 @@ def test_claims_need_a_known_lineup():
 
 
 def test_value_maps_of_unknown_learners_are_refused(tiny_sweep, tmp_path):
-    from factirl_opt.experiments.figures import plot_value_functions
+    from factirl_opt.lab.experiments.figures import plot_value_functions
 
     out, _ = tiny_sweep
     data = json.loads(_read(out / "figure3.json"))
@@ -470,7 +470,7 @@ def test_value_maps_of_unknown_learners_are_refused(tiny_sweep, tmp_path):
 
 
 def test_the_experiment_path_stage_by_stage(tiny_sweep, tmp_path):
-    from factirl_opt.experiments import Execution, plan_sweep, run_plan
+    from factirl_opt.lab.experiments import Execution, plan_sweep, run_plan
 
     ref, _ = tiny_sweep
     plan = plan_sweep("tiny", [0, 1])
@@ -487,7 +487,7 @@ def test_a_sweep_removes_outputs_drawn_from_earlier_tables(objectworld_sweep, tm
     """Claims and figures of another preset's tables never stay beside new tables."""
     import shutil
 
-    from factirl_opt.experiments.claims import write_claims
+    from factirl_opt.lab.experiments.claims import write_claims
 
     out = tmp_path / "out"
     shutil.copytree(objectworld_sweep[0], out)
@@ -504,8 +504,8 @@ def test_a_stale_figure3_json_is_removed_with_its_figure(tiny_sweep, tmp_path, m
     import dataclasses
     import shutil
 
-    from factirl_opt.experiments import LINEUPS, Learner, Lineup
-    from factirl_opt.experiments.learners import flat
+    from factirl_opt.lab.experiments import LINEUPS, Learner, Lineup
+    from factirl_opt.lab.experiments.learners import flat
 
     out = tmp_path / "out"
     shutil.copytree(tiny_sweep[0], out)
@@ -523,7 +523,7 @@ def test_a_stale_figure3_json_is_removed_with_its_figure(tiny_sweep, tmp_path, m
 def test_substitutions_are_warned_and_recorded_in_the_manifest(tmp_path):
     import dataclasses
 
-    from factirl_opt.experiments.runner import SolverSubstitutionWarning
+    from factirl_opt.lab.experiments.runner import SolverSubstitutionWarning
 
     preset = dataclasses.replace(PRESETS["tiny"], lineup="paper+mce", demos_sweep=(5,), tasks_sweep=(8,), n_seeds=1,
                                  fact_max_iter=1, flat_max_iter=2, transfer_max_iter=2)

@@ -9,10 +9,10 @@ import warnings
 
 import pytest
 
-from factirl_opt.experiments import PRESETS, LINEUPS, run_sweep
-from factirl_opt.experiments import runner as runner_mod
-from factirl_opt.experiments import store
-from factirl_opt.experiments.learners import Learner, Lineup
+from factirl_opt.lab.experiments import PRESETS, LINEUPS, run_sweep
+from factirl_opt.lab.experiments import runner as runner_mod
+from factirl_opt.lab.experiments import store
+from factirl_opt.lab.experiments.learners import Learner, Lineup
 
 TABLES = ("results.csv", "summary.csv")
 
@@ -207,7 +207,7 @@ def test_lock_released_after_an_interruption(tmp_path, monkeypatch):
 
 
 def test_cli_refuses_a_second_writer(reference, tmp_path, capsys):
-    from factirl_opt.cli import main
+    from factirl_opt.lab.cli import main
 
     out, _ = _copy(reference, tmp_path)
     _lock(out, os.getpid(), start=store._process_start(os.getpid()))
@@ -264,6 +264,6 @@ def test_a_failed_write_keeps_the_previous_record_and_leaves_no_partial_file(ref
 
 
 def test_tables_has_no_writer_of_its_own():
-    from factirl_opt.experiments import tables
+    from factirl_opt.lab.experiments import tables
 
     assert not hasattr(tables, "write_atomic")  # one home: factirl_opt.files

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from factirl_opt.experiments import run_sweep
-from factirl_opt.experiments.workers import POLL_SECONDS, WorkerError, imap_unordered
+from factirl_opt.lab.experiments import run_sweep
+from factirl_opt.lab.experiments.workers import POLL_SECONDS, WorkerError, imap_unordered
 
 ROOT = Path(__file__).resolve().parents[2]
 N_SEEDS = 6
@@ -93,7 +93,7 @@ def _shm_entries(pids):
 
 
 def _start_sweep(out):
-    cmd = [sys.executable, "-m", "factirl_opt.cli", "reproduce", "--preset", "tiny", "--seeds", str(N_SEEDS),
+    cmd = [sys.executable, "-m", "factirl_opt.lab.cli", "reproduce", "--preset", "tiny", "--seeds", str(N_SEEDS),
            "--jobs", "2", "--out", str(out), "--no-plot", "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OPENBLAS_NUM_THREADS": "1"}
     # a shell's background job starts with SIGINT ignored, and a child inherits that: give the
@@ -179,9 +179,9 @@ def _sleep_then_square(x):
 
 def test_a_sigterm_while_workers_start_stops_them_all():
     """A SIGTERM during the workers' start is held, then every worker is stopped and the signal delivered."""
-    from factirl_opt.experiments.workers import Terminated, sigterm_raises
+    from factirl_opt.lab.experiments.workers import Terminated, sigterm_raises
 
-    import factirl_opt.experiments.workers as workers_mod
+    import factirl_opt.lab.experiments.workers as workers_mod
 
     started = []
     original = workers_mod._stop

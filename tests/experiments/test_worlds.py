@@ -7,8 +7,8 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.experiments import PRESETS, WORLDS, Preset, make_ground_truth
-from factirl_opt.experiments.presets import LATER_FIELDS
+from factirl_opt.lab.experiments import PRESETS, WORLDS, Preset, make_ground_truth
+from factirl_opt.lab.experiments.presets import LATER_FIELDS
 
 OW = PRESETS["objectworld-tiny"]
 

@@ -11,8 +11,8 @@ gym = pytest.importorskip("gymnasium")
 
 import factirl_opt as fo  # noqa: E402
 from factirl_opt.exceptions import MissingDependencyError, ValidationError  # noqa: E402
-from factirl_opt.minigrid import bot_demonstration, from_minigrid, run_policy  # noqa: E402
-from factirl_opt.minigrid.episodes import _check_step  # noqa: E402
+from factirl_opt.adapters.minigrid import bot_demonstration, from_minigrid, run_policy  # noqa: E402
+from factirl_opt.adapters.minigrid.episodes import _check_step  # noqa: E402
 
 LOCAL = "BabyAI-GoToLocal-v0"
 

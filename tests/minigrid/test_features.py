@@ -12,8 +12,8 @@ gym = pytest.importorskip("gymnasium")
 from minigrid.core.constants import IDX_TO_COLOR, IDX_TO_OBJECT  # noqa: E402
 
 from factirl_opt.exceptions import ValidationError  # noqa: E402
-from factirl_opt.minigrid import from_minigrid, minigrid_feature_names, minigrid_features, parse_goto_mission  # noqa: E402
-from factirl_opt.minigrid.features import COLOURS, DEFAULT_THRESHOLDS, OBJECT_TYPES, grid_objects  # noqa: E402
+from factirl_opt.adapters.minigrid import from_minigrid, minigrid_feature_names, minigrid_features, parse_goto_mission  # noqa: E402
+from factirl_opt.adapters.minigrid.features import COLOURS, DEFAULT_THRESHOLDS, OBJECT_TYPES, grid_objects  # noqa: E402
 
 
 def layout(name="BabyAI-GoToLocal-v0", seed=0):

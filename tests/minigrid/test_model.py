@@ -12,8 +12,8 @@ gym = pytest.importorskip("gymnasium")
 
 import factirl_opt as fo  # noqa: E402
 from factirl_opt.exceptions import MissingDependencyError, ValidationError  # noqa: E402
-from factirl_opt.minigrid import from_minigrid, parse_goto_mission  # noqa: E402
-from factirl_opt.minigrid.features import COLOURS, OBJECT_TYPES  # noqa: E402
+from factirl_opt.adapters.minigrid import from_minigrid, parse_goto_mission  # noqa: E402
+from factirl_opt.adapters.minigrid.features import COLOURS, OBJECT_TYPES  # noqa: E402
 
 DIRS = [(1, 0), (0, 1), (-1, 0), (0, -1)]  # MiniGrid's DIR_TO_VEC
 
@@ -187,7 +187,7 @@ def test_import_factirl_opt_does_not_import_minigrid():
     code = ("import sys, factirl_opt as fo; assert 'minigrid' not in sys.modules; "
             "assert 'from_minigrid' in fo.__all__ and 'from_minigrid' in dir(fo); "
             "f = fo.from_minigrid; assert 'minigrid' in sys.modules; "
-            "import factirl_opt.minigrid as m; assert f is m.from_minigrid")
+            "import factirl_opt.adapters.minigrid as m; assert f is m.from_minigrid")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

@@ -7,12 +7,8 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives import get_objective
-from factirl_opt.objectives.environments import (
-    MultiEnvironmentObjective,
-    check_environments,
-    group_tasks,
-    multi_environment_objective,
-)
+from factirl_opt.objectives.environments import MultiEnvironmentObjective, multi_environment_objective
+from factirl_opt.mdp.environments import check_environments, group_tasks
 
 OBJECTIVES = ["policy-matching", "mce"]
 

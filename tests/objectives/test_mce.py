@@ -17,7 +17,7 @@ from factirl_opt.exceptions import FactIRLError, ValidationError
 from factirl_opt.objectives import MCEObjective, get_objective, soft_values
 from factirl_opt.objectives import mce as mce_module
 from factirl_opt.planning import DensePlanner, get_planner
-from factirl_opt.problems import dictionary_problem, weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 
 BETA = 2.0
 

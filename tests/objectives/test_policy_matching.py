@@ -12,7 +12,7 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives import PolicyMatchingObjective, dq_dtheta
-from factirl_opt.problems import dictionary_problem, weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 
 from helpers import greedy_gap
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.objectworld import make_objectworld, objectworld_distances, objectworld_features
+from factirl_opt.datasets.objectworld import make_objectworld, objectworld_distances, objectworld_features
 
 # ---------------------------------------------------------------- distances and features
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.objectworld import levine_reward, make_objectworld, plot_objectworld
+from factirl_opt.datasets.objectworld import levine_reward, make_objectworld, plot_objectworld
 
 
 def test_plot_objectworld_draws_objects_and_values():

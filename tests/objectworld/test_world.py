@@ -5,8 +5,8 @@ import pytest
 import scipy.sparse as sp
 
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.mdp import TabularMDP
-from factirl_opt.objectworld import ACTIONS, ObjectWorld, make_objectworld, objectworld_distances, objectworld_transitions
+from factirl_opt.mdp.tabular import TabularMDP
+from factirl_opt.datasets.objectworld import ACTIONS, ObjectWorld, make_objectworld, objectworld_distances, objectworld_transitions
 
 STAY, UP, DOWN, LEFT, RIGHT = range(5)
 
@@ -198,12 +198,12 @@ def test_transitions_and_world_checks():
 
 def test_every_public_name_importable_from_the_package_and_the_library():
     import factirl_opt
-    import factirl_opt.objectworld as objectworld
-    from factirl_opt.objectworld import features, plotting, rewards, world
+    import factirl_opt.datasets.objectworld as objectworld
+    from factirl_opt.datasets.objectworld import features, plotting, rewards, world
 
     homes = {name: module for module in (world, features, rewards, plotting) for name in module.__all__}
     for name in objectworld.__all__:
         assert getattr(objectworld, name) is getattr(homes[name], name)
-        if not name.isupper():  # the constants stay in factirl_opt.objectworld
+        if not name.isupper():  # the constants stay in factirl_opt.datasets.objectworld
             assert getattr(factirl_opt, name) is getattr(objectworld, name)
     assert set(objectworld.__all__) <= set(homes)

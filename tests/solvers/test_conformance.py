@@ -19,7 +19,7 @@ from scipy.optimize import nnls
 import factirl_opt as fo
 import solvers
 from factirl_opt.objectives import PolicyMatchingObjective
-from factirl_opt.problems import dictionary_problem, weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 from solvers.gauss_newton import reduce_least_squares
 
 from helpers import greedy_gap

@@ -9,7 +9,7 @@ import pytest
 import factirl_opt as fo
 import solvers
 from solvers import SolverOptionError
-from factirl_opt.benchmarks import solvers as bench_solvers
+from factirl_opt.lab.benchmarks import solvers as bench_solvers
 
 
 @pytest.fixture

@@ -1,0 +1,56 @@
+"""Benchmark entry point: ``python -m factirl_opt.lab.bench {gradient,fit,solvers,scale,environments,robustness,unlabeled} [options]``.
+
+Every benchmark measures its routes side by side in one run and prints JSON on stdout. The
+same parser serves ``factirl-opt bench``.
+"""
+
+import argparse
+import importlib
+import json
+import sys
+
+from .benchmarks import BENCHMARKS
+
+__all__ = ["main", "build_parser", "run_from_args"]
+
+
+def build_parser(prog="python -m factirl_opt.lab.bench"):
+    """The benchmarks' argument parser: one sub-command per benchmark module.
+
+    A benchmark whose module cannot be imported (a missing optional dependency) is listed as
+    unavailable in the help instead of breaking the others.
+    """
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0] + " Each prints JSON on stdout.")
+    sub = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
+    missing = []
+    for name, module in BENCHMARKS.items():
+        try:
+            mod = importlib.import_module(f"factirl_opt.lab.benchmarks.{module}")
+        except ImportError as exc:
+            missing.append(f"{name} ({exc})")
+            continue
+        p = sub.add_parser(name, help=(mod.__doc__ or name).strip().splitlines()[0], description=mod.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    if missing:
+        parser.epilog = "unavailable: " + "; ".join(missing)
+    return parser
+
+
+def run_from_args(args):
+    """Run the parsed benchmark and print its result as JSON on stdout; returns the result."""
+    result = args._module.run(args)
+    json.dump(result, sys.stdout, indent=2, default=float)
+    sys.stdout.write("\n")
+    return result
+
+
+def main(argv=None, prog="python -m factirl_opt.lab.bench"):
+    """Parse ``argv``, run the benchmark, print its JSON; returns the exit code."""
+    run_from_args(build_parser(prog).parse_args(argv))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

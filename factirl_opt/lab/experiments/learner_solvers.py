@@ -1,0 +1,106 @@
+"""Which solvers a learner row of the experiments takes (:mod:`.learners`).
+
+A GradIRL row takes the preset's ``flat_solver`` (tabular rewards) or ``flat_features_solver``
+(rewards on features); a FactIRL row the run's :class:`~factirl_opt.SolverSettings`. A
+Gauss-Newton solver needs residuals: a row on an objective without them (``"mce"``) takes
+:data:`GRADIENT_FALLBACK` instead, and :func:`substitutions` names every such replacement
+before the runs start.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import solvers
+
+from ...exceptions import ValidationError
+from ...learners.gradirl import check_solver_applies
+from ...learners.solver_settings import SolverSettings
+
+__all__ = ["DEFAULT_OBJECTIVE", "GRADIENT_FALLBACK", "SOLVER_ROLES", "flat_solver", "factorial_solvers", "substitutions",
+           "factorial_options"]
+
+#: the objective of the paper's learners (eq. 5)
+DEFAULT_OBJECTIVE = "policy-matching"
+
+#: the solver a learner on an objective without residuals (``"mce"``) takes where the run or
+#: preset names a Gauss-Newton one: the quasi-Newton counterpart, which needs only gradients
+GRADIENT_FALLBACK = "lbfgs"
+
+#: which solvers a learner row takes: the preset's ``flat_solver`` (GradIRL, tabular), its
+#: ``flat_features_solver`` (GradIRL on features), or the run's :class:`SolverSettings` (FactIRL)
+SOLVER_ROLES = ("flat", "flat features", "factorial")
+
+
+def _applies(name: str, options: dict, objective: str) -> bool:
+    """Whether the registered solver ``name`` applies to ``objective`` (Gauss-Newton ones need residuals)."""
+    try:
+        check_solver_applies(solvers.get_solver(name, **options), objective, "solver")
+    except ValidationError:
+        return False
+    return True
+
+
+def _replaced(what: str, name: str, objective: str) -> str:
+    return (f"{what} {name} replaced by {GRADIENT_FALLBACK} (a Gauss-Newton solver needs residuals; the "
+            f"{objective!r} objective has none)")
+
+
+def flat_solver(learner: Any, preset: Any) -> tuple[str, str | None]:
+    """The step solver of a GradIRL row, and a note naming the substitution if there is one."""
+    name = preset.flat_solver if learner.solvers == "flat" else preset.flat_features_solver
+    if _applies(name, {}, learner.objective):
+        return name, None
+    return GRADIENT_FALLBACK, _replaced("solver", name, learner.objective)
+
+
+def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[SolverSettings, list[str]]:
+    """The solver settings a FactIRL on ``objective`` takes, and notes naming the substitutions.
+
+    A learner on an objective without residuals (``"mce"``) cannot take a Gauss-Newton solver
+    (``gn-qp-*``, ``gn-cg``): each such H- or D-step solver is replaced by
+    :data:`GRADIENT_FALLBACK` without options (its table rows keep the run's solver label).
+    """
+    h, h_opts, d, d_opts, notes = (settings.h_solver, settings.h_solver_options, settings.d_solver,
+                                   settings.d_solver_options, [])
+    if not _applies(h, settings.h_options, objective):
+        notes.append(_replaced("H-step solver", h, objective))
+        h, h_opts = GRADIENT_FALLBACK, ""
+    if d and not _applies(d, settings.d_options, objective):
+        notes.append(_replaced("D-step solver", d, objective))
+        d, d_opts = GRADIENT_FALLBACK, ""
+    return (SolverSettings(h, h_opts, d, d_opts) if notes else settings), notes
+
+
+def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[str]:
+    """Every solver a row of the line-up takes instead of the one the preset or run names.
+
+    Returns
+    -------
+    list of str
+        One line per substitution, ``"<split>: <learner>: <what> replaced by <solver> (why)"``.
+    """
+    out = []
+    for lr in lineup.learners:
+        if lr.solvers == "factorial":
+            notes = factorial_solvers(settings, lr.objective)[1]
+        else:
+            notes = [note for note in flat_solver(lr, preset)[1:] if note]
+        out += [f"{lr.split}: {lr.name}: {note}" for note in notes]
+    return out
+
+
+def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> dict[str, Any]:
+    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
+
+    Solver options and the D-step solver are passed only when the run names them
+    (:meth:`SolverSettings.learner_kwargs`), so a run with the defaults builds exactly the
+    FactIRL it always did; solvers that do not apply to ``objective`` are replaced
+    (:func:`factorial_solvers`).
+    """
+    kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
+              tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
+              inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
+              transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
+    kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
+    return kw

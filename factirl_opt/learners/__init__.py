@@ -1,0 +1,30 @@
+"""The learners layer: the three estimators and the fitting schemes behind them.
+
+- :class:`GradIRL` (:mod:`~factirl_opt.learners.gradirl`): the flat learner, one reward per task.
+- :class:`FactIRL` (:mod:`~factirl_opt.learners.factirl`): the factorial learner; its
+  alternating scheme (:mod:`~factirl_opt.learners.factorial`), dictionary steps
+  (:mod:`~factirl_opt.learners.dictionary`) and transfer (:mod:`~factirl_opt.learners.transfer`).
+- :class:`MultiIntentIRL` (:mod:`~factirl_opt.learners.multi_intent`): EM over unlabeled
+  episodes (:mod:`~factirl_opt.learners.em`, :mod:`~factirl_opt.learners.multi_intent_fit`)
+  and the choice of the number of intentions (:mod:`~factirl_opt.learners.intention_count`).
+- :class:`SolverSettings`: the step solvers a learner runs, as one value.
+
+Learners never know which step solver, objective or planner runs: they take them by name.
+"""
+
+from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
+from .gradirl import GradIRL
+from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
+from .solver_settings import SolverSettings
+
+__all__ = [
+    "GradIRL",
+    "FactIRL",
+    "MultiIntentIRL",
+    "SolverSettings",
+    "fit_factorial",
+    "transfer_coefficients",
+    "pca_dictionary",
+    "adjusted_rand_index",
+    "match_intentions",
+]

@@ -1,0 +1,292 @@
+"""The dictionary of the factorial model: its PCA start, the start's scale, and its normalisation.
+
+Helpers of the factorial learner (docs/maths.md §8) that act on a dictionary ``D`` (p, k) and
+coefficients ``H`` (n, k), tasks on the leading axis, with rewards ``R_i = Phi D h_i``:
+
+- :func:`pca_dictionary`: the uncentred PCA of learnt task parameters (the paper's start);
+- :func:`metric_pca_dictionary`: the same for feature weights of tasks in several
+  environments, in the metric of the mean Gram matrix of their features;
+- :func:`shrink_coefficients`: halve a start's coefficients while the total loss decreases;
+- :func:`orient_nonneg`: sign-flip primitives before a nonnegative H-step;
+- :func:`normalise_dictionary`: unit-norm primitives, H rescaled to match;
+- :func:`check_dictionary_norms`: refuse a dictionary whose primitives' norms overflow.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validation import as_rng, check_array, check_int
+from ..exceptions import ValidationError
+from ..interruption import FitInterrupted
+from ..tasks.features import StateBroadcast
+from ..tasks.features import TaskFeatures
+
+__all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
+           "check_dictionary_norms", "PCA_MAX_HALVINGS"]
+
+#: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
+PCA_MAX_HALVINGS = 20
+
+
+def pca_dictionary(parameters: ArrayLike, n_components: int,
+                   rng: np.random.Generator | int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Principal directions of learnt task parameters, as a dictionary and coefficients.
+
+    The factorial model ``theta_i = D h_i`` has no offset, so this is the uncentred PCA
+    (truncated SVD) ``Theta ~ H D^T``: ``D`` holds the first ``n_components`` right singular
+    vectors (orthonormal columns) and ``H = Theta D``. When Theta has fewer independent rows
+    than components, the missing directions are random unit vectors orthogonal to the others.
+
+    Parameters
+    ----------
+    parameters : array_like, shape (n, d)
+        Learnt parameters of n tasks (e.g. flat rewards flattened).
+    n_components : int
+        k.
+    rng : numpy.random.Generator or int or None
+        Used only to complete a rank-deficient basis.
+
+    Returns
+    -------
+    dictionary : ndarray, shape (d, k)
+    coefficients : ndarray, shape (n, k)
+    """
+    X = check_array(parameters, "parameters", ndim=2)
+    if X.shape[0] == 0:
+        raise ValidationError(f"parameters must have shape (n, d) with n >= 1; got {X.shape}")
+    n_components = check_int(n_components, "n_components", minimum=1)
+    n, d = X.shape
+    if n_components > d:
+        raise ValidationError(f"n_components={n_components} exceeds the parameter dimension d={d}")
+    _, s, Vt = np.linalg.svd(X, full_matrices=False)
+    rank = int(np.sum(s > s[0] * 1e-10)) if s.size and s[0] > 0 else 0
+    D = Vt[: min(rank, n_components)].T
+    if D.shape[1] < n_components:
+        extra = as_rng(rng).standard_normal((d, n_components - D.shape[1]))
+        Qm, _ = np.linalg.qr(np.hstack([D, extra]))
+        D = Qm[:, :n_components]
+    return D, X @ D
+
+
+def feature_weights(features: Any, rewards: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Minimum-norm least-squares weights ``W`` with ``Phi W ~ X``: rewards mapped back to feature space.
+
+    Parameters
+    ----------
+    features : ndarray, shape (S*A, p), or StateBroadcast
+        ``Phi``. For a :class:`~factirl_opt.objectives.problems.StateBroadcast` the solution is the
+        mean over the actions.
+    rewards : ndarray, shape (S*A, m)
+        ``X``, one column per reward.
+
+    Returns
+    -------
+    ndarray, shape (p, m)
+    """
+    if isinstance(features, StateBroadcast):
+        return (features.T @ rewards) / features.n_actions
+    return np.linalg.lstsq(features, rewards, rcond=None)[0]
+
+
+def metric_pca_dictionary(weights: ArrayLike, features: TaskFeatures, n_components: int,
+                          rng: np.random.Generator | int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The PCA start of feature weights of tasks in several environments (docs/maths.md §8).
+
+    With one feature matrix ``Phi`` the start is the PCA of the rewards ``Phi w_i``, which is
+    the PCA of the weights in the metric ``G = Phi^T Phi``. With per-task features ``Phi_i``
+    the metric is their mean Gram matrix ``G = mean_i Phi_i^T Phi_i`` (state features counted
+    once per action): ``D`` (p, k) and ``H`` (n, k) come from the uncentred PCA of
+    ``W G^{1/2}`` mapped back by the minimum-norm pre-image, so ``G^{1/2} D`` has orthonormal
+    columns and ``H = W G D``. When every task has the same features this is the shared
+    start, up to the signs of the primitives.
+
+    Parameters
+    ----------
+    weights : array_like, shape (n, p)
+        The flat learner's feature weights.
+    features : TaskFeatures
+    n_components : int
+        k, at most the rank of ``G``.
+    rng : numpy.random.Generator or int or None
+        Used only to complete a rank-deficient basis.
+
+    Returns
+    -------
+    dictionary : ndarray, shape (p, k)
+    coefficients : ndarray, shape (n, k)
+    """
+    W = check_array(weights, "weights", ndim=2)
+    G = np.zeros((features.n_features, features.n_features))
+    for i in range(features.n_tasks):
+        F = features.matrix(i)
+        G += (features.n_actions if features.state_features[i] else 1) * (F.T @ F)
+    e, V = np.linalg.eigh(G / features.n_tasks)
+    keep = e > max(float(e.max()), 0.0) * 1e-12
+    if int(keep.sum()) < n_components:
+        raise ValidationError(f"n_components={n_components} exceeds the rank {int(keep.sum())} of the features' mean "
+                              "Gram matrix: the features span fewer reward directions than primitives")
+    root = np.sqrt(e[keep])
+    Dr, H = pca_dictionary(W @ (V[:, keep] * root), n_components, rng)
+    return V[:, keep] @ (Dr / root[:, None]), H
+
+
+def task_feature_weights(features: TaskFeatures, rewards: Any) -> NDArray[np.float64]:
+    """Minimum-norm least-squares weights ``w_i`` with ``Phi_i w_i ~ R_i`` (n, p), one task at a time.
+
+    ``rewards`` is a stacked (n, S, A) array or a list of (S_i, A) arrays.
+    """
+    if len(rewards) != features.n_tasks:
+        raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({features.n_tasks}); got {len(rewards)}")
+    out = np.empty((features.n_tasks, features.n_features))
+    for i, (F, R) in enumerate(zip(features.dense(), rewards)):
+        R = check_array(R, f"flat_rewards[{i}] (task {i})")
+        shape = (int(features.n_states[i]), features.n_actions)
+        if R.shape != shape:
+            raise ValidationError(f"flat_rewards of task {i} must have shape (S_i, A) = {shape} (its MDP); got {R.shape}")
+        out[i] = np.linalg.lstsq(F, R.reshape(-1), rcond=None)[0]
+    return out
+
+
+def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: ArrayLike,
+                        max_halvings: int = PCA_MAX_HALVINGS) -> tuple[NDArray[np.float64], int, int]:
+    """Halve a start's coefficients while the total loss decreases.
+
+    A flat learner fitted to near-deterministic demonstrations grows rewards far larger than
+    the expert's; their rank-k truncation (the PCA start) then lies where the Boltzmann policies
+    are saturated and the gradients of eq. (10) nearly vanish, so descent from it crawls
+    (Objectworld at 32x32: the rank-5 truncation scores a policy-matching loss of 6.50 over 10
+    tasks, 4.77 at 1/32 of its scale, 8.0 at zero). Scaling ``H`` by ``2**-j`` leaves the
+    primitives unchanged; ``j`` is the number of halvings that each lowered the loss (the next
+    one did not; ``j = 0``, the unscaled start, when halving does not help).
+
+    Parameters
+    ----------
+    total_loss : callable
+        ``total_loss(H) -> float`` (or an array, summed): the objective of eq. (10) at
+        coefficients H (n, k).
+    coefficients : ndarray, shape (n, k)
+    max_halvings : int
+        Largest j tried.
+
+    Returns
+    -------
+    coefficients : ndarray, shape (n, k)
+        ``2**-j H``.
+    halvings : int
+        j.
+    n_calls : int
+        Calls of ``total_loss`` (batched planning evaluations).
+
+    Raises
+    ------
+    FitInterrupted
+        On a KeyboardInterrupt; its ``result`` is ``(2**-j H, j, n_calls, total_loss(2**-j H))``
+        for the best j found so far (the loss is None when the first call was interrupted).
+    """
+    H = np.asarray(coefficients, dtype=float)
+    best, j, calls = None, 0, 0
+    try:
+        best, calls = total_loss(H), 1
+        while j < max_halvings:
+            trial = total_loss(H * 2.0 ** -(j + 1))
+            calls += 1
+            if not float(np.sum(trial)) < float(np.sum(best)):
+                break
+            best, j = trial, j + 1
+    except KeyboardInterrupt as exc:
+        raise FitInterrupted((H * 2.0 ** -j, j, calls, best), "shrink_coefficients") from exc
+    return H * 2.0 ** -j, j, calls
+
+
+def orient_nonneg(D: NDArray[np.float64], H: NDArray[np.float64],
+                  fold: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Prepare an initialisation for a nonnegative H-step (the model ``H D^T`` is unchanged).
+
+    The sign of each primitive is arbitrary (``D[:, l] -> -D[:, l]``, ``H[:, l] -> -H[:, l]``);
+    flip the primitives whose coefficients sum to a negative value, so that projecting H onto
+    ``H >= 0`` keeps most of each primitive's mass instead of zeroing it. With ``fold`` (the
+    random initialisation, whose H is a fresh draw) take ``|H|`` instead.
+
+    Parameters
+    ----------
+    D : ndarray, shape (p, k)
+    H : ndarray, shape (n, k)
+    fold : bool
+
+    Returns
+    -------
+    D, H : ndarray, shapes (p, k) and (n, k)
+    """
+    if fold:
+        return D, np.abs(H)
+    sign = np.where(H.sum(axis=0) < 0, -1.0, 1.0)
+    return D * sign, H * sign
+
+
+#: relative slack of :func:`normalise_dictionary`'s band edges (far above round-off, far below any real change)
+BAND_SLACK = 1e-9
+
+
+def normalise_dictionary(D: NDArray[np.float64], H: NDArray[np.float64],
+                         band: float = 2.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rescale the primitives to unit norm (H rescaled to match) once one leaves a band.
+
+    The model is invariant to ``D -> D diag(c), H -> H diag(1/c)``; keeping the columns of D
+    near unit norm keeps the two sub-problems balanced. Rescaling only when a norm leaves
+    ``[1/band, band]`` avoids perturbing the product (in floating point) at every iteration;
+    ``band=1`` rescales always (a sparse H-step's L1 penalty is only meaningful for primitives
+    of fixed norm, so its fits keep ``||D[:, l]|| = 1``). The band's edges are widened by a
+    relative :data:`BAND_SLACK`, so that a norm at an edge up to round-off (state rewards give
+    ``1/sqrt(A)``, exactly ``1/band`` for four actions) takes the same branch whichever route
+    computed it.
+
+    Parameters
+    ----------
+    D : ndarray, shape (p, k)
+    H : ndarray, shape (n, k)
+    band : float
+        Rescale when a column norm leaves ``[1/band, band]``; ``np.inf`` never rescales.
+
+    Returns
+    -------
+    D, H : ndarray, shapes (p, k) and (n, k)
+        ``D diag(1/c)`` and ``H diag(c)`` with ``c`` the column norms (zero columns kept), or
+        the inputs unchanged.
+    """
+    norms = np.linalg.norm(D, axis=0)
+    low, high = (1.0 - BAND_SLACK) / band, (1.0 + BAND_SLACK) * band
+    if band > 1 and np.all((norms >= low) & (norms <= high)):
+        return D, H
+    norms[norms == 0] = 1.0
+    return D / norms, H * norms
+
+
+def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> None:
+    """Refuse a dictionary whose column norms overflow float64 when computed (it cannot be normalised).
+
+    :func:`normalise_dictionary` divides the primitives by their norms and multiplies the
+    coefficients by them: with an infinite norm the primitives would become zero and the
+    coefficients infinite, a failure the fit would then blame on the coefficients.
+
+    Parameters
+    ----------
+    D : ndarray, shape (p, k)
+        Finite (already validated) dictionary.
+    name : str
+        How the error message names ``D`` (e.g. ``"init D0"``).
+
+    Raises
+    ------
+    ValidationError
+        When a column norm of ``D`` is not finite, naming ``name`` and its largest entry.
+    """
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(D, axis=0)
+    if not np.all(np.isfinite(norms)):
+        raise ValidationError(f"{name} is too large to normalise: the squared norms of its columns overflow float64 "
+                              f"(largest |{name}| entry {np.max(np.abs(D)):.3g}); rescale it (D -> D c, H -> H / c "
+                              f"gives the same rewards)")

@@ -1,0 +1,501 @@
+"""FactIRL, the factorial learner (paper section 3.2): a shared dictionary of primitive rewards.
+
+Every task's reward is ``R_i = Phi D h_i``: base features ``Phi`` (S*A, p) (the identity for
+tabular rewards, p = S*A), dictionary ``D`` (p, k), coefficients ``H`` (n, k), tasks on the
+leading axis (docs/maths.md §8). Tasks in several environments (a sequence of MDPs, one
+feature matrix ``Phi_i`` per task) share the dictionary in feature space:
+``R_i = Phi_i D h_i``. :class:`FactIRL` is the estimator: it validates, builds the
+objective and the solvers once, initialises (PCA of the flat learner's parameters, or random)
+and hands them down to the alternating scheme (:mod:`factirl_opt.learners.factorial`) and to transfer
+(:mod:`factirl_opt.learners.transfer`); the dictionary helpers live in :mod:`factirl_opt.learners.dictionary`.
+The plain functions stay importable from here.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
+from .dictionary import (
+    PCA_MAX_HALVINGS,
+    check_dictionary_norms,
+    feature_weights,
+    metric_pca_dictionary,
+    normalise_dictionary,
+    orient_nonneg,
+    pca_dictionary,
+    shrink_coefficients,
+    task_feature_weights,
+)
+from ..exceptions import NotFittedError, ValidationError
+from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
+from ..tasks.features import factorial_rewards
+from .fitting import (
+    Environments,
+    check_features_digest,
+    environment_signatures,
+    environments_setup,
+    features_digest,
+    learner_entry,
+    make_objective,
+    one_environment,
+    reward_dimension,
+    resolve_step_solver,
+    reward_features,
+    warn_if_stalled,
+)
+from .gradirl import fit_weights, weights_rewards
+from ..interruption import INTERRUPTED, FitInterrupted, warn_interrupted
+from ..mdp.tabular import check_signature
+from ..objectives.sharding import sharded
+from ..planning.budget import options_budget
+from ..tasks.features import TaskFeatures
+from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
+
+__all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
+           "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
+
+INITS = ("pca", "random")
+
+#: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
+RANDOM_INIT_SCALE = 0.3
+
+#: the flat learner of the PCA start: GradIRL's default solver and tolerance
+FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+
+
+def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """What the PCA start decomposes: the flat rewards (n, S*A), or with per-task features the weights (n, p)."""
+    if isinstance(Phi, TaskFeatures):
+        return weights
+    return weights_rewards(Phi, weights, mdp.n_states, mdp.n_actions).reshape(len(weights), -1)
+
+
+class FactIRL:
+    """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
+
+    Parameters
+    ----------
+    n_primitives : int, default=5
+        Number of primitive rewards k.
+    beta : float, default=5.0
+        Boltzmann inverse temperature (eq. 7).
+    init : {"pca", "random"} or tuple (D0, H0), default="pca"
+        ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
+        or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
+        parameters (:func:`pca_dictionary`), as the paper recommends. With ``features``, of the
+        flat learner's feature weights measured by the rewards they give: the PCA of the
+        rewards ``Phi w_i`` (the weights' PCA in the metric ``Phi^T Phi``; nested or constant
+        features such as Objectworld's leave the weights themselves ill-determined), mapped
+        back to feature space by minimum-norm least squares. With one feature matrix per
+        task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
+        (:func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`; the same start, up to the signs
+        of the primitives, when every task has the same features). ``"random"``: Gaussian
+        primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
+        grid) and the Boltzmann policies start far from saturation, where the gradients are
+        informative (a unit-scale random start saturates them and the descent stalls). A tuple
+        gives the initial arrays D0 (p, k) and H0 (n, k).
+    pca_shrink : bool, default=True
+        With ``init="pca"``, halve the start's coefficients while the total loss decreases
+        (:func:`shrink_coefficients`; one planning evaluation per trial): the flat learner's
+        rewards can be so large that their truncation starts the fit in a saturated region.
+        On the paper's grid the policy-matching start is usually kept (two evaluations; halved
+        once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
+        Objectworld the start shrinks 32-fold. False: the PCA start as it is.
+    max_iter : int, default=100
+        Maximum outer iterations (one H-step and one D-step each).
+    inner_steps : int, default=5
+        Fixed number of solver steps per sub-problem.
+    tol : float, default=1e-5
+        Stop when the relative decrease of the total loss over an outer iteration is below tol
+        (a rise is not convergence; the best point seen is kept); see :func:`fit_factorial` for
+        both rules and for the inner runs. Transfer stops on ``tol``.
+    gtol : float, default=1e-4
+        The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
+        value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
+        fixed budgets, as the ``paper`` preset does).
+    h_solver : str or solvers.StepSolver, default="armijo"
+        H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
+        ``transfer`` uses it too. A constrained solver keeps its constraint in the
+        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
+        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one
+        uses ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H
+        objective and of ``loss_history_``, and its fits keep unit-norm primitives.
+    h_solver_options : dict, optional
+        Options for an ``h_solver`` given by name.
+    d_solver : str or solvers.StepSolver, default="armijo"
+        D-step solver (same registry; ``"armijo"`` is the paper's).
+    d_solver_options : dict, optional
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
+        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
+        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
+        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
+        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
+        ``transfer`` then needs the new environments' features.
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
+        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
+        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
+        docs/maths.md §7). Refused together with ``features``.
+    objective : str, default="policy-matching"
+        Per-task loss (``factirl_opt.available_objectives()``).
+    planner : str, default="auto"
+        Planning engine (``factirl_opt.available_planners()``).
+    flat_max_iter : int, default=100
+        Iterations of the flat learner used by ``init="pca"``.
+    transfer_max_iter : int, default=100
+        Maximum solver steps in ``transfer``.
+    rng : numpy.random.Generator or int or None
+        Randomness of the "random" initialisation (and of completing a rank-deficient PCA).
+    verbose : bool, default=False
+        Progress bars on stderr.
+    callback : callable, optional
+        ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
+        of ``transfer``.
+    n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
+
+    Attributes
+    ----------
+    dictionary_ : ndarray, shape (p, k)
+        p = S*A (tabular), S (``reward="state"``) or the number of features.
+    coefficients_ : ndarray, shape (n, k)
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        ``Phi D h_i`` reshaped; a list when the tasks' environments differ in their number of
+        states (stacked otherwise; ``transfer_rewards_`` likewise).
+    loss_ : ndarray, shape (n,)
+    loss_history_ : list of float
+        Total loss (eq. 10, plus a sparse solver's penalty) after the initialisation and after
+        each outer iteration.
+    n_evaluations_ : int
+        Batched planning evaluations used by ``fit`` (including the flat learner of the PCA init).
+    n_iter_ : int
+        Outer iterations of ``fit``.
+    status_ : str
+        ``"converged"``, ``"max_iter"``, ``"stalled"`` (with a :class:`ConvergenceWarning`) or
+        ``"interrupted"``.
+    stop_reason_ : str
+        Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`);
+        ``"interrupted"`` after Ctrl-C.
+    mdp_signature_ : dict or list of dict
+        Signature of the MDP of ``fit``; ``transfer`` without ``features`` refuses another
+        MDP. Fitted on a sequence of MDPs (not all the same object): one signature per task,
+        and ``transfer`` checks only the number of actions and the feature dimension p.
+    features_sha256_ : str or None
+        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features and with
+        per-task features); ``transfer`` without ``features`` refuses model features that
+        differ from them.
+    transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
+    transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
+        The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
+        task without a solver's penalty; the history includes it, as ``loss_history_`` does).
+
+    Notes
+    -----
+    A KeyboardInterrupt (Ctrl-C) during ``fit`` or ``transfer`` keeps the best point seen so
+    far as the fitted state (status and stop reason ``"interrupted"``), warns with
+    :class:`factirl_opt.interruption.InterruptedFitWarning`, and propagates (as
+    :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt). In the
+    alternating loop the best point is the best of the start and the completed outer
+    iterations; during the flat fit of the PCA start (or its PCA) it is that start, the PCA of
+    the flat rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
+    best coefficients seen.
+    """
+
+    #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
+    #: ``load_model`` what to check (factirl_opt.persistence.learnt): a tuple names the axes of a
+    #: finite float array (same name, same length; S, A of the MDP, p parameters), a string a kind.
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
+        "dictionary_": ("p", "k"), "coefficients_": ("n", "k"), "rewards_": ("n", "S", "A"), "loss_": ("n",),
+        "loss_history_": "history", "n_evaluations_": "count", "n_iter_": "count", "status_": "text",
+        "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
+        "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
+        "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
+        "transfer_stop_reason_": "text",
+    }
+
+    def __init__(self, n_primitives: int = 5, beta: float = 5.0, init: Any = "pca", pca_shrink: bool = True,
+                 max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL,
+                 h_solver: Any = "armijo", h_solver_options: dict | None = None, d_solver: Any = "armijo",
+                 d_solver_options: dict | None = None, features: Any = None, objective: Any = "policy-matching",
+                 planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
+                 rng: np.random.Generator | int | None = None, verbose: bool = False,
+                 callback: Callable | None = None, reward: str = "state-action", n_jobs: int | None = None,
+                 backend: str = "processes", client: Any = None, planner_options: dict | None = None) -> None:
+        self.n_primitives = n_primitives
+        self.beta = beta
+        self.init = init
+        self.pca_shrink = pca_shrink
+        self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
+        self.h_solver = h_solver
+        self.h_solver_options = h_solver_options
+        self.d_solver = d_solver
+        self.d_solver_options = d_solver_options
+        self.features = features
+        self.reward = reward
+        self.objective = objective
+        self.planner = planner
+        self.flat_max_iter = flat_max_iter
+        self.transfer_max_iter = transfer_max_iter
+        self.rng = rng
+        self.verbose = verbose
+        self.callback = callback
+        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
+
+    def _features(self, mdp):
+        return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
+
+    def _flat_start(self, mdp, n, Phi, obj, rng):
+        """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
+        flat_solver = resolve_step_solver(FLAT_SOLVER, None, self.objective, "the flat learner's solver")
+        ev0 = obj.n_evaluations
+        try:
+            res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
+        except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
+            D, H = self._pca(_flat_points(mdp, Phi, exc.result.coefficients), Phi, rng)
+            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+            raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
+        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
+        obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
+        return _flat_points(mdp, Phi, res.coefficients), obj.n_evaluations - ev0
+
+    def _pca(self, X, Phi, rng):
+        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space; with
+        per-task features, of the flat weights X (n, p) (:func:`metric_pca_dictionary`)."""
+        if isinstance(Phi, TaskFeatures):
+            return metric_pca_dictionary(X, Phi, self.n_primitives, rng)
+        D, H = pca_dictionary(X, self.n_primitives, rng)
+        return (D if Phi is None else feature_weights(Phi, D)), H
+
+    def _pca_init(self, mdp, n, Phi, flat_rewards, rng, obj):
+        if flat_rewards is None:
+            X, evals = self._flat_start(mdp, n, Phi, obj, rng)
+        elif isinstance(Phi, TaskFeatures):
+            X, evals = task_feature_weights(Phi, flat_rewards), 0
+        else:
+            Theta, evals = check_array(flat_rewards, "flat_rewards"), 0
+            if Theta.shape != (n, mdp.n_states, mdp.n_actions):
+                raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
+            X = Theta.reshape(n, -1)
+            if Phi is not None:  # the rewards the least-squares feature weights give
+                X = (Phi @ feature_weights(Phi, X.T)).T
+        try:
+            D, H = self._pca(X, Phi, rng)
+        except KeyboardInterrupt as exc:
+            if isinstance(exc, FitInterrupted):
+                raise
+            # Ctrl-C in the PCA itself: redo it, and keep it as the start (not evaluated)
+            D, H = self._pca(X, Phi, rng)
+            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+            raise FitInterrupted(start, "FactIRL.fit") from exc
+        if self.pca_shrink:
+            try:
+                H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)
+            except FitInterrupted as exc:
+                Hs, _, _, loss = exc.result
+                history = [] if loss is None else [float(np.sum(loss))]
+                loss = np.full(n, np.nan) if loss is None else loss
+                start = FactorialFit(D, Hs, loss, history, 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
+                raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
+            evals += calls
+            obj.reset()
+        return D, H, evals
+
+    def _initial(self, mdp, n, Phi, flat_rewards, rng, obj):
+        k, p = self.n_primitives, reward_dimension(mdp, Phi)
+        if isinstance(self.init, tuple):
+            if len(self.init) != 2:
+                raise ValidationError("init given as a tuple must be (D0, H0)")
+            D0, H0 = check_array(self.init[0], "init D0"), check_array(self.init[1], "init H0")
+            if D0.shape != (p, k) or H0.shape != (n, k):
+                raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
+            check_dictionary_norms(D0, "init D0")
+            return D0.copy(), H0.copy(), 0
+        if isinstance(self.init, str) and self.init == "random":
+            D0 = rng.standard_normal((p, k))
+            D0 /= np.linalg.norm(D0, axis=0)
+            return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
+        if isinstance(self.init, str) and self.init == "pca":
+            return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
+        raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
+
+    def _check_params(self, mdp, task_features=None):
+        """Validate the hyper-parameters; the base features (None, StateBroadcast, (S*A, p), or
+        ``task_features`` given) and the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
+        k = check_int(self.n_primitives, "n_primitives", minimum=1)
+        Phi = self._features(mdp) if task_features is None else task_features
+        p = reward_dimension(mdp, Phi)
+        if k > p:
+            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
+        check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
+        check_bool(self.pca_shrink, "pca_shrink")
+        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
+                check_tol(self.tol), check_tol(self.gtol, "gtol"))
+        return Phi, loop
+
+    @learner_entry
+    def fit(self, mdp: Any, demos_per_task: Any, flat_rewards: ArrayLike | None = None) -> FactIRL:
+        """Learn the dictionary and the coefficients of every task.
+
+        The objective (one parse of the demonstrations) and the solvers are built once, here,
+        and serve the PCA start (flat fit and shrinking) and the alternating fit in turn.
+
+        Parameters
+        ----------
+        mdp : TabularMDP or sequence of n TabularMDP
+            One MDP shared by every task, or one per task (tasks in several environments,
+            with the same number of actions; tasks given the same object are planned as one
+            batch). Several environments need ``features``: one shared matrix (equal-sized
+            environments) or one per task.
+        demos_per_task : list of n task demonstrations
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes, on its task's MDP.
+        flat_rewards : array_like, shape (n, S, A), or list of n arrays (S_i, A), optional
+            Rewards already learnt by the flat learner on these demonstrations; with
+            ``init="pca"`` they are used instead of fitting the flat learner again (with
+            ``features``, their least-squares feature weights are).
+
+        Returns
+        -------
+        self
+        """
+        one = one_environment(mdp, demos_per_task, self.features)
+        obj: Any
+        if one is None:  # tasks in several environments: ``where`` is their Environments
+            obj, where = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta, self.objective,
+                                            self.planner)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(None, where.features)
+        else:
+            where = check_mdp(one)
+            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
+        h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
+        d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
+        if one is not None:
+            obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
+        try:
+            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
+                D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+                if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
+                    D, H = orient_nonneg(D, H, self.init == "random")
+                fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
+                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
+        except FitInterrupted as exc:
+            self._store(where, Phi, exc.result, int(obj.n_evaluations))
+            kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
+            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
+            raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
+        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
+        warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
+        return self
+
+    def _store(self, where, Phi, fit, n_evaluations):
+        self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
+        self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+        self.loss_, self.loss_history_ = fit.loss, fit.loss_history
+        self.n_evaluations_ = n_evaluations
+        self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
+        if isinstance(where, Environments):
+            self.mdp_signature_, self.features_sha256_ = environment_signatures(where.mdps), where.digest
+            return
+        self.mdp_signature_ = where.signature()
+        self.features_sha256_ = None if self.features is None else features_digest(Phi)
+
+    def _transfer_dictionary(self, mdp):
+        """The base features and the validated ``dictionary_`` of a fitted model, for ``transfer``."""
+        if not hasattr(self, "dictionary_"):
+            raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
+        check_mdp(mdp)
+        if isinstance(getattr(self, "mdp_signature_", None), dict):  # a list: fitted on several environments
+            check_signature(self.mdp_signature_, mdp, "this FactIRL model")
+        Phi = self._features(mdp)
+        if hasattr(self, "features_sha256_"):
+            check_features_digest(self.features_sha256_, None if self.features is None else Phi, "this FactIRL model")
+        p = mdp.n_params if Phi is None else Phi.shape[1]
+        D = check_array(self.dictionary_, "dictionary_", ndim=2)
+        if D.shape[0] != p:
+            raise ValidationError(f"dictionary_ must have shape (p, k) with p = {p} (the reward dimension); got {D.shape}")
+        if D.shape[1] != self.n_primitives:
+            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
+        return Phi, D
+
+    @learner_entry
+    def transfer(self, mdp: Any, demos_per_task: Any, features: Any = None, max_iter: int | None = None,
+                 h_solver: Any = None, h_solver_options: dict | None = None) -> NDArray[np.float64]:
+        """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
+
+        Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
+        solver for up to ``max_iter`` steps (:func:`transfer_coefficients`).
+
+        Parameters
+        ----------
+        mdp : TabularMDP or sequence of n_new TabularMDP
+            The MDP of ``fit`` (checked against ``mdp_signature_`` for a model fitted on one
+            MDP, when no ``features`` are given), or the new tasks' own environments (one MDP
+            per new task, or one shared), with the number of actions of ``fit``.
+        demos_per_task : list of n_new task demonstrations
+        features : array_like or sequence of n_new array_like, optional
+            The new environments' features, over the p features of ``fit``: one shared
+            matrix, or one (S_i*A, p) or (S_i, p) per new task. Required for a model fitted
+            with per-task features; with them no MDP signature is checked (the dictionary is
+            carried to the new environments). Default: the model's own (shared) features.
+        max_iter : int, optional
+            Default ``transfer_max_iter``.
+        h_solver : str or solvers.StepSolver, optional
+            Solver for this call only (e.g. fit with ``"armijo"``, transfer with
+            ``"gn-qp-clarabel"``); default the model's ``h_solver``.
+        h_solver_options : dict, optional
+            Options for an ``h_solver`` given by name here.
+
+        Returns
+        -------
+        coefficients : ndarray, shape (n_new, k)
+            ``transfer_rewards_`` holds the new tasks' rewards: (n_new, S, A), or a list of
+            (S_i, A) arrays when their environments differ in size.
+
+        Raises
+        ------
+        ValidationError
+            When the model's features differ from those of ``fit`` (``features_sha256_``),
+            ``dictionary_`` does not fit the MDP, ``features`` are missing for a per-task
+            model or have another p, or the environments another number of actions.
+        """
+        new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
+        if new is None:
+            Phi, D = self._transfer_dictionary(mdp)
+        if h_solver is None:
+            if h_solver_options is not None:
+                raise ValidationError("h_solver_options given without h_solver")
+            h_solver, h_solver_options = self.h_solver, self.h_solver_options
+        max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
+        tol = check_tol(self.tol)
+        if new is None:
+            obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
+        else:
+            obj, Phi, D = new
+        solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
+        try:
+            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
+                res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+                                   verbose=self.verbose)
+        except FitInterrupted as exc:
+            self._store_transfer(exc.result)
+            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
+            raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
+        self._store_transfer(res)
+        warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
+        return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
+
+    def _store_transfer(self, res):
+        self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
+        self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
+        self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
+        self.transfer_stop_reason_ = res.reason
+
+    def __repr__(self) -> str:
+        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
+        return (
+            f"FactIRL(n_primitives={self.n_primitives}, beta={self.beta}, init={self.init!r}{reward}, "
+            f"h_solver={self.h_solver!r}, d_solver={self.d_solver!r}, objective={self.objective!r}, "
+            f"max_iter={self.max_iter}, inner_steps={self.inner_steps})"
+        )

@@ -1,0 +1,292 @@
+"""GradIRL, the flat learner (Neu & Szepesvari 2007; paper section 3.1).
+
+:class:`GradIRL` is the estimator; :func:`fit_weights` is its fit on an objective and a solver
+already built, which ``FactIRL`` also runs for its PCA start on the same objective.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+import solvers
+
+from .._progress import fit_progress
+from .._validation import check_int, check_mdp, check_tol
+from ..exceptions import translate_solver_errors
+from .fitting import (
+    check_solver_applies,
+    environment_signatures,
+    environments_setup,
+    features_digest,
+    first_step_stall,
+    held_by_constraint,
+    learner_entry,
+    make_objective,
+    one_environment,
+    resolve_step_solver,
+    reward_features,
+    warn_if_stalled,
+)
+from ..interruption import INTERRUPTED, FitInterrupted, run_keeping_best, warn_interrupted
+from ..objectives.sharding import sharded
+from ..planning.budget import options_budget
+from ..objectives.problems import weights_problem
+from ..tasks.features import linear_rewards
+
+__all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
+
+
+def weights_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int) -> NDArray[np.float64]:
+    """Rewards (n, S, A) of weights (n, p): ``R_i = F w_i``, or ``w_i`` reshaped when ``F`` is None (tabular)."""
+    if features is None:
+        return weights.reshape(-1, n_states, n_actions)
+    return linear_rewards(features, weights, n_states, n_actions)
+
+
+def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_iter: int, tol: float,
+                callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL") -> solvers.SolverResult:
+    """The flat fit on pieces already built: ``solver`` from zero weights on every task at once.
+
+    Parameters
+    ----------
+    objective : Objective
+        Bound to the n tasks' statistics.
+    features : ndarray, shape (S*A, p), or StateBroadcast, optional
+        Validated; None for tabular weights (p = S*A).
+    solver : solvers.StepSolver
+        Resolved and checked against the objective.
+    max_iter : int
+    tol : float
+    callback : callable, optional
+        ``callback(iteration, total_loss)`` after each iteration.
+    verbose : bool
+    what : str
+        Names the fit in the progress bar and in an interruption.
+
+    Returns
+    -------
+    solvers.SolverResult
+        ``coefficients`` (n, p) are the weights. A first iteration that left the total loss
+        unchanged is reported ``"stalled"`` (:func:`factirl_opt.learners.fitting.first_step_stall`).
+
+    Raises
+    ------
+    FitInterrupted
+        A KeyboardInterrupt during the fit; its ``result`` holds each task's best weights seen
+        (status ``"interrupted"``, :func:`factirl_opt.interruption.run_keeping_best`).
+    """
+    problem = weights_problem(objective, features)
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
+        res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
+                               callback=report, tol=tol)
+    stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
+    if stall is not None:
+        res.status, res.reason = stall
+    return res
+
+
+class GradIRL:
+    """Flat learner: one reward per task whose Boltzmann policy on Q* matches the expert's.
+
+    Minimises eq. (5) (or another registered objective) for every task, batched over the task
+    axis, by gradient descent with Armijo step-size adaptation (or any registered step solver),
+    from zero weights.
+
+    Parameters
+    ----------
+    beta : float, default=5.0
+        Boltzmann inverse temperature (eq. 7).
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
+        Linear reward features ``R = F w`` (state features are repeated over actions); None
+        learns tabular rewards (``theta = R``, d = S*A). A sequence gives one matrix per task,
+        (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i w_i`` on task i's own
+        environment (tasks in several environments; docs/maths.md §7).
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state-action"`` learns ``R(s, a)`` (d = S*A); ``"state"`` learns a
+        reward of the states only, ``R(s, a) = r(s)`` (d = S), at the cost of the tabular fit
+        (the gradient sums ``dJ/dR`` over the actions; no feature matrix is formed). It gives
+        the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))`` (docs/maths.md §7).
+        Refused together with ``features``.
+    max_iter : int, default=100
+        Maximum descent iterations.
+    tol : float, default=1e-5
+        Stop when the relative decrease of the total loss over an iteration is below tol.
+    solver : str or solvers.StepSolver, default="armijo"
+        Step solver (see ``solvers.available_solvers()``).
+    solver_options : dict, optional
+        Options for a solver given by name.
+    objective : str, default="policy-matching"
+        Per-task loss (see ``factirl_opt.available_objectives()``).
+    planner : str, default="auto"
+        Planning engine (see ``factirl_opt.available_planners()``).
+    verbose : bool, default=False
+        Show a progress bar (iterations, loss) on stderr.
+    callback : callable, optional
+        Called as ``callback(iteration, total_loss)`` after each iteration.
+    n_jobs : int or None, default=None
+        Task shards evaluated in parallel during ``fit`` (:mod:`factirl_opt.parallel.shards`,
+        :mod:`factirl_opt.objectives.distributed`): None means 1 (one process, the serial code
+        path), -1 every core, -2 all but one, as in scikit-learn. Each shard's worker keeps
+        its tasks' statistics, warm starts and factorisations between evaluations, so only
+        rewards go in and losses and gradients come out; the result equals ``n_jobs=1``'s to
+        rounding, with the same number of evaluations. Inside a worker process (a shard's,
+        a ``reproduce --jobs`` or Dask sweep worker) it is 1: pools never nest. Tasks in
+        several environments are sharded by whole environments.
+    backend : {"processes", "dask"}, default="processes"
+        Where the shards run: shard 0 in this process and the others in processes of this
+        machine, started at the beginning of ``fit`` and stopped at its end (also on an error
+        or Ctrl-C); or Dask actors on the workers of ``client`` (with ``n_jobs`` None or -1,
+        one shard per worker), a shard whose worker is lost being rebuilt and its evaluation
+        retried.
+    client : dask.distributed.Client, optional
+        The cluster of ``backend="dask"``.
+    planner_options : dict, optional
+        ``{"max_bytes": B}``: the planning memory budget of ``fit`` (and of FactIRL's
+        ``transfer``), per process (:mod:`factirl_opt.planning.budget`): above it the tasks are
+        planned, solved and released chunk by chunk, with the same result to rounding and more
+        factorisations. Shards in other processes or on Dask workers each get this budget.
+        None: no budget of the estimator's own (one set around the call with
+        ``factirl_opt.planning.planning_budget`` applies).
+
+    Attributes
+    ----------
+    weights_ : ndarray, shape (n, p)
+        Learnt parameters (tabular theta, p = S*A; state rewards, p = S; or feature weights,
+        also with per-task features, so a reward can be carried to another map).
+    rewards_ : ndarray, shape (n, S, A), or list of n arrays (S_i, A)
+        A list when the tasks' environments differ in their number of states; stacked
+        otherwise.
+    loss_ : ndarray, shape (n,)
+        Final loss of each task.
+    loss_history_ : list of float
+        Total loss (sum over tasks) before the first step and after each iteration.
+    n_evaluations_ : int
+        Batched planning evaluations used.
+    n_iter_ : int
+    status_ : str
+        ``"converged"``, ``"max_iter"``, ``"stalled"`` (the first iteration left the loss
+        unchanged, or no step decreased it; a :class:`ConvergenceWarning` is issued when it
+        stalls at its first step) or ``"interrupted"``.
+    stop_reason_ : str
+        Which stopping rule ended the fit, with its values (``"interrupted"`` after Ctrl-C).
+    mdp_signature_ : dict or list of dict
+        The signature of the MDP it was fitted on; with a sequence of MDPs (not all the same
+        object) one signature per task.
+    features_sha256_ : str or None
+        SHA-256 of the validated features (S*A, p) of the fit
+        (:func:`factirl_opt.learners.fitting.features_digest`); None without features and with
+        per-task features.
+
+    Notes
+    -----
+    A KeyboardInterrupt (Ctrl-C) during ``fit`` leaves the estimator fitted with each task's
+    best weights seen so far (``status_ == stop_reason_ == "interrupted"``, ``loss_`` their
+    loss, NaN for a task never evaluated), warns with :class:`InterruptedFitWarning`, and
+    propagates (as :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt).
+    """
+
+    #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
+    #: ``load_model`` what to check (factirl_opt.persistence.learnt): a tuple names the axes of a
+    #: finite float array (same name, same length; S, A of the MDP, p parameters), a string a kind.
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
+        "weights_": ("n", "p"), "rewards_": ("n", "S", "A"), "loss_": ("n",), "loss_history_": "history",
+        "n_evaluations_": "count", "n_iter_": "count", "status_": "text", "stop_reason_": "text",
+        "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
+    }
+
+    def __init__(self, beta: float = 5.0, features: Any = None, max_iter: int = 100, tol: float = 1e-5,
+                 solver: Any = "armijo", solver_options: dict | None = None, objective: Any = "policy-matching",
+                 planner: str = "auto", verbose: bool = False, callback: Callable | None = None,
+                 reward: str = "state-action", n_jobs: int | None = None, backend: str = "processes",
+                 client: Any = None, planner_options: dict | None = None) -> None:
+        self.beta = beta
+        self.features = features
+        self.reward = reward
+        self.max_iter = max_iter
+        self.tol = tol
+        self.solver = solver
+        self.solver_options = solver_options
+        self.objective = objective
+        self.planner = planner
+        self.verbose = verbose
+        self.callback = callback
+        self.n_jobs, self.backend, self.client = n_jobs, backend, client
+        self.planner_options = planner_options
+
+    @learner_entry
+    def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
+        """Learn one reward per task.
+
+        Parameters
+        ----------
+        mdp : TabularMDP or sequence of n TabularMDP
+            One MDP shared by every task, or one per task (tasks in several environments, with
+            the same number of actions; tasks given the same object are planned as one batch).
+            Several environments need ``features``: one shared matrix (equal-sized
+            environments) or one per task.
+        demos_per_task : list of n task demonstrations
+            Each an int array (m, L, 2) or a list of (L_j, 2) episodes, on its task's MDP.
+
+        Returns
+        -------
+        self
+        """
+        one = one_environment(mdp, demos_per_task, self.features)
+        if one is not None:
+            check_mdp(one)
+        loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
+        objective: Any
+        if one is None:
+            objective, envs = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta,
+                                                 self.objective, self.planner)
+            return self._run(objective, envs.features, loop, lambda res, obj: self._store_environments(envs, res, obj))
+        F = reward_features(one, self.features, self.reward)
+        objective = make_objective(one, demos_per_task, self.beta, self.objective, self.planner)
+        return self._run(objective, F, loop, lambda res, obj: self._store(one, F, res, obj))
+
+    def _run(self, objective, F, loop, store):
+        max_iter, tol = loop
+        solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
+        try:
+            with options_budget(self.planner_options), \
+                    sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
+                res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
+        except FitInterrupted as exc:
+            store(exc.result, objective)
+            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
+                                            f"after {self.n_iter_} iterations)")
+            raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
+        store(res, objective)
+        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
+        return self
+
+    def _store(self, mdp, F, res, objective):
+        self.weights_ = res.coefficients
+        self.rewards_ = weights_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
+        self._store_run(res, objective)
+        self.mdp_signature_ = mdp.signature()
+        self.features_sha256_ = None if self.features is None else features_digest(F)
+
+    def _store_environments(self, envs, res, objective):
+        self.weights_ = res.coefficients
+        self.rewards_ = envs.features.rewards(res.coefficients)
+        self._store_run(res, objective)
+        self.mdp_signature_ = environment_signatures(envs.mdps)
+        self.features_sha256_ = envs.digest
+
+    def _store_run(self, res, objective):
+        self.loss_ = res.loss
+        self.loss_history_ = res.loss_history
+        self.n_evaluations_ = int(objective.n_evaluations)
+        self.n_iter_ = res.iterations
+        self.status_ = res.status
+        self.stop_reason_ = INTERRUPTED if res.status == INTERRUPTED else res.reason
+
+    def __repr__(self) -> str:
+        features = "None" if self.features is None else np.shape(self.features)
+        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
+        return (f"GradIRL(beta={self.beta}, features={features}{reward}, max_iter={self.max_iter}, "
+                f"objective={self.objective!r})")

@@ -1,0 +1,171 @@
+"""The factorial learner's solver settings as one value.
+
+:class:`SolverSettings` holds the four settings of a :class:`~factirl_opt.FactIRL` fit that
+choose its step solvers: the H-step solver (per-task coefficients) and the D-step solver (the
+shared dictionary), each with its options (docs/maths.md §8). It is validated once, at
+construction, and then travels as one value through the experiment presets, the planned runs,
+the learner line-ups, the command line and the benchmarks; :meth:`SolverSettings.learner_kwargs`
+hands it to the learners as their keyword arguments ``h_solver``, ``h_solver_options``,
+``d_solver`` and ``d_solver_options``.
+
+Options are stored as canonical JSON (sorted keys, no spaces; ``""``: none), so settings are
+hashable, ordered, and compare equal exactly when they configure the same solvers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import solvers
+
+from ..exceptions import ValidationError, translate_solver_errors
+
+__all__ = ["SolverSettings", "decode_options"]
+
+
+def decode_options(text: str) -> dict[str, Any]:
+    """Solver options stored as canonical JSON (``""``: none), as a dict."""
+    return json.loads(text) if text else {}
+
+
+def _canonical_options(options: Mapping[str, Any] | str | None, field: str) -> str:
+    """``options`` (a dict, its JSON, or None) as canonical JSON; ``""`` for none."""
+    if options is None or options == "":
+        return ""
+    if isinstance(options, str):
+        try:
+            options = json.loads(options)
+        except ValueError:
+            raise ValidationError(f"{field} must be a dict or its JSON; got {options!r}") from None
+    if not isinstance(options, Mapping) or not all(isinstance(k, str) and k for k in options):
+        raise ValidationError(f"{field} must be a dict of option names to values; got {options!r}")
+    try:
+        return json.dumps(dict(options), sort_keys=True, separators=(",", ":")) if options else ""
+    except (TypeError, ValueError):
+        raise ValidationError(f"{field} must hold plain values (numbers, strings, booleans, lists); "
+                              f"got {options!r}") from None
+
+
+@dataclasses.dataclass(frozen=True, order=True)
+class SolverSettings:
+    """The H-step and D-step solvers of a factorial fit, with their options.
+
+    Parameters
+    ----------
+    h_solver : str
+        H-step solver: a name in ``solvers.available_solvers()`` (default ``"armijo"``).
+    h_solver_options : dict, str or None
+        Its options: a dict, or its JSON (None or ``""``: none).
+    d_solver : str or None
+        D-step solver, a registered name; None or ``""``: FactIRL's default D-step (then no
+        ``d_solver`` keyword is passed to the learner at all).
+    d_solver_options : dict, str or None
+        Its options; only with a named ``d_solver``.
+
+    Raises
+    ------
+    ValidationError
+        Naming the bad field: a name that is not a non-empty string, options that are not a
+        dict of plain values, options of the default D-step.
+    UnknownSolverError, SolverOptionError, MissingSolverBackendError
+        A name that is not registered, options the solver does not accept, a backend that is
+        not installed.
+
+    Examples
+    --------
+    >>> s = SolverSettings("gn-qp-osqp-sparse", {"alpha": 0.03}, d_solver="lbfgs")
+    >>> s.label()
+    'gn-qp-osqp-sparse {"alpha":0.03} | d: lbfgs'
+    >>> FactIRL(n_primitives=5, **s.learner_kwargs())  # doctest: +SKIP
+    """
+
+    h_solver: str = "armijo"
+    h_solver_options: Any = ""  # canonical JSON once constructed, as are the others
+    d_solver: Any = ""
+    d_solver_options: Any = ""
+
+    def __post_init__(self) -> None:
+        d_solver = "" if self.d_solver is None else self.d_solver
+        for field, name in (("h_solver", self.h_solver), ("d_solver", d_solver)):
+            if not isinstance(name, str) or (field == "h_solver" and not name):
+                raise ValidationError(f"{field} must be a registered solver name; got {name!r}")
+        for field in ("h_solver_options", "d_solver_options"):
+            object.__setattr__(self, field, _canonical_options(getattr(self, field), field))
+        object.__setattr__(self, "d_solver", d_solver)
+        if not d_solver and self.d_solver_options:
+            raise ValidationError("d_solver_options given without d_solver")
+        for name, options in ((self.h_solver, self.h_options), (d_solver, self.d_options)):
+            if name:
+                with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
+                    solvers.get_solver(name, **options)
+
+    @property
+    def h_options(self) -> dict[str, Any]:
+        """The H-step solver's options, a dict."""
+        return decode_options(self.h_solver_options)
+
+    @property
+    def d_options(self) -> dict[str, Any]:
+        """The D-step solver's options, a dict."""
+        return decode_options(self.d_solver_options)
+
+    def learner_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`~factirl_opt.FactIRL` for these settings.
+
+        ``h_solver`` always; ``h_solver_options`` when there are options; ``d_solver`` (and
+        ``d_solver_options``, when there are options) only when a D-step solver is named, so
+        the default settings build exactly ``FactIRL(h_solver="armijo")``.
+        """
+        kw: dict[str, Any] = {"h_solver": self.h_solver}
+        if self.h_solver_options:
+            kw["h_solver_options"] = self.h_options
+        if self.d_solver:
+            kw["d_solver"] = self.d_solver
+            if self.d_solver_options:
+                kw["d_solver_options"] = self.d_options
+        return kw
+
+    def with_overrides(self, h_solver: str | None = None, h_solver_options: Mapping[str, Any] | str | None = None,
+                       d_solver: str | None = None,
+                       d_solver_options: Mapping[str, Any] | str | None = None) -> SolverSettings:
+        """These settings with some replaced (the command line over a preset's).
+
+        A solver not named (None) stays, with the given options or else its own; a named
+        solver takes only the options given with it.
+        """
+        if h_solver is None:
+            h_solver = self.h_solver
+            h_solver_options = self.h_solver_options if h_solver_options is None else h_solver_options
+        if d_solver is None and self.d_solver:
+            d_solver = self.d_solver
+            d_solver_options = self.d_solver_options if d_solver_options is None else d_solver_options
+        return SolverSettings(h_solver, h_solver_options, d_solver, d_solver_options)
+
+    def label(self) -> str:
+        """A readable label: the H-step solver, then its options and the D-step solver when they
+        are not the defaults (e.g. ``gn-qp-osqp-sparse {"alpha":0.03} | d: lbfgs``)."""
+        label = " ".join(x for x in (self.h_solver, self.h_solver_options) if x)
+        if self.d_solver:
+            label += " | d: " + " ".join(x for x in (self.d_solver, self.d_solver_options) if x)
+        return label
+
+    def key_part(self) -> str:
+        """A stable file-name part: the H-step solver's name, and a short hash of the rest when
+        it is not the default (e.g. ``armijo`` or ``gn-qp-clarabel-1a2b3c4d``)."""
+        extra = (self.h_solver_options, self.d_solver, self.d_solver_options)
+        if not any(extra):
+            return self.h_solver
+        return f"{self.h_solver}-{hashlib.sha256(repr(extra).encode()).hexdigest()[:8]}"
+
+    def fields(self) -> dict[str, str]:
+        """The four settings as stored (names, options as canonical JSON)."""
+        return dataclasses.asdict(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The four settings as plain values: options as dicts, ``d_solver`` None for the default."""
+        return dict(h_solver=self.h_solver, h_solver_options=self.h_options, d_solver=self.d_solver or None,
+                    d_solver_options=self.d_options)

@@ -1,0 +1,227 @@
+"""Transfer: the coefficients of new tasks with a learnt dictionary fixed (paper section 4.2).
+
+With ``D`` fixed, each new task's reward is ``R_i = Phi D h_i`` and only ``h_i`` (k numbers)
+is fitted: a row-separable problem over the coefficients, the H-step of the factorial scheme
+run to convergence from ``h = 0`` (docs/maths.md §8). :func:`transfer_coefficients` validates
+and builds the objective; :func:`run_transfer` runs on pieces already built (``FactIRL.transfer``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import solvers
+
+from .._progress import fit_progress
+from .._validation import check_array, check_features, check_int, check_mdp, check_tol
+from ..exceptions import NotFittedError, ValidationError, translate_solver_errors
+from .fitting import (
+    environments_setup,
+    first_step_stall,
+    held_by_constraint,
+    learner_entry,
+    make_objective,
+    one_environment,
+    per_task_features,
+    resolve_step_solver,
+    reward_features,
+)
+from ..interruption import INTERRUPTED, FitInterrupted, run_keeping_best
+from ..objectives.problems import weights_problem
+from ..tasks.features import linear_rewards
+from ..tasks.features import TaskFeatures
+
+__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
+
+
+@dataclasses.dataclass
+class TransferFit:
+    """Result of :func:`transfer_coefficients`.
+
+    Attributes
+    ----------
+    coefficients : ndarray, shape (n_new, k)
+    rewards : ndarray, shape (n_new, S, A), or list of n_new arrays (S_i, A)
+        A list when the new tasks' environments differ in size.
+    loss : ndarray, shape (n_new,)
+        Per-task objective, without a solver's penalty.
+    loss_history : list of float
+        Total objective (with the penalty) at the start and after each step.
+    n_iter, n_evaluations : int
+    status : str
+        ``"converged"``, ``"max_iter"``, ``"stalled"`` or ``"interrupted"`` (a KeyboardInterrupt:
+        each task's best coefficients seen until then; loss NaN for a task never evaluated).
+    reason : str
+        Why the run stopped, with the values that met the rule.
+    """
+
+    coefficients: np.ndarray
+    rewards: np.ndarray
+    loss: np.ndarray
+    loss_history: list
+    n_iter: int
+    n_evaluations: int
+    status: str
+    reason: str = ""
+
+
+@learner_entry
+def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, *, beta: float = 5.0,
+                          base_features: ArrayLike | None = None, h_solver: Any = "armijo",
+                          h_solver_options: dict | None = None, max_iter: int = 100, tol: float = 1e-5,
+                          objective: Any = "policy-matching", planner: str = "auto", callback: Callable | None = None,
+                          verbose: bool = False, reward: str = "state-action") -> TransferFit:
+    """Coefficients of new tasks with the dictionary fixed (section 4.2).
+
+    Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
+    up to ``max_iter`` steps. Parameters as in :func:`factirl_opt.fit_factorial`;
+    ``dictionary`` is (p, k). ``mdp`` may be a sequence of one MDP per new task, with
+    ``base_features`` shared or one matrix per task (tasks in several environments).
+
+    Returns
+    -------
+    TransferFit
+
+    Raises
+    ------
+    FitInterrupted
+        A KeyboardInterrupt during the run; its ``result`` is the :class:`TransferFit` of each
+        task's best coefficients seen (status ``"interrupted"``).
+    """
+    one = one_environment(mdp, demos_per_task, base_features)
+    obj: Any
+    if one is None:
+        obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
+        Phi: Any = envs.features
+        D = check_features(dictionary, Phi.n_features, name="dictionary")
+    else:
+        Phi = reward_features(check_mdp(one), base_features, reward)
+        D = check_features(dictionary, one.n_params if Phi is None else Phi.shape[1], name="dictionary")
+    max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
+    if one is not None:
+        obj = make_objective(one, demos_per_task, beta, objective, planner)
+    solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
+    return run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
+
+
+def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
+                 base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
+                 verbose: bool = False) -> TransferFit:
+    """:func:`transfer_coefficients` on pieces already built and validated.
+
+    Parameters
+    ----------
+    objective : Objective
+        Bound to the new tasks' statistics.
+    dictionary : ndarray, shape (p, k)
+    solver : solvers.StepSolver
+        Resolved and checked.
+    base_features : ndarray, shape (S*A, p), StateBroadcast or TaskFeatures, optional
+        TaskFeatures for new tasks in several environments (``objective`` then a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
+    max_iter, tol, callback, verbose
+        As in :func:`transfer_coefficients`.
+
+    Returns
+    -------
+    TransferFit
+    """
+    mdp = objective.mdp
+    F: Any
+    if isinstance(base_features, TaskFeatures):
+        F = base_features.times(dictionary)
+    else:
+        F = dictionary if base_features is None else base_features @ dictionary
+    names = ("dictionary" if base_features is None else "features @ dictionary", "coefficients")
+    problem = weights_problem(objective, F, names)
+    ev0 = objective.n_evaluations
+    x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
+        try:
+            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol)
+        except FitInterrupted as exc:
+            raise FitInterrupted(_transfer_fit(mdp, F, solver, exc.result, objective.n_evaluations - ev0, names),
+                                 "transfer") from exc.__cause__
+    return _transfer_fit(mdp, F, solver, res, objective.n_evaluations - ev0, names)
+
+
+def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
+    if isinstance(F, TaskFeatures):
+        rewards = F.rewards(res.coefficients)
+    else:
+        rewards = linear_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions, names)
+    loss = res.loss - solver.penalty(res.coefficients)
+    status, reason = res.status, res.reason
+    if status != INTERRUPTED:
+        status, reason = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res)) or (status, reason)
+    return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status,
+                       reason)
+
+
+def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, model: Any, beta: float,
+                                objective: Any = "policy-matching",
+                                planner: Any = "auto") -> tuple[Any, TaskFeatures, NDArray[np.float64]] | None:
+    """Objective, features and dictionary of new tasks in their own environments, checked against a model.
+
+    Parameters
+    ----------
+    mdp : TabularMDP or sequence of n_new TabularMDP
+    demos_per_task : list of n_new task demonstrations
+    features : array_like or sequence of n_new array_like, or None
+        The new tasks' features: one shared matrix or one (S_i*A, p) or (S_i, p) per task;
+        None: the model's own shared features.
+    model : FactIRL
+        Fitted: its ``features``, ``dictionary_`` (p, k), ``mdp_signature_`` (one dict, a list
+        of one per task, or None) and ``features_sha256_`` are read.
+    beta, objective, planner
+        The model's.
+
+    Returns
+    -------
+    (objective, features, dictionary) or None
+        A :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`, the
+        :class:`TaskFeatures` and the validated dictionary; None when the new tasks share one
+        MDP object and no features are given (the one-MDP path, whose signature is checked).
+
+    Raises
+    ------
+    NotFittedError
+        The model has no dictionary.
+    ValidationError
+        Features missing for a model fitted with per-task features, given to a tabular model,
+        with another p than the dictionary's, environments with another number of actions than
+        the model's, the model's shared features changed since ``fit``, or as
+        :func:`factirl_opt.learners.fitting.environments_setup` does.
+    """
+    fitted = model.features
+    per_task = per_task_features(fitted)
+    if features is None and not per_task and one_environment(mdp, demos_per_task, None) is not None:
+        return None
+    if not hasattr(model, "dictionary_"):
+        raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
+    if fitted is None:
+        raise ValidationError("this FactIRL model was fitted without features (tabular rewards): its dictionary lives "
+                              "on the states of its MDP, so it transfers only to that MDP, without features")
+    if features is None and per_task:
+        raise ValidationError("this FactIRL model was fitted with one feature matrix per task: transfer to new "
+                              "environments needs their features (features=[one (S_i*A, p) or (S_i, p) per new task])")
+    D = check_array(model.dictionary_, "dictionary_", ndim=2)
+    obj, envs = environments_setup(mdp, demos_per_task, fitted if features is None else features, "state-action", beta,
+                                   objective, planner)
+    if envs.features.n_features != D.shape[0]:
+        raise ValidationError(f"the new tasks' features have p = {envs.features.n_features} columns, but the dictionary "
+                              f"is over p = {D.shape[0]} features: give features with the columns of fit")
+    sig = getattr(model, "mdp_signature_", None)
+    n_actions = sig["n_actions"] if isinstance(sig, dict) else sig[0]["n_actions"] if sig else None
+    if n_actions is not None and obj.n_actions != n_actions:
+        raise ValidationError(f"the new tasks' environments have {obj.n_actions} actions, but the model was fitted with "
+                              f"{n_actions}")
+    expected = getattr(model, "features_sha256_", envs.digest)
+    if features is None and expected != envs.digest:
+        raise ValidationError(f"this FactIRL model was fitted with other features than the ones set now (sha256 "
+                              f"{str(envs.digest)[:12]}... instead of {str(expected)[:12]}...): restore them or fit again")
+    return obj, envs.features, D
