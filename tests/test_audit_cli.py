@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt import cli
+from factirl_opt.lab import cli
 from factirl_opt.lab.experiments import runner
 from factirl_opt.lab.experiments.workers import Terminated
 

@@ -11,7 +11,7 @@ import pytest
 import scipy.sparse as sp
 
 import factirl_opt as fo
-from factirl_opt import mdp as mdp_module
+from factirl_opt.mdp import tabular as mdp_module
 from factirl_opt import planning
 from factirl_opt.exceptions import FactIRLError, ValidationError
 

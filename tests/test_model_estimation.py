@@ -6,7 +6,7 @@ import pytest
 import scipy.sparse as sp
 
 import factirl_opt as fo
-from factirl_opt import model_estimation
+from factirl_opt.mdp import estimation as model_estimation
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.mdp.estimation import (
     as_transitions,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt import parallel
+from factirl_opt.parallel import shards as parallel
 from factirl_opt.exceptions import FactIRLError, ValidationError
 from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
 from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares

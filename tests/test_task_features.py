@@ -7,8 +7,7 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
-from factirl_opt.tasks.features import task_rewards
-from factirl_opt.tasks.features import TaskFeatures
+from factirl_opt.tasks.features import TaskFeatures, task_rewards
 
 
 @pytest.fixture

@@ -22,8 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._validation import as_rng, check_array, check_int
 from ..exceptions import ValidationError
 from ..interruption import FitInterrupted
-from ..tasks.features import StateBroadcast
-from ..tasks.features import TaskFeatures
+from ..tasks.features import StateBroadcast, TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
            "check_dictionary_norms", "PCA_MAX_HALVINGS"]

@@ -32,7 +32,7 @@ from .dictionary import (
 )
 from ..exceptions import NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
-from ..tasks.features import factorial_rewards
+from ..tasks.features import TaskFeatures, factorial_rewards
 from .fitting import (
     Environments,
     check_features_digest,
@@ -52,7 +52,6 @@ from ..interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
-from ..tasks.features import TaskFeatures
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",

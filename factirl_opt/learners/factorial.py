@@ -35,10 +35,9 @@ from .fitting import (
 )
 from ..interruption import INTERRUPTED, FitInterrupted
 from ..objectives.problems import dictionary_problem, weights_problem
-from ..tasks.features import linear_rewards
-from ..tasks.features import TaskFeatures
+from ..tasks.features import TaskFeatures, factorial_rewards
 
-__all__ = ["fit_factorial", "run_factorial", "FactorialFit", "factorial_rewards", "GTOL"]
+__all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
 
 #: default gradient-norm tolerance of :func:`fit_factorial` (relative to the start; see its docstring)
 GTOL = 1e-4

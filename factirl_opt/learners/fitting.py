@@ -37,8 +37,7 @@ from ..objectives import Objective, get_objective
 from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
 from ..mdp.environments import check_environments
 from ..planning.cache import isolated_planning
-from ..tasks.features import StateBroadcast
-from ..tasks.features import TaskFeatures
+from ..tasks.features import StateBroadcast, TaskFeatures
 
 __all__ = [
     "make_objective",

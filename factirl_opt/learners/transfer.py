@@ -32,8 +32,7 @@ from .fitting import (
 )
 from ..interruption import INTERRUPTED, FitInterrupted, run_keeping_best
 from ..objectives.problems import weights_problem
-from ..tasks.features import linear_rewards
-from ..tasks.features import TaskFeatures
+from ..tasks.features import TaskFeatures, linear_rewards
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
 

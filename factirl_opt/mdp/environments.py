@@ -27,9 +27,9 @@ from collections.abc import Callable, Sequence
 from typing import Any, TypeGuard
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from .._validation import check_array, check_rewards
+from .._validation import check_rewards
 from ..exceptions import FactIRLError, ValidationError
 from .tabular import TabularMDP
 

@@ -127,7 +127,6 @@ def successor_lists(P: sp.csr_matrix, n_states: int, n_actions: int,
         Successors in increasing state order, numbered from ``index_base``.
     sa_p : ndarray of float64, shape (S, A, K)
     """
-    P = mdp.csr()
     nnz = np.diff(P.indptr)
     K = max(int(nnz.max()), 1)
     pos = np.arange(K)[None, :]

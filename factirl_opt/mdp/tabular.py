@@ -18,9 +18,8 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-from numpy.typing import NDArray
 
 from .._validation import check_int, check_probability, check_real, check_real_dtype
 from ..exceptions import ValidationError

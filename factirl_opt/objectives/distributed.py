@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from solvers import Linearization
 
-from ..parallel.shards import Shards, contiguous_shards, effective_n_jobs
+from ..parallel.shards import Shards, contiguous_shards
 from ..planning.budget import budget_options
 from ._base import Objective
 

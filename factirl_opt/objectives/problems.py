@@ -26,11 +26,9 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
-from ..exceptions import ValidationError
-from ..tasks.features import task_rewards
-from ..tasks.features import TaskFeatures
+from ..tasks.features import StateBroadcast, TaskFeatures, dense_features, linear_rewards
 
-__all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem", "StateBroadcast", "linear_rewards", "dense_features"]
+__all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem"]
 
 
 def effective_dictionary(x: np.ndarray, p: int, k: int, unit_norm: bool) -> tuple[np.ndarray, np.ndarray]:

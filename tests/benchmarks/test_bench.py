@@ -10,10 +10,10 @@ import math
 
 import pytest
 
-from factirl_opt import bench
-from factirl_opt.lab.benchmarks import BENCHMARKS, add_option, resolve_settings
-from factirl_opt.lab.benchmarks import fit as fit_bench
-from factirl_opt.lab.benchmarks import solvers as solvers_bench
+from factirl_opt.lab import bench
+from factirl_opt.lab.benchmarks import (
+    BENCHMARKS, add_option, fit as fit_bench, resolve_settings, solvers as solvers_bench,
+)
 from factirl_opt.lab.cli import main as cli_main
 
 FIT_ENTRY = {"time_s", "n_evaluations", "n_linear_solves", "n_iter", "status", "final_loss", "mean_train_deviation"}

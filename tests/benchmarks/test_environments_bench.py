@@ -2,7 +2,7 @@
 
 import json
 
-from factirl_opt import bench
+from factirl_opt.lab import bench
 from factirl_opt.lab.benchmarks import environments as env_bench
 
 

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from factirl_opt import bench
+from factirl_opt.lab import bench
 from factirl_opt.lab.benchmarks import BENCHMARKS, scale, scale_evaluations, scale_jobs
 from factirl_opt.exceptions import MissingDependencyError, ValidationError
 from factirl_opt.objectives import distributed

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt import bench
+from factirl_opt.lab import bench
 from factirl_opt.lab.benchmarks import unlabeled
 
 

@@ -8,8 +8,9 @@ import pytest
 
 from factirl_opt import FactIRL, SolverSettings
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
-from factirl_opt.lab.experiments import LINEUPS, PRESETS, WORLDS, Learner, Lineup, Preset, RunSpec, plan_runs, run_one
-from factirl_opt.lab.experiments import learners as learners_mod
+from factirl_opt.lab.experiments import (
+    LINEUPS, Learner, Lineup, PRESETS, Preset, RunSpec, WORLDS, learners as learners_mod, plan_runs, run_one,
+)
 from factirl_opt.lab.experiments.learners import Fit, factorial_options, flat
 from factirl_opt.lab.experiments.presets import LATER_FIELDS
 from factirl_opt.lab.experiments.worlds import grid_world

@@ -9,18 +9,9 @@ import pytest
 from factirl_opt import SolverSettings
 from factirl_opt.exceptions import PersistenceError, UnknownSolverError, ValidationError
 from factirl_opt.lab.experiments import (
-    PRESETS,
-    TEST_LEARNERS,
-    TRAIN_LEARNERS,
-    Preset,
-    get_preset,
-    make_ground_truth,
-    plan_runs,
-    read_csv,
-    run_one,
-    run_sweep,
+    PRESETS, Preset, TEST_LEARNERS, TRAIN_LEARNERS, get_preset, make_ground_truth, plan_runs, read_csv, run_one,
+    run_sweep, runner as runner_mod,
 )
-from factirl_opt.lab.experiments import runner as runner_mod
 from factirl_opt.lab.experiments.figures import plot_all
 from factirl_opt.lab.experiments.store import RejectedRunWarning
 

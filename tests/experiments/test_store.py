@@ -9,9 +9,7 @@ import warnings
 
 import pytest
 
-from factirl_opt.lab.experiments import PRESETS, LINEUPS, run_sweep
-from factirl_opt.lab.experiments import runner as runner_mod
-from factirl_opt.lab.experiments import store
+from factirl_opt.lab.experiments import LINEUPS, PRESETS, run_sweep, runner as runner_mod, store
 from factirl_opt.lab.experiments.learners import Learner, Lineup
 
 TABLES = ("results.csv", "summary.csv")

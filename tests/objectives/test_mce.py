@@ -14,8 +14,7 @@ import scipy.sparse as sp
 
 import factirl_opt as fo
 from factirl_opt.exceptions import FactIRLError, ValidationError
-from factirl_opt.objectives import MCEObjective, get_objective, soft_values
-from factirl_opt.objectives import mce as mce_module
+from factirl_opt.objectives import MCEObjective, get_objective, mce as mce_module, soft_values
 from factirl_opt.planning import DensePlanner, get_planner
 from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 

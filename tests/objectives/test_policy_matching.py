@@ -6,7 +6,7 @@ step 1e-6 stays on one policy.
 """
 
 import numpy as np
-from helpers import central_difference, rel_err
+from helpers import central_difference, greedy_gap, rel_err
 import pytest
 
 import factirl_opt as fo
@@ -14,7 +14,6 @@ from factirl_opt.exceptions import ValidationError
 from factirl_opt.objectives import PolicyMatchingObjective, dq_dtheta
 from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 
-from helpers import greedy_gap
 
 EPS = 1e-6
 BETA = 5.0

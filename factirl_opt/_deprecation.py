@@ -1,0 +1,94 @@
+"""Deprecated aliases of names and modules that moved when the package was cut into layers.
+
+Two kinds, both kept for one release and both warning once (a :class:`FutureWarning`, shown
+to users by default):
+
+- a former top-level name (``fo.ObjectWorld``) resolves to the object in its new namespace
+  (:func:`moved_attribute`, called by the package's ``__getattr__``);
+- a former module path (``factirl_opt.gradirl``) imports the module at its new path
+  (:func:`install_module_aliases`: a finder on :data:`sys.meta_path` that hands the import
+  system the module itself, so both paths name one module object and its state is shared).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.abc
+import importlib.machinery
+import sys
+import threading
+import warnings
+from collections.abc import Mapping, Sequence
+from types import ModuleType
+from typing import Any
+
+__all__ = ["moved_attribute", "install_module_aliases", "warn_once"]
+
+_warned: set[str] = set()
+_lock = threading.Lock()
+
+
+def warn_once(key: str, message: str, stacklevel: int = 3) -> None:
+    """Emit ``message`` as a :class:`FutureWarning` the first time ``key`` is seen in this process."""
+    with _lock:
+        if key in _warned:
+            return
+        _warned.add(key)
+    warnings.warn(message, FutureWarning, stacklevel=stacklevel)
+
+
+def moved_attribute(name: str, module: str, namespace: str) -> Any:
+    """The object ``name`` of ``module``, with a one-time warning that it now lives in ``namespace``."""
+    value = getattr(importlib.import_module(module), name)
+    warn_once(f"name:{name}", f"factirl_opt.{name} moved to {namespace}.{name}; the top-level alias will be removed "
+                              "in the next release", stacklevel=4)
+    return value
+
+
+class _AliasLoader(importlib.abc.Loader):
+    def __init__(self, target: str) -> None:
+        self.target = target
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}; the old path will be removed "
+                                         "in the next release", stacklevel=8)
+        return importlib.import_module(self.target)
+
+    def exec_module(self, module: ModuleType) -> None:  # already executed under its new name
+        pass
+
+
+class _AliasFinder(importlib.abc.MetaPathFinder):
+    def __init__(self, package: str, moves: Mapping[str, str]) -> None:
+        self.package = package
+        self.moves = dict(moves)
+
+    def target(self, fullname: str) -> str | None:
+        """The new path of a former module path (a moved package maps its children), or None."""
+        prefix = self.package + "."
+        if not fullname.startswith(prefix):
+            return None
+        parts = fullname[len(prefix):].split(".")
+        for i in range(len(parts), 0, -1):
+            head = ".".join(parts[:i])
+            if head in self.moves:
+                return ".".join([self.package, self.moves[head], *parts[i:]])
+        return None
+
+    def find_spec(self, fullname: str, path: Sequence[str] | None = None,
+                  target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
+        new = self.target(fullname)
+        if new is None or new == fullname:
+            return None
+        return importlib.machinery.ModuleSpec(fullname, _AliasLoader(new))
+
+
+def install_module_aliases(package: str, moves: Mapping[str, str]) -> None:
+    """Let the former module paths ``package.<old>`` import ``package.<new>`` (``moves``: old -> new).
+
+    Installed once per process, first on :data:`sys.meta_path` (so that the children of a
+    moved package resolve through it too); it answers only for the former paths in ``moves``,
+    none of which exists any more.
+    """
+    if not any(isinstance(f, _AliasFinder) and f.package == package for f in sys.meta_path):
+        sys.meta_path.insert(0, _AliasFinder(package, moves))
