@@ -53,7 +53,7 @@ from .persistence import load_demonstrations, load_model, save_demonstrations, s
 from .planning import available_planners, boltzmann_policy, optimal_q, policy_evaluation, value_iteration
 from .tasks import demonstrations_from_trajectories, empirical_statistics, feature_rewards, sample_demonstrations, task_rewards
 
-__version__ = "0.1.0"
+from ._version import __version__
 
 __all__ = [
     # models

@@ -32,7 +32,7 @@ Target = str | os.PathLike | IO[bytes]
 
 
 def library_version() -> str:
-    from .. import __version__
+    from .._version import __version__
 
     return __version__
 

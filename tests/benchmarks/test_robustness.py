@@ -12,7 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from factirl_opt import GridWorld, bench, estimate_mdp, sample_transitions
+from factirl_opt import GridWorld, estimate_mdp
+from factirl_opt.lab import bench
+from factirl_opt.mdp import sample_transitions
 from factirl_opt.lab.benchmarks import robustness as rb
 from factirl_opt.exceptions import ValidationError
 

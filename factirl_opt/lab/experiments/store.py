@@ -81,16 +81,17 @@ __all__ = [
 RECORD_FORMAT = 2
 #: source files (relative to the repository root) that cannot change a run's numbers
 STAMP_EXCLUDED = (
-    "factirl_opt/cli.py",
-    "factirl_opt/bench.py",
-    "factirl_opt/benchmarks/",
-    "factirl_opt/experiments/tables.py",
-    "factirl_opt/experiments/claims.py",
-    "factirl_opt/experiments/figures.py",
-    "factirl_opt/experiments/store.py",
-    "factirl_opt/experiments/workers.py",
+    "factirl_opt/lab/cli.py",
+    "factirl_opt/lab/bench.py",
+    "factirl_opt/lab/benchmarks/",
+    "factirl_opt/lab/experiments/tables.py",
+    "factirl_opt/lab/experiments/claims.py",
+    "factirl_opt/lab/experiments/figures.py",
+    "factirl_opt/lab/experiments/store.py",
+    "factirl_opt/lab/experiments/workers.py",
     "factirl_opt/persistence/",
-    "factirl_opt/gym_adapter.py",
+    "factirl_opt/adapters/gymnasium.py",
+    "factirl_opt/_deprecation.py",
 )
 LOCK_NAME = ".lock"
 
