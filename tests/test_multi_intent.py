@@ -8,7 +8,7 @@ from scipy.special import logsumexp
 import factirl_opt as fo
 from factirl_opt.learners.em import e_step, episode_counts, kmeans, kmeans_plus_plus, log_policies, weighted_statistics
 from factirl_opt.learners.multi_intent_fit import WeightedObjective
-from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
+from factirl_opt.objectives import MCEObjective, Objective, PolicyMatchingObjective
 from factirl_opt.planning import get_planner
 
 
@@ -238,9 +238,10 @@ def test_wrong_mdp_and_non_policy_objective():
     with pytest.raises(fo.ValidationError, match="state"):  # episodes of a larger MDP
         fo.MultiIntentIRL(1).fit(fo.GridWorld(2), np.concatenate(demos))
 
-    class Other(MCEObjective):
+    class Other(Objective):  # an objective with no policy model (no log_policy)
         name = "other"
 
+    assert not Other.models_policy() and MCEObjective.models_policy()
     with pytest.raises(fo.ValidationError, match="scores"):
         fo.MultiIntentIRL(2, objective=Other).fit(fo.GridWorld(4), np.concatenate(demos))
 

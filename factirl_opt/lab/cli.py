@@ -29,6 +29,7 @@ from typing import Any
 
 from .._validation import check_int
 from ..exceptions import FactIRLError, ValidationError
+from ..parallel import BACKENDS
 
 __all__ = ["main", "build_parser", "parse_solver_options"]
 
@@ -142,7 +143,7 @@ def _add_reproduce(sub):
                      help="step solver of every GradIRL fit (the flat learners, tabular and on features), any name in "
                      "solvers.available_solvers(); "
                      "a solver other than the preset's changes the runs' keys (default: the preset's)")
-    rep.add_argument("--backend", default="processes", choices=["processes", "dask", "loky"],
+    rep.add_argument("--backend", default="processes", choices=[*BACKENDS, "loky"],
                      help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
                      "name of 'processes' (default: processes)")
     rep.add_argument("--scheduler", default=None, metavar="ADDRESS",

@@ -4,9 +4,10 @@ Plain functions over arrays behind :class:`factirl_opt.learners.multi_intent.Mul
 (Babes-Vroman et al. 2011). ``n`` episodes, ``K`` intentions, episodes on the leading axis:
 
 - :func:`episode_counts`: each episode's (state, action) counts, a sparse (n, S*A) matrix;
-- :func:`log_policies`: each intention's action log-probabilities, the Boltzmann policy of
-  ``Q*`` (policy matching, eq. 7; docs/maths.md §2) or the soft-optimal policy of the soft
-  Bellman equation (maximum causal entropy, docs/maths.md §6), in log space;
+- :func:`log_policies`: each intention's action log-probabilities under the policy its
+  objective models (:meth:`~factirl_opt.objectives.Objective.log_policy`: the Boltzmann
+  policy of ``Q*`` for policy matching, eq. 7; the soft-optimal policy for maximum causal
+  entropy, docs/maths.md §6), in log space;
 - :func:`e_step`: the episodes' log-likelihoods under each intention, the responsibilities and
   the total log-likelihood, by log-sum-exp;
 - :func:`weighted_statistics`: the responsibility-weighted empirical statistics (the hats of
@@ -27,19 +28,15 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.special import log_softmax, logsumexp
+from scipy.special import logsumexp
 
-from ..objectives import soft_values
-from ..planning import plan
+from ..objectives import Objective, get_objective
 
 __all__ = ["episode_counts", "log_policies", "e_step", "weighted_statistics", "kmeans", "kmeans_plus_plus",
-           "agreement_clustering", "POLICY_OBJECTIVES", "DISAGREEMENT_PENALTY"]
+           "agreement_clustering", "DISAGREEMENT_PENALTY"]
 
 #: weight of a state where two episodes take different actions against one where they take the same
 DISAGREEMENT_PENALTY = 3.0
-
-#: the objectives whose policy scores an episode: policy matching's Boltzmann policy of Q*, MCE's soft-optimal one
-POLICY_OBJECTIVES = ("policy-matching", "mce")
 
 
 def episode_counts(steps: NDArray[np.int64], lengths: NDArray[np.int64], n_states: int,
@@ -65,17 +62,17 @@ def episode_counts(steps: NDArray[np.int64], lengths: NDArray[np.int64], n_state
     return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n_states * n_actions))
 
 
-def log_policies(planner: Any, rewards: NDArray[np.float64], beta: float, objective: str) -> NDArray[np.float64]:
+def log_policies(planner: Any, rewards: NDArray[np.float64], beta: float,
+                 objective: str | type[Objective]) -> NDArray[np.float64]:
     """Action log-probabilities ``log pi_c(a|s)`` (K, S, A) of each intention's rewards (K, S, A).
 
-    ``"policy-matching"``: the Boltzmann policy of the optimal ``Q*``,
-    ``log pi = beta Q* - log sum_a exp(beta Q*)`` (eq. 7); ``"mce"``: the soft-optimal policy
-    ``beta (Q - V)`` of the soft Bellman equation (docs/maths.md §6). Both stay finite for any
-    finite rewards (no ``log(exp(.))``).
+    The policy the objective models (:meth:`~factirl_opt.objectives.Objective.log_policy`):
+    for ``"policy-matching"`` the Boltzmann policy of the optimal ``Q*``,
+    ``log pi = beta Q* - log sum_a exp(beta Q*)`` (eq. 7); for ``"mce"`` the soft-optimal
+    policy ``beta (Q - V)`` of the soft Bellman equation (docs/maths.md §6). Both stay finite
+    for any finite rewards (no ``log(exp(.))``).
     """
-    if objective == "mce":
-        return soft_values(planner, rewards, beta)[2]
-    return log_softmax(beta * plan(planner, rewards).Q, axis=2)
+    return (get_objective(objective) if isinstance(objective, str) else objective).log_policy(planner, rewards, beta)
 
 
 def e_step(counts: Any, log_pi: NDArray[np.float64],

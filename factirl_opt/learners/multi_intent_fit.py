@@ -23,14 +23,14 @@ import solvers
 
 from .._validation import check_beta, check_int, check_tol
 from .dictionary import feature_weights, pca_dictionary, shrink_coefficients
-from .em import POLICY_OBJECTIVES, agreement_clustering, e_step, episode_counts, kmeans, log_policies, weighted_statistics
+from .em import agreement_clustering, e_step, episode_counts, kmeans, log_policies, weighted_statistics
 from ..exceptions import ValidationError, translate_solver_errors
 from .factorial import GTOL, run_factorial
 from ..tasks.features import factorial_rewards
 from .fitting import resolve_step_solver, reward_features
 from .gradirl import weights_rewards
 from ..interruption import run_keeping_best
-from ..objectives import get_objective
+from ..objectives import available_objectives, get_objective
 from ..planning import get_planner
 from ..objectives.problems import weights_problem
 
@@ -120,8 +120,9 @@ class EMSettings:
     def build(cls, est: Any, mdp: Any, K: int) -> EMSettings:
         """Validate the hyper-parameters of ``est`` (a MultiIntentIRL) for ``mdp`` and K intentions."""
         objective = get_objective(est.objective)
-        if objective.name not in POLICY_OBJECTIVES:
-            raise ValidationError(f"objective must be one of {', '.join(map(repr, POLICY_OBJECTIVES))} (its policy scores "
+        if not objective.models_policy():
+            with_policy = [name for name in available_objectives() if get_objective(name).models_policy()]
+            raise ValidationError(f"objective must be one of {', '.join(map(repr, with_policy))} (its policy scores "
                                   f"the episodes in the E-step); got {est.objective!r}")
         Phi = reward_features(mdp, est.features, est.reward)
         p = mdp.n_params if Phi is None else Phi.shape[1]
@@ -235,7 +236,7 @@ def run_em(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], setti
     converged = False
     for it in range(1, settings.max_iter + 1):
         params, R, mix = _m_step(mdp, counts, resp, settings, params, rng)
-        _, resp, ll = e_step(counts, log_policies(settings.planner, R, settings.beta, settings.objective_name), mix)
+        _, resp, ll = e_step(counts, log_policies(settings.planner, R, settings.beta, settings.objective), mix)
         history.append(ll)
         if best is None or ll > best[0]:
             best = (ll, R, params, resp, mix)
@@ -279,7 +280,7 @@ def episode_log_likelihoods(mdp: Any, steps: NDArray[np.int64], lengths: NDArray
     terms are those of :func:`factirl_opt.learners.em.e_step`.
     """
     counts = episode_counts(steps, lengths, mdp.n_states, mdp.n_actions)
-    log_pi = log_policies(settings.planner, run.rewards, settings.beta, settings.objective_name)
+    log_pi = log_policies(settings.planner, run.rewards, settings.beta, settings.objective)
     L = e_step(counts, log_pi, run.mixture_weights)[0]
     with np.errstate(divide="ignore"):
         return logsumexp(L + np.log(run.mixture_weights)[None, :], axis=1)

@@ -60,6 +60,26 @@ class Objective:
     #: whether the loss is ``||residual||^2`` per task (Gauss-Newton solvers apply)
     least_squares = False
 
+    @classmethod
+    def log_policy(cls, planner, rewards, beta):
+        """Action log-probabilities ``log pi(a|s)`` (n, S, A) of the policy this objective models.
+
+        The policy whose fit to the demonstrations the objective measures, as a function of the
+        rewards (n, S, A) on the planner's MDP; finite for any finite rewards. Multi-intent EM
+        scores episodes with it (:func:`factirl_opt.learners.em.log_policies`).
+
+        Raises
+        ------
+        ValidationError
+            For an objective that models no policy (see :meth:`models_policy`).
+        """
+        raise ValidationError(f"the objective {cls.name!r} models no policy of the rewards (it defines no log_policy)")
+
+    @classmethod
+    def models_policy(cls):
+        """Whether the objective defines :meth:`log_policy` (a policy model that can score episodes)."""
+        return cls.log_policy.__func__ is not Objective.log_policy.__func__
+
     def __init__(self, mdp, mu_hat, pi_hat, beta, planner="auto", planner_options=None):
         self.mdp = check_mdp(mdp)
         self.max_bytes = check_planner_options(planner_options)["max_bytes"]

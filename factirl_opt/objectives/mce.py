@@ -203,6 +203,11 @@ class MCEObjective(Objective):
     name = "mce"
     least_squares = False
 
+    @classmethod
+    def log_policy(cls, planner, rewards, beta):
+        """The soft-optimal policy ``beta (Q - V)`` of the soft Bellman equation (docs/maths.md §6), (n, S, A)."""
+        return soft_values(planner, rewards, beta)[2]
+
     def _forward(self, R, rows, warm):
         return _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
 

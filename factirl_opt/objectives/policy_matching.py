@@ -16,6 +16,7 @@ that the tests and the benchmark compare the adjoint with.
 """
 
 import numpy as np
+from scipy.special import log_softmax
 
 from .._threads import blas_limited
 from .._validation import check_beta, check_features, check_mdp, check_policy, check_rewards, check_statistics
@@ -104,6 +105,11 @@ class PolicyMatchingObjective(Objective):
 
     name = "policy-matching"
     least_squares = True
+
+    @classmethod
+    def log_policy(cls, planner, rewards, beta):
+        """``log pi = beta Q* - log sum_a exp(beta Q*)``, the Boltzmann policy of the optimal ``Q*`` (eq. 7), (n, S, A)."""
+        return log_softmax(beta * plan(planner, rewards).Q, axis=2)
 
     def _forward(self, R, rows, warm):
         return forward_point(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)

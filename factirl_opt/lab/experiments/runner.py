@@ -46,6 +46,7 @@ import numpy as np
 from ..._threads import limit_blas_threads
 from ..._validation import check_int
 from ...evaluation import deviation
+from ...parallel import BACKENDS  # how shards and sweep runs are served (``"loky"`` is the former name of ``"processes"``)
 from ...exceptions import PersistenceError, ValidationError
 from ...files import os_error
 from ...planning import optimal_q
@@ -60,13 +61,11 @@ from .tables import write_tables
 from .workers import imap_unordered, sigterm_raises
 from .worlds import make_ground_truth
 
-__all__ = ["RunSpec", "SweepPlan", "Execution", "BACKENDS", "DERIVED_OUTPUTS", "SolverSubstitutionWarning",
+__all__ = ["RunSpec", "SweepPlan", "Execution", "DERIVED_OUTPUTS", "SolverSubstitutionWarning",
            "plan_sweep", "plan_runs", "run_cost", "run_one", "run_plan", "run_sweep"]
 
 #: test tasks whose value functions figure 3 shows
 N_FIGURE3_TASKS = 4
-#: execution backends (``"loky"`` is accepted as the former name of ``"processes"``)
-BACKENDS = ("processes", "dask")
 #: files drawn from the tables (relative to the output directory): removed when a sweep rewrites them
 DERIVED_OUTPUTS = (CLAIMS_FILE, *(os.path.relpath(path, "OUT") for path in figure_files("OUT")))
 
