@@ -54,6 +54,7 @@ Every public name is importable from ``factirl_opt.datasets.objectworld`` (and t
 """
 
 from .features import objectworld_distances, objectworld_features
+from .maps import ObjectWorldMaps, block_cells, fresh_maps, objectworld_maps
 from .plotting import plot_objectworld
 from .rewards import ELIRL_RADIUS, ELIRL_SCALE, levine_reward, multitask_primitives, multitask_rewards, state_action_rewards
 from .world import ACTIONS, MOVES, N_ACTIONS, ObjectWorld, make_objectworld, objectworld_transitions
@@ -71,4 +72,8 @@ __all__ = [
     "multitask_rewards",
     "state_action_rewards",
     "plot_objectworld",
+    "ObjectWorldMaps",
+    "objectworld_maps",
+    "fresh_maps",
+    "block_cells",
 ]

@@ -27,7 +27,9 @@ from numpy.typing import ArrayLike, NDArray
 from ..._validation import as_rng, check_array, check_bool, check_int
 from ...exceptions import ValidationError
 from ...mdp.tabular import TabularMDP
-from . import ObjectWorld, make_objectworld, multitask_primitives, multitask_rewards, objectworld_features
+from .features import objectworld_features
+from .rewards import multitask_primitives, multitask_rewards
+from .world import ObjectWorld, make_objectworld
 
 __all__ = ["ObjectWorldMaps", "objectworld_maps", "fresh_maps", "block_cells"]
 
