@@ -37,6 +37,9 @@ From the command line::
     factirl-opt plot runs/quick
 """
 
+from .babyai_figure import babyai_figure_data, plot_babyai_layout
+from .claims import claims_markdown, evaluate_claims, write_claims
+from .figures import plot_all, plot_sweeps, plot_value_functions
 from .learners import LINEUPS, Learner, Lineup, get_lineup
 from .presets import PRESETS, Preset, get_preset
 from .runner import Execution, RunSpec, SweepPlan, plan_runs, plan_sweep, run_one, run_plan, run_sweep
@@ -70,4 +73,12 @@ __all__ = [
     "run_sweep",
     "write_tables",
     "read_csv",
+    "evaluate_claims",
+    "claims_markdown",
+    "write_claims",
+    "plot_sweeps",
+    "plot_value_functions",
+    "plot_all",
+    "babyai_figure_data",
+    "plot_babyai_layout",
 ]
