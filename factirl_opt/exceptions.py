@@ -13,6 +13,7 @@ this module, so code that calls the registry inside it gives users one family to
 """
 
 import contextlib
+from typing import Any
 
 from solvers import exceptions as _solvers
 
@@ -27,6 +28,8 @@ __all__ = [
     "MissingDependencyError",
     "MissingSolverBackendError",
     "ConvergenceWarning",
+    "FitInterrupted",
+    "InterruptedFitWarning",
     "translate_solver_errors",
 ]
 
@@ -113,3 +116,22 @@ def translate_solver_errors():
             raise
         cls = next(ours for theirs, ours in _TRANSLATION if isinstance(exc, theirs))
         raise cls(*exc.args) from exc
+
+
+class FitInterrupted(KeyboardInterrupt):
+    """A KeyboardInterrupt during a fit, carrying the best result seen so far.
+
+    Attributes
+    ----------
+    result : object
+        What the interrupted function returns normally (``SolverResult``, ``FactorialFit``,
+        ``TransferFit``, ...), at the best point seen, with ``status == "interrupted"``.
+    """
+
+    def __init__(self, result: Any, what: str) -> None:
+        super().__init__(f"{what} was interrupted; the best point seen so far is kept")
+        self.result = result
+
+
+class InterruptedFitWarning(ConvergenceWarning):
+    """A fit was interrupted (Ctrl-C): the estimator holds the best point seen, not a finished fit."""

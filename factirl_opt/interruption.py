@@ -23,31 +23,12 @@ import numpy as np
 
 from solvers import Linearization, SolverResult, StepProblem, StepSolver
 
-from .exceptions import ConvergenceWarning
+from .exceptions import FitInterrupted, InterruptedFitWarning
 
-__all__ = ["FitInterrupted", "InterruptedFitWarning", "BestRows", "run_keeping_best", "warn_interrupted"]
+__all__ = ["BestRows", "run_keeping_best", "warn_interrupted"]
 
 #: the ``status`` (and ``stop_reason_``) of a fit stopped by a KeyboardInterrupt
 INTERRUPTED = "interrupted"
-
-
-class FitInterrupted(KeyboardInterrupt):
-    """A KeyboardInterrupt during a fit, carrying the best result seen so far.
-
-    Attributes
-    ----------
-    result : object
-        What the interrupted function returns normally (``SolverResult``, ``FactorialFit``,
-        ``TransferFit``, ...), at the best point seen, with ``status == "interrupted"``.
-    """
-
-    def __init__(self, result: Any, what: str) -> None:
-        super().__init__(f"{what} was interrupted; the best point seen so far is kept")
-        self.result = result
-
-
-class InterruptedFitWarning(ConvergenceWarning):
-    """A fit was interrupted (Ctrl-C): the estimator holds the best point seen, not a finished fit."""
 
 
 def warn_interrupted(what: str, detail: str) -> None:

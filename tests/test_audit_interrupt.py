@@ -12,7 +12,7 @@ import pytest
 
 import factirl_opt as fo
 import factirl_opt.learners.factirl as factirl_module
-from factirl_opt.interruption import FitInterrupted, InterruptedFitWarning
+from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
 
 

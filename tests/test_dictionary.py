@@ -10,7 +10,7 @@ from factirl_opt.learners.dictionary import (
     pca_dictionary,
     shrink_coefficients,
 )
-from factirl_opt.interruption import FitInterrupted
+from factirl_opt.exceptions import FitInterrupted
 from factirl_opt.tasks.features import StateBroadcast
 
 

@@ -77,13 +77,13 @@ def test_pca_shrink_halves_an_oversized_start(data):
 
 def test_shrink_coefficients_stops_at_the_first_rise():
     H = np.full((2, 2), 4.0)  # sum 16: halving reaches sum 1 (loss 0) after 4 trials, the 5th rises
-    out, j, calls = fo.factirl.shrink_coefficients(lambda X: (X.sum() - 1.0) ** 2, H)
+    out, j, calls = fo.learners.factirl.shrink_coefficients(lambda X: (X.sum() - 1.0) ** 2, H)
     assert (j, calls) == (4, 6)
     np.testing.assert_array_equal(out, H / 16)
-    out, j, calls = fo.factirl.shrink_coefficients(lambda X: (X.sum() - 16.0) ** 2, H)
+    out, j, calls = fo.learners.factirl.shrink_coefficients(lambda X: (X.sum() - 16.0) ** 2, H)
     assert (j, calls) == (0, 2) and out is not H
     np.testing.assert_array_equal(out, H)
-    _, j, calls = fo.factirl.shrink_coefficients(lambda X: X.sum() ** 2, H, max_halvings=5)
+    _, j, calls = fo.learners.factirl.shrink_coefficients(lambda X: X.sum() ** 2, H, max_halvings=5)
     assert (j, calls) == (5, 6)
 
 

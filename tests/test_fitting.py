@@ -86,12 +86,12 @@ def test_the_pca_start_shares_the_fits_objective_with_the_results_of_separate_on
 
 def test_objective_reset_plans_as_a_fresh_objective(data):
     mdp, demos = data
-    used = fo.gradirl.make_objective(mdp, demos, 5.0)
+    used = fo.learners.gradirl.make_objective(mdp, demos, 5.0)
     R = np.random.default_rng(0).standard_normal((4, 9, 4))
     used.loss_and_grad(R)
     used.loss_and_grad(2 * R)
     used.reset()
-    fresh = fo.gradirl.make_objective(mdp, demos, 5.0)
+    fresh = fo.learners.gradirl.make_objective(mdp, demos, 5.0)
     for a, b in zip(used.loss_and_grad(R), fresh.loss_and_grad(R)):
         np.testing.assert_array_equal(a, b)
     assert used.n_evaluations == 3  # the count survives the reset

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.interruption import FitInterrupted, InterruptedFitWarning
+from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
 
 K = 2
@@ -191,5 +191,5 @@ def test_fit_factorial_raises_fitinterrupted_with_its_result(monkeypatch, data):
     with pytest.raises(FitInterrupted) as info:
         fo.fit_factorial(mdp, demos, D0, np.full((5, K), 0.1), max_iter=10)
     fit = info.value.result
-    assert isinstance(fit, fo.factirl.FactorialFit) and fit.status == "interrupted"
+    assert isinstance(fit, fo.learners.factirl.FactorialFit) and fit.status == "interrupted"
     assert np.sum(fit.loss) == min(fit.loss_history)

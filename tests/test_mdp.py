@@ -314,7 +314,7 @@ def test_signature_keys_are_defined_once():
 
 
 def test_validation_does_not_import_the_model_module():
-    tree = ast.parse(Path(mdp_module.__file__).with_name("_validation.py").read_text())
+    tree = ast.parse(Path(fo.__file__).with_name("_validation.py").read_text())
     type_only = [node for node in tree.body if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)]
     skipped = {id(n) for block in type_only for n in ast.walk(block)}  # annotations only, never run
     imported = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and id(node) not in skipped}

@@ -20,8 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validation import as_rng, check_array, check_int
-from ..exceptions import ValidationError
-from ..interruption import FitInterrupted
+from ..exceptions import FitInterrupted, ValidationError
 from ..tasks.features import StateBroadcast, TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",

@@ -30,7 +30,7 @@ from .dictionary import (
     shrink_coefficients,
     task_feature_weights,
 )
-from ..exceptions import NotFittedError, ValidationError
+from ..exceptions import FitInterrupted, NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
 from ..tasks.features import TaskFeatures, factorial_rewards
 from .fitting import (
@@ -48,7 +48,7 @@ from .fitting import (
     warn_if_stalled,
 )
 from .gradirl import fit_weights, weights_rewards
-from ..interruption import INTERRUPTED, FitInterrupted, warn_interrupted
+from ..interruption import INTERRUPTED, warn_interrupted
 from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget

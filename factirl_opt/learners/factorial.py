@@ -22,7 +22,7 @@ import solvers
 from .._progress import fit_progress
 from .._validation import check_array, check_int, check_mdp, check_tol
 from .dictionary import normalise_dictionary
-from ..exceptions import ValidationError, translate_solver_errors
+from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
 from .fitting import (
     environments_setup,
     first_step_stall,
@@ -33,7 +33,7 @@ from .fitting import (
     reward_dimension,
     reward_features,
 )
-from ..interruption import INTERRUPTED, FitInterrupted
+from ..interruption import INTERRUPTED
 from ..objectives.problems import dictionary_problem, weights_problem
 from ..tasks.features import TaskFeatures, factorial_rewards
 

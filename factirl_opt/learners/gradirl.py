@@ -15,7 +15,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import check_int, check_mdp, check_tol
-from ..exceptions import translate_solver_errors
+from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
     check_solver_applies,
     environment_signatures,
@@ -30,7 +30,7 @@ from .fitting import (
     reward_features,
     warn_if_stalled,
 )
-from ..interruption import INTERRUPTED, FitInterrupted, run_keeping_best, warn_interrupted
+from ..interruption import INTERRUPTED, run_keeping_best, warn_interrupted
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from ..objectives.problems import weights_problem

@@ -18,7 +18,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import check_array, check_features, check_int, check_mdp, check_tol
-from ..exceptions import NotFittedError, ValidationError, translate_solver_errors
+from ..exceptions import FitInterrupted, NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
     environments_setup,
     first_step_stall,
@@ -30,7 +30,7 @@ from .fitting import (
     resolve_step_solver,
     reward_features,
 )
-from ..interruption import INTERRUPTED, FitInterrupted, run_keeping_best
+from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import weights_problem
 from ..tasks.features import TaskFeatures, linear_rewards
 

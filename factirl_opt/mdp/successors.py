@@ -50,7 +50,7 @@ def check_index_base(index_base: object) -> int:
     """``index_base`` as 0 or 1 (1 for MATLAB data), else a :class:`ValidationError`."""
     if isinstance(index_base, bool) or index_base not in (0, 1):
         raise ValidationError(f"index_base must be 0 or 1 (1 for MATLAB data); got {index_base!r}")
-    return int(index_base)  # type: ignore[call-overload]
+    return int(index_base)
 
 
 def successor_matrix(sa_s: ArrayLike, sa_p: ArrayLike, index_base: int = 0) -> sp.csr_matrix:

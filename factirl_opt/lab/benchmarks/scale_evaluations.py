@@ -8,7 +8,7 @@ objective of those demonstrations (eq. 5, docs/maths.md §5) and feature rewards
 coefficients H (n, 5) (``factirl_opt.datasets.synthetic``); then, per configuration, in this process:
 
 - ``n_jobs=J`` for each J of ``--jobs`` (default 1): the objective over J task shards
-  (:func:`factirl_opt.objectives.distributed.sharded`, backend ``"processes"``; ``n_jobs=1`` is
+  (:func:`factirl_opt.objectives.sharding.sharded`, backend ``"processes"``; ``n_jobs=1`` is
   the objective itself);
 - ``dask`` with ``--dask``: over the workers of a 2-worker ``LocalCluster``
   (:func:`factirl_opt.lab.benchmarks.scale_jobs.dask_client`, started once).
@@ -56,7 +56,7 @@ import numpy as np
 from ..._threads import limit_blas_threads
 from ...tasks.features import factorial_rewards
 from ...learners.fitting import make_objective, reward_features
-from ...objectives import distributed
+from ...objectives.sharding import sharded
 from ...planning import clear_caches, planning_budget
 from ...datasets.synthetic import random_coefficients
 from .scale_jobs import configurations, dask_client
@@ -145,7 +145,7 @@ def evaluate(objective: Any, rewards: Callable[[int], np.ndarray], Phi: Any, ext
         ``rewards(r)`` (n, S, A): ``r = -1`` the cold call's, ``r = 0, 1, ...`` the warm calls'.
     Phi : ndarray, shape (S*A, p)
     extra : dict
-        ``n_jobs``, ``backend`` and ``client`` of :func:`~factirl_opt.objectives.distributed.sharded`.
+        ``n_jobs``, ``backend`` and ``client`` of :func:`~factirl_opt.objectives.sharding.sharded`.
     repeats : int
 
     Returns
@@ -159,7 +159,7 @@ def evaluate(objective: Any, rewards: Callable[[int], np.ndarray], Phi: Any, ext
     clear_caches(objective.mdp)
     client = extra.get("client")
     peak_reset = _reset_peaks(client)
-    with distributed.sharded(objective, extra.get("n_jobs"), extra.get("backend", "processes"), client) as obj:
+    with sharded(objective, extra.get("n_jobs"), extra.get("backend", "processes"), client) as obj:
         R = rewards(-1)
         t0 = time.perf_counter()
         loss, grad = obj.loss_and_grad(R)

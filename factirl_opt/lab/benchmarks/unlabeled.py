@@ -77,7 +77,7 @@ from ..experiments.presets import get_preset
 from ..experiments.worlds import objectworld
 from ...learners.factirl import FactIRL
 from ...mdp.tabular import GridWorld, TabularMDP
-from ...learners.em import POLICY_OBJECTIVES
+from ...objectives import available_objectives, get_objective
 from ...planning import optimal_q
 from ...learners.multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from ...datasets.synthetic import synthetic_tasks
@@ -171,7 +171,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_option(parser, "--n-primitives", type=int, defaults=DEFAULTS, quick=QUICK,
                help="k of the true and learnt dictionaries (Objectworld: also its inner colours)")
     add_option(parser, "--beta", type=float, defaults=DEFAULTS)
-    add_option(parser, "--objective", choices=POLICY_OBJECTIVES, defaults=DEFAULTS,
+    add_option(parser, "--objective", choices=[name for name in available_objectives() if get_objective(name).models_policy()], defaults=DEFAULTS,
                help="every learner's objective (MCE: EM's M-step raises its likelihood)")
     add_option(parser, "--em-max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="EM iterations")
     add_option(parser, "--m-step-max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="iterations per M-step")
