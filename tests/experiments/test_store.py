@@ -112,10 +112,10 @@ def test_a_new_builder_version_invalidates_the_cache(reference, tmp_path, monkey
 
 def test_code_stamp_covers_the_result_code_only():
     files = dict(store._source_files())
-    assert "factirl_opt/planning/engine.py" in files and "factirl_opt/factirl.py" in files
-    assert "factirl_opt/experiments/learners.py" in files and "factirl_opt/experiments/runner.py" in files
+    assert "factirl_opt/planning/engine.py" in files and "factirl_opt/learners/factirl.py" in files
+    assert "factirl_opt/lab/experiments/learners.py" in files and "factirl_opt/lab/experiments/runner.py" in files
     assert "solvers/armijo.py" in files
-    assert not any(f.startswith("factirl_opt/benchmarks/") or f == "factirl_opt/cli.py" for f in files)
+    assert not any(f.startswith("factirl_opt/lab/benchmarks/") or f == "factirl_opt/lab/cli.py" for f in files)
     stamp = store.code_stamp()
     assert set(stamp) == {"factirl_opt", "numpy", "scipy", "source_sha256"} and len(stamp["source_sha256"]) == 64
 
