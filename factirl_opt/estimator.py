@@ -234,7 +234,10 @@ class Estimator:
         self.__dict__.update(state)
 
     def __repr__(self) -> str:
-        defaults = self.param_defaults()
+        try:
+            defaults = self.param_defaults()
+        except TypeError:  # a subclass whose __init__ takes **kwargs: no parameters to show
+            return object.__repr__(self)
         shown = [f"{name}={_short(value)}" for name, value in self.get_params().items() if _differs(value, defaults[name])]
         return f"{type(self).__name__}({', '.join(shown)})"
 

@@ -195,11 +195,11 @@ def estimator_solvers(estimator: Any, d_step: bool = True) -> tuple[Any, dict | 
         default), or, without a D-step, the settings name a D-step solver.
     """
     solver = estimator.solver
-    defaults = type(estimator).param_defaults()
     d_solver = getattr(estimator, "d_solver", None) if d_step else None
     d_options = getattr(estimator, "d_solver_options", None) if d_step else None
     if not isinstance(solver, SolverSettings):
         return solver, estimator.solver_options, d_solver, d_options
+    defaults = type(estimator).param_defaults()
     name = type(estimator).__name__
     given = [key for key, value in (("solver_options", estimator.solver_options), ("d_solver", d_solver),
                                     ("d_solver_options", d_options))
