@@ -15,7 +15,7 @@ import numpy as np
 import solvers
 
 from .._validation import check_int
-from ..exceptions import PersistenceError, ValidationError
+from ..exceptions import FactIRLError, PersistenceError
 from ..fitting import per_task_features
 from ..solver_settings import SolverSettings
 from .archive import check_array, require, to_json
@@ -191,7 +191,7 @@ def _decode_solver(key: str, value: Any, label: str) -> Any:
                                f"got {value!r:.80}")
     try:
         return SolverSettings(**fields)
-    except (TypeError, ValidationError) as exc:
+    except (TypeError, FactIRLError) as exc:  # a field unknown or invalid, or its solver not registered or installed here
         raise PersistenceError(f"{label}: the solver settings of parameter {key} are not valid here: {exc}") from None
 
 
