@@ -84,6 +84,17 @@ class FactIRL(Estimator):
         Number of primitive rewards k.
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
+        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
+        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
+        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
+        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
+        ``transfer`` then needs the new environments' features.
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
+        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
+        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
+        docs/maths.md §7). Refused together with ``features``.
     init : {"pca", "random"} or tuple (D0, H0), default="pca"
         ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
         or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
@@ -106,6 +117,8 @@ class FactIRL(Estimator):
         On the paper's grid the policy-matching start is usually kept (two evaluations; halved
         once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
         Objectworld the start shrinks 32-fold. False: the PCA start as it is.
+    flat_max_iter : int, default=100
+        Iterations of the flat learner used by ``init="pca"``.
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -118,39 +131,27 @@ class FactIRL(Estimator):
         The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
         value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
         fixed budgets, as the ``paper`` preset does).
+    transfer_max_iter : int, default=100
+        Maximum solver steps in ``transfer``.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
         ``transfer`` uses it too. A :class:`~factirl_opt.SolverSettings` gives the four solver
         settings as one value (then ``solver_options``, ``d_solver`` and ``d_solver_options``
-        stay at their defaults). Formerly ``h_solver`` (deprecated alias). A constrained solver keeps its constraint in the
-        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
-        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one
-        uses ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H
-        objective and of ``loss_history_``, and its fits keep unit-norm primitives.
+        stay at their defaults). Formerly ``h_solver`` (deprecated alias). A constrained
+        solver keeps its constraint in the initialisation and in transfer: for a nonnegative
+        one the primitives of a "pca" initialisation are sign-flipped so their coefficients
+        sum to >= 0 (a "random" one uses ``|H|``), then H0 is projected; a sparse one's L1
+        penalty is part of the H objective and of ``loss_history_``, and its fits keep
+        unit-norm primitives.
     solver_options : dict, optional
         Options for a ``solver`` given by name. Formerly ``h_solver_options`` (deprecated alias).
     d_solver : str or solvers.StepSolver, default="armijo"
         D-step solver (same registry; ``"armijo"`` is the paper's).
     d_solver_options : dict, optional
-    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
-        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
-        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
-        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
-        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
-        ``transfer`` then needs the new environments' features.
-    reward : {"state-action", "state"}, default="state-action"
-        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
-        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
-        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
-        docs/maths.md §7). Refused together with ``features``.
     objective : str, default="policy-matching"
         Per-task loss (``factirl_opt.available_objectives()``).
     planner : str, default="auto"
         Planning engine (``factirl_opt.available_planners()``).
-    flat_max_iter : int, default=100
-        Iterations of the flat learner used by ``init="pca"``.
-    transfer_max_iter : int, default=100
-        Maximum solver steps in ``transfer``.
     rng : numpy.random.Generator or int or None
         Randomness of the "random" initialisation (and of completing a rank-deficient PCA).
     n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`

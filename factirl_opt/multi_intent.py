@@ -72,6 +72,10 @@ class MultiIntentIRL(Estimator):
         None: each intention has its own reward (Babes-Vroman's EM; the M-step is GradIRL's
         fit). k: ``R_c = Phi D h_c`` with a dictionary D (p, k) shared by the intentions (the
         M-step is FactIRL's alternating fit; the first one starts from the PCA of flat rewards).
+    features : array_like, shape (S*A, p) or (S, p), optional
+        Base features ``Phi``; None for tabular rewards.
+    reward : {"state-action", "state"}, default="state-action"
+        As in :class:`GradIRL`.
     objective : {"policy-matching", "mce"}, default="policy-matching"
         The M-step's loss, and the policy that scores episodes in the E-step: the Boltzmann
         policy of ``Q*`` (eq. 7) or the soft-optimal policy (docs/maths.md §6). With ``"mce"``
@@ -79,12 +83,22 @@ class MultiIntentIRL(Estimator):
         with policy matching it is monitored and the best point kept.
     beta : float, default=5.0
         Inverse temperature of both the objective and the E-step's policy.
-    max_iter : int, default=20
-        EM iterations (each one M-step and one E-step).
-    tol : float, default=1e-6
-        Stop when the log-likelihood changes by at most ``tol * max(1, |log-likelihood|)``.
-    n_init : int, default=1
-        EM runs from independent starts; the run of highest best log-likelihood is kept.
+    n_intentions_range : (int, int), optional
+        ``(low, high)``, both included: the K tried by ``n_intentions="auto"``. Default
+        ``(1, min(10, m))`` with m the episodes one fit sees (all of them for the BIC, those
+        outside the largest fold when held out).
+    selection : {"held-out", "bic"}, default="held-out"
+        Criterion of ``n_intentions="auto"``. ``"held-out"``: the episodes are split at random
+        into ``n_folds`` folds, EM is fitted on all folds but one and scored by the
+        log-likelihood of the held-out one; the smallest K whose total held-out log-likelihood
+        is within one standard error (over the episodes) of the best is refitted on all
+        episodes (``n_folds`` x m + 1 EM fits for m candidates). ``"bic"``:
+        ``-2 log L + n_free log N`` of the fit on all episodes (N demonstrated steps, n_free
+        from :func:`factirl_opt.intention_count.free_parameters`), lowest kept (m fits); its
+        count of ``S*A`` parameters per tabular reward penalises K heavily, so prefer it with
+        a few reward features.
+    n_folds : int, default=3
+        Folds of ``selection="held-out"``, at least 2.
     init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
         Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
         episodes by the actions they take in the states they share (same action: together;
@@ -95,6 +109,12 @@ class MultiIntentIRL(Estimator):
         responsibilities (n_episodes, K). On the paper's grid (8 tasks x 10 episodes of 10
         steps) the agreement start is the closest to the true tasks (adjusted Rand index about
         0.25-0.4, against 0.1-0.2 for the frequencies).
+    n_init : int, default=1
+        EM runs from independent starts; the run of highest best log-likelihood is kept.
+    max_iter : int, default=20
+        EM iterations (each one M-step and one E-step).
+    tol : float, default=1e-6
+        Stop when the log-likelihood changes by at most ``tol * max(1, |log-likelihood|)``.
     m_step_max_iter : int, default=20
         Solver iterations of a flat M-step; outer iterations of a factorial one.
     m_step_tol : float, default=1e-5
@@ -112,29 +132,9 @@ class MultiIntentIRL(Estimator):
         D-step solver of a factorial M-step; None: ``solver`` (with ``solver_options``).
     d_solver_options : dict, optional
         Options for a ``d_solver`` given by name.
-    features : array_like, shape (S*A, p) or (S, p), optional
-        Base features ``Phi``; None for tabular rewards.
-    reward : {"state-action", "state"}, default="state-action"
-        As in :class:`GradIRL`.
     planner : str, default="auto"
     rng : numpy.random.Generator or int or None
         Randomness of the starts (and of completing a rank-deficient PCA).
-    n_intentions_range : (int, int), optional
-        ``(low, high)``, both included: the K tried by ``n_intentions="auto"``. Default
-        ``(1, min(10, m))`` with m the episodes one fit sees (all of them for the BIC, those
-        outside the largest fold when held out).
-    selection : {"held-out", "bic"}, default="held-out"
-        Criterion of ``n_intentions="auto"``. ``"held-out"``: the episodes are split at random
-        into ``n_folds`` folds, EM is fitted on all folds but one and scored by the
-        log-likelihood of the held-out one; the smallest K whose total held-out log-likelihood
-        is within one standard error (over the episodes) of the best is refitted on all
-        episodes (``n_folds`` x m + 1 EM fits for m candidates). ``"bic"``:
-        ``-2 log L + n_free log N`` of the fit on all episodes (N demonstrated steps, n_free
-        from :func:`factirl_opt.intention_count.free_parameters`), lowest kept (m fits); its
-        count of ``S*A`` parameters per tabular reward penalises K heavily, so prefer it with
-        a few reward features.
-    n_folds : int, default=3
-        Folds of ``selection="held-out"``, at least 2.
     n_jobs, backend, client : int or None, str, dask.distributed.Client
         Shards of each M-step's objective over the K intentions, as in
         :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.distributed.sharded`): the

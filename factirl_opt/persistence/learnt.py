@@ -129,7 +129,7 @@ def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dic
         if is_array_kind(kind) and isinstance(value, list):  # per-task (S_i, A) arrays: their count and A
             value = np.empty((len(value), 0, value[0].shape[1]) if value else (0, 0, 0))
             kind = (kind[0], "S_i", kind[2])
-        if not (is_array_kind(kind) and isinstance(value, np.ndarray)):
+        if not (isinstance(kind, tuple) and isinstance(value, np.ndarray)):
             continue
         for i, axis in enumerate(array_axes(kind)):
             length = value.shape[i]

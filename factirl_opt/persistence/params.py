@@ -142,7 +142,9 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     Returns the JSON values, the arrays (archive members) and the names of the parameters
     stored as arrays; ``"runtime"`` parameters are left out.
     """
-    params, arrays, array_params = {}, {}, []
+    params: dict[str, Any] = {}
+    arrays: dict[str, np.ndarray] = {}
+    array_params: list[str] = []
     cls = type(model)
     for key, value in model.get_params().items():
         kind = param_kind(cls, key)
@@ -203,7 +205,7 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
     """
     params = dict(require(header, "params", label, "the header", dict))
     context = f"{label} is malformed"
-    renamed = dict(getattr(cls, "deprecated_params", {}))
+    renamed: dict[str, str] = dict(getattr(cls, "deprecated_params", {}))
     for old, new in renamed.items():
         if old in params and new not in params:
             params[new] = params.pop(old)
@@ -211,8 +213,10 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
         if param_kind(cls, key) == "runtime":
             raise PersistenceError(f"{context}: {key!r} is never saved, yet the header's parameters hold it")
     array_names = [key for key in dict(getattr(cls, "param_kinds", {})) if param_kind(cls, key) in ARRAY_KINDS]
-    for key in require(header, "array_params", label, "the header", list):
-        key = renamed.get(key, key)
+    for stored in require(header, "array_params", label, "the header", list):
+        if not isinstance(stored, str):
+            raise PersistenceError(f"{context}: array parameter names must be strings; got {stored!r:.40}")
+        key = renamed.get(stored, stored)
         kind = param_kind(cls, key)
         if kind not in ARRAY_KINDS:
             raise PersistenceError(f"{context}: {key!r:.40} is not an array parameter (known: {', '.join(array_names)})")
