@@ -13,12 +13,19 @@ from ..gradirl import GradIRL
 from ..multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
-from .params import decode_params, encode_params
+from .params import decode_params, encode_params, param_kind
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
 
 #: The estimator classes a file can hold, by the name stored in its header.
 MODEL_CLASSES: dict[str, type] = {cls.__name__: cls for cls in (GradIRL, FactIRL, MultiIntentIRL)}
+
+
+def _base_features(cls: type, params: dict[str, Any]) -> Any:
+    """The value of the class's parameter of kind ``"features"`` (the base features the learnt
+    attributes are checked against), None if it declares none."""
+    names = [key for key in dict(getattr(cls, "param_kinds", {})) if param_kind(cls, key) == "features"]
+    return params.get(names[0]) if names else None
 
 
 def _feature_columns(features: Any) -> int | None:
@@ -61,7 +68,7 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
             arrays[key] = value
         else:
             attributes[key] = to_json(value, f"{name} attribute {key}")
-    _check(cls, {**attributes, **arrays}, getattr(model, "features", None), f"cannot save {name}")
+    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params()), f"cannot save {name}")
     return attributes, arrays
 
 
@@ -174,7 +181,8 @@ def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
         raise PersistenceError(f"{label} holds a model of unknown class {name!r:.40}; known: {', '.join(MODEL_CLASSES)}")
     cls = MODEL_CLASSES[name]
     params = decode_params(cls, header, contents, label)
-    attributes = _decode_attributes(cls, header, contents, label, params.get("features"))
+    features = _base_features(cls, params)
+    attributes = _decode_attributes(cls, header, contents, label, features)
     try:
         model = cls(**params)
     except TypeError as exc:
@@ -182,7 +190,7 @@ def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
     for key, value in attributes.items():
         setattr(model, key, value)
     if attributes:
-        _complete_old_file(model, cls, attributes, params.get("features"), label)
+        _complete_old_file(model, cls, attributes, features, label)
     return model
 
 
