@@ -1,7 +1,10 @@
 """Deprecated aliases of names and modules that moved when the package was cut into layers.
 
-Two kinds, both kept for one release and both warning once (a :class:`FutureWarning`, shown
-to users by default):
+Three kinds, all kept for one release and all warning once (a
+:class:`~factirl_opt.exceptions.DeprecatedNameWarning`, a :class:`FutureWarning` shown to users
+by default):
+
+- a renamed estimator parameter (:mod:`factirl_opt.learners.estimator`);
 
 - a former top-level name (``fo.ObjectWorld``) resolves to the object in its new namespace
   (:func:`moved_attribute`, called by the package's ``__getattr__``);
@@ -22,6 +25,8 @@ from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import Any
 
+from .exceptions import DeprecatedNameWarning
+
 __all__ = ["moved_attribute", "install_module_aliases", "warn_once"]
 
 _warned: set[str] = set()
@@ -29,12 +34,13 @@ _lock = threading.Lock()
 
 
 def warn_once(key: str, message: str, stacklevel: int = 3) -> None:
-    """Emit ``message`` as a :class:`FutureWarning` the first time ``key`` is seen in this process."""
+    """Emit ``message`` as a :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (a
+    :class:`FutureWarning`) the first time ``key`` is seen in this process."""
     with _lock:
         if key in _warned:
             return
         _warned.add(key)
-    warnings.warn(message, FutureWarning, stacklevel=stacklevel)
+    warnings.warn(message, DeprecatedNameWarning, stacklevel=stacklevel)
 
 
 def moved_attribute(name: str, module: str, namespace: str) -> Any:

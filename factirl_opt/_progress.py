@@ -9,7 +9,7 @@ __all__ = ["fit_progress"]
 
 
 @contextlib.contextmanager
-def fit_progress(callback, verbose, total, desc):
+def fit_progress(callback, verbose, total, desc, quantity="loss"):
     """Yield one ``report(iteration, loss)`` that calls ``callback`` and updates a tqdm bar.
 
     Parameters
@@ -22,6 +22,8 @@ def fit_progress(callback, verbose, total, desc):
     total : int
         Maximum iterations (the bar's length; a fit may stop earlier).
     desc : str
+    quantity : str
+        What the bar calls the value reported (the total loss, or EM's log-likelihood).
     """
     if callback is not None and not callable(callback):
         raise ValidationError(f"callback must be callable as callback(iteration, loss); got {type(callback).__name__}")
@@ -36,7 +38,7 @@ def fit_progress(callback, verbose, total, desc):
     def report(iteration, loss):
         if bar is not None:
             bar.update(iteration - bar.n)
-            bar.set_postfix_str(f"loss {loss:.6g}", refresh=False)
+            bar.set_postfix_str(f"{quantity} {loss:.6g}", refresh=False)
         if callback is not None:
             callback(iteration, loss)
 

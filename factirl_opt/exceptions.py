@@ -30,6 +30,7 @@ __all__ = [
     "ConvergenceWarning",
     "FitInterrupted",
     "InterruptedFitWarning",
+    "DeprecatedNameWarning",
     "translate_solver_errors",
 ]
 
@@ -70,6 +71,11 @@ class MissingDependencyError(FactIRLError, ImportError):
 class ConvergenceWarning(UserWarning):
     """A fit stopped without making progress (stalled at its start, or only on worse points);
     the message says what to check (scaling of features or initialisation, beta)."""
+
+
+class DeprecatedNameWarning(FutureWarning):
+    """A name (an estimator parameter) was renamed; the old one still works for now and warns
+    once per process. A ``FutureWarning``, so that users see it by default."""
 
 
 class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):

@@ -180,7 +180,7 @@ def test_pca_dictionary(rng):
         (dict(inner_steps=0), ValidationError, r"inner_steps must be an integer >= 1; got 0"),
         (dict(flat_max_iter=1.5), ValidationError, r"flat_max_iter must be an integer >= \d; got 1\.5"),
         (dict(tol=-1.0), ValidationError, r"tol must be a finite number >= 0; got -1\.0"),
-        (dict(h_solver="nope"), UnknownSolverError, r"unknown solver 'nope'; available: .*armijo"),
+        (dict(solver="nope"), UnknownSolverError, r"unknown solver 'nope'; available: .*armijo"),
         (dict(rng="seed"), ValidationError, r"rng must be a numpy Generator.*got str"),
     ],
 )
@@ -228,16 +228,16 @@ def test_transfer_with_a_per_call_solver(data):
     mdp, _, demos = data
     model = fo.FactIRL(n_primitives=K, max_iter=3, rng=0).fit(mdp, demos)
     h_default = model.transfer(mdp, demos[:2])
-    h_gn = model.transfer(mdp, demos[:2], h_solver="gn-qp-clarabel", max_iter=10)
+    h_gn = model.transfer(mdp, demos[:2], solver="gn-qp-clarabel", max_iter=10)
     assert h_gn.shape == h_default.shape == (2, K)
-    assert model.h_solver == "armijo"  # the model's own solver is unchanged
+    assert model.solver == "armijo"  # the model's own solver is unchanged
     assert np.array_equal(model.transfer(mdp, demos[:2]), h_default)
-    h_nonneg = model.transfer(mdp, demos[:2], h_solver="gn-qp-clarabel-nonneg")
+    h_nonneg = model.transfer(mdp, demos[:2], solver="gn-qp-clarabel-nonneg")
     assert np.all(h_nonneg >= 0)
-    with pytest.raises(ValidationError, match="h_solver_options given without h_solver"):
-        model.transfer(mdp, demos[:2], h_solver_options={"alpha": 0.1})
+    with pytest.raises(ValidationError, match="solver_options given without solver"):
+        model.transfer(mdp, demos[:2], solver_options={"alpha": 0.1})
     with pytest.raises(UnknownSolverError, match="available"):
-        model.transfer(mdp, demos[:2], h_solver="no-such-solver")
+        model.transfer(mdp, demos[:2], solver="no-such-solver")
 
 
 # --- the alternating loop: stopping rules, records, solver forms -------------------------------

@@ -132,7 +132,7 @@ def test_sparse_h_step_fit_is_monotone_and_ends_on_its_best_point(grid4, solver)
     t = fo.synthetic_tasks(grid4, 6, 5, 8, n_primitives=3, rng=1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # backend fallbacks are reported by QPFallbackWarning
-        model = fo.FactIRL(n_primitives=3, max_iter=15, h_solver=solver).fit(grid4, t.demos)
+        model = fo.FactIRL(n_primitives=3, max_iter=15, solver=solver).fit(grid4, t.demos)
     h = np.asarray(model.loss_history_)
     assert np.all(np.diff(h) <= 1e-9 * np.abs(h[:-1])), h
     total = model.loss_.sum() + 0.01 * np.abs(model.coefficients_).sum()
@@ -155,7 +155,7 @@ class _Wandering(solvers.StepSolver):
 
 def test_fit_ends_on_the_best_point_seen_even_when_steps_rise(grid3, tasks):
     seen = []
-    model = fo.FactIRL(n_primitives=K, max_iter=6, flat_max_iter=5, h_solver=_Wandering(),
+    model = fo.FactIRL(n_primitives=K, max_iter=6, flat_max_iter=5, solver=_Wandering(),
                        callback=lambda i, loss: seen.append((i, loss)))
     model.fit(grid3, tasks.demos)
     h = np.asarray(model.loss_history_)

@@ -56,7 +56,7 @@ class Counts:
 def test_factirl_fit_parses_builds_and_resolves_once(monkeypatch, data, init):
     mdp, demos = data
     counts = Counts(monkeypatch)
-    fo.FactIRL(n_primitives=K, init=init, h_solver="lbfgs", d_solver="armijo", max_iter=3, flat_max_iter=5).fit(mdp, demos)
+    fo.FactIRL(n_primitives=K, init=init, solver="lbfgs", d_solver="armijo", max_iter=3, flat_max_iter=5).fit(mdp, demos)
     assert counts.parses == 1 and counts.objectives == 1
     # one look-up per solver: the H- and D-solvers, and the flat learner's of the PCA start
     assert sorted(counts.solvers) == sorted(["lbfgs", "armijo"] + (["armijo"] if init == "pca" else []))

@@ -90,7 +90,7 @@ def test_one_shared_mdp_object_is_the_one_mdp_fit(shared):
 def test_per_task_copies_of_one_matrix_give_the_shared_fit(shared, init, h_solver, d_solver, objective):
     """The per-task path (TaskFeatures, metric PCA) on n copies of Phi is the shared fit (to rounding)."""
     mdp, Phi, demos = shared
-    kw = dict(n_primitives=2, max_iter=4, init=init, rng=0, h_solver=h_solver, d_solver=d_solver, objective=objective,
+    kw = dict(n_primitives=2, max_iter=4, init=init, rng=0, solver=h_solver, d_solver=d_solver, objective=objective,
               flat_max_iter=5)
     a = fo.FactIRL(features=Phi, **kw).fit(mdp, demos)
     b = fo.FactIRL(features=[Phi] * 4, **kw).fit(mdp, demos)
@@ -113,7 +113,7 @@ def test_metric_pca_is_the_reward_pca_for_one_matrix(rng):
                                                            ("gn-qp-osqp", "gn-cg", "policy-matching")])
 def test_factorial_fit_on_mixed_sizes(worlds, h_solver, d_solver, objective):
     mdps, Phis, demos = worlds
-    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=3, flat_max_iter=5, h_solver=h_solver,
+    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=3, flat_max_iter=5, solver=h_solver,
                        d_solver=d_solver, objective=objective).fit(mdps, demos)
     assert model.dictionary_.shape == (3, 2) and model.coefficients_.shape == (3, 2)
     assert [r.shape for r in model.rewards_] == [(9, 4), (16, 4), (9, 4)]
@@ -129,7 +129,7 @@ def test_factorial_fit_on_mixed_sizes(worlds, h_solver, d_solver, objective):
 @pytest.mark.parametrize("h_solver", ["armijo-nonneg", "gn-qp-clarabel-nonneg", "gn-qp-osqp-sparse"])
 def test_constrained_and_sparse_h_steps_on_mixed_sizes(worlds, h_solver):
     mdps, Phis, demos = worlds
-    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=2, flat_max_iter=3, h_solver=h_solver).fit(mdps, demos)
+    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=2, flat_max_iter=3, solver=h_solver).fit(mdps, demos)
     assert model.loss_history_[-1] < model.loss_history_[0]
     h = model.transfer(mdps, demos, features=Phis, max_iter=2)
     if h_solver.endswith("nonneg"):

@@ -110,7 +110,7 @@ def test_sharded_least_squares_products(data):
 @pytest.mark.parametrize("h_solver, features", [("gn-qp-clarabel", True), ("gn-cg", True), ("armijo", False)])
 def test_factirl_n_jobs_equals_serial_fit(data, h_solver, features):
     mdp, demos, F, _ = data
-    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, h_solver=h_solver, d_solver="lbfgs",
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, solver=h_solver, d_solver="lbfgs",
               features=F if features else None)
     a = fo.FactIRL(**kw).fit(mdp, demos)
     b = fo.FactIRL(n_jobs=2, **kw).fit(mdp, demos)
@@ -222,7 +222,7 @@ def test_sweep_workers_run_fits_with_one_job():
 
 def test_transfer_n_jobs_equals_serial_transfer(data):
     mdp, demos, F, _ = data
-    model = fo.FactIRL(n_primitives=2, max_iter=2, init="random", rng=0, features=F, h_solver="gn-qp-clarabel")
+    model = fo.FactIRL(n_primitives=2, max_iter=2, init="random", rng=0, features=F, solver="gn-qp-clarabel")
     model.fit(mdp, demos[:3])
     a = model.transfer(mdp, demos[3:], max_iter=4)
     evaluations = model.transfer_n_evaluations_

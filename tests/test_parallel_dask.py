@@ -37,7 +37,7 @@ def data():
 @pytest.mark.parametrize("h_solver", ["gn-qp-clarabel", "gn-cg"])
 def test_factirl_on_local_cluster_equals_local_fit(client, data, h_solver):
     mdp, demos, F = data
-    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F, h_solver=h_solver,
+    kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F, solver=h_solver,
               d_solver="lbfgs")
     a = fo.FactIRL(**kw).fit(mdp, demos)
     client.wait_for_workers(2)
@@ -95,7 +95,7 @@ def test_worker_killed_mid_fit_does_not_change_the_result(client, data, monkeypa
     close = ShardedObjective.close
     monkeypatch.setattr(ShardedObjective, "close", lambda self: (restarts.append(self.shards.n_restarts), close(self)))
     kw = dict(n_primitives=2, max_iter=3, init="random", rng=0, planner="sparse-lu", features=F,
-              h_solver="gn-qp-clarabel", d_solver="lbfgs")
+              solver="gn-qp-clarabel", d_solver="lbfgs")
     a = fo.FactIRL(**kw).fit(mdp, demos)
 
     def kill(iteration, total):

@@ -54,7 +54,7 @@ def test_sharded_environments_equal_the_objective(worlds):
 @pytest.mark.parametrize("h_solver", ["gn-qp-clarabel", "gn-cg", "armijo"])
 def test_factirl_over_environments_n_jobs_equals_serial(worlds, h_solver):
     mdps, Phis, demos = worlds
-    kw = dict(n_primitives=2, max_iter=2, init="random", rng=0, features=Phis, h_solver=h_solver, d_solver="lbfgs")
+    kw = dict(n_primitives=2, max_iter=2, init="random", rng=0, features=Phis, solver=h_solver, d_solver="lbfgs")
     a = fo.FactIRL(**kw).fit(mdps, demos)
     b = fo.FactIRL(n_jobs=2, **kw).fit(mdps, demos)
     for name in ("dictionary_", "coefficients_", "loss_"):

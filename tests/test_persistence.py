@@ -63,7 +63,7 @@ def test_factirl_round_trip_transfers_bit_identically(setting, fitted, tmp_path)
     assert path == str(tmp_path / "model") and (tmp_path / "model").exists()
     loaded = fo.load_model(path)
     assert type(loaded) is fo.FactIRL
-    for name in ("n_primitives", "beta", "init", "max_iter", "inner_steps", "tol", "h_solver", "h_solver_options",
+    for name in ("n_primitives", "beta", "init", "max_iter", "inner_steps", "tol", "solver", "solver_options",
                  "flat_max_iter", "transfer_max_iter"):
         assert getattr(loaded, name) == getattr(fitted, name)
     for name in ("dictionary_", "coefficients_", "rewards_", "loss_"):
@@ -84,7 +84,7 @@ def test_header_records_versions_and_parameters(fitted, tmp_path):
     assert header["format"] == "factirl-opt" and header["format_version"] == FORMAT_VERSION
     assert header["kind"] == "model" and header["class"] == "FactIRL"
     assert header["library_version"] == fo.__version__ and header["numpy_version"] == np.__version__
-    assert header["params"]["n_primitives"] == 2 and header["params"]["h_solver"] == "armijo"
+    assert header["params"]["n_primitives"] == 2 and header["params"]["solver"] == "armijo"
     assert {"attr/dictionary_", "attr/coefficients_"} <= set(arrays)
     assert all(a.dtype != object for a in arrays.values())
 
@@ -201,10 +201,10 @@ def test_callback_is_not_saved(setting, tmp_path):
 
 
 def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
-    with pytest.raises(ValidationError, match="model must be a GradIRL or FactIRL; got dict"):
+    with pytest.raises(ValidationError, match="model must be one of GradIRL, FactIRL, MultiIntentIRL; got dict"):
         fo.save_model({}, tmp_path / "x.npz")
-    with pytest.raises(PersistenceError, match="h_solver given as a ArmijoSolver object.*registry name"):
-        fo.save_model(fo.FactIRL(h_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object.*registry name"):
+        fo.save_model(fo.FactIRL(solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object"):
         fo.save_model(fo.GradIRL(solver=solvers.get_solver("armijo")), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="d_solver given as a ArmijoSolver object"):

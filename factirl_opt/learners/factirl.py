@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
+from .estimator import EXECUTION_PARAM_KINDS, Estimator, renamed_attribute, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
     check_dictionary_norms,
@@ -52,6 +53,7 @@ from ..interruption import INTERRUPTED, warn_interrupted
 from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
+from .solver_settings import SolverSettings, estimator_solvers
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -73,7 +75,7 @@ def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np
     return weights_rewards(Phi, weights, mdp.n_states, mdp.n_actions).reshape(len(weights), -1)
 
 
-class FactIRL:
+class FactIRL(Estimator):
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
 
     Parameters
@@ -82,6 +84,17 @@ class FactIRL:
         Number of primitive rewards k.
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
+    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
+        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
+        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
+        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
+        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
+        ``transfer`` then needs the new environments' features.
+    reward : {"state-action", "state"}, default="state-action"
+        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
+        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
+        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
+        docs/maths.md §7). Refused together with ``features``.
     init : {"pca", "random"} or tuple (D0, H0), default="pca"
         ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
         or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
@@ -104,6 +117,8 @@ class FactIRL:
         On the paper's grid the policy-matching start is usually kept (two evaluations; halved
         once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
         Objectworld the start shrinks 32-fold. False: the PCA start as it is.
+    flat_max_iter : int, default=100
+        Iterations of the flat learner used by ``init="pca"``.
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -116,45 +131,39 @@ class FactIRL:
         The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
         value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
         fixed budgets, as the ``paper`` preset does).
-    h_solver : str or solvers.StepSolver, default="armijo"
+    transfer_max_iter : int, default=100
+        Maximum solver steps in ``transfer``.
+    solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
-        ``transfer`` uses it too. A constrained solver keeps its constraint in the
-        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
-        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one
-        uses ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H
-        objective and of ``loss_history_``, and its fits keep unit-norm primitives.
-    h_solver_options : dict, optional
-        Options for an ``h_solver`` given by name.
+        ``transfer`` uses it too. A :class:`~factirl_opt.SolverSettings` gives the four solver
+        settings as one value (then ``solver_options``, ``d_solver`` and ``d_solver_options``
+        stay at their defaults). Formerly ``h_solver`` (deprecated alias). A constrained
+        solver keeps its constraint in the initialisation and in transfer: for a nonnegative
+        one the primitives of a "pca" initialisation are sign-flipped so their coefficients
+        sum to >= 0 (a "random" one uses ``|H|``), then H0 is projected; a sparse one's L1
+        penalty is part of the H objective and of ``loss_history_``, and its fits keep
+        unit-norm primitives.
+    solver_options : dict, optional
+        Options for a ``solver`` given by name. Formerly ``h_solver_options`` (deprecated alias).
     d_solver : str or solvers.StepSolver, default="armijo"
         D-step solver (same registry; ``"armijo"`` is the paper's).
     d_solver_options : dict, optional
-    features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
-        Base features ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k), p >= k
-        (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
-        one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
-        task i's own environment, the dictionary living in feature space (docs/maths.md §8);
-        ``transfer`` then needs the new environments' features.
-    reward : {"state-action", "state"}, default="state-action"
-        Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
-        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
-        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
-        docs/maths.md §7). Refused together with ``features``.
     objective : str, default="policy-matching"
         Per-task loss (``factirl_opt.available_objectives()``).
     planner : str, default="auto"
         Planning engine (``factirl_opt.available_planners()``).
-    flat_max_iter : int, default=100
-        Iterations of the flat learner used by ``init="pca"``.
-    transfer_max_iter : int, default=100
-        Maximum solver steps in ``transfer``.
     rng : numpy.random.Generator or int or None
         Randomness of the "random" initialisation (and of completing a rank-deficient PCA).
+    n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
     verbose : bool, default=False
         Progress bars on stderr.
     callback : callable, optional
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
-    n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
+
+    Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
+    ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
+    from :class:`~factirl_opt.learners.estimator.Estimator`.
 
     Attributes
     ----------
@@ -215,33 +224,44 @@ class FactIRL:
         "transfer_stop_reason_": "text",
     }
 
-    def __init__(self, n_primitives: int = 5, beta: float = 5.0, init: Any = "pca", pca_shrink: bool = True,
-                 max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL,
-                 h_solver: Any = "armijo", h_solver_options: dict | None = None, d_solver: Any = "armijo",
-                 d_solver_options: dict | None = None, features: Any = None, objective: Any = "policy-matching",
-                 planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
-                 rng: np.random.Generator | int | None = None, verbose: bool = False,
-                 callback: Callable | None = None, reward: str = "state-action", n_jobs: int | None = None,
-                 backend: str = "processes", client: Any = None, planner_options: dict | None = None) -> None:
+    #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
+    deprecated_params: ClassVar[dict[str, str]] = {"h_solver": "solver", "h_solver_options": "solver_options"}
+    h_solver = renamed_attribute("h_solver", "solver")
+    h_solver_options = renamed_attribute("h_solver_options", "solver_options")
+    #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
+    param_kinds: ClassVar[dict[str, str]] = {
+        "features": "features", "init": "dictionary-start", "solver": "solver", "d_solver": "solver",
+        "objective": "objective", "planner": "planner", "rng": "rng", **EXECUTION_PARAM_KINDS,
+    }
+
+    @renamed_params
+    def __init__(self, n_primitives: int = 5, beta: float = 5.0, *, features: Any = None, reward: str = "state-action",
+                 init: Any = "pca", pca_shrink: bool = True, flat_max_iter: int = 100, max_iter: int = 100,
+                 inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL, transfer_max_iter: int = 100,
+                 solver: Any = "armijo", solver_options: dict | None = None, d_solver: Any = "armijo",
+                 d_solver_options: dict | None = None, objective: Any = "policy-matching", planner: str = "auto",
+                 rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
+                 client: Any = None, planner_options: dict | None = None, verbose: bool = False,
+                 callback: Callable | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
-        self.init = init
-        self.pca_shrink = pca_shrink
-        self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
-        self.h_solver = h_solver
-        self.h_solver_options = h_solver_options
-        self.d_solver = d_solver
-        self.d_solver_options = d_solver_options
         self.features = features
         self.reward = reward
+        self.init = init
+        self.pca_shrink = pca_shrink
+        self.flat_max_iter = flat_max_iter
+        self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
+        self.transfer_max_iter = transfer_max_iter
+        self.solver = solver
+        self.solver_options = solver_options
+        self.d_solver = d_solver
+        self.d_solver_options = d_solver_options
         self.objective = objective
         self.planner = planner
-        self.flat_max_iter = flat_max_iter
-        self.transfer_max_iter = transfer_max_iter
         self.rng = rng
+        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
         self.verbose = verbose
         self.callback = callback
-        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
 
     def _features(self, mdp):
         return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
@@ -368,8 +388,9 @@ class FactIRL:
         else:
             where = check_mdp(one)
             Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
-        h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
-        d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
+        h_name, h_options, d_name, d_options = estimator_solvers(self)
+        h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
+        d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
         if one is not None:
             obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
@@ -418,9 +439,10 @@ class FactIRL:
             raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
         return Phi, D
 
+    @renamed_params
     @learner_entry
     def transfer(self, mdp: Any, demos_per_task: Any, features: Any = None, max_iter: int | None = None,
-                 h_solver: Any = None, h_solver_options: dict | None = None) -> NDArray[np.float64]:
+                 solver: Any = None, solver_options: dict | None = None) -> NDArray[np.float64]:
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
@@ -440,11 +462,12 @@ class FactIRL:
             carried to the new environments). Default: the model's own (shared) features.
         max_iter : int, optional
             Default ``transfer_max_iter``.
-        h_solver : str or solvers.StepSolver, optional
-            Solver for this call only (e.g. fit with ``"armijo"``, transfer with
-            ``"gn-qp-clarabel"``); default the model's ``h_solver``.
-        h_solver_options : dict, optional
-            Options for an ``h_solver`` given by name here.
+        solver : str, solvers.StepSolver or SolverSettings, optional
+            H-step solver for this call only (e.g. fit with ``"armijo"``, transfer with
+            ``"gn-qp-clarabel"``; of a SolverSettings, its H-step solver and options); default
+            the model's ``solver``. Formerly ``h_solver`` (deprecated alias).
+        solver_options : dict, optional
+            Options for a ``solver`` given by name here. Formerly ``h_solver_options``.
 
         Returns
         -------
@@ -462,20 +485,25 @@ class FactIRL:
         new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
         if new is None:
             Phi, D = self._transfer_dictionary(mdp)
-        if h_solver is None:
-            if h_solver_options is not None:
-                raise ValidationError("h_solver_options given without h_solver")
-            h_solver, h_solver_options = self.h_solver, self.h_solver_options
+        if solver is None:
+            if solver_options is not None:
+                raise ValidationError("solver_options given without solver")
+            solver, solver_options = estimator_solvers(self)[:2]
+        elif isinstance(solver, SolverSettings):
+            if solver_options is not None:
+                raise ValidationError(f"solver_options given with solver settings {solver.label()!r}: give the options "
+                                      "in the SolverSettings")
+            solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol = check_tol(self.tol)
         if new is None:
             obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
         else:
             obj, Phi, D = new
-        solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
+        step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
-                res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+                res = run_transfer(obj, D, step_solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
                                    verbose=self.verbose)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
@@ -490,11 +518,3 @@ class FactIRL:
         self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
         self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
         self.transfer_stop_reason_ = res.reason
-
-    def __repr__(self) -> str:
-        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
-        return (
-            f"FactIRL(n_primitives={self.n_primitives}, beta={self.beta}, init={self.init!r}{reward}, "
-            f"h_solver={self.h_solver!r}, d_solver={self.d_solver!r}, objective={self.objective!r}, "
-            f"max_iter={self.max_iter}, inner_steps={self.inner_steps})"
-        )

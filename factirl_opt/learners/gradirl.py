@@ -15,6 +15,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import check_int, check_mdp, check_tol
+from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
     check_solver_applies,
@@ -35,6 +36,7 @@ from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from ..objectives.problems import weights_problem
 from ..tasks.features import linear_rewards
+from .solver_settings import estimator_solvers
 
 __all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
@@ -88,7 +90,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     return res
 
 
-class GradIRL:
+class GradIRL(Estimator):
     """Flat learner: one reward per task whose Boltzmann policy on Q* matches the expert's.
 
     Minimises eq. (5) (or another registered objective) for every task, batched over the task
@@ -114,18 +116,16 @@ class GradIRL:
         Maximum descent iterations.
     tol : float, default=1e-5
         Stop when the relative decrease of the total loss over an iteration is below tol.
-    solver : str or solvers.StepSolver, default="armijo"
-        Step solver (see ``solvers.available_solvers()``).
+    solver : str, solvers.StepSolver or SolverSettings, default="armijo"
+        Step solver (see ``solvers.available_solvers()``), or a
+        :class:`~factirl_opt.SolverSettings` (its H-step solver and options; it must not name
+        a D-step solver, which GradIRL does not have).
     solver_options : dict, optional
         Options for a solver given by name.
     objective : str, default="policy-matching"
         Per-task loss (see ``factirl_opt.available_objectives()``).
     planner : str, default="auto"
         Planning engine (see ``factirl_opt.available_planners()``).
-    verbose : bool, default=False
-        Show a progress bar (iterations, loss) on stderr.
-    callback : callable, optional
-        Called as ``callback(iteration, total_loss)`` after each iteration.
     n_jobs : int or None, default=None
         Task shards evaluated in parallel during ``fit`` (:mod:`factirl_opt.parallel.shards`,
         :mod:`factirl_opt.objectives.distributed`): None means 1 (one process, the serial code
@@ -150,6 +150,14 @@ class GradIRL:
         factorisations. Shards in other processes or on Dask workers each get this budget.
         None: no budget of the estimator's own (one set around the call with
         ``factirl_opt.planning.planning_budget`` applies).
+    verbose : bool, default=False
+        Show a progress bar (iterations, loss) on stderr.
+    callback : callable, optional
+        Called as ``callback(iteration, total_loss)`` after each iteration.
+
+    Only ``beta`` and ``features`` may be given by position; the others are keyword-only.
+    ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
+    from :class:`~factirl_opt.learners.estimator.Estimator`.
 
     Attributes
     ----------
@@ -197,11 +205,15 @@ class GradIRL:
         "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
     }
 
-    def __init__(self, beta: float = 5.0, features: Any = None, max_iter: int = 100, tol: float = 1e-5,
-                 solver: Any = "armijo", solver_options: dict | None = None, objective: Any = "policy-matching",
-                 planner: str = "auto", verbose: bool = False, callback: Callable | None = None,
-                 reward: str = "state-action", n_jobs: int | None = None, backend: str = "processes",
-                 client: Any = None, planner_options: dict | None = None) -> None:
+    #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
+    param_kinds: ClassVar[dict[str, str]] = {"features": "features", "solver": "solver", "objective": "objective",
+                                             "planner": "planner", **EXECUTION_PARAM_KINDS}
+
+    def __init__(self, beta: float = 5.0, features: Any = None, *, reward: str = "state-action", max_iter: int = 100,
+                 tol: float = 1e-5, solver: Any = "armijo", solver_options: dict | None = None,
+                 objective: Any = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
+                 backend: str = "processes", client: Any = None, planner_options: dict | None = None,
+                 verbose: bool = False, callback: Callable | None = None) -> None:
         self.beta = beta
         self.features = features
         self.reward = reward
@@ -211,10 +223,10 @@ class GradIRL:
         self.solver_options = solver_options
         self.objective = objective
         self.planner = planner
-        self.verbose = verbose
-        self.callback = callback
         self.n_jobs, self.backend, self.client = n_jobs, backend, client
         self.planner_options = planner_options
+        self.verbose = verbose
+        self.callback = callback
 
     @learner_entry
     def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
@@ -249,7 +261,7 @@ class GradIRL:
 
     def _run(self, objective, F, loop, store):
         max_iter, tol = loop
-        solver = resolve_step_solver(self.solver, self.solver_options, self.objective, "solver")
+        solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
         try:
             with options_budget(self.planner_options), \
                     sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
@@ -284,9 +296,3 @@ class GradIRL:
         self.n_iter_ = res.iterations
         self.status_ = res.status
         self.stop_reason_ = INTERRUPTED if res.status == INTERRUPTED else res.reason
-
-    def __repr__(self) -> str:
-        features = "None" if self.features is None else np.shape(self.features)
-        reward = "" if self.reward == "state-action" else f", reward={self.reward!r}"
-        return (f"GradIRL(beta={self.beta}, features={features}{reward}, max_iter={self.max_iter}, "
-                f"objective={self.objective!r})")

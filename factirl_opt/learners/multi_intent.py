@@ -20,21 +20,23 @@ labels and pair recovered intentions with true tasks.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
-import solvers
-
-from .._validation import as_rng, check_array, check_int, check_mdp
+from .._progress import fit_progress
+from .._validation import as_rng, check_array, check_bool, check_int, check_mdp
+from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
 from .fitting import features_digest, learner_entry
 from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
+from ..planning.budget import options_budget
+from .solver_settings import estimator_solvers
 from ..tasks.trajectories import parse_demonstrations
 
 __all__ = ["MultiIntentIRL", "adjusted_rand_index", "match_intentions", "INITS"]
@@ -58,7 +60,7 @@ def parse_episodes(mdp: Any, episodes: Any) -> tuple[NDArray[np.int64], NDArray[
     return task.steps, task.lengths
 
 
-class MultiIntentIRL:
+class MultiIntentIRL(Estimator):
     """EM over K intentions from unlabeled episodes; rewards flat or on a shared dictionary.
 
     Parameters
@@ -70,6 +72,10 @@ class MultiIntentIRL:
         None: each intention has its own reward (Babes-Vroman's EM; the M-step is GradIRL's
         fit). k: ``R_c = Phi D h_c`` with a dictionary D (p, k) shared by the intentions (the
         M-step is FactIRL's alternating fit; the first one starts from the PCA of flat rewards).
+    features : array_like, shape (S*A, p) or (S, p), optional
+        Base features ``Phi``; None for tabular rewards.
+    reward : {"state-action", "state"}, default="state-action"
+        As in :class:`GradIRL`.
     objective : {"policy-matching", "mce"}, default="policy-matching"
         The M-step's loss, and the policy that scores episodes in the E-step: the Boltzmann
         policy of ``Q*`` (eq. 7) or the soft-optimal policy (docs/maths.md §6). With ``"mce"``
@@ -77,41 +83,6 @@ class MultiIntentIRL:
         with policy matching it is monitored and the best point kept.
     beta : float, default=5.0
         Inverse temperature of both the objective and the E-step's policy.
-    max_iter : int, default=20
-        EM iterations (each one M-step and one E-step).
-    tol : float, default=1e-6
-        Stop when the log-likelihood changes by at most ``tol * max(1, |log-likelihood|)``.
-    n_init : int, default=1
-        EM runs from independent starts; the run of highest best log-likelihood is kept.
-    init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
-        Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
-        episodes by the actions they take in the states they share (same action: together;
-        different actions: apart; :func:`factirl_opt.learners.em.agreement_clustering`), or
-        ``"frequencies"``: k-means (k-means++ seeding, 10 seedings) of the episodes' normalised
-        state-action counts next to their action frequencies. ``"random"``: responsibilities
-        drawn from a flat Dirichlet. An array gives the starting labels (n_episodes,) or
-        responsibilities (n_episodes, K). On the paper's grid (8 tasks x 10 episodes of 10
-        steps) the agreement start is the closest to the true tasks (adjusted Rand index about
-        0.25-0.4, against 0.1-0.2 for the frequencies).
-    m_step_max_iter : int, default=20
-        Solver iterations of a flat M-step; outer iterations of a factorial one.
-    m_step_tol : float, default=1e-5
-        Relative-decrease tolerance of each M-step's solver.
-    inner_steps : int, default=5
-        Solver steps per block of the factorial M-step.
-    solver : str or solvers.StepSolver, default="armijo"
-        Step solver of every M-step block (``solvers.available_solvers()``).
-    features : array_like, shape (S*A, p) or (S, p), optional
-        Base features ``Phi``; None for tabular rewards.
-    reward : {"state-action", "state"}, default="state-action"
-        As in :class:`GradIRL`.
-    planner : str, default="auto"
-    rng : numpy.random.Generator or int or None
-        Randomness of the starts (and of completing a rank-deficient PCA).
-    callback : callable, optional
-        ``callback(iteration, log_likelihood)`` after each EM iteration (of the final fit only:
-        not of the fits that choose K with ``n_intentions="auto"``; with ``selection="bic"``
-        the kept fit is one of those).
     n_intentions_range : (int, int), optional
         ``(low, high)``, both included: the K tried by ``n_intentions="auto"``. Default
         ``(1, min(10, m))`` with m the episodes one fit sees (all of them for the BIC, those
@@ -128,6 +99,62 @@ class MultiIntentIRL:
         a few reward features.
     n_folds : int, default=3
         Folds of ``selection="held-out"``, at least 2.
+    init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
+        Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
+        episodes by the actions they take in the states they share (same action: together;
+        different actions: apart; :func:`factirl_opt.em.agreement_clustering`), or
+        ``"frequencies"``: k-means (k-means++ seeding, 10 seedings) of the episodes' normalised
+        state-action counts next to their action frequencies. ``"random"``: responsibilities
+        drawn from a flat Dirichlet. An array gives the starting labels (n_episodes,) or
+        responsibilities (n_episodes, K). On the paper's grid (8 tasks x 10 episodes of 10
+        steps) the agreement start is the closest to the true tasks (adjusted Rand index about
+        0.25-0.4, against 0.1-0.2 for the frequencies).
+    n_init : int, default=1
+        EM runs from independent starts; the run of highest best log-likelihood is kept.
+    max_iter : int, default=20
+        EM iterations (each one M-step and one E-step).
+    tol : float, default=1e-6
+        Stop when the log-likelihood changes by at most ``tol * max(1, |log-likelihood|)``.
+    m_step_max_iter : int, default=20
+        Solver iterations of a flat M-step; outer iterations of a factorial one.
+    m_step_tol : float, default=1e-5
+        Relative-decrease tolerance of each M-step's solver.
+    inner_steps : int, default=5
+        Solver steps per block of the factorial M-step.
+    solver : str, solvers.StepSolver or SolverSettings, default="armijo"
+        Step solver of a flat M-step and of the H-step of a factorial one
+        (``solvers.available_solvers()``), or a :class:`~factirl_opt.SolverSettings` giving the
+        solver settings as one value (then ``solver_options``, ``d_solver`` and
+        ``d_solver_options`` stay at their defaults).
+    solver_options : dict, optional
+        Options for a ``solver`` given by name.
+    d_solver : str or solvers.StepSolver, optional
+        D-step solver of a factorial M-step; None: ``solver`` (with ``solver_options``).
+    d_solver_options : dict, optional
+        Options for a ``d_solver`` given by name.
+    planner : str, default="auto"
+    rng : numpy.random.Generator or int or None
+        Randomness of the starts (and of completing a rank-deficient PCA).
+    n_jobs, backend, client : int or None, str, dask.distributed.Client
+        Shards of each M-step's objective over the K intentions, as in
+        :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.distributed.sharded`): the
+        shards' workers are started for each M-step (the intentions' statistics change with
+        the responsibilities) and stopped after it, so they pay off when an M-step plans large
+        MDPs; the E-step plans in this process. The result equals ``n_jobs=1``'s to rounding.
+    planner_options : dict, optional
+        ``{"max_bytes": B}``: the planning memory budget of ``fit`` (as in :class:`GradIRL`).
+    verbose : bool, default=False
+        Show a progress bar of the EM iterations (and the log-likelihood) on stderr, over the
+        ``n_init`` runs of the final fit.
+    callback : callable, optional
+        ``callback(iteration, log_likelihood)`` after each EM iteration (of the final fit only:
+        not of the fits that choose K with ``n_intentions="auto"``; with ``selection="bic"``
+        the kept fit is one of those).
+
+    Only ``n_intentions`` and ``n_primitives`` may be given by position; the others are
+    keyword-only. ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the
+    ``repr`` come from :class:`~factirl_opt.learners.estimator.Estimator`; a fitted model saves and
+    loads with :func:`~factirl_opt.save_model` and :func:`~factirl_opt.load_model`.
 
     Attributes
     ----------
@@ -170,32 +197,56 @@ class MultiIntentIRL:
     :meth:`FactIRL.transfer` fits new tasks' coefficients.
     """
 
-    def __init__(self, n_intentions: int | str, n_primitives: int | None = None, objective: str = "policy-matching",
-                 beta: float = 5.0, max_iter: int = 20, tol: float = 1e-6, n_init: int = 1, init: Any = "agreement",
+    #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
+    param_kinds: ClassVar[dict[str, str]] = {
+        "features": "features", "init": "responsibility-start", "solver": "solver", "d_solver": "solver",
+        "objective": "objective", "planner": "planner", "rng": "rng", **EXECUTION_PARAM_KINDS,
+    }
+    #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
+    #: ``load_model`` what to check (factirl_opt.persistence.learnt): m episodes, K intentions,
+    #: S, A of the MDP, p parameters, k primitives, c candidate K.
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
+        "labels_": ("integers", "m"), "responsibilities_": ("m", "K"), "mixture_weights_": ("K",),
+        "rewards_": ("K", "S", "A"), "weights_": ("K", "p"), "dictionary_": ("p", "k"), "coefficients_": ("K", "k"),
+        "log_likelihood_": "history", "best_log_likelihood_": "number", "n_iter_": "count", "n_intentions_": "count",
+        "n_intentions_candidates_": ("integers", "c"), "n_intentions_scores_": ("c",), "converged_": "flag",
+        "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
+    }
+
+    def __init__(self, n_intentions: int | str, n_primitives: int | None = None, *, features: Any = None,
+                 reward: str = "state-action", objective: str = "policy-matching", beta: float = 5.0,
+                 n_intentions_range: tuple[int, int] | None = None, selection: str = "held-out", n_folds: int = 3,
+                 init: Any = "agreement", n_init: int = 1, max_iter: int = 20, tol: float = 1e-6,
                  m_step_max_iter: int = 20, m_step_tol: float = 1e-5, inner_steps: int = 5,
-                 solver: str | solvers.StepSolver = "armijo", features: Any = None, reward: str = "state-action",
-                 planner: str = "auto", rng: np.random.Generator | int | None = None,
-                 callback: Callable | None = None, n_intentions_range: tuple[int, int] | None = None,
-                 selection: str = "held-out", n_folds: int = 3) -> None:
+                 solver: Any = "armijo", solver_options: dict | None = None, d_solver: Any = None,
+                 d_solver_options: dict | None = None, planner: str = "auto",
+                 rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
+                 client: Any = None, planner_options: dict | None = None, verbose: bool = False,
+                 callback: Callable | None = None) -> None:
         self.n_intentions = n_intentions
+        self.n_primitives = n_primitives
+        self.features = features
+        self.reward = reward
+        self.objective = objective
+        self.beta = beta
         self.n_intentions_range = n_intentions_range
         self.selection = selection
         self.n_folds = n_folds
-        self.n_primitives = n_primitives
-        self.objective = objective
-        self.beta = beta
+        self.init = init
+        self.n_init = n_init
         self.max_iter = max_iter
         self.tol = tol
-        self.n_init = n_init
-        self.init = init
         self.m_step_max_iter = m_step_max_iter
         self.m_step_tol = m_step_tol
         self.inner_steps = inner_steps
         self.solver = solver
-        self.features = features
-        self.reward = reward
+        self.solver_options = solver_options
+        self.d_solver = d_solver
+        self.d_solver_options = d_solver_options
         self.planner = planner
         self.rng = rng
+        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
+        self.verbose = verbose
         self.callback = callback
 
     def _given_start(self, n, K):
@@ -246,22 +297,45 @@ class MultiIntentIRL:
         steps, lengths = parse_episodes(mdp, episodes)
         init = self._check_init()
         n_init = check_int(self.n_init, "n_init", minimum=1)
+        check_bool(self.verbose, "verbose")
+        if self.callback is not None and not callable(self.callback):
+            raise ValidationError(f"callback must be callable as callback(iteration, log_likelihood); "
+                                  f"got {type(self.callback).__name__}")
         rng = as_rng(self.rng)
-        if isinstance(self.n_intentions, str):
-            K, run = self._select(mdp, steps, lengths, init, n_init, rng)
-        else:
-            K = check_int(self.n_intentions, "n_intentions", minimum=1)
-            if K > len(lengths):
-                raise ValidationError(f"n_intentions={K} exceeds the number of episodes ({len(lengths)})")
-            run = None
-            for stale in ("n_intentions_candidates_", "n_intentions_scores_"):  # of an earlier "auto" fit
-                self.__dict__.pop(stale, None)
-        settings = EMSettings.build(self, mdp, K)
-        if run is None:
-            given = self._given_start(len(lengths), K) if init == "given" else None
-            run = best_of_runs(mdp, steps, lengths, settings, init, given, rng, n_init, self.callback)
+        with options_budget(self.planner_options):
+            if isinstance(self.n_intentions, str):
+                K, run = self._select(mdp, steps, lengths, init, n_init, rng)
+            else:
+                K = check_int(self.n_intentions, "n_intentions", minimum=1)
+                if K > len(lengths):
+                    raise ValidationError(f"n_intentions={K} exceeds the number of episodes ({len(lengths)})")
+                run = None
+                for stale in ("n_intentions_candidates_", "n_intentions_scores_"):  # of an earlier "auto" fit
+                    self.__dict__.pop(stale, None)
+            settings = EMSettings.build(self, mdp, K)
+            if run is None:
+                given = self._given_start(len(lengths), K) if init == "given" else None
+                with fit_progress(None, self.verbose, n_init * settings.max_iter, "MultiIntentIRL.fit",
+                                  "log-likelihood") as bar:
+                    run = best_of_runs(mdp, steps, lengths, settings, init, given, rng, n_init,
+                                       self._watch(bar))
         self._store(mdp, settings, run)
         return self
+
+    def _watch(self, bar: Callable) -> Callable | None:
+        """The EM loop's callback: the progress bar over every run's iterations, and the user's ``callback``."""
+        if not self.verbose and self.callback is None:
+            return None
+        done = 0
+
+        def watch(iteration: int, log_likelihood: float) -> None:
+            nonlocal done
+            done += 1
+            bar(done, log_likelihood)
+            if self.callback is not None:
+                self.callback(iteration, log_likelihood)
+
+        return watch
 
     def _select(self, mdp, steps, lengths, init, n_init, rng):
         """``n_intentions="auto"``: K chosen over ``n_intentions_range``; the BIC's fit of that K, or None."""
@@ -321,7 +395,8 @@ class MultiIntentIRL:
         """A fitted :class:`FactIRL` holding the learnt dictionary, ready for :meth:`FactIRL.transfer`.
 
         Its ``coefficients_`` and ``rewards_`` are the intentions'; its hyper-parameters (beta,
-        objective, features, reward, planner, solvers, tol) are this estimator's.
+        objective, features, reward, planner, solvers, tol, and the execution settings) are this
+        estimator's.
 
         Raises
         ------
@@ -330,18 +405,19 @@ class MultiIntentIRL:
         """
         if not hasattr(self, "dictionary_"):
             raise NotFittedError("this MultiIntentIRL has no dictionary_: fit it with n_primitives=k first")
+        solver, options, d_solver, d_options = estimator_solvers(self)
+        if d_solver is None:  # the M-step's D-step solver: the H-step's
+            d_solver, d_options = solver, options
         model = FactIRL(n_primitives=self.dictionary_.shape[1], beta=self.beta, tol=self.m_step_tol,
-                        inner_steps=self.inner_steps, h_solver=self.solver, d_solver=self.solver,
-                        features=self.features, reward=self.reward, objective=self.objective, planner=self.planner,
-                        rng=self.rng)
+                        inner_steps=self.inner_steps, solver=solver, solver_options=options, d_solver=d_solver,
+                        d_solver_options=d_options, features=self.features, reward=self.reward,
+                        objective=self.objective, planner=self.planner, rng=self.rng, n_jobs=self.n_jobs,
+                        backend=self.backend, client=self.client, planner_options=self.planner_options,
+                        verbose=self.verbose, callback=self.callback)
         model.dictionary_, model.coefficients_ = self.dictionary_.copy(), self.coefficients_.copy()
         model.rewards_ = self.rewards_.copy()
         model.mdp_signature_, model.features_sha256_ = self.mdp_signature_, self.features_sha256_
         return model
-
-    def __repr__(self) -> str:
-        return (f"MultiIntentIRL(n_intentions={self.n_intentions}, n_primitives={self.n_primitives}, "
-                f"objective={self.objective!r}, beta={self.beta}, max_iter={self.max_iter}, n_init={self.n_init})")
 
 
 def adjusted_rand_index(labels_true: ArrayLike, labels_pred: ArrayLike) -> float:

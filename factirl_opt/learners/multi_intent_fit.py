@@ -31,8 +31,10 @@ from .fitting import resolve_step_solver, reward_features
 from .gradirl import weights_rewards
 from ..interruption import run_keeping_best
 from ..objectives import available_objectives, get_objective
+from ..objectives.sharding import sharded
 from ..planning import get_planner
 from ..objectives.problems import weights_problem
+from .solver_settings import estimator_solvers
 
 __all__ = ["WeightedObjective", "EMSettings", "EMRun", "flat_m_step", "factorial_m_step", "run_em",
            "start_responsibilities", "best_of_runs", "episode_subset", "episode_log_likelihoods"]
@@ -115,6 +117,10 @@ class EMSettings:
     m_max_iter: int
     m_tol: float
     inner_steps: int
+    d_solver: solvers.StepSolver | None = None  # the D-step's; None: ``solver``
+    n_jobs: int | None = None  # shards of each M-step's objective (objectives.distributed.sharded)
+    backend: str = "processes"
+    client: Any = None
 
     @classmethod
     def build(cls, est: Any, mdp: Any, K: int) -> EMSettings:
@@ -131,11 +137,16 @@ class EMSettings:
             k = check_int(est.n_primitives, "n_primitives", minimum=1)
             if k > p:
                 raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
+        solver, options, d_solver, d_options = estimator_solvers(est)
+        if d_solver is None and d_options is not None:
+            raise ValidationError("d_solver_options given without d_solver")
         return cls(K, k, objective, objective.name, check_beta(est.beta), get_planner(mdp, est.planner), est.planner,
-                   Phi, resolve_step_solver(est.solver, None, objective.name, "solver"),
+                   Phi, resolve_step_solver(solver, options, objective.name, "solver"),
                    check_int(est.max_iter, "max_iter", minimum=1), check_tol(est.tol),
                    check_int(est.m_step_max_iter, "m_step_max_iter", minimum=0), check_tol(est.m_step_tol, "m_step_tol"),
-                   check_int(est.inner_steps, "inner_steps", minimum=1))
+                   check_int(est.inner_steps, "inner_steps", minimum=1),
+                   None if d_solver is None else resolve_step_solver(d_solver, d_options, objective.name, "d_solver"),
+                   est.n_jobs, est.backend, est.client)
 
 
 @dataclasses.dataclass
@@ -179,7 +190,8 @@ def factorial_m_step(objective: WeightedObjective, settings: EMSettings, params:
         H = shrink_coefficients(lambda Hs: objective.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)[0]
     else:
         D, H = params
-    fit = run_factorial(objective, D, H, settings.solver, settings.solver, base_features=Phi,
+    d_solver = settings.solver if settings.d_solver is None else settings.d_solver
+    fit = run_factorial(objective, D, H, settings.solver, d_solver, base_features=Phi,
                         max_iter=settings.m_max_iter, inner_steps=settings.inner_steps, tol=settings.m_tol, gtol=GTOL)
     return fit.dictionary, fit.coefficients
 
@@ -208,13 +220,14 @@ def _m_step(mdp, counts, resp, settings, params, rng):
     """Parameters and rewards (K, S, A) fitted to the responsibilities, and the mixture weights."""
     mu, pi, steps = weighted_statistics(counts, resp, mdp.n_states, mdp.n_actions)
     base = settings.objective(mdp, mu, pi, settings.beta, planner=settings.planner_name)
-    obj = WeightedObjective(base, steps / steps.sum())
     S, A, Phi = mdp.n_states, mdp.n_actions, settings.features
-    if settings.n_primitives is None:
-        p = mdp.n_params if Phi is None else Phi.shape[1]
-        W = flat_m_step(obj, settings, np.zeros((settings.n_intentions, p)) if params is None else params)
-        return W, weights_rewards(Phi, W, S, A), resp.mean(axis=0)
-    D, H = factorial_m_step(obj, settings, params, rng)
+    with sharded(base, settings.n_jobs, settings.backend, settings.client, settings.planner_name) as base:
+        obj = WeightedObjective(base, steps / steps.sum())
+        if settings.n_primitives is None:
+            p = mdp.n_params if Phi is None else Phi.shape[1]
+            W = flat_m_step(obj, settings, np.zeros((settings.n_intentions, p)) if params is None else params)
+            return W, weights_rewards(Phi, W, S, A), resp.mean(axis=0)
+        D, H = factorial_m_step(obj, settings, params, rng)
     return (D, H), factorial_rewards(mdp, Phi, D, H), resp.mean(axis=0)
 
 

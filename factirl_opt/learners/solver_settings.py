@@ -4,9 +4,10 @@
 choose its step solvers: the H-step solver (per-task coefficients) and the D-step solver (the
 shared dictionary), each with its options (docs/maths.md §8). It is validated once, at
 construction, and then travels as one value through the experiment presets, the planned runs,
-the learner line-ups, the command line and the benchmarks; :meth:`SolverSettings.learner_kwargs`
-hands it to the learners as their keyword arguments ``h_solver``, ``h_solver_options``,
-``d_solver`` and ``d_solver_options``.
+the learner line-ups, the command line and the benchmarks. The estimators take it as one value,
+``solver=SolverSettings(...)``, or per name: :meth:`SolverSettings.learner_kwargs` gives their
+keyword arguments ``solver`` (the H-step's), ``solver_options``, ``d_solver`` and
+``d_solver_options``; :func:`estimator_solvers` reads either form back from an estimator.
 
 Options are stored as canonical JSON (sorted keys, no spaces; ``""``: none), so settings are
 hashable, ordered, and compare equal exactly when they configure the same solvers.
@@ -24,7 +25,7 @@ import solvers
 
 from ..exceptions import ValidationError, translate_solver_errors
 
-__all__ = ["SolverSettings", "decode_options"]
+__all__ = ["SolverSettings", "decode_options", "estimator_solvers"]
 
 
 def decode_options(text: str) -> dict[str, Any]:
@@ -80,7 +81,8 @@ class SolverSettings:
     >>> s = SolverSettings("gn-qp-osqp-sparse", {"alpha": 0.03}, d_solver="lbfgs")
     >>> s.label()
     'gn-qp-osqp-sparse {"alpha":0.03} | d: lbfgs'
-    >>> FactIRL(n_primitives=5, **s.learner_kwargs())  # doctest: +SKIP
+    >>> FactIRL(n_primitives=5, solver=s)  # doctest: +SKIP
+    >>> FactIRL(n_primitives=5, **s.learner_kwargs())  # the same, per name  # doctest: +SKIP
     """
 
     h_solver: str = "armijo"
@@ -114,15 +116,15 @@ class SolverSettings:
         return decode_options(self.d_solver_options)
 
     def learner_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`~factirl_opt.FactIRL` for these settings.
+        """Keyword arguments of :class:`~factirl_opt.FactIRL` for these settings, per name.
 
-        ``h_solver`` always; ``h_solver_options`` when there are options; ``d_solver`` (and
-        ``d_solver_options``, when there are options) only when a D-step solver is named, so
-        the default settings build exactly ``FactIRL(h_solver="armijo")``.
+        ``solver`` (the H-step solver) always; ``solver_options`` when there are options;
+        ``d_solver`` (and ``d_solver_options``, when there are options) only when a D-step
+        solver is named, so the default settings build exactly ``FactIRL(solver="armijo")``.
         """
-        kw: dict[str, Any] = {"h_solver": self.h_solver}
+        kw: dict[str, Any] = {"solver": self.h_solver}
         if self.h_solver_options:
-            kw["h_solver_options"] = self.h_options
+            kw["solver_options"] = self.h_options
         if self.d_solver:
             kw["d_solver"] = self.d_solver
             if self.d_solver_options:
@@ -169,3 +171,45 @@ class SolverSettings:
         """The four settings as plain values: options as dicts, ``d_solver`` None for the default."""
         return dict(h_solver=self.h_solver, h_solver_options=self.h_options, d_solver=self.d_solver or None,
                     d_solver_options=self.d_options)
+
+
+def estimator_solvers(estimator: Any, d_step: bool = True) -> tuple[Any, dict | None, Any, dict | None]:
+    """An estimator's solvers as ``(solver, solver_options, d_solver, d_solver_options)``.
+
+    The estimator gives them as one :class:`SolverSettings` in its ``solver`` parameter, or per
+    name (``solver``, ``solver_options`` and, with a D-step, ``d_solver``, ``d_solver_options``).
+    A :class:`SolverSettings` whose D-step solver is not named leaves the estimator's default
+    D-step (``d_solver``'s default: ``"armijo"`` for FactIRL, None for MultiIntentIRL, whose
+    None means the H-step solver).
+
+    Parameters
+    ----------
+    estimator : GradIRL, FactIRL or MultiIntentIRL
+    d_step : bool
+        Whether the estimator has a D-step (GradIRL has none: its ``d_solver`` is None).
+
+    Raises
+    ------
+    ValidationError
+        ``solver`` is a SolverSettings and another solver parameter is given too (not its
+        default), or, without a D-step, the settings name a D-step solver.
+    """
+    solver = estimator.solver
+    d_solver = getattr(estimator, "d_solver", None) if d_step else None
+    d_options = getattr(estimator, "d_solver_options", None) if d_step else None
+    if not isinstance(solver, SolverSettings):
+        return solver, estimator.solver_options, d_solver, d_options
+    defaults = type(estimator).param_defaults()
+    name = type(estimator).__name__
+    given = [key for key, value in (("solver_options", estimator.solver_options), ("d_solver", d_solver),
+                                    ("d_solver_options", d_options))
+             if key in defaults and value is not defaults[key] and value != defaults[key]]
+    if given:
+        raise ValidationError(f"{name}: give the solvers either as one SolverSettings in solver or per name, not both; "
+                              f"got solver={solver.label()!r} and {given[0]}={getattr(estimator, given[0])!r}")
+    if not d_step and solver.d_solver:
+        raise ValidationError(f"{name} has no D-step: its solver settings cannot name a d_solver; "
+                              f"got {solver.label()!r}")
+    if not solver.d_solver:
+        return solver.h_solver, solver.h_options or None, d_solver, d_options
+    return solver.h_solver, solver.h_options or None, solver.d_solver, solver.d_options or None

@@ -7,16 +7,20 @@ holding plain numeric arrays only, so it loads with ``allow_pickle=False``, plus
     {"format": "factirl-opt", "format_version": 2, "kind": "model" | "demonstrations",
      "library_version": "0.1.0", "numpy_version": "1.26.4", ...}
 
-A **model** file adds ``"class"`` (``"GradIRL"`` or ``"FactIRL"``), ``"params"`` (the
-constructor parameters), ``"array_params"`` (names of parameters stored as arrays:
-``features``, or ``init`` given as a tuple ``(D0, H0)``), ``"attributes"`` (learnt
-attributes that are not arrays: lists of losses, counts, status strings, the MDP signature,
-the features digest) and ``"array_attributes"``. Arrays are stored as members
+A **model** file adds ``"class"`` (``"GradIRL"``, ``"FactIRL"`` or ``"MultiIntentIRL"``),
+``"params"`` (the constructor parameters, ``model.get_params()``), ``"array_params"`` (names
+of parameters stored as arrays: ``features``, FactIRL's ``init`` given as a tuple
+``(D0, H0)``, MultiIntentIRL's ``init`` given as labels or responsibilities), ``"attributes"``
+(learnt attributes that are not arrays: lists of losses, counts, status strings, the MDP
+signature, the features digest) and ``"array_attributes"``. Arrays are stored as members
 ``param/<name>`` and ``attr/<name>``, exactly (dtype and bits), so a loaded model transfers
 and scores bit-identically.
 
-Learnt attributes. Which attributes are saved, and how each is checked on saving and loading,
-comes from the class: ``GradIRL.learnt_attributes`` and ``FactIRL.learnt_attributes`` map
+Parameters and learnt attributes. Which parameters are saved comes from the estimator's
+``get_params()`` (the arguments of its ``__init__``, :class:`factirl_opt.learners.estimator.Estimator`),
+and how each is stored from the kind its class declares in ``param_kinds``
+(:data:`.params.PARAM_KINDS`; undeclared: plain JSON). Which attributes are saved, and how
+each is checked on saving and loading, comes from the class too: ``learnt_attributes`` maps
 each attribute ``fit`` or ``transfer`` sets to its kind (:mod:`.learnt`). An attribute the
 class does not declare is refused, on saving and on loading. Every declared attribute is
 optional in a file, so files written before an attribute existed still load (see
@@ -44,11 +48,14 @@ header's ``"array_list_attributes"``.
 Parameters that do not fit in JSON:
 
 - a solver, objective or planner given as an object rather than a registry name (``solver``,
-  ``h_solver``, ``d_solver``, ``objective``, ``planner``) is refused with a
-  :class:`PersistenceError`: give it by name, a solver with its options
-  (``solver="armijo", solver_options={...}``), which are stored;
-- ``callback``, a function called during ``fit``, is not part of the model and is not saved:
-  the loaded model has ``callback=None``;
+  ``d_solver``, ``objective``, ``planner``) is refused with a :class:`PersistenceError`: give
+  it by name, a solver with its options (``solver="armijo", solver_options={...}``), which are
+  stored; a :class:`~factirl_opt.SolverSettings` given as ``solver`` is stored as its fields;
+- the execution settings (``callback``, a function called during ``fit``; ``n_jobs``,
+  ``backend``, ``client``, ``planner_options``) are not part of the model and are not saved:
+  the loaded model has their defaults (``callback=None``);
+- a parameter saved under a name since renamed (FactIRL's ``h_solver``, ``h_solver_options``,
+  before they became ``solver``, ``solver_options``) loads under its name now;
 - ``rng`` given as a ``numpy.random.Generator`` is stored as its bit generator's state (the
   loaded model gets a new Generator in that state); a ``SeedSequence`` by its entropy and
   spawn key; an int or None as is;

@@ -190,7 +190,7 @@ def check_array(arr: np.ndarray, what: str, context: str, ndim: int | None = Non
     """A stored array: numeric of the given dtype kinds and ndim, and finite; PersistenceError otherwise."""
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in kinds or (ndim is not None and arr.ndim != ndim):
         rule = f"{ndim}-d " if ndim is not None else ""
-        rule += "float" if kinds == "f" else "numeric"
+        rule += "float" if kinds == "f" else "integer" if kinds == "iu" else "numeric"
         got = f"{arr.dtype} of shape {arr.shape}" if isinstance(arr, np.ndarray) else f"{type(arr).__name__} {arr!r:.60}"
         raise PersistenceError(f"{context}: {what} must be a {rule} array; got {got}")
     if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):

@@ -12,6 +12,7 @@ A kind is either
   ``("n", "S", "A")``. Axes with the same name have the same length across the attributes;
   ``S`` and ``A`` are the MDP's (from ``mdp_signature_``) and ``p``, the number of reward
   parameters, is the number of columns of the ``features`` parameter when there is one;
+- a tuple ``("integers", *axes)``: an array of integers >= 0 on those axes (e.g. labels);
 - or one of the strings of :data:`KINDS`.
 """
 
@@ -28,13 +29,15 @@ from ..learners.fitting import features_digest
 from ..mdp.tabular import SIGNATURE_KEYS
 from .archive import check_array
 
-__all__ = ["KINDS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "learnt_attributes", "check_learnt", "features_sha256",
-           "fitted_features_sha256", "check_features_digest"]
+__all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "array_axes", "learnt_attributes",
+           "check_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest"]
 
 
 #: The kinds of learnt attributes that are not arrays, and what each holds.
 KINDS = {
     "count": "an integer >= 0",
+    "number": "a finite number",
+    "flag": "True or False",
     "history": "a list of finite numbers",
     "text": "a string",
     "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature), or a non-empty list "
@@ -46,8 +49,17 @@ KINDS = {
 Kind = tuple[str, ...] | str
 
 
+#: The first item of an array kind of integers >= 0: ``("integers", "m")``.
+INTEGERS = "integers"
+
+
 def is_array_kind(kind: Kind) -> bool:
     return isinstance(kind, tuple)
+
+
+def array_axes(kind: tuple[str, ...]) -> tuple[str, ...]:
+    """The axis names of an array kind (without the ``"integers"`` mark)."""
+    return kind[1:] if kind[:1] == (INTEGERS,) else kind
 
 
 def learnt_attributes(cls: type) -> dict[str, Kind]:
@@ -98,6 +110,10 @@ def _check_value(key: str, kind: str, value: Any, context: str) -> None:
                 check_real(v, f"attribute {key}[{t}]")
         elif kind == "text" and not isinstance(value, str):
             raise ValidationError(f"attribute {key} must be a string; got {value!r:.60}")
+        elif kind == "number":
+            check_real(value, f"attribute {key}")
+        elif kind == "flag" and not isinstance(value, bool):
+            raise ValidationError(f"attribute {key} must be True or False; got {value!r:.60}")
         elif kind == "features-digest" and not (value is None or _is_sha256(value)):
             raise ValidationError(f"attribute {key} must be {KINDS[kind]}; got {value!r:.80}")
     except ValidationError as exc:
@@ -113,9 +129,9 @@ def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dic
         if is_array_kind(kind) and isinstance(value, list):  # per-task (S_i, A) arrays: their count and A
             value = np.empty((len(value), 0, value[0].shape[1]) if value else (0, 0, 0))
             kind = (kind[0], "S_i", kind[2])
-        if not (is_array_kind(kind) and isinstance(value, np.ndarray)):
+        if not (isinstance(kind, tuple) and isinstance(value, np.ndarray)):
             continue
-        for i, axis in enumerate(kind):
+        for i, axis in enumerate(array_axes(kind)):
             length = value.shape[i]
             if axis not in axes:
                 axes[axis] = (length, f"axis {i} of {key} (shape {value.shape})")
@@ -172,6 +188,10 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
         if isinstance(kind, tuple) and isinstance(value, list) and kind[1:] == ("S", "A"):  # per-task (S_i, A) arrays
             for i, v in enumerate(value):
                 check_array(v, f"attribute {key}[{i}]", context, len(kind) - 1, "f")
+        elif isinstance(kind, tuple) and kind[:1] == (INTEGERS,):
+            check_array(value, f"attribute {key}", context, len(kind) - 1, "iu")
+            if np.any(value < 0):
+                raise PersistenceError(f"{context}: attribute {key} must hold integers >= 0; found {value.min()}")
         elif isinstance(kind, tuple):
             if _unevaluated_loss(key, value, attributes):
                 value = np.where(np.isnan(value), 0.0, value)

@@ -1,4 +1,4 @@
-"""Saving and loading fitted estimators (:class:`GradIRL`, :class:`FactIRL`)."""
+"""Saving and loading estimators (:class:`GradIRL`, :class:`FactIRL`, :class:`MultiIntentIRL`), fitted or not."""
 
 from __future__ import annotations
 
@@ -10,14 +10,22 @@ from ..exceptions import PersistenceError, ValidationError
 from ..learners.factirl import FactIRL
 from ..learners.fitting import per_task_features
 from ..learners.gradirl import GradIRL
+from ..learners.multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
-from .params import decode_params, encode_params
+from .params import decode_params, encode_params, param_kind
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
 
 #: The estimator classes a file can hold, by the name stored in its header.
-MODEL_CLASSES: dict[str, type] = {cls.__name__: cls for cls in (GradIRL, FactIRL)}
+MODEL_CLASSES: dict[str, type] = {cls.__name__: cls for cls in (GradIRL, FactIRL, MultiIntentIRL)}
+
+
+def _base_features(cls: type, params: dict[str, Any]) -> Any:
+    """The value of the class's parameter of kind ``"features"`` (the base features the learnt
+    attributes are checked against), None if it declares none."""
+    names = [key for key in dict(getattr(cls, "param_kinds", {})) if param_kind(cls, key) == "features"]
+    return params.get(names[0]) if names else None
 
 
 def _feature_columns(features: Any) -> int | None:
@@ -40,12 +48,18 @@ def _is_array_list(value: Any) -> bool:
 
 
 def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """The learnt attributes (names ending in ``_``) as JSON values and arrays, checked against the declaration."""
+    """The learnt attributes the class declares and the model has, as JSON values and arrays, checked.
+
+    Any other attribute named as a learnt one (ending in ``_``) is refused rather than dropped
+    (:func:`~.learnt.check_learnt`): the loaded model would silently lack it.
+    """
     name = cls.__name__
+    declared = learnt_attributes(cls)
     attributes, arrays = {}, {}
-    for key, value in vars(model).items():
-        if not key.endswith("_") or key.startswith("_"):
-            continue
+    present = {key: getattr(model, key) for key in declared if hasattr(model, key)}
+    present.update({key: value for key, value in vars(model).items()
+                    if key.endswith("_") and not key.startswith("_") and key not in declared})
+    for key, value in present.items():
         if isinstance(value, np.ndarray):
             if value.dtype.hasobject:
                 raise PersistenceError(f"cannot save {name} attribute {key}: it is an object array")
@@ -54,22 +68,24 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
             arrays[key] = value
         else:
             attributes[key] = to_json(value, f"{name} attribute {key}")
-    _check(cls, {**attributes, **arrays}, getattr(model, "features", None), f"cannot save {name}")
+    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params()), f"cannot save {name}")
     return attributes, arrays
 
 
-def save_model(model: GradIRL | FactIRL, path: Target) -> str | IO[bytes]:
-    """Save a :class:`GradIRL` or :class:`FactIRL` (fitted or not) to an ``.npz`` file.
+def save_model(model: GradIRL | FactIRL | MultiIntentIRL, path: Target) -> str | IO[bytes]:
+    """Save a :class:`GradIRL`, :class:`FactIRL` or :class:`MultiIntentIRL` (fitted or not) to an ``.npz`` file.
 
-    Stores the constructor parameters (except ``callback``, which is not saved) and the
-    learnt attributes the class declares in ``learnt_attributes`` (arrays exactly), each
-    checked against its declared kind; see :mod:`factirl_opt.persistence` for the format.
+    Stores the parameters of ``model.get_params()``, each as the class declares its kind in
+    ``param_kinds`` (the execution settings ``callback``, ``n_jobs``, ``backend``, ``client``
+    and ``planner_options`` are not saved), and the learnt attributes the class declares in
+    ``learnt_attributes`` (arrays exactly), each checked against its declared kind; see
+    :mod:`factirl_opt.persistence` for the format.
     A path is written atomically: on a failure (a full disk, Ctrl-C) the previous file stays
     intact and no partial file remains.
 
     Parameters
     ----------
-    model : GradIRL or FactIRL
+    model : GradIRL, FactIRL or MultiIntentIRL
     path : str or os.PathLike or writable binary file
         Written as given (no ``.npz`` suffix is appended).
 
@@ -88,11 +104,12 @@ def save_model(model: GradIRL | FactIRL, path: Target) -> str | IO[bytes]:
         written (a missing or read-only directory, a path that is a directory, a full disk:
         the message names the path and the cause, the ``OSError`` is chained).
     ValidationError
-        ``model`` is not a GradIRL or FactIRL, or ``path`` neither a path nor a writable file.
+        ``model`` is not a GradIRL, FactIRL or MultiIntentIRL, or ``path`` neither a path nor a
+        writable file.
     """
     cls = type(model)
     if MODEL_CLASSES.get(cls.__name__) is not cls:
-        raise ValidationError(f"model must be a GradIRL or FactIRL; got {cls.__name__}")
+        raise ValidationError(f"model must be one of {', '.join(MODEL_CLASSES)}; got {cls.__name__}")
     params, arrays, array_params = encode_params(model, cls.__name__)
     attributes, array_attributes = _encode_attributes(model, cls)
     lists = {key: len(value) for key, value in array_attributes.items() if isinstance(value, list)}
@@ -127,7 +144,7 @@ def _decode_attributes(cls: type, header: dict, contents: dict[str, np.ndarray],
     return attributes
 
 
-def load_model(path: Target) -> GradIRL | FactIRL:
+def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
     """Load a model written by :func:`save_model`.
 
     Parameters
@@ -136,9 +153,10 @@ def load_model(path: Target) -> GradIRL | FactIRL:
 
     Returns
     -------
-    model : GradIRL or FactIRL
+    model : GradIRL, FactIRL or MultiIntentIRL
         With the saved parameters and learnt attributes: it transfers and scores exactly like
-        the saved model. Every declared attribute is optional, so files written before an
+        the saved model. A parameter saved under a name since renamed (FactIRL's
+        ``h_solver``, ``h_solver_options``) loads under its name now. Every declared attribute is optional, so files written before an
         attribute existed still load. A fitted model's file without ``mdp_signature_`` (format
         version 1, or attributes set by hand) loads with ``mdp_signature_ = None`` (unknown:
         such a model cannot check the MDP it is used on); one without ``features_sha256_``
@@ -162,8 +180,9 @@ def load_model(path: Target) -> GradIRL | FactIRL:
     if name not in MODEL_CLASSES:
         raise PersistenceError(f"{label} holds a model of unknown class {name!r:.40}; known: {', '.join(MODEL_CLASSES)}")
     cls = MODEL_CLASSES[name]
-    params = decode_params(header, contents, label)
-    attributes = _decode_attributes(cls, header, contents, label, params.get("features"))
+    params = decode_params(cls, header, contents, label)
+    features = _base_features(cls, params)
+    attributes = _decode_attributes(cls, header, contents, label, features)
     try:
         model = cls(**params)
     except TypeError as exc:
@@ -171,7 +190,7 @@ def load_model(path: Target) -> GradIRL | FactIRL:
     for key, value in attributes.items():
         setattr(model, key, value)
     if attributes:
-        _complete_old_file(model, cls, attributes, params.get("features"), label)
+        _complete_old_file(model, cls, attributes, features, label)
     return model
 
 

@@ -124,7 +124,7 @@ def test_fit_mode_under_a_budget_matches_the_unbounded_fit(capsys):
     assert a["tasks_per_chunk"] == {"jacobian": 4, "gradient": 4} and b["tasks_per_chunk"] == {"jacobian": 1, "gradient": 1}
     assert a["fit_s_per_iter"] == pytest.approx(a["fit_s"] / 2) and a["planning_bytes_per_task"] > 0
     assert free["settings"]["max_bytes"] is None and tight["settings"]["max_bytes"] == 1
-    assert tight["settings"]["fit_iter"] == 2 and tight["settings"]["fit"]["h_solver"] == "gn-qp-clarabel"
+    assert tight["settings"]["fit_iter"] == 2 and tight["settings"]["fit"]["solver"] == "gn-qp-clarabel"
     # in one process, the summed peak is that process's
     assert tight["peak_rss_summed_mb"]["5x5"] >= b["peak_rss_mb"] >= b["peak_rss_before_fit_mb"] > 0
 

@@ -97,7 +97,7 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solvers == SolverSettings() == SolverSettings("armijo", None, None, None)
     assert spec.solvers.fields() == dict(h_solver="armijo", h_solver_options="", d_solver="", d_solver_options="")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
-    assert factorial_options(TINY, spec.solvers) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, h_solver="armijo",
+    assert factorial_options(TINY, spec.solvers) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, solver="armijo",
                                                  flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
                                                  planner="auto", gtol=0.0, tol=1e-5, pca_shrink=False)
     import inspect
@@ -112,14 +112,14 @@ def test_h_solver_options_reach_factirl(monkeypatch):
     RecordingFactIRL.seen = []
     monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
     rec = run_one(TINY, spec)
-    assert [s["h_solver_options"] for s in RecordingFactIRL.seen] == [{"initial_step": 0.5}] * 2
+    assert [s["solver_options"] for s in RecordingFactIRL.seen] == [{"initial_step": 0.5}] * 2
     assert all(s["d_solver"] == "armijo" for s in RecordingFactIRL.seen)  # not passed: FactIRL's default
     assert {r["h_solver"] for r in rec["rows"]} == {'armijo {"initial_step":0.5}'}
 
 
 def test_the_default_d_solver_is_never_passed():
     assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)
-    assert SolverSettings().learner_kwargs() == {"h_solver": "armijo"}
+    assert SolverSettings().learner_kwargs() == {"solver": "armijo"}
 
 
 def test_d_solver_and_its_options_reach_factirl(monkeypatch):
@@ -160,7 +160,7 @@ def test_solver_settings_are_one_canonical_value():
     a = SolverSettings("armijo", {"initial_step": 0.5, "c": 1e-4}, "lbfgs")
     b = SolverSettings("armijo", '{"c": 0.0001, "initial_step": 0.5}', "lbfgs", "")
     assert a == b and hash(a) == hash(b) and a.h_solver_options == '{"c":0.0001,"initial_step":0.5}'
-    assert a.learner_kwargs() == dict(h_solver="armijo", h_solver_options={"c": 1e-4, "initial_step": 0.5},
+    assert a.learner_kwargs() == dict(solver="armijo", solver_options={"c": 1e-4, "initial_step": 0.5},
                                       d_solver="lbfgs")
     assert a.label() == 'armijo {"c":0.0001,"initial_step":0.5} | d: lbfgs'
     assert a.key_part().startswith("armijo-") and len(a.key_part()) == len("armijo-") + 8
@@ -386,7 +386,7 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
 
     class SpyFactIRL(FactIRL):
         def __init__(self, d_solver="armijo", **kw):
-            seen.append((kw["objective"], kw["h_solver"], d_solver))
+            seen.append((kw["objective"], kw["solver"], d_solver))
             super().__init__(d_solver=d_solver, **kw)
 
     monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
@@ -408,8 +408,8 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
 def test_factorial_options_use_solvers_that_apply_to_the_objective(objective, h, d, expected):
     spec = plan_runs(TINY, [0], SolverSettings(h, {"lam_max": 1e6} if h.startswith("gn") else None, d))[0]
     kw = factorial_options(TINY, spec.solvers, objective)
-    assert (kw["h_solver"], kw["d_solver"], kw["objective"]) == (*expected, objective)
-    assert ("h_solver_options" in kw) == (expected[0] == h and h.startswith("gn"))
+    assert (kw["solver"], kw["d_solver"], kw["objective"]) == (*expected, objective)
+    assert ("solver_options" in kw) == (expected[0] == h and h.startswith("gn"))
 
 
 def test_the_papers_rows_do_not_depend_on_the_extra_learners():
@@ -478,7 +478,7 @@ def test_substitutions_name_what_the_mce_learners_take_instead(monkeypatch):
 
     class SpyFactIRL(FactIRL):
         def __init__(self, d_solver="armijo", **kw):
-            seen.append(("FactIRL", kw["objective"], kw["h_solver"], d_solver))
+            seen.append(("FactIRL", kw["objective"], kw["solver"], d_solver))
             super().__init__(d_solver=d_solver, **kw)
 
     monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)

@@ -399,7 +399,7 @@ def test_lbfgs_runs_on_mce(small_tasks):
     mdp, tasks = small_tasks
     flat = fo.GradIRL(objective="mce", solver="lbfgs", max_iter=20).fit(mdp, tasks.demos)
     assert flat.loss_history_[-1] < 0.5 * flat.loss_history_[0]
-    fact = fo.FactIRL(n_primitives=2, objective="mce", h_solver="lbfgs", d_solver="lbfgs", init="random",
+    fact = fo.FactIRL(n_primitives=2, objective="mce", solver="lbfgs", d_solver="lbfgs", init="random",
                       max_iter=3, rng=0).fit(mdp, tasks.demos)
     assert fact.loss_history_[-1] < fact.loss_history_[0]
 
@@ -423,7 +423,7 @@ def test_gauss_newton_h_steps_refuse_mce(small_tasks, h_solver, fragment):
         pytest.skip(f"{h_solver} not available")
     mdp, tasks = small_tasks
     with pytest.raises(FactIRLError, match=fragment):
-        fo.FactIRL(n_primitives=2, objective="mce", h_solver=h_solver, init="random", max_iter=2,
+        fo.FactIRL(n_primitives=2, objective="mce", solver=h_solver, init="random", max_iter=2,
                    rng=0).fit(mdp, tasks.demos)
 
 
@@ -431,8 +431,8 @@ def test_gauss_newton_refusal_names_the_solvers_that_apply(small_tasks, monkeypa
     pytest.importorskip("cvxpy")
     mdp, tasks = small_tasks
     applies = r"needs a least-squares objective .* 'mce' objective has none; use a gradient solver: armijo, armijo-nonneg, lbfgs"
-    with pytest.raises(FactIRLError, match="h_solver 'gn-qp-osqp' is a Gauss-Newton solver: it " + applies):
-        fo.FactIRL(n_primitives=2, objective="mce", h_solver="gn-qp-osqp", init="random", max_iter=2,
+    with pytest.raises(FactIRLError, match="solver 'gn-qp-osqp' is a Gauss-Newton solver: it " + applies):
+        fo.FactIRL(n_primitives=2, objective="mce", solver="gn-qp-osqp", init="random", max_iter=2,
                    rng=0).fit(mdp, tasks.demos)
     with pytest.raises(FactIRLError, match="d_solver 'gn-cg'"):
         fo.FactIRL(n_primitives=2, objective="mce", d_solver="gn-cg").fit(mdp, tasks.demos)
@@ -441,4 +441,4 @@ def test_gauss_newton_refusal_names_the_solvers_that_apply(small_tasks, monkeypa
     # refused before any work: the PCA initialisation's flat fit never runs
     monkeypatch.setattr(fo.GradIRL, "fit", lambda *a, **k: pytest.fail("the flat learner ran"))
     with pytest.raises(FactIRLError, match="Gauss-Newton"):
-        fo.FactIRL(n_primitives=2, objective="mce", h_solver="gn-qp-clarabel", init="pca").fit(mdp, tasks.demos)
+        fo.FactIRL(n_primitives=2, objective="mce", solver="gn-qp-clarabel", init="pca").fit(mdp, tasks.demos)

@@ -24,7 +24,7 @@ def grid_tasks():
 
 @pytest.fixture(scope="session")
 def fitted_models(grid_tasks):
-    """name -> fitted estimator: tabular, with features, and after transfer."""
+    """name -> fitted estimator: tabular, with features, after transfer, and MultiIntentIRL's EM."""
     mdp, demos, new_demos, state_features, action_features = grid_tasks
     small = dict(max_iter=3, inner_steps=2, flat_max_iter=5, transfer_max_iter=5)
     models = {
@@ -37,6 +37,13 @@ def fitted_models(grid_tasks):
     }
     models["factirl-transfer"].transfer(mdp, new_demos)
     models["factirl-features-transfer"].transfer(mdp, new_demos)
+    episodes = [ep for task in demos for ep in task]
+    em = dict(max_iter=2, m_step_max_iter=3)
+    models["multi-intent-flat"] = fo.MultiIntentIRL(2, rng=0, **em).fit(mdp, episodes)
+    models["multi-intent-shared"] = fo.MultiIntentIRL(2, 2, features=state_features, rng=np.random.default_rng(6),
+                                                      **em).fit(mdp, episodes)
+    models["multi-intent-auto"] = fo.MultiIntentIRL("auto", n_intentions_range=(1, 2), selection="bic",
+                                                    features=action_features, rng=7, **em).fit(mdp, episodes)
     return models
 
 

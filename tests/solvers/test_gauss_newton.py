@@ -183,7 +183,7 @@ def test_factirl_gauss_newton_at_large_beta(beta, bound, capfd):
     m, demos = _factirl_data()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        model = fo.FactIRL(n_primitives=3, beta=beta, max_iter=10, flat_max_iter=10, h_solver="gn-qp-osqp").fit(m, demos)
+        model = fo.FactIRL(n_primitives=3, beta=beta, max_iter=10, flat_max_iter=10, solver="gn-qp-osqp").fit(m, demos)
     assert np.all(np.isfinite(model.loss_history_)) and np.all(np.isfinite(model.coefficients_))
     assert np.max(np.abs(model.coefficients_)) < bound
     assert_silent(capfd)

@@ -23,7 +23,7 @@ def transfer_data(rng, grid4):
 
 
 def _transfer(name, grid, D, demos, iters=15, **options):
-    model = fo.FactIRL(n_primitives=D.shape[1], tol=0.0, h_solver=name, h_solver_options=options or None)
+    model = fo.FactIRL(n_primitives=D.shape[1], tol=0.0, solver=name, solver_options=options or None)
     model.dictionary_ = D
     return model, model.transfer(grid, demos, max_iter=iters)
 
@@ -57,7 +57,7 @@ def test_nonneg_variant_keeps_constraint(name, transfer_data):
     assert hf.min() < 0.0  # the constraint is active on this data: the test can fail
     # a fit with a PCA init keeps it too (the init is oriented, then projected)
     train = fo.sample_demonstrations(grid, R, 3, 8, np.random.default_rng(1))
-    fit = fo.FactIRL(n_primitives=3, max_iter=3, inner_steps=2, flat_max_iter=10, h_solver=name).fit(grid, train)
+    fit = fo.FactIRL(n_primitives=3, max_iter=3, inner_steps=2, flat_max_iter=10, solver=name).fit(grid, train)
     assert fit.coefficients_.min() >= 0.0
     assert np.all(np.diff(fit.loss_history_) <= 1e-9 * fit.loss_history_[0])
     assert fit.transfer(grid, demos, max_iter=5).min() >= 0.0
@@ -67,7 +67,7 @@ def test_nonneg_variant_keeps_constraint(name, transfer_data):
 def test_nonneg_init_orientation_keeps_mass(init, transfer_data):
     grid, D, H, R, demos = transfer_data
     train = fo.sample_demonstrations(grid, R, 3, 8, np.random.default_rng(2))
-    fit = fo.FactIRL(n_primitives=3, init=init, max_iter=0, flat_max_iter=10, h_solver="armijo-nonneg", rng=0).fit(grid, train)
+    fit = fo.FactIRL(n_primitives=3, init=init, max_iter=0, flat_max_iter=10, solver="armijo-nonneg", rng=0).fit(grid, train)
     # no primitive is switched off entirely by the projection
     assert np.all(fit.coefficients_.max(axis=0) > 0)
 
@@ -81,7 +81,7 @@ def test_sparse_penalty_in_fit_history_and_transfer(transfer_data):
     assert np.all(h_big == 0.0)
     train = fo.sample_demonstrations(grid, R, 3, 8, np.random.default_rng(1))
     fit = fo.FactIRL(
-        n_primitives=3, max_iter=2, inner_steps=2, flat_max_iter=10, h_solver="gn-qp-osqp-sparse", h_solver_options={"alpha": 0.05}
+        n_primitives=3, max_iter=2, inner_steps=2, flat_max_iter=10, solver="gn-qp-osqp-sparse", solver_options={"alpha": 0.05}
     ).fit(grid, train)
     penalty = 0.05 * np.abs(fit.coefficients_).sum()
     np.testing.assert_allclose(fit.loss_history_[-1], fit.loss_.sum() + penalty)
@@ -92,7 +92,7 @@ def test_gn_fit_beats_armijo_per_evaluation(transfer_data):
     train = fo.sample_demonstrations(grid, R, 4, 8, np.random.default_rng(3))
     flat = fo.GradIRL(max_iter=20).fit(grid, train)
     fits = {
-        name: fo.FactIRL(n_primitives=3, max_iter=4, inner_steps=3, tol=0.0, h_solver=name).fit(grid, train, flat_rewards=flat.rewards_)
+        name: fo.FactIRL(n_primitives=3, max_iter=4, inner_steps=3, tol=0.0, solver=name).fit(grid, train, flat_rewards=flat.rewards_)
         for name in ("armijo", "gn-qp-osqp")
     }
     assert fits["gn-qp-osqp"].loss_.sum() < fits["armijo"].loss_.sum()
@@ -142,7 +142,7 @@ def test_fit_uses_a_proximal_gauss_newton_copy(transfer_data, monkeypatch):
 
     monkeypatch.setattr(type(solver), "for_alternating", spy)
     train = fo.sample_demonstrations(grid, R, 4, 8, np.random.default_rng(3))
-    model = fo.FactIRL(n_primitives=3, max_iter=2, inner_steps=2, h_solver="gn-qp-clarabel", flat_max_iter=5).fit(grid, train)
+    model = fo.FactIRL(n_primitives=3, max_iter=2, inner_steps=2, solver="gn-qp-clarabel", flat_max_iter=5).fit(grid, train)
     assert len(seen) == 1  # fit asked for the alternating copy once
     model.transfer(grid, demos[:2], max_iter=2)
     assert len(seen) == 1  # transfer (D fixed) uses the solver as configured

@@ -87,7 +87,7 @@ def _route(name, s):
         features = list(maps.features) if name == "per_task_maps" else maps.features[0]
         model = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], features=features, pca_shrink=False,
                         max_iter=s["max_iter"], inner_steps=s["inner_steps"], tol=0.0, gtol=0.0,
-                        flat_max_iter=s["flat_max_iter"], h_solver=s["h_solver"], d_solver=s["d_solver"],
+                        flat_max_iter=s["flat_max_iter"], solver=s["h_solver"], d_solver=s["d_solver"],
                         objective=s["objective"])
         rss = _rss_mb()
         t0, c0 = time.perf_counter(), time.process_time()

@@ -208,7 +208,7 @@ def _one_size(size, args):
 #: tasks sampled at once by the fits' demonstrations (their planning is not budgeted)
 DEMO_CHUNK = 100
 #: the fits' primitives and solvers (the Objectworld presets' FactIRL on features, from a random start)
-FIT_OPTIONS = dict(n_primitives=5, init="random", h_solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2,
+FIT_OPTIONS = dict(n_primitives=5, init="random", solver="gn-qp-clarabel", d_solver="lbfgs", inner_steps=2,
                    tol=0.0, gtol=0.0)
 
 

@@ -1,0 +1,262 @@
+"""What the three estimators share, in the manner of scikit-learn: parameters, cloning, repr.
+
+:class:`Estimator` is the base of :class:`~factirl_opt.GradIRL`, :class:`~factirl_opt.FactIRL`
+and :class:`~factirl_opt.MultiIntentIRL`. Its parameters are the arguments of the subclass's
+``__init__``, read from its signature: ``__init__`` only stores each argument under its own
+name (no validation, no conversion: that happens in ``fit``), so that
+
+- :meth:`Estimator.get_params` returns them, :meth:`Estimator.set_params` changes them (by
+  name, unknown names refused), and ``type(est)(**est.get_params())`` rebuilds the estimator;
+- :func:`clone` makes an unfitted estimator of the same class with the same parameters;
+- ``repr`` shows the class and the parameters that differ from their defaults;
+- persistence (:mod:`factirl_opt.persistence`) stores exactly these parameters, each as the
+  class declares its kind in ``param_kinds``, and the fitted attributes the class declares in
+  ``learnt_attributes``.
+
+Renamed parameters. A class lists its old parameter names in ``deprecated_params`` (old name
+-> name now); ``__init__`` (decorated with :func:`renamed_params`), :meth:`set_params` and
+unpickling accept the old name, store the value under the new one and issue a
+:class:`~factirl_opt.exceptions.DeprecatedNameWarning` once per class and name in a process.
+
+scikit-learn itself is not a dependency: its ``BaseEstimator`` would bring scikit-learn (and
+its own checks of fitted state and tags) for the 100 lines here. ``sklearn.base.clone`` works
+on these estimators all the same, as it needs only ``get_params(deep=False)`` and a
+constructor taking those parameters.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import inspect
+from typing import Any, Callable, ClassVar, TypeVar
+
+import numpy as np
+
+from .._deprecation import warn_once
+from ..exceptions import ValidationError
+
+__all__ = ["Estimator", "clone", "renamed_params", "renamed_attribute", "EXECUTION_PARAM_KINDS"]
+
+E = TypeVar("E", bound="Estimator")
+
+#: The kinds (:mod:`factirl_opt.persistence.params`) of the execution settings every estimator
+#: takes: how a fit is watched and where its evaluations run, none of them part of the model.
+EXECUTION_PARAM_KINDS: dict[str, str] = {"n_jobs": "runtime", "backend": "runtime", "client": "runtime",
+                                         "planner_options": "runtime", "callback": "runtime"}
+
+def _warn_renamed(cls: type, old: str, new: str, stacklevel: int = 4) -> None:
+    """One :class:`DeprecatedNameWarning` per class and old name in a process (:func:`factirl_opt._deprecation.warn_once`)."""
+    warn_once(f"param:{cls.__name__}.{old}", f"{cls.__name__}: the parameter {old!r} is now called {new!r}; {old!r} is "
+                                              "deprecated and will be removed in a future release", stacklevel=stacklevel + 1)
+
+
+def _renamed(cls: type, params: dict[str, Any], what: str) -> dict[str, Any]:
+    """``params`` with the class's deprecated names replaced by the names now (warned once)."""
+    renamed: dict[str, str] = getattr(cls, "deprecated_params", {})
+    if not renamed or not renamed.keys() & params.keys():
+        return params
+    out = dict(params)
+    for old, new in renamed.items():
+        if old in out:
+            if new in out:
+                raise TypeError(f"{what} got both {old!r} and {new!r} ({old!r} is the deprecated name of {new!r})")
+            _warn_renamed(cls, old, new)
+            out[new] = out.pop(old)
+    return out
+
+
+def renamed_params(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorator of an estimator's ``__init__`` (or a method taking the same names, such as
+    ``FactIRL.transfer``): the deprecated keyword names of ``deprecated_params`` accepted.
+
+    The signature seen by :func:`inspect.signature` stays the decorated method's (the names
+    now), so :meth:`Estimator.get_params` does not list the old names.
+    """
+
+    @functools.wraps(method)
+    def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
+        return method(self, *args, **_renamed(type(self), kwargs, f"{type(self).__name__}.{method.__name__}()"))
+
+    return wrapper
+
+
+def renamed_attribute(old: str, new: str) -> property:
+    """A property reading and writing the attribute ``new`` under its deprecated name ``old`` (warned once)."""
+
+    def get(self: Any) -> Any:
+        _warn_renamed(type(self), old, new, stacklevel=3)
+        return getattr(self, new)
+
+    def set_(self: Any, value: Any) -> None:
+        _warn_renamed(type(self), old, new, stacklevel=3)
+        setattr(self, new, value)
+
+    return property(get, set_, doc=f"Deprecated name of ``{new}``.")
+
+
+def _copied(value: Any) -> Any:
+    """A parameter value for a clone: data (arrays, containers, random generators) copied, other objects shared.
+
+    Callbacks, clients, solver and objective objects are shared as they are: a clone's
+    callback is the same function, its client the same cluster.
+    """
+    if isinstance(value, (np.ndarray, list, tuple, dict, np.random.Generator, np.random.SeedSequence)):
+        return copy.deepcopy(value)
+    return value
+
+
+def _differs(value: Any, default: Any) -> bool:
+    """Whether a parameter value differs from its default (arrays and objects: unless the same object)."""
+    if value is default:
+        return False
+    if default is inspect.Parameter.empty or type(value) is not type(default) and not (
+            isinstance(value, (int, float)) and isinstance(default, (int, float))):
+        return True
+    if isinstance(value, np.ndarray):
+        return True
+    try:
+        return not bool(value == default)
+    except (TypeError, ValueError):
+        return True
+
+
+def _short(value: Any) -> str:
+    """A parameter value as ``repr`` shows it: arrays by shape, lists of arrays by count."""
+    if isinstance(value, np.ndarray):
+        return f"<array {value.shape}>"
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, np.ndarray) for v in value):
+        return f"<{type(value).__name__} of {len(value)} arrays>"
+    if isinstance(value, np.random.Generator):
+        return f"Generator({type(value.bit_generator).__name__})"
+    if isinstance(value, type):
+        return value.__name__
+    if callable(value) and hasattr(value, "__qualname__"):
+        return value.__qualname__
+    return repr(value)
+
+
+class Estimator:
+    """Base of the estimators: parameters from ``__init__``'s signature, ``get_params``/``set_params``, repr.
+
+    Subclasses declare
+
+    - ``deprecated_params``: old parameter name -> name now (see :func:`renamed_params`);
+    - ``param_kinds``: how :func:`~factirl_opt.persistence.save_model` stores each parameter
+      that is not a plain JSON value (a registry name, the features, the ``rng``, a start, or
+      ``"runtime"``: not saved); the others are stored as JSON;
+    - ``learnt_attributes``: the fitted attributes and their kinds (:mod:`factirl_opt.persistence.learnt`).
+    """
+
+    deprecated_params: ClassVar[dict[str, str]] = {}
+    param_kinds: ClassVar[dict[str, str]] = {}
+    learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {}
+
+    @classmethod
+    def _signature(cls) -> list[inspect.Parameter]:
+        init = cls.__init__
+        if init is object.__init__:
+            return []
+        params = [p for p in inspect.signature(init).parameters.values() if p.name != "self"]
+        for p in params:
+            if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                raise TypeError(f"{cls.__name__}.__init__ must name its parameters (no *{p.name}): they are read "
+                                f"from its signature")
+        return params
+
+    @classmethod
+    def param_names(cls) -> list[str]:
+        """The parameters, in the order of ``__init__``'s signature."""
+        return [p.name for p in cls._signature()]
+
+    @classmethod
+    def param_defaults(cls) -> dict[str, Any]:
+        """The parameters' defaults (``inspect.Parameter.empty`` for one without a default)."""
+        return {p.name: p.default for p in cls._signature()}
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The estimator's parameters, by name (the values as given, not copies).
+
+        Parameters
+        ----------
+        deep : bool, default=True
+            Accepted for scikit-learn's protocol; no parameter holds an estimator, so it
+            changes nothing.
+
+        Returns
+        -------
+        dict
+            Every argument of ``__init__``: ``type(self)(**self.get_params())`` rebuilds it.
+        """
+        return {name: getattr(self, name) for name in self.param_names()}
+
+    def set_params(self: E, **params: Any) -> E:
+        """Set parameters by name; the fitted attributes are left as they are (fit again to use them).
+
+        A deprecated name (``deprecated_params``) sets the parameter it was renamed to, with a
+        :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (once per class and name).
+
+        Returns
+        -------
+        self
+
+        Raises
+        ------
+        ValidationError
+            Naming the first name that is not a parameter (nothing is set then), with the
+            parameters there are.
+        """
+        names = self.param_names()
+        unknown = [key for key in params if key not in names and key not in self.deprecated_params]
+        if unknown:
+            raise ValidationError(f"{unknown[0]!r} is not a parameter of {type(self).__name__}; its parameters are "
+                                  f"{', '.join(names)}")
+        for key, value in _renamed(type(self), params, f"{type(self).__name__}.set_params()").items():
+            setattr(self, key, value)
+        return self
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickling: a parameter saved under a deprecated name gets the name now; one added since gets its default."""
+        state = dict(state)
+        for old, new in self.deprecated_params.items():
+            if old in state and new not in state:
+                state[new] = state.pop(old)
+        for name, default in self.param_defaults().items():
+            if name not in state and default is not inspect.Parameter.empty:
+                state[name] = default
+        self.__dict__.update(state)
+
+    def __repr__(self) -> str:
+        try:
+            defaults = self.param_defaults()
+        except TypeError:  # a subclass whose __init__ takes **kwargs: no parameters to show
+            return object.__repr__(self)
+        shown = [f"{name}={_short(value)}" for name, value in self.get_params().items() if _differs(value, defaults[name])]
+        return f"{type(self).__name__}({', '.join(shown)})"
+
+
+def clone(estimator: E) -> E:
+    """A new unfitted estimator of the same class with the same parameters.
+
+    Array, list, dict and random-generator parameters are copied (a clone's ``rng`` Generator
+    starts in the state of the original's); other objects (a callback, a Dask client, a
+    solver object) are shared. No fitted attribute is carried over.
+
+    Parameters
+    ----------
+    estimator : GradIRL, FactIRL or MultiIntentIRL
+        Any :class:`Estimator`.
+
+    Returns
+    -------
+    Estimator
+
+    Raises
+    ------
+    ValidationError
+        ``estimator`` is not an :class:`Estimator`.
+    """
+    if not isinstance(estimator, Estimator):
+        raise ValidationError(f"clone takes an estimator (GradIRL, FactIRL, MultiIntentIRL); got {type(estimator).__name__}")
+    params = {name: _copied(value) for name, value in estimator.get_params(deep=False).items()}
+    return type(estimator)(**params)
