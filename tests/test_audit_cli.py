@@ -24,7 +24,7 @@ def terminated_fit(*args, **kwargs):
 
 def test_sigterm_inside_a_fit_exits_with_128_plus_sigterm(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(runner, "run_plan", terminated_fit)
-    with pytest.warns(fo.ConvergenceWarning, match="interrupted"):
+    with pytest.warns(fo.exceptions.ConvergenceWarning, match="interrupted"):
         code = cli.main(["reproduce", "--preset", "tiny", "--out", str(tmp_path / "o"), "--quiet", "--no-plot"])
     assert code == 128 + signal.SIGTERM
     assert "interrupted; rerun the same command to resume" in capsys.readouterr().err

@@ -33,14 +33,14 @@ def test_feature_rewards_refuses_features_without_rows(features):
 
 @pytest.mark.parametrize("model", ["grid", "objectworld"])
 def test_block_cells_given_a_model_names_it_and_the_fix(model):
-    world = fo.GridWorld(size=3) if model == "grid" else fo.make_objectworld(size=4, rng=0)
+    world = fo.GridWorld(size=3) if model == "grid" else fo.objectworld.make_objectworld(size=4, rng=0)
     with pytest.raises(ValidationError, match=rf"got {type(world).__name__}; pass the model's transition_matrix"):
-        fo.block_cells(world, [1])
+        fo.objectworld.block_cells(world, [1])
 
 
 def test_block_cells_still_takes_sparse_and_dense_matrices(grid3):
     P = grid3.transition_matrix
-    sparse, dense = fo.block_cells(P, [4]), fo.block_cells(P.toarray(), [4])
+    sparse, dense = fo.objectworld.block_cells(P, [4]), fo.objectworld.block_cells(P.toarray(), [4])
     np.testing.assert_array_equal(sparse.toarray(), dense.toarray())
     assert set(sparse[:, 4].nonzero()[0] // grid3.n_actions) <= {4}  # no other state reaches the blocked cell
     np.testing.assert_allclose(np.asarray(sparse.sum(axis=1)).ravel(), 1.0)
@@ -56,7 +56,7 @@ def test_value_iteration_of_no_tasks(grid3):
 
 def test_policy_matching_grad_reference_of_no_tasks(grid3, statistics):
     try:
-        loss, g = fo.policy_matching_grad_reference(grid3, np.zeros((0, 9, 4)), *statistics, beta=1.0)
+        loss, g = fo.objectives.policy_matching_grad_reference(grid3, np.zeros((0, 9, 4)), *statistics, beta=1.0)
     except ValidationError:
         return
     assert np.shape(loss) == (0,) and np.shape(g) == (0, 36)
@@ -83,6 +83,6 @@ def test_an_overflowing_init_is_named(grid3):
 
 def test_a_rounding_level_first_step_is_a_stall_for_mce(grid3):
     demos = fo.sample_demonstrations(grid3, np.random.default_rng(0).normal(size=(2, 9, 4)), 2, 4, rng=0)
-    with pytest.warns(fo.ConvergenceWarning, match="stalled"):
+    with pytest.warns(fo.exceptions.ConvergenceWarning, match="stalled"):
         model = fo.GradIRL(beta=1e-8, max_iter=50, objective="mce").fit(grid3, demos)
     assert model.stop_reason_.startswith("stalled")

@@ -76,7 +76,7 @@ def test_nan_losses_are_still_refused_for_a_finished_fit(data, tmp_path):
     mdp, demos = data
     model = fo.GradIRL(max_iter=2).fit(mdp, demos)
     model.loss_ = np.full_like(model.loss_, np.nan)
-    with pytest.raises(fo.PersistenceError, match="loss_ must be finite"):
+    with pytest.raises(fo.exceptions.PersistenceError, match="loss_ must be finite"):
         fo.save_model(model, tmp_path / "m.npz")
 
 
@@ -85,7 +85,7 @@ def test_infinite_losses_are_refused_for_an_interrupted_fit(data, tmp_path):
     model = fo.GradIRL(max_iter=2).fit(mdp, demos)
     model.stop_reason_ = "interrupted"
     model.loss_ = np.full_like(model.loss_, np.inf)
-    with pytest.raises(fo.PersistenceError, match="loss_ must be finite"):
+    with pytest.raises(fo.exceptions.PersistenceError, match="loss_ must be finite"):
         fo.save_model(model, tmp_path / "m.npz")
 
 

@@ -24,7 +24,7 @@ WORLDS = {
     "grid gamma 0.99": lambda: fo.GridWorld(size=6, gamma=0.99),
     "grid gamma 0.999": lambda: fo.GridWorld(size=5, gamma=0.999),
     "absorbing, sparse": absorbing,
-    "objectworld": lambda: fo.make_objectworld(size=6, rng=0).mdp(),
+    "objectworld": lambda: fo.objectworld.make_objectworld(size=6, rng=0).mdp(),
 }
 
 

@@ -15,7 +15,7 @@ import factirl_opt as fo
 
 def shared_model():
     grid = fo.GridWorld(size=5)
-    return fo.from_successors(*fo.to_successors(grid), gamma=0.9)
+    return fo.mdp.from_successors(*fo.mdp.to_successors(grid), gamma=0.9)
 
 
 def work(mdp, R, seed):

@@ -60,7 +60,7 @@ def _cases(rng):
         ("boltzmann_policy", lambda: fo.boltzmann_policy(_array(rng, (S, A)), _bad_value(rng))),
         ("policy_matching_loss", lambda: fo.policy_matching_loss(mdp, _array(rng, (n, S, A)), _array(rng, (n, S)), pi)),
         ("policy_matching_loss pi", lambda: fo.policy_matching_loss(mdp, np.zeros((n, S, A)), mu, _array(rng, (n, S, A)))),
-        ("residual_jacobian", lambda: fo.residual_jacobian(mdp, np.zeros((n, S, A)), mu, pi, 5.0, _array(rng, (S * A, 2)))),
+        ("residual_jacobian", lambda: fo.objectives.residual_jacobian(mdp, np.zeros((n, S, A)), mu, pi, 5.0, _array(rng, (S * A, 2)))),
         ("sample_demonstrations", lambda: fo.sample_demonstrations(mdp, _array(rng, (n, S, A)), 2, 3, rng=0)),
         ("empirical_statistics", lambda: fo.empirical_statistics(mdp, [_array(rng, (2, 3, 2))])),
         ("deviation", lambda: fo.deviation(mdp, _array(rng, (n, S, A)), _array(rng, (n, S, A)))),
@@ -84,7 +84,7 @@ def test_public_api_raises_own_errors_or_returns_finite_results(seed):
         name, call = cases[rng.integers(0, len(cases))]
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)  # numpy overflow / invalid value warnings
-            warnings.filterwarnings("ignore", category=fo.ConvergenceWarning)
+            warnings.filterwarnings("ignore", category=fo.exceptions.ConvergenceWarning)
             try:
                 with hang_guard(TIME_LIMIT, name):
                     result = call()

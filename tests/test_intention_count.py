@@ -67,7 +67,7 @@ def test_one_standard_error_rule_prefers_the_smaller_k_within_the_noise():
     ((1, 7), 10, 3, "exceeds the 6 episodes outside"),
 ])
 def test_check_candidates_errors(given, n, folds, match):
-    with pytest.raises(fo.ValidationError, match=match):
+    with pytest.raises(fo.exceptions.ValidationError, match=match):
         check_candidates(given, n, folds)
 
 
@@ -120,5 +120,5 @@ def test_auto_default_range_and_given_k_records_it():
 ])
 def test_auto_error_paths(kwargs, match):
     mdp, _, episodes = _tasks(1)
-    with pytest.raises(fo.ValidationError, match=match):
+    with pytest.raises(fo.exceptions.ValidationError, match=match):
         fo.MultiIntentIRL(max_iter=1, **kwargs).fit(mdp, episodes[:6])

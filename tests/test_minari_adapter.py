@@ -67,9 +67,9 @@ def test_episodes_and_transitions_match_the_recording(recorded):
         assert final == observations[-1]
     expected = np.vstack([np.column_stack((obs[:-1], acts, obs[1:])) for obs, acts in log])
     np.testing.assert_array_equal(logged.transitions(), expected)
-    mdp = fo.from_gymnasium("FrozenLake-v1", is_slippery=True)
+    mdp = fo.adapters.from_gymnasium("FrozenLake-v1", is_slippery=True)
     assert np.all(mdp.transitions[expected[:, 0], expected[:, 1], expected[:, 2]] > 0)
-    assert fo.transition_log_likelihood(mdp, logged) == pytest.approx(np.log(mdp.transitions[tuple(expected.T)]).sum())
+    assert fo.mdp.transition_log_likelihood(mdp, logged) == pytest.approx(np.log(mdp.transitions[tuple(expected.T)]).sum())
     mu, pi = fo.empirical_statistics(mdp, [logged.episodes])  # one task's demonstrations, as they are
     assert mu.shape == (1, 16) and pi.shape == (1, 16, 4)
 
@@ -79,7 +79,7 @@ def test_a_deterministic_model_is_recovered_exactly(recorded):
     est = fo.estimate_mdp(logged, logged.n_states, logged.n_actions, 0.9, pseudo_count=0)  # read as logged.transitions()
     # every (s, a) of a non-terminal state was tried; holes and goal, never left, get the
     # self-loop prior: absorbing, as in from_gymnasium's convention
-    np.testing.assert_array_equal(est.transitions, fo.from_gymnasium("FrozenLake-v1", is_slippery=False).transitions)
+    np.testing.assert_array_equal(est.transitions, fo.adapters.from_gymnasium("FrozenLake-v1", is_slippery=False).transitions)
 
 
 def test_opened_dataset_and_selected_episodes(recorded):
@@ -106,7 +106,7 @@ def test_minigrid_is_refused_unless_mapped(recorded, tmp_path, monkeypatch):
     space = gym.spaces.Dict({"direction": base.observation_space["direction"], "image": base.observation_space["image"],
                              "mission": gym.spaces.Text(max_length=64, charset=" abcdefghijklmnopqrstuvwxyz")})
     log = _record(recorded.minari, "test/minigrid/random-v0", base, 2, seed=0, observation_space=space)
-    with pytest.raises(ValidationError, match=r"MiniGrid/BabyAI dataset \(env MiniGrid-Empty-5x5-v0.*fo.from_minigrid.*observation_to_state"):
+    with pytest.raises(ValidationError, match=r"MiniGrid/BabyAI dataset \(env MiniGrid-Empty-5x5-v0.*fo.minigrid.from_minigrid.*observation_to_state"):
         read_minari("test/minigrid/random-v0")
     # the hook: here the agent's direction stands for a state (a model whose states the observations identify)
     logged = read_minari("test/minigrid/random-v0", observation_to_state=lambda obs: obs["direction"], n_states=4)

@@ -117,7 +117,7 @@ def test_adjusted_rand_index_hand_computed():
     assert fo.adjusted_rand_index([0, 0, 1, 1, 2], [5, 5, 3, 3, 9]) == 1.0  # renaming
     assert fo.adjusted_rand_index([0, 0, 0], [1, 1, 1]) == 1.0  # both trivial
     assert fo.adjusted_rand_index([0, 0, 1, 1], [0, 1, 0, 1]) == pytest.approx(-0.5)
-    with pytest.raises(fo.ValidationError, match="same length"):
+    with pytest.raises(fo.exceptions.ValidationError, match="same length"):
         fo.adjusted_rand_index([0, 1], [0, 1, 2])
 
 
@@ -199,9 +199,9 @@ def test_to_factirl_transfers_from_the_learnt_dictionary():
     np.testing.assert_array_equal(model.dictionary_, em.dictionary_)
     h = model.transfer(mdp, [demos[0]], max_iter=5)
     assert h.shape == (1, 2) and np.all(np.isfinite(h))
-    with pytest.raises(fo.NotFittedError, match="n_primitives"):
+    with pytest.raises(fo.exceptions.NotFittedError, match="n_primitives"):
         fo.MultiIntentIRL(2, rng=0, max_iter=2, m_step_max_iter=5).fit(mdp, np.concatenate(demos)).to_factirl()
-    with pytest.raises(fo.NotFittedError):
+    with pytest.raises(fo.exceptions.NotFittedError):
         fo.MultiIntentIRL(2).to_factirl()
 
 
@@ -227,22 +227,22 @@ def test_to_factirl_transfers_from_the_learnt_dictionary():
 def test_error_paths(kwargs, episodes, match):
     mdp, _, demos = _separated_problem(n_demos=3, length=4)
     eps = np.concatenate(demos) if episodes is None else episodes
-    with pytest.raises(fo.ValidationError, match=match):
+    with pytest.raises(fo.exceptions.ValidationError, match=match):
         fo.MultiIntentIRL(**kwargs).fit(mdp, eps)
 
 
 def test_wrong_mdp_and_non_policy_objective():
     _, _, demos = _separated_problem(n_demos=3, length=4)
-    with pytest.raises(fo.ValidationError, match="TabularMDP"):
+    with pytest.raises(fo.exceptions.ValidationError, match="TabularMDP"):
         fo.MultiIntentIRL(2).fit("grid", np.concatenate(demos))
-    with pytest.raises(fo.ValidationError, match="state"):  # episodes of a larger MDP
+    with pytest.raises(fo.exceptions.ValidationError, match="state"):  # episodes of a larger MDP
         fo.MultiIntentIRL(1).fit(fo.GridWorld(2), np.concatenate(demos))
 
     class Other(Objective):  # an objective with no policy model (no log_policy)
         name = "other"
 
     assert not Other.models_policy() and MCEObjective.models_policy()
-    with pytest.raises(fo.ValidationError, match="scores"):
+    with pytest.raises(fo.exceptions.ValidationError, match="scores"):
         fo.MultiIntentIRL(2, objective=Other).fit(fo.GridWorld(4), np.concatenate(demos))
 
 

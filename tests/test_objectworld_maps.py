@@ -22,8 +22,8 @@ def test_maps_are_drawn_per_task_with_shared_dynamics_and_comparable_features():
     assert len(layouts) == 4  # placements drawn per task
     for w, F, prim in zip(maps.worlds, maps.features, maps.primitives):
         assert F.shape == (64, 7 * 5)
-        np.testing.assert_array_equal(F, fo.objectworld_features(w))
-        np.testing.assert_array_equal(prim, fo.multitask_primitives(w))
+        np.testing.assert_array_equal(F, fo.objectworld.objectworld_features(w))
+        np.testing.assert_array_equal(prim, fo.objectworld.multitask_primitives(w))
     for i in range(4):
         np.testing.assert_allclose(maps.rewards[i], maps.primitives[i] @ maps.coefficients[i], rtol=0, atol=1e-12)
         nonzero = np.flatnonzero(maps.coefficients[i])
@@ -91,7 +91,7 @@ def test_block_cells_moves_the_mass_onto_the_state_itself():
 def test_maps_feed_the_multi_environment_objective():
     for n_blocked, n_groups in ((0, 1), (2, 3)):
         maps = objectworld_maps(3, n_blocked=n_blocked, rng=11, size=5, n_inner=2, n_outer=1)
-        R = fo.state_action_rewards(maps.rewards)
+        R = fo.objectworld.state_action_rewards(maps.rewards)
         demos = [fo.sample_demonstrations(m, R[i], 2, 4, rng=i)[0] for i, m in enumerate(maps.mdps)]
         objective = multi_environment_objective(list(maps.mdps), demos, 2.0)
         assert len(objective.objectives) == n_groups
@@ -113,4 +113,4 @@ def test_errors(kwargs, match):
     with pytest.raises(ValidationError, match=match):
         objectworld_maps(**{**SMALL, **kwargs})
     with pytest.raises(ValidationError, match="ObjectWorldMaps"):
-        fresh_maps(fo.make_objectworld(size=4, rng=0))
+        fresh_maps(fo.objectworld.make_objectworld(size=4, rng=0))

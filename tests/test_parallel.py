@@ -206,7 +206,7 @@ def test_interrupted_fit_stops_its_shards_and_keeps_the_best_point(data):
     fits = []
     for n_jobs in (1, 2):
         model = fo.FactIRL(n_primitives=2, max_iter=5, init="random", rng=0, features=F, callback=stop, n_jobs=n_jobs)
-        with pytest.warns(fo.InterruptedFitWarning), pytest.raises(KeyboardInterrupt):
+        with pytest.warns(fo.exceptions.InterruptedFitWarning), pytest.raises(KeyboardInterrupt):
             model.fit(mdp, demos)
         assert not multiprocessing.active_children()
         fits.append(model)

@@ -102,5 +102,5 @@ def test_the_plain_functions_take_state_rewards(data):
     np.testing.assert_allclose(fit.dictionary, same.dictionary, rtol=1e-8, atol=1e-10)
     tr = fo.transfer_coefficients(mdp, demos[:2], fit.dictionary, max_iter=4, reward="state")
     assert tr.rewards.shape == (2, S, A) and np.all(tr.rewards == tr.rewards[:, :, :1])
-    with pytest.raises(fo.ValidationError, match="p = 9"):
+    with pytest.raises(fo.exceptions.ValidationError, match="p = 9"):
         fo.fit_factorial(mdp, demos, np.ones((36, K)), np.ones((4, K)), reward="state")

@@ -146,8 +146,8 @@ def test_feature_rewards_shared_and_per_task(rng, envs):
 
 
 def test_feature_rewards_score_a_reward_on_new_environments(rng):
-    maps = fo.objectworld_maps(3, size=6, rng=0)
-    new = fo.fresh_maps(maps, rng=1)
+    maps = fo.objectworld.objectworld_maps(3, size=6, rng=0)
+    new = fo.objectworld.fresh_maps(maps, rng=1)
     W = rng.standard_normal((3, new.features[0].shape[1]))
     true = fo.feature_rewards(new.features, W, new.mdps)
     assert np.all(fo.deviation(new.mdps, true, fo.feature_rewards(new.features, W)) == 0.0)

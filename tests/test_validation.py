@@ -51,7 +51,7 @@ def test_square_mdp_reads_an_s_by_s_array_as_one_state_action_reward(rng):
     assert not single
     np.testing.assert_array_equal(R, np.repeat(r[:, :, None], 3, axis=2))
     # n == S state rewards are passed explicitly repeated, as documented
-    R, single = check_rewards(mdp, fo.state_action_rewards(square, 3))
+    R, single = check_rewards(mdp, fo.objectworld.state_action_rewards(square, 3))
     assert not single and R.shape == (3, 3, 3)
     np.testing.assert_array_equal(R[:, :, 1], square)
 
@@ -115,10 +115,10 @@ def test_public_functions_take_state_rewards(rng, grid3, call):
 
 
 def test_multitask_rewards_go_straight_into_deviation_and_sampling():
-    world = fo.make_objectworld(size=5, rng=0)
+    world = fo.objectworld.make_objectworld(size=5, rng=0)
     mdp = world.mdp()
-    r, _, _ = fo.multitask_rewards(world, 3, rng=1)  # (n, S) state rewards
-    R = fo.state_action_rewards(r)
+    r, _, _ = fo.objectworld.multitask_rewards(world, 3, rng=1)  # (n, S) state rewards
+    R = fo.objectworld.state_action_rewards(r)
     np.testing.assert_array_equal(fo.deviation(mdp, r, r), 0.0)
     np.testing.assert_allclose(fo.deviation(mdp, r, R[::-1]), fo.deviation(mdp, R, R[::-1]), rtol=0, atol=0)
     _same(fo.sample_demonstrations(mdp, r, 2, 3, rng=0), fo.sample_demonstrations(mdp, R, 2, 3, rng=0))

@@ -18,7 +18,7 @@ array, or a dict of arrays for a Dict space) and returns the L + 1 states, integ
 [0, n_states). MiniGrid and BabyAI datasets are refused with an explanation: their
 observations (an egocentric 7x7 view, a direction, a mission) do not say which cell the agent
 is in, so they cannot be mapped to the states of the enumerated MiniGrid model
-(``fo.from_minigrid``); a dataset that records the agent's state, e.g. through a wrapper whose
+(``fo.minigrid.from_minigrid``); a dataset that records the agent's state, e.g. through a wrapper whose
 observation is that model's state index, is read with ``observation_to_state``. Actions must be
 ``Discrete(A)``.
 
@@ -150,7 +150,7 @@ def _state_reader(dataset: Any, observation_to_state: Callable[[Any], ArrayLike]
         raise ValidationError(
             f"this is a MiniGrid/BabyAI dataset (env {_env_id(dataset) or 'unknown'}, observation space {space}): its "
             "observations, an egocentric view, a direction and a mission, do not identify the agent's cell, so they are not "
-            "states of the enumerated model fo.from_minigrid. Record the agent's state in the dataset (e.g. a wrapper whose "
+            "states of the enumerated model fo.minigrid.from_minigrid. Record the agent's state in the dataset (e.g. a wrapper whose "
             "observation is that model's state index) and pass observation_to_state and n_states"
         )
     n = _discrete_size(space, "observation")

@@ -222,7 +222,7 @@ def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.ran
 
 
 def babyai_tasks(env_id: str = "BabyAI-GoToLocal-v0", n_tasks: int = 4, demos_per_task: int = 3, *,
-                 n_test_tasks: int = 4, gamma: float = 0.99, seed: int = 0) -> BabyAITasks:
+                 n_test_tasks: int = 4, gamma: float = 0.9, seed: int = 0) -> BabyAITasks:
     """Training and test tasks on BabyAI GoTo layouts, with the bot's demonstrations.
 
     Parameters
@@ -236,7 +236,7 @@ def babyai_tasks(env_id: str = "BabyAI-GoToLocal-v0", n_tasks: int = 4, demos_pe
         non-terminal starts).
     n_test_tasks : int, default=4
         Test layouts, one bot episode each from a random start.
-    gamma : float, default=0.99
+    gamma : float, default=0.9
         Discount factor of the enumerated MDPs.
     seed : int, default=0
         Entropy of the draw's SeedSequence (streams: test layouts, training layouts, training

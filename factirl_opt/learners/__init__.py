@@ -12,6 +12,7 @@
 Learners never know which step solver, objective or planner runs: they take them by name.
 """
 
+from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
@@ -22,6 +23,7 @@ __all__ = [
     "FactIRL",
     "MultiIntentIRL",
     "SolverSettings",
+    "clone",
     "fit_factorial",
     "transfer_coefficients",
     "pca_dictionary",

@@ -102,7 +102,7 @@ def test_unknown_world_is_a_usage_error(capsys):
     assert "--world" in capsys.readouterr().err
     args = bench.build_parser().parse_args(["unlabeled"])
     args.world = "moon"
-    with pytest.raises(fo.ValidationError, match="world must be one of 'grid', 'objectworld'; got 'moon'"):
+    with pytest.raises(fo.exceptions.ValidationError, match="world must be one of 'grid', 'objectworld'; got 'moon'"):
         unlabeled.settings(args)
 
 
@@ -111,12 +111,12 @@ def test_unknown_world_is_a_usage_error(capsys):
                                          (["--n-test", "0"], "n_test"), (["--n-primitives", "0"], "n_primitives")])
 @pytest.mark.parametrize("world", ["grid", "objectworld"])
 def test_bad_counts_are_refused_before_any_fit(world, argv, match):
-    with pytest.raises(fo.ValidationError, match=match):
+    with pytest.raises(fo.exceptions.ValidationError, match=match):
         bench.main(["unlabeled", "--quick", "--world", world, *argv])
 
 
 def test_objectworld_with_more_colours_than_cells_is_refused():
-    with pytest.raises(fo.ValidationError, match="n_inner"):
+    with pytest.raises(fo.exceptions.ValidationError, match="n_inner"):
         bench.main(["unlabeled", "--quick", "--world", "objectworld", "--size", "2", "--n-primitives", "5"])
 
 

@@ -16,7 +16,7 @@ OW = PRESETS["objectworld-tiny"]
 def _world(gt, preset):
     """The ObjectWorld of a ground truth, rebuilt from the objects it records for figure 3."""
     extras = gt.map_extras
-    return fo.make_objectworld(preset.grid_size, extras["n_inner"], extras["n_outer"], objects=extras["objects"],
+    return fo.objectworld.make_objectworld(preset.grid_size, extras["n_inner"], extras["n_outer"], objects=extras["objects"],
                                determinism=preset.p_success, gamma=preset.gamma)
 
 
@@ -36,9 +36,9 @@ def test_objectworld_ground_truth_follows_elirls_rule():
     world = _world(gt, OW)
     S, A, N = world.n_states, 5, OW.grid_size
     assert gt.mdp.signature() == world.mdp().signature()  # the same dynamics, rebuilt from the recorded objects
-    primitives = fo.multitask_primitives(world)
+    primitives = fo.objectworld.multitask_primitives(world)
     np.testing.assert_array_equal(gt.dictionary, primitives)
-    np.testing.assert_array_equal(gt.features, fo.objectworld_features(world))
+    np.testing.assert_array_equal(gt.features, fo.objectworld.objectworld_features(world))
     assert gt.features.shape == (S, (N - 1) * (5 + 2))
     for R in (gt.train_rewards, gt.test_rewards):
         assert R.shape[1:] == (S, A)

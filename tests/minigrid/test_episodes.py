@@ -183,7 +183,7 @@ def test_greedy_policy_of_the_missions_feature_reward_succeeds_in_the_environmen
     for seed in range(10):
         env.reset(seed=seed)
         model = from_minigrid(env)
-        colour, kind = fo.parse_goto_mission(model.mission)
+        colour, kind = fo.minigrid.parse_goto_mission(model.mission)
         reward = model.features[:, model.feature_names.index(f"front={colour} {kind}")]
         np.testing.assert_array_equal(reward.astype(bool), model.success)
         _, policy = fo.optimal_q(model.mdp, np.repeat(reward[:, None], 3, axis=1))

@@ -89,7 +89,7 @@ def test_tabular_gradient_matches_eq9_reference(rng, mdp, make_statistics, tie_f
     mu, pi_hat = make_statistics(rng, mdp, 3)
     R = tie_free_rewards(rng, mdp, (3, mdp.n_states, mdp.n_actions))
     loss, grad = fo.policy_matching_loss(mdp, R, mu, pi_hat, BETA)
-    loss_ref, grad_ref = fo.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
+    loss_ref, grad_ref = fo.objectives.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
     np.testing.assert_allclose(loss_ref, loss, rtol=1e-13)
     assert grad_ref.shape == (3, mdp.n_params)
     assert np.max(np.abs(grad.reshape(3, -1) - grad_ref)) < 1e-8
@@ -157,7 +157,7 @@ def test_feature_weight_gradient(rng, mdp, make_statistics, tie_free_rewards):
     _, y = fo.policy_matching_loss(mdp, R, mu, pi_hat, BETA)
     np.testing.assert_allclose(grad, y.reshape(n, -1) @ F, rtol=1e-12, atol=1e-15)
     for route in ROUTES:
-        loss_ref, grad_ref = fo.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, features=F, route=route)
+        loss_ref, grad_ref = fo.objectives.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, features=F, route=route)
         np.testing.assert_allclose(loss_ref, loss, rtol=1e-13)
         assert np.max(np.abs(grad_ref - grad)) < 1e-8
 
@@ -174,7 +174,7 @@ def test_dictionary_gradient(rng, mdp, make_statistics):
     assert rel_err(grad[0], fd) < 1e-5
     R = (H @ D.T).reshape(n, mdp.n_states, mdp.n_actions)
     for route in ROUTES:
-        loss_ref, y_ref = fo.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
+        loss_ref, y_ref = fo.objectives.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
         np.testing.assert_allclose(loss[0], loss_ref.sum(), rtol=1e-13)
         chain = sum(np.outer(y_ref[i], H[i]) for i in range(n))  # (S*A, k)
         assert np.max(np.abs(grad[0] - chain.ravel())) < 1e-8
@@ -192,8 +192,8 @@ def test_coefficient_gradient(rng, mdp, make_statistics):
     assert rel_err(grad, fd) < 1e-5
     R = (H @ D.T).reshape(n, mdp.n_states, mdp.n_actions)
     for route in ROUTES:
-        _, g_feat = fo.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, features=D, route=route)
-        _, y_ref = fo.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
+        _, g_feat = fo.objectives.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, features=D, route=route)
+        _, y_ref = fo.objectives.policy_matching_grad_reference(mdp, R, mu, pi_hat, BETA, route=route)
         assert np.max(np.abs(grad - g_feat)) < 1e-8
         assert np.max(np.abs(grad - y_ref @ D)) < 1e-8
 
@@ -217,13 +217,13 @@ def test_residual_jacobian_matches_finite_differences(rng, mdp, make_statistics)
     mu, pi_hat = make_statistics(rng, mdp, n)
     S, A = mdp.n_states, mdp.n_actions
     R = (W @ F.T).reshape(n, S, A)
-    loss, r, J = fo.residual_jacobian(mdp, R, mu, pi_hat, BETA, F)
+    loss, r, J = fo.objectives.residual_jacobian(mdp, R, mu, pi_hat, BETA, F)
     assert r.shape == (n, S * A) and J.shape == (n, S * A, k)
     np.testing.assert_allclose(loss, np.sum(r * r, axis=1), rtol=1e-12)
     np.testing.assert_allclose(loss, fo.policy_matching_loss(mdp, R, mu, pi_hat, BETA)[0], rtol=1e-13)
 
     def res(i, w):
-        return fo.residual_jacobian(mdp, (F @ w).reshape(1, S, A), mu[i], pi_hat[i], BETA, F)[1][0]
+        return fo.objectives.residual_jacobian(mdp, (F @ w).reshape(1, S, A), mu[i], pi_hat[i], BETA, F)[1][0]
 
     for i in range(n):
         fd = np.column_stack([
@@ -243,7 +243,7 @@ def test_residual_jacobian_through_weights_problem(rng, grid3, make_statistics):
     problem = weights_problem(obj, F)
     loss, r, J = problem.residual_jacobian(W, np.arange(n))
     R = (W @ F.T).reshape(n, grid3.n_states, grid3.n_actions)
-    l2, r2, J2 = fo.residual_jacobian(grid3, R, mu, pi_hat, BETA, F)
+    l2, r2, J2 = fo.objectives.residual_jacobian(grid3, R, mu, pi_hat, BETA, F)
     np.testing.assert_allclose(loss, l2, rtol=1e-13)
     np.testing.assert_allclose(J, J2, rtol=1e-12, atol=1e-15)
 
@@ -306,4 +306,4 @@ def test_bad_reward_shape_for_loss(grid3):
 
 def test_bad_features_for_residual_jacobian(grid3):
     with pytest.raises(ValidationError, match=r"features must have shape \(S\*A = 36, p\) with p >= 1; got \(35, 2\)"):
-        fo.residual_jacobian(grid3, np.zeros((1, 9, 4)), np.full(9, 1 / 9), np.full((9, 4), 0.25), BETA, np.ones((35, 2)))
+        fo.objectives.residual_jacobian(grid3, np.zeros((1, 9, 4)), np.full(9, 1 / 9), np.full((9, 4), 0.25), BETA, np.ones((35, 2)))

@@ -193,9 +193,9 @@ def test_read_only_directory_on_a_real_tmpfs(fitted_models, tmpfs):
 
 
 def test_a_path_of_another_type_is_refused(tmp_path):
-    with pytest.raises(fo.ValidationError, match="path must be a str, an os.PathLike or a writable binary file; got int"):
+    with pytest.raises(fo.exceptions.ValidationError, match="path must be a str, an os.PathLike or a writable binary file; got int"):
         fo.save_model(fo.GradIRL(), 3)
-    with pytest.raises(fo.ValidationError, match="path must be a str, an os.PathLike or a readable binary file; got NoneType"):
+    with pytest.raises(fo.exceptions.ValidationError, match="path must be a str, an os.PathLike or a readable binary file; got NoneType"):
         fo.load_demonstrations(None)
     assert _listing(tmp_path) == []
 

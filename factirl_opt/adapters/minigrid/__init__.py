@@ -24,12 +24,12 @@ Examples
 >>> import minigrid  # registers the MiniGrid and BabyAI ids with gymnasium  # doctest: +SKIP
 >>> import factirl_opt as fo
 >>> env = gym.make("BabyAI-GoToLocal-v0")  # doctest: +SKIP
->>> episode = fo.bot_demonstration(env, seed=0)  # doctest: +SKIP
+>>> episode = fo.minigrid.bot_demonstration(env, seed=0)  # doctest: +SKIP
 >>> model = episode.model  # the layout: model.mdp, model.features, model.states, model.start
->>> fo.parse_goto_mission(episode.mission)  # doctest: +SKIP
+>>> fo.minigrid.parse_goto_mission(episode.mission)  # doctest: +SKIP
 ('green', 'ball')
 >>> _, policy = fo.optimal_q(model.mdp, rewards)  # greedy on (S, A) rewards  # doctest: +SKIP
->>> fo.run_policy(env, policy, seed=0, model=model).success  # doctest: +SKIP
+>>> fo.minigrid.run_policy(env, policy, seed=0, model=model).success  # doctest: +SKIP
 """
 
 import importlib as _importlib
