@@ -351,7 +351,7 @@ class MCEObjective(Objective):
     kept and reused: for chord steps of the next soft values and for the adjoint, by iterative
     refinement (:func:`refined_adjoint_solve`); a factorisation is made only when the kept
     one no longer contracts fast enough. One factorisation per task is kept between
-    evaluations (dropped by :meth:`reset`, on pickling, and not kept at all under a planning
+    evaluations (dropped by :meth:`reset`, and not kept at all under a planning
     budget the tasks do not fit in at once). Results agree with fresh factorisations to the
     soft values' tolerance.
     """
@@ -366,11 +366,6 @@ class MCEObjective(Objective):
     def reset(self):
         super().reset()
         self._kept = None
-
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_kept"] = None  # factorisations stay in the process that made them
-        return state
 
     def _forward(self, R, rows, warm):
         if self._chunk(self.n_tasks) < self.n_tasks:  # under a budget: nothing kept between calls
