@@ -57,6 +57,9 @@ from ._base import Objective
 
 __all__ = ["MCEObjective", "mce_loss", "soft_values", "refined_adjoint_solve"]
 
+#: numpy sums at most this many terms in order (pairwise beyond): :func:`soft_backup` reduces over
+#: the actions one by one up to it, the same values as numpy's reduction
+SEQUENTIAL_SUM_MAX_ACTIONS = 7
 #: relative tolerance of the soft values: ``||T V - V||_inf <= SOFT_TOL * max(1, ||V||_inf)``
 SOFT_TOL = 1e-12
 #: Newton (or guard) iterations allowed before :class:`FactIRLError`
@@ -74,7 +77,7 @@ CHORD_MAX_REFUSALS = 3
 #: with chord steps, a task within the tolerance goes on with chord steps (cheap) while they shrink
 #: its residual, down to this relative residual: the accuracy Newton's quadratic last step reaches,
 #: so that losses are smooth in the rewards to rounding (finite differences, line searches)
-POLISH_TOL = 1e-15
+POLISH_TOL = 1e-14
 #: relative residual ``||b - M^T z||_inf <= ADJOINT_TOL (||b||_inf + ||z||_inf)`` at which the adjoint
 #: solved by iterative refinement with a kept factorisation stops (about 10x above rounding)
 ADJOINT_TOL = 1e-14
@@ -104,10 +107,25 @@ def soft_backup(planner, R, V, beta):
         ``beta (Q - TV)``, computed as ``beta (Q - max Q) - log sum_a exp(beta (Q - max Q))``.
     """
     Q = planner.q_from_values(R, V)
-    m = Q.max(axis=2, keepdims=True)
-    z = beta * (Q - m)
-    lse = np.log(np.exp(z).sum(axis=2, keepdims=True))  # in [0, log A]: the max term is exp(0)
-    return Q, (m + lse / beta)[:, :, 0], z - lse
+    if Q.shape[2] > SEQUENTIAL_SUM_MAX_ACTIONS:
+        m = Q.max(axis=2, keepdims=True)
+        z = beta * (Q - m)
+        lse = np.log(np.exp(z).sum(axis=2, keepdims=True))  # in [0, log A]: the max term is exp(0)
+        return Q, (m + lse / beta)[:, :, 0], z - lse
+    # over the short action axis by whole-array operations, action by action: the same values,
+    # bit for bit, as numpy's reductions along axis 2 (max; a sum of at most 7 terms is in order)
+    m = Q[:, :, 0].copy()
+    for a in range(1, Q.shape[2]):
+        np.maximum(m, Q[:, :, a], out=m)
+    z = Q - m[:, :, None]
+    z *= beta
+    e = np.exp(z)
+    total = e[:, :, 0].copy()
+    for a in range(1, Q.shape[2]):
+        total += e[:, :, a]
+    lse = np.log(total)  # in [0, log A]: the max term is exp(0)
+    z -= lse[:, :, None]
+    return Q, m + lse / beta, z
 
 
 def _scale(V):

@@ -156,3 +156,19 @@ def test_dense_planner_keeps_no_factorisation_and_matches_the_plain_path(rng):
     loss_ref, grad_ref = _fresh(pl, R, mu, pi_hat)
     np.testing.assert_array_equal(loss, loss_ref)  # the same arithmetic, bit for bit
     np.testing.assert_array_equal(grad, grad_ref)
+
+
+@pytest.mark.parametrize("n_actions", [1, 3, 4, 7, 8, 9])
+def test_soft_backup_reduces_over_actions_as_numpy_does_bit_for_bit(rng, n_actions):
+    class Identity:  # Q = R: the reductions alone
+        def q_from_values(self, R, V):
+            return R
+
+    for scale, beta in ((1.0, 0.5), (100.0, 5.0), (1e4, 1e3)):
+        Q = scale * rng.standard_normal((3, 40, n_actions))
+        m = Q.max(axis=2, keepdims=True)
+        z = beta * (Q - m)
+        lse = np.log(np.exp(z).sum(axis=2, keepdims=True))
+        _, TV, log_pi = mce_module.soft_backup(Identity(), Q, None, beta)
+        np.testing.assert_array_equal(TV, (m + lse / beta)[:, :, 0])
+        np.testing.assert_array_equal(log_pi, z - lse)
