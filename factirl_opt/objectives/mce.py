@@ -55,14 +55,36 @@ from ..exceptions import FactIRLError
 from ..planning import adjoint, get_planner
 from ._base import Objective
 
-__all__ = ["MCEObjective", "mce_loss", "soft_values"]
+__all__ = ["MCEObjective", "mce_loss", "soft_values", "refined_adjoint_solve"]
 
+#: numpy sums at most this many terms in order (pairwise beyond): :func:`soft_backup` reduces over
+#: the actions one by one up to it, the same values as numpy's reduction
+SEQUENTIAL_SUM_MAX_ACTIONS = 7
 #: relative tolerance of the soft values: ``||T V - V||_inf <= SOFT_TOL * max(1, ||V||_inf)``
 SOFT_TOL = 1e-12
 #: Newton (or guard) iterations allowed before :class:`FactIRLError`
 SOFT_MAX_ITER = 1000
 #: relative slack of the Newton guard's inequalities (far above rounding, far below a failed solve)
 GUARD_SLACK = 1e-9
+#: a chord step (the Newton step solved with a kept factorisation of an earlier policy) is
+#: accepted when it shrinks the task's residual by at least this factor; else a Newton step is taken
+CHORD_MAX_RATIO = 0.5
+#: ... and when it shrinks it by less than this factor, the task's next step factorises anew (a
+#: factorisation costs about as much as 15 chord steps at S = 1024: slower chords lose to Newton)
+CHORD_REFACTOR_RATIO = 0.1
+#: chord steps refused in one call after which a task takes Newton steps only (plain soft policy iteration)
+CHORD_MAX_REFUSALS = 3
+#: with chord steps, a task within the tolerance goes on with chord steps (cheap) while they shrink
+#: its residual, down to this relative residual: the accuracy Newton's quadratic last step reaches,
+#: so that losses are smooth in the rewards to rounding (finite differences, line searches)
+POLISH_TOL = 1e-14
+#: relative residual ``||b - M^T z||_inf <= ADJOINT_TOL (||b||_inf + ||z||_inf)`` at which the adjoint
+#: solved by iterative refinement with a kept factorisation stops (about 10x above rounding)
+ADJOINT_TOL = 1e-14
+#: refinement sweeps of the adjoint before a task falls back to a new factorisation of its own policy
+ADJOINT_MAX_REFINE = 30
+#: a refinement sweep must shrink the adjoint's residual by this factor, else the task falls back too
+ADJOINT_MIN_CONTRACTION = 0.1
 
 
 def soft_backup(planner, R, V, beta):
@@ -85,10 +107,25 @@ def soft_backup(planner, R, V, beta):
         ``beta (Q - TV)``, computed as ``beta (Q - max Q) - log sum_a exp(beta (Q - max Q))``.
     """
     Q = planner.q_from_values(R, V)
-    m = Q.max(axis=2, keepdims=True)
-    z = beta * (Q - m)
-    lse = np.log(np.exp(z).sum(axis=2, keepdims=True))  # in [0, log A]: the max term is exp(0)
-    return Q, (m + lse / beta)[:, :, 0], z - lse
+    if Q.shape[2] > SEQUENTIAL_SUM_MAX_ACTIONS:
+        m = Q.max(axis=2, keepdims=True)
+        z = beta * (Q - m)
+        lse = np.log(np.exp(z).sum(axis=2, keepdims=True))  # in [0, log A]: the max term is exp(0)
+        return Q, (m + lse / beta)[:, :, 0], z - lse
+    # over the short action axis by whole-array operations, action by action: the same values,
+    # bit for bit, as numpy's reductions along axis 2 (max; a sum of at most 7 terms is in order)
+    m = Q[:, :, 0].copy()
+    for a in range(1, Q.shape[2]):
+        np.maximum(m, Q[:, :, a], out=m)
+    z = Q - m[:, :, None]
+    z *= beta
+    e = np.exp(z)
+    total = e[:, :, 0].copy()
+    for a in range(1, Q.shape[2]):
+        total += e[:, :, a]
+    lse = np.log(total)  # in [0, log A]: the max term is exp(0)
+    z -= lse[:, :, None]
+    return Q, m + lse / beta, z
 
 
 def _scale(V):
@@ -102,7 +139,8 @@ def _newton_step(planner, R, V, TV, log_pi, beta):
     sub-solution (module docstring); elsewhere the sweep ``V <- T V`` is taken.
     """
     pi = np.exp(log_pi)
-    V_new = planner.system(pi).solve(np.sum(pi * (R - log_pi / beta), axis=2))
+    system = planner.system(pi)
+    V_new = system.solve(np.sum(pi * (R - log_pi / beta), axis=2))
     Q, TV_new, lp = soft_backup(planner, R, V_new, beta)
     eps = (GUARD_SLACK * _scale(V))[:, None]
     sub = np.all(TV >= V - eps, axis=1)
@@ -112,7 +150,21 @@ def _newton_step(planner, R, V, TV, log_pi, beta):
         bad = ~ok
         V_new[bad] = TV[bad]
         Q[bad], TV_new[bad], lp[bad] = soft_backup(planner, R[bad], V_new[bad], beta)
-    return V_new, Q, TV_new, lp
+    return V_new, Q, TV_new, lp, getattr(system, "solvers", None)
+
+
+def _chord_step(planner, R, V, TV, res, solvers, beta):
+    """Chord steps for a batch of tasks: ``V + K^-1 (T V - V)`` with ``K`` a kept factorisation of
+    an earlier soft policy's system (each task's own, ``solvers``) instead of the current one.
+
+    Returns the mask of accepted steps (finite, residual at most :data:`CHORD_MAX_RATIO` times
+    ``res``) and the new V, its backup (Q, TV, log_pi) and residual (meaningful where accepted).
+    """
+    V_new = V + planner.solver_system(solvers).solve(TV - V)
+    Q, TV_new, lp = soft_backup(planner, R, V_new, beta)
+    res_new = np.abs(TV_new - V_new).max(axis=1)
+    ok = res_new <= CHORD_MAX_RATIO * res  # False for a NaN residual
+    return ok, V_new, Q, TV_new, lp, res_new
 
 
 def soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER):
@@ -141,18 +193,72 @@ def soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER)
     log_pi : ndarray, shape (n, S, A)
         ``beta (Q - V)``: the soft-optimal policy's logarithm, exactly normalised against ``Q``.
     """
+    Q, V, log_pi, _ = _soft_values(planner, R, beta, V0, tol, max_iter)
+    return Q, V, log_pi
+
+
+def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER, kept=None):
+    """:func:`soft_values`, reusing factorisations when ``kept`` is given (see :class:`MCEObjective`).
+
+    ``kept`` None: plain guarded Newton, as documented in the module docstring. ``kept`` a list
+    (n,) of per-task solvers or None (a planner whose systems expose per-task solvers, e.g.
+    the sparse LU): a task with a kept factorisation first tries a chord step with it
+    (:func:`_chord_step`), and takes the guarded Newton step when the chord step does not
+    shrink its residual enough (after :data:`CHORD_MAX_REFUSALS` refusals, Newton steps only);
+    every Newton step's factorisation becomes the task's kept one. The stopping rule is the
+    same, so the result is the same to the tolerance, and a task within it goes on with chord
+    steps down to :data:`POLISH_TOL` or until one is refused (no Newton step then).
+
+    Returns
+    -------
+    Q, V, log_pi
+        As :func:`soft_values`.
+    kept : list or None
+        Per task, the factorisation of its last Newton step (or the kept one given), or None
+        without ``kept``.
+    """
     n, S, _ = R.shape
     V = np.zeros((n, S)) if V0 is None else np.array(V0, dtype=np.float64)
     Q, TV, log_pi = soft_backup(planner, R, V, beta)
     res = np.abs(TV - V).max(axis=1)
-    active = np.flatnonzero(~(res <= tol * _scale(V)))
+    refusals = np.zeros(n, dtype=np.intp)
+    stalled = np.zeros(n, dtype=bool)  # polishing with chord steps no longer shrinks the residual
+    refactor = np.zeros(n, dtype=bool)  # the last chord step contracted slowly: next, a Newton step
+
+    def chord_ok(i):
+        return kept is not None and kept[i] is not None and refusals[i] < CHORD_MAX_REFUSALS and not refactor[i]
+
+    def unfinished(a):
+        within = res[a] <= tol * _scale(V[a])  # False for a NaN residual: stays active
+        if kept is None:
+            return a[~within]
+        polished = (res[a] <= POLISH_TOL * _scale(V[a])) | stalled[a] | ~np.array([chord_ok(i) for i in a], dtype=bool)
+        return a[~(within & polished)]
+
+    active = unfinished(np.arange(n))
     for _ in range(max_iter):
         if active.size == 0:
             break
         a = active
-        V[a], Q[a], TV[a], log_pi[a] = _newton_step(planner, R[a], V[a], TV[a], log_pi[a], beta)
-        res[a] = np.abs(TV[a] - V[a]).max(axis=1)
-        active = a[~(res[a] <= tol * _scale(V[a]))]  # a NaN residual stays active
+        c = np.array([i for i in a if chord_ok(i)], dtype=np.intp)
+        if c.size:
+            ok, *step = _chord_step(planner, R[c], V[c], TV[c], res[c], [kept[i] for i in c], beta)
+            done = c[ok]
+            slow = done[step[-1][ok] > CHORD_REFACTOR_RATIO * res[done]]
+            V[done], Q[done], TV[done], log_pi[done], res[done] = (x[ok] for x in step)
+            refused = c[~ok]
+            refusals[refused] += 1
+            refactor[slow] = True  # contracts slowly: the next step factorises anew
+            stalled[refused] = res[refused] <= tol * _scale(V[refused])  # converged: no Newton step
+            a = a[~np.isin(a, done) & ~stalled[a]]
+        if a.size:
+            V[a], Q[a], TV[a], log_pi[a], solvers = _newton_step(planner, R[a], V[a], TV[a], log_pi[a], beta)
+            res[a] = np.abs(TV[a] - V[a]).max(axis=1)
+            refactor[a] = False
+            if kept is not None and solvers is not None:
+                for i, solver in zip(a, solvers):
+                    kept[i] = solver
+        active = unfinished(active)
     if active.size:
         i = int(active[np.argmax(res[active])])
         raise FactIRLError(
@@ -161,28 +267,89 @@ def soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER)
         )
     if not (np.all(np.isfinite(TV)) and np.all(np.isfinite(log_pi))):
         raise FactIRLError("the soft values are not finite: beta * rewards overflow float64; rescale the rewards")
-    return Q, TV, log_pi
+    return Q, TV, log_pi, kept
 
 
 class _Point:
     """Forward pass of the MCE likelihood at some rewards (internal)."""
 
-    def __init__(self, Q, V, log_pi, counts, beta):
-        self.Q, self.V, self.log_pi, self.counts, self.beta = Q, V, log_pi, counts, beta
+    def __init__(self, Q, V, log_pi, counts, beta, kept=None):
+        self.Q, self.V, self.log_pi, self.counts, self.beta, self.kept = Q, V, log_pi, counts, beta, kept
         self.pi = np.exp(log_pi)
         self.loss = -np.einsum("nsa,nsa->n", counts, log_pi)
 
 
-def _forward(planner, R, mu, pi_hat, beta, V0=None, max_iter=SOFT_MAX_ITER):
-    Q, V, log_pi = soft_values(planner, R, beta, V0, max_iter=max_iter)
-    return _Point(Q, V, log_pi, mu[:, :, None] * pi_hat, beta)
+def _forward(planner, R, mu, pi_hat, beta, V0=None, max_iter=SOFT_MAX_ITER, kept=None):
+    Q, V, log_pi, kept = _soft_values(planner, R, beta, V0, max_iter=max_iter, kept=kept)
+    return _Point(Q, V, log_pi, mu[:, :, None] * pi_hat, beta, kept)
+
+
+def refined_adjoint_solve(planner, solvers, pi, B):
+    """``z`` with ``(I - gamma P_pi)^T z = B`` by iterative refinement on kept factorisations.
+
+    ``K_i`` (``solvers[i]``) factorises an earlier policy's system of task ``i``; each sweep
+    computes the residual ``r = B - M^T z`` with the current policy's ``M`` (two sparse
+    products, no factorisation) and corrects ``z += K^-T r``. A task stops once
+    ``||r||_inf <= ADJOINT_TOL (||B||_inf + ||z||_inf)``; one whose residual does not shrink by
+    :data:`ADJOINT_MIN_CONTRACTION` per sweep, or is not done after :data:`ADJOINT_MAX_REFINE`
+    sweeps, is not refined further (its ``z`` is then not the solution).
+
+    Parameters
+    ----------
+    planner : Planner
+        Whose systems expose per-task solvers (:meth:`Planner.solver_system`).
+    solvers : list of n solvers
+    pi : ndarray, shape (n, S, A)
+        The stochastic policies of the systems solved.
+    B : ndarray, shape (n, S)
+
+    Returns
+    -------
+    z : ndarray, shape (n, S)
+    converged : ndarray of bool, shape (n,)
+    sweeps : int
+        Refinement sweeps taken (0: the first solve was exact enough for every task).
+    """
+    z = planner.solver_system(solvers).solve_transpose(B)
+    scale_b = np.abs(B).max(axis=1)
+    todo, prev = np.arange(len(B)), np.full(len(B), np.inf)
+    converged = np.zeros(len(B), dtype=bool)
+    for sweep in range(ADJOINT_MAX_REFINE + 1):
+        t = todo
+        r = B[t] - (z[t] - planner.gamma * planner.pullback(pi[t] * z[t][:, :, None]))
+        norm = np.abs(r).max(axis=1)
+        done = norm <= ADJOINT_TOL * (scale_b[t] + np.abs(z[t]).max(axis=1))
+        converged[t[done]] = True
+        going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * prev[t])  # False for NaN: stalled
+        prev[t] = norm
+        todo = t[going]
+        if todo.size == 0 or sweep == ADJOINT_MAX_REFINE:
+            break
+        z[todo] += planner.solver_system([solvers[i] for i in todo]).solve_transpose(r[going])
+    return z, converged, sweep
 
 
 def _gradient(planner, point):
-    """``dJ/dR`` (n, S, A): one transposed solve per task with the soft-optimal policy's system."""
+    """``dJ/dR`` (n, S, A): one transposed solve per task with the soft-optimal policy's system.
+
+    With kept factorisations (``point.kept``, every task's), the solve is refined on them
+    (:func:`refined_adjoint_solve`); a task where that does not converge gets a new
+    factorisation of its own policy, which becomes its kept one.
+    """
     pi, c = point.pi, point.counts
     g = point.beta * (c - c.sum(axis=2, keepdims=True) * pi)  # dlogL/dQ
-    return -adjoint(planner, planner.system(pi), pi, g)
+    kept = point.kept
+    if kept is None or any(k is None for k in kept):
+        return -adjoint(planner, planner.system(pi), pi, g)
+    b = planner.pullback(g)
+    z, converged, _ = refined_adjoint_solve(planner, kept, pi, b)
+    if not converged.all():
+        f = np.flatnonzero(~converged)
+        system = planner.system(pi[f])
+        z[f] = system.solve_transpose(b[f])
+        for i, solver in zip(f, system.solvers or [None] * len(f)):
+            kept[i] = solver
+    return -(g + planner.gamma * pi * z[:, :, None])
 
 
 def soft_policy_values(planner, R, policy, beta):
@@ -197,7 +364,14 @@ class MCEObjective(Objective):
     """The MCE negative log-likelihood over a fixed set of tasks (see :class:`Objective`).
 
     Not least squares: use it with gradient step solvers (``armijo``, ``armijo-nonneg``, ``lbfgs``).
-    Warm start: each task's last soft values start its next Newton iteration.
+    Warm start: each task's last soft values start its next Newton iteration, and, with a
+    planner whose systems expose per-task solvers (the sparse LU), its last factorisation is
+    kept and reused: for chord steps of the next soft values and for the adjoint, by iterative
+    refinement (:func:`refined_adjoint_solve`); a factorisation is made only when the kept
+    one no longer contracts fast enough. One factorisation per task is kept between
+    evaluations (dropped by :meth:`reset`, and not kept at all under a planning
+    budget the tasks do not fit in at once). Results agree with fresh factorisations to the
+    soft values' tolerance.
     """
 
     name = "mce"
@@ -208,14 +382,38 @@ class MCEObjective(Objective):
         """The soft-optimal policy ``beta (Q - V)`` of the soft Bellman equation (docs/maths.md §6), (n, S, A)."""
         return soft_values(planner, rewards, beta)[2]
 
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._kept = None  # per task: the solver of its last factorised soft policy, or None
+
+    def reset(self):
+        super().reset()
+        self._kept = None
+
     def _forward(self, R, rows, warm):
-        return _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)
+        if self._chunk(self.n_tasks) < self.n_tasks:  # under a budget: nothing kept between calls
+            kept = [None] * len(rows)
+        else:
+            if self._kept is None:
+                self._kept = [None] * self.n_tasks
+            kept = [self._kept[i] for i in rows]
+        point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm, kept=kept)
+        point.rows = rows
+        self._keep(point)
+        return point
+
+    def _keep(self, point):
+        if self._kept is not None and self._chunk(self.n_tasks) >= self.n_tasks:
+            for i, solver in zip(point.rows, point.kept):
+                self._kept[i] = solver
 
     def _warm_start(self, point):
         return point.V
 
     def _grad(self, point):
-        return _gradient(self.planner, point)
+        grad = _gradient(self.planner, point)
+        self._keep(point)
+        return grad
 
 
 @blas_limited
@@ -257,5 +455,5 @@ def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", ma
     max_iter = check_int(max_iter, "max_iter", minimum=1)
     pl = get_planner(mdp, planner)
     V0 = None if policy is None else soft_policy_values(pl, R, check_stochastic_policy(mdp, policy, R.shape[0]), beta)
-    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter)
+    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter, kept=[None] * R.shape[0])
     return point.loss, _gradient(pl, point)

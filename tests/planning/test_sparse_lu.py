@@ -84,3 +84,27 @@ def test_each_thread_has_its_own_factorisations():
     np.testing.assert_array_equal(seen["Q"], Q)  # computed alone, exactly as here
     planning.clear_caches(grid)  # every thread's cache
     assert len(seen["cache"]) == 0 and len(mine) == 0
+
+
+def test_stochastic_system_assembly_is_the_sparse_product_bit_for_bit():
+    """The union-pattern assembly of a stochastic policy's M^T equals the sparse product it
+    replaces (values and pattern), and a policy with zeros takes that product."""
+    from factirl_opt.objectworld import make_objectworld
+
+    rng = np.random.default_rng(3)
+    for mdp in (fo.GridWorld(7), make_objectworld(size=8, n_inner=2, n_outer=2, object_density=0.15, rng=rng).mdp()):
+        planner = planning.SparseLUPlanner(mdp)
+        assert planner._union_nnz is not None
+        pi = rng.dirichlet(np.ones(mdp.n_actions), size=mdp.n_states)
+        fast = planner.matrix_transpose(pi)
+        planner._union_nnz = None  # the sparse product, same ordering
+        slow = planner.matrix_transpose(pi)
+        np.testing.assert_array_equal(fast.indptr, slow.indptr)
+        np.testing.assert_array_equal(fast.indices, slow.indices)
+        np.testing.assert_array_equal(fast.data, slow.data)
+        planner._union_nnz = 1
+        pi[0] = np.eye(mdp.n_actions)[0]  # a zero: the product, without the vanishing entries
+        with_zeros = planner.matrix_transpose(pi)
+        planner._union_nnz = None
+        np.testing.assert_array_equal(with_zeros.toarray(), planner.matrix_transpose(pi).toarray())
+        assert with_zeros.nnz == planner.matrix_transpose(pi).nnz

@@ -19,6 +19,7 @@ BENCHMARKS = {
     "environments": "environments",
     "robustness": "robustness",
     "unlabeled": "unlabeled",
+    "mce": "mce",
 }
 
 

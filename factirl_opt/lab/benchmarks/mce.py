@@ -1,0 +1,208 @@
+"""Time FactIRL fits with policy matching and with MCE side by side, on Objectworld with a map per task.
+
+ELIRL's protocol (Mendez et al. 2018; preset ``objectworld-per-task``): a 32x32 Objectworld,
+every training task on its own map, 32 demonstrations of 16 steps per task, k = 5, the
+learners on each map's feature weights (:mod:`factirl_opt.lab.experiments.per_task`). For each
+``--objectives`` entry, in one process and on the same draw, one ``FactIRL.fit`` from scratch
+(``init="pca"``: its own flat fit on features, then the alternating fit), with the preset's
+budgets and solvers as the experiment runner builds them
+(:func:`~factirl_opt.lab.experiments.learner_solvers.factorial_options`: an objective without
+residuals, MCE, takes L-BFGS where the preset names a Gauss-Newton solver).
+
+Prints, per objective: wall time of the fit, batched planning evaluations, outer iterations,
+status, final loss, the mean train deviation (eq. 13, each task on its own map), and the
+planning work counted by a wrapping planner (:class:`SystemCountingPlanner`): task systems
+built (a new sparse factorisation per task for a stochastic policy; a deterministic one may be
+served from the planner's cache or updated at low rank), forward solves (Newton steps of the
+soft Bellman equation for MCE, policy-evaluation sweeps and Jacobian products for policy
+matching) and transposed (adjoint) solves, in task systems and in batched calls per evaluation.
+``ratio_mce_over_pm`` divides MCE's wall time by policy matching's, ``deviation_ratio_mce_over_pm``
+their deviations. ``--repeats`` fits each objective that many times, alternating, and keeps
+each one's fastest time (the counts do not change between repeats).
+
+``--quick`` is a tiny configuration for tests (options given explicitly keep their value).
+"""
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..._threads import limit_blas_threads
+from ...evaluation import deviation
+from ...exceptions import ValidationError
+from ..experiments.learner_solvers import factorial_options
+from ..experiments.presets import PRESETS, get_preset
+from ..experiments.worlds import objectworld_per_task
+from ...learners.factirl import FactIRL
+from ...planning import Planner, PolicySystem, get_planner
+from . import add_option, resolve_settings
+
+__all__ = ["add_arguments", "run", "SystemCountingPlanner", "OBJECTIVES"]
+
+#: the objectives compared (policy matching the reference of the ratios)
+OBJECTIVES = ("policy-matching", "mce")
+DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demos": 32, "length": 16, "n_primitives": 5,
+            "max_iter": None, "flat_max_iter": None, "objectives": list(OBJECTIVES), "repeats": 1, "seed": 0,
+            "blas_threads": 1}
+QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10}
+
+
+class _CountingSystem(PolicySystem):
+    """A :class:`PolicySystem` that counts its forward and transposed solves."""
+
+    def __init__(self, system, counter):
+        self.system, self.counter, self.n = system, counter, system.n
+        self.solvers = system.solvers
+
+    def solve(self, B):
+        self.counter.n_forward += self.n
+        self.counter.n_forward_calls += 1
+        return self.system.solve(B)
+
+    def solve_transpose(self, B):
+        self.counter.n_transpose += self.n
+        self.counter.n_transpose_calls += 1
+        return self.system.solve_transpose(B)
+
+
+class SystemCountingPlanner(Planner):
+    """A planner that delegates to another and counts the systems it builds and solves.
+
+    Parameters
+    ----------
+    planner : Planner
+        The planner doing the work (e.g. ``get_planner(mdp)``).
+
+    Attributes
+    ----------
+    n_systems, n_stochastic_systems : int
+        Task systems ``M = I - gamma P_pi`` asked for (all, and those of stochastic policies:
+        each one a new factorisation with the sparse planner).
+    n_forward, n_transpose : int
+        Task systems solved ``M x = b`` and ``M^T x = b`` (a batched solve of n tasks counts n).
+    n_forward_calls, n_transpose_calls : int
+        Batched solve calls.
+    """
+
+    def __init__(self, planner):
+        super().__init__(planner.mdp)
+        self.planner, self.name = planner, planner.name
+        self.n_systems = self.n_stochastic_systems = 0
+        self.n_forward = self.n_transpose = self.n_forward_calls = self.n_transpose_calls = 0
+
+    def backup(self, V):
+        return self.planner.backup(V)
+
+    def pullback(self, G):
+        return self.planner.pullback(G)
+
+    def system(self, policy, hints=None):
+        n = len(policy)
+        self.n_systems += n
+        if np.ndim(policy) == 3:
+            self.n_stochastic_systems += n
+        return _CountingSystem(self.planner.system(policy, hints), self)
+
+    def solver_system(self, solvers):
+        return _CountingSystem(self.planner.solver_system(solvers), self)
+
+    def counts(self):
+        """The counters as a dict."""
+        return {key: int(getattr(self, key)) for key in ("n_systems", "n_stochastic_systems", "n_forward", "n_transpose",
+                                                          "n_forward_calls", "n_transpose_calls")}
+
+    def __getattr__(self, name):  # anything else a planner offers (value sweeps, caches): the wrapped one's
+        return getattr(self.__dict__["planner"], name)
+
+
+def add_arguments(parser):
+    def opt(*flags, **kw):
+        add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
+
+    opt("--preset", help="preset of the budgets and solvers (a world with a map per task)")
+    opt("--size", type=int, help="grid side")
+    opt("--n-tasks", type=int, help="training tasks, each on its own map")
+    opt("--n-demos", type=int, help="demonstrations per task")
+    opt("--length", type=int, help="steps per demonstration")
+    opt("-k", "--n-primitives", type=int, help="primitives, true (inner colours) and learnt")
+    opt("--max-iter", type=int, help="FactIRL outer iterations (None: the preset's)")
+    opt("--flat-max-iter", type=int, help="iterations of FactIRL's flat start (None: the preset's)")
+    opt("--objectives", nargs="+", choices=OBJECTIVES, metavar="NAME", help="objectives fitted, in this order")
+    opt("--repeats", type=int, help="fits per objective, alternating; the fastest is kept")
+    opt("--seed", type=int, help="seed of the maps and demonstrations")
+    opt("--blas-threads", type=int, help="OpenBLAS threads (0: leave as is)")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny configuration for tests; options given explicitly keep their value")
+
+
+def _preset(s):
+    """The preset with the benchmark's size, primitives, demonstration length and budgets."""
+    preset = get_preset(s["preset"])
+    if preset.world != "objectworld-per-task":
+        per_task = sorted(name for name, p in PRESETS.items() if p.world == "objectworld-per-task")
+        raise ValidationError(f"bench mce: preset {s['preset']!r} is not a world with a map per task; use one of "
+                              f"{', '.join(per_task)}")
+    for key in ("size", "n_tasks", "n_demos", "length", "n_primitives", "repeats"):
+        if s[key] < 1:
+            raise ValidationError(f"bench mce: --{key.replace('_', '-')} must be at least 1; got {s[key]}")
+    changes = dict(grid_size=s["size"], n_primitives=s["n_primitives"], demo_length=s["length"], n_test_tasks=1)
+    for key, field in (("max_iter", "fact_max_iter"), ("flat_max_iter", "flat_max_iter")):
+        if s[key] is not None:
+            changes[field] = s[key]
+    return dataclasses.replace(preset, **changes)
+
+
+def _fit(preset, gt, objective, seed):
+    """One FactIRL fit from scratch with ``objective``; its model, wall time and counting planner."""
+    mdps = gt.mdps("train")
+    planner = SystemCountingPlanner(get_planner(mdps[0], preset.planner))
+    kw = factorial_options(preset, preset.solvers, objective)
+    kw["planner"] = planner
+    model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
+    planner.clear_cache()
+    t0 = time.perf_counter()
+    model.fit(mdps, gt.train_demos)
+    return model, time.perf_counter() - t0, planner
+
+
+def _entry(model, elapsed, planner, gt, preset):
+    counts = planner.counts()
+    n_eval = max(int(model.n_evaluations_), 1)
+    mdps = gt.mdps("train")
+    dev = deviation(mdps, gt.train_rewards, np.asarray(model.rewards_), planner=preset.planner)
+    return {"time_s": elapsed, "n_evaluations": int(model.n_evaluations_), "n_iter": int(model.n_iter_),
+            "status": model.status_, "final_loss": float(np.sum(model.loss_)), "mean_train_deviation": float(np.mean(dev)),
+            **counts, "n_linear_solves": counts["n_forward"] + counts["n_transpose"],
+            "forward_calls_per_evaluation": counts["n_forward_calls"] / n_eval,
+            "forward_solves_per_task_evaluation": counts["n_forward"] / (n_eval * gt.train_rewards.shape[0]),
+            "systems_per_evaluation": counts["n_systems"] / n_eval}
+
+
+def run(args):
+    s = resolve_settings(args, DEFAULTS, QUICK)
+    preset = _preset(s)
+    objectives = list(dict.fromkeys(s["objectives"]))
+    entries, times = {}, {name: [] for name in objectives}
+    with limit_blas_threads(s["blas_threads"]) as threads:
+        t0 = time.perf_counter()
+        gt = objectworld_per_task(preset, s["n_tasks"], s["n_demos"], s["seed"])
+        t_data = time.perf_counter() - t0
+        for _ in range(s["repeats"]):
+            for name in objectives:
+                model, elapsed, planner = _fit(preset, gt, name, s["seed"] + 1)
+                times[name].append(elapsed)
+                entries[name] = _entry(model, elapsed, planner, gt, preset)
+    for name in objectives:
+        entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
+    out = {"benchmark": "mce", "fits": entries, "data_time_s": t_data}
+    if set(OBJECTIVES) <= set(objectives):
+        ref, other = entries["policy-matching"], entries["mce"]
+        out["ratio_mce_over_pm"] = other["time_s"] / ref["time_s"]
+        d = ref["mean_train_deviation"]
+        out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
+    settings = {key: s[key] for key in DEFAULTS}
+    settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives,
+                    fact_max_iter=preset.fact_max_iter, flat_max_iter=preset.flat_max_iter)
+    out["settings"] = settings
+    return out

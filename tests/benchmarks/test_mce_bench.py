@@ -1,0 +1,64 @@
+"""The mce benchmark: FactIRL with policy matching and with MCE on Objectworld maps, in a tiny configuration."""
+
+import json
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.lab import bench
+from factirl_opt.lab.benchmarks import mce as mce_bench
+from factirl_opt.exceptions import ValidationError
+from factirl_opt.planning import get_planner
+
+COUNTS = {"n_systems", "n_stochastic_systems", "n_forward", "n_transpose", "n_forward_calls", "n_transpose_calls"}
+
+
+def run_bench(capsys, argv):
+    assert bench.main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_mce_benchmark_quick_fits_both_objectives_and_counts_their_planning(capsys):
+    out = run_bench(capsys, ["mce", "--quick", "--repeats", "2"])
+    assert out["benchmark"] == "mce" and out["settings"]["quick"]
+    fits = out["fits"]
+    assert list(fits) == ["policy-matching", "mce"]
+    for name, e in fits.items():
+        assert COUNTS <= set(e) and e["time_s"] == min(e["times_s"]) and len(e["times_s"]) == 2
+        assert e["n_iter"] <= mce_bench.QUICK["max_iter"] and e["final_loss"] > 0 and e["mean_train_deviation"] >= 0
+        assert e["n_linear_solves"] == e["n_forward"] + e["n_transpose"] > 0
+        assert e["forward_calls_per_evaluation"] == pytest.approx(e["n_forward_calls"] / e["n_evaluations"])
+    # MCE plans stochastic (soft) policies only, policy matching deterministic (greedy) ones only
+    assert fits["mce"]["n_stochastic_systems"] == fits["mce"]["n_systems"] > 0
+    assert fits["policy-matching"]["n_stochastic_systems"] == 0
+    assert out["ratio_mce_over_pm"] == pytest.approx(fits["mce"]["time_s"] / fits["policy-matching"]["time_s"])
+    assert out["deviation_ratio_mce_over_pm"] == pytest.approx(
+        fits["mce"]["mean_train_deviation"] / fits["policy-matching"]["mean_train_deviation"])
+
+
+def test_mce_benchmark_one_objective_has_no_ratio(capsys):
+    out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--max-iter", "1"])
+    assert list(out["fits"]) == ["mce"] and "ratio_mce_over_pm" not in out
+    assert out["settings"]["fact_max_iter"] == 1
+
+
+@pytest.mark.parametrize("argv, fragment", [(["--preset", "objectworld-quick"], "not a world with a map per task"),
+                                            (["--n-tasks", "0"], "--n-tasks must be at least 1"),
+                                            (["--repeats", "0"], "--repeats must be at least 1")])
+def test_mce_benchmark_refuses_bad_settings(argv, fragment):
+    with pytest.raises(ValidationError, match=fragment):
+        mce_bench.run(bench.build_parser().parse_args(["mce", "--quick", *argv]))
+
+
+def test_counting_planner_counts_and_passes_results_through(rng):
+    mdp = fo.GridWorld(3)
+    inner = get_planner(mdp, "sparse-lu")
+    counting = mce_bench.SystemCountingPlanner(inner)
+    policy = rng.dirichlet(np.ones(mdp.n_actions), size=(2, mdp.n_states))
+    B = rng.standard_normal((2, mdp.n_states))
+    x = counting.system(policy).solve(B)
+    np.testing.assert_array_equal(x, inner.system(policy).solve(B))
+    counting.system(policy[:1]).solve_transpose(B[:1])
+    assert counting.counts() == dict(n_systems=3, n_stochastic_systems=3, n_forward=2, n_transpose=1,
+                                     n_forward_calls=1, n_transpose_calls=1)
