@@ -21,6 +21,7 @@ from .exceptions import (
     SolverOptionError,
     UnknownSolverError,
     ValidationError,
+    WorkersLost,
 )
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
@@ -164,4 +165,5 @@ __all__ = [
     "MissingDependencyError",
     "MissingSolverBackendError",
     "SolverOptionError",
+    "WorkersLost",
 ]

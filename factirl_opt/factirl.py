@@ -47,7 +47,7 @@ from .fitting import (
     warn_if_stalled,
 )
 from .gradirl import fit_weights, weights_rewards
-from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
+from .interruption import INTERRUPTED, FitInterrupted, raise_interrupted, warn_interrupted
 from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
@@ -382,8 +382,8 @@ class FactIRL:
         except FitInterrupted as exc:
             self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
-            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
-            raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
+            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})", exc.__cause__)
+            raise_interrupted(exc, "FactIRL.fit")
         self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
@@ -479,8 +479,8 @@ class FactIRL:
                                    verbose=self.verbose)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
-            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
-            raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
+            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
+            raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone

@@ -20,6 +20,7 @@ round differently by batch size), and the number of evaluations is counted by th
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Iterator
 from typing import Any
 
@@ -404,11 +405,17 @@ def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes
         environments per shard), closed when the block exits (also on an error or a
         KeyboardInterrupt).
     """
-    from ..parallel import check_backend, in_worker
+    from ..parallel import check_backend, dask_workers, in_worker
 
     check_backend(backend, client)
-    if backend == "dask" and n_jobs in (None, -1) and not in_worker():
-        n = len(client.scheduler_info()["workers"])
+    workers = dask_workers(client) if backend == "dask" and not in_worker() else None
+    if workers is not None and not workers:
+        warnings.warn(f"the Dask cluster of {client!r} has no worker: this fit runs unsharded in this process (fits do "
+                      "not wait for workers to join; call client.wait_for_workers(n) before the fit)", RuntimeWarning,
+                      stacklevel=3)
+        n = 1
+    elif workers is not None and n_jobs in (None, -1):
+        n = len(workers)
     else:
         n = effective_n_jobs(n_jobs)
     from .environments import MultiEnvironmentObjective
