@@ -47,7 +47,7 @@ from .fitting import (
     warn_if_stalled,
 )
 from .gradirl import fit_weights, weights_rewards
-from .interruption import INTERRUPTED, FitInterrupted, raise_interrupted, warn_interrupted
+from .interruption import INTERRUPTED, FitInterrupted, loss_phrase, raise_interrupted, warn_interrupted
 from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
@@ -382,7 +382,7 @@ class FactIRL:
         except FitInterrupted as exc:
             self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
-            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})", exc.__cause__)
+            warn_interrupted("FactIRL.fit", f"kept {kept} ({loss_phrase(self.loss_)})", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
         self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")

@@ -30,7 +30,7 @@ from .fitting import (
     reward_features,
     warn_if_stalled,
 )
-from .interruption import INTERRUPTED, FitInterrupted, raise_interrupted, run_keeping_best, warn_interrupted
+from .interruption import INTERRUPTED, FitInterrupted, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
 from .problems import linear_rewards, weights_problem
@@ -255,7 +255,7 @@ class GradIRL:
                 res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
             store(exc.result, objective)
-            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
+            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "
                                             f"after {self.n_iter_} iterations)", exc.__cause__)
             raise_interrupted(exc, "GradIRL.fit")
         store(res, objective)

@@ -25,7 +25,7 @@ from solvers import Linearization, SolverResult, StepProblem, StepSolver
 
 from .exceptions import ConvergenceWarning, FactIRLError
 
-__all__ = ["FitInterrupted", "InterruptedFitWarning", "BestRows", "run_keeping_best", "warn_interrupted", "raise_interrupted"]
+__all__ = ["FitInterrupted", "InterruptedFitWarning", "BestRows", "run_keeping_best", "warn_interrupted", "raise_interrupted", "loss_phrase"]
 
 #: the ``status`` (and ``stop_reason_``) of a fit stopped by a KeyboardInterrupt
 INTERRUPTED = "interrupted"
@@ -61,6 +61,19 @@ def warn_interrupted(what: str, detail: str, cause: BaseException | None = None)
         return
     warnings.warn(f"{what} was interrupted: {detail}. The KeyboardInterrupt is raised again.",
                   InterruptedFitWarning, stacklevel=3)
+
+
+def loss_phrase(loss: np.ndarray) -> str:
+    """How an interrupted fit's kept loss (per task, NaN where never evaluated) reads in its warning:
+    the total, or plainly that it (or some tasks' part) was not evaluated."""
+    loss = np.asarray(loss, dtype=np.float64)
+    seen = np.isfinite(loss)
+    if seen.all():
+        return f"total loss {np.sum(loss):.6g}"
+    if not seen.any():
+        return "its loss was not evaluated before the interrupt: loss_ is NaN"
+    return (f"total loss {np.sum(loss[seen]):.6g} over the {int(seen.sum())} tasks evaluated; loss_ is NaN for the "
+            f"{int((~seen).sum())} tasks never evaluated")
 
 
 def raise_interrupted(exc: FitInterrupted, what: str) -> NoReturn:
