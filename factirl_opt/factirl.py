@@ -52,7 +52,7 @@ from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
 from .task_features import TaskFeatures
-from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
+from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
@@ -460,7 +460,8 @@ class FactIRL:
             model or have another p, or the environments another number of actions.
         """
         new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
-        if new is None:
+        if new is None:  # the one-MDP path: ``[m] * n_new`` of one MDP is ``m``, as in ``fit``
+            mdp = transfer_mdp(mdp, demos_per_task, self)
             Phi, D = self._transfer_dictionary(mdp)
         if h_solver is None:
             if h_solver_options is not None:
