@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
+from ._validation import REWARD_LIMIT
 from .exceptions import ValidationError
 from .synthetic import task_rewards
 from .task_features import TaskFeatures
@@ -101,13 +102,19 @@ def unit_norm_map(D: np.ndarray, norms: np.ndarray, G: np.ndarray, unit_norm: bo
 
 
 def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_norm: bool,
-                                   rewards: Any, gradient: Any) -> StepProblem:
+                                   rewards: Any, gradient: Any, check: Any = None) -> StepProblem:
     """The one-row problem over ``vec(D)`` (1, p*k) shared by the dictionary problems (eqs. 10-11).
 
     ``rewards(D)`` gives every task's rewards from the effective dictionary (p, k) and
     ``gradient(y)`` the raw dictionary gradient (p, k) from ``dJ/dR`` of every task; both pass
     through the unit-norm normalisation when ``unit_norm`` (:func:`unit_norm_map`).
+    ``check(R, D)``, if given, returns the rewards of a point or raises when the planner would
+    overflow on them (:func:`check_reward_scale`); directions are not checked.
     """
+    if check is None:
+        def check(R, D):
+            return R
+
     all_rows = np.arange(n)
 
     def pull(y, D, norms):
@@ -115,12 +122,12 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
 
     def loss_and_grad(x, rows):
         D, norms = effective_dictionary(x, p, k, unit_norm)
-        loss, y = objective.loss_and_grad(rewards(D), all_rows)
+        loss, y = objective.loss_and_grad(check(rewards(D), D), all_rows)
         return np.array([loss.sum()]), pull(y, D, norms)
 
     def linearize(x, rows):
         D, norms = effective_dictionary(x, p, k, unit_norm)
-        lin = objective.linearize(rewards(D), all_rows)
+        lin = objective.linearize(check(rewards(D), D), all_rows)
 
         def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
             return lin.jvp(rewards(unit_norm_map(D, norms, V.reshape(p, k), unit_norm))).reshape(1, -1)
@@ -145,9 +152,45 @@ def dense_features(features: Any) -> NDArray[np.float64] | None:
 
 
 def _largest(a: Any) -> float:
-    a = np.asarray(a, dtype=np.float64)
+    if isinstance(a, TaskFeatures):
+        a = [a.matrix(i) for i in range(a.n_tasks)]
+    if isinstance(a, StateBroadcast):
+        return 1.0
+    parts = a if isinstance(a, list) else [a]
     with np.errstate(invalid="ignore"):
-        return float(np.max(np.abs(a), initial=0.0))
+        return max((float(np.max(np.abs(np.asarray(x, dtype=np.float64)), initial=0.0)) for x in parts), default=0.0)
+
+
+def overflow_error(features: Any, weights: Any, names: tuple[str, str] = ("features", "weights")) -> ValidationError:
+    """The error of rewards ``features @ weights`` that overflow: both inputs' largest magnitudes, and
+    which to rescale (the features when an entry exceeds ``FEATURE_SCALE_LIMIT``)."""
+    big_f, big_w = _largest(features), _largest(weights)
+    if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
+        advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
+    else:
+        advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
+    return ValidationError(
+        f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
+        f"|{names[1]}| = {big_w:.3g}): {advice}"
+    )
+
+
+def reward_limit(objective: Any) -> float:
+    """The largest |reward| the objective plans without overflow: ``REWARD_LIMIT * (1 - gamma)`` as
+    :func:`~factirl_opt._validation.check_rewards` has it, for the largest gamma of its MDPs."""
+    mdps = getattr(objective, "mdps", None) or [getattr(objective, "mdp", None)]
+    gammas = [m.gamma for m in mdps if m is not None]
+    return REWARD_LIMIT * (1.0 - max(gammas)) if gammas else np.inf
+
+
+def check_reward_scale(rewards: Any, limit: float, features: Any, weights: Any, names: tuple[str, str]) -> Any:
+    """``rewards`` (an array, or a list of per-task arrays) formed as ``features @ weights``, or
+    :func:`overflow_error` when they are not finite or reach ``limit`` (:func:`reward_limit`):
+    the planner would overflow on them."""
+    big = _largest(rewards)
+    if not big <= limit:
+        raise overflow_error(features, weights, names)
+    return rewards
 
 
 def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int,
@@ -174,15 +217,7 @@ def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n
     try:
         return task_rewards(features, weights, n_states, n_actions)
     except ValidationError:
-        big_f, big_w = _largest(features), _largest(weights)
-        if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
-            advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
-        else:
-            advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
-        raise ValidationError(
-            f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
-            f"|{names[1]}| = {big_w:.3g}): {advice}"
-        ) from None
+        raise overflow_error(features, weights, names) from None
 
 
 def weights_problem(objective: Any, features: Any = None,
@@ -211,9 +246,14 @@ def weights_problem(objective: Any, features: Any = None,
     S, A = mdp.n_states, mdp.n_actions
     F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
     p = S * A if F is None else F.shape[1]
+    limit = reward_limit(objective)
 
-    def rewards(x):
+    def directions(x):
         return x.reshape(-1, S, A) if F is None else linear_rewards(F, x, S, A, names)
+
+    def rewards(x):  # a point: rewards the planner can take
+        R = directions(x)
+        return R if F is None else check_reward_scale(R, limit, F, x, names)
 
     def loss_and_grad(x, rows):
         loss, y = objective.loss_and_grad(rewards(x), rows)
@@ -227,7 +267,7 @@ def weights_problem(objective: Any, features: Any = None,
         lin = objective.linearize(rewards(x), rows)
 
         def jvp(V):  # weight directions (r, p) -> reward directions F v_i
-            return lin.jvp(rewards(V))
+            return lin.jvp(directions(V))
 
         def vjp(U):
             y = lin.vjp(U).reshape(len(U), S * A)
@@ -281,16 +321,20 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
         Phi = np.asarray(Phi, dtype=np.float64)
     p = S * A if Phi is None else Phi.shape[1]
     names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
+    limit = reward_limit(objective)
 
     def rewards(D):
         return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
+
+    def check(R, D):
+        return check_reward_scale(R, limit, D if Phi is None else Phi @ D, H, names)
 
     def gradient(y):
         """``Phi^T sum_i y_i h_i^T`` (eq. 11), (p, k)."""
         g = y.reshape(n, S * A).T @ H
         return g if Phi is None else Phi.T @ g
 
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)
 
 
 def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
@@ -310,17 +354,22 @@ def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
         n rows, p parameters each; the gradient is ``Phi_i^T y_i`` (docs/maths.md §7) and the
         least-squares residuals are padded to the largest ``S_i * A``.
     """
-    tf = features
+    tf, limit = features, reward_limit(objective)
+
+    def rewards(x, rows):  # a point: rewards the planners can take
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported, naming the inputs
+            R = tf.rewards(x, rows)
+        return check_reward_scale(R, limit, tf, x, ("features", "weights"))
 
     def loss_and_grad(x, rows):
-        loss, y = objective.loss_and_grad(tf.rewards(x, rows), rows)
+        loss, y = objective.loss_and_grad(rewards(x, rows), rows)
         return loss, tf.pull(y, rows)
 
     def residual_jacobian(x, rows):
-        return objective.residual_jacobian(tf.rewards(x, rows), rows, tf.dense(rows))
+        return objective.residual_jacobian(rewards(x, rows), rows, tf.dense(rows))
 
     def linearize(x, rows):
-        lin = objective.linearize(tf.rewards(x, rows), rows)
+        lin = objective.linearize(rewards(x, rows), rows)
         return Linearization(lin.loss, lin.residual, lambda V: lin.jvp(tf.rewards(V, rows)),
                              lambda U: tf.pull(lin.vjp(U), rows))
 
@@ -347,10 +396,16 @@ def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], f
     n, k = H.shape
     p = tf.n_features
 
+    limit = reward_limit(objective)
+
     def rewards(D):
-        return tf.rewards(H @ D.T)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by ``check``
+            return tf.rewards(H @ D.T)
+
+    def check(R, D):
+        return check_reward_scale(R, limit, tf, H @ D.T, ("features", "dictionary @ coefficients"))
 
     def gradient(y):
         return tf.pull(y).T @ H
 
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)
