@@ -126,7 +126,7 @@ _MOVED_NAMES = {
     **{name: ("factirl_opt.exceptions", "fo.exceptions") for name in (
         "ConvergenceWarning", "InterruptedFitWarning", "FitInterrupted", "ValidationError", "NotFittedError",
         "SolverError", "UnknownSolverError", "PersistenceError", "MissingDependencyError",
-        "MissingSolverBackendError", "SolverOptionError")},
+        "MissingSolverBackendError", "SolverOptionError", "WorkersLost")},
     **{name: ("factirl_opt.mdp", "fo.mdp") for name in (
         "from_successors", "to_successors", "transition_log_likelihood", "transition_counts", "as_transitions",
         "sample_transitions")},

@@ -38,6 +38,19 @@ _open: list[int] = []  # the limits of the open blocks of every thread, in the o
 _saved: list[int] = []  # per BLAS library, its thread count before the first block opened
 
 
+def _after_fork_in_child() -> None:
+    """A forked child starts with a free lock and no open block: the thread that held the lock
+    (or opened the blocks) at the fork does not exist in the child, which would wait forever."""
+    global _lock
+    _lock = threading.Lock()
+    _open.clear()
+    _saved.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
 def blas_thread_limit() -> int | None:
     """The configured limit (int >= 1), or None to leave BLAS alone."""
     raw = os.environ.get("FACTIRL_BLAS_THREADS", "1").strip()

@@ -17,24 +17,56 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from typing import Any, Callable
+from typing import Any, Callable, NoReturn
 
 import numpy as np
 
 from solvers import Linearization, SolverResult, StepProblem, StepSolver
 
-from .exceptions import FitInterrupted, InterruptedFitWarning
+from .exceptions import FactIRLError, FitInterrupted, InterruptedFitWarning
 
-__all__ = ["BestRows", "run_keeping_best", "warn_interrupted"]
+__all__ = ["BestRows", "run_keeping_best", "warn_interrupted", "raise_interrupted", "loss_phrase"]
 
 #: the ``status`` (and ``stop_reason_``) of a fit stopped by a KeyboardInterrupt
 INTERRUPTED = "interrupted"
 
 
-def warn_interrupted(what: str, detail: str) -> None:
-    """Issue the :class:`InterruptedFitWarning` of an estimator whose ``what`` was interrupted."""
+def warn_interrupted(what: str, detail: str, cause: BaseException | None = None) -> None:
+    """Issue the :class:`InterruptedFitWarning` of an estimator whose ``what`` was interrupted
+    (by ``cause``: a KeyboardInterrupt, or a library error such as lost workers)."""
+    while isinstance(cause, FitInterrupted):
+        cause = cause.__cause__
+    if isinstance(cause, FactIRLError):
+        warnings.warn(f"{what} was stopped by an error ({cause}): {detail}. The error is raised again.",
+                      InterruptedFitWarning, stacklevel=3)
+        return
     warnings.warn(f"{what} was interrupted: {detail}. The KeyboardInterrupt is raised again.",
                   InterruptedFitWarning, stacklevel=3)
+
+
+def loss_phrase(loss: np.ndarray) -> str:
+    """How an interrupted fit's kept loss (per task, NaN where never evaluated) reads in its warning:
+    the total, or plainly that it (or some tasks' part) was not evaluated."""
+    loss = np.asarray(loss, dtype=np.float64)
+    seen = np.isfinite(loss)
+    if seen.all():
+        return f"total loss {np.sum(loss):.6g}"
+    if not seen.any():
+        return "its loss was not evaluated before the interrupt: loss_ is NaN"
+    return (f"total loss {np.sum(loss[seen]):.6g} over the {int(seen.sum())} tasks evaluated; loss_ is NaN for the "
+            f"{int((~seen).sum())} tasks never evaluated")
+
+
+def raise_interrupted(exc: FitInterrupted, what: str) -> NoReturn:
+    """Raise again, from an estimator that kept ``exc.result``, what stopped its fit: the library
+    error that did (e.g. :class:`~factirl_opt.exceptions.WorkersLost`, itself a
+    KeyboardInterrupt), else a :class:`FitInterrupted` for ``what`` chained to the interrupt."""
+    cause = exc.__cause__
+    while isinstance(cause, FitInterrupted):  # an inner step's interruption, wrapped again
+        cause = cause.__cause__
+    if isinstance(cause, FactIRLError):
+        raise cause
+    raise FitInterrupted(exc.result, what) from cause
 
 
 class BestRows:

@@ -263,3 +263,95 @@ def test_a_directory_that_cannot_be_written_is_a_clear_error(tmp_path, capsys, m
     err = capsys.readouterr().err
     assert code == 2 and err.startswith(f"factirl-opt: error: cannot create the lock '{out / '.lock'}': Permission denied")
     assert err.count("\n") == 1 and not (out / "results.csv").exists()
+
+
+# ----------------------------------------------------------------------------- every option checked by its parser
+
+
+def _value_actions(parser):
+    """(subcommand path, action) of every option taking a value, through the sub-parsers."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                for path, act in _value_actions(sub):
+                    yield (name,) + path, act
+        elif action.option_strings and action.nargs != 0 and action.dest != "help":
+            yield (), action
+
+
+def _all_value_actions():
+    from factirl_opt.bench import build_parser as bench_parser
+    from factirl_opt.cli import build_parser
+
+    yield from (((("reproduce",) + path), a) for path, a in _value_actions(build_parser()._subparsers._group_actions[0]
+                                                                         .choices["reproduce"]))
+    yield from ((("bench",) + path, a) for path, a in _value_actions(bench_parser()))
+
+
+#: options whose value is free text checked where it is used (solver options: by the solver registry)
+FREE_TEXT = {("reproduce", "--out"), ("reproduce", "--h-solver"), ("reproduce", "--d-solver"), ("reproduce", "--flat-solver")}
+
+
+def test_every_option_has_a_checked_type_or_choices():
+    from factirl_opt._arguments import is_checked
+    from factirl_opt.cli import parse_solver_options
+
+    unchecked = [(path, a.option_strings[-1]) for path, a in _all_value_actions()
+                 if not (is_checked(a.type) or a.choices or a.type is parse_solver_options
+                         or (path[0], a.option_strings[-1]) in FREE_TEXT)]
+    assert unchecked == []
+
+
+def test_negative_values_are_usage_errors_for_every_numeric_option(capsys):
+    from factirl_opt._arguments import is_checked
+    from factirl_opt.bench import main as bench_main
+
+    checked = [(path, "/".join(a.option_strings)) for path, a in _all_value_actions()
+               if path[0] == "bench" and is_checked(a.type) and a.type.__name__.startswith(("an integer", "a whole", "a finite"))]
+    assert len(checked) > 60  # every benchmark's numbers
+    for path, flag in checked:
+        with pytest.raises(SystemExit) as exc:
+            bench_main([path[1], flag.split("/")[-1], "-3"], prog="factirl-opt bench")
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and f"factirl-opt bench {path[1]}: error: argument {flag}" in err, (path, flag, err)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["bench", "environments", "--blas-threads", "-3"], "argument --blas-threads: must be an integer >= 0; got '-3'"),
+    (["bench", "fit", "--h-solvers", "armijo", "nope"], "argument --h-solvers: unknown solver 'nope'; available: "),
+    (["bench", "solvers", "--sparsity", "1"], "argument --sparsity: must be a finite number >= 0 and < 1; got '1'"),
+    (["bench", "scale", "--jobs", "0"], "argument --jobs: must be an integer >= 1 (or -1: every core); got '0'"),
+    (["bench", "robustness", "--extra", "1.5"], "argument --extra: must be a whole number >= 0 (1e5 accepted); got '1.5'"),
+    (["bench", "gradient", "--beta", "nan"], "argument --beta: must be a finite number > 0; got 'nan'"),
+    (["reproduce", "--scheduler", "not an address"], "argument --scheduler: must be a Dask scheduler address"),
+    (["reproduce", "--scheduler", "tcp://localhost"], "([protocol://]host:port); got 'tcp://localhost'"),
+])
+def test_bad_values_are_refused_by_the_parsers(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("preset, lineup", [("babyai-quick", "paper"), ("babyai-quick", "paper+mce"),
+                                            ("objectworld-per-task-quick", "paper")])
+def test_a_lineup_that_does_not_fit_the_presets_world_is_refused(tmp_path, capsys, preset, lineup):
+    code = main(["reproduce", "--preset", preset, "--lineup", lineup, "--out", str(tmp_path / "x"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"factirl-opt: error: preset '{preset}': the line-up '{lineup}' runs in the "
+                                        "world(s) grid, objectworld; got world") and err.count("\n") == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_library_errors_of_a_benchmark_are_one_line_messages(capsys, monkeypatch):
+    from factirl_opt.bench import main as bench_main
+    from factirl_opt.benchmarks import environments
+    from factirl_opt.exceptions import ValidationError
+
+    def refuse(args):
+        raise ValidationError("this combination cannot run")
+
+    monkeypatch.setattr(environments, "run", refuse)
+    assert bench_main(["environments", "--quick"], prog="factirl-opt bench") == 2
+    assert capsys.readouterr().err == "factirl-opt bench: error: this combination cannot run\n"

@@ -339,3 +339,17 @@ def test_an_init_dictionary_too_large_to_normalise_is_refused(scale):
         warnings.simplefilter("error")  # no numpy overflow warning: the error says it
         with pytest.raises(ValidationError, match=rf"init D0 is too large to normalise.*entry {scale:.3g}".replace("+", r"\+")):
             check_dictionary_norms(D0, "init D0")
+
+
+def test_a_tabular_model_transfers_to_a_list_of_its_own_mdp(data):
+    grid3, _, demos = data
+    model = fo.FactIRL(n_primitives=K, max_iter=2, flat_max_iter=2, rng=0).fit(grid3, demos)
+    alone = model.transfer(grid3, demos[:2], max_iter=3)
+    np.testing.assert_array_equal(model.transfer([grid3, grid3], demos[:2], max_iter=3), alone)
+    equal = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)  # another object with the same signature
+    assert equal is not grid3 and equal.signature() == grid3.signature()
+    np.testing.assert_array_equal(model.transfer([grid3, equal], demos[:2], max_iter=3), alone)
+    with pytest.raises(ValidationError, match="fitted without features .* transfers only to that MDP"):
+        model.transfer([grid3, fo.GridWorld(size=3, p_success=0.5)], demos[:2])
+    with pytest.raises(ValidationError, match="got 2 MDPs for 3 tasks"):
+        model.transfer([grid3, grid3], demos[:3])

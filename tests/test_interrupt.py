@@ -193,3 +193,24 @@ def test_fit_factorial_raises_fitinterrupted_with_its_result(monkeypatch, data):
     fit = info.value.result
     assert isinstance(fit, fo.learners.factirl.FactorialFit) and fit.status == "interrupted"
     assert np.sum(fit.loss) == min(fit.loss_history)
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_an_unevaluated_start_kept_at_an_interrupt_says_so(monkeypatch, data, n_jobs):
+    mdp, demos = data
+    Recorder(monkeypatch, 3)  # in the flat start (in the driver's own shard with n_jobs=2)
+    model = fo.FactIRL(n_primitives=K, flat_max_iter=10, n_jobs=n_jobs)
+    with pytest.warns(InterruptedFitWarning, match=r"kept the start \(its loss was not evaluated before the interrupt: "
+                                                   r"loss_ is NaN\)") as record, pytest.raises(FitInterrupted):
+        model.fit(mdp, demos)
+    assert not any("nan" in str(w.message) for w in record)
+    assert model.n_iter_ == 0 and np.all(np.isnan(model.loss_)) and np.all(np.isfinite(model.dictionary_))
+
+
+def test_the_kept_loss_is_described_plainly():
+    from factirl_opt.interruption import loss_phrase
+
+    assert loss_phrase(np.array([1.0, 2.0])) == "total loss 3"
+    assert loss_phrase(np.array([1.0, np.nan, 2.0])) == ("total loss 3 over the 2 tasks evaluated; loss_ is NaN for the "
+                                                         "1 tasks never evaluated")
+    assert loss_phrase(np.full(3, np.nan)) == "its loss was not evaluated before the interrupt: loss_ is NaN"

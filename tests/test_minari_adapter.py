@@ -176,3 +176,79 @@ def test_duck_typed_dataset_is_read():
 def test_refusals(dataset, kwargs, match):
     with pytest.raises(ValidationError, match=match):
         read_minari(dataset, **kwargs)
+
+
+# ----------------------------------------------------------------------------- damaged datasets
+
+
+def _damaged(error, after=0, **extra):
+    """A duck-typed dataset whose storage fails with ``error`` after ``after`` good episodes."""
+
+    def iterate_episodes(indices=None):
+        yield from [_episode(i, [0, 1], [1]) for i in range(after)]
+        raise error
+
+    spec = SimpleNamespace(dataset_id="test/damaged-v0", data_path="/data/test/damaged-v0/data")
+    return SimpleNamespace(observation_space=SimpleNamespace(n=3), action_space=SimpleNamespace(n=2), spec=spec,
+                           iterate_episodes=iterate_episodes, **extra)
+
+
+@pytest.mark.parametrize("error, after", [
+    (OSError("Unable to synchronously open file (truncated file: eof = 21112, stored_eof = 42224)"), 0),
+    (KeyError("Unable to synchronously open object (object 'episode_2' doesn't exist)"), 2),
+    (ValueError("No data found in data path /data/test/damaged-v0/data"), 1),
+])
+def test_a_damaged_dataset_is_a_persistence_error_naming_it(error, after):
+    with pytest.raises(fo.PersistenceError, match=r"the Minari dataset 'test/damaged-v0' \(/data/test/damaged-v0/data\) cannot "
+                                                  rf"be read: {type(error).__name__}: .*damaged, truncated or missing") as info:
+        read_minari(_damaged(error, after))
+    assert info.value.__cause__ is error
+
+
+def test_errors_of_the_callers_own_code_and_ours_are_not_taken_for_damage():
+    def mapping(obs):
+        raise ZeroDivisionError("the caller's bug")
+
+    with pytest.raises(ZeroDivisionError, match="the caller's bug"):
+        read_minari(_dataset([_episode(4, [0, 1], [1])]), observation_to_state=mapping, n_states=3)
+    with pytest.raises(KeyboardInterrupt):
+        read_minari(_damaged(KeyboardInterrupt()))
+
+
+def test_episode_indices_the_dataset_does_not_have_are_refused():
+    ds = _damaged(OSError("never read"), total_episodes=3)
+    for indices, bad in (([0, 10], 10), ([-1], -1)):
+        with pytest.raises(ValidationError, match=rf"episode_indices: episode {bad} is not in the Minari dataset 'test/damaged-v0' "
+                                                  r"\(/data/test/damaged-v0/data\), which has 3 episodes \(indices 0..2\)"):
+            read_minari(ds, indices)
+    with pytest.raises(ValidationError, match="episode_indices must be an iterable of episode indices; got int"):
+        read_minari(ds, 3)
+
+
+def test_damaged_files_of_a_real_dataset(tmp_path, monkeypatch):
+    minari = pytest.importorskip("minari")
+    from minari.data_collector import EpisodeBuffer
+
+    gym = pytest.importorskip("gymnasium")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    rng = np.random.default_rng(0)
+    buffers = [EpisodeBuffer(observations=list(rng.integers(16, size=5)), actions=list(rng.integers(4, size=4)),
+                             rewards=[0.0] * 4, terminations=[False] * 3 + [True], truncations=[False] * 4) for _ in range(3)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        minari.create_dataset_from_buffers("test/fl/damaged-v0", buffers, env=gym.make("FrozenLake-v1"), algorithm_name="random")
+    data = tmp_path / "test/fl/damaged-v0/data"
+    assert len(read_minari("test/fl/damaged-v0").episodes) == 3
+    name = r"the Minari dataset 'test/fl/damaged-v0' \(.*test/fl/damaged-v0\) cannot be read"
+    with pytest.raises(ValidationError, match="episode 3 is not in the Minari dataset 'test/fl/damaged-v0'"):
+        read_minari("test/fl/damaged-v0", [3])
+    hdf5 = data / "main_data.hdf5"
+    hdf5.write_bytes(hdf5.read_bytes()[: hdf5.stat().st_size // 2])
+    with pytest.raises(fo.PersistenceError, match=name + r": OSError: .*truncated file"):
+        read_minari("test/fl/damaged-v0")
+    (data / "metadata.json").write_text("{bad json")
+    with pytest.raises(fo.PersistenceError, match=name + ": JSONDecodeError"):
+        read_minari("test/fl/damaged-v0")
+    (data / "metadata.json").unlink()
+    with pytest.raises(fo.PersistenceError, match=name + ": ValueError: No data found"):
+        read_minari("test/fl/damaged-v0")

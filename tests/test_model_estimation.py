@@ -276,3 +276,15 @@ def test_log_likelihood_refusals():
         transition_log_likelihood(mdp, [[0, 0, 4]])
     with pytest.raises(ValidationError, match="mdp must be a TabularMDP"):
         transition_log_likelihood(np.eye(2), [[0, 0, 1]])
+
+
+def test_absurd_sizes_are_refused_before_allocating(monkeypatch):
+    one = np.array([[0, 0, 1]])
+    with pytest.raises(ValidationError, match=r"n_states x n_actions = 1000000000 x 1000 = 1000000000000 \(s, a\) rows: "
+                                              r"the model needs about 8.94e\+04 GiB whatever the data, more than this machine's"):
+        estimate_mdp(one, 10**9, 1000, 0.9)
+    monkeypatch.setattr(model_estimation, "_memory_bytes", lambda: 2**20)  # a 1 MiB machine: 1e4 rows need 0.9 MiB
+    assert estimate_mdp(one, 2500, 4, 0.9).n_states == 2500
+    for fn in (lambda: estimate_mdp(one, 10**4, 2, 0.9), lambda: transition_counts(one, 10**4, 2)):
+        with pytest.raises(ValidationError, match="more than this machine's 0.000977 GiB of memory; n_states and n_actions are"):
+            fn()

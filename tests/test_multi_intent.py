@@ -302,3 +302,18 @@ def test_sparse_model_gives_the_dense_fit():
     b = fo.MultiIntentIRL(2, planner="sparse-lu", **kw).fit(sparse, np.concatenate(demos))
     np.testing.assert_array_equal(a.labels_, b.labels_)
     np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=1e-6, atol=1e-8)
+
+
+@pytest.mark.parametrize("episodes, match", [
+    ([np.array([[0, 1], [1, 2]]), np.array([[0, 1], [9, 2]])], r"^episodes\[1\], step 1: state 9 is out of range \[0, 9\)$"),
+    ([np.array([[0, 1], [1, 7]])], r"^episodes\[0\], step 1: action 7 is out of range \[0, 4\)$"),
+    (np.zeros((2, 3, 2), dtype=int) + [0, 9], r"^episodes\[0\], step 0: action 9 is out of range"),
+    ([np.array([[0, 1]]), np.zeros(3, dtype=int)], r"^episodes\[1\] must have shape \(L, 2\) with L >= 1; got \(3,\)"),
+    ([[0, 1], [1, 2]], r"^episodes is a single episode \(a list of \(state, action\) pairs\), not a list of episodes: "
+                       r"pass \[episodes\]$"),
+    ([], "^episodes are empty"),
+])
+def test_unlabeled_episodes_are_named_as_given_not_as_a_task(episodes, match):
+    with pytest.raises(fo.ValidationError, match=match) as info:
+        fo.MultiIntentIRL(n_intentions=1, max_iter=1).fit(fo.GridWorld(size=3), episodes)
+    assert "task" not in str(info.value)

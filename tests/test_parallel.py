@@ -8,6 +8,7 @@ evaluation counts are equal.
 import multiprocessing
 import os
 import signal
+import threading
 
 import numpy as np
 import pytest
@@ -269,3 +270,88 @@ def test_warnings_of_shard_processes_are_raised_in_the_driver():
                 shards.call([(1, "warn", ("from shard 1 again",))])
     finally:
         shards.close()
+
+
+def within(seconds, fn, *args):
+    """``fn(*args)`` in a daemon thread: its result or its exception, or a failure if it hangs."""
+    out = []
+
+    def run():
+        try:
+            out.append(("ok", fn(*args)))
+        except BaseException as exc:  # noqa: BLE001 - handed to the test's thread
+            out.append(("error", exc))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"still waiting after {seconds} s (a hang)"
+    if out[0][0] == "error":
+        raise out[0][1]
+    return out[0][1]
+
+
+def call_and_close(shards, calls):
+    try:
+        return shards.call(calls)
+    finally:
+        shards.close()
+
+
+def test_shards_forked_while_another_thread_holds_the_blas_lock_answer():
+    from factirl_opt import _threads
+
+    # as when the main thread opens a BLAS limit at the moment another thread's fit forks a shard
+    with _threads._lock:
+        out = within(30, lambda: call_and_close(Shards([(dict, ()), (dict, ())]), [(1, "get", ("a", 5))]))
+    assert out == [5]
+
+
+def test_a_stopped_shard_process_is_killed_and_rebuilt(monkeypatch):
+    monkeypatch.setattr(parallel, "SILENCE_SECONDS", 1.0)
+    shards = Shards([(dict, ()), (dict, ())])
+    try:
+        shards.call([(1, "setdefault", ("a", 1))])
+        proc = shards.handles[1].proc
+        os.kill(proc.pid, signal.SIGSTOP)  # alive, silent: neither EOF nor an answer would ever come
+        assert within(30, shards.call, [(1, "get", ("a", 7))]) == [7]  # a rebuilt dict: the default
+        assert shards.n_restarts == 1 and not proc.is_alive()
+    finally:
+        shards.close()
+
+
+class Stuck:
+    """A shard state whose ``wait`` never returns and uses no CPU time (a deadlock)."""
+
+    def wait(self):
+        threading.Event().wait()
+
+
+def test_a_deadlocked_shard_ends_in_a_clear_error(monkeypatch):
+    monkeypatch.setattr(parallel, "SILENCE_SECONDS", 1.0)
+    monkeypatch.setattr(parallel, "MAX_RESTARTS", 1)
+    shards = Shards([(Stuck, ()), (Stuck, ())])
+    try:
+        with pytest.raises(fo.WorkersLost, match=r"lost 2 times in one call.*used no CPU time for 1 s \(stopped, or deadlocked\)"):
+            within(30, shards.call, [(1, "wait", ())])
+        assert shards.n_restarts == 1
+    finally:
+        shards.close()
+    assert not multiprocessing.active_children()
+
+
+def test_a_fit_whose_shards_keep_dying_keeps_its_best_point(data, monkeypatch):
+    mdp, demos, F, _ = data
+    monkeypatch.setattr(parallel, "MAX_RESTARTS", 0)
+
+    def kill(iteration, total):
+        if iteration == 2:
+            for child in multiprocessing.active_children():
+                os.kill(child.pid, signal.SIGKILL)
+
+    model = fo.FactIRL(n_primitives=2, max_iter=5, init="random", rng=0, features=F, callback=kill, n_jobs=2)
+    with pytest.warns(fo.InterruptedFitWarning, match="stopped by an error"), \
+            pytest.raises(fo.WorkersLost, match="shard 1's worker was lost 1 times"):
+        model.fit(mdp, demos)
+    assert model.status_ == "interrupted" and model.n_iter_ == 2 and np.all(np.isfinite(model.loss_))
+    assert isinstance(fo.WorkersLost("x"), KeyboardInterrupt) and not multiprocessing.active_children()

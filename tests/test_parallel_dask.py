@@ -138,3 +138,78 @@ def test_warnings_of_dask_shards_are_raised_in_the_driver(client):
             assert shards.call([(0, "warn", ("from a Dask worker", RuntimeWarning))]) == [None]
     finally:
         shards.close()
+
+
+@pytest.fixture
+def threads_cluster():
+    """A cluster of two workers in this process (fast to start; closed by the tests that need it)."""
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0")
+    c = distributed.Client(cluster)
+    yield cluster, c
+    c.close()
+    cluster.close()
+
+
+KW = dict(n_primitives=2, max_iter=4, init="random", rng=0)
+
+
+def test_a_closed_client_is_refused_before_the_fit(threads_cluster, data):
+    mdp, demos, F = data
+    cluster, c = threads_cluster
+    c.close()
+    with pytest.raises(fo.ValidationError, match="Dask client .* cannot be used: its status is 'closed'"):
+        fo.FactIRL(backend="dask", client=c, features=F, **KW).fit(mdp, demos)
+    with pytest.raises(fo.ValidationError, match=r"needs client= a dask.distributed.Client; got LocalCluster \(a cluster: "
+                                                 r"pass dask.distributed.Client\(cluster\)\)"):
+        fo.GradIRL(backend="dask", client=cluster).fit(mdp, demos)
+
+
+def test_a_cluster_closed_during_a_fit_interrupts_it_keeping_the_best_point(threads_cluster, data):
+    mdp, demos, F = data
+    cluster, c = threads_cluster
+
+    def close(iteration, total):
+        if iteration == 2:
+            cluster.close()
+
+    model = fo.FactIRL(backend="dask", client=c, n_jobs=2, callback=close, features=F, **KW)
+    # (the InterruptedFitWarning is not asserted: closing a cluster from this thread resets the warnings
+    # machinery pytest.warns relies on; test_parallel checks it for lost shard processes)
+    with pytest.raises(fo.WorkersLost, match="status is 'closed'"):
+        model.fit(mdp, demos)
+    assert model.status_ == "interrupted" and model.n_iter_ == 2 and np.all(np.isfinite(model.loss_))
+
+
+def test_every_worker_lost_interrupts_the_fit_after_a_bounded_wait(threads_cluster, data, monkeypatch):
+    from factirl_opt import parallel
+
+    mdp, demos, F = data
+    cluster, c = threads_cluster
+    monkeypatch.setattr(parallel, "DASK_WAIT_SECONDS", 1.0)
+
+    def drop(iteration, total):
+        if iteration == 1:
+            cluster.scale(0)
+            deadline = time.monotonic() + 10
+            while c.scheduler_info()["workers"] and time.monotonic() < deadline:
+                time.sleep(0.05)
+
+    model = fo.GradIRL(max_iter=4, backend="dask", client=c, n_jobs=2, callback=drop, features=F)
+    with pytest.raises(fo.WorkersLost, match="no worker left and none joined within 1 s"):
+        model.fit(mdp, demos)
+    assert model.status_ == "interrupted" and model.weights_.shape == (6, 4)
+
+
+def test_a_cluster_without_workers_warns_and_fits_in_this_process(data):
+    mdp, demos, F = data
+    cluster = distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0")
+    c = distributed.Client(cluster)
+    try:
+        a = fo.FactIRL(features=F, **KW).fit(mdp, demos)
+        for n_jobs in (None, 2):
+            with pytest.warns(RuntimeWarning, match="has no worker: this fit runs unsharded in this process"):
+                b = fo.FactIRL(backend="dask", client=c, n_jobs=n_jobs, features=F, **KW).fit(mdp, demos)
+            np.testing.assert_allclose(b.dictionary_, a.dictionary_, rtol=1e-10, atol=1e-12)
+    finally:
+        c.close()
+        cluster.close()

@@ -1,5 +1,7 @@
 """Per-task reward features: rewards, chain rule, dictionary gradient, with state or state-action features."""
 
+import warnings
+
 import numpy as np
 from helpers import central_difference, random_statistics, rel_err
 import pytest
@@ -99,3 +101,21 @@ def test_errors_name_the_task(rng):
         tf.dictionary_gradient([np.ones((4, 4)), np.ones((9, 4))], np.ones((3, 1)))
     with pytest.raises(ValidationError, match=r"M must have shape \(2, k\)"):
         tf.products(np.ones((3, 1)))
+
+
+@pytest.mark.parametrize("learner", ["gradirl", "factirl-pca", "factirl-random"])
+@pytest.mark.parametrize("sizes", [(3, 4, 3), (3, 3, 3)])
+def test_per_task_features_with_huge_values_get_the_rescale_message(learner, sizes):
+    mdps = [fo.GridWorld(size=s, p_success=0.7, gamma=0.9) for s in sizes]
+    rng = np.random.default_rng(0)
+    Phis = [rng.random((m.n_states, 3)) for m in mdps]
+    Phis[1] = Phis[1] * 1e300  # finite rewards of order 1e299-1e300: beyond what planning takes at gamma 0.9
+    demos = [fo.sample_demonstrations(m, rng.normal(size=(1, m.n_states, 4)), 2, 5, rng=i)[0] for i, m in enumerate(mdps)]
+    model = {"gradirl": fo.GradIRL(features=Phis, max_iter=3),
+             "factirl-pca": fo.FactIRL(n_primitives=2, features=Phis, max_iter=2, flat_max_iter=2),
+             "factirl-random": fo.FactIRL(n_primitives=2, features=Phis, max_iter=2, init="random", rng=0)}[learner]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no numpy overflow warning either: the error says it
+        with pytest.raises(ValidationError, match=r"the rewards features @ .* overflow float64 \(largest \|features\| = "
+                                                  r"\d.*e\+299.*: the features are far from order 1: rescale them"):
+            model.fit(mdps, demos)

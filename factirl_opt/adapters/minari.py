@@ -35,15 +35,17 @@ object is read by duck typing (``observation_space``, ``action_space``,
 
 from __future__ import annotations
 
+import contextlib
 import importlib
-from collections.abc import Callable, Iterable
+import os
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validation import check_int
-from ..exceptions import MissingDependencyError, ValidationError
+from ..exceptions import FactIRLError, MissingDependencyError, PersistenceError, ValidationError
 from ..mdp.estimation import as_transitions
 
 __all__ = ["read_minari", "LoggedEpisodes", "INSTALL_HINT"]
@@ -93,16 +95,79 @@ def _import_minari() -> Any:
         raise MissingDependencyError(f"opening a Minari dataset from its id needs minari, which is not installed: {INSTALL_HINT}") from exc
 
 
+def _where(dataset: Any) -> str:
+    """The dataset's id and directory, as error messages name it."""
+    if isinstance(dataset, str):
+        root = os.environ.get("MINARI_DATASETS_PATH") or os.path.join("~", ".minari", "datasets")
+        return f"{dataset!r} ({os.path.join(root, dataset)})"
+    spec = getattr(dataset, "spec", None)
+    name, path = getattr(spec, "dataset_id", None), getattr(spec, "data_path", None)
+    if name is None and path is None:
+        return f"given ({type(dataset).__name__})"
+    return f"{name!r}" + (f" ({path})" if path else "")
+
+
+@contextlib.contextmanager
+def _reading(where: str) -> Iterator[None]:
+    """Every read of a dataset's files (opening, listing, iterating episodes) goes through here: an error of
+    the storage or of minari (h5py, json, a missing or malformed file) becomes a :class:`PersistenceError`
+    naming the dataset and its directory; the library's own errors and interrupts pass unchanged."""
+    try:
+        yield
+    except FactIRLError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever minari, h5py, pyarrow or json raise on damaged files
+        raise PersistenceError(
+            f"the Minari dataset {where} cannot be read: {type(exc).__name__}: {exc}. Its files (metadata.json, the "
+            "episodes' data file) are damaged, truncated or missing: record or download the dataset again"
+        ) from exc
+
+
+def _episodes(ds: Any, indices: list[int] | None, where: str) -> Iterator[Any]:
+    """The dataset's episodes, each read inside :func:`_reading`."""
+    with _reading(where):
+        episodes = iter(ds.iterate_episodes() if indices is None else ds.iterate_episodes(indices))
+    while True:
+        with _reading(where):
+            ep = next(episodes, None)
+        if ep is None:
+            return
+        yield ep
+
+
+def _check_indices(ds: Any, episode_indices: Iterable[int] | None, where: str) -> list[int] | None:
+    """``episode_indices`` as a list of ints, each one of the dataset's episodes (when it says which it has)."""
+    if episode_indices is None:
+        return None
+    if isinstance(episode_indices, (str, bytes)) or not isinstance(episode_indices, Iterable):
+        raise ValidationError(f"episode_indices must be an iterable of episode indices; got {type(episode_indices).__name__}")
+    indices = [check_int(i, "episode_indices[]") for i in episode_indices]
+    with _reading(where):
+        known = getattr(ds, "episode_indices", None)
+        if known is None and getattr(ds, "total_episodes", None) is not None:
+            known = range(int(ds.total_episodes))
+        known = None if known is None else {int(i) for i in known}
+    missing = [i for i in indices if known is not None and i not in known]
+    if missing:
+        span = f"indices {min(known)}..{max(known)}" if known else "none"
+        raise ValidationError(f"episode_indices: episode {missing[0]} is not in the Minari dataset {where}, which has "
+                              f"{len(known)} episodes ({span})")
+    return indices
+
+
 def _open(dataset: Any) -> Any:
     """A dataset object: opened from local storage for an id, else checked by duck typing."""
     if isinstance(dataset, str):
         minari = _import_minari()
         try:
-            return minari.load_dataset(dataset, download=False)
-        except FileNotFoundError as exc:
+            with _reading(_where(dataset)):
+                return minari.load_dataset(dataset, download=False)
+        except PersistenceError as exc:
+            if not isinstance(exc.__cause__, FileNotFoundError):
+                raise
             raise FileNotFoundError(
-                f"the Minari dataset {dataset!r} is not in local storage ({exc}); factirl-opt downloads nothing: set "
-                f"MINARI_DATASETS_PATH to the directory holding it, or fetch it first with `minari download {dataset}`"
+                f"the Minari dataset {dataset!r} is not in local storage ({exc.__cause__}); factirl-opt downloads nothing: "
+                f"set MINARI_DATASETS_PATH to the directory holding it, or fetch it first with `minari download {dataset}`"
             ) from None
     missing = [name for name in ("observation_space", "action_space", "iterate_episodes") if not hasattr(dataset, name)]
     if missing:
@@ -226,19 +291,27 @@ def read_minari(
         A dataset id was given and minari is not installed (the message gives the pip command).
     FileNotFoundError
         The dataset id is not in local storage.
+    PersistenceError
+        The dataset's files are damaged, truncated or incomplete (corrupt data file, missing
+        or malformed ``metadata.json``): any error of minari or of the storage while reading,
+        with the dataset's id and directory.
     ValidationError
         A MiniGrid/BabyAI dataset without ``observation_to_state`` (see the module docstring),
-        a non-Discrete observation or action space, a dataset with no episodes, or an episode
-        with no action, mismatched lengths or out-of-range states or actions (the message
-        names the episode).
+        a non-Discrete observation or action space, a dataset with no episodes, an
+        ``episode_indices`` entry the dataset does not have, or an episode with no action,
+        mismatched lengths or out-of-range states or actions (the message names the episode).
     """
     ds = _open(dataset)
-    A = _discrete_size(ds.action_space, "action")
+    where = _where(dataset if isinstance(dataset, str) else ds)
+    with _reading(where):
+        action_space = ds.action_space
+    A = _discrete_size(action_space, "action")
     if A is None:
-        raise ValidationError(f"the dataset's action space {ds.action_space} is not Discrete: actions must be indices 0..A-1")
-    states_of, S = _state_reader(ds, observation_to_state, n_states)
-    episodes = ds.iterate_episodes() if episode_indices is None else ds.iterate_episodes(list(episode_indices))
-    read = [_episode_steps(ep, states_of, S, A) for ep in episodes]
+        raise ValidationError(f"the dataset's action space {action_space} is not Discrete: actions must be indices 0..A-1")
+    with _reading(where):
+        states_of, S = _state_reader(ds, observation_to_state, n_states)
+    indices = _check_indices(ds, episode_indices, where)
+    read = [_episode_steps(ep, states_of, S, A) for ep in _episodes(ds, indices, where)]
     if not read:
         raise ValidationError("the dataset holds no episodes (or episode_indices selects none)")
     ids, steps, finals = zip(*read)

@@ -10,6 +10,7 @@ import json
 import sys
 
 from .benchmarks import BENCHMARKS
+from .exceptions import FactIRLError
 
 __all__ = ["main", "build_parser", "run_from_args"]
 
@@ -47,8 +48,18 @@ def run_from_args(args):
 
 
 def main(argv=None, prog="python -m factirl_opt.lab.bench"):
-    """Parse ``argv``, run the benchmark, print its JSON; returns the exit code."""
-    run_from_args(build_parser(prog).parse_args(argv))
+    """Parse ``argv``, run the benchmark, print its JSON; returns the exit code.
+
+    Every option is checked by the parser (its type or choices: a bad value is a usage
+    error); a value the library refuses once the benchmark starts (a combination of options
+    it cannot run) gives a one-line ``PROG: error: ...``. Both exit with code 2.
+    """
+    args = build_parser(prog).parse_args(argv)
+    try:
+        run_from_args(args)
+    except FactIRLError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -30,6 +30,7 @@ from typing import Any
 from .._validation import check_int
 from ..exceptions import FactIRLError, ValidationError
 from ..parallel import BACKENDS
+from .arguments import mark_checked, scheduler_address
 
 __all__ = ["main", "build_parser", "parse_solver_options"]
 
@@ -51,7 +52,7 @@ def _integer(name, minimum, also=(), note=""):
         except ValidationError as exc:
             raise argparse.ArgumentTypeError(f"{exc}{note}") from None
 
-    return parse
+    return mark_checked(parse, f"an integer >= {minimum}")
 
 
 def parse_solver_options(text: str) -> dict[str, Any]:
@@ -146,7 +147,7 @@ def _add_reproduce(sub):
     rep.add_argument("--backend", default="processes", choices=[*BACKENDS, "loky"],
                      help="local worker processes, or a Dask cluster (needs the 'dask' extra); 'loky' is the former "
                      "name of 'processes' (default: processes)")
-    rep.add_argument("--scheduler", default=None, metavar="ADDRESS",
+    rep.add_argument("--scheduler", type=scheduler_address, default=None, metavar="ADDRESS",
                      help="Dask scheduler address (e.g. tcp://host:8786) for --backend dask (default: a local "
                      "cluster of --jobs workers)")
     rep.add_argument("--no-plot", action="store_true",

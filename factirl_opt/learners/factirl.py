@@ -49,12 +49,12 @@ from .fitting import (
     warn_if_stalled,
 )
 from .gradirl import fit_weights, weights_rewards
-from ..interruption import INTERRUPTED, warn_interrupted
+from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
 from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from .solver_settings import SolverSettings, estimator_solvers
-from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
+from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
@@ -403,8 +403,8 @@ class FactIRL(Estimator):
         except FitInterrupted as exc:
             self._store(where, Phi, exc.result, int(obj.n_evaluations))
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
-            warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
-            raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
+            warn_interrupted("FactIRL.fit", f"kept {kept} ({loss_phrase(self.loss_)})", exc.__cause__)
+            raise_interrupted(exc, "FactIRL.fit")
         self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
@@ -483,7 +483,8 @@ class FactIRL(Estimator):
             model or have another p, or the environments another number of actions.
         """
         new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
-        if new is None:
+        if new is None:  # the one-MDP path: ``[m] * n_new`` of one MDP is ``m``, as in ``fit``
+            mdp = transfer_mdp(mdp, demos_per_task, self)
             Phi, D = self._transfer_dictionary(mdp)
         if solver is None:
             if solver_options is not None:
@@ -507,8 +508,8 @@ class FactIRL(Estimator):
                                    verbose=self.verbose)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
-            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
-            raise FitInterrupted(exc.result, "FactIRL.transfer") from exc.__cause__
+            warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
+            raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone

@@ -31,7 +31,7 @@ from .fitting import (
     reward_features,
     warn_if_stalled,
 )
-from ..interruption import INTERRUPTED, run_keeping_best, warn_interrupted
+from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from ..objectives.problems import weights_problem
@@ -268,9 +268,9 @@ class GradIRL(Estimator):
                 res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
             store(exc.result, objective)
-            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen (total loss {np.sum(self.loss_):.6g}, "
-                                            f"after {self.n_iter_} iterations)")
-            raise FitInterrupted(exc.result, "GradIRL.fit") from exc.__cause__
+            warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "
+                                            f"after {self.n_iter_} iterations)", exc.__cause__)
+            raise_interrupted(exc, "GradIRL.fit")
         store(res, objective)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         return self

@@ -37,7 +37,7 @@ from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_cand
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
 from ..planning.budget import options_budget
 from .solver_settings import estimator_solvers
-from ..tasks.trajectories import parse_demonstrations
+from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
 
 __all__ = ["MultiIntentIRL", "adjusted_rand_index", "match_intentions", "INITS"]
 
@@ -54,7 +54,7 @@ def parse_episodes(mdp: Any, episodes: Any) -> tuple[NDArray[np.int64], NDArray[
         raise ValidationError(f"episodes must be a list of (L, 2) arrays or an int array (m, L, 2); got an array of shape {episodes.shape}")
     if not isinstance(episodes, np.ndarray) and not isinstance(episodes, (list, tuple)):
         raise ValidationError(f"episodes must be a list of (L, 2) arrays or an int array (m, L, 2); got {type(episodes).__name__}")
-    task = parse_demonstrations([episodes], mdp.n_states, mdp.n_actions, name="episodes")[0]
+    task = parse_unlabeled(episodes, mdp.n_states, mdp.n_actions, "episodes")
     if len(task.lengths) == 0:
         raise ValidationError("episodes is empty: give at least one episode")
     return task.steps, task.lengths

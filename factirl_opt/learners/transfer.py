@@ -33,6 +33,7 @@ from .fitting import (
 from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import weights_problem
 from ..tasks.features import TaskFeatures, linear_rewards
+from ..mdp.environments import check_environments
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
 
@@ -161,6 +162,21 @@ def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
                        reason)
 
 
+def transfer_mdp(mdp: Any, demos_per_task: Any, model: Any) -> Any:
+    """The one MDP of a transfer on the one-MDP path (no features given), else None.
+
+    ``mdp`` itself when it is not a sequence (the one-MDP path checks it); a sequence of one
+    MDP object (``[m] * n_new``, as in ``fit``); or, for a model fitted without features on
+    one MDP, a sequence of MDPs that each have that MDP's saved signature (equal models).
+    """
+    one = one_environment(mdp, demos_per_task, None)
+    if one is not None or model.features is not None:
+        return one
+    sig = getattr(model, "mdp_signature_", None)
+    mdps = check_environments(mdp)  # their count is checked against the demonstrations' by the one-MDP path
+    return mdps[0] if isinstance(sig, dict) and all(m.signature() == sig for m in mdps) else None
+
+
 def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, model: Any, beta: float,
                                 objective: Any = "policy-matching",
                                 planner: Any = "auto") -> tuple[Any, TaskFeatures, NDArray[np.float64]] | None:
@@ -198,7 +214,7 @@ def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, mo
     """
     fitted = model.features
     per_task = per_task_features(fitted)
-    if features is None and not per_task and one_environment(mdp, demos_per_task, None) is not None:
+    if features is None and not per_task and transfer_mdp(mdp, demos_per_task, model) is not None:
         return None
     if not hasattr(model, "dictionary_"):
         raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")

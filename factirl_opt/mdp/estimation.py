@@ -61,6 +61,7 @@ maximum-likelihood frequencies and only untried rows come from the prior. Prior 
 from __future__ import annotations
 
 import numbers
+import os
 from typing import Any, Literal
 
 import numpy as np
@@ -74,6 +75,7 @@ from .tabular import TabularMDP
 __all__ = [
     "PRIORS",
     "UNIFORM_ENTRY_LIMIT",
+    "ROW_BYTES",
     "as_transitions",
     "transition_counts",
     "estimate_mdp",
@@ -81,6 +83,9 @@ __all__ = [
     "sample_transitions",
 ]
 
+#: Bytes :func:`estimate_mdp` needs per (s, a) row whatever the data (row pointers of the counts,
+#: the prior and the model, weights and row sums; 98 measured with tracemalloc at S*A = 4e6).
+ROW_BYTES = 96
 #: The named priors of :func:`estimate_mdp` (a :class:`TabularMDP` is accepted too).
 PRIORS = ("self-loop", "uniform")
 #: Most entries the dense rows of a ``"uniform"`` prior may hold (about 12 bytes each in CSR).
@@ -235,6 +240,29 @@ def as_transitions(data: ArrayLike | list, n_states: int | None = None, n_action
     return arr.astype(np.int64)
 
 
+def _memory_bytes() -> int | None:
+    """This machine's physical memory, or None where the platform does not say."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_model_size(n_states: int, n_actions: int) -> tuple[int, int]:
+    """Validate S and A, and refuse a model of S*A rows that cannot fit in this machine's memory
+    (:data:`ROW_BYTES` per row) before anything of that size is allocated."""
+    S = check_int(n_states, "n_states", minimum=1)
+    A = check_int(n_actions, "n_actions", minimum=1)
+    need, have = S * A * ROW_BYTES, _memory_bytes()
+    if have is not None and need > have:
+        raise ValidationError(
+            f"n_states x n_actions = {S} x {A} = {S * A} (s, a) rows: the model needs about {need / 2**30:.3g} GiB whatever "
+            f"the data, more than this machine's {have / 2**30:.3g} GiB of memory; n_states and n_actions are the model's "
+            "sizes (the largest state or action index + 1), not the data's"
+        )
+    return S, A
+
+
 def transition_counts(data: ArrayLike | list, n_states: int, n_actions: int) -> sp.csr_matrix:
     """Counts ``n(s, a, s')`` of logged transitions, as a sparse (S*A, S) matrix.
 
@@ -251,8 +279,7 @@ def transition_counts(data: ArrayLike | list, n_states: int, n_actions: int) -> 
         Row ``s * A + a`` (docs/maths.md §1) holds the number of times ``a`` taken in ``s``
         led to each next state; sorted indices, no explicit zeros.
     """
-    S = check_int(n_states, "n_states", minimum=1)
-    A = check_int(n_actions, "n_actions", minimum=1)
+    S, A = check_model_size(n_states, n_actions)
     tr = as_transitions(data, S, A)
     rows = tr[:, 0] * A + tr[:, 1]
     counts = sp.coo_matrix((np.ones(len(tr)), (rows, tr[:, 2])), shape=(S * A, S)).tocsr()
@@ -334,8 +361,9 @@ def estimate_mdp(
     Raises
     ------
     ValidationError
-        Bad data (see :func:`as_transitions`), sizes, gamma, prior or pseudo-count, or a
-        ``"uniform"`` prior whose dense rows would exceed :data:`UNIFORM_ENTRY_LIMIT` entries.
+        Bad data (see :func:`as_transitions`), sizes, gamma, prior or pseudo-count, a
+        ``"uniform"`` prior whose dense rows would exceed :data:`UNIFORM_ENTRY_LIMIT` entries, or
+        sizes whose S*A rows (:data:`ROW_BYTES` each) exceed this machine's memory.
 
     Examples
     --------
@@ -344,8 +372,7 @@ def estimate_mdp(
     >>> mdp.transitions[0, 1]  # counts (1, 2), plus one pseudo-count on staying in state 0
     array([0.5, 0.5])
     """
-    S = check_int(n_states, "n_states", minimum=1)
-    A = check_int(n_actions, "n_actions", minimum=1)
+    S, A = check_model_size(n_states, n_actions)
     check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
     prior_mean = _check_prior(prior, S, A)
     c = check_real(pseudo_count, "pseudo_count", low=0.0)

@@ -26,7 +26,8 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
-from ..tasks.features import StateBroadcast, TaskFeatures, dense_features, linear_rewards
+from .._validation import REWARD_LIMIT
+from ..tasks.features import StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards
 
 __all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem"]
 
@@ -46,13 +47,19 @@ def unit_norm_map(D: np.ndarray, norms: np.ndarray, G: np.ndarray, unit_norm: bo
 
 
 def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_norm: bool,
-                                   rewards: Any, gradient: Any) -> StepProblem:
+                                   rewards: Any, gradient: Any, check: Any = None) -> StepProblem:
     """The one-row problem over ``vec(D)`` (1, p*k) shared by the dictionary problems (eqs. 10-11).
 
     ``rewards(D)`` gives every task's rewards from the effective dictionary (p, k) and
     ``gradient(y)`` the raw dictionary gradient (p, k) from ``dJ/dR`` of every task; both pass
     through the unit-norm normalisation when ``unit_norm`` (:func:`unit_norm_map`).
+    ``check(R, D)``, if given, returns the rewards of a point or raises when the planner would
+    overflow on them (:func:`check_reward_scale`); directions are not checked.
     """
+    if check is None:
+        def check(R, D):
+            return R
+
     all_rows = np.arange(n)
 
     def pull(y, D, norms):
@@ -60,12 +67,12 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
 
     def loss_and_grad(x, rows):
         D, norms = effective_dictionary(x, p, k, unit_norm)
-        loss, y = objective.loss_and_grad(rewards(D), all_rows)
+        loss, y = objective.loss_and_grad(check(rewards(D), D), all_rows)
         return np.array([loss.sum()]), pull(y, D, norms)
 
     def linearize(x, rows):
         D, norms = effective_dictionary(x, p, k, unit_norm)
-        lin = objective.linearize(rewards(D), all_rows)
+        lin = objective.linearize(check(rewards(D), D), all_rows)
 
         def jvp(V):  # one direction dD (p, k) -> every task's dr_i, as one row (1, n*m)
             return lin.jvp(rewards(unit_norm_map(D, norms, V.reshape(p, k), unit_norm))).reshape(1, -1)
@@ -82,6 +89,14 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
         n_rows=1,
         n_params=p * k,
     )
+
+
+def reward_limit(objective: Any) -> float:
+    """The largest |reward| the objective plans without overflow: ``REWARD_LIMIT * (1 - gamma)`` as
+    :func:`~factirl_opt._validation.check_rewards` has it, for the largest gamma of its MDPs."""
+    mdps = getattr(objective, "mdps", None) or [getattr(objective, "mdp", None)]
+    gammas = [m.gamma for m in mdps if m is not None]
+    return REWARD_LIMIT * (1.0 - max(gammas)) if gammas else np.inf
 
 
 def weights_problem(objective: Any, features: Any = None,
@@ -110,9 +125,14 @@ def weights_problem(objective: Any, features: Any = None,
     S, A = mdp.n_states, mdp.n_actions
     F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
     p = S * A if F is None else F.shape[1]
+    limit = reward_limit(objective)
 
-    def rewards(x):
+    def directions(x):
         return x.reshape(-1, S, A) if F is None else linear_rewards(F, x, S, A, names)
+
+    def rewards(x):  # a point: rewards the planner can take
+        R = directions(x)
+        return R if F is None else check_reward_scale(R, limit, F, x, names)
 
     def loss_and_grad(x, rows):
         loss, y = objective.loss_and_grad(rewards(x), rows)
@@ -126,7 +146,7 @@ def weights_problem(objective: Any, features: Any = None,
         lin = objective.linearize(rewards(x), rows)
 
         def jvp(V):  # weight directions (r, p) -> reward directions F v_i
-            return lin.jvp(rewards(V))
+            return lin.jvp(directions(V))
 
         def vjp(U):
             y = lin.vjp(U).reshape(len(U), S * A)
@@ -180,16 +200,20 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
         Phi = np.asarray(Phi, dtype=np.float64)
     p = S * A if Phi is None else Phi.shape[1]
     names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
+    limit = reward_limit(objective)
 
     def rewards(D):
         return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
+
+    def check(R, D):
+        return check_reward_scale(R, limit, D if Phi is None else Phi @ D, H, names)
 
     def gradient(y):
         """``Phi^T sum_i y_i h_i^T`` (eq. 11), (p, k)."""
         g = y.reshape(n, S * A).T @ H
         return g if Phi is None else Phi.T @ g
 
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)
 
 
 def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
@@ -209,17 +233,22 @@ def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
         n rows, p parameters each; the gradient is ``Phi_i^T y_i`` (docs/maths.md §7) and the
         least-squares residuals are padded to the largest ``S_i * A``.
     """
-    tf = features
+    tf, limit = features, reward_limit(objective)
+
+    def rewards(x, rows):  # a point: rewards the planners can take
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported, naming the inputs
+            R = tf.rewards(x, rows)
+        return check_reward_scale(R, limit, tf, x, ("features", "weights"))
 
     def loss_and_grad(x, rows):
-        loss, y = objective.loss_and_grad(tf.rewards(x, rows), rows)
+        loss, y = objective.loss_and_grad(rewards(x, rows), rows)
         return loss, tf.pull(y, rows)
 
     def residual_jacobian(x, rows):
-        return objective.residual_jacobian(tf.rewards(x, rows), rows, tf.dense(rows))
+        return objective.residual_jacobian(rewards(x, rows), rows, tf.dense(rows))
 
     def linearize(x, rows):
-        lin = objective.linearize(tf.rewards(x, rows), rows)
+        lin = objective.linearize(rewards(x, rows), rows)
         return Linearization(lin.loss, lin.residual, lambda V: lin.jvp(tf.rewards(V, rows)),
                              lambda U: tf.pull(lin.vjp(U), rows))
 
@@ -246,10 +275,16 @@ def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], f
     n, k = H.shape
     p = tf.n_features
 
+    limit = reward_limit(objective)
+
     def rewards(D):
-        return tf.rewards(H @ D.T)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by ``check``
+            return tf.rewards(H @ D.T)
+
+    def check(R, D):
+        return check_reward_scale(R, limit, tf, H @ D.T, ("features", "dictionary @ coefficients"))
 
     def gradient(y):
         return tf.pull(y).T @ H
 
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient)
+    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)

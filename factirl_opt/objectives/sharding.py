@@ -7,10 +7,11 @@ settings (``n_jobs``, ``backend``, ``client``) and use what it yields as their o
 from __future__ import annotations
 
 import contextlib
+import warnings
 from collections.abc import Iterator
 from typing import Any
 
-from ..parallel.shards import check_backend, effective_n_jobs, in_worker
+from ..parallel.shards import check_backend, dask_workers, effective_n_jobs, in_worker
 from ._base import Objective
 from .distributed import ShardedObjective
 from .environments import MultiEnvironmentObjective
@@ -46,8 +47,14 @@ def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes
         KeyboardInterrupt).
     """
     check_backend(backend, client)
-    if backend == "dask" and n_jobs in (None, -1) and not in_worker():
-        n = len(client.scheduler_info()["workers"])
+    workers = dask_workers(client) if backend == "dask" and not in_worker() else None
+    if workers is not None and not workers:
+        warnings.warn(f"the Dask cluster of {client!r} has no worker: this fit runs unsharded in this process (fits do "
+                      "not wait for workers to join; call client.wait_for_workers(n) before the fit)", RuntimeWarning,
+                      stacklevel=3)
+        n = 1
+    elif workers is not None and n_jobs in (None, -1):
+        n = len(workers)
     else:
         n = effective_n_jobs(n_jobs)
     sharded_obj: Any

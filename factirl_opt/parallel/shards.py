@@ -11,12 +11,18 @@ under it; it knows nothing of objectives:
   shards at once (all sent first, then collected), counting the array bytes sent and
   received (:attr:`Shards.bytes_sent`); a shard whose worker went away is rebuilt and the
   call retried (at most :data:`MAX_RESTARTS` times per call), after an ``on_restart(k)``
-  hook lets the caller restore what the call needs (e.g. a linearisation);
+  hook lets the caller restore what the call needs (e.g. a linearisation); when the
+  rebuilds run out, or a Dask client or cluster is gone, :class:`WorkersLost` (a fit
+  interruption: the estimator keeps its best point) is raised;
 - handles: :class:`InProcessShard` (the driver's own shard: no copy, no process),
   :class:`ProcessShard` (one ``multiprocessing`` process and pipe per shard, started once
-  per fit, forked where the platform allows, SIGINT ignored, exits when its parent is gone)
+  per fit, forked where the platform allows, SIGINT ignored, exits when its parent is gone;
+  a shard process that dies, or that sends nothing and uses no CPU time for
+  :data:`SILENCE_SECONDS` while a call waits (stopped, or deadlocked), is noticed within
+  :data:`POLL_SECONDS`, killed and rebuilt)
   and :class:`DaskShard` (a Dask actor holding the state on a worker of a
-  ``dask.distributed.Client``).
+  ``dask.distributed.Client``; :func:`dask_workers` is the one check of a client and its
+  cluster).
 
 Warnings a worker raises (a stalled fit in a sweep worker, an overflow while a shard plans)
 are recorded there (:func:`recording_warnings`), sent back with the reply and raised again in
@@ -46,9 +52,9 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import FactIRLError, ValidationError
+from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
-__all__ = ["become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
+__all__ = ["WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -58,8 +64,19 @@ BACKENDS = ("processes", "dask")
 WORKER_ENV = "FACTIRL_OPT_WORKER"
 #: rebuilds of one shard within one call before its error is raised
 MAX_RESTARTS = 2
-#: how often a shard process checks that its parent is alive (seconds)
+#: how often a shard process checks that its parent is alive, and the driver that a shard it
+#: waits for is alive and working (seconds)
 POLL_SECONDS = 0.5
+#: a shard process that sends nothing and whose serving thread uses no CPU time for this long
+#: while the driver waits for its reply is stuck (stopped, or deadlocked on a lock another
+#: thread held when it was forked): it is killed and rebuilt like a dead one (seconds)
+SILENCE_SECONDS = 60.0
+#: how long a fit whose Dask cluster has lost every worker waits for one to come back before
+#: it stops with :class:`WorkersLost` (seconds)
+DASK_WAIT_SECONDS = 30.0
+#: held while a shard process is started: a process forked by another thread meanwhile would
+#: inherit the new shard's end of the pipe, and its death would then go unnoticed
+_START_LOCK = threading.Lock()
 
 
 class ShardLost(FactIRLError):
@@ -121,8 +138,61 @@ def check_backend(backend: str, client: Any) -> str:
     except ImportError:
         raise ValidationError("backend='dask' needs dask[distributed]: pip install 'factirl-opt[dask]'") from None
     if not isinstance(client, Client):
-        raise ValidationError(f"backend='dask' needs client= a dask.distributed.Client; got {type(client).__name__}")
+        hint = " (a cluster: pass dask.distributed.Client(cluster))" if hasattr(client, "scheduler_address") else ""
+        raise ValidationError(f"backend='dask' needs client= a dask.distributed.Client; got {type(client).__name__}{hint}")
+    dask_workers(client)
     return backend
+
+
+def dask_workers(client: Any, during_fit: bool = False) -> list[str]:
+    """The addresses of the workers of ``client``'s cluster, sorted: the one check of a Dask
+    client and its cluster, made when a fit starts and whenever a shard is (re)built.
+
+    Parameters
+    ----------
+    client : dask.distributed.Client
+    during_fit : bool
+        Whether a fit is under way: a client that cannot be used then stops the fit as an
+        interruption (:class:`WorkersLost`); before it, it is a :class:`ValidationError`.
+
+    Returns
+    -------
+    list of str
+        Possibly empty (a cluster that has no worker yet, or lost them all).
+
+    Raises
+    ------
+    ValidationError or WorkersLost
+        The client was closed, or its scheduler (cluster) is gone or cannot be reached.
+    """
+    error = WorkersLost if during_fit else ValidationError
+    status = str(getattr(client, "status", "unknown"))
+    if status != "running":
+        raise error(f"the Dask client {client!r} cannot be used: its status is {status!r} (it was closed, or its "
+                    "cluster was closed or cannot be reached); connect a new dask.distributed.Client")
+    try:
+        info = client.scheduler_info()
+    except Exception as exc:  # noqa: BLE001 - any failure to reach the scheduler
+        raise error(f"the Dask scheduler of {client!r} cannot be reached ({type(exc).__name__}: {exc})") from exc
+    workers = info.get("workers") if isinstance(info, dict) else None
+    if workers is None:
+        raise error(f"the Dask client {client!r} has no information from its scheduler (its cluster was closed or "
+                    "cannot be reached); connect a new dask.distributed.Client")
+    return sorted(workers)
+
+
+def _wait_for_dask_worker(client: Any) -> list[str]:
+    """The workers of ``client``, waiting up to :data:`DASK_WAIT_SECONDS` for one to join when there is
+    none (during a fit: a cluster that lost every worker); :class:`WorkersLost` if none does."""
+    workers = dask_workers(client, during_fit=True)
+    deadline = time.monotonic() + DASK_WAIT_SECONDS
+    while not workers:
+        if time.monotonic() > deadline:
+            raise WorkersLost(f"the Dask cluster of {client!r} has no worker left and none joined within "
+                              f"{DASK_WAIT_SECONDS:g} s (parallel.DASK_WAIT_SECONDS); restart workers, or refit with n_jobs=1")
+        time.sleep(min(POLL_SECONDS, DASK_WAIT_SECONDS))
+        workers = dask_workers(client, during_fit=True)
+    return workers
 
 
 def contiguous_shards(n: int, n_shards: int) -> list[np.ndarray]:
@@ -246,10 +316,31 @@ def serve_calls(conn: Any, handle: Callable[[Any], Any], error: type[Exception] 
             conn.send(("error", error(f"cannot send the result back: {exc}"), traceback.format_exc()))
 
 
-def _serve(conn: Any, spec: tuple, parent_pid: int) -> None:
+def _cpu_clock() -> Callable[[], float]:
+    """CPU seconds used by the calling thread, readable from another thread (the process's CPU
+    time where threads have no clock of their own)."""
+    try:
+        clock = time.pthread_getcpuclockid(threading.get_ident())
+        time.clock_gettime(clock)
+    except (AttributeError, OSError):
+        return time.process_time
+    return lambda: time.clock_gettime(clock)
+
+
+def _beat(progress: Any, clock: Callable[[], float]) -> None:
+    """Publish the serving thread's CPU time in ``progress`` (shared memory) until the process exits:
+    the driver sees a shard that is working from one that is stopped or deadlocked."""
+    while True:
+        progress.value = clock()
+        time.sleep(POLL_SECONDS / 2)
+
+
+def _serve(conn: Any, spec: tuple, parent_pid: int, progress: Any = None) -> None:
     """A shard process: build the state, then answer ``(method, args)`` with ``("ok", result)`` or ``("error", exc, tb)``."""
     from .._threads import blas_thread_limit, limit_blas_threads
 
+    if progress is not None:
+        threading.Thread(target=_beat, args=(progress, _cpu_clock()), daemon=True).start()
     become_worker(parent_pid)
     with limit_blas_threads(blas_thread_limit()):
         try:
@@ -273,14 +364,33 @@ class ProcessShard:
 
     def __init__(self, spec: tuple) -> None:
         ctx = _context()
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_serve, args=(child, spec, os.getpid()), daemon=True)
-        self.proc.start()
-        child.close()
+        self.progress = ctx.RawValue("d", -1.0)  # the shard's serving thread's CPU seconds (:func:`_beat`)
+        with _START_LOCK:
+            self.conn, child = ctx.Pipe()
+            self.proc = ctx.Process(target=_serve, args=(child, spec, os.getpid(), self.progress), daemon=True)
+            self.proc.start()
+            child.close()
         self._ready = False
+
+    def _wait(self) -> None:
+        """Until a reply is readable. :class:`ShardLost` once the process is dead (even if another process
+        still holds its end of the pipe), or silent for :data:`SILENCE_SECONDS`: nothing sent and no CPU
+        time used (stopped, or deadlocked); a silent process is killed."""
+        last, since = self.progress.value, time.monotonic()
+        while not self.conn.poll(POLL_SECONDS):
+            if not self.proc.is_alive():
+                raise ShardLost(f"shard process {self.proc.pid} died (exit code {self.proc.exitcode})")
+            now, value = time.monotonic(), self.progress.value
+            if value != last:
+                last, since = value, now
+            elif now - since >= SILENCE_SECONDS:
+                self.proc.kill()
+                raise ShardLost(f"shard process {self.proc.pid} sent nothing and used no CPU time for "
+                                f"{SILENCE_SECONDS:g} s (stopped, or deadlocked); it was killed")
 
     def _receive(self) -> Any:
         try:
+            self._wait()
             reply = self.conn.recv()
         except (EOFError, OSError) as exc:
             raise ShardLost(f"shard process {self.proc.pid} died (exit code {self.proc.exitcode})") from exc
@@ -337,11 +447,10 @@ class DaskShard:
     """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``."""
 
     def __init__(self, spec: tuple, client: Any, k: int) -> None:
-        workers = sorted(client.scheduler_info()["workers"])
-        target = [workers[k % len(workers)]] if workers else None
+        workers = _wait_for_dask_worker(client)
         with _lost_as_shard_lost():
-            self.actor = client.submit(ShardHost, *spec, actor=True, workers=target, allow_other_workers=True,
-                                       pure=False).result()
+            self.actor = client.submit(ShardHost, *spec, actor=True, workers=[workers[k % len(workers)]],
+                                       allow_other_workers=True, pure=False).result()
         self.future: Any = None
 
     def submit(self, method: str, args: tuple) -> None:
@@ -356,6 +465,11 @@ class DaskShard:
 
     def close(self) -> None:
         self.actor = self.future = None
+
+
+def _given_up(k: int, exc: ShardLost) -> WorkersLost:
+    return WorkersLost(f"shard {k}'s worker was lost {MAX_RESTARTS + 1} times in one call (parallel.MAX_RESTARTS "
+                       f"rebuilds); the last time: {exc}")
 
 
 class Shards:
@@ -439,9 +553,9 @@ class Shards:
             try:
                 self.handles[k].submit(method, args)
                 break
-            except ShardLost:
+            except ShardLost as exc:
                 if attempt == MAX_RESTARTS:
-                    raise
+                    raise _given_up(k, exc) from exc
                 self._restart(k, on_restart)
         if not isinstance(self.handles[k], InProcessShard):
             self.bytes_sent += array_bytes(list(args))
@@ -451,9 +565,9 @@ class Shards:
             try:
                 out = self.handles[k].result()
                 break
-            except ShardLost:
+            except ShardLost as exc:
                 if attempt == MAX_RESTARTS:
-                    raise
+                    raise _given_up(k, exc) from exc
                 self._restart(k, on_restart)
                 self._send(k, method, args, on_restart)
         if not isinstance(self.handles[k], InProcessShard):

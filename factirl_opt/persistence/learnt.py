@@ -30,7 +30,7 @@ from ..mdp.tabular import SIGNATURE_KEYS
 from .archive import check_array
 
 __all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "array_axes", "learnt_attributes",
-           "check_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest"]
+           "check_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest", "check_task_features"]
 
 
 #: The kinds of learnt attributes that are not arrays, and what each holds.
@@ -142,6 +142,54 @@ def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dic
                 )
 
 
+def _check_task_shapes(declared: dict[str, Kind], attributes: dict[str, Any], context: str) -> None:
+    """Per-task (S_i, A) arrays (tasks in environments of different sizes) agree with the saved signatures.
+
+    On the fitted tasks (first axis ``n``), task i's array has the shape (S_i, A) of task i's
+    MDP in ``mdp_signature_`` (one per task, or one for all); on any other per-task list
+    (``n_new``: the transfer's tasks, whose MDPs are not saved), every array has the fitted
+    MDPs' A. The count of the arrays is checked with the other axes (:func:`_check_axes`).
+    """
+    sig = attributes.get("mdp_signature_")
+    for key, kind in declared.items():
+        value = attributes.get(key)
+        if not (is_array_kind(kind) and isinstance(value, list) and value):
+            continue
+        signatures = sig if isinstance(sig, list) else [sig] * len(value) if isinstance(sig, dict) else None
+        for i, one in enumerate(value):
+            if kind[0] == "n" and signatures is not None and i < len(signatures):
+                expected = (signatures[i]["n_states"], signatures[i]["n_actions"])
+                if one.shape != expected:
+                    raise PersistenceError(f"{context}: attribute {key}[{i}] of shape {one.shape} contradicts task {i}'s saved "
+                                           f"MDP signature in mdp_signature_: (S, A) = {expected}")
+            actions = signatures[0]["n_actions"] if signatures else value[0].shape[1]
+            if one.shape[1] != actions:
+                raise PersistenceError(f"{context}: attribute {key}[{i}] of shape {one.shape} has {one.shape[1]} actions; the "
+                                       f"model's MDPs have A = {actions}")
+
+
+def check_task_features(attributes: dict[str, Any], features: list, context: str) -> None:
+    """A per-task features parameter (one matrix per task) agrees with the per-task signatures:
+    one matrix per saved task, task i's with S_i (state features) or S_i * A rows, all with
+    the same number of columns."""
+    sig = attributes.get("mdp_signature_")
+    signatures = sig if isinstance(sig, list) else [sig] * len(features) if isinstance(sig, dict) else None
+    if signatures is not None and len(features) != len(signatures):
+        raise PersistenceError(f"{context}: the features parameter holds {len(features)} per-task matrices; mdp_signature_ "
+                               f"saves {len(signatures)} tasks")
+    p = np.shape(features[0])[1] if np.ndim(features[0]) == 2 else None
+    for i, F in enumerate(features):
+        shape = np.shape(F)
+        if len(shape) != 2 or shape[1] != p:
+            raise PersistenceError(f"{context}: per-task features[{i}] of shape {shape} must be a matrix with the "
+                                   f"{p} columns of features[0]")
+        if signatures is not None:
+            S, A = signatures[i]["n_states"], signatures[i]["n_actions"]
+            if shape[0] not in (S, S * A):
+                raise PersistenceError(f"{context}: per-task features[{i}] of shape {shape} contradicts task {i}'s saved MDP "
+                                       f"signature in mdp_signature_ (S, A) = ({S}, {A}): it needs S = {S} or S * A = {S * A} rows")
+
+
 def _known_axes(attributes: dict[str, Any], n_feature_columns: int | None) -> dict[str, tuple[int, str]]:
     axes = {}
     sig = attributes.get("mdp_signature_")
@@ -177,7 +225,8 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
     finite, float, with the declared number of axes; the per-task loss of an interrupted fit
     may hold NaN for tasks never evaluated); axes of the same name must agree, with
     each other and with the MDP signature and ``n_feature_columns`` (the features
-    parameter's columns, if any). Declared attributes may be missing.
+    parameter's columns, if any); per-task arrays of environments of different sizes
+    must each have their task's saved (S_i, A). Declared attributes may be missing.
     """
     declared = learnt_attributes(cls)
     for key, value in attributes.items():
@@ -199,6 +248,7 @@ def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_
         else:
             _check_value(key, kind, value, context)
     _check_axes(declared, attributes, _known_axes(attributes, n_feature_columns), context)
+    _check_task_shapes(declared, attributes, context)
 
 
 def features_sha256(features: ArrayLike, n_states: int, n_actions: int) -> str:

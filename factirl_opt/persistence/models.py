@@ -12,7 +12,7 @@ from ..learners.fitting import per_task_features
 from ..learners.gradirl import GradIRL
 from ..learners.multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive
-from .learnt import check_features_digest, check_learnt, fitted_features_sha256, learnt_attributes
+from .learnt import check_features_digest, check_learnt, check_task_features, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params, param_kind
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
@@ -40,6 +40,8 @@ def _check(cls: type, attributes: dict[str, Any], features: Any, context: str) -
     check_learnt(cls, attributes, context, _feature_columns(features))
     if not per_task_features(features):
         check_features_digest(attributes, None if features is None else np.asarray(features), context)
+    elif attributes:
+        check_task_features(attributes, list(features), context)
 
 
 def _is_array_list(value: Any) -> bool:
@@ -141,6 +143,12 @@ def _decode_attributes(cls: type, header: dict, contents: dict[str, np.ndarray],
             raise PersistenceError(f"{label} is malformed: array list attribute {key!r:.40} stored twice or with count {n!r:.20}")
         attributes[key] = [require(contents, f"attr/{key}/{i}", label, "the archive") for i in range(n)]
     _check(cls, attributes, features, f"{label} is malformed")
+    described = {f"attr/{key}" for key in header["array_attributes"]}
+    described.update(f"attr/{key}/{i}" for key, n in lists.items() for i in range(n))
+    stray = sorted(name for name in contents if name.startswith("attr/") and name not in described)
+    if stray:
+        raise PersistenceError(f"{label} is malformed: the archive holds {stray[0]}, which the header does not describe "
+                               "(array_attributes and the per-task counts of array_list_attributes)")
     return attributes
 
 

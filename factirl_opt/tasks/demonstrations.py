@@ -10,6 +10,7 @@ task is a list of one), never a list of episodes; the layouts and their one pars
 
 from __future__ import annotations
 
+import os
 import threading
 import typing
 import weakref
@@ -38,6 +39,16 @@ __all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
 #: immutable and pickles without it). Guarded by ``_ROW_CDFS_LOCK``.
 _ROW_CDFS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _ROW_CDFS_LOCK = threading.Lock()
+
+
+def _after_fork_in_child() -> None:
+    """A forked child gets a free lock (another thread may have held it at the fork)."""
+    global _ROW_CDFS_LOCK
+    _ROW_CDFS_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _build_row_cdfs(mdp: TabularMDP) -> tuple[NDArray[np.float64], NDArray[np.int64]]:

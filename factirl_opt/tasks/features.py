@@ -30,7 +30,7 @@ from ..mdp.environments import environments
 from ..mdp.tabular import TabularMDP
 
 __all__ = ["TaskFeatures", "StateBroadcast", "task_rewards", "linear_rewards", "factorial_rewards", "feature_rewards",
-           "dense_features", "FEATURE_SCALE_LIMIT"]
+           "dense_features", "FEATURE_SCALE_LIMIT", "overflow_error", "check_reward_scale"]
 
 
 class TaskFeatures:
@@ -307,9 +307,37 @@ def dense_features(features: Any) -> NDArray[np.float64] | None:
 
 
 def _largest(a: Any) -> float:
-    a = np.asarray(a, dtype=np.float64)
+    if isinstance(a, TaskFeatures):
+        a = [a.matrix(i) for i in range(a.n_tasks)]
+    if isinstance(a, StateBroadcast):
+        return 1.0
+    parts = a if isinstance(a, list) else [a]
     with np.errstate(invalid="ignore"):
-        return float(np.max(np.abs(a), initial=0.0))
+        return max((float(np.max(np.abs(np.asarray(x, dtype=np.float64)), initial=0.0)) for x in parts), default=0.0)
+
+
+def overflow_error(features: Any, weights: Any, names: tuple[str, str] = ("features", "weights")) -> ValidationError:
+    """The error of rewards ``features @ weights`` that overflow: both inputs' largest magnitudes, and
+    which to rescale (the features when an entry exceeds ``FEATURE_SCALE_LIMIT``)."""
+    big_f, big_w = _largest(features), _largest(weights)
+    if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
+        advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
+    else:
+        advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
+    return ValidationError(
+        f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
+        f"|{names[1]}| = {big_w:.3g}): {advice}"
+    )
+
+
+def check_reward_scale(rewards: Any, limit: float, features: Any, weights: Any, names: tuple[str, str]) -> Any:
+    """``rewards`` (an array, or a list of per-task arrays) formed as ``features @ weights``, or
+    :func:`overflow_error` when they are not finite or reach ``limit`` (:func:`reward_limit`):
+    the planner would overflow on them."""
+    big = _largest(rewards)
+    if not big <= limit:
+        raise overflow_error(features, weights, names)
+    return rewards
 
 
 def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int,
@@ -336,15 +364,7 @@ def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n
     try:
         return task_rewards(features, weights, n_states, n_actions)
     except ValidationError:
-        big_f, big_w = _largest(features), _largest(weights)
-        if big_f > FEATURE_SCALE_LIMIT or not big_w > FEATURE_SCALE_LIMIT:  # the weights grow with the features' scale
-            advice = f"the {names[0]} are far from order 1: rescale them (e.g. divide by {big_f:.3g})"
-        else:
-            advice = f"the {names[1]} grew to {big_w:.3g}: rescale the {names[0]} or start from smaller {names[1]}"
-        raise ValidationError(
-            f"the rewards {names[0]} @ {names[1]} overflow float64 (largest |{names[0]}| = {big_f:.3g}, largest "
-            f"|{names[1]}| = {big_w:.3g}): {advice}"
-        ) from None
+        raise overflow_error(features, weights, names) from None
 
 
 def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, n_actions: int) -> NDArray[np.float64]:

@@ -56,7 +56,7 @@ from ..exceptions import PersistenceError, ValidationError
 if typing.TYPE_CHECKING:
     from ..mdp.tabular import TabularMDP
 
-__all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "task_steps", "TaskDemonstrations"]
+__all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "parse_episodes", "task_steps", "TaskDemonstrations"]
 
 _COLUMNS = ("state", "action")
 _OBS_KEYS = ("obs", "observations")
@@ -240,11 +240,15 @@ def _open_rollout(path, where):
     return arrays
 
 
-def _episode(ep, i, j, load_files):
-    """Episode j of task i (any accepted form) as an (L, 2) array, L >= 1; values not checked yet."""
+def _task_labels(i):
+    """How messages name task i and its episode j (labelled demonstrations)."""
+    return f"demonstrations of task {i}", lambda j: f"demonstrations of task {i}, episode {j}"
+
+
+def _episode(ep, where, load_files):
+    """An episode (any accepted form; ``where`` names it) as an (L, 2) array, L >= 1; values not checked yet."""
     if isinstance(ep, np.ndarray) and ep.ndim == 2 and ep.shape[1] == 2 and ep.shape[0] > 0:
         return ep  # the common case, first
-    where = f"demonstrations of task {i}, episode {j}"
     if isinstance(ep, (str, os.PathLike)):
         if not load_files:
             raise ValidationError(f"{where} is a file name ({ep!r}): read .npz rollout files with fo.demonstrations_from_trajectories")
@@ -261,8 +265,8 @@ def _episode(ep, i, j, load_files):
     return arr
 
 
-def _episodes_steps(episodes, i, bounds):
-    """The checked int64 steps of task i's (L_j, 2) episodes, concatenated.
+def _episodes_steps(episodes, episode_of, bounds):
+    """The checked int64 steps of one task's (L_j, 2) episodes (``episode_of(j)`` names episode j), concatenated.
 
     Integer episodes are checked at once on their concatenation (a located error maps the
     step back to its episode); others one by one, so that each is read in its own dtype.
@@ -272,10 +276,10 @@ def _episodes_steps(episodes, i, bounds):
 
         def where(g):
             j = int(np.searchsorted(starts, g, side="right")) - 1
-            return f"demonstrations of task {i}, episode {j}, step {g - starts[j]}"
+            return f"{episode_of(j)}, step {g - starts[j]}"
 
         return _as_indices(np.concatenate(episodes), where, *bounds)
-    parts = [_as_indices(ep, lambda t, j=j: f"demonstrations of task {i}, episode {j}, step {t}", *bounds)
+    parts = [_as_indices(ep, lambda t, j=j: f"{episode_of(j)}, step {t}", *bounds)
              for j, ep in enumerate(episodes)]
     return np.concatenate(parts)
 
@@ -353,26 +357,27 @@ def _task_entries(demos, name, load_files):
     return list(demos)
 
 
-def _parse_task(entry, i, bounds, load_files):
-    """Task i, an (m, L, 2) array or a list of episodes, as :class:`TaskDemonstrations`."""
+def _parse_task(entry, bounds, load_files, owner, episode_of):
+    """One task's episodes, an (m, L, 2) array or a list of episodes, as :class:`TaskDemonstrations`;
+    ``owner`` names them in messages (``"demonstrations of task i"``), ``episode_of(j)`` episode j."""
     if isinstance(entry, np.ndarray) and entry.ndim == 3 and entry.shape[2] == 2:
         m, L, _ = entry.shape
         if m == 0:
-            raise ValidationError(f"demonstrations of task {i} are empty: give at least one episode")
+            raise ValidationError(f"{owner} are empty: give at least one episode")
         if L == 0:
-            raise ValidationError(f"demonstrations of task {i}, episode 0 must have shape (L, 2) with L >= 1; got (0, 2)")
-        steps = _as_indices(entry, lambda j, t: f"demonstrations of task {i}, episode {j}, step {t}", *bounds)
+            raise ValidationError(f"{episode_of(0)} must have shape (L, 2) with L >= 1; got (0, 2)")
+        steps = _as_indices(entry, lambda j, t: f"{episode_of(j)}, step {t}", *bounds)
         return TaskDemonstrations(steps.reshape(-1, 2), np.full(m, L, dtype=np.int64), "array")
     if isinstance(entry, (list, tuple)):
         if len(entry) == 0:
-            raise ValidationError(f"demonstrations of task {i} are empty: give at least one episode")
-        episodes = [_episode(ep, i, j, load_files) for j, ep in enumerate(entry)]
-        return TaskDemonstrations(_episodes_steps(episodes, i, bounds), np.array([len(e) for e in episodes], dtype=np.int64), "list")
+            raise ValidationError(f"{owner} are empty: give at least one episode")
+        episodes = [_episode(ep, episode_of(j), load_files) for j, ep in enumerate(entry)]
+        return TaskDemonstrations(_episodes_steps(episodes, episode_of, bounds), np.array([len(e) for e in episodes], dtype=np.int64), "list")
     hint = ""
     if isinstance(entry, collections.abc.Mapping):
         hint = " (a mapping of episodes is not accepted: pass list(episodes.values()), in the order of its keys)"
     raise ValidationError(
-        f"demonstrations of task {i} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
+        f"{owner} must be an int array of shape (m, L, 2) or a list of episodes of shape (L_j, 2); "
         f"got {describe(entry)}{hint}"
     )
 
@@ -408,7 +413,31 @@ def parse_demonstrations(demos_per_task: typing.Any, n_states: int | None = None
     """
     entries = _task_entries(demos_per_task, name, load_files)
     bounds = (n_states, n_actions)
-    return [_parse_task(entry, i, bounds, load_files) for i, entry in enumerate(entries)]
+    return [_parse_task(entry, bounds, load_files, *_task_labels(i)) for i, entry in enumerate(entries)]
+
+
+def parse_episodes(episodes: typing.Any, n_states: int | None = None, n_actions: int | None = None,
+                   name: str = "episodes") -> TaskDemonstrations:
+    """Episodes without task labels (a list of episodes, or an (m, L, 2) array), validated.
+
+    As one task of :func:`parse_demonstrations`, but messages name the episodes as given
+    (``episodes[j], step t``), not as a task's; a single episode given in place of the list
+    is refused with how to pass it.
+
+    Returns
+    -------
+    TaskDemonstrations
+        All the steps (N, 2) and the episodes' lengths (m,).
+
+    Raises
+    ------
+    ValidationError
+        Naming the bad episode, step and value.
+    """
+    what = _single_episode(episodes, False)
+    if what is not None and not (isinstance(episodes, np.ndarray) and episodes.ndim == 3):
+        raise ValidationError(f"{name} is a single episode ({what}), not a list of episodes: pass [{name}]")
+    return _parse_task(episodes, (n_states, n_actions), False, name, lambda j: f"{name}[{j}]")
 
 
 def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArray[np.int64]:
@@ -426,7 +455,7 @@ def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArra
     steps : ndarray of int64, shape (N, 2)
     """
     check_mdp(mdp)
-    return _parse_task(task_demos, task, (mdp.n_states, mdp.n_actions), False).steps
+    return _parse_task(task_demos, (mdp.n_states, mdp.n_actions), False, *_task_labels(task)).steps
 
 
 def demonstrations_from_trajectories(trajectories_per_task: typing.Any,

@@ -154,6 +154,18 @@ def test_bot_demonstration_errors(monkeypatch):
         bot_demonstration(env, 0)
 
 
+def test_a_model_or_another_object_given_for_the_environment_is_refused():
+    env = gym.make(LOCAL)
+    env.reset(seed=0)
+    model = from_minigrid(env)
+    for wrong, hint in ((model, r"MiniGridModel \(a model read from an environment: pass the environment itself"),
+                        (model.mdp, r"TabularMDP \(a model read"), (3, "int$")):
+        for call in (lambda: bot_demonstration(wrong, 0), lambda: run_policy(wrong, np.zeros(model.n_states, dtype=int), seed=0)):
+            with pytest.raises(ValidationError, match=r"env must be a MiniGrid/BabyAI environment \(a gymnasium.Env with "
+                                                      r"reset and step\) or its id; got " + hint):
+                call()
+
+
 def test_steps_off_the_model_raise():
     episode = bot_demonstration(LOCAL, seed=0)
     model = episode.model

@@ -178,3 +178,58 @@ def test_features_digest_definition():
 
 def test_signature_keys_are_the_mdps(grid_tasks):
     assert sorted(grid_tasks[0].signature()) == sorted(SIGNATURE_KEYS)
+
+
+# ----------------------------------------------------------------------------- per-task arrays of different sizes
+
+
+@pytest.fixture(scope="module")
+def mixed_sizes(tmp_path_factory):
+    """A FactIRL fitted on maps of 9, 16 and 9 states (per-task rewards and features), saved."""
+    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
+    mdps, rng = [g3, g4, g3], np.random.default_rng(0)
+    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
+    demos = [fo.sample_demonstrations(m, rng.normal(size=(1, m.n_states, 4)), 2, 5, rng=i)[0] for i, m in enumerate(mdps)]
+    model = fo.FactIRL(n_primitives=2, features=Phis, max_iter=1, flat_max_iter=1).fit(mdps, demos)
+    return fo.save_model(model, tmp_path_factory.mktemp("mixed") / "model.npz")
+
+
+def _set(key, value):
+    return lambda header, arrays: arrays.__setitem__(key, value)
+
+
+def _count(n):
+    def edit(header, arrays):
+        header["array_list_attributes"]["rewards_"] = n
+
+    return edit
+
+
+def _signature(task, n_states):
+    def edit(header, arrays):
+        header["attributes"]["mdp_signature_"][task]["n_states"] = n_states
+
+    return edit
+
+
+@pytest.mark.parametrize("edit, match", [
+    (_set("attr/rewards_/1", np.zeros((9, 4))),
+     r"attribute rewards_\[1\] of shape \(9, 4\) contradicts task 1's saved MDP signature in mdp_signature_: \(S, A\) = \(16, 4\)"),
+    (_set("attr/rewards_/0", np.zeros((16, 4))), r"attribute rewards_\[0\] of shape \(16, 4\) contradicts task 0's saved MDP signature"),
+    (_signature(1, 9), r"attribute rewards_\[1\] of shape \(16, 4\) contradicts task 1's saved MDP signature in mdp_signature_: "
+                       r"\(S, A\) = \(9, 4\)"),
+    (_count(2), r"attribute rewards_ of shape \(2, 0, 4\) disagrees with the 3 per-task MDP signatures"),
+    (_set("attr/rewards_/3", np.zeros((9, 4))), "the archive holds attr/rewards_/3, which the header does not describe"),
+    (_set("param/features/1", np.zeros((9, 3))), r"per-task features\[1\] of shape \(9, 3\) contradicts task 1's saved MDP "
+                                                 r"signature in mdp_signature_ \(S, A\) = \(16, 4\): it needs S = 16 or S \* A = 64 rows"),
+    (_set("param/features/2", np.zeros((9, 2))), r"per-task features\[2\] of shape \(9, 2\) must be a matrix with the 3 columns"),
+])
+def test_edited_per_task_arrays_contradicting_the_signatures_are_refused(mixed_sizes, tmp_path, edit, match):
+    assert [r.shape for r in fo.load_model(mixed_sizes).rewards_] == [(9, 4), (16, 4), (9, 4)]
+    with pytest.raises(PersistenceError, match="is malformed: " + match):
+        fo.load_model(_rewrite(mixed_sizes, tmp_path / "edited.npz", edit))
+
+
+def test_a_header_counting_more_per_task_arrays_than_stored_is_refused(mixed_sizes, tmp_path):
+    with pytest.raises(PersistenceError, match="is incomplete: the archive lacks 'attr/rewards_/3'"):
+        fo.load_model(_rewrite(mixed_sizes, tmp_path / "edited.npz", _count(4)))

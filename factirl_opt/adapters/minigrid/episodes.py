@@ -84,6 +84,11 @@ def _layout(env: Any, seed: int | None) -> tuple[Any, bool]:
     owned = isinstance(env, str)
     if owned:
         env = importlib.import_module("gymnasium").make(env)
+    elif not all(callable(getattr(env, name, None)) for name in ("reset", "step")):
+        hint = (" (a model read from an environment: pass the environment itself, or its id and a seed)"
+                if isinstance(env, MiniGridModel) or hasattr(env, "n_states") else "")
+        raise ValidationError(f"env must be a MiniGrid/BabyAI environment (a gymnasium.Env with reset and step) or its id; "
+                              f"got {type(env).__name__}{hint}")
     if seed is not None:
         env.reset(seed=check_int(seed, "seed", minimum=0))
     return env, owned

@@ -37,6 +37,8 @@ from ..._threads import limit_blas_threads
 from ...tasks.demonstrations import sample_demonstrations
 from ...learners.factirl import FactIRL
 from ...datasets.objectworld.maps import objectworld_maps
+from ..arguments import integer, real, solver_name
+from ...objectives import available_objectives
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run"]
@@ -49,20 +51,20 @@ ROUTES = ("per_task_maps", "one_map")
 
 
 def add_arguments(parser):
-    add_option(parser, "--n-tasks", type=int, defaults=DEFAULTS, quick=QUICK, help="tasks, one map each")
-    add_option(parser, "--size", type=int, defaults=DEFAULTS, quick=QUICK, help="map side")
-    add_option(parser, "--n-demos", type=int, defaults=DEFAULTS, quick=QUICK, help="demonstrations per task")
-    add_option(parser, "--length", type=int, defaults=DEFAULTS, quick=QUICK, help="steps per demonstration")
-    add_option(parser, "--n-primitives", type=int, defaults=DEFAULTS, quick=QUICK)
-    add_option(parser, "--beta", type=float, defaults=DEFAULTS)
-    add_option(parser, "--flat-max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="flat iterations of the PCA start")
-    add_option(parser, "--max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="outer iterations")
-    add_option(parser, "--inner-steps", type=int, defaults=DEFAULTS)
-    add_option(parser, "--h-solver", defaults=DEFAULTS)
-    add_option(parser, "--d-solver", defaults=DEFAULTS)
-    add_option(parser, "--objective", defaults=DEFAULTS)
-    add_option(parser, "--seed", type=int, defaults=DEFAULTS)
-    add_option(parser, "--blas-threads", type=int, defaults=DEFAULTS)
+    add_option(parser, "--n-tasks", type=integer(1), defaults=DEFAULTS, quick=QUICK, help="tasks, one map each")
+    add_option(parser, "--size", type=integer(2), defaults=DEFAULTS, quick=QUICK, help="map side")
+    add_option(parser, "--n-demos", type=integer(1), defaults=DEFAULTS, quick=QUICK, help="demonstrations per task")
+    add_option(parser, "--length", type=integer(1), defaults=DEFAULTS, quick=QUICK, help="steps per demonstration")
+    add_option(parser, "--n-primitives", type=integer(1), defaults=DEFAULTS, quick=QUICK)
+    add_option(parser, "--beta", type=real(0, low_open=True), defaults=DEFAULTS)
+    add_option(parser, "--flat-max-iter", type=integer(0), defaults=DEFAULTS, quick=QUICK, help="flat iterations of the PCA start")
+    add_option(parser, "--max-iter", type=integer(0), defaults=DEFAULTS, quick=QUICK, help="outer iterations")
+    add_option(parser, "--inner-steps", type=integer(1), defaults=DEFAULTS)
+    add_option(parser, "--h-solver", type=solver_name, defaults=DEFAULTS)
+    add_option(parser, "--d-solver", type=solver_name, defaults=DEFAULTS)
+    add_option(parser, "--objective", choices=available_objectives(), defaults=DEFAULTS)
+    add_option(parser, "--seed", type=integer(0), defaults=DEFAULTS)
+    add_option(parser, "--blas-threads", type=integer(0), defaults=DEFAULTS)
     parser.add_argument("--in-process", action="store_true", help="run both routes here (peak memory: the run's so far)")
     parser.add_argument("--quick", action="store_true", help="tiny configuration for tests")
 

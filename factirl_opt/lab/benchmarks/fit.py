@@ -41,6 +41,7 @@ from ...mdp.tabular import GridWorld
 from ...planning import Planner, PolicySystem, get_planner
 from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import synthetic_tasks
+from ..arguments import integer, real, solver_name
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "CountingPlanner"]
@@ -109,22 +110,22 @@ def add_arguments(parser):
     def opt(*flags, **kw):
         add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
-    opt("--size", type=int, help="grid side")
-    opt("--n-tasks", type=int, help="training tasks")
-    opt("--n-demos", type=int, help="demonstrations per task")
-    opt("--length", type=int, help="steps per demonstration")
-    opt("-k", "--n-primitives", type=int, help="primitives, true and learnt")
-    opt("--beta", type=float, help="Boltzmann inverse temperature")
-    opt("--flat-max-iter", type=int, help="GradIRL iterations")
-    opt("--max-iter", type=int, help="FactIRL outer iterations")
-    opt("--inner-steps", type=int, help="FactIRL steps per sub-problem")
-    opt("--tol", type=float, help="relative-decrease stopping tolerance (both learners)")
-    opt("--h-solver", help="H-step solver of the 'factorial' entry")
-    opt("--d-solver", help="D-step solver of the 'factorial' entry")
-    opt("--h-solvers", nargs="+", metavar="NAME", help="H-step solvers compared")
-    opt("--d-solvers", nargs="+", metavar="NAME", help="D-step solvers compared (with each H-step solver)")
-    opt("--seed", type=int, help="seed of the synthetic tasks")
-    opt("--blas-threads", type=int, help="OpenBLAS threads (0: leave as is)")
+    opt("--size", type=integer(2), help="grid side")
+    opt("--n-tasks", type=integer(1), help="training tasks")
+    opt("--n-demos", type=integer(1), help="demonstrations per task")
+    opt("--length", type=integer(1), help="steps per demonstration")
+    opt("-k", "--n-primitives", type=integer(1), help="primitives, true and learnt")
+    opt("--beta", type=real(0, low_open=True), help="Boltzmann inverse temperature")
+    opt("--flat-max-iter", type=integer(0), help="GradIRL iterations")
+    opt("--max-iter", type=integer(0), help="FactIRL outer iterations")
+    opt("--inner-steps", type=integer(1), help="FactIRL steps per sub-problem")
+    opt("--tol", type=real(0), help="relative-decrease stopping tolerance (both learners)")
+    opt("--h-solver", type=solver_name, help="H-step solver of the 'factorial' entry")
+    opt("--d-solver", type=solver_name, help="D-step solver of the 'factorial' entry")
+    opt("--h-solvers", type=solver_name, nargs="+", metavar="NAME", help="H-step solvers compared")
+    opt("--d-solvers", type=solver_name, nargs="+", metavar="NAME", help="D-step solvers compared (with each H-step solver)")
+    opt("--seed", type=integer(0), help="seed of the synthetic tasks")
+    opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--quick", action="store_true",
                         help="tiny configuration for tests; options given explicitly keep their value")
 

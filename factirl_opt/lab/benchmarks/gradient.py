@@ -29,24 +29,27 @@ import numpy as np
 from ..._threads import limit_blas_threads
 from ...tasks.demonstrations import empirical_statistics
 from ...mdp.tabular import GridWorld
-from ...objectives.policy_matching import forward_point, gradient_at, dq_dtheta, policy_matching_grad_reference, policy_matching_loss
+from ...objectives.policy_matching import (
+    dq_dtheta, forward_point, gradient_at, policy_matching_grad_reference, policy_matching_loss,
+)
 from ...planning import get_planner, optimal_q
 from ...datasets.synthetic import synthetic_tasks
+from ..arguments import integer, real
 
 __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser):
-    parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per route; the best is kept (default 5)")
-    parser.add_argument("--min-time", type=float, default=0.5,
+    parser.add_argument("--sizes", type=integer(2), nargs="+", default=[5, 10, 20], help="grid sides (default: 5 10 20)")
+    parser.add_argument("--repeats", type=integer(1), default=5, help="timed runs per route; the best is kept (default 5)")
+    parser.add_argument("--min-time", type=real(0), default=0.5,
                         help="keep repeating a route until this many seconds were spent (default 0.5)")
-    parser.add_argument("--budget", type=float, default=5.0, help="a route whose first run takes longer is run once (s)")
-    parser.add_argument("--beta", type=float, default=5.0)
-    parser.add_argument("--n-demos", type=int, default=10, help="demonstrations of the task (default 10)")
-    parser.add_argument("--length", type=int, default=10, help="steps per demonstration (default 10)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--blas-threads", type=int, default=1, help="OpenBLAS threads (0: leave as is; default 1)")
+    parser.add_argument("--budget", type=real(0), default=5.0, help="a route whose first run takes longer is run once (s)")
+    parser.add_argument("--beta", type=real(0, low_open=True), default=5.0)
+    parser.add_argument("--n-demos", type=integer(1), default=10, help="demonstrations of the task (default 10)")
+    parser.add_argument("--length", type=integer(1), default=10, help="steps per demonstration (default 10)")
+    parser.add_argument("--seed", type=integer(0), default=0)
+    parser.add_argument("--blas-threads", type=integer(0), default=1, help="OpenBLAS threads (0: leave as is; default 1)")
 
 
 def _best_time(fn, repeats, budget, min_time=0.0, max_runs=2000):

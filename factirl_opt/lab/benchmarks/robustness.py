@@ -57,6 +57,7 @@ import numpy as np
 from ..._threads import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
+from ..arguments import count, integer, real, text
 from ..experiments.learners import factorial_options
 from ..experiments.presets import get_preset
 from ..experiments.worlds import make_ground_truth
@@ -88,33 +89,22 @@ TRUE = "true"
 EXPLORATION_BLOCK = 10_000
 
 
-def _int_count(text: str) -> int:
-    """A count given as an integer or in float notation (``1e5``)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value.is_integer() or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0; got {text!r}")
-    return int(value)
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     def opt(*flags: str, **kw: Any) -> None:
         add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
-    opt("--seeds", type=int, nargs="+", metavar="SEED", help="seeds (one world and set of demonstrations each)")
-    opt("--extra", type=_int_count, nargs="+", metavar="M", help="exploration transitions added to the demonstrations' (1e5 accepted)")
+    opt("--seeds", type=integer(0), nargs="+", metavar="SEED", help="seeds (one world and set of demonstrations each)")
+    opt("--extra", type=count(0), nargs="+", metavar="M", help="exploration transitions added to the demonstrations' (1e5 accepted)")
     opt("--world", choices=sorted(WORLD_PRESETS), help="grid: the fast preset's; objectworld: objectworld-quick's")
-    opt("--out", metavar="DIR", help="write the tables and the figure there")
-    opt("--size", type=int, help="grid side (default: the preset's)")
-    opt("--n-tasks", type=int, help="training tasks (default: the preset's)")
-    opt("--n-demos", type=int, help="demonstrations per training task (default: the preset's)")
-    opt("--n-test-tasks", type=int, help="test tasks, one demonstration each (default: the preset's)")
-    opt("--n-heldout", type=_int_count, help="held-out exploration transitions scoring each estimated model")
+    opt("--out", type=text("an output directory"), metavar="DIR", help="write the tables and the figure there")
+    opt("--size", type=integer(2), help="grid side (default: the preset's)")
+    opt("--n-tasks", type=integer(1), help="training tasks (default: the preset's)")
+    opt("--n-demos", type=integer(1), help="demonstrations per training task (default: the preset's)")
+    opt("--n-test-tasks", type=integer(1), help="test tasks, one demonstration each (default: the preset's)")
+    opt("--n-heldout", type=count(1), help="held-out exploration transitions scoring each estimated model")
     opt("--prior", choices=PRIORS, help="prior of estimate_mdp")
-    opt("--pseudo-count", type=float, help="pseudo-count of estimate_mdp")
-    opt("--blas-threads", type=int, help="OpenBLAS threads (0: leave as is)")
+    opt("--pseudo-count", type=real(0), help="pseudo-count of estimate_mdp")
+    opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--quick", action="store_true",
                         help="tiny configuration for tests: 5x5 grid, short budgets, 1 seed, M in {0, 1e6}")
 

@@ -90,6 +90,7 @@ from ...planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optima
 from ...planning.budget import check_max_bytes, chunk_size, task_bytes
 from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...tasks.features import task_rewards
+from ..arguments import integer, real, text
 from .scale_evaluations import run_evaluations
 from .scale_jobs import check_jobs, run_side_by_side as _side_by_side
 
@@ -99,28 +100,28 @@ DEFAULT_PLANNER = "auto"
 
 
 def add_arguments(parser):
-    parser.add_argument("--sizes", type=int, nargs="+", default=[10, 20, 32, 64, 100], help="grid sides (default: 10 20 32 64 100)")
-    parser.add_argument("--tasks", type=int, nargs="+", default=[100],
+    parser.add_argument("--sizes", type=integer(2), nargs="+", default=[10, 20, 32, 64, 100], help="grid sides (default: 10 20 32 64 100)")
+    parser.add_argument("--tasks", type=integer(1), nargs="+", default=[100],
                         help="tasks (default 100); several values only with --evaluations")
-    parser.add_argument("--n-demos", type=int, default=10, help="demonstrations per task (default 10)")
-    parser.add_argument("--length", type=int, default=10, help="steps per demonstration (default 10)")
-    parser.add_argument("--beta", type=float, default=5.0)
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs of each warm evaluation, best kept (default 3)")
-    parser.add_argument("--budget", type=float, default=5.0, help="an evaluation whose first run takes longer is run once (s)")
-    parser.add_argument("--dense-max-states", type=int, default=1024,
+    parser.add_argument("--n-demos", type=integer(1), default=10, help="demonstrations per task (default 10)")
+    parser.add_argument("--length", type=integer(1), default=10, help="steps per demonstration (default 10)")
+    parser.add_argument("--beta", type=real(0, low_open=True), default=5.0)
+    parser.add_argument("--repeats", type=integer(1), default=3, help="timed runs of each warm evaluation, best kept (default 3)")
+    parser.add_argument("--budget", type=real(0), default=5.0, help="an evaluation whose first run takes longer is run once (s)")
+    parser.add_argument("--dense-max-states", type=integer(0), default=1024,
                         help="run the dense planner only up to this many states (default 1024: at S = 4096 its (S, A, S) "
                              "transitions alone take 512 MiB and 100 tasks' 4096 x 4096 LUs take minutes)")
-    parser.add_argument("--fit-min-size", type=int, default=32, help="fit the exponent over sizes >= this (default 32)")
+    parser.add_argument("--fit-min-size", type=integer(1), default=32, help="fit the exponent over sizes >= this (default 32)")
     parser.add_argument("--in-process", action="store_true", help="measure every size in this process (no fresh process per size)")
-    parser.add_argument("--plot", default=None, metavar="PATH", help="write a log-log plot of the timings to PATH")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--blas-threads", type=int, default=1, help="OpenBLAS threads (0: leave as is; default 1)")
-    parser.add_argument("--fit-iter", type=int, default=0, metavar="N",
+    parser.add_argument("--plot", type=text("a path for the plot"), default=None, metavar="PATH", help="write a log-log plot of the timings to PATH")
+    parser.add_argument("--seed", type=integer(0), default=0)
+    parser.add_argument("--blas-threads", type=integer(0), default=1, help="OpenBLAS threads (0: leave as is; default 1)")
+    parser.add_argument("--fit-iter", type=integer(0), default=0, metavar="N",
                         help="instead of the planner timings, fit FactIRL on an Objectworld's features for N outer "
                              "iterations per size (default 0: timings)")
-    parser.add_argument("--max-bytes", type=float, default=None,
+    parser.add_argument("--max-bytes", type=real(0, low_open=True), default=None,
                         help="planning memory budget of the fits in bytes, e.g. 16e9 (default: none)")
-    parser.add_argument("--jobs", type=int, nargs="+", default=None, metavar="J",
+    parser.add_argument("--jobs", type=integer(1, also=(-1,), note=" (or -1: every core)"), nargs="+", default=None, metavar="J",
                         help="with --fit-iter: the same fit side by side for each FactIRL n_jobs J (positive or -1), "
                              "in this process, --repeats times alternating (default: one fit, n_jobs=1)")
     parser.add_argument("--dask", action="store_true",

@@ -45,6 +45,7 @@ from ...objectives import PolicyMatchingObjective
 from ...objectives.problems import weights_problem
 from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import random_dictionary, synthetic_tasks
+from ..arguments import integer, real
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run"]
@@ -88,25 +89,25 @@ def add_arguments(parser):
 
     parser.add_argument("--quick", action="store_true",
                         help="tiny sizes and budgets (seconds; for tests); options given explicitly keep their value")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the ground truth (default: 0)")
-    opt("--size", type=int, help="grid side")
-    parser.add_argument("--n-primitives", type=int, default=5, help="primitives, true and learnt (default: 5)")
-    parser.add_argument("--beta", type=float, default=5.0, help="Boltzmann inverse temperature (default: 5.0)")
-    opt("--transfer-tasks", type=int, help="new tasks of the transfer, nonneg and sparse parts")
-    parser.add_argument("--transfer-demos", type=int, default=1, help="demonstrations per new task (default: 1)")
-    parser.add_argument("--demo-length", type=int, default=10, help="steps per demonstration (default: 10)")
-    opt("--armijo-iter", type=int, help="Armijo iterations of the transfer")
-    opt("--gn-iter", type=int, help="Gauss-Newton steps of the transfer")
-    opt("--fit-tasks", type=int, help="training tasks of the fit part")
-    opt("--fit-demos", type=int, help="demonstrations per training task")
-    opt("--fit-iter", type=int, help="FactIRL outer iterations")
-    opt("--flat-iter", type=int, help="GradIRL iterations of the PCA init")
-    opt("--inner-steps", type=int, help="FactIRL steps per sub-problem")
-    opt("--sparse-gn-iter", type=int, help="GN steps of the sparse sweep: zero counts are compared near convergence")
-    opt("--alphas", type=float, nargs="+", help="L1 weights of the sparse sweep")
-    parser.add_argument("--sparsity", type=float, default=0.4, help="zero probability of the sparse ground truth (default: 0.4)")
-    opt("--repeats", type=int, help="timed re-solves per route (median kept)")
-    opt("--fresh-tasks", type=int, help="tasks timed with a fresh cp.Problem each")
+    parser.add_argument("--seed", type=integer(0), default=0, help="seed of the ground truth (default: 0)")
+    opt("--size", type=integer(2), help="grid side")
+    parser.add_argument("--n-primitives", type=integer(1), default=5, help="primitives, true and learnt (default: 5)")
+    parser.add_argument("--beta", type=real(0, low_open=True), default=5.0, help="Boltzmann inverse temperature (default: 5.0)")
+    opt("--transfer-tasks", type=integer(1), help="new tasks of the transfer, nonneg and sparse parts")
+    parser.add_argument("--transfer-demos", type=integer(1), default=1, help="demonstrations per new task (default: 1)")
+    parser.add_argument("--demo-length", type=integer(1), default=10, help="steps per demonstration (default: 10)")
+    opt("--armijo-iter", type=integer(0), help="Armijo iterations of the transfer")
+    opt("--gn-iter", type=integer(0), help="Gauss-Newton steps of the transfer")
+    opt("--fit-tasks", type=integer(1), help="training tasks of the fit part")
+    opt("--fit-demos", type=integer(1), help="demonstrations per training task")
+    opt("--fit-iter", type=integer(0), help="FactIRL outer iterations")
+    opt("--flat-iter", type=integer(0), help="GradIRL iterations of the PCA init")
+    opt("--inner-steps", type=integer(1), help="FactIRL steps per sub-problem")
+    opt("--sparse-gn-iter", type=integer(0), help="GN steps of the sparse sweep: zero counts are compared near convergence")
+    opt("--alphas", type=real(0), nargs="+", help="L1 weights of the sparse sweep")
+    parser.add_argument("--sparsity", type=real(0, 1, high_open=True), default=0.4, help="zero probability of the sparse ground truth (default: 0.4)")
+    opt("--repeats", type=integer(1), help="timed re-solves per route (median kept)")
+    opt("--fresh-tasks", type=integer(0), help="tasks timed with a fresh cp.Problem each")
     parser.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                         help="parts to run (default: all)")
 

@@ -73,6 +73,7 @@ from scipy.special import logsumexp
 from ..._validation import check_int
 from ...evaluation import deviation
 from ...exceptions import ValidationError
+from ..arguments import integer, real
 from ..experiments.presets import get_preset
 from ..experiments.worlds import objectworld
 from ...learners.factirl import FactIRL
@@ -157,8 +158,8 @@ WORLDS: dict[str, Callable[[dict, int, int], Draw]] = {"grid": draw_grid, "objec
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_option(parser, "--n-tasks", type=int, nargs="+", defaults=DEFAULTS, quick=QUICK, help="numbers of tasks")
-    add_option(parser, "--seeds", type=int, nargs="+", defaults=DEFAULTS, help="task and demonstration seeds")
+    add_option(parser, "--n-tasks", type=integer(1), nargs="+", defaults=DEFAULTS, quick=QUICK, help="numbers of tasks")
+    add_option(parser, "--seeds", type=integer(0), nargs="+", defaults=DEFAULTS, help="task and demonstration seeds")
     add_option(parser, "--world", choices=sorted(WORLDS), defaults=DEFAULTS, help="the paper's grid or one Objectworld map")
     add_option(parser, "--learners", nargs="+", choices=LEARNERS, defaults=DEFAULTS,
                help="learners to run (em_true_dictionary, em_labelled_dictionary: EM with that dictionary fixed; "
@@ -167,15 +168,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        ("--length", "steps per demonstration")):
         dest = flag[2:].replace("-", "_")
         shown = "; ".join(f"{w} {WORLD_DEFAULTS[w][dest]} (--quick: {WORLD_QUICK[w][dest]})" for w in WORLDS)
-        parser.add_argument(flag, type=int, default=None, help=f"{what} (default: {shown})")
-    add_option(parser, "--n-primitives", type=int, defaults=DEFAULTS, quick=QUICK,
+        parser.add_argument(flag, type=integer(1), default=None, help=f"{what} (default: {shown})")
+    add_option(parser, "--n-primitives", type=integer(1), defaults=DEFAULTS, quick=QUICK,
                help="k of the true and learnt dictionaries (Objectworld: also its inner colours)")
-    add_option(parser, "--beta", type=float, defaults=DEFAULTS)
+    add_option(parser, "--beta", type=real(0, low_open=True), defaults=DEFAULTS)
     add_option(parser, "--objective", choices=[name for name in available_objectives() if get_objective(name).models_policy()], defaults=DEFAULTS,
                help="every learner's objective (MCE: EM's M-step raises its likelihood)")
-    add_option(parser, "--em-max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="EM iterations")
-    add_option(parser, "--m-step-max-iter", type=int, defaults=DEFAULTS, quick=QUICK, help="iterations per M-step")
-    add_option(parser, "--n-test", type=int, defaults=DEFAULTS, quick=QUICK, help="new tasks of one-demo transfer")
+    add_option(parser, "--em-max-iter", type=integer(0), defaults=DEFAULTS, quick=QUICK, help="EM iterations")
+    add_option(parser, "--m-step-max-iter", type=integer(0), defaults=DEFAULTS, quick=QUICK, help="iterations per M-step")
+    add_option(parser, "--n-test", type=integer(1), defaults=DEFAULTS, quick=QUICK, help="new tasks of one-demo transfer")
     parser.add_argument("--quick", action="store_true", help="tiny configuration for tests")
 
 
