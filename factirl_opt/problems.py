@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
+from ._batched import rows_matmul
 from .exceptions import ValidationError
 from .synthetic import task_rewards
 from .task_features import TaskFeatures
@@ -218,7 +219,7 @@ def weights_problem(objective: Any, features: Any = None,
     def loss_and_grad(x, rows):
         loss, y = objective.loss_and_grad(rewards(x), rows)
         y = y.reshape(len(rows), S * A)
-        return loss, (y if F is None else y @ F)
+        return loss, (y if F is None else rows_matmul(y, F))
 
     def residual_jacobian(x, rows):
         return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else dense_features(F))
@@ -231,7 +232,7 @@ def weights_problem(objective: Any, features: Any = None,
 
         def vjp(U):
             y = lin.vjp(U).reshape(len(U), S * A)
-            return y if F is None else y @ F
+            return y if F is None else rows_matmul(y, F)
 
         return Linearization(lin.loss, lin.residual, jvp, vjp)
 

@@ -22,6 +22,7 @@ import typing
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._batched import rows_matmul
 from ._validation import RNGLike, as_rng, check_array, check_int, check_mdp, check_real
 from .demonstrations import sample_demonstrations
 from .exceptions import ValidationError
@@ -82,7 +83,7 @@ def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, 
     if H.shape[1] != D.shape[1]:
         raise ValidationError(f"coefficients must have shape (n, {D.shape[1]}); got {H.shape}")
     with np.errstate(over="ignore", invalid="ignore"):
-        R = (H @ D.T).reshape(-1, n_states, n_actions)
+        R = rows_matmul(H, D.T).reshape(-1, n_states, n_actions)
     if not np.all(np.isfinite(R)):
         i = int(np.argmax(~np.all(np.isfinite(R.reshape(len(R), -1)), axis=1)))
         raise ValidationError(

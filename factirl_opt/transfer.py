@@ -29,6 +29,7 @@ from .fitting import (
     per_task_features,
     resolve_step_solver,
     reward_features,
+    warn_if_max_iter,
 )
 from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best
 from .problems import linear_rewards, weights_problem
@@ -77,7 +78,10 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     """Coefficients of new tasks with the dictionary fixed (section 4.2).
 
     Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
-    up to ``max_iter`` steps. Parameters as in :func:`factirl_opt.fit_factorial`;
+    up to ``max_iter`` steps. The new tasks are independent given the dictionary: each stops
+    by its own rule and leaves the batch (:mod:`solvers.separable`), so its coefficients are
+    those of a transfer to that task alone; tasks that reach ``max_iter`` first are named in a
+    :class:`ConvergenceWarning`. Parameters as in :func:`factirl_opt.fit_factorial`;
     ``dictionary`` is (p, k). ``mdp`` may be a sequence of one MDP per new task, with
     ``base_features`` shared or one matrix per task (tasks in several environments).
 
@@ -141,10 +145,11 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
-            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol)
+            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_transfer_fit(mdp, F, solver, exc.result, objective.n_evaluations - ev0, names),
                                  "transfer") from exc.__cause__
+    warn_if_max_iter(res, "transfer", max_iter)
     return _transfer_fit(mdp, F, solver, res, objective.n_evaluations - ev0, names)
 
 
