@@ -52,6 +52,7 @@ from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
 from .task_features import TaskFeatures
+from .residuals import check_residual_penalty, residual_weights
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -155,6 +156,15 @@ class FactIRL:
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
     n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
+    residual_penalty : float or "auto", default=np.inf
+        ``lambda`` of the residual model ``R_i = Phi_i (D h_i + delta_i)`` with the penalty
+        ``lambda ||delta_i||^2`` on each task's residual (docs/maths.md §8a,
+        :mod:`factirl_opt.residuals`): np.inf is the paper's factorial model (no residuals),
+        0 lets every task's weights free (the flat model, reparametrised), values between
+        share as much as the penalty makes worth it. The residuals are fitted in ``fit`` (the
+        H-step moves ``[h_i, delta_i]`` together, from ``delta = 0``) and in ``transfer``. A
+        finite value needs an unconstrained ``h_solver``. ``"auto"``: chosen by validation
+        over tasks (:mod:`factirl_opt.adaptive`).
 
     Attributes
     ----------
@@ -190,6 +200,16 @@ class FactIRL:
     transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
+        ``transfer_rewards_`` include the new tasks' residuals.
+    residual_penalty_ : float
+        The ``lambda`` of the fit (np.inf: no residuals).
+    n_primitives_ : int
+        The k of the fit.
+    residuals_ : ndarray, shape (n, p)
+        The tasks' residuals ``delta_i`` (zeros for ``residual_penalty=np.inf``); ``rewards_``
+        include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
+    transfer_residuals_ : ndarray, shape (n_new, p)
+        The new tasks' residuals of the last ``transfer`` (zeros without residuals).
 
     Notes
     -----
@@ -222,7 +242,8 @@ class FactIRL:
                  planner: str = "auto", flat_max_iter: int = 100, transfer_max_iter: int = 100,
                  rng: np.random.Generator | int | None = None, verbose: bool = False,
                  callback: Callable | None = None, reward: str = "state-action", n_jobs: int | None = None,
-                 backend: str = "processes", client: Any = None, planner_options: dict | None = None) -> None:
+                 backend: str = "processes", client: Any = None, planner_options: dict | None = None,
+                 residual_penalty: Any = np.inf) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.init = init
@@ -242,6 +263,7 @@ class FactIRL:
         self.verbose = verbose
         self.callback = callback
         self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
+        self.residual_penalty = residual_penalty
 
     def _features(self, mdp):
         return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
@@ -370,6 +392,7 @@ class FactIRL:
             Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
         h_solver = resolve_step_solver(self.h_solver, self.h_solver_options, self.objective, "h_solver")
         d_solver = resolve_step_solver(self.d_solver, self.d_solver_options, self.objective, "d_solver")
+        lam = self._residual_penalty(h_solver, self.residual_penalty)
         if one is not None:
             obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
@@ -378,19 +401,38 @@ class FactIRL:
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
                 fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
-                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
+                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
+                                    residual_penalty=lam)
         except FitInterrupted as exc:
-            self._store(where, Phi, exc.result, int(obj.n_evaluations))
+            self._store(where, Phi, exc.result, int(obj.n_evaluations), lam)
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} (total loss {np.sum(self.loss_):.6g})")
             raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
-        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
+        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
-    def _store(self, where, Phi, fit, n_evaluations):
+    @staticmethod
+    def _residual_penalty(h_solver, value):
+        """The validated finite ``lambda`` or np.inf; a finite one refused with a constrained H-solver."""
+        lam = check_residual_penalty(value, allow_auto=False)
+        if np.isfinite(lam) and h_solver.constraint != "none":
+            raise ValidationError(
+                f"residual_penalty={lam!r} needs an unconstrained h_solver (the H-step moves each task's coefficients and "
+                f"residual together); {h_solver.name!r} has constraint {h_solver.constraint!r}")
+        return lam
+
+    def _store(self, where, Phi, fit, n_evaluations, lam=np.inf):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
-        self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+        self.residual_penalty_, self.n_primitives_ = lam, int(fit.dictionary.shape[1])
+        if fit.residuals is None:
+            self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+            self.residuals_ = np.zeros((fit.coefficients.shape[0], fit.dictionary.shape[0]))
+        else:
+            self.residuals_ = fit.residuals
+            W = residual_weights(fit.dictionary, fit.coefficients, fit.residuals)
+            self.rewards_ = Phi.rewards(W) if isinstance(Phi, TaskFeatures) else weights_rewards(Phi, W, where.n_states,
+                                                                                                   where.n_actions)
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
@@ -473,10 +515,11 @@ class FactIRL:
         else:
             obj, Phi, D = new
         solver = resolve_step_solver(h_solver, h_solver_options, self.objective, "h_solver")
+        lam = self._residual_penalty(solver, getattr(self, "residual_penalty_", self.residual_penalty))
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 res = run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose)
+                                   verbose=self.verbose, residual_penalty=lam)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen")
@@ -487,6 +530,8 @@ class FactIRL:
 
     def _store_transfer(self, res):
         self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
+        self.transfer_residuals_ = (np.zeros((res.coefficients.shape[0], self.dictionary_.shape[0]))
+                                    if res.residuals is None else res.residuals)
         self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
         self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
         self.transfer_stop_reason_ = res.reason

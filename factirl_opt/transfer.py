@@ -31,8 +31,10 @@ from .fitting import (
     reward_features,
     warn_if_max_iter,
 )
+from .gradirl import weights_rewards
 from .interruption import INTERRUPTED, FitInterrupted, run_keeping_best
 from .problems import linear_rewards, weights_problem
+from .residuals import residual_weights, residual_weights_problem
 from .task_features import TaskFeatures
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
@@ -57,6 +59,10 @@ class TransferFit:
         each task's best coefficients seen until then; loss NaN for a task never evaluated).
     reason : str
         Why the run stopped, with the values that met the rule.
+    residuals : ndarray, shape (n_new, p), optional
+        The new tasks' residuals ``delta_i`` of a transfer with a finite ``residual_penalty``
+        (``rewards`` include them; ``loss`` is without their penalty, ``loss_history`` with
+        it); None otherwise.
     """
 
     coefficients: np.ndarray
@@ -67,6 +73,7 @@ class TransferFit:
     n_evaluations: int
     status: str
     reason: str = ""
+    residuals: np.ndarray | None = None
 
 
 @learner_entry
@@ -113,7 +120,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
-                 verbose: bool = False) -> TransferFit:
+                 verbose: bool = False, residual_penalty: float = np.inf) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -128,11 +135,18 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
         :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
     max_iter, tol, callback, verbose
         As in :func:`transfer_coefficients`.
+    residual_penalty : float, default=np.inf
+        ``lambda`` of the residual model (:mod:`factirl_opt.residuals`): each new task's
+        ``[h_i, delta_i]`` is fitted from zero with ``lambda ||delta_i||^2`` added to its loss
+        (an unconstrained ``solver``); np.inf fits the coefficients only.
 
     Returns
     -------
     TransferFit
     """
+    if np.isfinite(residual_penalty):
+        return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
+                                      float(residual_penalty))
     mdp = objective.mdp
     F: Any
     if isinstance(base_features, TaskFeatures):
@@ -151,6 +165,39 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
                                  "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
     return _transfer_fit(mdp, F, solver, res, objective.n_evaluations - ev0, names)
+
+
+def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, verbose, lam):
+    """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
+    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
+    problem = residual_weights_problem(objective, Phi, D, lam, names)
+    ev0 = objective.n_evaluations
+    k = D.shape[1]
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
+        try:
+            res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
+                                   callback=report, tol=tol, separable=True)
+        except FitInterrupted as exc:
+            raise FitInterrupted(_residual_fit(objective, Phi, D, k, lam, exc.result, objective.n_evaluations - ev0),
+                                 "transfer") from exc.__cause__
+    warn_if_max_iter(res, "transfer", max_iter)
+    return _residual_fit(objective, Phi, D, k, lam, res, objective.n_evaluations - ev0)
+
+
+def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):
+    H, Delta = res.coefficients[:, :k], res.coefficients[:, k:]
+    W = residual_weights(D, H, Delta)
+    if isinstance(Phi, TaskFeatures):
+        rewards = Phi.rewards(W)
+    else:
+        mdp = objective.mdp
+        rewards = weights_rewards(Phi, W, mdp.n_states, mdp.n_actions)
+    loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta)
+    status, reason = res.status, res.reason
+    if status != INTERRUPTED:
+        status, reason = first_step_stall(res.loss_history, res.iterations) or (status, reason)
+    return TransferFit(H.copy(), rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status, reason,
+                       Delta.copy())
 
 
 def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
