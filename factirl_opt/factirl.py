@@ -52,6 +52,7 @@ from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
 from .task_features import TaskFeatures
+from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
 from .residuals import check_residual_penalty, residual_weights
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
@@ -59,6 +60,10 @@ __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients"
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
 
 INITS = ("pca", "random")
+
+
+def _is_auto(value: Any) -> bool:
+    return isinstance(value, str) and value == AUTO
 
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
@@ -266,7 +271,8 @@ class FactIRL:
         self.residual_penalty = residual_penalty
 
     def _features(self, mdp):
-        return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
+        k = getattr(self, "n_primitives_", self.n_primitives)
+        return reward_features(mdp, self.features, self.reward, min_columns=1 if isinstance(k, str) else k)
 
     def _flat_start(self, mdp, n, Phi, obj, rng):
         """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
@@ -381,6 +387,8 @@ class FactIRL:
         -------
         self
         """
+        if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
+            return self._fit_auto(mdp, demos_per_task, flat_rewards)
         one = one_environment(mdp, demos_per_task, self.features)
         obj: Any
         if one is None:  # tasks in several environments: ``where`` is their Environments
@@ -410,6 +418,26 @@ class FactIRL:
             raise FitInterrupted(exc.result, "FactIRL.fit") from exc.__cause__
         self._store(where, Phi, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
+        return self
+
+    def _fit_auto(self, mdp, demos_per_task, flat_rewards):
+        """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
+        (:func:`factirl_opt.adaptive.choose_sharing`), then the fit of the chosen pair on every task."""
+        if not _is_auto(self.n_primitives):
+            check_int(self.n_primitives, "n_primitives", minimum=1)
+        check_residual_penalty(self.residual_penalty)
+        for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
+            delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
+        if flat_rewards is None and self.init == "pca":
+            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, FLAT_SOLVER, FLAT_TOL)
+        k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
+        model = fixed_learner(self, k, lam)
+        model.verbose, model.callback = self.verbose, self.callback
+        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        for name, value in vars(model).items():
+            if name.endswith("_") and not name.startswith("_"):
+                setattr(self, name, value)
+        self.validation_ = table
         return self
 
     @staticmethod
@@ -456,8 +484,9 @@ class FactIRL:
         D = check_array(self.dictionary_, "dictionary_", ndim=2)
         if D.shape[0] != p:
             raise ValidationError(f"dictionary_ must have shape (p, k) with p = {p} (the reward dimension); got {D.shape}")
-        if D.shape[1] != self.n_primitives:
-            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
+        k = getattr(self, "n_primitives_", self.n_primitives)
+        if D.shape[1] != k:
+            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
         return Phi, D
 
     @learner_entry

@@ -345,7 +345,7 @@ class StepSolver:
                 raise SolverOptionError(f"{self.name}: separable must be True or False; got {separable!r}")
             from .separable import run_separable
 
-            return run_separable(self, problem, x, max_iter, state, tol, callback, gtol)
+            return SolverResult(**run_separable(self, problem, x, max_iter, state, tol, callback, gtol))
         t0 = time.perf_counter()
         ev0 = problem.n_evaluations()
         state = self.init_state(problem, x, previous=state)

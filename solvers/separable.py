@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from ._base import SolverResult, row_norms
 from .exceptions import SolverError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -142,19 +141,34 @@ def _summary(status: NDArray[np.str_], rule: NDArray[np.str_], max_iter: int, to
     return "converged", reason
 
 
+def _norm(g: NDArray[np.float64]) -> float:
+    """Euclidean norm of the rows' optimality measures (inf on overflow, NaN if one is NaN),
+    scaled by the largest so that tiny values do not underflow."""
+    if np.any(np.isnan(g)):
+        return float("nan")
+    top = float(np.max(g, initial=0.0))
+    if not np.isfinite(top):
+        return np.inf
+    if top == 0.0:
+        return 0.0
+    with np.errstate(over="ignore"):
+        norm = top * float(np.sqrt(np.sum(np.square(g / top))))
+    return norm if np.isfinite(norm) else np.inf
+
+
 def _rows(rows: NDArray[np.intp], limit: int = 20) -> str:
     shown = ", ".join(str(int(i)) for i in rows[:limit])
     return f"[{shown}{', ...' if rows.size > limit else ''}]"
 
 
 def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], max_iter: int, state: Any,
-                  tol: float, callback: Callable | None, gtol: float) -> SolverResult:
+                  tol: float, callback: Callable | None, gtol: float) -> dict[str, Any]:
     """:meth:`StepSolver.run` with ``separable=True`` (arguments already validated; ``x`` projected).
 
     Returns
     -------
-    SolverResult
-        ``status`` ``"converged"`` when every row converged, ``"max_iter"`` when a row took
+    dict
+        The fields of the run's :class:`~solvers.SolverResult`: ``status`` ``"converged"`` when every row converged, ``"max_iter"`` when a row took
         ``max_iter`` steps without meeting a rule, else ``"stalled"``; ``reason`` counts the
         rows by rule and names the rows at ``max_iter`` and the stalled ones. ``iterations``
         is the most steps a row took; ``loss_history`` the total objective (rows that stopped
@@ -205,8 +219,7 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
         full = solver.put_rows(full, active, part)
     run_status, reason = _summary(status, rule, max_iter, tol, gtol)
     g = _row_optimality(solver, x, full)
-    gnorm = float("nan") if np.any(np.isnan(g)) else float(row_norms(g[None])[0])
-    return SolverResult(
+    return dict(
         coefficients=x,
         status=run_status,
         iterations=int(steps.max(initial=0)),
@@ -216,7 +229,7 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
         loss_history=history,
         state=full,
         reason=reason,
-        gradient_norm=gnorm,
+        gradient_norm=_norm(g),
         row_status=status.astype(str),
         row_iterations=steps,
         row_evaluations=counts,
