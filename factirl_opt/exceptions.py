@@ -18,6 +18,7 @@ from solvers import exceptions as _solvers
 
 __all__ = [
     "FactIRLError",
+    "MaxIterWarning",
     "ValidationError",
     "NotFittedError",
     "SolverError",
@@ -67,6 +68,11 @@ class MissingDependencyError(FactIRLError, ImportError):
 class ConvergenceWarning(UserWarning):
     """A fit stopped without making progress (stalled at its start, or only on worse points);
     the message says what to check (scaling of features or initialisation, beta)."""
+
+
+class MaxIterWarning(ConvergenceWarning):
+    """Tasks of a fit or transfer reached ``max_iter`` before their own stopping rule held; the
+    message names them. The experiments, which run the paper's fixed budgets, ignore it."""
 
 
 class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):

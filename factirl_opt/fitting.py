@@ -31,7 +31,7 @@ import solvers
 from ._threads import blas_limited
 from ._validation import check_beta, check_features
 from .demonstrations import empirical_statistics
-from .exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
+from .exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, translate_solver_errors
 from .mdp import TabularMDP
 from .objectives import Objective, get_objective
 from .objectives.environments import MultiEnvironmentObjective, check_environments, multi_environment_objective
@@ -222,8 +222,9 @@ def warn_if_stalled(status: str, iterations: int, what: str) -> None:
 
 
 def warn_if_max_iter(result: solvers.SolverResult, what: str, max_iter: int) -> None:
-    """A :class:`ConvergenceWarning` naming the tasks of a separable fit that stopped at ``max_iter``
-    (``max_iter > 0``) before their own stopping rule held (:mod:`solvers.separable`)."""
+    """A :class:`MaxIterWarning` (a :class:`ConvergenceWarning`) naming the tasks of a separable fit
+    that stopped at ``max_iter`` (``max_iter > 0``) before their own stopping rule held
+    (:mod:`solvers.separable`)."""
     if result.status != "max_iter" or result.row_status is None or max_iter <= 0:
         return
     late = np.flatnonzero(np.asarray(result.row_status) == "max_iter")
@@ -233,7 +234,7 @@ def warn_if_max_iter(result: solvers.SolverResult, what: str, max_iter: int) -> 
     warnings.warn(
         f"{what} stopped at max_iter={max_iter} before its tolerance for {late.size} of {len(result.row_status)} "
         f"task(s): [{shown}]; their rewards are not converged (increase max_iter)",
-        ConvergenceWarning,
+        MaxIterWarning,
         stacklevel=3,
     )
 

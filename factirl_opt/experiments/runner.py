@@ -46,7 +46,7 @@ import numpy as np
 from .._threads import limit_blas_threads
 from .._validation import check_int
 from ..evaluation import deviation
-from ..exceptions import PersistenceError, ValidationError
+from ..exceptions import MaxIterWarning, PersistenceError, ValidationError
 from ..files import os_error
 from ..planning import optimal_q
 from ..solver_settings import SolverSettings
@@ -209,7 +209,8 @@ def run_one(preset: Preset, spec: RunSpec, progress: Callable[[str], Any] | None
         ``key``, ``spec``, ``preset``, ``rows`` (result rows), ``timings`` and, for the default
         point's first seed, ``figure3`` (value functions of 4 test tasks).
     """
-    with limit_blas_threads(1):
+    with limit_blas_threads(1), warnings.catch_warnings():
+        warnings.simplefilter("ignore", MaxIterWarning)  # the presets' budgets are fixed, as the paper's
         return _run_one(preset, spec, progress or (lambda label: None), reuse)
 
 
