@@ -237,7 +237,8 @@ class FactIRL:
         "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
-        "transfer_stop_reason_": "text",
+        "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
+        "n_primitives_": "count", "residual_penalty_": "penalty", "validation_": "validation",
     }
 
     def __init__(self, n_primitives: int = 5, beta: float = 5.0, init: Any = "pca", pca_shrink: bool = True,

@@ -91,3 +91,32 @@ def test_plot_validation(auto):
     assert len(ax.get_lines()) >= 3 and ax.get_xscale() == "log"
     with pytest.raises(ValidationError, match=r"has no validation_"):
         adaptive.plot_validation(fo.FactIRL())
+
+
+def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
+    import json
+
+    from factirl_opt.exceptions import PersistenceError
+
+    loaded = fo.load_model(fo.save_model(auto, tmp_path / "auto.npz"))
+    assert loaded.validation_ == auto.validation_ and loaded.n_primitives == "auto"
+    assert (loaded.n_primitives_, loaded.residual_penalty_) == (auto.n_primitives_, auto.residual_penalty_)
+    np.testing.assert_array_equal(loaded.residuals_, auto.residuals_)
+
+    def rewrite(edit, name):
+        with np.load(tmp_path / "auto.npz", allow_pickle=False) as npz:
+            header = json.loads(str(npz["__header__"][()]))
+            arrays = {k: npz[k] for k in npz.files if k != "__header__"}
+        edit(header["attributes"])
+        np.savez(tmp_path / name, __header__=np.array(json.dumps(header)), **arrays)
+        return tmp_path / name
+
+    bad = rewrite(lambda a: a["validation_"][0].update(chosen=not a["validation_"][0]["chosen"]), "two.npz")
+    with pytest.raises(PersistenceError, match=r"attribute validation_ must mark exactly one row chosen; [02] are"):
+        fo.load_model(bad)
+    bad = rewrite(lambda a: a.update(residual_penalty_=-1.0), "neg.npz")
+    with pytest.raises(PersistenceError, match=r"attribute residual_penalty_ must be a number >= 0, or inf; got -1.0"):
+        fo.load_model(bad)
+    bad = rewrite(lambda a: a["validation_"][1].pop("score"), "keys.npz")
+    with pytest.raises(PersistenceError, match=r"attribute validation_\[1\] must be a dict with keys"):
+        fo.load_model(bad)
