@@ -72,7 +72,7 @@ def test_tasks_stop_at_different_iterations_and_leave_the_batch(tasks):
     assert res.reason == f"per row, of {len(demos)}: {len(demos)} by relative decrease <= tol=1e-05"
 
 
-@pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-osqp"])
+@pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-osqp", "gn-cg"])
 def test_flat_fit_over_environments_equals_each_task_alone(worlds, solver):
     """Each task alone in its own environment (the same representation: one MDP and one feature
     matrix in a list)."""
@@ -146,3 +146,16 @@ def test_transfer_warns_naming_the_tasks_at_max_iter(dictionary_tasks):
         model.transfer(mdp, demos, max_iter=2)
     assert model.transfer_status_ == "max_iter"
     assert "at max_iter=2: rows [" in model.transfer_stop_reason_
+
+
+@pytest.mark.parametrize("solver", ["armijo", "gn-qp-clarabel"])
+def test_transfer_to_new_environments_equals_each_task_alone(worlds, solver):
+    mdps, Phis, demos = worlds
+    model = fo.FactIRL(n_primitives=2, h_solver=solver)
+    model.features, model.dictionary_ = Phis, np.random.default_rng(2).normal(size=(3, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        together = model.transfer(mdps, demos, features=Phis, max_iter=60)
+        for i in range(3):
+            alone = model.transfer([mdps[i]], [demos[i]], features=[Phis[i]], max_iter=60)
+            np.testing.assert_allclose(together[i], alone[0], rtol=0, atol=1e-10)
