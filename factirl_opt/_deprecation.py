@@ -8,7 +8,7 @@ by default):
 
 - a former top-level name (``fo.ObjectWorld``) resolves to the object in its new namespace
   (:func:`moved_attribute`, called by the package's ``__getattr__``);
-- a former module path (``factirl_opt.gradirl``) imports the module at its new path
+- a former module path (``factirl_opt.learners.gradirl``) imports the module at its new path
   (:func:`install_module_aliases`: a finder on :data:`sys.meta_path` that hands the import
   system the module itself, so both paths name one module object and its state is shared).
 """

@@ -19,6 +19,7 @@ from solvers import exceptions as _solvers
 
 __all__ = [
     "FactIRLError",
+    "MaxIterWarning",
     "ValidationError",
     "NotFittedError",
     "SolverError",
@@ -88,6 +89,11 @@ class ConvergenceWarning(UserWarning):
 class DeprecatedNameWarning(FutureWarning):
     """A name (an estimator parameter) was renamed; the old one still works for now and warns
     once per process. A ``FutureWarning``, so that users see it by default."""
+
+
+class MaxIterWarning(ConvergenceWarning):
+    """Tasks of a fit or transfer reached ``max_iter`` before their own stopping rule held; the
+    message names them. The experiments, which run the paper's fixed budgets, ignore it."""
 
 
 class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):

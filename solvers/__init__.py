@@ -47,7 +47,11 @@ Every solver's run stops early by the rules of :mod:`solvers.stopping`: the rela
 of the total objective (:func:`has_converged`, ``tol``) and the norm of its gradient relative to
 the start (:func:`gradient_converged`, ``gtol``; projected or minimum-norm subgradient for the
 constrained and penalised solvers, :meth:`StepSolver.optimality`); the result says why it
-stopped (``SolverResult.reason``). Solvers bound their steps relative to ``max(1, ||x_i||)``
+stopped (``SolverResult.reason``). A separable run (``run(..., separable=True)``,
+:mod:`solvers.separable`) applies the rules to every row on its own and drops the rows that
+stopped, so each row's result is the one of a run on that row alone (the steps are
+:meth:`StepSolver.step_rows`; ``SolverResult.row_status``, ``row_iterations`` and
+``row_evaluations`` record the rows). Solvers bound their steps relative to ``max(1, ||x_i||)``
 (``max_step_norm``) where they take Newton-like steps. In an alternating scheme a learner
 uses each solver's :meth:`StepSolver.for_alternating` form and warm-starts it with
 :meth:`StepSolver.carry_over` of its previous run.

@@ -9,6 +9,7 @@ Gauss-Newton steps share one outer loop, :meth:`StepSolver.run`, and one stoppin
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
@@ -129,6 +130,14 @@ class SolverResult:
         Norm of the first-order optimality measure at the final point, over all rows
         (:meth:`StepSolver.optimality`); inf if it overflowed, NaN if the solver's state
         holds no gradient.
+    row_status : ndarray of str, shape (n,), optional
+        A separable run's status of every row (``"converged"``, ``"max_iter"`` or
+        ``"stalled"``, by the row's own rules; :mod:`solvers.separable`); None otherwise.
+    row_iterations : ndarray of int, shape (n,), optional
+        A separable run's steps taken by every row before it stopped; None otherwise.
+    row_evaluations : ndarray of int, shape (n,), optional
+        A separable run's evaluations of every row (calls of the problem's callables that
+        included the row); None otherwise.
     """
 
     coefficients: NDArray[np.float64]
@@ -141,6 +150,9 @@ class SolverResult:
     state: Any = None
     reason: str = ""
     gradient_norm: float = float("nan")
+    row_status: Optional[NDArray[np.str_]] = None
+    row_iterations: Optional[NDArray[np.intp]] = None
+    row_evaluations: Optional[NDArray[np.intp]] = None
 
 
 class StepSolver:
@@ -237,6 +249,50 @@ class StepSolver:
         """One step for every row; returns ``(x_new, state, progressed)``."""
         raise NotImplementedError
 
+    def step_rows(self, problem: StepProblem, x: NDArray[np.float64], state: Any) -> tuple[NDArray[np.float64], Any, NDArray[np.bool_]]:
+        """One step of every row in which each row moves as it would alone; ``(x_new, state, progressed)``
+        with ``progressed`` of shape (n,), the rows that made progress (or converged by a
+        negligible step).
+
+        The step of a separable run (:mod:`solvers.separable`): a row's trial points may not
+        depend on the other rows (e.g. no retry decided by whether another row was accepted).
+        The default is :meth:`update` with its one flag repeated, exact for solvers whose rows
+        never interact; the registered solvers override it.
+        """
+        x_new, state, progressed = self.update(problem, x, state)
+        return x_new, state, np.full(problem.n_rows, bool(progressed))
+
+    def take_rows(self, state: Any, rows: NDArray[np.intp]) -> Any:
+        """The state of rows ``rows`` only (a separable run drops the rows that stopped).
+
+        The default slices every array field of a dataclass state whose leading axis has one
+        entry per row (its length is that of ``state.loss``) and keeps the other fields;
+        solvers whose state holds other per-row objects override it.
+
+        Raises
+        ------
+        SolverError
+            When the state is not a dataclass with a ``loss`` array.
+        """
+        n = _state_rows(self.name, state)
+        return dataclasses.replace(state, **{f.name: getattr(state, f.name)[rows] for f in dataclasses.fields(state)
+                                             if _per_row(getattr(state, f.name), n)})
+
+    def put_rows(self, state: Any, rows: NDArray[np.intp], part: Any) -> Any:
+        """``state`` with the rows ``rows`` replaced by those of ``part`` (a :meth:`take_rows`
+        state that was stepped on); its other fields (counters) are taken from ``part``."""
+        n = _state_rows(self.name, state)
+        out = {}
+        for f in dataclasses.fields(state):
+            value, new = getattr(state, f.name), getattr(part, f.name)
+            if _per_row(value, n):
+                value = value.copy()
+                value[rows] = new
+                out[f.name] = value
+            else:
+                out[f.name] = new
+        return dataclasses.replace(state, **out)
+
     def run(
         self,
         problem: StepProblem,
@@ -246,6 +302,7 @@ class StepSolver:
         tol: float = 0.0,
         callback: Callable[[int, float], Any] | None = None,
         gtol: float = 0.0,
+        separable: bool = False,
     ) -> SolverResult:
         """Take up to ``max_iter`` steps from ``x0``, stopping early by the rules of :mod:`solvers.stopping`.
 
@@ -264,6 +321,11 @@ class StepSolver:
         gtol : float
             Stop when the total optimality measure (gradient norm, :meth:`optimality`) is at
             most ``gtol`` times its value at ``x0``.
+        separable : bool, default=False
+            Apply both rules to every row on its own (its objective, its optimality measure)
+            and drop the rows that stopped from the later steps, so each row's result is the
+            one of a run on that row alone (:mod:`solvers.separable`). False: the rules apply
+            to the total objective, and every row steps until the run stops.
 
         Returns
         -------
@@ -278,6 +340,12 @@ class StepSolver:
         """
         x = self._check_run(problem, x0, max_iter, tol, callback)
         check_number(gtol, "gtol", self.name, low=0.0)
+        if separable is not False:
+            if separable is not True:
+                raise SolverOptionError(f"{self.name}: separable must be True or False; got {separable!r}")
+            from .separable import run_separable
+
+            return SolverResult(**run_separable(self, problem, x, max_iter, state, tol, callback, gtol))
         t0 = time.perf_counter()
         ev0 = problem.n_evaluations()
         state = self.init_state(problem, x, previous=state)
@@ -344,6 +412,19 @@ def row_norms(a: ArrayLike) -> NDArray[np.float64]:
     safe = np.where((top > 0) & np.isfinite(top), top, 1.0)
     with np.errstate(over="ignore", invalid="ignore"):
         return np.where(np.isfinite(top), safe * np.sqrt(np.sum(np.square(a / safe[:, None]), axis=1)), np.inf)
+
+
+def _state_rows(name: str, state: Any) -> int:
+    """Number of rows of a dataclass solver state (the length of its ``loss``)."""
+    loss = getattr(state, "loss", None)
+    if not (dataclasses.is_dataclass(state) and isinstance(loss, np.ndarray) and loss.ndim == 1):
+        raise SolverError(f"{name}: a separable run needs a dataclass state with a loss array (n,); got "
+                          f"{type(state).__name__} (override take_rows and put_rows)")
+    return loss.shape[0]
+
+
+def _per_row(value: Any, n: int) -> bool:
+    return isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == n
 
 
 def _stop_reason(

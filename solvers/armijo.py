@@ -96,6 +96,11 @@ class ArmijoSolver(StepSolver):
         return ArmijoState(loss=loss, grad=grad, step=step)
 
     def update(self, problem: StepProblem, x: NDArray[np.float64], state: ArmijoState) -> tuple[NDArray[np.float64], ArmijoState, bool]:
+        x_new, state, progressed = self.step_rows(problem, x, state)
+        return x_new, state, bool(progressed.any())
+
+    def step_rows(self, problem: StepProblem, x: NDArray[np.float64], state: ArmijoState) -> tuple[NDArray[np.float64], ArmijoState, NDArray[np.bool_]]:
+        """One step per row (each row's backtracking is its own); ``progressed``: the rows accepted."""
         x_new = x.copy()
         loss, grad, step = state.loss.copy(), state.grad.copy(), state.step.copy()
         rows = np.arange(problem.n_rows)
@@ -115,5 +120,6 @@ class ArmijoSolver(StepSolver):
                 break
             t[rows] *= self.shrink
         step[rows] = t[rows]  # rows that never succeeded restart from a small step
-        progressed = rows.size < problem.n_rows
+        progressed = np.ones(problem.n_rows, dtype=bool)
+        progressed[rows] = False
         return x_new, ArmijoState(loss=loss, grad=grad, step=step), progressed

@@ -430,6 +430,76 @@ class GaussNewtonSolver(StepSolver):
         return x, state, bool(accepted_any or converged_all)
 
 
+    # -- separable runs -----------------------------------------------------------------------
+    def _row_factors(self, x, state, rows):
+        """:meth:`_factors` of rows ``rows`` only (the step bound raises only their ``lam``)."""
+        J, r, lam = state.jacobian[rows], state.residual[rows], state.lam[rows]
+        R, b = reduce_least_squares(J, r, x, lam)
+        radius = self.max_step_norm * np.maximum(1.0, np.linalg.norm(x, axis=1))
+        far = ~(unconstrained_step_norm(R, b, x) <= radius)
+        if far.any():
+            g = np.linalg.norm(np.einsum("nmk,nm->nk", J[far], r[far]), axis=1)
+            extra = self.alpha * np.sqrt(x.shape[1]) if self.constraint == "sparse" else 0.0
+            lam[far] = np.maximum(lam[far], (2.0 * g + extra) / radius[far])
+            state.lam[rows] = lam
+            R[far], b[far] = reduce_least_squares(J[far], r[far], x[far], lam[far])
+            state.bounded_steps += int(far.sum())
+        return R, b
+
+    def _solve_rows(self, R, b, x, state):
+        """The subproblems of a separable step: without a constraint, the exact minimiser
+        ``R_i^{-1} b_i`` of every row (a QP backend's answer depends on the other rows through
+        its joint stopping test); with one, the block QP (:meth:`solve_subproblems`)."""
+        if self.constraint == "none":
+            try:
+                z = np.linalg.solve(R, b[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                z = None
+            if z is not None and np.all(np.isfinite(z)):
+                return z
+        return self.solve_subproblems(R, b, x, state)
+
+    def step_rows(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonState
+    ) -> tuple[NDArray[np.float64], GaussNewtonState, NDArray[np.bool_]]:
+        """One Levenberg-Marquardt step per row, each row as it would step alone: a rejected row
+        retries with its larger damping (up to ``max_retries`` times) whatever the other rows
+        did, and the unconstrained subproblem is solved exactly (:meth:`_solve_rows`).
+        ``progressed``: the rows accepted and the rows whose step was negligible (``xtol``)."""
+        n = x.shape[0]
+        x = x.copy()
+        progressed = np.zeros(n, dtype=bool)
+        todo = np.arange(n)
+        for _ in range(int(self.max_retries) + 1):
+            if todo.size == 0:
+                break
+            R, b = self._row_factors(x[todo], state, todo)
+            z = self._solve_rows(R, b, x[todo], state)
+            if z is None:  # failed status with fallback="none": reject every trying row
+                state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
+                break
+            z = self.project(z)
+            z, shortened = limit_step(x[todo], z, self.max_step_norm)
+            state.bounded_steps += int(shortened.sum())
+            step = np.linalg.norm(z - x[todo], axis=1)
+            moving = step > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
+            progressed[todo[~moving]] = True  # a negligible step: the row has converged
+            rows, z = todo[moving], z[moving]
+            if rows.size == 0:
+                break
+            trial, r, J, finite = self._evaluate(problem, z, rows)
+            with np.errstate(invalid="ignore"):
+                ok = finite & (trial < state.loss[rows])
+            acc, rej = rows[ok], rows[~ok]
+            x[acc] = z[ok]
+            state.loss[acc] = trial[ok]
+            state.residual[acc] = r[ok]
+            state.jacobian[acc] = J[ok]
+            progressed[acc] = True
+            todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
+        return x, state, progressed
+
+
 def _check_tolerance(value: Any, owner: str) -> dict[str, float]:
     """The ``tolerance`` option: None or a dict from backend names to accuracies."""
     if value is None:

@@ -78,6 +78,26 @@ class _Linearizations:
             out[sel] = product(self.name, self.pieces[u], kind, W, width)[self.local[rows[sel]]]
         return out
 
+    def subset(self, rows):
+        """The linearisations of rows ``rows`` only (row ``j`` of the result is row ``rows[j]``)."""
+        out = _Linearizations.__new__(_Linearizations)
+        out.pieces, out.sizes, out.name = list(self.pieces), list(self.sizes), self.name
+        out.owner, out.local = self.owner[rows].copy(), self.local[rows].copy()
+        return out
+
+    def merged(self, rows, part):
+        """These linearisations with rows ``rows`` held as in ``part`` (a :meth:`subset` of them)."""
+        out = self.subset(np.arange(len(self.owner)))
+        shift = len(out.pieces)
+        out.pieces += part.pieces
+        out.sizes += part.sizes
+        out.owner[rows] = part.owner + shift
+        out.local[rows] = part.local
+        for u in range(len(out.pieces)):  # free pieces no row refers to any more
+            if out.pieces[u] is not None and not np.any(out.owner == u):
+                out.pieces[u] = None
+        return out
+
     def jvp(self, V, rows, m):
         """``J_i v_i`` for rows ``rows``; V (len(rows), p) -> (len(rows), m)."""
         return self._apply("jvp", V, rows, m)
@@ -359,3 +379,48 @@ class GaussNewtonCGSolver(StepSolver):
             if not retry.any():
                 break
         return x, state, bool(accepted_any or converged_all)
+
+    def step_rows(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState
+    ) -> tuple[NDArray[np.float64], GaussNewtonCGState, NDArray[np.bool_]]:
+        """One step per row, each row as it would step alone: a rejected row retries with its
+        larger damping (up to ``max_retries`` times) whatever the other rows did.
+        ``progressed``: the rows accepted and the rows whose step was negligible (``xtol``)."""
+        n, p = x.shape
+        x = x.copy()
+        progressed = np.zeros(n, dtype=bool)
+        todo = np.arange(n)
+        for _ in range(int(self.max_retries) + 1):
+            if todo.size == 0:
+                break
+            z = self._steps(x, state, todo)
+            moving = np.linalg.norm(z - x[todo], axis=1) > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
+            progressed[todo[~moving]] = True  # a negligible step: the row has converged
+            rows, z = todo[moving], z[moving]
+            if rows.size == 0:
+                break
+            lin, loss, r, finite = self._linearize(problem, z, rows)
+            grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
+            state.n_vjp += 1
+            with np.errstate(invalid="ignore"):
+                ok = finite & np.all(np.isfinite(grad), axis=1) & (loss < state.loss[rows])
+            acc, rej = rows[ok], rows[~ok]
+            if acc.size:
+                x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
+                state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
+            progressed[acc] = True
+            todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
+        return x, state, progressed
+
+    def take_rows(self, state: GaussNewtonCGState, rows: NDArray[np.intp]) -> GaussNewtonCGState:
+        """The per-row arrays sliced, and the linearisations of the rows kept."""
+        part = super().take_rows(state, rows)
+        part.lin = state.lin.subset(rows)
+        return part
+
+    def put_rows(self, state: GaussNewtonCGState, rows: NDArray[np.intp], part: GaussNewtonCGState) -> GaussNewtonCGState:
+        """The per-row arrays merged; the linearisations of ``rows`` taken from ``part``."""
+        lin = state.lin
+        out = super().put_rows(state, rows, part)
+        out.lin = lin.merged(rows, part.lin)
+        return out

@@ -219,10 +219,21 @@ class LBFGSSolver(StepSolver):
             state.count[rows] = np.minimum(state.count[rows] + 1, int(self.memory))
 
     def update(self, problem: StepProblem, x: NDArray[np.float64], state: LBFGSState) -> tuple[NDArray[np.float64], LBFGSState, bool]:
+        return self._step(problem, x, state)[:3]
+
+    def step_rows(self, problem: StepProblem, x: NDArray[np.float64], state: LBFGSState) -> tuple[NDArray[np.float64], LBFGSState, NDArray[np.bool_]]:
+        """One step per row (each row's line search is its own); ``progressed``: the rows accepted
+        and the rows at a zero gradient (nothing to do)."""
+        x, state, _, rows_progressed = self._step(problem, x, state)
+        return x, state, rows_progressed
+
+    def _step(self, problem, x, state):
         x = x.copy()
         d, gd = self._directions(x, state)
         rows = np.flatnonzero(np.any(d != 0.0, axis=1))  # a zero gradient: nothing to do
         progressed = rows.size == 0
+        rows_progressed = np.ones(problem.n_rows, dtype=bool)
+        rows_progressed[rows] = False
         t = np.ones(problem.n_rows)
         for _ in range(int(self.max_backtracks)):
             if rows.size == 0:
@@ -235,10 +246,11 @@ class LBFGSSolver(StepSolver):
             self._remember(state, acc, trial[ok] - x[acc], gt[ok] - state.grad[acc])
             x[acc], state.loss[acc], state.grad[acc] = trial[ok], lt[ok], gt[ok]
             progressed |= acc.size > 0
+            rows_progressed[acc] = True
             rows = rows[~ok]
             t[rows] *= self.shrink
         if rows.size:  # failed line searches: start again from a short gradient step
             state.count[rows] = 0
             state.first_scale[rows] = np.nan
             state.n_resets += int(rows.size)
-        return x, state, bool(progressed)
+        return x, state, bool(progressed), rows_progressed

@@ -346,7 +346,7 @@ def test_a_lineup_that_does_not_fit_the_presets_world_is_refused(tmp_path, capsy
 
 def test_library_errors_of_a_benchmark_are_one_line_messages(capsys, monkeypatch):
     from factirl_opt.bench import main as bench_main
-    from factirl_opt.benchmarks import environments
+    from factirl_opt.lab.benchmarks import environments
     from factirl_opt.exceptions import ValidationError
 
     def refuse(args):

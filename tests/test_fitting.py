@@ -8,7 +8,7 @@ import pytest
 import factirl_opt as fo
 import factirl_opt.tasks.demonstrations as demonstrations_module
 import solvers
-from factirl_opt.exceptions import ConvergenceWarning, ValidationError
+from factirl_opt.exceptions import ConvergenceWarning, MaxIterWarning, ValidationError
 from factirl_opt.learners.fitting import (
     check_features_digest,
     features_digest,
@@ -130,8 +130,10 @@ def test_a_start_held_by_an_l1_penalty_converges_and_a_saturated_one_stalls(data
 
 def test_gradirl_records_its_stop_reason(data):
     mdp, demos = data
-    assert fo.GradIRL(max_iter=2).fit(mdp, demos).stop_reason_ == "max_iter=2 steps taken"
-    assert fo.GradIRL(max_iter=200, tol=0.5).fit(mdp, demos).stop_reason_.startswith("relative decrease")
+    with pytest.warns(MaxIterWarning, match=r"max_iter=2 before its tolerance for 4 of 4 task\(s\): \[0, 1, 2, 3\]"):
+        model = fo.GradIRL(max_iter=2).fit(mdp, demos)
+    assert model.stop_reason_ == "per row, of 4: 4 at max_iter=2: rows [0, 1, 2, 3]" and model.status_ == "max_iter"
+    assert fo.GradIRL(max_iter=200, tol=0.5).fit(mdp, demos).stop_reason_ == "per row, of 4: 4 by relative decrease <= tol=0.5"
 
 
 def test_features_digest():

@@ -59,7 +59,7 @@ def test_flat_fit_equals_the_tasks_fitted_environment_by_environment(worlds, sol
 
 @pytest.mark.parametrize("solver", ["gn-qp-osqp", "gn-cg"])
 def test_gauss_newton_flat_fits_through_padded_residuals(worlds, shared, solver):
-    """GN couples the rows (shared damping): on mixed sizes it descends; one matrix per task
+    """GN on mixed sizes descends; one matrix per task
     equal to the shared one gives the shared fit."""
     mdps, Phis, demos = worlds
     model = fo.GradIRL(features=Phis, max_iter=4, solver=solver).fit(mdps, demos)

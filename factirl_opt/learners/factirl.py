@@ -55,11 +55,17 @@ from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from .solver_settings import SolverSettings, estimator_solvers
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
+from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
+from ..objectives.residuals import check_residual_penalty, residual_weights
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
 
 INITS = ("pca", "random")
+
+
+def _is_auto(value: Any) -> bool:
+    return isinstance(value, str) and value == AUTO
 
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
@@ -160,6 +166,15 @@ class FactIRL(Estimator):
     callback : callable, optional
         ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
         of ``transfer``.
+    residual_penalty : float or "auto", default=np.inf
+        ``lambda`` of the residual model ``R_i = Phi_i (D h_i + delta_i)`` with the penalty
+        ``lambda ||delta_i||^2`` on each task's residual (docs/maths.md §8a,
+        :mod:`factirl_opt.objectives.residuals`): np.inf is the paper's factorial model (no residuals),
+        0 lets every task's weights free (the flat model, reparametrised), values between
+        share as much as the penalty makes worth it. The residuals are fitted in ``fit`` (the
+        H-step moves ``[h_i, delta_i]`` together, from ``delta = 0``) and in ``transfer``. A
+        finite value needs an unconstrained ``h_solver``. ``"auto"``: chosen by validation
+        over tasks (:mod:`factirl_opt.learners.adaptive`).
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -199,6 +214,16 @@ class FactIRL(Estimator):
     transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
         task without a solver's penalty; the history includes it, as ``loss_history_`` does).
+        ``transfer_rewards_`` include the new tasks' residuals.
+    residual_penalty_ : float
+        The ``lambda`` of the fit (np.inf: no residuals).
+    n_primitives_ : int
+        The k of the fit.
+    residuals_ : ndarray, shape (n, p)
+        The tasks' residuals ``delta_i`` (zeros for ``residual_penalty=np.inf``); ``rewards_``
+        include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
+    transfer_residuals_ : ndarray, shape (n_new, p)
+        The new tasks' residuals of the last ``transfer`` (zeros without residuals).
 
     Notes
     -----
@@ -221,7 +246,8 @@ class FactIRL(Estimator):
         "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
-        "transfer_stop_reason_": "text",
+        "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
+        "n_primitives_": "count", "residual_penalty_": "penalty", "validation_": "validation",
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -242,7 +268,7 @@ class FactIRL(Estimator):
                  d_solver_options: dict | None = None, objective: Any = "policy-matching", planner: str = "auto",
                  rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
                  client: Any = None, planner_options: dict | None = None, verbose: bool = False,
-                 callback: Callable | None = None) -> None:
+                 callback: Callable | None = None, residual_penalty: Any = np.inf) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -262,9 +288,11 @@ class FactIRL(Estimator):
         self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
         self.verbose = verbose
         self.callback = callback
+        self.residual_penalty = residual_penalty
 
     def _features(self, mdp):
-        return reward_features(mdp, self.features, self.reward, min_columns=self.n_primitives)
+        k = getattr(self, "n_primitives_", self.n_primitives)
+        return reward_features(mdp, self.features, self.reward, min_columns=1 if isinstance(k, str) else k)
 
     def _flat_start(self, mdp, n, Phi, obj, rng):
         """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
@@ -379,6 +407,8 @@ class FactIRL(Estimator):
         -------
         self
         """
+        if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
+            return self._fit_auto(mdp, demos_per_task, flat_rewards)
         one = one_environment(mdp, demos_per_task, self.features)
         obj: Any
         if one is None:  # tasks in several environments: ``where`` is their Environments
@@ -391,6 +421,7 @@ class FactIRL(Estimator):
         h_name, h_options, d_name, d_options = estimator_solvers(self)
         h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
         d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
+        lam = self._residual_penalty(h_solver, self.residual_penalty)
         if one is not None:
             obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
         try:
@@ -399,19 +430,58 @@ class FactIRL(Estimator):
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
                 fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
-                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose)
+                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
+                                    residual_penalty=lam)
         except FitInterrupted as exc:
-            self._store(where, Phi, exc.result, int(obj.n_evaluations))
+            self._store(where, Phi, exc.result, int(obj.n_evaluations), lam)
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} ({loss_phrase(self.loss_)})", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
-        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals))
+        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
-    def _store(self, where, Phi, fit, n_evaluations):
+    def _fit_auto(self, mdp, demos_per_task, flat_rewards):
+        """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
+        (:func:`factirl_opt.learners.adaptive.choose_sharing`), then the fit of the chosen pair on every task."""
+        if not _is_auto(self.n_primitives):
+            check_int(self.n_primitives, "n_primitives", minimum=1)
+        check_residual_penalty(self.residual_penalty)
+        for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
+            delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
+        if flat_rewards is None and self.init == "pca":
+            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, FLAT_SOLVER, FLAT_TOL)
+        k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
+        model = fixed_learner(self, k, lam)
+        model.verbose, model.callback = self.verbose, self.callback
+        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        for name, value in vars(model).items():
+            if name.endswith("_") and not name.startswith("_"):
+                setattr(self, name, value)
+        self.validation_ = table
+        return self
+
+    @staticmethod
+    def _residual_penalty(h_solver, value):
+        """The validated finite ``lambda`` or np.inf; a finite one refused with a constrained H-solver."""
+        lam = check_residual_penalty(value, allow_auto=False)
+        if np.isfinite(lam) and h_solver.constraint != "none":
+            raise ValidationError(
+                f"residual_penalty={lam!r} needs an unconstrained h_solver (the H-step moves each task's coefficients and "
+                f"residual together); {h_solver.name!r} has constraint {h_solver.constraint!r}")
+        return lam
+
+    def _store(self, where, Phi, fit, n_evaluations, lam=np.inf):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
-        self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+        self.residual_penalty_, self.n_primitives_ = lam, int(fit.dictionary.shape[1])
+        if fit.residuals is None:
+            self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+            self.residuals_ = np.zeros((fit.coefficients.shape[0], fit.dictionary.shape[0]))
+        else:
+            self.residuals_ = fit.residuals
+            W = residual_weights(fit.dictionary, fit.coefficients, fit.residuals)
+            self.rewards_ = Phi.rewards(W) if isinstance(Phi, TaskFeatures) else weights_rewards(Phi, W, where.n_states,
+                                                                                                   where.n_actions)
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
@@ -435,8 +505,9 @@ class FactIRL(Estimator):
         D = check_array(self.dictionary_, "dictionary_", ndim=2)
         if D.shape[0] != p:
             raise ValidationError(f"dictionary_ must have shape (p, k) with p = {p} (the reward dimension); got {D.shape}")
-        if D.shape[1] != self.n_primitives:
-            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={self.n_primitives}")
+        k = getattr(self, "n_primitives_", self.n_primitives)
+        if D.shape[1] != k:
+            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
         return Phi, D
 
     @renamed_params
@@ -502,10 +573,11 @@ class FactIRL(Estimator):
         else:
             obj, Phi, D = new
         step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
+        lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose)
+                                   verbose=self.verbose, residual_penalty=lam)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
@@ -516,6 +588,8 @@ class FactIRL(Estimator):
 
     def _store_transfer(self, res):
         self.transfer_coefficients_, self.transfer_rewards_ = res.coefficients, res.rewards
+        self.transfer_residuals_ = (np.zeros((res.coefficients.shape[0], self.dictionary_.shape[0]))
+                                    if res.residuals is None else res.residuals)
         self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
         self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
         self.transfer_stop_reason_ = res.reason

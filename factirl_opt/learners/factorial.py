@@ -35,7 +35,8 @@ from .fitting import (
 )
 from ..interruption import INTERRUPTED
 from ..objectives.problems import dictionary_problem, weights_problem
-from ..tasks.features import TaskFeatures, factorial_rewards
+from ..tasks.features import TaskFeatures, factorial_rewards, linear_rewards
+from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
 
@@ -71,6 +72,10 @@ class FactorialFit:
     evaluation_history : list of int
         Q* evaluations used so far at the start and after each outer iteration (aligned with
         ``loss_history``: plot one against the other).
+    residuals : ndarray, shape (n, p), optional
+        The tasks' residuals ``delta_i`` of a fit with a finite ``residual_penalty``
+        (:mod:`factirl_opt.objectives.residuals`; ``loss`` is then without their penalty, ``loss_history``
+        with it); None for the factorial model.
     """
 
     dictionary: np.ndarray
@@ -83,6 +88,7 @@ class FactorialFit:
     reason: str = ""
     gradient_norm: float = float("nan")
     evaluation_history: list = dataclasses.field(default_factory=list)
+    residuals: np.ndarray | None = None
 
 
 def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None):
@@ -117,6 +123,20 @@ def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + h_solver.penalty(H).sum())
     return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm, G)
+
+
+def _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band):
+    """:func:`_evaluate_point` of the residual model (:mod:`factirl_opt.objectives.residuals`): the loss per
+    task without the penalty, the normalised pair, the total with it, and the optimality measure
+    over ``(H, D, Delta)`` from the flat gradient ``g_i = Phi_i^T y_i``."""
+    flat = weights_problem(objective, Phi, ("features @ dictionary", "coefficients"))
+    loss, G = flat.loss_and_grad(residual_weights(D, H, Delta), np.arange(H.shape[0]))
+    D, H = normalise_dictionary(D, H, band)
+    total = float(loss.sum() + lam * np.sum(Delta * Delta))
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = float(np.sqrt(np.sum(np.square(G @ D)) + np.sum(np.square(G.T @ H))
+                             + np.sum(np.square(G + 2.0 * lam * Delta))))
+    return loss, D, H, total, norm if np.isfinite(norm) else np.inf
 
 
 def _outer_stop(history, gnorm, g0, tol, gtol, it):
@@ -165,6 +185,45 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
             evaluations.append(objective.n_evaluations - ev0)
             if total <= best[0]:
                 best = (total, D, H, loss)
+            report(it, total)
+            stop = _outer_stop(history, gnorm, g0, tol, gtol, it)
+            if stop[0] is not None:
+                status, reason = stop
+                break
+    except KeyboardInterrupt as exc:
+        done = len(history) - 1 if history else 0
+        raise FitInterrupted((best, (history, evaluations), done, INTERRUPTED, INTERRUPTED, gnorm), "fit") from exc
+    return best, (history, evaluations), it, status, reason, gnorm
+
+
+def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, max_iter, inner_steps, tol, gtol, report, ev0):
+    """:func:`_alternate` for the residual model (:mod:`factirl_opt.objectives.residuals`): the H-step runs on
+    ``[h_i, delta_i]`` jointly (:func:`residual_weights_problem`), the D-step with ``H`` and
+    ``Delta`` fixed (:func:`residual_dictionary_problem`). The best point carries ``Delta``."""
+    band = 2.0
+    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
+    k = H.shape[1]
+    best = (np.nan, D, H, np.full(H.shape[0], np.nan), Delta)
+    history, evaluations, gnorm, it = [], [], np.nan, 0
+    try:
+        D, H = normalise_dictionary(D, H, band)
+        loss, D, H, total, g0 = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, np.inf)
+        history, evaluations, gnorm = [total], [objective.n_evaluations - ev0], g0
+        best = (total, D, H, loss, Delta)
+        h_state = d_state = None
+        status, reason = "max_iter", f"max_iter={max_iter} outer iterations done"
+        for it in range(1, max_iter + 1):
+            rh = h_solver.run(residual_weights_problem(objective, Phi, D, lam, names), np.concatenate([H, Delta], axis=1),
+                              inner_steps, state=h_state, gtol=gtol)
+            H, Delta, h_state = rh.coefficients[:, :k], rh.coefficients[:, k:], h_solver.carry_over(rh.state)
+            rd = d_solver.run(residual_dictionary_problem(objective, Phi, H, Delta), D.reshape(1, -1), inner_steps,
+                              state=d_state, gtol=gtol)
+            D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
+            loss, D, H, total, gnorm = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band)
+            history.append(total)
+            evaluations.append(objective.n_evaluations - ev0)
+            if total <= best[0]:
+                best = (total, D, H, loss, Delta)
             report(it, total)
             stop = _outer_stop(history, gnorm, g0, tol, gtol, it)
             if stop[0] is not None:
@@ -285,7 +344,8 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
 def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients: NDArray[np.float64],
                   h_solver: solvers.StepSolver, d_solver: solvers.StepSolver, *, base_features: Any = None,
                   max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL,
-                  callback: Callable | None = None, verbose: bool = False) -> FactorialFit:
+                  callback: Callable | None = None, verbose: bool = False, residual_penalty: float = np.inf,
+                  residuals: NDArray[np.float64] | None = None) -> FactorialFit:
     """:func:`fit_factorial` on pieces already built and validated (``FactIRL.fit`` hands them down).
 
     Parameters
@@ -302,6 +362,12 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
         :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`.
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
+    residual_penalty : float, default=np.inf
+        ``lambda`` of the residual model ``R_i = Phi_i (D h_i + delta_i)``
+        (:mod:`factirl_opt.objectives.residuals`); np.inf is the factorial model. A finite value needs an
+        unconstrained H-solver (the H-step moves ``[h_i, delta_i]`` together).
+    residuals : ndarray, shape (n, p), optional
+        Initial ``Delta`` of a finite ``residual_penalty`` (default zeros).
 
     Returns
     -------
@@ -311,8 +377,14 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     h, d = h_solver.for_alternating(), d_solver.for_alternating()
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
         try:
-            out = _alternate(objective, base_features, dictionary, h.project(coefficients), h, d, max_iter, inner_steps,
-                             tol, gtol, report, ev0)
+            if np.isfinite(residual_penalty):
+                p = dictionary.shape[0]
+                Delta = np.zeros((coefficients.shape[0], p)) if residuals is None else np.array(residuals, dtype=np.float64)
+                out = _alternate_residual(objective, base_features, dictionary, coefficients, Delta, float(residual_penalty),
+                                          h, d, max_iter, inner_steps, tol, gtol, report, ev0)
+            else:
+                out = _alternate(objective, base_features, dictionary, h.project(coefficients), h, d, max_iter,
+                                 inner_steps, tol, gtol, report, ev0)
         except FitInterrupted as exc:
             raise FitInterrupted(_result(out=exc.result, n_evaluations=objective.n_evaluations - ev0),
                                  "fit_factorial") from exc.__cause__
@@ -320,5 +392,6 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
 
 
 def _result(out, n_evaluations):
-    (_, D, H, loss), (history, evaluations), it, status, reason, gnorm = out
-    return FactorialFit(D, H, loss, history, it, int(n_evaluations), status, reason, gnorm, evaluations)
+    (_, D, H, loss, *residuals), (history, evaluations), it, status, reason, gnorm = out
+    return FactorialFit(D, H, loss, history, it, int(n_evaluations), status, reason, gnorm, evaluations,
+                        residuals[0] if residuals else None)

@@ -31,7 +31,7 @@ import solvers
 from .._threads import blas_limited
 from .._validation import check_beta, check_features
 from ..tasks.demonstrations import empirical_statistics
-from ..exceptions import ConvergenceWarning, ValidationError, translate_solver_errors
+from ..exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, translate_solver_errors
 from ..mdp.tabular import TabularMDP
 from ..objectives import Objective, get_objective
 from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
@@ -47,6 +47,7 @@ __all__ = [
     "same_loss",
     "held_by_constraint",
     "warn_if_stalled",
+    "warn_if_max_iter",
     "features_digest",
     "check_features_digest",
     "REWARDS",
@@ -218,6 +219,24 @@ def warn_if_stalled(status: str, iterations: int, what: str) -> None:
             ConvergenceWarning,
             stacklevel=3,
         )
+
+
+def warn_if_max_iter(result: solvers.SolverResult, what: str, max_iter: int) -> None:
+    """A :class:`MaxIterWarning` (a :class:`ConvergenceWarning`) naming the tasks of a separable fit
+    that stopped at ``max_iter`` (``max_iter > 0``) before their own stopping rule held
+    (:mod:`solvers.separable`)."""
+    if result.status != "max_iter" or result.row_status is None or max_iter <= 0:
+        return
+    late = np.flatnonzero(np.asarray(result.row_status) == "max_iter")
+    if late.size == 0:
+        return
+    shown = ", ".join(str(int(i)) for i in late[:20]) + (", ..." if late.size > 20 else "")
+    warnings.warn(
+        f"{what} stopped at max_iter={max_iter} before its tolerance for {late.size} of {len(result.row_status)} "
+        f"task(s): [{shown}]; their rewards are not converged (increase max_iter)",
+        MaxIterWarning,
+        stacklevel=3,
+    )
 
 
 def features_digest(features: np.ndarray | None) -> str | None:

@@ -29,6 +29,7 @@ from .fitting import (
     one_environment,
     resolve_step_solver,
     reward_features,
+    warn_if_max_iter,
     warn_if_stalled,
 )
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
@@ -52,6 +53,10 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
                 callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL") -> solvers.SolverResult:
     """The flat fit on pieces already built: ``solver`` from zero weights on every task at once.
 
+    A separable run (:mod:`solvers.separable`): each task stops by its own rule (``tol`` on the
+    relative decrease of its own loss) and leaves the batch, so its weights are those of a fit
+    of that task alone.
+
     Parameters
     ----------
     objective : Objective
@@ -71,7 +76,8 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     Returns
     -------
     solvers.SolverResult
-        ``coefficients`` (n, p) are the weights. A first iteration that left the total loss
+        ``coefficients`` (n, p) are the weights; ``row_status``, ``row_iterations`` and
+        ``row_evaluations`` each task's record. A first iteration that left the total loss
         unchanged is reported ``"stalled"`` (:func:`factirl_opt.learners.fitting.first_step_stall`).
 
     Raises
@@ -83,7 +89,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     problem = weights_problem(objective, features)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
         res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
-                               callback=report, tol=tol)
+                               callback=report, tol=tol, separable=True)
     stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
     if stall is not None:
         res.status, res.reason = stall
@@ -95,7 +101,9 @@ class GradIRL(Estimator):
 
     Minimises eq. (5) (or another registered objective) for every task, batched over the task
     axis, by gradient descent with Armijo step-size adaptation (or any registered step solver),
-    from zero weights.
+    from zero weights. Each task stops by its own rule and leaves the batch
+    (:mod:`solvers.separable`): a task's reward is the one of a fit of that task alone, whatever
+    other tasks share the fit (to rounding), and tasks that stopped use no more evaluations.
 
     Parameters
     ----------
@@ -115,7 +123,8 @@ class GradIRL(Estimator):
     max_iter : int, default=100
         Maximum descent iterations.
     tol : float, default=1e-5
-        Stop when the relative decrease of the total loss over an iteration is below tol.
+        A task stops when the relative decrease of its own loss over an iteration is below tol
+        (or when no step decreases it: stalled).
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         Step solver (see ``solvers.available_solvers()``), or a
         :class:`~factirl_opt.SolverSettings` (its H-step solver and options; it must not name
@@ -174,12 +183,15 @@ class GradIRL(Estimator):
     n_evaluations_ : int
         Batched planning evaluations used.
     n_iter_ : int
+        The most iterations a task took.
     status_ : str
-        ``"converged"``, ``"max_iter"``, ``"stalled"`` (the first iteration left the loss
-        unchanged, or no step decreased it; a :class:`ConvergenceWarning` is issued when it
-        stalls at its first step) or ``"interrupted"``.
+        ``"converged"`` (every task), ``"max_iter"`` (a task took ``max_iter`` iterations
+        before its rule held: a :class:`ConvergenceWarning` names those tasks), ``"stalled"``
+        (a task could not decrease its loss; a :class:`ConvergenceWarning` is issued when the
+        fit stalls at its first step) or ``"interrupted"``.
     stop_reason_ : str
-        Which stopping rule ended the fit, with its values (``"interrupted"`` after Ctrl-C).
+        How the tasks stopped: how many by each rule, and which stalled or reached
+        ``max_iter`` (``"interrupted"`` after Ctrl-C).
     mdp_signature_ : dict or list of dict
         The signature of the MDP it was fitted on; with a sequence of MDPs (not all the same
         object) one signature per task.
@@ -273,6 +285,7 @@ class GradIRL(Estimator):
             raise_interrupted(exc, "GradIRL.fit")
         store(res, objective)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
+        warn_if_max_iter(res, "GradIRL.fit", max_iter)
         return self
 
     def _store(self, mdp, F, res, objective):

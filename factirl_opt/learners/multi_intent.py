@@ -102,7 +102,7 @@ class MultiIntentIRL(Estimator):
     init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
         Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
         episodes by the actions they take in the states they share (same action: together;
-        different actions: apart; :func:`factirl_opt.em.agreement_clustering`), or
+        different actions: apart; :func:`factirl_opt.learners.em.agreement_clustering`), or
         ``"frequencies"``: k-means (k-means++ seeding, 10 seedings) of the episodes' normalised
         state-action counts next to their action frequencies. ``"random"``: responsibilities
         drawn from a flat Dirichlet. An array gives the starting labels (n_episodes,) or

@@ -29,11 +29,14 @@ from .fitting import (
     per_task_features,
     resolve_step_solver,
     reward_features,
+    warn_if_max_iter,
 )
 from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import weights_problem
 from ..tasks.features import TaskFeatures, linear_rewards
 from ..mdp.environments import check_environments
+from .gradirl import weights_rewards
+from ..objectives.residuals import residual_weights, residual_weights_problem
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
 
@@ -57,6 +60,10 @@ class TransferFit:
         each task's best coefficients seen until then; loss NaN for a task never evaluated).
     reason : str
         Why the run stopped, with the values that met the rule.
+    residuals : ndarray, shape (n_new, p), optional
+        The new tasks' residuals ``delta_i`` of a transfer with a finite ``residual_penalty``
+        (``rewards`` include them; ``loss`` is without their penalty, ``loss_history`` with
+        it); None otherwise.
     """
 
     coefficients: np.ndarray
@@ -67,6 +74,7 @@ class TransferFit:
     n_evaluations: int
     status: str
     reason: str = ""
+    residuals: np.ndarray | None = None
 
 
 @learner_entry
@@ -78,7 +86,10 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     """Coefficients of new tasks with the dictionary fixed (section 4.2).
 
     Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
-    up to ``max_iter`` steps. Parameters as in :func:`factirl_opt.fit_factorial`;
+    up to ``max_iter`` steps. The new tasks are independent given the dictionary: each stops
+    by its own rule and leaves the batch (:mod:`solvers.separable`), so its coefficients are
+    those of a transfer to that task alone; tasks that reach ``max_iter`` first are named in a
+    :class:`ConvergenceWarning`. Parameters as in :func:`factirl_opt.fit_factorial`;
     ``dictionary`` is (p, k). ``mdp`` may be a sequence of one MDP per new task, with
     ``base_features`` shared or one matrix per task (tasks in several environments).
 
@@ -110,7 +121,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
-                 verbose: bool = False) -> TransferFit:
+                 verbose: bool = False, residual_penalty: float = np.inf) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -125,11 +136,18 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
         :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
     max_iter, tol, callback, verbose
         As in :func:`transfer_coefficients`.
+    residual_penalty : float, default=np.inf
+        ``lambda`` of the residual model (:mod:`factirl_opt.objectives.residuals`): each new task's
+        ``[h_i, delta_i]`` is fitted from zero with ``lambda ||delta_i||^2`` added to its loss
+        (an unconstrained ``solver``); np.inf fits the coefficients only.
 
     Returns
     -------
     TransferFit
     """
+    if np.isfinite(residual_penalty):
+        return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
+                                      float(residual_penalty))
     mdp = objective.mdp
     F: Any
     if isinstance(base_features, TaskFeatures):
@@ -142,11 +160,45 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
-            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol)
+            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_transfer_fit(mdp, F, solver, exc.result, objective.n_evaluations - ev0, names),
                                  "transfer") from exc.__cause__
+    warn_if_max_iter(res, "transfer", max_iter)
     return _transfer_fit(mdp, F, solver, res, objective.n_evaluations - ev0, names)
+
+
+def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, verbose, lam):
+    """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
+    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
+    problem = residual_weights_problem(objective, Phi, D, lam, names)
+    ev0 = objective.n_evaluations
+    k = D.shape[1]
+    with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
+        try:
+            res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
+                                   callback=report, tol=tol, separable=True)
+        except FitInterrupted as exc:
+            raise FitInterrupted(_residual_fit(objective, Phi, D, k, lam, exc.result, objective.n_evaluations - ev0),
+                                 "transfer") from exc.__cause__
+    warn_if_max_iter(res, "transfer", max_iter)
+    return _residual_fit(objective, Phi, D, k, lam, res, objective.n_evaluations - ev0)
+
+
+def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):
+    H, Delta = res.coefficients[:, :k], res.coefficients[:, k:]
+    W = residual_weights(D, H, Delta)
+    if isinstance(Phi, TaskFeatures):
+        rewards = Phi.rewards(W)
+    else:
+        mdp = objective.mdp
+        rewards = weights_rewards(Phi, W, mdp.n_states, mdp.n_actions)
+    loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta)
+    status, reason = res.status, res.reason
+    if status != INTERRUPTED:
+        status, reason = first_step_stall(res.loss_history, res.iterations) or (status, reason)
+    return TransferFit(H.copy(), rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status, reason,
+                       Delta.copy())
 
 
 def _transfer_fit(mdp, F, solver, res, n_evaluations, names):

@@ -27,7 +27,11 @@ from numpy.typing import NDArray
 from solvers import Linearization, StepProblem
 
 from .._validation import REWARD_LIMIT
-from ..tasks.features import StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards
+from ..tasks.features import (
+    StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards, task_rewards,
+)
+from .._batched import rows_matmul
+from ..exceptions import ValidationError
 
 __all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem"]
 
@@ -137,7 +141,7 @@ def weights_problem(objective: Any, features: Any = None,
     def loss_and_grad(x, rows):
         loss, y = objective.loss_and_grad(rewards(x), rows)
         y = y.reshape(len(rows), S * A)
-        return loss, (y if F is None else y @ F)
+        return loss, (y if F is None else rows_matmul(y, F))
 
     def residual_jacobian(x, rows):
         return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else dense_features(F))
@@ -150,7 +154,7 @@ def weights_problem(objective: Any, features: Any = None,
 
         def vjp(U):
             y = lin.vjp(U).reshape(len(U), S * A)
-            return y if F is None else y @ F
+            return y if F is None else rows_matmul(y, F)
 
         return Linearization(lin.loss, lin.residual, jvp, vjp)
 

@@ -33,6 +33,9 @@ __all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "arra
            "check_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest", "check_task_features"]
 
 
+#: The keys of a row of a validation table (``FactIRL.validation_``, :mod:`factirl_opt.learners.adaptive`).
+VALIDATION_KEYS = ("n_primitives", "residual_penalty", "score", "score_std", "fold_scores", "chosen")
+
 #: The kinds of learnt attributes that are not arrays, and what each holds.
 KINDS = {
     "count": "an integer >= 0",
@@ -43,6 +46,8 @@ KINDS = {
     "mdp-signature": f"None or a dict with keys {list(SIGNATURE_KEYS)} (an MDP's signature), or a non-empty list "
                      "of such dicts (one per task, tasks in several environments)",
     "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
+    "penalty": "a number >= 0, or inf",
+    "validation": f"a list of dicts with keys {list(VALIDATION_KEYS)} (a validation table)",
 }
 
 #: A declared kind: axis names of a float array, or a key of :data:`KINDS`.
@@ -96,6 +101,32 @@ def _check_signature(sig: Any, context: str) -> None:
                                f"got {sig['transitions_sha256']!r:.80}")
 
 
+def _check_penalty(value: Any, what: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise ValidationError(f"{what} must be {KINDS['penalty']}; got {value!r:.60}")
+
+
+def _check_validation(key: str, value: Any) -> None:
+    """A validation table: a list of rows with the keys of :data:`VALIDATION_KEYS`, exactly one chosen."""
+    if not isinstance(value, list) or not value:
+        raise ValidationError(f"attribute {key} must be {KINDS['validation']}; got {value!r:.80}")
+    for t, row in enumerate(value):
+        if not isinstance(row, dict) or sorted(row) != sorted(VALIDATION_KEYS):
+            raise ValidationError(f"attribute {key}[{t}] must be a dict with keys {list(VALIDATION_KEYS)}; got {row!r:.80}")
+        check_int(row["n_primitives"], f"attribute {key}[{t}] n_primitives", minimum=1)
+        _check_penalty(row["residual_penalty"], f"attribute {key}[{t}] residual_penalty")
+        check_real(row["score"], f"attribute {key}[{t}] score")
+        check_real(row["score_std"], f"attribute {key}[{t}] score_std", 0.0)
+        if not isinstance(row["fold_scores"], list):
+            raise ValidationError(f"attribute {key}[{t}] fold_scores must be a list of numbers; got {row['fold_scores']!r:.60}")
+        for f, v in enumerate(row["fold_scores"]):
+            check_real(v, f"attribute {key}[{t}] fold_scores[{f}]")
+        if not isinstance(row["chosen"], bool):
+            raise ValidationError(f"attribute {key}[{t}] chosen must be true or false; got {row['chosen']!r:.60}")
+    if sum(row["chosen"] for row in value) != 1:
+        raise ValidationError(f"attribute {key} must mark exactly one row chosen; {sum(row['chosen'] for row in value)} are")
+
+
 def _check_value(key: str, kind: str, value: Any, context: str) -> None:
     """One attribute of a non-array kind."""
     if isinstance(value, np.ndarray):
@@ -116,6 +147,10 @@ def _check_value(key: str, kind: str, value: Any, context: str) -> None:
             raise ValidationError(f"attribute {key} must be True or False; got {value!r:.60}")
         elif kind == "features-digest" and not (value is None or _is_sha256(value)):
             raise ValidationError(f"attribute {key} must be {KINDS[kind]}; got {value!r:.80}")
+        elif kind == "penalty":
+            _check_penalty(value, f"attribute {key}")
+        elif kind == "validation":
+            _check_validation(key, value)
     except ValidationError as exc:
         raise PersistenceError(f"{context}: {exc}") from None
     if kind == "mdp-signature":

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._batched import rows_matmul
 from ..exceptions import ValidationError
 from .base import Planner, PolicySystem
 
@@ -69,10 +70,10 @@ class DensePlanner(Planner):
     def backup(self, V: NDArray[np.float64]) -> NDArray[np.float64]:
         if V.ndim == 3:  # k directions: (n, S, k) -> (n, S*A, k)
             return self.P2 @ V
-        return (V @ self.P2.T).reshape(V.shape[0], self.S, self.A)
+        return rows_matmul(V, self.P2.T).reshape(V.shape[0], self.S, self.A)
 
     def pullback(self, G: NDArray[np.float64]) -> NDArray[np.float64]:
-        return G.reshape(G.shape[0], self.S * self.A) @ self.P2
+        return rows_matmul(G.reshape(G.shape[0], self.S * self.A), self.P2)
 
     def policy_matrix(self, policy: NDArray[Any]) -> NDArray[np.float64]:
         """``P_pi`` (n, S, S) of deterministic (n, S) or stochastic (n, S, A) policies."""

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._batched import rows_matmul
 from .._validation import check_array, check_int
 from ..exceptions import ValidationError
 from ..mdp.environments import environments
@@ -380,7 +381,7 @@ def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, 
     if H.shape[1] != D.shape[1]:
         raise ValidationError(f"coefficients must have shape (n, {D.shape[1]}); got {H.shape}")
     with np.errstate(over="ignore", invalid="ignore"):
-        R = (H @ D.T).reshape(-1, n_states, n_actions)
+        R = rows_matmul(H, D.T).reshape(-1, n_states, n_actions)
     if not np.all(np.isfinite(R)):
         i = int(np.argmax(~np.all(np.isfinite(R.reshape(len(R), -1)), axis=1)))
         raise ValidationError(

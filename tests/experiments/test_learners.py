@@ -502,3 +502,21 @@ def test_learner_names_are_the_constants():
     names = {getattr(learner_names, c) for c in learner_names.__all__}
     for lineup in LINEUPS.values():
         assert {lr.name for lr in lineup.learners} <= names
+
+
+def test_runs_ignore_the_max_iter_warnings_of_their_fixed_budgets():
+    """The presets' budgets stop the flat fits at max_iter (tiny: 10 iterations): no warning per fit;
+    other convergence warnings are not silenced."""
+    import warnings
+
+    from factirl_opt.exceptions import MaxIterWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_one(TINY, plan_runs(TINY, [0])[0])
+    assert not [w for w in caught if issubclass(w.category, MaxIterWarning)]
+    with pytest.warns(MaxIterWarning):  # the same fit outside a run warns
+        from factirl_opt import GradIRL
+
+        gt = grid_world(TINY, 4, 2, 0)
+        GradIRL(max_iter=TINY.flat_max_iter).fit(gt.mdp, gt.demos("train"))

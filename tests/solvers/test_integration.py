@@ -35,7 +35,9 @@ def test_transfer_from_zero_makes_progress(name, transfer_data):
     gn, h = _transfer(name, grid, D, demos)
     hist = gn.transfer_loss_history_
     assert np.all(np.diff(hist) <= 1e-12) and hist[-1] < 0.2 * hist[0]
-    assert gn.transfer_n_evaluations_ <= 16  # one batched Q* evaluation per LM step (+ the start)
+    # one batched Q* evaluation per LM step (+ the start), and one per round of retries of the
+    # tasks whose step was rejected (transfer is separable: a task retries whatever the others did)
+    assert gn.transfer_n_evaluations_ <= 2 * 15 + 1
     armijo, _ = _transfer("armijo", grid, D, demos, iters=15)
     assert hist[-1] < armijo.transfer_loss_history_[-1]
     assert gn.transfer_n_evaluations_ < armijo.transfer_n_evaluations_
@@ -108,7 +110,9 @@ def test_benchmark_quick_mode():
     for row in rows.values():
         assert row["q_evaluations"] >= 1 and row["final_loss"] >= 0 and row["wall_time_s"] > 0
         assert np.isfinite(row["mean_deviation"])
-    assert rows["gn-qp-osqp"]["q_evaluations"] == out["settings"]["gn_iter"] + 1
+    # one batched evaluation per LM step (+ the start), plus one per round of retries of rejected
+    # tasks (transfer is separable)
+    assert out["settings"]["gn_iter"] + 1 <= rows["gn-qp-osqp"]["q_evaluations"] <= 2 * out["settings"]["gn_iter"] + 1
     assert set(out["fit"]["solvers"]) >= {"armijo", "gn-qp-osqp"}
     for name, row in out["nonneg"]["solvers"].items():
         if name.endswith("-nonneg"):

@@ -1,0 +1,237 @@
+"""How much to share, chosen from the training data: ``FactIRL(n_primitives="auto", residual_penalty="auto")``.
+
+The number of primitives k and the residual penalty lambda (:mod:`factirl_opt.objectives.residuals`) are
+chosen by a validation that imitates the use of the learner: learn a dictionary on some tasks,
+transfer it to a new task from a few demonstrations, and judge the transferred reward on what
+that task's expert does elsewhere.
+
+K-fold over tasks (:func:`choose_sharing`): the tasks are split into ``n_folds`` folds; for each
+fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' tasks, each
+held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
+its remaining demonstrations by the learner's own objective (policy matching, or the MCE
+negative log-likelihood) of the transferred reward. The candidate of lowest mean score wins
+(ties: the earlier candidate, i.e. more sharing).
+
+Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
+flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
+the same whichever tasks share the fit. A candidate then costs one alternating fit on
+``(K-1)/K`` of the tasks per fold and one transfer; ``lambda = 0`` (the flat model: the
+dictionary plays no part) is fitted once, with the smallest k.
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .._validation import as_rng
+from ..exceptions import ConvergenceWarning, ValidationError
+from .fitting import make_objective, per_task_features, resolve_step_solver
+from .solver_settings import estimator_solvers
+from .gradirl import GradIRL
+from ..mdp.tabular import TabularMDP
+
+__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "choose_sharing",
+           "fixed_learner", "flat_start_rewards", "plot_validation"]
+
+#: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
+AUTO = "auto"
+#: candidate numbers of primitives (those <= min(p, number of training tasks of a fold) are tried)
+K_CANDIDATES = (1, 2, 4, 8, 16)
+#: candidate residual penalties, from the factorial model (inf) to the flat one (0)
+LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
+#: folds over tasks
+N_FOLDS = 3
+#: demonstrations a held-out task is transferred from (the one-demonstration use)
+N_TRANSFER_DEMOS = 1
+
+
+def _count(demos: Any) -> int:
+    return len(demos)
+
+
+def _take(seq: Any, idx: Sequence[int]) -> Any:
+    """Tasks ``idx`` of a per-task sequence (list or array)."""
+    if isinstance(seq, np.ndarray):
+        return seq[np.asarray(idx)]
+    return [seq[i] for i in idx]
+
+
+def _subset(mdp: Any, features: Any, idx: Sequence[int]) -> tuple[Any, Any]:
+    """The MDP(s) and features of tasks ``idx``: shared ones as they are, per-task ones indexed."""
+    sub_mdp = mdp if isinstance(mdp, TabularMDP) else _take(mdp, idx)
+    sub_features = _take(features, idx) if per_task_features(features) else features
+    return sub_mdp, sub_features
+
+
+def _task_mdp(mdp: Any, i: int) -> Any:
+    return mdp if isinstance(mdp, TabularMDP) else mdp[i]
+
+
+def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool) -> list[tuple[int, float]]:
+    """The candidate pairs: k up to ``k_max``; lambda from inf to 0 (inf only for a constrained
+    H-solver, which the residual model does not take)."""
+    if k_fixed == AUTO:
+        ks = [k for k in K_CANDIDATES if k <= k_max] or [1]
+    else:
+        ks = [int(k_fixed)]
+    if lam_fixed == AUTO:
+        lams = [np.inf] if constrained else list(LAMBDA_CANDIDATES)
+    else:
+        lams = [float(lam_fixed)]
+    out = []
+    for lam in lams:
+        for k in (ks[:1] if lam == 0.0 else ks):  # lambda = 0: the dictionary plays no part
+            out.append((k, lam))
+    return out
+
+
+def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], t: int) -> np.ndarray:
+    """Held-out score of tasks ``idx``: transfer from their first t demonstrations, the learner's
+    objective on the others (one value per task)."""
+    sub_mdp, sub_features = _subset(mdp, features, idx)
+    first = [demos[i][:t] for i in idx]
+    model.transfer(sub_mdp, first, features=sub_features if per_task_features(features) else None)
+    rewards = model.transfer_rewards_
+    out = np.empty(len(idx))
+    for j, i in enumerate(idx):
+        obj = make_objective(_task_mdp(mdp, i), [demos[i][t:]], model.beta, model.objective, model.planner)
+        out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
+    return out
+
+
+def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> tuple[int, float, list[dict]]:
+    """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over tasks.
+
+    Parameters
+    ----------
+    learner : FactIRL
+        Its other hyper-parameters are used by every candidate fit.
+    mdp, demos_per_task
+        As in ``FactIRL.fit``.
+    flat_rewards : optional
+        The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
+        every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
+
+    Returns
+    -------
+    k : int
+    lambda : float
+    validation : list of dict
+        One row per candidate: ``n_primitives``, ``residual_penalty``, ``score`` (mean held-out
+        score over tasks and folds), ``score_std`` (over folds), ``fold_scores``, ``chosen``.
+
+    Raises
+    ------
+    ValidationError
+        Fewer than 2 tasks, or a task with at most ``N_TRANSFER_DEMOS`` demonstrations (no
+        demonstration left to score it on).
+    """
+    n = _count(demos_per_task)
+    t = N_TRANSFER_DEMOS
+    if n < 2:
+        raise ValidationError(f"choosing n_primitives or residual_penalty by validation needs at least 2 tasks; got {n}")
+    short = [i for i in range(n) if _count(demos_per_task[i]) <= t]
+    if short:
+        raise ValidationError(f"choosing n_primitives or residual_penalty by validation transfers each held-out task from {t} "
+                              f"demonstration(s) and scores it on the others: task {short[0]} has "
+                              f"{_count(demos_per_task[short[0]])}; give every task at least {t + 1}")
+    folds = np.array_split(as_rng(learner.rng).permutation(n), min(N_FOLDS, n))
+    p = _reward_dimension(learner, mdp)
+    k_max = min(p, min(n - len(f) for f in folds))
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
+        h_name, h_options, _, _ = estimator_solvers(learner)
+        constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
+        for k, lam in _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained):
+            rows.append(_validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t))
+    best = min(range(len(rows)), key=lambda r: rows[r]["score"])
+    rows[best]["chosen"] = True
+    return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
+
+
+def _validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t):
+    """The validation row of one candidate ``(k, lambda)``."""
+    n = _count(demos_per_task)
+    fold_scores = []
+    for held in folds:
+        train = np.setdiff1d(np.arange(n), held)
+        model = fixed_learner(learner, k, lam)
+        sub_mdp, sub_features = _subset(mdp, learner.features, train)
+        model.features = sub_features
+        model.fit(sub_mdp, _take(demos_per_task, train), flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
+        fold_scores.append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
+    return {"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
+            "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False}
+
+
+def fixed_learner(learner: Any, k: int, lam: float) -> Any:
+    """A copy of ``learner`` with fixed ``k`` and ``lambda``, quiet and unfitted."""
+    model = copy.copy(learner)
+    for name in list(vars(model)):
+        if name.endswith("_") and not name.startswith("_"):
+            delattr(model, name)
+    model.n_primitives, model.residual_penalty = k, lam
+    model.verbose, model.callback = False, None
+    return model
+
+
+def _reward_dimension(learner: Any, mdp: Any) -> int:
+    F = learner.features
+    if F is None:
+        one = _task_mdp(mdp, 0)
+        return one.n_states if learner.reward == "state" else one.n_params
+    return int(np.shape(F[0] if per_task_features(F) else F)[-1])
+
+
+def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float) -> Any:
+    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``) on every task at once
+    (separable: each task's rewards are those of its own fit)."""
+    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol,
+                   solver=solver, objective=learner.objective, planner=learner.planner, reward=learner.reward,
+                   n_jobs=learner.n_jobs, backend=learner.backend, client=learner.client,
+                   planner_options=learner.planner_options)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
+        return flat.fit(mdp, demos_per_task).rewards_
+
+
+def plot_validation(model: Any, ax: Any = None) -> Any:
+    """Plot ``model.validation_``: mean held-out score (error bars: the folds' spread) against
+    lambda, one line per k; the chosen candidate circled. Needs matplotlib.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+    """
+    if not hasattr(model, "validation_"):
+        raise ValidationError("this model has no validation_: fit it with n_primitives='auto' or residual_penalty='auto'")
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        ax = plt.figure().add_subplot()
+    rows = model.validation_
+    finite = [r["residual_penalty"] for r in rows if np.isfinite(r["residual_penalty"]) and r["residual_penalty"] > 0]
+    lo = min(finite, default=1e-2) / 10.0
+    hi = max(finite, default=1.0) * 10.0
+
+    def x_of(lam):
+        return hi if lam == np.inf else lo if lam == 0.0 else lam
+
+    for k in sorted({r["n_primitives"] for r in rows}):
+        mine = sorted((r for r in rows if r["n_primitives"] == k), key=lambda r: x_of(r["residual_penalty"]))
+        ax.errorbar([x_of(r["residual_penalty"]) for r in mine], [r["score"] for r in mine],
+                    yerr=[r["score_std"] for r in mine], marker="o", label=f"k = {k}")
+    chosen = [r for r in rows if r["chosen"]]
+    for r in chosen:
+        ax.plot([x_of(r["residual_penalty"])], [r["score"]], "o", markersize=14, fillstyle="none", color="k")
+    ax.set_xscale("log")
+    ax.set_xlabel("residual penalty lambda (left end: 0, right end: inf)")
+    ax.set_ylabel("held-out score (lower is better)")
+    ax.legend()
+    return ax

@@ -1,0 +1,236 @@
+"""Separable runs: every row stops by its own rules and leaves the batch (docs/maths.md §5).
+
+A :class:`~solvers.StepProblem` is a sum of independent rows, ``min_x sum_i f_i(x_i)``. A run
+of :meth:`solvers.StepSolver.run` stops when the rules of :mod:`solvers.stopping` hold for the
+*total* objective, so a row's result depends on which other rows share the run (a row whose
+own objective stopped decreasing long ago keeps stepping while another row still moves, and a
+row still moving is stopped with the others). A separable run (``run(..., separable=True)``)
+applies the same two rules, relative decrease (``tol``) and gradient norm relative to the
+start (``gtol``), to every row's own objective and optimality measure, and a row that could
+make no progress is stalled on its own. A row that stopped leaves the batch: the later steps
+evaluate only the rows still running (:meth:`StepSolver.take_rows`), so the evaluations it
+would have used are saved, and every row's iterate is the one of a run on that row alone
+(up to the rounding of batched arithmetic).
+
+The steps are :meth:`StepSolver.step_rows`: the solver's step in which a row's trial points do
+not depend on the other rows (the Levenberg-Marquardt retries of a rejected row, for
+instance, are decided by that row alone).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import Counter
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .exceptions import SolverError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ._base import StepProblem, StepSolver
+
+__all__ = ["run_separable", "restrict_rows", "row_rules"]
+
+_TINY = np.finfo(np.float64).tiny
+
+#: the statuses of a row in a separable run
+ROW_STATUSES = ("converged", "max_iter", "stalled")
+
+
+def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[np.intp] | None = None) -> StepProblem:
+    """The problem of rows ``rows`` of ``problem`` (local row ``j`` is row ``rows[j]``).
+
+    Parameters
+    ----------
+    problem : StepProblem
+    rows : ndarray of int, shape (r,)
+        Distinct rows of ``problem``.
+    counts : ndarray of int, shape (n,), optional
+        Incremented at the rows of ``problem`` each callable is called with.
+    """
+    rows = np.asarray(rows, dtype=np.intp)
+
+    def wrap(func: Callable | None) -> Callable | None:
+        if func is None:
+            return None
+
+        def restricted(x_rows, local):
+            where = rows[np.asarray(local, dtype=np.intp)]
+            if counts is not None:
+                counts[where] += 1
+            return func(x_rows, where)
+
+        return restricted
+
+    return dataclasses.replace(problem, loss_and_grad=wrap(problem.loss_and_grad),
+                               residual_jacobian=wrap(problem.residual_jacobian), linearize=wrap(problem.linearize),
+                               n_rows=int(rows.size))
+
+
+def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: NDArray[np.float64],
+              g0: NDArray[np.float64], progressed: NDArray[np.bool_], tol: float,
+              gtol: float) -> NDArray[np.str_]:
+    """The rule that stops each row after a step: ``"stalled"``, ``"decrease"``, ``"gradient"`` or ``""``.
+
+    The rules of :func:`solvers.stopping.has_converged` and
+    :func:`solvers.stopping.gradient_converged`, row by row, in the order of a run's own test
+    (a row that made no progress is stalled first); the arithmetic is theirs, so a one-row
+    problem stops where :meth:`StepSolver.run` stops.
+
+    Parameters
+    ----------
+    prev, current : ndarray, shape (r,)
+        Each row's objective before and after the step (finite).
+    gnorm, g0 : ndarray, shape (r,)
+        Each row's optimality measure now and at the start (inf when it overflowed, NaN when
+        the solver's state holds no gradient: the gradient rule is then not applied).
+    progressed : ndarray of bool, shape (r,)
+    tol, gtol : float
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        drop = prev - current
+        decrease = (0.0 <= drop) & (drop <= tol * np.maximum(np.abs(prev), _TINY))
+        gradient = np.isfinite(gnorm) & np.isfinite(g0) & (gnorm <= gtol * g0)
+    out = np.full(prev.shape, "", dtype=object)
+    out[gradient] = "gradient"
+    out[decrease] = "decrease"
+    out[~np.asarray(progressed, dtype=bool)] = "stalled"
+    return out
+
+
+def _row_optimality(solver: StepSolver, x: NDArray[np.float64], state: Any) -> NDArray[np.float64]:
+    """Every row's optimality measure (inf on overflow; NaN when the state holds no gradient)."""
+    grad = solver.gradient(state)
+    if grad is None:
+        return np.full(x.shape[0], np.nan)
+    with np.errstate(over="ignore", invalid="ignore"):
+        g = np.asarray(solver.optimality(x, grad), dtype=np.float64)
+    return np.where(np.isfinite(g), g, np.inf)
+
+
+def _total(name: str, loss: NDArray[np.float64]) -> float:
+    total = float(np.sum(loss))
+    if not np.isfinite(total):
+        raise SolverError(f"{name}: the total objective is not finite ({total}); the solver must reject such points")
+    return total
+
+
+def _summary(status: NDArray[np.str_], rule: NDArray[np.str_], max_iter: int, tol: float, gtol: float) -> tuple[str, str]:
+    """The run's status and reason from the rows'."""
+    n = status.size
+    counts = Counter(rule[status == "converged"])
+    parts = []
+    if counts["decrease"]:
+        parts.append(f"{counts['decrease']} by relative decrease <= tol={tol:g}")
+    if counts["gradient"]:
+        parts.append(f"{counts['gradient']} by gradient norm <= gtol={gtol:g} x initial")
+    stalled = np.flatnonzero(status == "stalled")
+    late = np.flatnonzero(status == "max_iter")
+    if stalled.size:
+        parts.append(f"{stalled.size} stalled (no decrease possible): rows {_rows(stalled)}")
+    if late.size:
+        parts.append(f"{late.size} at max_iter={max_iter}: rows {_rows(late)}")
+    reason = f"per row, of {n}: " + "; ".join(parts)
+    if late.size:
+        return "max_iter", reason
+    if stalled.size:
+        return "stalled", reason
+    return "converged", reason
+
+
+def _norm(g: NDArray[np.float64]) -> float:
+    """Euclidean norm of the rows' optimality measures (inf on overflow, NaN if one is NaN),
+    scaled by the largest so that tiny values do not underflow."""
+    if np.any(np.isnan(g)):
+        return float("nan")
+    top = float(np.max(g, initial=0.0))
+    if not np.isfinite(top):
+        return np.inf
+    if top == 0.0:
+        return 0.0
+    with np.errstate(over="ignore"):
+        norm = top * float(np.sqrt(np.sum(np.square(g / top))))
+    return norm if np.isfinite(norm) else np.inf
+
+
+def _rows(rows: NDArray[np.intp], limit: int = 20) -> str:
+    shown = ", ".join(str(int(i)) for i in rows[:limit])
+    return f"[{shown}{', ...' if rows.size > limit else ''}]"
+
+
+def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], max_iter: int, state: Any,
+                  tol: float, callback: Callable | None, gtol: float) -> dict[str, Any]:
+    """:meth:`StepSolver.run` with ``separable=True`` (arguments already validated; ``x`` projected).
+
+    Returns
+    -------
+    dict
+        The fields of the run's :class:`~solvers.SolverResult`: ``status`` ``"converged"`` when every row converged, ``"max_iter"`` when a row took
+        ``max_iter`` steps without meeting a rule, else ``"stalled"``; ``reason`` counts the
+        rows by rule and names the rows at ``max_iter`` and the stalled ones. ``iterations``
+        is the most steps a row took; ``loss_history`` the total objective (rows that stopped
+        counted at their final value); ``row_status``, ``row_iterations`` and
+        ``row_evaluations`` the rows' own records.
+    """
+    n = problem.n_rows
+    t0 = time.perf_counter()
+    ev0 = problem.n_evaluations()
+    counts = np.zeros(n, dtype=np.intp)
+    everyone = np.arange(n)
+    full = solver.init_state(restrict_rows(problem, everyone, counts), x, previous=state)
+    loss = np.array(full.loss, dtype=np.float64)
+    history = [_total(solver.name, loss)]
+    g0 = _row_optimality(solver, x, full)
+    status = np.full(n, "max_iter", dtype=object)
+    rule = np.full(n, "", dtype=object)
+    steps = np.zeros(n, dtype=np.intp)
+    active, part = everyone, full
+    sub = restrict_rows(problem, active, counts)
+    x = x.copy()
+    for it in range(1, max_iter + 1):
+        xa, part, progressed = solver.step_rows(sub, x[active], part)
+        progressed = np.asarray(progressed, dtype=bool)
+        if progressed.shape != (active.size,):
+            raise SolverError(f"{solver.name}: step_rows returned progress of shape {progressed.shape}; expected ({active.size},)")
+        new = np.array(part.loss, dtype=np.float64)
+        rules = row_rules(loss[active], new, _row_optimality(solver, xa, part), g0[active], progressed, tol, gtol)
+        x[active], loss[active] = xa, new
+        steps[active] = it
+        history.append(_total(solver.name, loss))
+        if callback is not None:
+            callback(it, history[-1])
+        done = rules != ""
+        if not done.any():
+            continue
+        rule[active[done]] = rules[done]
+        status[active[done]] = np.where(rules[done] == "stalled", "stalled", "converged")
+        full = solver.put_rows(full, active, part)
+        keep = np.flatnonzero(~done)
+        if keep.size == 0:
+            active = active[keep]
+            break
+        part = solver.take_rows(part, keep)
+        active = active[keep]
+        sub = restrict_rows(problem, active, counts)
+    if active.size:
+        full = solver.put_rows(full, active, part)
+    run_status, reason = _summary(status, rule, max_iter, tol, gtol)
+    g = _row_optimality(solver, x, full)
+    return dict(
+        coefficients=x,
+        status=run_status,
+        iterations=int(steps.max(initial=0)),
+        solve_time=time.perf_counter() - t0,
+        loss=np.array(full.loss, dtype=np.float64),
+        n_evaluations=problem.n_evaluations() - ev0,
+        loss_history=history,
+        state=full,
+        reason=reason,
+        gradient_norm=_norm(g),
+        row_status=status.astype(str),
+        row_iterations=steps,
+        row_evaluations=counts,
+    )

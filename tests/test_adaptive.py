@@ -1,0 +1,122 @@
+"""FactIRL(n_primitives="auto", residual_penalty="auto"): k and lambda chosen by validation over tasks."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt import adaptive
+from factirl_opt.exceptions import ValidationError
+
+
+@pytest.fixture(scope="module")
+def data():
+    """Six tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(11)
+    F = rng.random((9, 4))
+    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(6, 2))
+    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(6, 9, 4)
+    return mdp, F, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+
+
+def _fit(mdp, demos, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        return fo.FactIRL(rng=0, max_iter=4, **kw).fit(mdp, demos)
+
+
+@pytest.fixture(scope="module")
+def auto(data):
+    mdp, F, demos = data
+    return _fit(mdp, demos, features=F, n_primitives="auto", residual_penalty="auto")
+
+
+def test_the_chosen_pair_is_the_best_of_the_table(auto):
+    rows = auto.validation_
+    pairs = [(r["n_primitives"], r["residual_penalty"]) for r in rows]
+    assert len(set(pairs)) == len(pairs)
+    # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
+    assert sorted(p for p in pairs if p[1] > 0) == sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
+    assert [p for p in pairs if p[1] == 0.0] == [(1, 0.0)]
+    best = min(rows, key=lambda r: r["score"])
+    assert [r["chosen"] for r in rows].count(True) == 1 and best["chosen"]
+    assert (auto.n_primitives_, auto.residual_penalty_) == (best["n_primitives"], best["residual_penalty"])
+    for r in rows:
+        assert len(r["fold_scores"]) == 3 and r["score"] == pytest.approx(np.mean(r["fold_scores"]))
+    assert auto.dictionary_.shape == (4, auto.n_primitives_) and auto.n_primitives == "auto"
+
+
+def test_the_final_fit_is_the_fixed_fit_of_the_chosen_pair(data, auto):
+    mdp, F, demos = data
+    fixed = _fit(mdp, demos, features=F, n_primitives=auto.n_primitives_, residual_penalty=auto.residual_penalty_)
+    np.testing.assert_allclose(auto.rewards_, fixed.rewards_, rtol=0, atol=1e-10)
+
+
+def test_transfer_after_auto(data, auto):
+    mdp, F, demos = data
+    h = auto.transfer(mdp, [d[:1] for d in demos[:2]])
+    assert h.shape == (2, auto.n_primitives_) and auto.transfer_rewards_.shape == (2, 9, 4)
+
+
+def test_a_fixed_value_is_kept(data):
+    mdp, F, demos = data
+    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto")
+    assert {r["n_primitives"] for r in model.validation_} == {2} and model.n_primitives_ == 2
+    model = _fit(mdp, demos, features=F, n_primitives="auto", residual_penalty=np.inf)
+    assert {r["residual_penalty"] for r in model.validation_} == {np.inf} and model.residual_penalty_ == np.inf
+
+
+def test_a_constrained_h_solver_validates_only_the_factorial_model(data):
+    mdp, F, demos = data
+    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto", h_solver="armijo-nonneg")
+    assert [r["residual_penalty"] for r in model.validation_] == [np.inf]
+
+
+def test_validation_needs_two_tasks_and_a_demonstration_to_score(data):
+    mdp, F, demos = data
+    with pytest.raises(ValidationError, match=r"needs at least 2 tasks; got 1"):
+        _fit(mdp, demos[:1], features=F, n_primitives="auto")
+    with pytest.raises(ValidationError, match=r"task 0 has 1; give every task at least 2"):
+        _fit(mdp, [d[:1] for d in demos], features=F, residual_penalty="auto")
+    with pytest.raises(ValidationError, match=r"n_primitives must be an integer >= 1"):
+        _fit(mdp, demos, features=F, n_primitives=0, residual_penalty="auto")
+
+
+def test_plot_validation(auto):
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    ax = adaptive.plot_validation(auto)
+    assert len(ax.get_lines()) >= 3 and ax.get_xscale() == "log"
+    with pytest.raises(ValidationError, match=r"has no validation_"):
+        adaptive.plot_validation(fo.FactIRL())
+
+
+def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
+    import json
+
+    from factirl_opt.exceptions import PersistenceError
+
+    loaded = fo.load_model(fo.save_model(auto, tmp_path / "auto.npz"))
+    assert loaded.validation_ == auto.validation_ and loaded.n_primitives == "auto"
+    assert (loaded.n_primitives_, loaded.residual_penalty_) == (auto.n_primitives_, auto.residual_penalty_)
+    np.testing.assert_array_equal(loaded.residuals_, auto.residuals_)
+
+    def rewrite(edit, name):
+        with np.load(tmp_path / "auto.npz", allow_pickle=False) as npz:
+            header = json.loads(str(npz["__header__"][()]))
+            arrays = {k: npz[k] for k in npz.files if k != "__header__"}
+        edit(header["attributes"])
+        np.savez(tmp_path / name, __header__=np.array(json.dumps(header)), **arrays)
+        return tmp_path / name
+
+    bad = rewrite(lambda a: a["validation_"][0].update(chosen=not a["validation_"][0]["chosen"]), "two.npz")
+    with pytest.raises(PersistenceError, match=r"attribute validation_ must mark exactly one row chosen; [02] are"):
+        fo.load_model(bad)
+    bad = rewrite(lambda a: a.update(residual_penalty_=-1.0), "neg.npz")
+    with pytest.raises(PersistenceError, match=r"attribute residual_penalty_ must be a number >= 0, or inf; got -1.0"):
+        fo.load_model(bad)
+    bad = rewrite(lambda a: a["validation_"][1].pop("score"), "keys.npz")
+    with pytest.raises(PersistenceError, match=r"attribute validation_\[1\] must be a dict with keys"):
+        fo.load_model(bad)

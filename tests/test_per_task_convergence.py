@@ -1,0 +1,161 @@
+"""Per-task convergence of the flat learner and of transfer: a task's answer does not depend on
+which other tasks share the fit (each stops by its own rule and leaves the batch)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+import solvers
+from factirl_opt.learners.gradirl import fit_weights
+from factirl_opt.learners.fitting import make_objective, reward_features
+
+FLAT_SOLVERS = [name for name in ("armijo", "armijo-nonneg", "lbfgs", "gn-cg", "gn-qp-osqp", "gn-qp-clarabel")
+                if name in solvers.available_solvers()]
+
+
+@pytest.fixture(scope="module")
+def tasks():
+    """Five tasks on one 3x3 grid with random rewards and features (p = 4)."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(7)
+    R = 2.0 * rng.standard_normal((5, 9, 4))
+    demos = fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+    return mdp, rng.random((9, 4)), demos
+
+
+@pytest.fixture(scope="module")
+def worlds():
+    """Three tasks on grids of 9, 16 and 9 states (the first and last the same object), state features p = 3."""
+    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
+    mdps = [g3, g4, g3]
+    rng = np.random.default_rng(0)
+    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
+    R = [2.0 * rng.normal(size=(m.n_states, 4)) for m in mdps]
+    demos = [fo.sample_demonstrations(m, r[None], 2, 5, rng=i)[0] for i, (m, r) in enumerate(zip(mdps, R))]
+    return mdps, Phis, demos
+
+
+def _quiet_fit(model, *args):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        return model.fit(*args)
+
+
+def _assert_alone(together, alone, i):
+    np.testing.assert_allclose(together.weights_[i], alone.weights_[0], rtol=0, atol=1e-10)
+    assert abs(together.loss_[i] - alone.loss_[0]) <= 1e-10
+
+
+@pytest.mark.parametrize("solver", FLAT_SOLVERS)
+@pytest.mark.parametrize("features", [False, True], ids=["tabular", "features"])
+def test_flat_fit_equals_each_task_fitted_alone(tasks, solver, features):
+    """The default tol stops the tasks at different iterations; each one's weights are its own fit's."""
+    mdp, F, demos = tasks
+    kw = dict(max_iter=60, solver=solver, features=F if features else None)
+    together = _quiet_fit(fo.GradIRL(**kw), mdp, demos)
+    for i in range(len(demos)):
+        _assert_alone(together, _quiet_fit(fo.GradIRL(**kw), mdp, demos[i:i + 1]), i)
+
+
+def test_tasks_stop_at_different_iterations_and_leave_the_batch(tasks):
+    """The rows record their own stops; the evaluations of rows that stopped are saved."""
+    mdp, F, demos = tasks
+    objective = make_objective(mdp, demos, 5.0)
+    res = fit_weights(objective, reward_features(mdp, F), solvers.get_solver("lbfgs"), 200, 1e-5)
+    assert res.status == "converged" and set(res.row_status) == {"converged"}
+    assert len(set(res.row_iterations.tolist())) > 1 and res.iterations == res.row_iterations.max()
+    # every row is evaluated at its start and at least once per step; no row after it stopped
+    assert np.all(res.row_evaluations >= res.row_iterations + 1)
+    assert res.row_evaluations.sum() < len(demos) * res.row_evaluations.max()
+    assert res.reason == f"per row, of {len(demos)}: {len(demos)} by relative decrease <= tol=1e-05"
+
+
+@pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-osqp", "gn-cg"])
+def test_flat_fit_over_environments_equals_each_task_alone(worlds, solver):
+    """Each task alone in its own environment (the same representation: one MDP and one feature
+    matrix in a list)."""
+    mdps, Phis, demos = worlds
+    kw = dict(max_iter=40, solver=solver)
+    together = _quiet_fit(fo.GradIRL(features=Phis, **kw), mdps, demos)
+    for i in range(3):
+        _assert_alone(together, _quiet_fit(fo.GradIRL(features=[Phis[i]], **kw), [mdps[i]], [demos[i]]), i)
+
+
+def test_flat_fit_in_two_shards_equals_each_task_alone(tasks):
+    mdp, F, demos = tasks
+    together = _quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs", n_jobs=2), mdp, demos)
+    for i in (0, 3):
+        _assert_alone(together, _quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs"), mdp, demos[i:i + 1]), i)
+
+
+def test_max_iter_warning_names_the_tasks_that_did_not_converge(tasks):
+    mdp, F, demos = tasks
+    full = _quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos)
+    steps = np.array([_quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos[i:i + 1]).n_iter_
+                      for i in range(len(demos))])
+    cut = int(np.median(steps))
+    late = np.flatnonzero(steps > cut)
+    assert full.status_ == "converged" and 0 < late.size < len(demos)
+    with pytest.warns(fo.ConvergenceWarning, match=rf"max_iter={cut} before its tolerance for {late.size} of "
+                                                   rf"{len(demos)} task\(s\): \[{', '.join(map(str, late))}\]"):
+        model = fo.GradIRL(features=F, max_iter=cut, solver="lbfgs").fit(mdp, demos)
+    assert model.status_ == "max_iter" and model.n_iter_ == cut
+
+
+def test_no_warning_when_every_task_converges(tasks):
+    mdp, F, demos = tasks
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fo.ConvergenceWarning)
+        model = fo.GradIRL(features=F, max_iter=300, solver="lbfgs").fit(mdp, demos)
+    assert model.status_ == "converged"
+
+
+# ----------------------------------------------------------------------------- transfer
+
+
+@pytest.fixture(scope="module")
+def dictionary_tasks():
+    mdp = fo.GridWorld(size=4, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(3)
+    D = fo.random_dictionary(mdp.n_params, 3, rng)
+    H = 3.0 * fo.random_coefficients(6, 3, kind="nonneg", rng=rng)
+    demos = fo.sample_demonstrations(mdp, fo.task_rewards(D, H, mdp.n_states, mdp.n_actions), 2, 8, rng)
+    return mdp, D, demos
+
+
+@pytest.mark.parametrize("solver", FLAT_SOLVERS)
+def test_transfer_equals_each_task_transferred_alone(dictionary_tasks, solver):
+    mdp, D, demos = dictionary_tasks
+    model = fo.FactIRL(n_primitives=3, h_solver=solver)
+    model.dictionary_ = D
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        together = model.transfer(mdp, demos, max_iter=60)
+        for i in range(len(demos)):
+            alone = model.transfer(mdp, demos[i:i + 1], max_iter=60)
+            np.testing.assert_allclose(together[i], alone[0], rtol=0, atol=1e-10)
+
+
+def test_transfer_warns_naming_the_tasks_at_max_iter(dictionary_tasks):
+    mdp, D, demos = dictionary_tasks
+    model = fo.FactIRL(n_primitives=3, h_solver="armijo")
+    model.dictionary_ = D
+    with pytest.warns(fo.ConvergenceWarning, match=r"transfer stopped at max_iter=2 before its tolerance for \d of 6 task"):
+        model.transfer(mdp, demos, max_iter=2)
+    assert model.transfer_status_ == "max_iter"
+    assert "at max_iter=2: rows [" in model.transfer_stop_reason_
+
+
+@pytest.mark.parametrize("solver", ["armijo", "gn-qp-clarabel"])
+def test_transfer_to_new_environments_equals_each_task_alone(worlds, solver):
+    mdps, Phis, demos = worlds
+    model = fo.FactIRL(n_primitives=2, h_solver=solver)
+    model.features, model.dictionary_ = Phis, np.random.default_rng(2).normal(size=(3, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        together = model.transfer(mdps, demos, features=Phis, max_iter=60)
+        for i in range(3):
+            alone = model.transfer([mdps[i]], [demos[i]], features=[Phis[i]], max_iter=60)
+            np.testing.assert_allclose(together[i], alone[0], rtol=0, atol=1e-10)

@@ -1,0 +1,198 @@
+"""The residual model R_i = Phi_i (D h_i + delta_i) with the penalty lambda ||delta_i||^2."""
+
+import warnings
+
+import numpy as np
+import pytest
+from helpers import central_difference, rel_err
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError
+from factirl_opt.learners.fitting import environments_setup, make_objective, reward_features
+from factirl_opt.objectives.problems import weights_problem
+from factirl_opt.objectives.residuals import check_residual_penalty, residual_dictionary_problem, residual_weights_problem
+
+LAM = 0.3
+
+
+@pytest.fixture(scope="module")
+def shared():
+    """Five tasks on one 3x3 grid, state features p = 4, k = 2."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(5)
+    demos = fo.sample_demonstrations(mdp, 2.0 * rng.normal(size=(5, 9, 4)), 3, 6, rng=rng)
+    return mdp, rng.random((9, 4)), demos
+
+
+@pytest.fixture(scope="module")
+def worlds():
+    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
+    mdps = [g3, g4, g3]
+    rng = np.random.default_rng(0)
+    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
+    demos = [fo.sample_demonstrations(m, rng.normal(size=(1, m.n_states, 4)), 2, 5, rng=i)[0] for i, m in enumerate(mdps)]
+    return mdps, Phis, demos
+
+
+def _setups(kind, shared, worlds, objective):
+    """(objective, features, p) of the shared or the per-task environments."""
+    if kind == "shared":
+        mdp, F, demos = shared
+        return make_objective(mdp, demos, 2.0, objective), reward_features(mdp, F), 4
+    mdps, Phis, demos = worlds
+    obj, envs = environments_setup(mdps, demos, Phis, "state-action", 2.0, objective)
+    return obj, envs.features, 3
+
+
+@pytest.mark.parametrize("kind", ["shared", "environments"])
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_gradients_match_central_differences(shared, worlds, rng, kind, objective):
+    obj, F, p = _setups(kind, shared, worlds, objective)
+    n, k = obj.n_tasks, 2
+    D, H, Delta = 0.5 * rng.normal(size=(p, k)), rng.normal(size=(n, k)), 0.3 * rng.normal(size=(n, p))
+    wp = residual_weights_problem(obj, F, D, LAM)
+    X, rows = np.concatenate([H, Delta], axis=1), np.arange(n)[::-1]
+    loss, g = wp.loss_and_grad(X, rows)
+    assert g.shape == (n, k + p)
+    num = central_difference(lambda x: wp.loss_and_grad(x, rows)[0].sum(), X)
+    assert rel_err(g, num) < 1e-6
+    # the loss is the model's: the flat loss of w_i = D h_i + delta_i plus the penalty
+    wl, _ = weights_problem(obj, F).loss_and_grad(H @ D.T + Delta, rows)
+    np.testing.assert_allclose(loss, wl + LAM * np.sum(Delta ** 2, axis=1), rtol=1e-12)
+    for unit_norm in (False, True):
+        dp = residual_dictionary_problem(obj, F, H, Delta, unit_norm)
+        _, gD = dp.loss_and_grad(D.reshape(1, -1), None)
+        num = central_difference(lambda x: dp.loss_and_grad(x, None)[0][0], D.reshape(1, -1))
+        assert rel_err(gD, num) < 1e-6
+
+
+@pytest.mark.parametrize("kind", ["shared", "environments"])
+def test_least_squares_pieces_match_central_differences(shared, worlds, rng, kind):
+    obj, F, p = _setups(kind, shared, worlds, "policy-matching")
+    n, k = obj.n_tasks, 2
+    D = 0.5 * rng.normal(size=(p, k))
+    wp = residual_weights_problem(obj, F, D, LAM)
+    X, V, rows = rng.normal(size=(n, k + p)), rng.normal(size=(n, k + p)), np.arange(n)
+    loss, r, J = wp.residual_jacobian(X, rows)
+    np.testing.assert_allclose(loss, np.sum(r * r, axis=1), rtol=1e-12)
+    eps = 1e-6
+    num = (wp.residual_jacobian(X + eps * V, rows)[1] - wp.residual_jacobian(X - eps * V, rows)[1]) / (2 * eps)
+    assert rel_err(np.einsum("rmq,rq->rm", J, V), num) < 1e-6
+    lin = wp.linearize(X, rows)
+    np.testing.assert_allclose(lin.jvp(V), np.einsum("rmq,rq->rm", J, V), rtol=0, atol=1e-10)
+    U = rng.normal(size=r.shape)
+    np.testing.assert_allclose(lin.vjp(U), np.einsum("rmq,rm->rq", J, U), rtol=0, atol=1e-10)
+    H, Delta = rng.normal(size=(n, k)), rng.normal(size=(n, p))
+    dp = residual_dictionary_problem(obj, F, H, Delta)
+    dlin = dp.linearize(D.reshape(1, -1), None)
+    Vd = rng.normal(size=(1, p * k))
+    num = (dp.linearize(D.reshape(1, -1) + eps * Vd, None).residual - dp.linearize(D.reshape(1, -1) - eps * Vd, None).residual) / (2 * eps)
+    assert rel_err(dlin.jvp(Vd), num) < 1e-6
+    Ud = rng.normal(size=dlin.residual.shape)
+    assert abs(np.sum(dlin.jvp(Vd) * Ud) - np.sum(Vd * dlin.vjp(Ud))) < 1e-9 * np.abs(np.sum(Vd * dlin.vjp(Ud)))
+
+
+def _fit(**kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        return fo.FactIRL(n_primitives=2, rng=0, **kw)
+
+
+def test_infinite_penalty_is_the_factorial_learner(shared):
+    mdp, F, demos = shared
+    a = _fit(features=F, max_iter=8).fit(mdp, demos)
+    b = _fit(features=F, max_iter=8, residual_penalty=np.inf).fit(mdp, demos)
+    np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.dictionary_, a.dictionary_, rtol=0, atol=1e-12)
+    assert b.residual_penalty_ == np.inf and not np.any(b.residuals_) and b.residuals_.shape == (5, 4)
+    ha, hb = a.transfer(mdp, demos[:2]), b.transfer(mdp, demos[:2])
+    np.testing.assert_allclose(hb, ha, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.transfer_rewards_, a.transfer_rewards_, rtol=0, atol=1e-12)
+
+
+def test_fit_and_transfer_record_the_residuals(shared):
+    mdp, F, demos = shared
+    model = _fit(features=F, max_iter=6, residual_penalty=LAM).fit(mdp, demos)
+    W = model.coefficients_ @ model.dictionary_.T + model.residuals_
+    Phi = reward_features(mdp, F)
+    np.testing.assert_allclose(model.rewards_.reshape(5, -1), W @ Phi.T, rtol=1e-12, atol=1e-12)
+    assert model.residual_penalty_ == LAM and np.any(model.residuals_ != 0)
+    mu, pi = fo.empirical_statistics(mdp, demos)
+    loss = fo.policy_matching_loss(mdp, model.rewards_, mu, pi, 5.0)[0]
+    np.testing.assert_allclose(model.loss_, loss, rtol=1e-10)  # the loss without the penalty
+    assert model.loss_history_[-1] >= loss.sum() + LAM * np.sum(model.residuals_ ** 2) - 1e-10  # the best seen, with it
+    h = model.transfer(mdp, demos[:3])
+    assert h.shape == (3, 2) and model.transfer_residuals_.shape == (3, 4)
+    Wn = h @ model.dictionary_.T + model.transfer_residuals_
+    np.testing.assert_allclose(model.transfer_rewards_.reshape(3, -1), Wn @ Phi.T, rtol=1e-12, atol=1e-12)
+
+
+def test_transfer_of_each_task_alone_with_residuals(shared):
+    mdp, F, demos = shared
+    model = _fit(features=F, max_iter=4, residual_penalty=LAM, h_solver="lbfgs").fit(mdp, demos)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        together = model.transfer(mdp, demos, max_iter=50)
+        for i in (0, 4):
+            np.testing.assert_allclose(together[i], model.transfer(mdp, demos[i:i + 1], max_iter=50)[0], rtol=0, atol=1e-10)
+
+
+def test_small_penalty_approaches_the_flat_learner(shared):
+    """lambda -> 0: the transfer's fit of the demonstrations approaches the flat learner's (the
+    residuals take what the dictionary cannot); a large lambda stays at the dictionary's."""
+    mdp, F, demos = shared
+    flat = fo.GradIRL(features=F, max_iter=500, tol=1e-10, solver="lbfgs").fit(mdp, demos)
+    losses = {}
+    for lam in (1e-6, 1e-2, 1e2):
+        model = _fit(features=F, max_iter=6, residual_penalty=lam, h_solver="lbfgs").fit(mdp, demos)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", fo.ConvergenceWarning)
+            model.transfer(mdp, demos, max_iter=500)
+        losses[lam] = model.transfer_loss_.sum()
+    assert losses[1e-6] <= losses[1e-2] <= losses[1e2]
+    assert losses[1e-6] - flat.loss_.sum() <= 1e-3 * flat.loss_.sum() + 1e-8
+    assert losses[1e2] > 1.01 * flat.loss_.sum()  # the test can fail: the dictionary alone fits worse
+
+
+@pytest.mark.parametrize("kind", ["tabular", "environments"])
+def test_fit_over_every_layout(shared, worlds, kind):
+    if kind == "tabular":
+        mdp, _, demos = shared
+        model = _fit(max_iter=3, residual_penalty=1.0, h_solver="gn-qp-clarabel").fit(mdp, demos)
+        assert model.residuals_.shape == (5, 36) and model.rewards_.shape == (5, 9, 4)
+        model.transfer(mdp, demos[:1])
+        assert model.transfer_rewards_.shape == (1, 9, 4)
+    else:
+        mdps, Phis, demos = worlds
+        model = _fit(features=Phis, max_iter=3, residual_penalty=1.0, objective="mce").fit(mdps, demos)
+        assert [r.shape for r in model.rewards_] == [(9, 4), (16, 4), (9, 4)] and model.residuals_.shape == (3, 3)
+        model.transfer(mdps[1:], demos[1:], features=Phis[1:])
+        assert [r.shape for r in model.transfer_rewards_] == [(16, 4), (9, 4)]
+
+
+def test_fit_in_two_shards_equals_one(shared):
+    mdp, F, demos = shared
+    a = _fit(features=F, max_iter=3, residual_penalty=LAM).fit(mdp, demos)
+    b = _fit(features=F, max_iter=3, residual_penalty=LAM, n_jobs=2).fit(mdp, demos)
+    np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("value, message", [
+    (-1.0, r"residual_penalty must be >= 0 \(np.inf: no residuals\); got -1.0"),
+    (np.nan, r"residual_penalty must be >= 0 \(np.inf: no residuals\); got nan"),
+    ("big", r"residual_penalty must be a number >= 0, np.inf or 'auto'; got 'big'"),
+    (True, r"residual_penalty must be a number >= 0, np.inf or 'auto'; got True \(bool\)"),
+])
+def test_bad_penalties_are_refused(shared, value, message):
+    with pytest.raises(ValidationError, match=message):
+        check_residual_penalty(value)
+    mdp, F, demos = shared
+    with pytest.raises(ValidationError, match=message.replace(" or 'auto'", ".*")):
+        _fit(features=F, max_iter=1, residual_penalty=value).fit(mdp, demos)
+
+
+def test_a_constrained_h_solver_is_refused_with_residuals(shared):
+    mdp, F, demos = shared
+    with pytest.raises(ValidationError, match=r"residual_penalty=0.3 needs an unconstrained h_solver .* 'armijo-nonneg' has "
+                                              r"constraint 'nonneg'"):
+        _fit(features=F, max_iter=1, residual_penalty=LAM, h_solver="armijo-nonneg").fit(mdp, demos)
