@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt import adaptive
+from factirl_opt.learners import adaptive
 from factirl_opt.exceptions import ValidationError
 
 

@@ -29,7 +29,7 @@ LAYERS = {
     "factirl_opt": 11,  # the package root: the public surface
     "lab": 12,  # the experiment harness and the command line
 }
-BASE = {"exceptions", "interruption", "_validation", "_threads", "_progress", "_deprecation", "_version", "files"}
+BASE = {"exceptions", "interruption", "_validation", "_threads", "_progress", "_deprecation", "_version", "_batched", "files"}
 
 
 def _modules(package):
