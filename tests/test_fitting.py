@@ -9,12 +9,8 @@ import factirl_opt as fo
 import factirl_opt.tasks.demonstrations as demonstrations_module
 import solvers
 from factirl_opt.exceptions import ConvergenceWarning, MaxIterWarning, ValidationError
-from factirl_opt.learners.fitting import (
-    check_features_digest,
-    features_digest,
-    first_step_stall,
-    reward_features,
-)
+from factirl_opt.learners.fitting import check_features_digest, first_step_stall
+from factirl_opt.tasks.task_set import features_digest, reward_features
 from factirl_opt.objectives import Objective
 from factirl_opt.tasks.features import StateBroadcast
 

@@ -9,7 +9,8 @@ from helpers import central_difference, rel_err
 import factirl_opt as fo
 from factirl_opt.learners.dictionary import feature_weights, metric_pca_dictionary, pca_dictionary
 from factirl_opt.exceptions import NotFittedError, ValidationError
-from factirl_opt.learners.fitting import environments_setup
+from factirl_opt.learners.fitting import task_objective
+from factirl_opt.tasks.task_set import task_set
 from factirl_opt.objectives.problems import task_dictionary_problem, task_weights_problem
 from factirl_opt.tasks.features import TaskFeatures
 
@@ -144,7 +145,8 @@ def test_constrained_and_sparse_h_steps_on_mixed_sizes(worlds, h_solver):
 @pytest.mark.parametrize("objective", ["policy-matching", "mce"])
 def test_problem_gradients_match_central_differences_on_mixed_sizes(worlds, rng, objective):
     mdps, Phis, demos = worlds
-    obj, envs = environments_setup(mdps, demos, Phis, "state-action", 2.0, objective)
+    envs = task_set(mdps, demos, Phis)
+    obj = task_objective(envs, 2.0, objective)
     tf = envs.features
     wp = task_weights_problem(obj, tf)
     W, rows = 0.5 * rng.normal(size=(2, 3)), np.array([2, 1])
@@ -162,7 +164,8 @@ def test_problem_gradients_match_central_differences_on_mixed_sizes(worlds, rng,
 def test_least_squares_pieces_match_central_differences(worlds, rng):
     """Residual Jacobian, jvp and vjp of the padded residuals, for weights and for the dictionary."""
     mdps, Phis, demos = worlds
-    obj, envs = environments_setup(mdps, demos, Phis, "state-action", 2.0)
+    envs = task_set(mdps, demos, Phis)
+    obj = task_objective(envs, 2.0)
     wp = task_weights_problem(obj, envs.features)
     W, rows, V = 0.5 * rng.normal(size=(3, 3)), np.arange(3), rng.normal(size=(3, 3))
     _, res, jac = wp.residual_jacobian(W, rows)

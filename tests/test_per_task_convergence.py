@@ -9,7 +9,8 @@ import pytest
 import factirl_opt as fo
 import solvers
 from factirl_opt.learners.gradirl import fit_weights
-from factirl_opt.learners.fitting import make_objective, reward_features
+from factirl_opt.learners.fitting import make_objective
+from factirl_opt.tasks.task_set import reward_features
 
 FLAT_SOLVERS = [name for name in ("armijo", "armijo-nonneg", "lbfgs", "gn-cg", "gn-qp-osqp", "gn-qp-clarabel")
                 if name in solvers.available_solvers()]

@@ -8,7 +8,9 @@ from helpers import central_difference, rel_err
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.learners.fitting import environments_setup, make_objective, reward_features
+from factirl_opt.learners.fitting import make_objective, task_objective
+from factirl_opt.tasks.task_set import task_set
+from factirl_opt.tasks.task_set import reward_features
 from factirl_opt.objectives.problems import weights_problem
 from factirl_opt.objectives.residuals import check_residual_penalty, residual_dictionary_problem, residual_weights_problem
 
@@ -40,7 +42,8 @@ def _setups(kind, shared, worlds, objective):
         mdp, F, demos = shared
         return make_objective(mdp, demos, 2.0, objective), reward_features(mdp, F), 4
     mdps, Phis, demos = worlds
-    obj, envs = environments_setup(mdps, demos, Phis, "state-action", 2.0, objective)
+    envs = task_set(mdps, demos, Phis)
+    obj = task_objective(envs, 2.0, objective)
     return obj, envs.features, 3
 
 

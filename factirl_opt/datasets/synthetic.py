@@ -26,7 +26,6 @@ from .._validation import RNGLike, as_rng, check_array, check_int, check_mdp, ch
 from ..tasks.demonstrations import sample_demonstrations
 from ..tasks.features import task_rewards
 from ..exceptions import ValidationError
-from .._batched import rows_matmul
 
 if typing.TYPE_CHECKING:
     from ..mdp.tabular import TabularMDP

@@ -30,7 +30,8 @@ import numpy as np
 
 from .._validation import as_rng
 from ..exceptions import ConvergenceWarning, ValidationError
-from .fitting import make_objective, per_task_features, resolve_step_solver
+from .fitting import make_objective, resolve_step_solver
+from ..tasks.task_set import per_task_features
 from .solver_settings import estimator_solvers
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP

@@ -33,22 +33,12 @@ from .dictionary import (
 )
 from ..exceptions import FitInterrupted, NotFittedError, ValidationError
 from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
-from ..tasks.features import TaskFeatures, factorial_rewards
+from ..tasks.features import TaskFeatures, factorial_rewards, weights_rewards
 from .fitting import (
-    Environments,
-    check_features_digest,
-    environment_signatures,
-    environments_setup,
-    features_digest,
-    learner_entry,
-    make_objective,
-    one_environment,
-    reward_dimension,
-    resolve_step_solver,
-    reward_features,
-    warn_if_stalled,
+    check_features_digest, learner_entry, make_objective, resolve_step_solver, task_objective, warn_if_stalled,
 )
-from .gradirl import fit_weights, weights_rewards
+from ..tasks.task_set import reward_dimension, reward_features, task_set
+from .gradirl import fit_weights
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
 from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
@@ -368,19 +358,15 @@ class FactIRL(Estimator):
             return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
-    def _check_params(self, mdp, task_features=None):
-        """Validate the hyper-parameters; the base features (None, StateBroadcast, (S*A, p), or
-        ``task_features`` given) and the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
+    def _check_params(self, tasks):
+        """Validate the hyper-parameters against the task set; the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
         k = check_int(self.n_primitives, "n_primitives", minimum=1)
-        Phi = self._features(mdp) if task_features is None else task_features
-        p = reward_dimension(mdp, Phi)
-        if k > p:
-            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={p}")
+        if k > tasks.n_params:
+            raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={tasks.n_params}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         check_bool(self.pca_shrink, "pca_shrink")
-        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
+        return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
-        return Phi, loop
 
     @learner_entry
     def fit(self, mdp: Any, demos_per_task: Any, flat_rewards: ArrayLike | None = None) -> FactIRL:
@@ -409,21 +395,14 @@ class FactIRL(Estimator):
         """
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
-        one = one_environment(mdp, demos_per_task, self.features)
-        obj: Any
-        if one is None:  # tasks in several environments: ``where`` is their Environments
-            obj, where = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta, self.objective,
-                                            self.planner)
-            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(None, where.features)
-        else:
-            where = check_mdp(one)
-            Phi, (max_iter, inner_steps, tol, gtol) = self._check_params(where)
+        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
+        where, Phi = tasks.mdp, tasks.features
+        max_iter, inner_steps, tol, gtol = self._check_params(tasks)
         h_name, h_options, d_name, d_options = estimator_solvers(self)
         h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
         d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
         lam = self._residual_penalty(h_solver, self.residual_penalty)
-        if one is not None:
-            obj = make_objective(where, demos_per_task, self.beta, self.objective, self.planner)
+        obj = task_objective(tasks, self.beta, self.objective, self.planner)
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
@@ -433,11 +412,11 @@ class FactIRL(Estimator):
                                     tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
                                     residual_penalty=lam)
         except FitInterrupted as exc:
-            self._store(where, Phi, exc.result, int(obj.n_evaluations), lam)
+            self._store(tasks, exc.result, int(obj.n_evaluations), lam)
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} ({loss_phrase(self.loss_)})", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
-        self._store(where, Phi, fit, int(fit.n_evaluations + init_evals), lam)
+        self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 
@@ -471,25 +450,19 @@ class FactIRL(Estimator):
                 f"residual together); {h_solver.name!r} has constraint {h_solver.constraint!r}")
         return lam
 
-    def _store(self, where, Phi, fit, n_evaluations, lam=np.inf):
+    def _store(self, tasks, fit, n_evaluations, lam=np.inf):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
         self.residual_penalty_, self.n_primitives_ = lam, int(fit.dictionary.shape[1])
         if fit.residuals is None:
-            self.rewards_ = factorial_rewards(where, Phi, fit.dictionary, fit.coefficients)
+            self.rewards_ = factorial_rewards(tasks.mdp, tasks.features, fit.dictionary, fit.coefficients)
             self.residuals_ = np.zeros((fit.coefficients.shape[0], fit.dictionary.shape[0]))
         else:
             self.residuals_ = fit.residuals
-            W = residual_weights(fit.dictionary, fit.coefficients, fit.residuals)
-            self.rewards_ = Phi.rewards(W) if isinstance(Phi, TaskFeatures) else weights_rewards(Phi, W, where.n_states,
-                                                                                                   where.n_actions)
+            self.rewards_ = tasks.rewards(residual_weights(fit.dictionary, fit.coefficients, fit.residuals))
         self.loss_, self.loss_history_ = fit.loss, fit.loss_history
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
-        if isinstance(where, Environments):
-            self.mdp_signature_, self.features_sha256_ = environment_signatures(where.mdps), where.digest
-            return
-        self.mdp_signature_ = where.signature()
-        self.features_sha256_ = None if self.features is None else features_digest(Phi)
+        self.mdp_signature_, self.features_sha256_ = tasks.signature(), tasks.digest
 
     def _transfer_dictionary(self, mdp):
         """The base features and the validated ``dictionary_`` of a fitted model, for ``transfer``."""

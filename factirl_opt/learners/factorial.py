@@ -20,22 +20,14 @@ from numpy.typing import ArrayLike, NDArray
 import solvers
 
 from .._progress import fit_progress
-from .._validation import check_array, check_int, check_mdp, check_tol
+from .._validation import check_array, check_int, check_tol
 from .dictionary import normalise_dictionary
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
-from .fitting import (
-    environments_setup,
-    first_step_stall,
-    learner_entry,
-    make_objective,
-    one_environment,
-    resolve_step_solver,
-    reward_dimension,
-    reward_features,
-)
+from .fitting import first_step_stall, learner_entry, resolve_step_solver, task_objective
+from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED
 from ..objectives.problems import dictionary_problem, weights_problem
-from ..tasks.features import TaskFeatures, factorial_rewards, linear_rewards
+from ..tasks.features import TaskFeatures, factorial_rewards
 from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
@@ -275,7 +267,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
     ----------
     mdp : TabularMDP or sequence of n TabularMDP
         One MDP shared by every task, or one per task (then ``base_features`` are needed; see
-        :func:`factirl_opt.learners.fitting.environments_setup`).
+        :func:`factirl_opt.tasks.task_set.task_set`).
     demos_per_task : list of n task demonstrations
     dictionary : array_like, shape (p, k)
         Initial ``D``; p = S*A (tabular) or the number of base features.
@@ -318,22 +310,15 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
         A KeyboardInterrupt during the fit; its ``result`` is the :class:`FactorialFit` of the
         best point seen (status ``"interrupted"``).
     """
-    one = one_environment(mdp, demos_per_task, base_features)
-    obj: Any
-    if one is None:
-        obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
-        Phi: Any = envs.features
-    else:
-        Phi = reward_features(check_mdp(one), base_features, reward)
-    p = reward_dimension(one, Phi)
+    tasks = task_set(mdp, demos_per_task, base_features, reward)
+    Phi, p = tasks.features, tasks.n_params
     D = check_array(dictionary, "dictionary", ndim=2)
     H = check_array(coefficients, "coefficients", ndim=2)
     if D.shape[0] != p or H.shape[1] != D.shape[1]:
         raise ValidationError(f"dictionary (p, k) and coefficients (n, k) must have p = {p} and equal k; got {D.shape} and {H.shape}")
     max_iter, inner_steps = check_int(max_iter, "max_iter", minimum=0), check_int(inner_steps, "inner_steps", minimum=1)
     tol, gtol = check_tol(tol), check_tol(gtol, "gtol")
-    if one is not None:
-        obj = make_objective(one, demos_per_task, beta, objective, planner)
+    obj = task_objective(tasks, beta, objective, planner)
     if H.shape[0] != obj.n_tasks:
         raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
     h = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")

@@ -10,18 +10,14 @@ One home for each piece the flat and the factorial learners both use:
   the total loss unchanged, and :func:`warn_if_stalled`, its warning;
 - :func:`features_digest`: a SHA-256 of the base features a model was fitted with, checked
   before the features are used again (``FactIRL.transfer``);
-- :func:`one_environment` and :func:`environments_setup`: tasks in several environments (a
-  sequence of MDPs, or one feature matrix per task), bound to one
-  :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` and their
-  :class:`~factirl_opt.tasks.features.TaskFeatures` (docs/maths.md §7-8).
+- :func:`task_objective`: the objective of a :class:`~factirl_opt.tasks.task_set.TaskSet` (one
+  MDP, or a :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` over
+  several; docs/maths.md §7-8).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import warnings
-from collections.abc import Sequence
 from typing import Any, Callable, TypeVar
 
 import numpy as np
@@ -29,15 +25,13 @@ import numpy as np
 import solvers
 
 from .._threads import blas_limited
-from .._validation import check_beta, check_features
+from .._validation import check_beta
 from ..tasks.demonstrations import empirical_statistics
 from ..exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, translate_solver_errors
-from ..mdp.tabular import TabularMDP
 from ..objectives import Objective, get_objective
 from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
-from ..mdp.environments import check_environments
 from ..planning.cache import isolated_planning
-from ..tasks.features import StateBroadcast, TaskFeatures
+from ..tasks.task_set import TaskSet, features_digest
 
 __all__ = [
     "make_objective",
@@ -48,16 +42,8 @@ __all__ = [
     "held_by_constraint",
     "warn_if_stalled",
     "warn_if_max_iter",
-    "features_digest",
     "check_features_digest",
-    "REWARDS",
-    "reward_features",
-    "reward_dimension",
-    "per_task_features",
-    "one_environment",
-    "Environments",
-    "environments_setup",
-    "environment_signatures",
+    "task_objective",
     "learner_entry",
 ]
 
@@ -72,45 +58,8 @@ def learner_entry(fn: F) -> F:
     return isolated_planning(blas_limited(fn))
 
 
-#: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
-REWARDS = ("state-action", "state")
-
 #: a first step that moves the total loss by at most this many units of ``eps |loss|`` changed nothing
 STALL_ULPS = 4
-
-
-def reward_features(mdp: Any, features: Any = None, reward: str = "state-action",
-                    min_columns: int = 1) -> np.ndarray | StateBroadcast | None:
-    """What a learner's rewards are linear in: ``R_i = Phi theta_i`` (docs/maths.md §7).
-
-    Parameters
-    ----------
-    mdp : TabularMDP
-    features : array_like, shape (S*A, p) or (S, p), optional
-    reward : {"state-action", "state"}
-        ``"state"``: one reward per state, repeated over the actions (p = S), at the cost of
-        tabular rewards; only without ``features``.
-    min_columns : int
-        Smallest accepted number of features.
-
-    Returns
-    -------
-    None, StateBroadcast or ndarray of shape (S*A, p)
-        None for tabular rewards (p = S*A); ``kron(I_S, 1_A)`` unformed for ``reward="state"``;
-        else the validated features (state features repeated over the actions).
-    """
-    if not isinstance(reward, str) or reward not in REWARDS:
-        raise ValidationError(f"reward must be one of {', '.join(map(repr, REWARDS))}; got {reward!r}")
-    if reward == "state":
-        if features is not None:
-            raise ValidationError(
-                f"reward='state' learns one free reward per state and takes no features (got features of shape "
-                f"{np.shape(features)}); for rewards of the states on features pass state features (S, p) with "
-                "reward='state-action'")
-        return StateBroadcast(mdp.n_states, mdp.n_actions)
-    if features is None:
-        return None
-    return check_features(features, mdp.n_params, mdp.n_states, min_columns=min_columns)
 
 
 def make_objective(mdp: Any, demos_per_task: Any, beta: float, objective: str = "policy-matching",
@@ -239,20 +188,6 @@ def warn_if_max_iter(result: solvers.SolverResult, what: str, max_iter: int) -> 
     )
 
 
-def features_digest(features: np.ndarray | None) -> str | None:
-    """SHA-256 (hex) of validated base features (S*A, p) as float64, shape included; None without.
-
-    Two feature matrices have the same digest exactly when they have the same shape and the
-    same values bit for bit.
-    """
-    if features is None:
-        return None
-    F = np.ascontiguousarray(features, dtype=np.float64)
-    h = hashlib.sha256(repr(F.shape).encode())
-    h.update(F.tobytes())
-    return h.hexdigest()
-
-
 def check_features_digest(expected: str | None, features: Any, what: str) -> None:
     """Refuse features other than those a model was fitted with (digest ``expected``).
 
@@ -276,126 +211,23 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
     )
 
 
-def reward_dimension(mdp: Any, features: Any) -> int:
-    """p, the number of reward parameters per task: ``S*A`` (tabular), or the features' columns."""
-    if isinstance(features, TaskFeatures):
-        return features.n_features
-    return mdp.n_params if features is None else features.shape[1]
+def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matching",
+                   planner: Any = "auto") -> Objective | MultiEnvironmentObjective:
+    """The named objective bound to the empirical statistics of a task set's demonstrations.
 
-
-def per_task_features(features: Any) -> bool:
-    """Whether ``features`` is one matrix per task (a sequence of 2-d arrays, or a 3-d array)."""
-    if isinstance(features, np.ndarray):
-        return features.ndim == 3
-    return (isinstance(features, Sequence) and not isinstance(features, (str, bytes)) and len(features) > 0
-            and np.ndim(features[0]) == 2)
-
-
-def _n_tasks(demos_per_task: Any) -> int | None:
-    try:
-        return len(demos_per_task)
-    except TypeError:
-        return None
-
-
-def one_environment(mdp: Any, demos_per_task: Any, features: Any) -> Any:
-    """The MDP of a fit whose tasks all share one MDP object and one feature matrix (or none), else None.
-
-    That fit runs the one-MDP code path, so ``fit([mdp] * n, ...)`` with the same object is
-    ``fit(mdp, ...)`` bit for bit. Anything that is neither a TabularMDP nor a sequence is
-    returned as is, for the one-MDP path to refuse.
-    """
-    if per_task_features(features):
-        return None
-    if isinstance(mdp, TabularMDP) or not isinstance(mdp, Sequence) or isinstance(mdp, (str, bytes)):
-        return mdp
-    mdps = check_environments(mdp, _n_tasks(demos_per_task))
-    return mdps[0] if all(m is mdps[0] for m in mdps) else None
-
-
-@dataclasses.dataclass
-class Environments:
-    """What a fit over tasks in several environments is built on.
-
-    Attributes
-    ----------
-    mdps : list of n TabularMDP
-    features : TaskFeatures
-        ``Phi_i`` of every task (one shared matrix is referenced n times, never copied).
-    digest : str or None
-        :func:`features_digest` of one shared feature matrix; None for per-task features.
-    """
-
-    mdps: list
-    features: TaskFeatures
-    digest: str | None
-
-
-def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> tuple[TaskFeatures, str | None]:
-    if reward != "state-action":
-        raise ValidationError(f"reward={reward!r} learns one free reward per state of one MDP; tasks in several "
-                              "environments need features (pass state features (S_i, p) per task instead)")
-    if features is None:
-        raise ValidationError(
-            "tasks in several environments need features (one shared (S*A, p) matrix, or one (S_i*A, p) or (S_i, p) "
-            "matrix per task): tabular rewards are defined on one MDP")
-    S = [m.n_states for m in mdps]
-    if per_task_features(features):
-        tf = TaskFeatures(list(features), S, mdps[0].n_actions)
-        digest = None
-    else:
-        F = check_features(features, mdps[0].n_params, mdps[0].n_states, min_columns=min_columns)
-        bad = [i for i, s in enumerate(S) if s != S[0]]
-        if bad:
-            raise ValidationError(f"one shared feature matrix ({np.shape(features)}) cannot fit every environment: task 0 "
-                                  f"has S = {S[0]} states, task {bad[0]} has {S[bad[0]]}; give one feature matrix per task")
-        tf, digest = TaskFeatures([F] * len(mdps), S, mdps[0].n_actions), features_digest(F)
-    if tf.n_features < min_columns:
-        raise ValidationError(f"features must have p >= {min_columns} columns; got p = {tf.n_features}")
-    return tf, digest
-
-
-def environments_setup(mdp: Any, demos_per_task: Any, features: Any, reward: str, beta: float,
-                       objective: Any = "policy-matching", planner: Any = "auto",
-                       min_columns: int = 1) -> tuple[MultiEnvironmentObjective, Environments]:
-    """The objective and the features of a fit over tasks in several environments.
+    One environment: :func:`make_objective` on its MDP. Several: a
+    :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` (one objective per
+    distinct MDP, docs/maths.md §7), whose errors name the task.
 
     Parameters
     ----------
-    mdp : TabularMDP or sequence of n TabularMDP
-        One per task (tasks given the same object are planned as one batch).
-    demos_per_task : list of n task demonstrations
-        Each on its own task's MDP.
-    features : array_like or sequence of n array_like
-        One (S*A, p) or (S, p) matrix shared by every task (equal-sized environments), or one
-        (S_i*A, p) or (S_i, p) matrix per task, with the same p.
-    reward : str
-        Must be ``"state-action"``.
+    tasks : TaskSet
+        From :func:`~factirl_opt.tasks.task_set.task_set`.
     beta, objective, planner
         As in :func:`make_objective`.
-    min_columns : int
-        Smallest accepted p.
-
-    Raises
-    ------
-    ValidationError
-        For a wrong count of MDPs, features or demonstrations, numbers of actions that differ,
-        features with another p or that do not fit their task's MDP, no features, or a state
-        out of range of its task's MDP (each naming the task).
     """
-    n = _n_tasks(demos_per_task)
-    if n is None:
-        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
-    mdps = check_environments(mdp, n)
-    tf, digest = _task_features(mdps, features, reward, min_columns)
-    obj = multi_environment_objective(mdps, demos_per_task, beta, objective, planner)
-    return obj, Environments(mdps, tf, digest)
+    if tasks.shared:
+        return make_objective(tasks.mdp, tasks.demos_per_task, beta, objective, planner)
+    return multi_environment_objective(tasks.mdps, tasks.demos_per_task, beta, objective, planner)
 
 
-def environment_signatures(mdps: Sequence[TabularMDP]) -> list[dict]:
-    """One :meth:`TabularMDP.signature` per task (computed once per distinct MDP object)."""
-    seen: dict[int, dict] = {}
-    for m in mdps:
-        if id(m) not in seen:
-            seen[id(m)] = m.signature()
-    return [dict(seen[id(m)]) for m in mdps]

@@ -9,44 +9,25 @@ from __future__ import annotations
 from typing import Any, Callable, ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 import solvers
 
 from .._progress import fit_progress
-from .._validation import check_int, check_mdp, check_tol
+from .._validation import check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
-    check_solver_applies,
-    environment_signatures,
-    environments_setup,
-    features_digest,
-    first_step_stall,
-    held_by_constraint,
-    learner_entry,
-    make_objective,
-    one_environment,
-    resolve_step_solver,
-    reward_features,
-    warn_if_max_iter,
-    warn_if_stalled,
+    check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
+    task_objective, warn_if_max_iter, warn_if_stalled,
 )
+from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from ..objectives.problems import weights_problem
-from ..tasks.features import linear_rewards
 from .solver_settings import estimator_solvers
 
-__all__ = ["GradIRL", "fit_weights", "weights_rewards", "make_objective", "warn_if_stalled", "check_solver_applies"]
-
-
-def weights_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int) -> NDArray[np.float64]:
-    """Rewards (n, S, A) of weights (n, p): ``R_i = F w_i``, or ``w_i`` reshaped when ``F`` is None (tabular)."""
-    if features is None:
-        return weights.reshape(-1, n_states, n_actions)
-    return linear_rewards(features, weights, n_states, n_actions)
+__all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
 
 def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_iter: int, tol: float,
@@ -258,18 +239,10 @@ class GradIRL(Estimator):
         -------
         self
         """
-        one = one_environment(mdp, demos_per_task, self.features)
-        if one is not None:
-            check_mdp(one)
+        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
-        objective: Any
-        if one is None:
-            objective, envs = environments_setup(mdp, demos_per_task, self.features, self.reward, self.beta,
-                                                 self.objective, self.planner)
-            return self._run(objective, envs.features, loop, lambda res, obj: self._store_environments(envs, res, obj))
-        F = reward_features(one, self.features, self.reward)
-        objective = make_objective(one, demos_per_task, self.beta, self.objective, self.planner)
-        return self._run(objective, F, loop, lambda res, obj: self._store(one, F, res, obj))
+        objective = task_objective(tasks, self.beta, self.objective, self.planner)
+        return self._run(objective, tasks.features, loop, lambda res, obj: self._store(tasks, res, obj))
 
     def _run(self, objective, F, loop, store):
         max_iter, tol = loop
@@ -288,19 +261,12 @@ class GradIRL(Estimator):
         warn_if_max_iter(res, "GradIRL.fit", max_iter)
         return self
 
-    def _store(self, mdp, F, res, objective):
+    def _store(self, tasks, res, objective):
         self.weights_ = res.coefficients
-        self.rewards_ = weights_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions)
+        self.rewards_ = tasks.rewards(res.coefficients)
         self._store_run(res, objective)
-        self.mdp_signature_ = mdp.signature()
-        self.features_sha256_ = None if self.features is None else features_digest(F)
-
-    def _store_environments(self, envs, res, objective):
-        self.weights_ = res.coefficients
-        self.rewards_ = envs.features.rewards(res.coefficients)
-        self._store_run(res, objective)
-        self.mdp_signature_ = environment_signatures(envs.mdps)
-        self.features_sha256_ = envs.digest
+        self.mdp_signature_ = tasks.signature()
+        self.features_sha256_ = tasks.digest
 
     def _store_run(self, res, objective):
         self.loss_ = res.loss

@@ -27,16 +27,18 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
 from .._progress import fit_progress
-from .._validation import as_rng, check_array, check_bool, check_int, check_mdp
+from .._validation import as_rng, check_array, check_bool, check_int
 from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
-from .fitting import features_digest, learner_entry
+from .fitting import learner_entry
+from ..tasks.task_set import features_digest
 from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
 from ..planning.budget import options_budget
 from .solver_settings import estimator_solvers
+from ..tasks.task_set import task_set
 from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
 
 __all__ = ["MultiIntentIRL", "adjusted_rand_index", "match_intentions", "INITS"]
@@ -293,7 +295,8 @@ class MultiIntentIRL(Estimator):
             the episodes a fit sees, a bad ``selection`` or ``n_folds``, or an array ``init``;
             an objective without a policy to score episodes; a bad ``init`` or hyper-parameter.
         """
-        check_mdp(mdp)
+        tasks = task_set(mdp, [episodes], self.features, self.reward)  # the episodes of one MDP, as one task
+        mdp = tasks.mdp
         steps, lengths = parse_episodes(mdp, episodes)
         init = self._check_init()
         n_init = check_int(self.n_init, "n_init", minimum=1)
@@ -304,7 +307,7 @@ class MultiIntentIRL(Estimator):
         rng = as_rng(self.rng)
         with options_budget(self.planner_options):
             if isinstance(self.n_intentions, str):
-                K, run = self._select(mdp, steps, lengths, init, n_init, rng)
+                K, run = self._select(tasks, steps, lengths, init, n_init, rng)
             else:
                 K = check_int(self.n_intentions, "n_intentions", minimum=1)
                 if K > len(lengths):
@@ -312,7 +315,7 @@ class MultiIntentIRL(Estimator):
                 run = None
                 for stale in ("n_intentions_candidates_", "n_intentions_scores_"):  # of an earlier "auto" fit
                     self.__dict__.pop(stale, None)
-            settings = EMSettings.build(self, mdp, K)
+            settings = EMSettings.build(self, tasks, K)
             if run is None:
                 given = self._given_start(len(lengths), K) if init == "given" else None
                 with fit_progress(None, self.verbose, n_init * settings.max_iter, "MultiIntentIRL.fit",
@@ -337,8 +340,9 @@ class MultiIntentIRL(Estimator):
 
         return watch
 
-    def _select(self, mdp, steps, lengths, init, n_init, rng):
+    def _select(self, tasks, steps, lengths, init, n_init, rng):
         """``n_intentions="auto"``: K chosen over ``n_intentions_range``; the BIC's fit of that K, or None."""
+        mdp = tasks.mdp
         if self.n_intentions != "auto":
             raise ValidationError(f"n_intentions must be a positive integer or 'auto'; got {self.n_intentions!r}")
         if init == "given":
@@ -353,7 +357,7 @@ class MultiIntentIRL(Estimator):
         if bounds is None:
             bounds = (1, min(DEFAULT_MAX_INTENTIONS, n if n_folds is None else n - -(-n // n_folds)))
         candidates = check_candidates(bounds, n, n_folds)
-        settings = {int(K): EMSettings.build(self, mdp, int(K)) for K in candidates}
+        settings = {int(K): EMSettings.build(self, tasks, int(K)) for K in candidates}
 
         def fit(idx, K):
             st, ln = episode_subset(steps, lengths, idx)

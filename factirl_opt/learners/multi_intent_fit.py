@@ -26,9 +26,9 @@ from .dictionary import feature_weights, pca_dictionary, shrink_coefficients
 from .em import agreement_clustering, e_step, episode_counts, kmeans, log_policies, weighted_statistics
 from ..exceptions import ValidationError, translate_solver_errors
 from .factorial import GTOL, run_factorial
-from ..tasks.features import factorial_rewards
-from .fitting import resolve_step_solver, reward_features
-from .gradirl import weights_rewards
+from ..tasks.features import factorial_rewards, weights_rewards
+from .fitting import resolve_step_solver
+from ..tasks.task_set import TaskSet
 from ..interruption import run_keeping_best
 from ..objectives import available_objectives, get_objective
 from ..objectives.sharding import sharded
@@ -123,15 +123,14 @@ class EMSettings:
     client: Any = None
 
     @classmethod
-    def build(cls, est: Any, mdp: Any, K: int) -> EMSettings:
-        """Validate the hyper-parameters of ``est`` (a MultiIntentIRL) for ``mdp`` and K intentions."""
+    def build(cls, est: Any, tasks: TaskSet, K: int) -> EMSettings:
+        """Validate the hyper-parameters of ``est`` (a MultiIntentIRL) for its task set (one MDP) and K intentions."""
         objective = get_objective(est.objective)
         if not objective.models_policy():
             with_policy = [name for name in available_objectives() if get_objective(name).models_policy()]
             raise ValidationError(f"objective must be one of {', '.join(map(repr, with_policy))} (its policy scores "
                                   f"the episodes in the E-step); got {est.objective!r}")
-        Phi = reward_features(mdp, est.features, est.reward)
-        p = mdp.n_params if Phi is None else Phi.shape[1]
+        mdp, Phi, p = tasks.mdp, tasks.features, tasks.n_params
         k = None
         if est.n_primitives is not None:
             k = check_int(est.n_primitives, "n_primitives", minimum=1)

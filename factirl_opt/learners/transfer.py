@@ -17,25 +17,16 @@ from numpy.typing import ArrayLike, NDArray
 import solvers
 
 from .._progress import fit_progress
-from .._validation import check_array, check_features, check_int, check_mdp, check_tol
+from .._validation import check_array, check_features, check_int, check_tol
 from ..exceptions import FitInterrupted, NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
-    environments_setup,
-    first_step_stall,
-    held_by_constraint,
-    learner_entry,
-    make_objective,
-    one_environment,
-    per_task_features,
-    resolve_step_solver,
-    reward_features,
-    warn_if_max_iter,
+    first_step_stall, held_by_constraint, learner_entry, resolve_step_solver, task_objective, warn_if_max_iter,
 )
+from ..tasks.task_set import environment_tasks, one_environment, per_task_features, task_set
 from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import weights_problem
-from ..tasks.features import TaskFeatures, linear_rewards
+from ..tasks.features import TaskFeatures, linear_rewards, weights_rewards
 from ..mdp.environments import check_environments
-from .gradirl import weights_rewards
 from ..objectives.residuals import residual_weights, residual_weights_problem
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
@@ -103,20 +94,12 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
         A KeyboardInterrupt during the run; its ``result`` is the :class:`TransferFit` of each
         task's best coefficients seen (status ``"interrupted"``).
     """
-    one = one_environment(mdp, demos_per_task, base_features)
-    obj: Any
-    if one is None:
-        obj, envs = environments_setup(mdp, demos_per_task, base_features, reward, beta, objective, planner)
-        Phi: Any = envs.features
-        D = check_features(dictionary, Phi.n_features, name="dictionary")
-    else:
-        Phi = reward_features(check_mdp(one), base_features, reward)
-        D = check_features(dictionary, one.n_params if Phi is None else Phi.shape[1], name="dictionary")
+    tasks = task_set(mdp, demos_per_task, base_features, reward)
+    D = check_features(dictionary, tasks.n_params, name="dictionary")
     max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
-    if one is not None:
-        obj = make_objective(one, demos_per_task, beta, objective, planner)
+    obj = task_objective(tasks, beta, objective, planner)
     solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
-    return run_transfer(obj, D, solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
+    return run_transfer(obj, D, solver, base_features=tasks.features, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
@@ -262,7 +245,7 @@ def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, mo
         Features missing for a model fitted with per-task features, given to a tabular model,
         with another p than the dictionary's, environments with another number of actions than
         the model's, the model's shared features changed since ``fit``, or as
-        :func:`factirl_opt.learners.fitting.environments_setup` does.
+        :func:`factirl_opt.tasks.task_set.task_set` does.
     """
     fitted = model.features
     per_task = per_task_features(fitted)
@@ -277,18 +260,18 @@ def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, mo
         raise ValidationError("this FactIRL model was fitted with one feature matrix per task: transfer to new "
                               "environments needs their features (features=[one (S_i*A, p) or (S_i, p) per new task])")
     D = check_array(model.dictionary_, "dictionary_", ndim=2)
-    obj, envs = environments_setup(mdp, demos_per_task, fitted if features is None else features, "state-action", beta,
-                                   objective, planner)
-    if envs.features.n_features != D.shape[0]:
-        raise ValidationError(f"the new tasks' features have p = {envs.features.n_features} columns, but the dictionary "
+    tasks = environment_tasks(mdp, demos_per_task, fitted if features is None else features)
+    obj = task_objective(tasks, beta, objective, planner)
+    if tasks.n_params != D.shape[0]:
+        raise ValidationError(f"the new tasks' features have p = {tasks.n_params} columns, but the dictionary "
                               f"is over p = {D.shape[0]} features: give features with the columns of fit")
     sig = getattr(model, "mdp_signature_", None)
     n_actions = sig["n_actions"] if isinstance(sig, dict) else sig[0]["n_actions"] if sig else None
     if n_actions is not None and obj.n_actions != n_actions:
         raise ValidationError(f"the new tasks' environments have {obj.n_actions} actions, but the model was fitted with "
                               f"{n_actions}")
-    expected = getattr(model, "features_sha256_", envs.digest)
-    if features is None and expected != envs.digest:
+    expected = getattr(model, "features_sha256_", tasks.digest)
+    if features is None and expected != tasks.digest:
         raise ValidationError(f"this FactIRL model was fitted with other features than the ones set now (sha256 "
-                              f"{str(envs.digest)[:12]}... instead of {str(expected)[:12]}...): restore them or fit again")
-    return obj, envs.features, D
+                              f"{str(tasks.digest)[:12]}... instead of {str(expected)[:12]}...): restore them or fit again")
+    return obj, tasks.features, D

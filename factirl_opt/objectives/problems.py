@@ -26,12 +26,9 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
-from .._validation import REWARD_LIMIT
-from ..tasks.features import (
-    StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards, task_rewards,
-)
 from .._batched import rows_matmul
-from ..exceptions import ValidationError
+from .._validation import REWARD_LIMIT
+from ..tasks.features import StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards
 
 __all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem"]
 

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
-from ..learners.fitting import features_digest
+from ..tasks.task_set import features_digest
 from ..mdp.tabular import SIGNATURE_KEYS
 from .archive import check_array
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..exceptions import PersistenceError, ValidationError
 from ..learners.factirl import FactIRL
-from ..learners.fitting import per_task_features
+from ..tasks.task_set import per_task_features
 from ..learners.gradirl import GradIRL
 from ..learners.multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive

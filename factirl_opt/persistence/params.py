@@ -16,7 +16,7 @@ import solvers
 
 from .._validation import check_int
 from ..exceptions import FactIRLError, PersistenceError
-from ..learners.fitting import per_task_features
+from ..tasks.task_set import per_task_features
 from ..learners.solver_settings import SolverSettings
 from .archive import check_array, require, to_json
 

@@ -410,3 +410,10 @@ def factorial_rewards(mdp: Any, Phi: Any, D: NDArray[np.float64], H: NDArray[np.
             f"the product features @ dictionary overflows float64: the largest |feature| is {np.max(np.abs(Phi)):.3g} and "
             f"the largest |dictionary entry| {np.max(np.abs(D)):.3g}; rescale the features (e.g. to entries of order 1)")
     return linear_rewards(F, H, mdp.n_states, mdp.n_actions, ("features @ dictionary", "coefficients"))
+
+
+def weights_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n_actions: int) -> NDArray[np.float64]:
+    """Rewards (n, S, A) of weights (n, p): ``R_i = F w_i``, or ``w_i`` reshaped when ``F`` is None (tabular)."""
+    if features is None:
+        return weights.reshape(-1, n_states, n_actions)
+    return linear_rewards(features, weights, n_states, n_actions)

@@ -55,7 +55,8 @@ import numpy as np
 
 from ..._threads import limit_blas_threads
 from ...tasks.features import factorial_rewards
-from ...learners.fitting import make_objective, reward_features
+from ...learners.fitting import make_objective
+from ...tasks.task_set import reward_features
 from ...objectives.sharding import sharded
 from ...planning import clear_caches, planning_budget
 from ...datasets.synthetic import random_coefficients

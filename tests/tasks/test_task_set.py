@@ -1,0 +1,84 @@
+"""The one setup path of every learner entry point: ``task_set`` reads (mdp or mdps, demos, features, reward) once."""
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError
+from factirl_opt.learners.fitting import task_objective
+from factirl_opt.tasks import StateBroadcast, TaskFeatures
+from factirl_opt.tasks.task_set import TaskSet, environment_tasks, features_digest, task_set
+
+
+@pytest.fixture(scope="module")
+def grids():
+    return fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.7, gamma=0.9)
+
+
+@pytest.fixture(scope="module")
+def demos(grids):
+    g3, _ = grids
+    R = np.random.default_rng(0).normal(size=(2, 9, 4))
+    return fo.sample_demonstrations(g3, R, 2, 4, rng=1)
+
+
+def test_one_mdp_is_one_environment(grids, demos):
+    g3, _ = grids
+    tabular = task_set(g3, demos)
+    assert isinstance(tabular, TaskSet) and tabular.shared and tabular.mdp is g3 and tabular.mdps is None
+    assert tabular.features is None and tabular.digest is None and tabular.n_params == 36
+    assert task_set([g3, g3], demos).mdp is g3  # the same object for every task: the one-MDP path
+    state = task_set(g3, demos, reward="state")
+    assert isinstance(state.features, StateBroadcast) and state.n_params == 9 and state.digest is None
+    F = np.random.default_rng(2).random((9, 3))
+    feats = task_set(g3, demos, F)
+    assert feats.features.shape == (36, 3) and feats.digest == features_digest(feats.features)
+    W = np.random.default_rng(3).normal(size=(2, 3))
+    np.testing.assert_allclose(feats.rewards(W), (feats.features @ W.T).T.reshape(2, 9, 4), rtol=0, atol=1e-14)
+    assert feats.signature() == g3.signature()
+
+
+def test_several_mdps_or_per_task_features_are_environments(grids, demos):
+    g3, g4 = grids
+    d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
+    Phis = [np.random.default_rng(5).random((9, 2)), np.random.default_rng(6).random((16, 2))]
+    tasks = task_set([g3, g4], [demos[0], d4[0]], Phis)
+    assert not tasks.shared and tasks.mdps == [g3, g4] and isinstance(tasks.features, TaskFeatures)
+    assert tasks.n_params == 2 and tasks.digest is None
+    assert tasks.signature() == [g3.signature(), g4.signature()]
+    R = tasks.rewards(np.ones((2, 2)))
+    assert [r.shape for r in R] == [(9, 4), (16, 4)]
+    assert task_objective(tasks, 2.0).n_tasks == 2
+    shared = environment_tasks(g3, demos, Phis[0])  # one MDP object, planned as environments (transfer)
+    assert not shared.shared and shared.digest == features_digest(np.repeat(Phis[0], 4, axis=0))
+
+
+@pytest.mark.parametrize("args, match", [
+    (lambda g3, g4, d: ([g3, g4], d, None), "need features"),
+    (lambda g3, g4, d: (g3, d, np.ones((9, 2)), "state"), "takes no features"),
+    (lambda g3, g4, d: ([g3, g3, g4], d, [np.ones((9, 2))] * 3), "3 MDPs for 2 tasks"),
+    (lambda g3, g4, d: ("grid", d), "TabularMDP"),
+    (lambda g3, g4, d: (g3, d, None, "nonsense"), "reward must be one of"),
+])
+def test_bad_task_sets_are_refused_naming_the_problem(grids, demos, args, match):
+    with pytest.raises(ValidationError, match=match):
+        task_set(*args(*grids, demos))
+
+
+@pytest.mark.parametrize("entry", ["GradIRL.fit", "FactIRL.fit", "fit_factorial", "transfer_coefficients",
+                                   "MultiIntentIRL.fit"])
+def test_every_entry_point_refuses_what_task_set_refuses(grids, demos, entry):
+    """The same input error, the same message, whichever entry point reads it (one setup path)."""
+    g3, _ = grids
+    F = np.ones((9, 2))
+    calls = {
+        "GradIRL.fit": lambda: fo.GradIRL(features=F, reward="state").fit(g3, demos),
+        "FactIRL.fit": lambda: fo.FactIRL(n_primitives=1, features=F, reward="state").fit(g3, demos),
+        "fit_factorial": lambda: fo.fit_factorial(g3, demos, np.ones((2, 1)), np.ones((2, 1)), beta=5.0, base_features=F,
+                                                  reward="state"),
+        "transfer_coefficients": lambda: fo.transfer_coefficients(g3, demos, np.ones((2, 1)), beta=5.0, base_features=F,
+                                                                  reward="state"),
+        "MultiIntentIRL.fit": lambda: fo.MultiIntentIRL(1, features=F, reward="state").fit(g3, list(demos[0])),
+    }
+    with pytest.raises(ValidationError, match="reward='state' learns one free reward per state and takes no features"):
+        calls[entry]()
