@@ -10,7 +10,7 @@ import json
 import sys
 
 from .benchmarks import BENCHMARKS
-from .exceptions import FactIRLError
+from ..exceptions import FactIRLError
 
 __all__ = ["main", "build_parser", "run_from_args"]
 

@@ -40,6 +40,7 @@ sequential ones.
 
 from .base import Planner, PolicySystem
 from .budget import get_planning_budget, planning_budget
+from .counting import CountingPlanner
 from .cache import CACHE_GROUPS_PER_TASK, FACTOR_CACHE_BYTES, FactorCache, clear_caches
 from .dense import DENSE_CHUNK_BYTES, DensePlanner
 from .engine import PlanResult, adjoint, boltzmann_policy, optimal_q, plan, policy_evaluation, tangent, value_iteration
@@ -55,6 +56,7 @@ from .registry import (
 from .sparse_lu import SparseLUPlanner, TaskFactor
 
 __all__ = [
+    "CountingPlanner",
     "available_planners",
     "get_planner",
     "register_planner",

@@ -134,10 +134,10 @@ def test_counting_planner_counts_every_task_system():
     import numpy as np
 
     from factirl_opt import GridWorld
-    from factirl_opt.planning import get_planner, optimal_q, plan
+    from factirl_opt.planning import CountingPlanner, get_planner, optimal_q, plan
 
     mdp = GridWorld(size=3)
-    planner = fit_bench.CountingPlanner(get_planner(mdp))
+    planner = CountingPlanner(get_planner(mdp))
     R = np.random.default_rng(0).standard_normal((4, mdp.n_states, mdp.n_actions))
     res = plan(planner, R)
     assert planner.n_solves >= 4  # at least one policy evaluation of each task

@@ -9,7 +9,7 @@ import factirl_opt as fo
 from factirl_opt.lab import bench
 from factirl_opt.lab.benchmarks import mce as mce_bench
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.planning import get_planner
+from factirl_opt.planning import CountingPlanner, get_planner
 
 COUNTS = {"n_systems", "n_stochastic_systems", "n_forward", "n_transpose", "n_forward_calls", "n_transpose_calls"}
 
@@ -54,7 +54,7 @@ def test_mce_benchmark_refuses_bad_settings(argv, fragment):
 def test_counting_planner_counts_and_passes_results_through(rng):
     mdp = fo.GridWorld(3)
     inner = get_planner(mdp, "sparse-lu")
-    counting = mce_bench.SystemCountingPlanner(inner)
+    counting = CountingPlanner(inner)
     policy = rng.dirichlet(np.ones(mdp.n_actions), size=(2, mdp.n_states))
     B = rng.standard_normal((2, mdp.n_states))
     x = counting.system(policy).solve(B)

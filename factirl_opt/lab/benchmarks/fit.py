@@ -38,13 +38,13 @@ from ...exceptions import ValidationError
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import GridWorld
-from ...planning import Planner, PolicySystem, get_planner
+from ...planning import CountingPlanner, get_planner
 from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import synthetic_tasks
 from ..arguments import integer, real, solver_name
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "CountingPlanner"]
+__all__ = ["add_arguments", "run"]
 
 DEFAULTS = {"size": 10, "n_tasks": 100, "n_demos": 10, "length": 10, "n_primitives": 5, "beta": 5.0,
             "flat_max_iter": 100, "max_iter": 100, "inner_steps": 5, "tol": 1e-5, "h_solver": "armijo",
@@ -57,53 +57,6 @@ QUICK = {"size": 4, "n_tasks": 16, "n_demos": 5, "length": 6, "n_primitives": 2,
 REFERENCE = ("armijo", "armijo")
 #: a combination qualifies for ``best`` if its train deviation is at most this factor times the reference's
 DEVIATION_SLACK = 1.05
-
-
-class _CountingSystem(PolicySystem):
-    """A :class:`PolicySystem` that counts the task systems it solves."""
-
-    def __init__(self, system, counter):
-        self.system, self.counter, self.n = system, counter, system.n
-
-    def solve(self, B):
-        self.counter.n_solves += self.n
-        return self.system.solve(B)
-
-    def solve_transpose(self, B):
-        self.counter.n_solves += self.n
-        return self.system.solve_transpose(B)
-
-
-class CountingPlanner(Planner):
-    """A planner that delegates to another and counts its linear solves.
-
-    Parameters
-    ----------
-    planner : Planner
-        The planner doing the work (e.g. ``get_planner(mdp)``).
-
-    Attributes
-    ----------
-    n_solves : int
-        Task systems ``(I - gamma P_pi) x = b`` (or transposed) solved so far: a batched solve of
-        n tasks counts n, whatever its number of right-hand sides.
-    """
-
-    def __init__(self, planner):
-        super().__init__(planner.mdp)
-        self.planner, self.name, self.n_solves = planner, planner.name, 0
-
-    def backup(self, V):
-        return self.planner.backup(V)
-
-    def pullback(self, G):
-        return self.planner.pullback(G)
-
-    def system(self, policy, hints=None):
-        return _CountingSystem(self.planner.system(policy, hints), self)
-
-    def __getattr__(self, name):  # anything else a planner offers (value sweeps, caches): the wrapped one's
-        return getattr(self.__dict__["planner"], name)
 
 
 def add_arguments(parser):

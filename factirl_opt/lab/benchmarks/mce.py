@@ -11,7 +11,7 @@ residuals, MCE, takes L-BFGS where the preset names a Gauss-Newton solver).
 
 Prints, per objective: wall time of the fit, batched planning evaluations, outer iterations,
 status, final loss, the mean train deviation (eq. 13, each task on its own map), and the
-planning work counted by a wrapping planner (:class:`SystemCountingPlanner`): task systems
+planning work counted by a wrapping planner (:class:`CountingPlanner`): task systems
 built (a new sparse factorisation per task for a stochastic policy; a deterministic one may be
 served from the planner's cache or updated at low rank), forward solves (Newton steps of the
 soft Bellman equation for MCE, policy-evaluation sweeps and Jacobian products for policy
@@ -35,10 +35,11 @@ from ..experiments.learner_solvers import factorial_options
 from ..experiments.presets import PRESETS, get_preset
 from ..experiments.worlds import objectworld_per_task
 from ...learners.factirl import FactIRL
-from ...planning import Planner, PolicySystem, get_planner
+from ...planning import CountingPlanner, get_planner
+from ..arguments import integer
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "SystemCountingPlanner", "OBJECTIVES"]
+__all__ = ["add_arguments", "run", "OBJECTIVES"]
 
 #: the objectives compared (policy matching the reference of the ratios)
 OBJECTIVES = ("policy-matching", "mce")
@@ -48,90 +49,22 @@ DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demo
 QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10}
 
 
-class _CountingSystem(PolicySystem):
-    """A :class:`PolicySystem` that counts its forward and transposed solves."""
-
-    def __init__(self, system, counter):
-        self.system, self.counter, self.n = system, counter, system.n
-        self.solvers = system.solvers
-
-    def solve(self, B):
-        self.counter.n_forward += self.n
-        self.counter.n_forward_calls += 1
-        return self.system.solve(B)
-
-    def solve_transpose(self, B):
-        self.counter.n_transpose += self.n
-        self.counter.n_transpose_calls += 1
-        return self.system.solve_transpose(B)
-
-
-class SystemCountingPlanner(Planner):
-    """A planner that delegates to another and counts the systems it builds and solves.
-
-    Parameters
-    ----------
-    planner : Planner
-        The planner doing the work (e.g. ``get_planner(mdp)``).
-
-    Attributes
-    ----------
-    n_systems, n_stochastic_systems : int
-        Task systems ``M = I - gamma P_pi`` asked for (all, and those of stochastic policies:
-        each one a new factorisation with the sparse planner).
-    n_forward, n_transpose : int
-        Task systems solved ``M x = b`` and ``M^T x = b`` (a batched solve of n tasks counts n).
-    n_forward_calls, n_transpose_calls : int
-        Batched solve calls.
-    """
-
-    def __init__(self, planner):
-        super().__init__(planner.mdp)
-        self.planner, self.name = planner, planner.name
-        self.n_systems = self.n_stochastic_systems = 0
-        self.n_forward = self.n_transpose = self.n_forward_calls = self.n_transpose_calls = 0
-
-    def backup(self, V):
-        return self.planner.backup(V)
-
-    def pullback(self, G):
-        return self.planner.pullback(G)
-
-    def system(self, policy, hints=None):
-        n = len(policy)
-        self.n_systems += n
-        if np.ndim(policy) == 3:
-            self.n_stochastic_systems += n
-        return _CountingSystem(self.planner.system(policy, hints), self)
-
-    def solver_system(self, solvers):
-        return _CountingSystem(self.planner.solver_system(solvers), self)
-
-    def counts(self):
-        """The counters as a dict."""
-        return {key: int(getattr(self, key)) for key in ("n_systems", "n_stochastic_systems", "n_forward", "n_transpose",
-                                                          "n_forward_calls", "n_transpose_calls")}
-
-    def __getattr__(self, name):  # anything else a planner offers (value sweeps, caches): the wrapped one's
-        return getattr(self.__dict__["planner"], name)
-
-
 def add_arguments(parser):
     def opt(*flags, **kw):
         add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
     opt("--preset", help="preset of the budgets and solvers (a world with a map per task)")
-    opt("--size", type=int, help="grid side")
-    opt("--n-tasks", type=int, help="training tasks, each on its own map")
-    opt("--n-demos", type=int, help="demonstrations per task")
-    opt("--length", type=int, help="steps per demonstration")
-    opt("-k", "--n-primitives", type=int, help="primitives, true (inner colours) and learnt")
-    opt("--max-iter", type=int, help="FactIRL outer iterations (None: the preset's)")
-    opt("--flat-max-iter", type=int, help="iterations of FactIRL's flat start (None: the preset's)")
+    opt("--size", type=integer(2), help="grid side")
+    opt("--n-tasks", type=integer(1), help="training tasks, each on its own map")
+    opt("--n-demos", type=integer(1), help="demonstrations per task")
+    opt("--length", type=integer(1), help="steps per demonstration")
+    opt("-k", "--n-primitives", type=integer(1), help="primitives, true (inner colours) and learnt")
+    opt("--max-iter", type=integer(0), help="FactIRL outer iterations (None: the preset's)")
+    opt("--flat-max-iter", type=integer(0), help="iterations of FactIRL's flat start (None: the preset's)")
     opt("--objectives", nargs="+", choices=OBJECTIVES, metavar="NAME", help="objectives fitted, in this order")
-    opt("--repeats", type=int, help="fits per objective, alternating; the fastest is kept")
-    opt("--seed", type=int, help="seed of the maps and demonstrations")
-    opt("--blas-threads", type=int, help="OpenBLAS threads (0: leave as is)")
+    opt("--repeats", type=integer(1), help="fits per objective, alternating; the fastest is kept")
+    opt("--seed", type=integer(0), help="seed of the maps and demonstrations")
+    opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--quick", action="store_true",
                         help="tiny configuration for tests; options given explicitly keep their value")
 
@@ -156,7 +89,7 @@ def _preset(s):
 def _fit(preset, gt, objective, seed):
     """One FactIRL fit from scratch with ``objective``; its model, wall time and counting planner."""
     mdps = gt.mdps("train")
-    planner = SystemCountingPlanner(get_planner(mdps[0], preset.planner))
+    planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
     kw["planner"] = planner
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
