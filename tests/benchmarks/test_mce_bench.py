@@ -43,12 +43,18 @@ def test_mce_benchmark_one_objective_has_no_ratio(capsys):
     assert out["settings"]["fact_max_iter"] == 1
 
 
-@pytest.mark.parametrize("argv, fragment", [(["--preset", "objectworld-quick"], "not a world with a map per task"),
-                                            (["--n-tasks", "0"], "--n-tasks must be at least 1"),
-                                            (["--repeats", "0"], "--repeats must be at least 1")])
-def test_mce_benchmark_refuses_bad_settings(argv, fragment):
-    with pytest.raises(ValidationError, match=fragment):
-        mce_bench.run(bench.build_parser().parse_args(["mce", "--quick", *argv]))
+def test_mce_benchmark_refuses_a_preset_without_a_map_per_task():
+    with pytest.raises(ValidationError, match="not a world with a map per task"):
+        mce_bench.run(bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"]))
+
+
+@pytest.mark.parametrize("argv, fragment", [(["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),
+                                            (["--repeats", "0"], "argument --repeats: must be an integer >= 1; got '0'"),
+                                            (["--blas-threads", "-3"], "argument --blas-threads")])
+def test_mce_benchmark_options_are_checked_by_the_parser(capsys, argv, fragment):
+    with pytest.raises(SystemExit) as exit_:
+        bench.build_parser().parse_args(["mce", "--quick", *argv])
+    assert exit_.value.code == 2 and fragment in capsys.readouterr().err
 
 
 def test_counting_planner_counts_and_passes_results_through(rng):
