@@ -427,6 +427,9 @@ class FactIRL:
         if not _is_auto(self.n_primitives):
             check_int(self.n_primitives, "n_primitives", minimum=1)
         check_residual_penalty(self.residual_penalty)
+        if isinstance(self.init, tuple):
+            raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
+                                  "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
         if flat_rewards is None and self.init == "pca":
