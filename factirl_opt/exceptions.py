@@ -18,7 +18,6 @@ from solvers import exceptions as _solvers
 
 __all__ = [
     "FactIRLError",
-    "MaxIterWarning",
     "ValidationError",
     "NotFittedError",
     "SolverError",
@@ -28,6 +27,7 @@ __all__ = [
     "MissingDependencyError",
     "MissingSolverBackendError",
     "ConvergenceWarning",
+    "MaxIterWarning",
     "translate_solver_errors",
 ]
 

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
+from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
 from .dictionary import (
     PCA_MAX_HALVINGS,
     check_dictionary_norms,
@@ -51,9 +52,8 @@ from .interruption import INTERRUPTED, FitInterrupted, warn_interrupted
 from .mdp import check_signature
 from .objectives.distributed import sharded
 from .planning.budget import options_budget
-from .task_features import TaskFeatures
-from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
 from .residuals import check_residual_penalty, residual_weights
+from .task_features import TaskFeatures
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -61,15 +61,16 @@ __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients"
 
 INITS = ("pca", "random")
 
-
-def _is_auto(value: Any) -> bool:
-    return isinstance(value, str) and value == AUTO
-
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
 
 #: the flat learner of the PCA start: GradIRL's default solver and tolerance
 FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+
+
+def _is_auto(value: Any) -> bool:
+    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.adaptive`)."""
+    return isinstance(value, str) and value == AUTO
 
 
 def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
