@@ -19,7 +19,6 @@ from solvers import exceptions as _solvers
 
 __all__ = [
     "FactIRLError",
-    "MaxIterWarning",
     "ValidationError",
     "NotFittedError",
     "SolverError",
@@ -33,6 +32,7 @@ __all__ = [
     "InterruptedFitWarning",
     "DeprecatedNameWarning",
     "WorkersLost",
+    "MaxIterWarning",
     "translate_solver_errors",
 ]
 

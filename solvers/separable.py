@@ -53,10 +53,7 @@ def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[
     """
     rows = np.asarray(rows, dtype=np.intp)
 
-    def wrap(func: Callable | None) -> Callable | None:
-        if func is None:
-            return None
-
+    def wrap(func: Callable) -> Callable:
         def restricted(x_rows, local):
             where = rows[np.asarray(local, dtype=np.intp)]
             if counts is not None:
@@ -65,9 +62,10 @@ def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[
 
         return restricted
 
-    return dataclasses.replace(problem, loss_and_grad=wrap(problem.loss_and_grad),
-                               residual_jacobian=wrap(problem.residual_jacobian), linearize=wrap(problem.linearize),
-                               n_rows=int(rows.size))
+    return dataclasses.replace(
+        problem, loss_and_grad=wrap(problem.loss_and_grad),
+        residual_jacobian=None if problem.residual_jacobian is None else wrap(problem.residual_jacobian),
+        linearize=None if problem.linearize is None else wrap(problem.linearize), n_rows=int(rows.size))
 
 
 def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: NDArray[np.float64],

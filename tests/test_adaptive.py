@@ -82,6 +82,8 @@ def test_validation_needs_two_tasks_and_a_demonstration_to_score(data):
         _fit(mdp, [d[:1] for d in demos], features=F, residual_penalty="auto")
     with pytest.raises(ValidationError, match=r"n_primitives must be an integer >= 1"):
         _fit(mdp, demos, features=F, n_primitives=0, residual_penalty="auto")
+    with pytest.raises(ValidationError, match=r"init must be 'pca' or 'random', not a \(D0, H0\) tuple"):
+        _fit(mdp, demos, features=F, n_primitives="auto", init=(np.ones((4, 2)), np.ones((6, 2))))
 
 
 def test_plot_validation(auto):

@@ -53,15 +53,16 @@ __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients"
 
 INITS = ("pca", "random")
 
-
-def _is_auto(value: Any) -> bool:
-    return isinstance(value, str) and value == AUTO
-
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
 
 #: the flat learner of the PCA start: GradIRL's default solver and tolerance
 FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+
+
+def _is_auto(value: Any) -> bool:
+    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.adaptive`)."""
+    return isinstance(value, str) and value == AUTO
 
 
 def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -426,6 +427,9 @@ class FactIRL(Estimator):
         if not _is_auto(self.n_primitives):
             check_int(self.n_primitives, "n_primitives", minimum=1)
         check_residual_penalty(self.residual_penalty)
+        if isinstance(self.init, tuple):
+            raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
+                                  "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
         if flat_rewards is None and self.init == "pca":
