@@ -77,7 +77,7 @@ import time
 
 import numpy as np
 
-from .._arguments import integer, real, text
+from .._arguments import count, integer, real, text
 from .._threads import limit_blas_threads
 from ..demonstrations import empirical_statistics, sample_demonstrations
 from ..evaluation import deviation
@@ -118,7 +118,7 @@ def add_arguments(parser):
     parser.add_argument("--fit-iter", type=integer(0), default=0, metavar="N",
                         help="instead of the planner timings, fit FactIRL on an Objectworld's features for N outer "
                              "iterations per size (default 0: timings)")
-    parser.add_argument("--max-bytes", type=real(0, low_open=True), default=None,
+    parser.add_argument("--max-bytes", type=count(1), default=None,
                         help="planning memory budget of the fits in bytes, e.g. 16e9 (default: none)")
     parser.add_argument("--jobs", type=integer(1, also=(-1,), note=" (or -1: every core)"), nargs="+", default=None, metavar="J",
                         help="with --fit-iter: the same fit side by side for each FactIRL n_jobs J (positive or -1), "
