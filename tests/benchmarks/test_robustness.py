@@ -14,7 +14,6 @@ import pytest
 
 from factirl_opt import GridWorld, bench, estimate_mdp, sample_transitions
 from factirl_opt.benchmarks import robustness as rb
-from factirl_opt.exceptions import ValidationError
 
 BIG = 1_000_000
 
