@@ -43,9 +43,14 @@ def test_mce_benchmark_one_objective_has_no_ratio(capsys):
     assert out["settings"]["fact_max_iter"] == 1
 
 
-def test_mce_benchmark_refuses_a_preset_without_a_map_per_task():
+def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
+    with pytest.raises(SystemExit):
+        bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"])
+    assert "argument --preset: invalid choice: 'objectworld-quick'" in capsys.readouterr().err
+    args = bench.build_parser().parse_args(["mce", "--quick"])
+    args.preset = "objectworld-quick"  # given programmatically: refused by the library
     with pytest.raises(ValidationError, match="not a world with a map per task"):
-        mce_bench.run(bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"]))
+        mce_bench.run(args)
 
 
 @pytest.mark.parametrize("argv, fragment", [(["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),

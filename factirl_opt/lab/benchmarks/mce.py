@@ -53,7 +53,7 @@ def add_arguments(parser):
     def opt(*flags, **kw):
         add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
-    opt("--preset", help="preset of the budgets and solvers (a world with a map per task)")
+    opt("--preset", choices=sorted(n for n, p in PRESETS.items() if p.world == "objectworld-per-task"), help="preset of the budgets and solvers (a world with a map per task)")
     opt("--size", type=integer(2), help="grid side")
     opt("--n-tasks", type=integer(1), help="training tasks, each on its own map")
     opt("--n-demos", type=integer(1), help="demonstrations per task")
