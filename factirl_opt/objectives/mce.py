@@ -284,7 +284,7 @@ def _forward(planner, R, mu, pi_hat, beta, V0=None, max_iter=SOFT_MAX_ITER, kept
     return _Point(Q, V, log_pi, mu[:, :, None] * pi_hat, beta, kept)
 
 
-def refined_adjoint_solve(planner, solvers, pi, B):
+def refined_adjoint_solve(planner, solvers, pi, B, z0=None):
     """``z`` with ``(I - gamma P_pi)^T z = B`` by iterative refinement on kept factorisations.
 
     ``K_i`` (``solvers[i]``) factorises an earlier policy's system of task ``i``; each sweep
@@ -302,15 +302,17 @@ def refined_adjoint_solve(planner, solvers, pi, B):
     pi : ndarray, shape (n, S, A)
         The stochastic policies of the systems solved.
     B : ndarray, shape (n, S)
+    z0 : ndarray, shape (n, S), optional
+        Where the refinement starts (e.g. the solution for nearby rewards); default ``K^-T B``.
 
     Returns
     -------
     z : ndarray, shape (n, S)
     converged : ndarray of bool, shape (n,)
     sweeps : int
-        Refinement sweeps taken (0: the first solve was exact enough for every task).
+        Refinement sweeps taken (0: the start was exact enough for every task).
     """
-    z = planner.solver_system(solvers).solve_transpose(B)
+    z = planner.solver_system(solvers).solve_transpose(B) if z0 is None else np.array(z0, dtype=np.float64)
     scale_b = np.abs(B).max(axis=1)
     todo, prev = np.arange(len(B)), np.full(len(B), np.inf)
     converged = np.zeros(len(B), dtype=bool)
@@ -333,8 +335,9 @@ def _gradient(planner, point):
     """``dJ/dR`` (n, S, A): one transposed solve per task with the soft-optimal policy's system.
 
     With kept factorisations (``point.kept``, every task's), the solve is refined on them
-    (:func:`refined_adjoint_solve`); a task where that does not converge gets a new
-    factorisation of its own policy, which becomes its kept one.
+    (:func:`refined_adjoint_solve`), from ``point.z0`` if set (the adjoint of the tasks' last
+    evaluation); a task where that does not converge gets a new factorisation of its own
+    policy, which becomes its kept one. The solution is left in ``point.z``.
     """
     pi, c = point.pi, point.counts
     g = point.beta * (c - c.sum(axis=2, keepdims=True) * pi)  # dlogL/dQ
@@ -342,13 +345,14 @@ def _gradient(planner, point):
     if kept is None or any(k is None for k in kept):
         return -adjoint(planner, planner.system(pi), pi, g)
     b = planner.pullback(g)
-    z, converged, _ = refined_adjoint_solve(planner, kept, pi, b)
+    z, converged, _ = refined_adjoint_solve(planner, kept, pi, b, getattr(point, "z0", None))
     if not converged.all():
         f = np.flatnonzero(~converged)
         system = planner.system(pi[f])
         z[f] = system.solve_transpose(b[f])
         for i, solver in zip(f, system.solvers or [None] * len(f)):
             kept[i] = solver
+    point.z = z
     return -(g + planner.gamma * pi * z[:, :, None])
 
 
@@ -367,7 +371,8 @@ class MCEObjective(Objective):
     Warm start: each task's last soft values start its next Newton iteration, and, with a
     planner whose systems expose per-task solvers (the sparse LU), its last factorisation is
     kept and reused: for chord steps of the next soft values and for the adjoint, by iterative
-    refinement (:func:`refined_adjoint_solve`); a factorisation is made only when the kept
+    refinement (:func:`refined_adjoint_solve`, from the task's last adjoint solution); a
+    factorisation is made only when the kept
     one no longer contracts fast enough. One factorisation per task is kept between
     evaluations (dropped by :meth:`reset`, and not kept at all under a planning
     budget the tasks do not fit in at once). Results agree with fresh factorisations to the
@@ -380,10 +385,11 @@ class MCEObjective(Objective):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._kept = None  # per task: the solver of its last factorised soft policy, or None
+        self._z = None  # per task: its last adjoint solution (n_tasks, S), NaN where none
 
     def reset(self):
         super().reset()
-        self._kept = None
+        self._kept = self._z = None
 
     def _forward(self, R, rows, warm):
         if self._chunk(self.n_tasks) < self.n_tasks:  # under a budget: nothing kept between calls
@@ -394,6 +400,9 @@ class MCEObjective(Objective):
             kept = [self._kept[i] for i in rows]
         point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm, kept=kept)
         point.rows = rows
+        if self._z is not None and self._kept is not None:
+            z0 = self._z[rows]
+            point.z0 = None if np.isnan(z0).any() else z0
         self._keep(point)
         return point
 
@@ -401,6 +410,11 @@ class MCEObjective(Objective):
         if self._kept is not None and self._chunk(self.n_tasks) >= self.n_tasks:
             for i, solver in zip(point.rows, point.kept):
                 self._kept[i] = solver
+            z = getattr(point, "z", None)
+            if z is not None:
+                if self._z is None:
+                    self._z = np.full((self.n_tasks, z.shape[1]), np.nan)
+                self._z[point.rows] = z
 
     def _warm_start(self, point):
         return point.V
