@@ -41,6 +41,21 @@ Gradient by one adjoint solve per task. With ``g = dlogL/dQ = beta (c - c(s) pi)
 ``(I - gamma P_pi^T) z = P^T g`` (:func:`factirl_opt.planning.adjoint` with the stochastic
 policy); ``dJ/dR = -(that)``.
 
+Reused factorisations (the objective and :func:`mce_loss`, with a planner whose systems expose
+per-task solvers: the sparse LU; issue 30, ``results/mce-speed``). A factorisation of
+``I - gamma P_pi`` costs 2 ms at S = 1024, 20 solves' worth. Each task keeps the factorisation
+``K`` of its last Newton step, between evaluations too (:class:`MCEObjective`), and tries the
+*chord step* ``V + K^-1 (T V - V)`` first: Newton's step with an earlier policy's system. It is
+accepted when it shrinks the residual ``||T V - V||_inf`` at least by :data:`CHORD_MAX_RATIO`
+(else the guarded Newton step above is taken, and its factorisation kept); one that shrinks it
+by less than :data:`CHORD_REFACTOR_RATIO` makes the next step a Newton step. The stopping rule
+is the same; a task within it goes on with chord steps down to :data:`POLISH_TOL` (the accuracy
+of Newton's quadratic last step, so the loss stays smooth in the rewards to rounding) or until
+one is refused. The adjoint is solved by iterative refinement on the kept factorisation
+(:func:`refined_adjoint_solve`, from the task's last adjoint solution), to a relative residual
+:data:`ADJOINT_TOL`, or with a new factorisation where the refinement does not contract. The
+public :func:`soft_values` (scores, EM) keeps plain guarded Newton.
+
 Potential shaping ``R + gamma P phi - phi`` shifts ``Q`` and ``V`` by ``-phi(s)`` and leaves
 ``pi``, hence the loss, unchanged. The objective is not a least-squares one: the Gauss-Newton
 step solvers do not apply, gradient solvers (``armijo``, ``armijo-nonneg``, ``lbfgs``) do.
