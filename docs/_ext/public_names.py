@@ -59,6 +59,32 @@ def resolve(app: Sphinx, env: BuildEnvironment, node: pending_xref, contnode: no
     return make_refnode(app.builder, node["refdoc"], entry.docname, entry.node_id, contnode, name)
 
 
+def constant_docs(app: Sphinx, what: str, name: str, obj: Any, options: Any, lines: list[str]) -> None:
+    """A constant's page shows its ``#:`` comment from the module that defines it, not the
+    docstring of its type (a namespace re-exports constants its submodules define)."""
+    if what != "data":
+        return
+    import sys
+
+    from sphinx.pycode import ModuleAnalyzer
+
+    short = name.rsplit(".", 1)[-1]
+    top = name.split(".")[0]
+    for module_name, module in sorted(sys.modules.items()):
+        if not module_name.startswith(top) or getattr(module, short, None) is not obj:
+            continue
+        try:
+            docs = ModuleAnalyzer.for_module(module_name).find_attr_docs()
+        except Exception:  # a module without source: look further
+            continue
+        if ("", short) in docs:
+            lines[:] = list(docs[("", short)])
+            return
+    if lines and type(obj).__doc__ and lines[0].strip() == type(obj).__doc__.strip().splitlines()[0].strip():
+        lines[:] = []
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.connect("missing-reference", resolve, priority=900)
+    app.connect("autodoc-process-docstring", constant_docs)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
