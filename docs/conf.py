@@ -47,7 +47,7 @@ exclude_patterns = ["_build", "guide.md", "examples/README.rst", "**/.ipynb_chec
 # -- the package's own names must resolve; third-party types are not documented here -------------
 nitpicky = True
 nitpick_ignore_regex = [
-    (r"py:.*", r"(numpy|np|scipy|sp|sparse|cvxpy|osqp|clarabel|dask|distributed|matplotlib|plt|gymnasium|gym|minigrid|minari|joblib|tqdm|threadpoolctl|collections|typing|typing_extensions|concurrent|multiprocessing|os|pathlib|io|enum|abc|contextlib|dataclasses|types|numbers|h5py)(\..*)?"),
+    (r"py:.*", r"(numpy|np|scipy|sp|sparse|cvxpy|osqp|clarabel|dask|distributed|matplotlib|plt|gymnasium|gym|minigrid|minari|joblib|tqdm|threadpoolctl|collections|typing|typing_extensions|concurrent|multiprocessing|os|pathlib|io|enum|abc|contextlib|dataclasses|types|numbers|h5py|pickle|copy|contextvars|weakref|threading|signal|warnings|functools|itertools|math|json|hashlib|tempfile|shutil|subprocess|sys|inspect|importlib|zipfile|queue|time|logging|argparse|re|operator|statistics|random)(\..*)?"),
     (r"py:.*", r"(int|float|str|bool|bytes|None|object|dict|list|tuple|set|frozenset|callable|Callable|Any|Sequence|Mapping|Iterable|Iterator|Generator|Optional|Union|Literal|ArrayLike|NDArray|Path|PathLike|array|ndarray|array_like|array-like|Exception|Warning|FutureWarning|UserWarning|RuntimeWarning|ValueError|TypeError|KeyError|KeyboardInterrupt|RuntimeError|OSError|type|slice|range|complex|iterable|sequence|mapping|generator|optional|default|scalar|function|Ellipsis|TextIO|BinaryIO|Self|TypeVar|Protocol|Hashable|ClassVar|Final|numeric|rng|RandomState|Generator|spmatrix|csr_matrix|csr_array|sparray|LinAlgError|LinearOperator|SuperLU|Axes|Figure|Client|LocalCluster|Env|MiniGridEnv|EpisodeData|MinariDataset)"),
 ]
 

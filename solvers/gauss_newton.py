@@ -175,7 +175,7 @@ class GaussNewtonSolver(StepSolver):
         (>= 0).
     tolerance : dict, optional
         Per-backend accuracy, e.g. ``{"osqp": 1e-6, "clarabel": 1e-12}`` (OSQP's eps must be
-        <= 1e-5; it always polishes). Defaults: ``solvers.qp_cvxpy.DEFAULT_TOLERANCE``.
+        <= 1e-5; it always polishes). Defaults: :data:`solvers.qp_cvxpy.DEFAULT_TOLERANCE`.
     max_qp_iter : int, default=10000
         Backend iteration limit (reaching it counts as a failure), >= 1.
     alternating_damping : float or None, default=1.0
@@ -464,7 +464,7 @@ class GaussNewtonSolver(StepSolver):
     ) -> tuple[NDArray[np.float64], GaussNewtonState, NDArray[np.bool_]]:
         """One Levenberg-Marquardt step per row, each row as it would step alone: a rejected row
         retries with its larger damping (up to ``max_retries`` times) whatever the other rows
-        did, and the unconstrained subproblem is solved exactly (``_solve_rows``).
+        did, and the unconstrained subproblem is solved exactly (:meth:`_solve_rows`).
         ``progressed``: the rows accepted and the rows whose step was negligible (``xtol``)."""
         n = x.shape[0]
         x = x.copy()

@@ -38,6 +38,60 @@ def _candidates(env: BuildEnvironment, target: str) -> list[tuple[str, Any]]:
     return found
 
 
+PACKAGES = ("factirl_opt", "solvers")
+
+
+def _lookup(path: str) -> bool:
+    """Whether a dotted path names a module of the package or an attribute inside one."""
+    import importlib
+
+    parts = path.split(".")
+    if parts[0] not in PACKAGES:
+        return False
+    for i in range(len(parts), 0, -1):
+        try:
+            obj: Any = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        if obj.__name__ != ".".join(parts[:i]):  # a deprecated alias of a moved module: stale
+            return False
+        try:
+            for attr in parts[i:]:
+                obj = getattr(obj, attr)
+        except AttributeError:
+            return False
+        return True
+    return False
+
+
+def _exists(target: str, module: str | None, cls: str | None) -> bool:
+    """Whether ``target`` names something of the package: as written (``fo.`` read as
+    ``factirl_opt.``), relative to the referring module or class, or as an attribute path in one
+    of the package's loaded modules (a docstring naming a helper of a sibling module)."""
+    import sys
+    import warnings
+
+    parts = target.split(".")
+    if parts[0] in PREFIXES:
+        parts[0] = PREFIXES[parts[0]]
+    target = ".".join(parts)
+    tries = [target]
+    if module:
+        tries += [f"{module}.{cls}.{target}" if cls else "", f"{module}.{target}"]
+        pieces = module.split(".")
+        tries += [".".join(pieces[:i] + [target]) for i in range(len(pieces) - 1, 0, -1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # deprecated module aliases
+        if any(t and _lookup(t) for t in tries):
+            return True
+        first = parts[0]
+        for name, mod in list(sys.modules.items()):
+            if name.split(".")[0] in PACKAGES and mod is not None and mod.__name__ == name:
+                if hasattr(mod, first) and _lookup(f"{name}.{target}"):
+                    return True
+    return False
+
+
 def resolve(app: Sphinx, env: BuildEnvironment, node: pending_xref, contnode: nodes.Element) -> Any:
     if node.get("refdomain") != "py":
         return None
@@ -46,6 +100,11 @@ def resolve(app: Sphinx, env: BuildEnvironment, node: pending_xref, contnode: no
         return None
     hits = _candidates(env, target)
     if not hits:
+        # an internal name of the package (a module, a private helper, a constant): it exists
+        # but has no page, so it is shown as code, unlinked; a name that does not exist (a typo,
+        # a name since removed) stays unresolved and fails the build
+        if _exists(target.lstrip("~."), node.get("py:module"), node.get("py:class")):
+            return contnode
         return None
     if len(hits) > 1:
         # the same object documented once: several hits are several objects; prefer the

@@ -30,7 +30,7 @@ Scores (:meth:`BabyAITasks.scores`)
     the environment's own termination and reward within its ``max_steps``.
 ``deviation``
     On the enumerated MDPs (:func:`factirl_opt.deviation`, docs/maths.md §9) against the
-    mission's reward (``mission_rewards``).
+    mission's reward (:func:`mission_rewards`).
 ``bot_success_rate``, ``random_success_rate``
     The ceiling (the bot from the start) and the floor (the uniformly random policy, exact on
     the model: :func:`random_success_probability`).
@@ -110,7 +110,7 @@ class BabyAITasks:
     train_demos, test_demos : list
         Per task, a list of (L_j, 2) bot episodes (test: one each).
     train_rewards, test_rewards : list of (S_i, A) arrays
-        The missions' rewards (``mission_rewards``).
+        The missions' rewards (:func:`mission_rewards`).
     bot_success : dict
         ``split -> (n,) bool``, the success of the bot from each layout's start.
     learner_rng : numpy.random.Generator
@@ -228,7 +228,7 @@ def babyai_tasks(env_id: str = "BabyAI-GoToLocal-v0", n_tasks: int = 4, demos_pe
     Parameters
     ----------
     env_id : str, default="BabyAI-GoToLocal-v0"
-        A registered BabyAI GoTo level (e.g. one of ``GOTO_LEVELS``).
+        A registered BabyAI GoTo level (e.g. one of :data:`GOTO_LEVELS`).
     n_tasks : int, default=4
         Training layouts.
     demos_per_task : int, default=3

@@ -110,7 +110,7 @@ class FactIRL(Estimator):
         features such as Objectworld's leave the weights themselves ill-determined), mapped
         back to feature space by minimum-norm least squares. With one feature matrix per
         task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
-        (``metric_pca_dictionary``; the same start, up to the signs
+        (:func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`; the same start, up to the signs
         of the primitives, when every task has the same features). ``"random"``: Gaussian
         primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
         grid) and the Boltzmann policies start far from saturation, where the gradients are
@@ -118,7 +118,7 @@ class FactIRL(Estimator):
         gives the initial arrays D0 (p, k) and H0 (n, k).
     pca_shrink : bool, default=True
         With ``init="pca"``, halve the start's coefficients while the total loss decreases
-        (``shrink_coefficients``; one planning evaluation per trial): the flat learner's
+        (:func:`shrink_coefficients`; one planning evaluation per trial): the flat learner's
         rewards can be so large that their truncation starts the fit in a saturated region.
         On the paper's grid the policy-matching start is usually kept (two evaluations; halved
         once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32

@@ -251,7 +251,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
     Stopping (the rules of :mod:`solvers.stopping`, checked in this order):
 
     - outer loop, after each outer iteration: ``"stalled"`` when the first one changed
-      nothing (``factirl_opt.learners.fitting.first_step_stall``, the rule of every learner); ``"converged"`` when the relative decrease of the total
+      nothing (:func:`factirl_opt.learners.fitting.first_step_stall`, the rule of every learner); ``"converged"`` when the relative decrease of the total
       objective (eq. 10, plus a sparse H-solver's penalty) over the iteration is in
       ``[0, tol]`` (a rise is not convergence), or when the optimality measure over ``(H, D)``
       (the norm of the gradient, eqs. 11-12; projected or minimum-norm subgradient for a
@@ -275,7 +275,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
     ----------
     mdp : TabularMDP or sequence of n TabularMDP
         One MDP shared by every task, or one per task (then ``base_features`` are needed; see
-        ``factirl_opt.learners.fitting.environments_setup``).
+        :func:`factirl_opt.learners.fitting.environments_setup`).
     demos_per_task : list of n task demonstrations
     dictionary : array_like, shape (p, k)
         Initial ``D``; p = S*A (tabular) or the number of base features.

@@ -78,7 +78,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     solvers.SolverResult
         ``coefficients`` (n, p) are the weights; ``row_status``, ``row_iterations`` and
         ``row_evaluations`` each task's record. A first iteration that left the total loss
-        unchanged is reported ``"stalled"`` (``factirl_opt.learners.fitting.first_step_stall``).
+        unchanged is reported ``"stalled"`` (:func:`factirl_opt.learners.fitting.first_step_stall`).
 
     Raises
     ------
@@ -197,7 +197,7 @@ class GradIRL(Estimator):
         object) one signature per task.
     features_sha256_ : str or None
         SHA-256 of the validated features (S*A, p) of the fit
-        (``factirl_opt.learners.fitting.features_digest``); None without features and with
+        (:func:`factirl_opt.learners.fitting.features_digest`); None without features and with
         per-task features.
 
     Notes

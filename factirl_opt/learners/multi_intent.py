@@ -94,7 +94,7 @@ class MultiIntentIRL(Estimator):
         is within one standard error (over the episodes) of the best is refitted on all
         episodes (``n_folds`` x m + 1 EM fits for m candidates). ``"bic"``:
         ``-2 log L + n_free log N`` of the fit on all episodes (N demonstrated steps, n_free
-        from ``factirl_opt.learners.intention_count.free_parameters``), lowest kept (m fits); its
+        from :func:`factirl_opt.learners.intention_count.free_parameters`), lowest kept (m fits); its
         count of ``S*A`` parameters per tabular reward penalises K heavily, so prefer it with
         a few reward features.
     n_folds : int, default=3
@@ -102,7 +102,7 @@ class MultiIntentIRL(Estimator):
     init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
         Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
         episodes by the actions they take in the states they share (same action: together;
-        different actions: apart; ``factirl_opt.learners.em.agreement_clustering``), or
+        different actions: apart; :func:`factirl_opt.learners.em.agreement_clustering`), or
         ``"frequencies"``: k-means (k-means++ seeding, 10 seedings) of the episodes' normalised
         state-action counts next to their action frequencies. ``"random"``: responsibilities
         drawn from a flat Dirichlet. An array gives the starting labels (n_episodes,) or
@@ -137,7 +137,7 @@ class MultiIntentIRL(Estimator):
         Randomness of the starts (and of completing a rank-deficient PCA).
     n_jobs, backend, client : int or None, str, dask.distributed.Client
         Shards of each M-step's objective over the K intentions, as in
-        :class:`~factirl_opt.GradIRL` (``factirl_opt.objectives.distributed.sharded``): the
+        :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.distributed.sharded`): the
         shards' workers are started for each M-step (the intentions' statistics change with
         the responsibilities) and stopped after it, so they pay off when an M-step plans large
         MDPs; the E-step plans in this process. The result equals ``n_jobs=1``'s to rounding.

@@ -53,7 +53,7 @@ maximum-likelihood frequencies and only untried rows come from the prior. Prior 
   convention of :func:`~factirl_opt.from_gymnasium`.
 - ``"uniform"``: ``m = 1/S`` (a symmetric Dirichlet, ``c / S`` per next state). Every row the
   prior touches is dense: with ``c > 0`` the whole (S*A, S) matrix; with ``c = 0`` the untried
-  rows only. Refused when those rows would hold more than ``UNIFORM_ENTRY_LIMIT`` entries.
+  rows only. Refused when those rows would hold more than :data:`UNIFORM_ENTRY_LIMIT` entries.
 - a :class:`TabularMDP` with the same S and A: its rows are the prior means (e.g. a model of
   the intended dynamics, or one estimated from other data); its ``gamma`` is not used.
 """
@@ -250,7 +250,7 @@ def _memory_bytes() -> int | None:
 
 def check_model_size(n_states: int, n_actions: int) -> tuple[int, int]:
     """Validate S and A, and refuse a model of S*A rows that cannot fit in this machine's memory
-    (``ROW_BYTES`` per row) before anything of that size is allocated."""
+    (:data:`ROW_BYTES` per row) before anything of that size is allocated."""
     S = check_int(n_states, "n_states", minimum=1)
     A = check_int(n_actions, "n_actions", minimum=1)
     need, have = S * A * ROW_BYTES, _memory_bytes()
@@ -362,8 +362,8 @@ def estimate_mdp(
     ------
     ValidationError
         Bad data (see :func:`as_transitions`), sizes, gamma, prior or pseudo-count, a
-        ``"uniform"`` prior whose dense rows would exceed ``UNIFORM_ENTRY_LIMIT`` entries, or
-        sizes whose S*A rows (``ROW_BYTES`` each) exceed this machine's memory.
+        ``"uniform"`` prior whose dense rows would exceed :data:`UNIFORM_ENTRY_LIMIT` entries, or
+        sizes whose S*A rows (:data:`ROW_BYTES` each) exceed this machine's memory.
 
     Examples
     --------

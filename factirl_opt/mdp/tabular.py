@@ -262,10 +262,10 @@ class TabularMDP:
 
     def signature(self) -> dict[str, Any]:
         """What identifies this MDP: a JSON-able dict of S, A, gamma and a digest of the dynamics
-        (keys ``SIGNATURE_KEYS``).
+        (keys :data:`SIGNATURE_KEYS`).
 
         Learners record it at ``fit`` (``mdp_signature_``), saved models carry it, and a model
-        refuses an MDP whose signature differs (``check_signature``). The digest is the
+        refuses an MDP whose signature differs (:func:`check_signature`). The digest is the
         SHA-256 of the transitions as a canonical CSR matrix (float64, sorted indices, explicit
         zeros removed), so a dense and a sparse copy of the same dynamics share it.
         """
@@ -313,7 +313,7 @@ def from_successors(sa_s: ArrayLike, sa_p: ArrayLike, gamma: float, index_base: 
     mdp : TabularMDP
         Sparse dynamics, a CSR (S*A, S) matrix whose row ``s * A + a`` holds
         ``P(s' | s, a) = sum_{k : sa_s[s, a, k] = s'} sa_p[s, a, k]`` (docs/maths.md §1;
-        ``factirl_opt.mdp.successors.successor_matrix``).
+        :func:`factirl_opt.mdp.successors.successor_matrix`).
 
     Raises
     ------

@@ -66,7 +66,7 @@ class Objective:
 
         The policy whose fit to the demonstrations the objective measures, as a function of the
         rewards (n, S, A) on the planner's MDP; finite for any finite rewards. Multi-intent EM
-        scores episodes with it (``factirl_opt.learners.em.log_policies``).
+        scores episodes with it (:func:`factirl_opt.learners.em.log_policies`).
 
         Raises
         ------

@@ -333,7 +333,7 @@ def _gradient(planner, point):
     """``dJ/dR`` (n, S, A): one transposed solve per task with the soft-optimal policy's system.
 
     With kept factorisations (``point.kept``, every task's), the solve is refined on them
-    (``refined_adjoint_solve``); a task where that does not converge gets a new
+    (:func:`refined_adjoint_solve`); a task where that does not converge gets a new
     factorisation of its own policy, which becomes its kept one.
     """
     pi, c = point.pi, point.counts
@@ -367,7 +367,7 @@ class MCEObjective(Objective):
     Warm start: each task's last soft values start its next Newton iteration, and, with a
     planner whose systems expose per-task solvers (the sparse LU), its last factorisation is
     kept and reused: for chord steps of the next soft values and for the adjoint, by iterative
-    refinement (``refined_adjoint_solve``); a factorisation is made only when the kept
+    refinement (:func:`refined_adjoint_solve`); a factorisation is made only when the kept
     one no longer contracts fast enough. One factorisation per task is kept between
     evaluations (dropped by :meth:`reset`, and not kept at all under a planning
     budget the tasks do not fit in at once). Results agree with fresh factorisations to the

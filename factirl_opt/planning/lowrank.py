@@ -31,7 +31,7 @@ class UpdatedFactor:
     change of their rows, ``-gamma (P'_rows - P_rows)``. With ``Z = M^-1 U`` (k solves) and the
     capacitance ``C = I + W Z`` (k, k): ``M'^-1 b = y - Z C^-1 W y`` (``y = M^-1 b``) and
     ``M'^-T b = M^-T (b - W^T C^-T Z^T b)``. Every solve is checked against ``M'`` itself:
-    one step of iterative refinement if the relative residual exceeds ``REFINE_ABOVE``, and a
+    one step of iterative refinement if the relative residual exceeds :data:`REFINE_ABOVE`, and a
     fresh factorisation (``planner.factor``) if it still exceeds :data:`RESIDUAL_TOL` (not
     observed in the tests, gamma up to 0.99).
 

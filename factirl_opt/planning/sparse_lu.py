@@ -110,7 +110,7 @@ class SparseLUPlanner(Planner):
     symmetric ordering.
 
     Ordering. When the union of the actions' successor patterns is not much denser than one
-    action's (ratio <= ``FIXED_ORDER_MAX_DENSITY``; every grid world with
+    action's (ratio <= :data:`FIXED_ORDER_MAX_DENSITY`; every grid world with
     ``p_success < 1``), one minimum-degree ordering of that union (``MMD_AT_PLUS_A``) is
     computed once and every policy's matrix is built directly in that order: the fill of any
     policy is then a subset of the union's. Otherwise each policy is ordered on its own.
@@ -264,7 +264,7 @@ class SparseLUPlanner(Planner):
     def initial_policy(self, R):
         """Greedy policy after value-iteration sweeps (batched sparse backups, cheap next to a
         factorisation), stopped once no task's greedy policy changes in more than
-        ``WARMUP_MAX_CHANGES`` states per sweep (at most ``WARMUP_MAX_SWEEPS`` sweeps):
+        :data:`WARMUP_MAX_CHANGES` states per sweep (at most :data:`WARMUP_MAX_SWEEPS` sweeps):
         policy iteration from there needs about one factorisation per task, then low-rank updates.
         """
         Rt = np.ascontiguousarray(np.transpose(R, (2, 1, 0)))  # (A, S, n): one SpMM per sweep, actions outermost
@@ -302,7 +302,7 @@ class SparseLUPlanner(Planner):
     def factor_cache(self) -> FactorCache:
         """This thread's :class:`~factirl_opt.planning.cache.FactorCache` (created on first use;
         dropped with the thread or the planner); inside :meth:`transient_cache` the block's, and
-        else inside ``isolated_caches`` the isolated call's."""
+        else inside :func:`~factirl_opt.planning.cache.isolated_caches` the isolated call's."""
         transient = getattr(self._local, "transient", None)
         if transient is not None:
             return transient
@@ -338,7 +338,7 @@ class SparseLUPlanner(Planner):
 
     def clear_thread_cache(self) -> None:
         """Forget this thread's cached factorisations (other threads keep theirs), and those of
-        the isolated call it is in (``isolated_caches``)."""
+        the isolated call it is in (:func:`~factirl_opt.planning.cache.isolated_caches`)."""
         for cache in (getattr(self._local, "cache", None), scoped_cache(self)):
             if cache is not None:
                 cache.clear()

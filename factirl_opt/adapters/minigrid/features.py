@@ -128,7 +128,7 @@ def minigrid_features(states: np.ndarray, objects: np.ndarray, grid: Any,
     states : ndarray of int, shape (S, 3)
         Rows ``(x, y, direction)``.
     objects : ndarray of int, shape (m, 4)
-        Rows ``(x, y, colour, type)`` as returned by ``grid_objects``.
+        Rows ``(x, y, colour, type)`` as returned by :func:`grid_objects`.
     grid : minigrid.core.grid.Grid
         The layout's grid (read for the faced cells).
     thresholds : tuple of float, default=DEFAULT_THRESHOLDS
