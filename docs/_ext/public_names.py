@@ -55,11 +55,13 @@ def _lookup(path: str) -> bool:
             continue
         if obj.__name__ != ".".join(parts[:i]):  # a deprecated alias of a moved module: stale
             return False
-        try:
-            for attr in parts[i:]:
+        for j, attr in enumerate(parts[i:], start=i):
+            if hasattr(obj, attr):
                 obj = getattr(obj, attr)
-        except AttributeError:
-            return False
+            elif isinstance(obj, type) and j == len(parts) - 1 and attr in (obj.__doc__ or ""):
+                return True  # an instance attribute the class documents (numpydoc Attributes)
+            else:
+                return False
         return True
     return False
 
