@@ -150,7 +150,7 @@ def test_built_site_renders_in_headless_chromium(tmp_path):
     for name, (page, expected) in pages.items():
         url = (site / page.split("?")[0]).as_uri() + ("?" + page.split("?")[1] if "?" in page else "")
         common = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-                  "--window-size=1280,1600", "--virtual-time-budget=5000"]
+                  "--window-size=1280,1600", "--virtual-time-budget=10000"]
         png = shots / f"{name}.png"
         shot = subprocess.run(common + [f"--screenshot={png}", url], capture_output=True, text=True, timeout=120)
         assert shot.returncode == 0 and png.is_file() and png.stat().st_size > 10_000, shot.stderr[-2000:]
@@ -162,5 +162,8 @@ def test_built_site_renders_in_headless_chromium(tmp_path):
             assert image, "the gallery page shows no plot"
             assert (site / "auto_examples" / image.group(1)).resolve().is_file()
         if name == "search":  # the search ran in the page's JavaScript and listed results
-            assert re.search(r'<ul class="search[^"]*"[^>]*>\s*<li', dom), "the search page lists no result"
+            found = re.search(r"Search finished, found (\d+) page", dom)
+            assert found and int(found.group(1)) > 0, "the search page lists no result"
+            assert re.search(r'<ul[^>]*class="search"[^>]*>\s*<li', dom)
+            assert 'href="api/generated/factirl_opt.FactIRL.html#factirl_opt.FactIRL.transfer"' in dom
         print(f"screenshot {name}: {png}")
