@@ -21,6 +21,13 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # docs/_ext
 
 import factirl_opt  # noqa: E402
 
+# the API reference's section pages, written from the namespaces' __all__ at every build, so a
+# name added to a namespace gets its page without a step to remember (docs/api/generate.py)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent / "api"))
+import generate as _api_pages  # noqa: E402
+
+_api_pages.main()
+
 project = "factirl-opt"
 author = "The factirl-opt developers"
 copyright = "2026, The factirl-opt developers"

@@ -1,7 +1,7 @@
 """Write the API reference's section pages (``docs/api/<page>.rst``) from the ``__all__`` lists.
 
-Run from the repository root after changing a namespace's ``__all__``:
-``python docs/api/generate.py``. ``tests/test_docs.py`` fails when the pages are out of date.
+``docs/conf.py`` runs it at every build (the pages are not committed); run it by hand with
+``python docs/api/generate.py``. A page is rewritten only when its text changes.
 """
 
 import pathlib
@@ -37,7 +37,9 @@ def render():
 
 def main():
     for page, text in render().items():
-        (HERE / f"{page}.rst").write_text(text)
+        path = HERE / f"{page}.rst"
+        if not path.is_file() or path.read_text() != text:
+            path.write_text(text)
 
 
 if __name__ == "__main__":
