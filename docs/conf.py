@@ -111,6 +111,17 @@ sphinx_gallery_conf = {
 }
 os.environ.setdefault("FACTIRL_BLAS_THREADS", "1")
 
+# -- equations -------------------------------------------------------------------------------------
+# MathJax from its CDN by default; an offline build (or a test) may point to a local copy, e.g.
+# Debian's libjs-mathjax: FACTIRL_MATHJAX_PATH=file:///usr/share/javascript/mathjax/MathJax.js
+if os.environ.get("FACTIRL_MATHJAX_PATH"):
+    mathjax_path = os.environ["FACTIRL_MATHJAX_PATH"]
+    if "/MathJax.js" in mathjax_path:  # MathJax 2 (Debian's): its TeX input with the AMS extensions
+        mathjax_path += "?config=TeX-AMS-MML_HTMLorMML"
+        mathjax2_config = {"tex2jax": {"processEscapes": True,  # MyST marks what to typeset by class
+                                       "processClass": "tex2jax_process|mathjax_process|math|output_area",
+                                       "ignoreClass": "tex2jax_ignore|mathjax_ignore"}}
+
 # -- HTML ------------------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"
 html_title = f"factirl-opt {release}"
