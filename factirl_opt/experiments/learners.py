@@ -133,12 +133,16 @@ class Lineup:
 
     ``worlds``: the names of the worlds (:data:`.worlds.WORLDS`) the line-up runs in (empty:
     any world); e.g. a line-up with learners on base features needs a world that has them.
+    ``one_mdp``: its learners plan every task on the one MDP of the ground truth
+    (``GroundTruth.mdp``), so it does not run in a world of per-task MDPs
+    (:data:`.worlds.PER_TASK_WORLDS`).
     """
 
     name: str
     learners: tuple
     value_maps: tuple = ()
     worlds: tuple = ()
+    one_mdp: bool = False
 
     def __post_init__(self) -> None:
         seen = set()
@@ -347,8 +351,6 @@ def _mce_rows(flat_name, fact_name, flat_build, flat_solvers, fact_build, transf
 _TRAIN_FLAT = (("train", FLAT),)
 _FEATURES, _FACTORIAL = "flat features", "factorial"
 
-#: the worlds whose tasks share one MDP (``GroundTruth.mdp``), which the paper's learners plan on
-ONE_MDP_WORLDS = ("grid", "objectworld")
 #: line-up name (a preset's ``lineup``) -> Lineup
 LINEUPS = {
     "paper": Lineup(
@@ -366,7 +368,7 @@ LINEUPS = {
             Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
         value_maps=(FLAT, FACTORIAL),
-        worlds=ONE_MDP_WORLDS,
+        one_mdp=True,
     ),
     "objectworld": Lineup(
         name="objectworld",
@@ -393,7 +395,7 @@ LINEUPS["paper+mce"] = Lineup(
     learners=_extended(LINEUPS["paper"].learners,
                        *_mce_rows(FLAT_MCE, FACTORIAL_MCE, flat, "flat", factorial_mce, factorial_mce_transfer)),
     value_maps=(FLAT, FACTORIAL, FLAT_MCE, FACTORIAL_MCE),
-    worlds=ONE_MDP_WORLDS,
+    one_mdp=True,
 )
 LINEUPS["objectworld+mce"] = Lineup(
     name="objectworld+mce",
