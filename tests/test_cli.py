@@ -339,8 +339,9 @@ def test_bad_values_are_refused_by_the_parsers(argv, message, capsys):
 def test_a_lineup_that_does_not_fit_the_presets_world_is_refused(tmp_path, capsys, preset, lineup):
     code = main(["reproduce", "--preset", preset, "--lineup", lineup, "--out", str(tmp_path / "x"), "--quiet"])
     err = capsys.readouterr().err
-    assert code == 2 and err.startswith(f"factirl-opt: error: preset '{preset}': the line-up '{lineup}' runs in the "
-                                        "world(s) grid, objectworld; got world") and err.count("\n") == 1
+    assert code == 2 and err.startswith(f"factirl-opt: error: preset '{preset}': the line-up '{lineup}' plans every "
+                                        "task on one MDP; the world ") and err.count("\n") == 1
+    assert "has one MDP per task: choose a line-up of that world" in err
     assert not (tmp_path / "x").exists()
 
 

@@ -71,8 +71,6 @@ def test_preset_names_its_world_and_lineup(monkeypatch):
         return grid_world(dataclasses.replace(preset, grid_size=3), n_tasks, demos_per_task, seed)
 
     monkeypatch.setitem(WORLDS, "grid3", small_grid)
-    paper = LINEUPS["paper"]
-    monkeypatch.setitem(LINEUPS, "paper", dataclasses.replace(paper, worlds=(*paper.worlds, "grid3")))  # a world of one MDP
     preset = dataclasses.replace(TINY, world="grid3", grid_size=3)
     rec = run_one(preset, RunSpec(4, 2, 1))
     assert calls == [(4, 2, 1)] and len(rec["rows"]) == 10
