@@ -84,6 +84,21 @@ def test_the_gallery_has_at_least_eight_examples():
         assert "plt.show()" in text, f"{path.name} draws no plot"
 
 
+def test_gallery_examples_import_public_names_only():
+    """What a reader copies from the gallery uses the public API: names in a module's ``__all__``,
+    no private module, nothing from the harness's benchmarks."""
+    import importlib
+
+    for path in EXAMPLES:
+        code = path.read_text()
+        for module, names in re.findall(r"^from (factirl_opt[\w.]*) import ([\w, ]+)$", code, flags=re.M):
+            assert not any(part.startswith("_") for part in module.split(".")), f"{path.name}: {module}"
+            assert ".lab." not in module, f"{path.name} imports from the harness: {module}"
+            exported = importlib.import_module(module).__all__
+            for name in names.replace(" ", "").split(","):
+                assert name in exported, f"{path.name}: {name} is not in {module}.__all__"
+
+
 RUN_EXAMPLE = """
 import runpy, sys
 import matplotlib
