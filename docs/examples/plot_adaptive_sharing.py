@@ -13,7 +13,7 @@ flat one.
 import matplotlib.pyplot as plt
 
 import factirl_opt as fo
-from factirl_opt.learners.adaptive import plot_validation
+from factirl_opt.learners import plot_validation
 
 world = fo.objectworld.make_objectworld(size=5, rng=0)
 mdp, features = world.mdp(), fo.objectworld.objectworld_features(world)

@@ -449,6 +449,11 @@ class MCEObjective(Objective):
 def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", max_iter=SOFT_MAX_ITER):
     """Maximum causal entropy negative log-likelihood per task and its gradient dJ/dR.
 
+    The reference route: the soft values by plain guarded Newton steps and the adjoint by a fresh
+    factorisation, so that every planner agrees to the tolerance the guide states. The learners'
+    :class:`MCEObjective` reuses factorisations across steps and evaluations (chord steps and a
+    refined adjoint) and agrees with this function to the soft values' polishing tolerance.
+
     Parameters
     ----------
     mdp : TabularMDP
@@ -484,5 +489,5 @@ def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", ma
     max_iter = check_int(max_iter, "max_iter", minimum=1)
     pl = get_planner(mdp, planner)
     V0 = None if policy is None else soft_policy_values(pl, R, check_stochastic_policy(mdp, policy, R.shape[0]), beta)
-    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter, kept=[None] * R.shape[0])
+    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter)  # exact Newton: the reference the objective is held to
     return point.loss, _gradient(pl, point)
