@@ -50,9 +50,10 @@ accepted when it shrinks the residual ``||T V - V||_inf`` at least by :data:`CHO
 (else the guarded Newton step above is taken, and its factorisation kept); one that shrinks it
 by less than :data:`CHORD_REFACTOR_RATIO` makes the next step a Newton step. The stopping rule
 is the same; a task within it goes on with chord steps down to :data:`POLISH_TOL` (so the loss
-stays smooth in the rewards far below the tolerance) or until one is refused. The adjoint is solved by iterative refinement on the kept factorisation
-(:func:`refined_adjoint_solve`, from the task's last adjoint solution), to a relative residual
-:data:`ADJOINT_TOL`, or with a new factorisation where the refinement does not contract. The
+stays smooth in the rewards far below the tolerance) or until one is refused. The adjoint is
+solved by iterative refinement on the kept factorisation (:func:`refined_adjoint_solve`, from
+the task's last adjoint solution), to a relative residual :data:`ADJOINT_TOL`, or with a new
+factorisation where the refinement does not contract. The
 public :func:`soft_values` (scores, EM) and :func:`mce_loss` keep plain guarded Newton and a
 fresh adjoint factorisation: their results agree between planners to ``1e-13 / (1 - gamma)``
 (tests/test_audit_planners.py); the objective's agree with them to the stopping tolerances
