@@ -58,7 +58,7 @@ public :func:`soft_values` (scores, EM) and :func:`mce_loss` keep plain guarded 
 fresh adjoint factorisation: their results agree between planners to ``1e-13 / (1 - gamma)``
 (tests/test_audit_planners.py); the objective's agree with them to the stopping tolerances
 above (measured along 8 evaluations on 5x5-6x6 grids, relative to the largest entry: losses
-5e-13 at gamma 0.9-0.99 and 3e-11 at 0.999, gradients 1e-12 to 3e-11), which a fit of many
+5e-13 at gamma 0.9-0.99 and 3e-11 at 0.999, gradients 1e-12 to 7e-11), which a fit of many
 evaluations does not resolve.
 
 Potential shaping ``R + gamma P phi - phi`` shifts ``Q`` and ``V`` by ``-phi(s)`` and leaves
