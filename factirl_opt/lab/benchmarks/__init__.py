@@ -20,6 +20,7 @@ BENCHMARKS = {
     "robustness": "robustness",
     "unlabeled": "unlabeled",
     "mce": "mce",
+    "dictionary": "dictionary",
 }
 
 
