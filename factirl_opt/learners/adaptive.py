@@ -36,8 +36,8 @@ from .solver_settings import estimator_solvers
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
 
-__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "choose_sharing",
-           "fixed_learner", "flat_start_rewards", "plot_validation"]
+__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
+           "RACE_MARGIN", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
 
 #: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
 AUTO = "auto"
@@ -49,6 +49,12 @@ LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
 N_FOLDS = 3
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
+#: the searches of :func:`choose_sharing`: every candidate on every fold, or a race (see there)
+SEARCHES = ("full", "race")
+#: the search ``FactIRL.fit`` uses
+DEFAULT_SEARCH = "race"
+#: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
+RACE_MARGIN = 0.1
 
 
 def _count(demos: Any) -> int:
@@ -105,8 +111,17 @@ def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], 
     return out
 
 
-def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> tuple[int, float, list[dict]]:
+def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None,
+                   search: str = DEFAULT_SEARCH) -> tuple[int, float, list[dict]]:
     """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over tasks.
+
+    ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
+    every candidate on the first fold, keeps those whose score there is at most
+    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and scores only
+    these on the other folds: a candidate far behind on one fold has no chance of the best mean,
+    and the folds after the first cost only the contenders (a race, as in F-race or successive
+    halving). The pruned candidates keep their first fold's score as ``score`` (one entry in
+    ``fold_scores``); the choice is among the candidates scored on every fold.
 
     Parameters
     ----------
@@ -130,8 +145,10 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     ------
     ValidationError
         Fewer than 2 tasks, or a task with at most ``N_TRANSFER_DEMOS`` demonstrations (no
-        demonstration left to score it on).
+        demonstration left to score it on), or an unknown ``search``.
     """
+    if search not in SEARCHES:
+        raise ValidationError(f"search must be one of {SEARCHES}; got {search!r}")
     n = _count(demos_per_task)
     t = N_TRANSFER_DEMOS
     if n < 2:
@@ -149,15 +166,26 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
         h_name, h_options, _, _ = estimator_solvers(learner)
         constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
-        for k, lam in _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained):
-            rows.append(_validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t))
-    best = min(range(len(rows)), key=lambda r: rows[r]["score"])
+        candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
+        first = folds[:1] if search == "race" and len(folds) > 1 else folds
+        for k, lam in candidates:
+            rows.append(_validate(learner, mdp, demos_per_task, flat_rewards, first, k, lam, t))
+        if len(first) < len(folds):
+            lead = min(r["score"] for r in rows)
+            for r in rows:
+                if r["score"] <= lead + RACE_MARGIN * abs(lead):
+                    rest = _validate(learner, mdp, demos_per_task, flat_rewards, folds[1:], r["n_primitives"],
+                                     r["residual_penalty"], t)
+                    scores = r["fold_scores"] + rest["fold_scores"]
+                    r.update(score=float(np.mean(scores)), score_std=float(np.std(scores)), fold_scores=scores)
+    complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == len(folds)]
+    best = min(complete, key=lambda r: rows[r]["score"])
     rows[best]["chosen"] = True
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
 
 
 def _validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t):
-    """The validation row of one candidate ``(k, lambda)``."""
+    """The validation row of one candidate ``(k, lambda)`` on the folds ``folds``."""
     n = _count(demos_per_task)
     fold_scores = []
     for held in folds:

@@ -21,6 +21,7 @@ BENCHMARKS = {
     "unlabeled": "unlabeled",
     "mce": "mce",
     "dictionary": "dictionary",
+    "auto-cost": "auto_cost",
 }
 
 
