@@ -53,7 +53,7 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
 
 
 def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
-    """The full search scores every candidate on every fold; the race's complete rows are the same
+    """The full search scores every candidate on every fold; the cold race's rows are the same
     numbers (each fold's fit is independent of the others), so it chooses the same pair whenever
     the full search's winner stays in the race."""
     mdp, F, demos = data
@@ -62,13 +62,20 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         k, lam, full = adaptive.choose_sharing(learner, mdp, demos, flat, search="full")
+        kr, lr, race = adaptive.choose_sharing(learner, mdp, demos, flat, search="race")
     assert all(len(r["fold_scores"]) == 3 for r in full)
     by_pair = {(r["n_primitives"], r["residual_penalty"]): r for r in full}
-    for r in auto.validation_:
+    for r in race:
         other = by_pair[r["n_primitives"], r["residual_penalty"]]
         assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
-    assert (k, lam) == (auto.n_primitives_, auto.residual_penalty_)
-    with pytest.raises(ValidationError, match=r"search must be one of \('full', 'race'\); got 'grid'"):
+    assert (kr, lr) == (k, lam) and sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
+    # the default race starts each candidate from its predecessor's fit: the first candidate of each k is
+    # scored as in the full search on the first fold, the others differ
+    for r in auto.validation_:
+        other = by_pair[r["n_primitives"], r["residual_penalty"]]
+        if r["residual_penalty"] == np.inf:
+            assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
+    with pytest.raises(ValidationError, match=r"search must be one of \('full', 'race', 'race-warm'\); got 'grid'"):
         adaptive.choose_sharing(learner, mdp, demos, flat, search="grid")
 
 

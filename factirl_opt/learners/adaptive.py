@@ -37,7 +37,7 @@ from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
-           "RACE_MARGIN", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
+           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
 
 #: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
 AUTO = "auto"
@@ -49,12 +49,14 @@ LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
 N_FOLDS = 3
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
-#: the searches of :func:`choose_sharing`: every candidate on every fold, or a race (see there)
-SEARCHES = ("full", "race")
+#: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there)
+SEARCHES = ("full", "race", "race-warm")
 #: the search ``FactIRL.fit`` uses
-DEFAULT_SEARCH = "race"
+DEFAULT_SEARCH = "race-warm"
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
 RACE_MARGIN = 0.1
+#: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
+WARM_BUDGET = 0.5
 
 
 def _count(demos: Any) -> int:
@@ -122,6 +124,12 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     and the folds after the first cost only the contenders (a race, as in F-race or successive
     halving). The pruned candidates keep their first fold's score as ``score`` (one entry in
     ``fold_scores``); the choice is among the candidates scored on every fold.
+    ``"race-warm"`` (the default) runs the race with warm starts along lambda: on each fold, a
+    candidate whose predecessor (the candidate before it with the same k: the next larger
+    lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
+    with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
+    spent ``max_iter``), and ``lambda = 0`` is not fitted at all: its transfer, the flat model
+    reparametrised, uses the predecessor's dictionary (which plays no part in the model there).
 
     Parameters
     ----------
@@ -167,36 +175,49 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         h_name, h_options, _, _ = estimator_solvers(learner)
         constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
         candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
-        first = folds[:1] if search == "race" and len(folds) > 1 else folds
-        for k, lam in candidates:
-            rows.append(_validate(learner, mdp, demos_per_task, flat_rewards, first, k, lam, t))
+        first = folds[:1] if search != "full" and len(folds) > 1 else folds
+        warm = search == "race-warm"
+        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm)
         if len(first) < len(folds):
-            lead = min(r["score"] for r in rows)
-            for r in rows:
-                if r["score"] <= lead + RACE_MARGIN * abs(lead):
-                    rest = _validate(learner, mdp, demos_per_task, flat_rewards, folds[1:], r["n_primitives"],
-                                     r["residual_penalty"], t)
-                    scores = r["fold_scores"] + rest["fold_scores"]
-                    r.update(score=float(np.mean(scores)), score_std=float(np.std(scores)), fold_scores=scores)
+            lead = min(np.mean(v) for v in scores.values())
+            contenders = [c for c in candidates if np.mean(scores[c]) <= lead + RACE_MARGIN * abs(lead)]
+            for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm).items():
+                scores[c] = scores[c] + more
+        for (k, lam), fold_scores in scores.items():
+            rows.append({"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
+                         "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False})
     complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == len(folds)]
     best = min(complete, key=lambda r: rows[r]["score"])
     rows[best]["chosen"] = True
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
 
 
-def _validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t):
-    """The validation row of one candidate ``(k, lambda)`` on the folds ``folds``."""
+def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm):
+    """The held-out scores ``{(k, lambda): [score per fold]}`` of ``candidates`` on ``folds``;
+    with ``warm``, each fold's candidates start from their predecessor's fit (see :func:`choose_sharing`)."""
     n = _count(demos_per_task)
-    fold_scores = []
+    scores = {c: [] for c in candidates}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)
-        model = fixed_learner(learner, k, lam)
         sub_mdp, sub_features = _subset(mdp, learner.features, train)
-        model.features = sub_features
-        model.fit(sub_mdp, _take(demos_per_task, train), flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
-        fold_scores.append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
-    return {"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
-            "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False}
+        fitted = {}
+        for k, lam in candidates:
+            before = [c for c in fitted if c[0] == k]
+            start = fitted[before[-1]] if warm and before else None
+            if start is not None and lam == 0.0:  # the flat model: the dictionary plays no part, no fit
+                model = copy.copy(start)
+                model.residual_penalty = model.residual_penalty_ = 0.0
+            else:
+                model = fixed_learner(learner, k, lam)
+                model.features = sub_features
+                if start is not None:
+                    model.init = (start.dictionary_, start.coefficients_)
+                    model.max_iter = max(1, int(round(WARM_BUDGET * learner.max_iter)))
+                model.fit(sub_mdp, _take(demos_per_task, train),
+                          flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
+            fitted[k, lam] = model
+            scores[k, lam].append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
+    return scores
 
 
 def fixed_learner(learner: Any, k: int, lam: float) -> Any:
