@@ -10,13 +10,16 @@ fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' 
 held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
 its remaining demonstrations by the learner's own objective (policy matching, or the MCE
 negative log-likelihood) of the transferred reward. The candidate of lowest mean score wins
-(ties: the earlier candidate, i.e. more sharing).
+(ties: the earlier candidate, i.e. more sharing). By default the folds are a race: every
+candidate is scored on the first fold, only those within ``RACE_MARGIN`` of the best there on
+the others (``search``, :func:`choose_sharing`).
 
 Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
 flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
 the same whichever tasks share the fit. A candidate then costs one alternating fit on
 ``(K-1)/K`` of the tasks per fold and one transfer; ``lambda = 0`` (the flat model: the
-dictionary plays no part) is fitted once, with the smallest k.
+dictionary plays no part) is tried once, with the smallest k, and in a race takes the
+dictionary of another candidate instead of a fit of its own.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ N_TRANSFER_DEMOS = 1
 #: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there)
 SEARCHES = ("full", "race", "race-warm")
 #: the search ``FactIRL.fit`` uses
-DEFAULT_SEARCH = "race-warm"
+DEFAULT_SEARCH = "race"
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
 RACE_MARGIN = 0.1
 #: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
@@ -123,13 +126,17 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     these on the other folds: a candidate far behind on one fold has no chance of the best mean,
     and the folds after the first cost only the contenders (a race, as in F-race or successive
     halving). The pruned candidates keep their first fold's score as ``score`` (one entry in
-    ``fold_scores``); the choice is among the candidates scored on every fold.
-    ``"race-warm"`` (the default) runs the race with warm starts along lambda: on each fold, a
+    ``fold_scores``); the choice is among the candidates scored on every fold. In a race
+    ``lambda = 0`` is not fitted when another candidate with its k was fitted on the fold: its
+    transfer, the flat model reparametrised, uses that candidate's dictionary (which plays no
+    part in the model there). ``"race-warm"`` also warm-starts along lambda: on each fold, a
     candidate whose predecessor (the candidate before it with the same k: the next larger
     lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
     with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
-    spent ``max_iter``), and ``lambda = 0`` is not fitted at all: its transfer, the flat model
-    reparametrised, uses the predecessor's dictionary (which plays no part in the model there).
+    spent ``max_iter``). Measured on the ``tiny`` grid (results/README.md, issue 29): the race
+    cost 20-23x one fixed fit against 30x for the full search, with the same choice; the warm
+    race 16-18x, but its shortened fits moved the scores enough to change the choice on both
+    seeds, to pairs that transferred worse.
 
     Parameters
     ----------
@@ -176,12 +183,13 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
         candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
         first = folds[:1] if search != "full" and len(folds) > 1 else folds
-        warm = search == "race-warm"
-        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm)
+        warm, reuse = search == "race-warm", search != "full"
+        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse)
         if len(first) < len(folds):
             lead = min(np.mean(v) for v in scores.values())
             contenders = [c for c in candidates if np.mean(scores[c]) <= lead + RACE_MARGIN * abs(lead)]
-            for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm).items():
+            for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
+                                      reuse).items():
                 scores[c] = scores[c] + more
         for (k, lam), fold_scores in scores.items():
             rows.append({"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
@@ -192,9 +200,10 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
 
 
-def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm):
+def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse):
     """The held-out scores ``{(k, lambda): [score per fold]}`` of ``candidates`` on ``folds``;
-    with ``warm``, each fold's candidates start from their predecessor's fit (see :func:`choose_sharing`)."""
+    with ``warm``, each fold's candidates start from their predecessor's fit; with ``reuse``,
+    ``lambda = 0`` takes its predecessor's dictionary without a fit (see :func:`choose_sharing`)."""
     n = _count(demos_per_task)
     scores = {c: [] for c in candidates}
     for held in folds:
@@ -203,11 +212,12 @@ def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t,
         fitted = {}
         for k, lam in candidates:
             before = [c for c in fitted if c[0] == k]
-            start = fitted[before[-1]] if warm and before else None
-            if start is not None and lam == 0.0:  # the flat model: the dictionary plays no part, no fit
+            start = fitted[before[-1]] if before else None
+            if start is not None and reuse and lam == 0.0:  # the flat model: the dictionary plays no part, no fit
                 model = copy.copy(start)
                 model.residual_penalty = model.residual_penalty_ = 0.0
             else:
+                start = start if warm else None
                 model = fixed_learner(learner, k, lam)
                 model.features = sub_features
                 if start is not None:
