@@ -1,4 +1,5 @@
-"""``bench dictionary``: constrained dictionaries against the true primitives, in its tiny configuration."""
+"""The benchmarks of issue 29: ``bench dictionary`` (constrained dictionaries against the true primitives) and
+``bench auto-cost`` (the cost of auto against one fixed fit), in their tiny configurations."""
 
 import json
 
@@ -37,3 +38,19 @@ def test_dictionary_benchmark_options_are_checked_by_the_parser(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         bench.build_parser().parse_args(argv)
     assert exc.value.code == 2
+
+
+def test_auto_cost_benchmark_quick(capsys):
+    from factirl_opt.lab.benchmarks import auto_cost
+
+    assert bench.main(["auto-cost", "--quick", "--searches", "full", "race"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (seed,) = out["seeds"].values()
+    assert set(seed["time_ratio"]) == {"full", "race"} and set(seed["cpu_time_s"]) == {"fixed", "full", "race"}
+    assert seed["calls_ratio"]["full"] == pytest.approx(seed["planner_calls"]["full"] / seed["planner_calls"]["fixed"])
+    full, race = seed["chosen"]["full"], seed["chosen"]["race"]
+    assert full["candidate_fits"] == 3 * full["candidates"] and race["candidate_fits"] < full["candidate_fits"]
+    # the race scores its contenders as the full search does: it keeps the full search's winner here
+    assert (race["n_primitives"], race["residual_penalty"]) == (full["n_primitives"], full["residual_penalty"])
+    assert seed["planner_calls"]["race"] < seed["planner_calls"]["full"]
+    assert auto_cost.DEFAULTS["preset"] in auto_cost.GRID_PRESETS
