@@ -139,3 +139,11 @@ def test_dictionary_match_is_invariant_to_order_sign_and_scale(rng):
 def test_dictionary_match_refuses_bad_shapes(learnt, true):
     with pytest.raises(ValidationError):
         dictionary_match(learnt, true)
+
+
+def test_a_constrained_model_is_saved_and_loaded(data, tmp_path):
+    mdp, st = data
+    m = _fit(mdp, st.demos, dictionary_constraint="nonneg-sparse", dictionary_alpha=0.03)
+    loaded = fo.load_model(fo.save_model(m, tmp_path / "m.npz"))
+    assert (loaded.dictionary_constraint, loaded.dictionary_alpha) == ("nonneg-sparse", 0.03)
+    np.testing.assert_array_equal(loaded.dictionary_, m.dictionary_)
