@@ -38,6 +38,16 @@ _open: list[int] = []  # the limits of the open blocks of every thread, in the o
 _saved: list[int] = []  # per BLAS library, its thread count before the first block opened
 
 
+def _before_fork() -> None:
+    """Hold the lock across a fork: no thread is then inside a BLAS library's thread setter, whose
+    own lock (OpenBLAS's ``server_lock``) a forked child would otherwise inherit held."""
+    _lock.acquire()
+
+
+def _after_fork_in_parent() -> None:
+    _lock.release()
+
+
 def _after_fork_in_child() -> None:
     """A forked child starts with a free lock and no open block: the thread that held the lock
     (or opened the blocks) at the fork does not exist in the child, which would wait forever."""
@@ -48,7 +58,7 @@ def _after_fork_in_child() -> None:
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork_in_child)
+    os.register_at_fork(before=_before_fork, after_in_parent=_after_fork_in_parent, after_in_child=_after_fork_in_child)
 
 
 def blas_thread_limit() -> int | None:
@@ -74,7 +84,8 @@ def _blas_libraries() -> list[Any]:
 
 def _set(libs: list[Any], counts: list[int]) -> None:
     for lib, n in zip(libs, counts):
-        lib.set_num_threads(n)
+        if lib.num_threads != n:  # a setter call only when it changes something (it takes the library's lock)
+            lib.set_num_threads(n)
 
 
 @contextlib.contextmanager

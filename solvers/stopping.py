@@ -5,7 +5,7 @@ Two rules, each with one home here; a run stops ("converged") as soon as either 
 **Relative decrease** (:func:`has_converged`, tolerance ``tol``). A run stops early when the
 *relative decrease* of its total objective over one step,
 
-    (f_prev - f_curr) / max(|f_prev|, tiny),
+    ``(f_prev - f_curr) / max(|f_prev|, tiny)``,
 
 is between 0 and ``tol``, where ``tiny`` is the smallest positive float (so ``f_prev = 0``
 divides by ``tiny``, not by zero). The rule is written multiplied out, ``0 <= f_prev - f_curr

@@ -282,8 +282,8 @@ def _value_actions(parser):
 
 
 def _all_value_actions():
-    from factirl_opt.bench import build_parser as bench_parser
-    from factirl_opt.cli import build_parser
+    from factirl_opt.lab.bench import build_parser as bench_parser
+    from factirl_opt.lab.cli import build_parser
 
     yield from (((("reproduce",) + path), a) for path, a in _value_actions(build_parser()._subparsers._group_actions[0]
                                                                          .choices["reproduce"]))
@@ -295,8 +295,8 @@ FREE_TEXT = {("reproduce", "--out"), ("reproduce", "--h-solver"), ("reproduce", 
 
 
 def test_every_option_has_a_checked_type_or_choices():
-    from factirl_opt._arguments import is_checked
-    from factirl_opt.cli import parse_solver_options
+    from factirl_opt.lab.arguments import is_checked
+    from factirl_opt.lab.cli import parse_solver_options
 
     unchecked = [(path, a.option_strings[-1]) for path, a in _all_value_actions()
                  if not (is_checked(a.type) or a.choices or a.type is parse_solver_options
@@ -305,8 +305,8 @@ def test_every_option_has_a_checked_type_or_choices():
 
 
 def test_negative_values_are_usage_errors_for_every_numeric_option(capsys):
-    from factirl_opt._arguments import is_checked
-    from factirl_opt.bench import main as bench_main
+    from factirl_opt.lab.arguments import is_checked
+    from factirl_opt.lab.bench import main as bench_main
 
     checked = [(path, "/".join(a.option_strings)) for path, a in _all_value_actions()
                if path[0] == "bench" and is_checked(a.type) and a.type.__name__.startswith(("an integer", "a whole", "a finite"))]
@@ -339,13 +339,14 @@ def test_bad_values_are_refused_by_the_parsers(argv, message, capsys):
 def test_a_lineup_that_does_not_fit_the_presets_world_is_refused(tmp_path, capsys, preset, lineup):
     code = main(["reproduce", "--preset", preset, "--lineup", lineup, "--out", str(tmp_path / "x"), "--quiet"])
     err = capsys.readouterr().err
-    assert code == 2 and err.startswith(f"factirl-opt: error: preset '{preset}': the line-up '{lineup}' runs in the "
-                                        "world(s) grid, objectworld; got world") and err.count("\n") == 1
+    assert code == 2 and err.startswith(f"factirl-opt: error: preset '{preset}': the line-up '{lineup}' plans every "
+                                        "task on one MDP; the world ") and err.count("\n") == 1
+    assert "has one MDP per task: choose a line-up of that world" in err
     assert not (tmp_path / "x").exists()
 
 
 def test_library_errors_of_a_benchmark_are_one_line_messages(capsys, monkeypatch):
-    from factirl_opt.bench import main as bench_main
+    from factirl_opt.lab.bench import main as bench_main
     from factirl_opt.lab.benchmarks import environments
     from factirl_opt.exceptions import ValidationError
 

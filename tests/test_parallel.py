@@ -9,6 +9,7 @@ import multiprocessing
 import os
 import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -301,10 +302,16 @@ def call_and_close(shards, calls):
 def test_shards_forked_while_another_thread_holds_the_blas_lock_answer():
     from factirl_opt import _threads
 
-    # as when the main thread opens a BLAS limit at the moment another thread's fit forks a shard
+    out = []
+    start = threading.Thread(target=lambda: out.append(call_and_close(Shards([(dict, ()), (dict, ())]),
+                                                                      [(1, "get", ("a", 5))])), daemon=True)
+    # as when the main thread sets BLAS threads at the moment another thread's fit forks a shard: the
+    # fork waits for the lock (it used to fork with the lock held, and the shard waited for it forever)
     with _threads._lock:
-        out = within(30, lambda: call_and_close(Shards([(dict, ()), (dict, ())]), [(1, "get", ("a", 5))]))
-    assert out == [5]
+        start.start()
+        time.sleep(0.5)
+    start.join(30)
+    assert not start.is_alive() and out == [[5]]
 
 
 def test_a_stopped_shard_process_is_killed_and_rebuilt(monkeypatch):

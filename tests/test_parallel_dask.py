@@ -181,11 +181,11 @@ def test_a_cluster_closed_during_a_fit_interrupts_it_keeping_the_best_point(thre
 
 
 def test_every_worker_lost_interrupts_the_fit_after_a_bounded_wait(threads_cluster, data, monkeypatch):
-    from factirl_opt import parallel
+    from factirl_opt.parallel import shards
 
     mdp, demos, F = data
     cluster, c = threads_cluster
-    monkeypatch.setattr(parallel, "DASK_WAIT_SECONDS", 1.0)
+    monkeypatch.setattr(shards, "DASK_WAIT_SECONDS", 1.0)
 
     def drop(iteration, total):
         if iteration == 1:

@@ -143,11 +143,13 @@ def _check_indices(ds: Any, episode_indices: Iterable[int] | None, where: str) -
         raise ValidationError(f"episode_indices must be an iterable of episode indices; got {type(episode_indices).__name__}")
     indices = [check_int(i, "episode_indices[]") for i in episode_indices]
     with _reading(where):
-        known = getattr(ds, "episode_indices", None)
-        if known is None and getattr(ds, "total_episodes", None) is not None:
-            known = range(int(ds.total_episodes))
-        known = None if known is None else {int(i) for i in known}
-    missing = [i for i in indices if known is not None and i not in known]
+        listed = getattr(ds, "episode_indices", None)
+        if listed is None and getattr(ds, "total_episodes", None) is not None:
+            listed = range(int(ds.total_episodes))
+        if listed is None:  # the dataset does not say which it has: reading will
+            return indices
+        known = {int(i) for i in listed}
+    missing = [i for i in indices if i not in known]
     if missing:
         span = f"indices {min(known)}..{max(known)}" if known else "none"
         raise ValidationError(f"episode_indices: episode {missing[0]} is not in the Minari dataset {where}, which has "

@@ -126,7 +126,7 @@ class BabyAITasks:
     bot_success: dict
     learner_rng: np.random.Generator
     map_extras: dict = dataclasses.field(default_factory=dict)
-    #: the runner's per-map scores (:mod:`.per_task`) do not apply: every layout is scored in the environment
+    #: the runner's per-map scores (:mod:`factirl_opt.lab.experiments.per_task`) do not apply: every layout is scored in the environment
     task_maps: dict = dataclasses.field(default_factory=dict)
 
     def demos(self, split: str) -> list:

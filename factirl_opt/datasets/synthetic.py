@@ -49,7 +49,7 @@ def random_coefficients(n_tasks: int, n_primitives: int = 5, kind: str = "gaussi
     Parameters
     ----------
     kind : {"gaussian", "nonneg"}
-        N(0, 1) or half-normal |N(0, 1)| entries.
+        N(0, 1) or half-normal ``|N(0, 1)|`` entries.
     sparsity : float in [0, 1)
         Probability that a coefficient is zero (at least one stays nonzero per task).
     """

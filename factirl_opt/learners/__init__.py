@@ -12,6 +12,7 @@
 Learners never know which step solver, objective or planner runs: they take them by name.
 """
 
+from .adaptive import plot_validation
 from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
@@ -24,6 +25,7 @@ __all__ = [
     "MultiIntentIRL",
     "SolverSettings",
     "clone",
+    "plot_validation",
     "fit_factorial",
     "transfer_coefficients",
     "pca_dictionary",

@@ -226,8 +226,8 @@ def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matchin
     beta, objective, planner
         As in :func:`make_objective`.
     """
-    if tasks.shared:
+    if tasks.mdp is not None:
         return make_objective(tasks.mdp, tasks.demos_per_task, beta, objective, planner)
-    return multi_environment_objective(tasks.mdps, tasks.demos_per_task, beta, objective, planner)
+    return multi_environment_objective(tasks.mdps or [], tasks.demos_per_task, beta, objective, planner)
 
 

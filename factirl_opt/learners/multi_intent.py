@@ -139,7 +139,7 @@ class MultiIntentIRL(Estimator):
         Randomness of the starts (and of completing a rank-deficient PCA).
     n_jobs, backend, client : int or None, str, dask.distributed.Client
         Shards of each M-step's objective over the K intentions, as in
-        :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.distributed.sharded`): the
+        :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.sharding.sharded`): the
         shards' workers are started for each M-step (the intentions' statistics change with
         the responsibilities) and stopped after it, so they pay off when an M-step plans large
         MDPs; the E-step plans in this process. The result equals ``n_jobs=1``'s to rounding.

@@ -267,8 +267,9 @@ def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, mo
                               f"is over p = {D.shape[0]} features: give features with the columns of fit")
     sig = getattr(model, "mdp_signature_", None)
     n_actions = sig["n_actions"] if isinstance(sig, dict) else sig[0]["n_actions"] if sig else None
-    if n_actions is not None and obj.n_actions != n_actions:
-        raise ValidationError(f"the new tasks' environments have {obj.n_actions} actions, but the model was fitted with "
+    new_actions = tasks.mdps[0].n_actions if tasks.mdps else None
+    if n_actions is not None and new_actions != n_actions:
+        raise ValidationError(f"the new tasks' environments have {new_actions} actions, but the model was fitted with "
                               f"{n_actions}")
     expected = getattr(model, "features_sha256_", tasks.digest)
     if features is None and expected != tasks.digest:

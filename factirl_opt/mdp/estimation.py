@@ -436,7 +436,7 @@ def transition_log_likelihood(
 def sample_transitions(
     mdp: TabularMDP, n_transitions: int, rng: np.random.Generator | np.random.SeedSequence | int | None = None
 ) -> NDArray[np.int64]:
-    """Exploration data: ``n_transitions`` transitions with ``(s, a)`` uniform and ``s' ~ P(. | s, a)``.
+    """Exploration data: ``n_transitions`` transitions with ``(s, a)`` uniform and ``s' ~ P(.|s, a)``.
 
     Parameters
     ----------

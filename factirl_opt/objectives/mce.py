@@ -41,6 +41,21 @@ Gradient by one adjoint solve per task. With ``g = dlogL/dQ = beta (c - c(s) pi)
 ``(I - gamma P_pi^T) z = P^T g`` (:func:`factirl_opt.planning.adjoint` with the stochastic
 policy); ``dJ/dR = -(that)``.
 
+Reused factorisations (the objective and :func:`mce_loss`, with a planner whose systems expose
+per-task solvers: the sparse LU; issue 30, ``results/mce-speed``). A factorisation of
+``I - gamma P_pi`` costs 2 ms at S = 1024, 20 solves' worth. Each task keeps the factorisation
+``K`` of its last Newton step, between evaluations too (:class:`MCEObjective`), and tries the
+*chord step* ``V + K^-1 (T V - V)`` first: Newton's step with an earlier policy's system. It is
+accepted when it shrinks the residual ``||T V - V||_inf`` at least by :data:`CHORD_MAX_RATIO`
+(else the guarded Newton step above is taken, and its factorisation kept); one that shrinks it
+by less than :data:`CHORD_REFACTOR_RATIO` makes the next step a Newton step. The stopping rule
+is the same; a task within it goes on with chord steps down to :data:`POLISH_TOL` (the accuracy
+of Newton's quadratic last step, so the loss stays smooth in the rewards to rounding) or until
+one is refused. The adjoint is solved by iterative refinement on the kept factorisation
+(:func:`refined_adjoint_solve`, from the task's last adjoint solution), to a relative residual
+:data:`ADJOINT_TOL`, or with a new factorisation where the refinement does not contract. The
+public :func:`soft_values` (scores, EM) keeps plain guarded Newton.
+
 Potential shaping ``R + gamma P phi - phi`` shifts ``Q`` and ``V`` by ``-phi(s)`` and leaves
 ``pi``, hence the loss, unchanged. The objective is not a least-squares one: the Gauss-Newton
 step solvers do not apply, gradient solvers (``armijo``, ``armijo-nonneg``, ``lbfgs``) do.
@@ -284,7 +299,7 @@ def _forward(planner, R, mu, pi_hat, beta, V0=None, max_iter=SOFT_MAX_ITER, kept
     return _Point(Q, V, log_pi, mu[:, :, None] * pi_hat, beta, kept)
 
 
-def refined_adjoint_solve(planner, solvers, pi, B):
+def refined_adjoint_solve(planner, solvers, pi, B, z0=None):
     """``z`` with ``(I - gamma P_pi)^T z = B`` by iterative refinement on kept factorisations.
 
     ``K_i`` (``solvers[i]``) factorises an earlier policy's system of task ``i``; each sweep
@@ -302,15 +317,17 @@ def refined_adjoint_solve(planner, solvers, pi, B):
     pi : ndarray, shape (n, S, A)
         The stochastic policies of the systems solved.
     B : ndarray, shape (n, S)
+    z0 : ndarray, shape (n, S), optional
+        Where the refinement starts (e.g. the solution for nearby rewards); default ``K^-T B``.
 
     Returns
     -------
     z : ndarray, shape (n, S)
     converged : ndarray of bool, shape (n,)
     sweeps : int
-        Refinement sweeps taken (0: the first solve was exact enough for every task).
+        Refinement sweeps taken (0: the start was exact enough for every task).
     """
-    z = planner.solver_system(solvers).solve_transpose(B)
+    z = planner.solver_system(solvers).solve_transpose(B) if z0 is None else np.array(z0, dtype=np.float64)
     scale_b = np.abs(B).max(axis=1)
     todo, prev = np.arange(len(B)), np.full(len(B), np.inf)
     converged = np.zeros(len(B), dtype=bool)
@@ -333,8 +350,9 @@ def _gradient(planner, point):
     """``dJ/dR`` (n, S, A): one transposed solve per task with the soft-optimal policy's system.
 
     With kept factorisations (``point.kept``, every task's), the solve is refined on them
-    (:func:`refined_adjoint_solve`); a task where that does not converge gets a new
-    factorisation of its own policy, which becomes its kept one.
+    (:func:`refined_adjoint_solve`), from ``point.z0`` if set (the adjoint of the tasks' last
+    evaluation); a task where that does not converge gets a new factorisation of its own
+    policy, which becomes its kept one. The solution is left in ``point.z``.
     """
     pi, c = point.pi, point.counts
     g = point.beta * (c - c.sum(axis=2, keepdims=True) * pi)  # dlogL/dQ
@@ -342,13 +360,14 @@ def _gradient(planner, point):
     if kept is None or any(k is None for k in kept):
         return -adjoint(planner, planner.system(pi), pi, g)
     b = planner.pullback(g)
-    z, converged, _ = refined_adjoint_solve(planner, kept, pi, b)
+    z, converged, _ = refined_adjoint_solve(planner, kept, pi, b, getattr(point, "z0", None))
     if not converged.all():
         f = np.flatnonzero(~converged)
         system = planner.system(pi[f])
         z[f] = system.solve_transpose(b[f])
         for i, solver in zip(f, system.solvers or [None] * len(f)):
             kept[i] = solver
+    point.z = z
     return -(g + planner.gamma * pi * z[:, :, None])
 
 
@@ -367,7 +386,8 @@ class MCEObjective(Objective):
     Warm start: each task's last soft values start its next Newton iteration, and, with a
     planner whose systems expose per-task solvers (the sparse LU), its last factorisation is
     kept and reused: for chord steps of the next soft values and for the adjoint, by iterative
-    refinement (:func:`refined_adjoint_solve`); a factorisation is made only when the kept
+    refinement (:func:`refined_adjoint_solve`, from the task's last adjoint solution); a
+    factorisation is made only when the kept
     one no longer contracts fast enough. One factorisation per task is kept between
     evaluations (dropped by :meth:`reset`, and not kept at all under a planning
     budget the tasks do not fit in at once). Results agree with fresh factorisations to the
@@ -385,10 +405,11 @@ class MCEObjective(Objective):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._kept = None  # per task: the solver of its last factorised soft policy, or None
+        self._z = None  # per task: its last adjoint solution (n_tasks, S), NaN where none
 
     def reset(self):
         super().reset()
-        self._kept = None
+        self._kept = self._z = None
 
     def _forward(self, R, rows, warm):
         if self._chunk(self.n_tasks) < self.n_tasks:  # under a budget: nothing kept between calls
@@ -399,6 +420,9 @@ class MCEObjective(Objective):
             kept = [self._kept[i] for i in rows]
         point = _forward(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm, kept=kept)
         point.rows = rows
+        if self._z is not None and self._kept is not None:
+            z0 = self._z[rows]
+            point.z0 = None if np.isnan(z0).any() else z0
         self._keep(point)
         return point
 
@@ -406,6 +430,11 @@ class MCEObjective(Objective):
         if self._kept is not None and self._chunk(self.n_tasks) >= self.n_tasks:
             for i, solver in zip(point.rows, point.kept):
                 self._kept[i] = solver
+            z = getattr(point, "z", None)
+            if z is not None:
+                if self._z is None:
+                    self._z = np.full((self.n_tasks, z.shape[1]), np.nan)
+                self._z[point.rows] = z
 
     def _warm_start(self, point):
         return point.V
@@ -419,6 +448,11 @@ class MCEObjective(Objective):
 @blas_limited
 def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", max_iter=SOFT_MAX_ITER):
     """Maximum causal entropy negative log-likelihood per task and its gradient dJ/dR.
+
+    The reference route: the soft values by plain guarded Newton steps and the adjoint by a fresh
+    factorisation, so that every planner agrees to the tolerance the guide states. The learners'
+    :class:`MCEObjective` reuses factorisations across steps and evaluations (chord steps and a
+    refined adjoint) and agrees with this function to the soft values' polishing tolerance.
 
     Parameters
     ----------
@@ -455,5 +489,5 @@ def mce_loss(mdp, rewards, mu_hat, pi_hat, beta, policy=None, planner="auto", ma
     max_iter = check_int(max_iter, "max_iter", minimum=1)
     pl = get_planner(mdp, planner)
     V0 = None if policy is None else soft_policy_values(pl, R, check_stochastic_policy(mdp, policy, R.shape[0]), beta)
-    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter, kept=[None] * R.shape[0])
+    point = _forward(pl, R, mu, pi_hat, beta, V0, max_iter)  # exact Newton: the reference the objective is held to
     return point.loss, _gradient(pl, point)

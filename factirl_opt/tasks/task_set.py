@@ -244,7 +244,8 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
     if one is not None:
         check_mdp(one)
         F = reward_features(one, features, reward, min_columns)
-        return TaskSet(demos_per_task, F, one, None, None if features is None else features_digest(F))
+        digest = features_digest(F) if isinstance(F, np.ndarray) else None  # of the matrix given, not of a StateBroadcast
+        return TaskSet(demos_per_task, F, one, None, digest)
     return environment_tasks(mdp, demos_per_task, features, reward, min_columns)
 
 

@@ -219,7 +219,7 @@ def test_blas_thread_limit_is_restored():
 
 @pytest.mark.slow
 def test_fit_benchmark_paper_scale_acceptance(capsys):
-    """Issue 13 at paper scale (the defaults, one run): Armijo H-step with the gn-cg D-step
+    """The faster-fits benchmark at paper scale (the defaults, one run): Armijo H-step with the gn-cg D-step
     reaches a final loss no higher than Armijo/Armijo's, a train deviation within 5% of it, with
     at most a third of its Q* evaluations (measured: 454 vs 2976, loss 0.069 vs 0.210)."""
     out = run_bench(capsys, ["fit", "--h-solvers", "armijo", "--d-solvers", "gn-cg"])

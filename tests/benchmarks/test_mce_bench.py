@@ -26,6 +26,7 @@ def test_mce_benchmark_quick_fits_both_objectives_and_counts_their_planning(caps
     assert list(fits) == ["policy-matching", "mce"]
     for name, e in fits.items():
         assert COUNTS <= set(e) and e["time_s"] == min(e["times_s"]) and len(e["times_s"]) == 2
+        assert e["cpu_s"] == min(e["cpus_s"]) > 0 and len(e["cpus_s"]) == 2
         assert e["n_iter"] <= mce_bench.QUICK["max_iter"] and e["final_loss"] > 0 and e["mean_train_deviation"] >= 0
         assert e["n_linear_solves"] == e["n_forward"] + e["n_transpose"] > 0
         assert e["forward_calls_per_evaluation"] == pytest.approx(e["n_forward_calls"] / e["n_evaluations"])
@@ -33,19 +34,25 @@ def test_mce_benchmark_quick_fits_both_objectives_and_counts_their_planning(caps
     assert fits["mce"]["n_stochastic_systems"] == fits["mce"]["n_systems"] > 0
     assert fits["policy-matching"]["n_stochastic_systems"] == 0
     assert out["ratio_mce_over_pm"] == pytest.approx(fits["mce"]["time_s"] / fits["policy-matching"]["time_s"])
+    assert out["cpu_ratio_mce_over_pm"] == pytest.approx(fits["mce"]["cpu_s"] / fits["policy-matching"]["cpu_s"])
     assert out["deviation_ratio_mce_over_pm"] == pytest.approx(
         fits["mce"]["mean_train_deviation"] / fits["policy-matching"]["mean_train_deviation"])
 
 
 def test_mce_benchmark_one_objective_has_no_ratio(capsys):
     out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--max-iter", "1"])
-    assert list(out["fits"]) == ["mce"] and "ratio_mce_over_pm" not in out
+    assert list(out["fits"]) == ["mce"] and "ratio_mce_over_pm" not in out and "cpu_ratio_mce_over_pm" not in out
     assert out["settings"]["fact_max_iter"] == 1
 
 
-def test_mce_benchmark_refuses_a_preset_without_a_map_per_task():
+def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
+    with pytest.raises(SystemExit):
+        bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"])
+    assert "argument --preset: invalid choice: 'objectworld-quick'" in capsys.readouterr().err
+    args = bench.build_parser().parse_args(["mce", "--quick"])
+    args.preset = "objectworld-quick"  # given programmatically: refused by the library
     with pytest.raises(ValidationError, match="not a world with a map per task"):
-        mce_bench.run(bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"]))
+        mce_bench.run(args)
 
 
 @pytest.mark.parametrize("argv, fragment", [(["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),

@@ -16,7 +16,6 @@ from factirl_opt import GridWorld, estimate_mdp
 from factirl_opt.lab import bench
 from factirl_opt.mdp import sample_transitions
 from factirl_opt.lab.benchmarks import robustness as rb
-from factirl_opt.exceptions import ValidationError
 
 BIG = 1_000_000
 
@@ -121,13 +120,14 @@ def test_summarize_orders_and_aggregates():
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["--pseudo-count", "-1"], "pseudo-count"),
-    (["--size", "1"], "size"),
-    (["--n-tasks", "0"], "default_tasks"),
+    (["--pseudo-count", "-1"], "argument --pseudo-count: must be a finite number >= 0; got '-1'"),
+    (["--size", "1"], "argument --size: must be an integer >= 2; got '1'"),
+    (["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),
 ])
-def test_bad_settings_raise(argv, match):
-    with pytest.raises(ValidationError, match=match):
-        rb.run(bench.build_parser().parse_args(["robustness", "--quick", "--extra", "0", *argv]))
+def test_bad_settings_are_usage_errors(argv, match, capsys):
+    with pytest.raises(SystemExit) as exc:  # refused by the parser, before any work
+        bench.build_parser().parse_args(["robustness", "--quick", "--extra", "0", *argv])
+    assert exc.value.code == 2 and match in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("value", ["-5", "1.5", "many"])

@@ -59,13 +59,13 @@ def test_quick_preset_runs_every_learner_and_figure_with_the_papers_orderings(tm
 
 
 def test_objectworld_quick_preset_orderings(tmp_path):
-    """Issue 11's orderings at the objectworld-quick default point (20 tasks x 16 demos, 16x16, 3 seeds;
+    """The Objectworld orderings at the objectworld-quick default point (20 tasks x 16 demos, 16x16, 3 seeds;
     about 35 s, so it runs by default).
 
     Measured (results/objectworld-quick, mean over 3 seeds): test factorial on features 6.99, flat
     on features 8.32, flat tabular 9.69, true primitives 4.45; train 1.01, 1.05, 1.38, 0.17 (on
     training tasks the factorial learner only ties flat on features at this size). The floor's
-    margin is 0.7 since the flat fits stop task by task (issue 29: 4.45 / 6.99 = 0.64 on test).
+    margin is 0.7 since the flat fits stop task by task (4.45 / 6.99 = 0.64 on test).
     """
     from factirl_opt.lab.experiments import PRESETS
 

@@ -199,11 +199,10 @@ def test_transitions_and_world_checks():
 def test_every_public_name_importable_from_the_package_and_the_library():
     import factirl_opt
     import factirl_opt.datasets.objectworld as objectworld
-    from factirl_opt.datasets.objectworld import features, plotting, rewards, world
+    from factirl_opt.datasets.objectworld import features, maps, plotting, rewards, world
 
-    homes = {name: module for module in (world, features, rewards, plotting) for name in module.__all__}
+    homes = {name: module for module in (world, features, rewards, plotting, maps) for name in module.__all__}
     for name in objectworld.__all__:
         assert getattr(objectworld, name) is getattr(homes[name], name)
-        if not name.isupper():  # the constants stay in factirl_opt.datasets.objectworld
-            assert getattr(factirl_opt, name) is getattr(objectworld, name)
+        assert factirl_opt.objectworld is objectworld  # the namespace
     assert set(objectworld.__all__) <= set(homes)

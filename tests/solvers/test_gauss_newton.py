@@ -178,7 +178,7 @@ def _factirl_data():
 
 @pytest.mark.parametrize("beta, bound", [(1e4, 1e3), (100.0, 1e3)])
 def test_factirl_gauss_newton_at_large_beta(beta, bound, capfd):
-    """Issue 9: at beta = 1e4 the fit failed (overflowing rescaling reported as a bad ``alpha``,
+    """At beta = 1e4 the fit used to fail (overflowing rescaling reported as a bad ``alpha``,
     OSQP printing errors); at beta = 100 the coefficients reached ~8e12."""
     m, demos = _factirl_data()
     with warnings.catch_warnings():

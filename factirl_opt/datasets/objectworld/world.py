@@ -17,6 +17,7 @@ from ...mdp.tabular import TabularMDP
 
 __all__ = ["ACTIONS", "MOVES", "N_ACTIONS", "ObjectWorld", "make_objectworld", "objectworld_transitions", "check_world"]
 
+#: The action names, in the order of the model's actions.
 ACTIONS = ("stay", "up", "down", "left", "right")
 #: (d_row, d_col) displacement of each action, in the order of ``ACTIONS``
 MOVES = np.array([(0, 0), (-1, 0), (1, 0), (0, -1), (0, 1)])

@@ -9,16 +9,19 @@ budgets and solvers as the experiment runner builds them
 (:func:`~factirl_opt.lab.experiments.learner_solvers.factorial_options`: an objective without
 residuals, MCE, takes L-BFGS where the preset names a Gauss-Newton solver).
 
-Prints, per objective: wall time of the fit, batched planning evaluations, outer iterations,
+Prints, per objective: wall time of the fit and the process's CPU time (with one BLAS thread,
+the fit's own work: on a shared machine it does not grow with the other processes' load, the
+wall time does), batched planning evaluations, outer iterations,
 status, final loss, the mean train deviation (eq. 13, each task on its own map), and the
 planning work counted by a wrapping planner (:class:`CountingPlanner`): task systems
 built (a new sparse factorisation per task for a stochastic policy; a deterministic one may be
 served from the planner's cache or updated at low rank), forward solves (Newton steps of the
 soft Bellman equation for MCE, policy-evaluation sweeps and Jacobian products for policy
 matching) and transposed (adjoint) solves, in task systems and in batched calls per evaluation.
-``ratio_mce_over_pm`` divides MCE's wall time by policy matching's, ``deviation_ratio_mce_over_pm``
-their deviations. ``--repeats`` fits each objective that many times, alternating, and keeps
-each one's fastest time (the counts do not change between repeats).
+``ratio_mce_over_pm`` divides MCE's wall time by policy matching's, ``cpu_ratio_mce_over_pm``
+their CPU times, ``deviation_ratio_mce_over_pm`` their deviations. ``--repeats`` fits each
+objective that many times, alternating, and keeps each one's fastest times (the counts do not
+change between repeats).
 
 ``--quick`` is a tiny configuration for tests (options given explicitly keep their value).
 """
@@ -53,7 +56,7 @@ def add_arguments(parser):
     def opt(*flags, **kw):
         add_option(parser, *flags, defaults=DEFAULTS, quick=QUICK, **kw)
 
-    opt("--preset", help="preset of the budgets and solvers (a world with a map per task)")
+    opt("--preset", choices=sorted(n for n, p in PRESETS.items() if p.world == "objectworld-per-task"), help="preset of the budgets and solvers (a world with a map per task)")
     opt("--size", type=integer(2), help="grid side")
     opt("--n-tasks", type=integer(1), help="training tasks, each on its own map")
     opt("--n-demos", type=integer(1), help="demonstrations per task")
@@ -94,9 +97,9 @@ def _fit(preset, gt, objective, seed):
     kw["planner"] = planner
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     model.fit(mdps, gt.train_demos)
-    return model, time.perf_counter() - t0, planner
+    return model, time.perf_counter() - t0, time.process_time() - c0, planner
 
 
 def _entry(model, elapsed, planner, gt, preset):
@@ -116,22 +119,25 @@ def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
     preset = _preset(s)
     objectives = list(dict.fromkeys(s["objectives"]))
-    entries, times = {}, {name: [] for name in objectives}
+    entries, times, cpus = {}, {name: [] for name in objectives}, {name: [] for name in objectives}
     with limit_blas_threads(s["blas_threads"]) as threads:
         t0 = time.perf_counter()
         gt = objectworld_per_task(preset, s["n_tasks"], s["n_demos"], s["seed"])
         t_data = time.perf_counter() - t0
         for _ in range(s["repeats"]):
             for name in objectives:
-                model, elapsed, planner = _fit(preset, gt, name, s["seed"] + 1)
+                model, elapsed, cpu, planner = _fit(preset, gt, name, s["seed"] + 1)
                 times[name].append(elapsed)
+                cpus[name].append(cpu)
                 entries[name] = _entry(model, elapsed, planner, gt, preset)
     for name in objectives:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
+        entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]
     out = {"benchmark": "mce", "fits": entries, "data_time_s": t_data}
     if set(OBJECTIVES) <= set(objectives):
         ref, other = entries["policy-matching"], entries["mce"]
         out["ratio_mce_over_pm"] = other["time_s"] / ref["time_s"]
+        out["cpu_ratio_mce_over_pm"] = other["cpu_s"] / ref["cpu_s"]
         d = ref["mean_train_deviation"]
         out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
     settings = {key: s[key] for key in DEFAULTS}

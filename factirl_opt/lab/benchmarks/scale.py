@@ -90,7 +90,7 @@ from ...planning import AUTO_DENSE_MAX_STATES, clear_caches, get_planner, optima
 from ...planning.budget import check_max_bytes, chunk_size, task_bytes
 from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...tasks.features import task_rewards
-from ..arguments import integer, real, text
+from ..arguments import count, integer, real, text
 from .scale_evaluations import run_evaluations
 from .scale_jobs import check_jobs, run_side_by_side as _side_by_side
 
@@ -119,7 +119,7 @@ def add_arguments(parser):
     parser.add_argument("--fit-iter", type=integer(0), default=0, metavar="N",
                         help="instead of the planner timings, fit FactIRL on an Objectworld's features for N outer "
                              "iterations per size (default 0: timings)")
-    parser.add_argument("--max-bytes", type=real(0, low_open=True), default=None,
+    parser.add_argument("--max-bytes", type=count(1), default=None,
                         help="planning memory budget of the fits in bytes, e.g. 16e9 (default: none)")
     parser.add_argument("--jobs", type=integer(1, also=(-1,), note=" (or -1: every core)"), nargs="+", default=None, metavar="J",
                         help="with --fit-iter: the same fit side by side for each FactIRL n_jobs J (positive or -1), "

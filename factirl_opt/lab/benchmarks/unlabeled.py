@@ -168,7 +168,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        ("--length", "steps per demonstration")):
         dest = flag[2:].replace("-", "_")
         shown = "; ".join(f"{w} {WORLD_DEFAULTS[w][dest]} (--quick: {WORLD_QUICK[w][dest]})" for w in WORLDS)
-        parser.add_argument(flag, type=integer(1), default=None, help=f"{what} (default: {shown})")
+        parser.add_argument(flag, type=integer(2 if flag == "--size" else 1), default=None, help=f"{what} (default: {shown})")
     add_option(parser, "--n-primitives", type=integer(1), defaults=DEFAULTS, quick=QUICK,
                help="k of the true and learnt dictionaries (Objectworld: also its inner colours)")
     add_option(parser, "--beta", type=real(0, low_open=True), defaults=DEFAULTS)

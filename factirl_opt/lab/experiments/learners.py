@@ -217,8 +217,6 @@ def _mce_rows(flat_name, fact_name, flat_build, flat_solvers, fact_build, transf
 _TRAIN_FLAT = (("train", FLAT),)
 _FEATURES, _FACTORIAL = "flat features", "factorial"
 
-#: the worlds whose tasks share one MDP (``GroundTruth.mdp``), which the paper's learners plan on
-ONE_MDP_WORLDS = ("grid", "objectworld")
 #: line-up name (a preset's ``lineup``) -> Lineup
 LINEUPS = {
     "paper": Lineup(
@@ -236,7 +234,7 @@ LINEUPS = {
             Learner("test", FLAT_GROUND_TRUTH, flat_ground_truth, per_seed=True, solvers=_FEATURES),
         ),
         value_maps=(FLAT, FACTORIAL),
-        worlds=ONE_MDP_WORLDS,
+        one_mdp=True,
     ),
     "objectworld": Lineup(
         name="objectworld",
@@ -263,7 +261,7 @@ LINEUPS["paper+mce"] = Lineup(
     learners=_extended(LINEUPS["paper"].learners,
                        *_mce_rows(FLAT_MCE, FACTORIAL_MCE, flat, "flat", factorial_mce, factorial_mce_transfer)),
     value_maps=(FLAT, FACTORIAL, FLAT_MCE, FACTORIAL_MCE),
-    worlds=ONE_MDP_WORLDS,
+    one_mdp=True,
 )
 LINEUPS["objectworld+mce"] = Lineup(
     name="objectworld+mce",

@@ -73,12 +73,16 @@ class Lineup:
 
     ``worlds``: the names of the worlds (:data:`.worlds.WORLDS`) the line-up runs in (empty:
     any world); e.g. a line-up with learners on base features needs a world that has them.
+    ``one_mdp``: its learners plan every task on the one MDP of the ground truth
+    (``GroundTruth.mdp``), so it does not run in a world of per-task MDPs
+    (:data:`.worlds.PER_TASK_WORLDS`).
     """
 
     name: str
     learners: tuple
     value_maps: tuple = ()
     worlds: tuple = ()
+    one_mdp: bool = False
 
     def __post_init__(self) -> None:
         seen = set()

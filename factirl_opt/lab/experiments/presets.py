@@ -235,7 +235,7 @@ class Preset:
         object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
         object.__setattr__(self, "pca_shrink", check_bool(self.pca_shrink, where + "pca_shrink"))
         from .learners import LINEUPS
-        from .worlds import WORLDS
+        from .worlds import PER_TASK_WORLDS, WORLDS
 
         for f, choices in (("coefficient_kind", COEFFICIENT_KINDS), ("world", WORLDS), ("lineup", LINEUPS),
                            ("planner", available_planners())):
@@ -245,6 +245,9 @@ class Preset:
         if worlds and self.world not in worlds:
             raise ValidationError(f"{where}the line-up {self.lineup!r} runs in the world(s) {', '.join(worlds)}; "
                                   f"got world {self.world!r}")
+        if LINEUPS[self.lineup].one_mdp and self.world in PER_TASK_WORLDS:
+            raise ValidationError(f"{where}the line-up {self.lineup!r} plans every task on one MDP; the world "
+                                  f"{self.world!r} has one MDP per task: choose a line-up of that world")
         self._check_solvers(where)
 
     def _check_solvers(self, where):

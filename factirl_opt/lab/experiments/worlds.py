@@ -279,6 +279,8 @@ def babyai_large_world(preset: Any, n_tasks: int, demos_per_task: int, seed: int
 #: world name (a preset's ``world``) -> recipe ``(preset, n_tasks, demos_per_task, seed) -> GroundTruth``
 WORLDS = {"grid": grid_world, "objectworld": objectworld, "objectworld-per-task": objectworld_per_task,
           "babyai": babyai_world, "babyai-large": babyai_large_world}
+#: the worlds whose tasks each have their own MDP (no ``GroundTruth.mdp`` shared by every task)
+PER_TASK_WORLDS = ("objectworld-per-task", "babyai", "babyai-large")
 
 
 def make_ground_truth(preset, n_tasks, demos_per_task, seed):
