@@ -13,6 +13,9 @@ Two scores: :func:`score` / :func:`deviation` act greedily on the learnt reward 
 eq. 13, Levine's "standard MDP" value), :func:`soft_deviation` with the soft-optimal (maximum
 causal entropy) policy at inverse temperature ``beta`` (the "linear MDP" value difference that
 ELIRL reports).
+
+:func:`dictionary_match` scores a learnt dictionary against the true one (the recovery of the
+primitives, not of the tasks' behaviour).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._threads import blas_limited
-from ._validation import check_beta, check_mdp, check_rewards, check_start
+from ._validation import check_array, check_beta, check_mdp, check_rewards, check_start
 from .exceptions import FactIRLError, ValidationError
 from .objectives.mce import soft_values
 from .planning import Planner, get_planner, plan
@@ -37,7 +40,7 @@ if typing.TYPE_CHECKING:
 
     from .mdp.tabular import TabularMDP
 
-__all__ = ["score", "optimal_score", "deviation", "soft_deviation"]
+__all__ = ["score", "optimal_score", "deviation", "soft_deviation", "dictionary_match"]
 
 
 def _per_environment(func: typing.Callable[..., typing.Any], mdps: typing.Any, rewards: dict[str, typing.Any],
@@ -255,3 +258,47 @@ def soft_deviation(mdp: TabularMDP | Sequence[TabularMDP], true_rewards: ArrayLi
         bad = int(np.argmax(~np.isfinite(dev)))
         raise FactIRLError(f"the soft deviation of task {bad} overflowed ({dev[bad]!r}): rescale the rewards")
     return float(dev[0]) if single else dev
+
+
+def dictionary_match(learnt: ArrayLike, true: ArrayLike) -> tuple[float, NDArray[np.float64], NDArray[np.intp]]:
+    """How well learnt primitives recover the true ones: the best one-to-one matching of columns.
+
+    The factorial model leaves the order, the sign and the scale of the primitives free (and
+    only their span is identified). Each pair (learnt column l, true column j) is scored by
+    the absolute cosine ``|<d_l, d*_j>| / (||d_l|| ||d*_j||)``; the columns are matched one to
+    one to maximise the sum (the Hungarian algorithm, ``scipy.optimize.linear_sum_assignment``).
+
+    Parameters
+    ----------
+    learnt : array_like, shape (p, k)
+    true : array_like, shape (p, k_true)
+
+    Returns
+    -------
+    score : float
+        Mean absolute cosine over the ``min(k, k_true)`` matched pairs, in [0, 1]; 1 when every
+        true primitive is a learnt one up to sign and scale. Unmatched columns (``k != k_true``)
+        do not count.
+    cosines : ndarray, shape (k, k_true)
+        The absolute cosines (zero for a zero column).
+    matched : ndarray of int, shape (k_true,)
+        The learnt column matched to each true one, -1 for a true column left unmatched.
+
+    Raises
+    ------
+    ValidationError
+        When an array is not 2-d, not finite, or the two have a different number of rows p.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    L = check_array(learnt, "learnt", ndim=2)
+    T = check_array(true, "true", ndim=2)
+    if L.shape[0] != T.shape[0] or L.shape[1] == 0 or T.shape[1] == 0:
+        raise ValidationError(f"learnt (p, k) and true (p, k_true) dictionaries need the same p and at least one column; "
+                              f"got {L.shape} and {T.shape}")
+    nl, nt = np.linalg.norm(L, axis=0), np.linalg.norm(T, axis=0)
+    C = np.abs(L.T @ T) / np.outer(np.where(nl > 0, nl, 1.0), np.where(nt > 0, nt, 1.0))
+    rows, cols = linear_sum_assignment(C, maximize=True)
+    matched = np.full(T.shape[1], -1, dtype=np.intp)
+    matched[cols] = rows
+    return float(C[rows, cols].mean()), C, matched

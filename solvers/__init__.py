@@ -43,6 +43,11 @@ Built-in solvers
     ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained. Its
     alternating form (FactIRL's D-step) takes proximal, inexact steps.
 
+Not registered (it needs callables, not only a name): :class:`ProximalArmijoSolver`, the
+Armijo descent with a proximal map ``prox(v, t)`` and its penalty (:mod:`solvers.proximal`;
+``constraint="proximal"``), and :func:`unit_columns_prox`, the map of unit-norm columns,
+optionally nonnegative and/or L1-penalised (FactIRL's constrained dictionary).
+
 Every solver's run stops early by the rules of :mod:`solvers.stopping`: the relative decrease
 of the total objective (:func:`has_converged`, ``tol``) and the norm of its gradient relative to
 the start (:func:`gradient_converged`, ``gtol``; projected or minimum-norm subgradient for the
@@ -76,6 +81,7 @@ from .exceptions import MissingBackendError, SolverError, SolverOptionError, Sol
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
+from .proximal import ProximalArmijoSolver, unit_columns_prox
 from .stopping import gradient_converged, has_converged, relative_decrease
 
 __all__ = [
@@ -87,6 +93,8 @@ __all__ = [
     "GaussNewtonSolver",
     "LBFGSSolver",
     "GaussNewtonCGSolver",
+    "ProximalArmijoSolver",
+    "unit_columns_prox",
     "QPFallbackWarning",
     "qp_solver_name",
     "relative_decrease",

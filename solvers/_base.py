@@ -169,7 +169,8 @@ class StepSolver:
     constraint : str
         ``"none"``, ``"nonneg"`` (:meth:`project` keeps ``x >= 0``) or ``"sparse"``
         (:meth:`penalty` adds an L1 term); learners use it to keep the constraint in their
-        initialisation.
+        initialisation. ``"proximal"``: a projection and/or penalty given as callables
+        (:class:`solvers.proximal.ProximalArmijoSolver`).
     """
 
     name: str = "base"

@@ -7,7 +7,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.learners import adaptive
-from factirl_opt.exceptions import ValidationError
+from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 
 
 @pytest.fixture(scope="module")
@@ -40,12 +40,47 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
     # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
     assert sorted(p for p in pairs if p[1] > 0) == sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
     assert [p for p in pairs if p[1] == 0.0] == [(1, 0.0)]
-    best = min(rows, key=lambda r: r["score"])
+    # the default search is a race: the candidates far behind on the first fold are not scored on the others
+    complete = [r for r in rows if len(r["fold_scores"]) == 3]
+    best = min(complete, key=lambda r: r["score"])
     assert [r["chosen"] for r in rows].count(True) == 1 and best["chosen"]
     assert (auto.n_primitives_, auto.residual_penalty_) == (best["n_primitives"], best["residual_penalty"])
+    lead = min(r["fold_scores"][0] for r in rows)
     for r in rows:
-        assert len(r["fold_scores"]) == 3 and r["score"] == pytest.approx(np.mean(r["fold_scores"]))
+        assert len(r["fold_scores"]) in (1, 3) and r["score"] == pytest.approx(np.mean(r["fold_scores"]))
+        assert (len(r["fold_scores"]) == 3) == (r["fold_scores"][0] <= lead + adaptive.RACE_MARGIN * abs(lead))
     assert auto.dictionary_.shape == (4, auto.n_primitives_) and auto.n_primitives == "auto"
+
+
+def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
+    """The full search scores every candidate on every fold; the cold race's rows are the same
+    numbers (each fold's fit is independent of the others), so it chooses the same pair whenever
+    the full search's winner stays in the race."""
+    mdp, F, demos = data
+    learner = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
+    flat = adaptive.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        k, lam, full = adaptive.choose_sharing(learner, mdp, demos, flat, search="full")
+        kr, lr, race = adaptive.choose_sharing(learner, mdp, demos, flat, search="race")
+    assert all(len(r["fold_scores"]) == 3 for r in full)
+    by_pair = {(r["n_primitives"], r["residual_penalty"]): r for r in full}
+    for r in race:  # lambda = 0 is not fitted in a race (it takes another candidate's dictionary)
+        other = by_pair[r["n_primitives"], r["residual_penalty"]]
+        if r["residual_penalty"] > 0:
+            assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
+    assert (kr, lr) == (k, lam) and sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
+    assert [r["fold_scores"] for r in race] == [r["fold_scores"] for r in auto.validation_]  # the default
+    # the warm race starts each candidate from its predecessor's fit: the first candidate of each k is
+    # scored as in the full search on the first fold
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        warm = adaptive.choose_sharing(learner, mdp, demos, flat, search="race-warm")[2]
+    for r in warm:
+        if r["residual_penalty"] == np.inf:
+            assert r["fold_scores"][0] == by_pair[r["n_primitives"], np.inf]["fold_scores"][0]
+    with pytest.raises(ValidationError, match=r"search must be one of \('full', 'race', 'race-warm'\); got 'grid'"):
+        adaptive.choose_sharing(learner, mdp, demos, flat, search="grid")
 
 
 def test_the_final_fit_is_the_fixed_fit_of_the_chosen_pair(data, auto):

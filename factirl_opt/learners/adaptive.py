@@ -10,13 +10,16 @@ fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' 
 held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
 its remaining demonstrations by the learner's own objective (policy matching, or the MCE
 negative log-likelihood) of the transferred reward. The candidate of lowest mean score wins
-(ties: the earlier candidate, i.e. more sharing).
+(ties: the earlier candidate, i.e. more sharing). By default the folds are a race: every
+candidate is scored on the first fold, only those within ``RACE_MARGIN`` of the best there on
+the others (``search``, :func:`choose_sharing`).
 
 Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
 flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
 the same whichever tasks share the fit. A candidate then costs one alternating fit on
 ``(K-1)/K`` of the tasks per fold and one transfer; ``lambda = 0`` (the flat model: the
-dictionary plays no part) is fitted once, with the smallest k.
+dictionary plays no part) is tried once, with the smallest k, and in a race takes the
+dictionary of another candidate instead of a fit of its own.
 """
 
 from __future__ import annotations
@@ -36,8 +39,8 @@ from .solver_settings import estimator_solvers
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
 
-__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "choose_sharing",
-           "fixed_learner", "flat_start_rewards", "plot_validation"]
+__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
+           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
 
 #: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
 AUTO = "auto"
@@ -49,6 +52,14 @@ LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
 N_FOLDS = 3
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
+#: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there)
+SEARCHES = ("full", "race", "race-warm")
+#: the search ``FactIRL.fit`` uses
+DEFAULT_SEARCH = "race"
+#: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
+RACE_MARGIN = 0.1
+#: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
+WARM_BUDGET = 0.5
 
 
 def _count(demos: Any) -> int:
@@ -105,8 +116,27 @@ def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], 
     return out
 
 
-def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> tuple[int, float, list[dict]]:
+def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None,
+                   search: str = DEFAULT_SEARCH) -> tuple[int, float, list[dict]]:
     """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over tasks.
+
+    ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
+    every candidate on the first fold, keeps those whose score there is at most
+    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and scores only
+    these on the other folds: a candidate far behind on one fold has no chance of the best mean,
+    and the folds after the first cost only the contenders (a race, as in F-race or successive
+    halving). The pruned candidates keep their first fold's score as ``score`` (one entry in
+    ``fold_scores``); the choice is among the candidates scored on every fold. In a race
+    ``lambda = 0`` is not fitted when another candidate with its k was fitted on the fold: its
+    transfer, the flat model reparametrised, uses that candidate's dictionary (which plays no
+    part in the model there). ``"race-warm"`` also warm-starts along lambda: on each fold, a
+    candidate whose predecessor (the candidate before it with the same k: the next larger
+    lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
+    with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
+    spent ``max_iter``). Measured on the ``tiny`` grid (results/README.md, issue 29): the race
+    cost 20-23x one fixed fit against 30x for the full search, with the same choice; the warm
+    race 16-18x, but its shortened fits moved the scores enough to change the choice on both
+    seeds, to pairs that transferred worse.
 
     Parameters
     ----------
@@ -130,8 +160,10 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     ------
     ValidationError
         Fewer than 2 tasks, or a task with at most ``N_TRANSFER_DEMOS`` demonstrations (no
-        demonstration left to score it on).
+        demonstration left to score it on), or an unknown ``search``.
     """
+    if search not in SEARCHES:
+        raise ValidationError(f"search must be one of {SEARCHES}; got {search!r}")
     n = _count(demos_per_task)
     t = N_TRANSFER_DEMOS
     if n < 2:
@@ -149,26 +181,53 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
         h_name, h_options, _, _ = estimator_solvers(learner)
         constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
-        for k, lam in _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained):
-            rows.append(_validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t))
-    best = min(range(len(rows)), key=lambda r: rows[r]["score"])
+        candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
+        first = folds[:1] if search != "full" and len(folds) > 1 else folds
+        warm, reuse = search == "race-warm", search != "full"
+        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse)
+        if len(first) < len(folds):
+            lead = min(np.mean(v) for v in scores.values())
+            contenders = [c for c in candidates if np.mean(scores[c]) <= lead + RACE_MARGIN * abs(lead)]
+            for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
+                                      reuse).items():
+                scores[c] = scores[c] + more
+        for (k, lam), fold_scores in scores.items():
+            rows.append({"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
+                         "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False})
+    complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == len(folds)]
+    best = min(complete, key=lambda r: rows[r]["score"])
     rows[best]["chosen"] = True
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
 
 
-def _validate(learner, mdp, demos_per_task, flat_rewards, folds, k, lam, t):
-    """The validation row of one candidate ``(k, lambda)``."""
+def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse):
+    """The held-out scores ``{(k, lambda): [score per fold]}`` of ``candidates`` on ``folds``;
+    with ``warm``, each fold's candidates start from their predecessor's fit; with ``reuse``,
+    ``lambda = 0`` takes its predecessor's dictionary without a fit (see :func:`choose_sharing`)."""
     n = _count(demos_per_task)
-    fold_scores = []
+    scores = {c: [] for c in candidates}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)
-        model = fixed_learner(learner, k, lam)
         sub_mdp, sub_features = _subset(mdp, learner.features, train)
-        model.features = sub_features
-        model.fit(sub_mdp, _take(demos_per_task, train), flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
-        fold_scores.append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
-    return {"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
-            "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False}
+        fitted = {}
+        for k, lam in candidates:
+            before = [c for c in fitted if c[0] == k]
+            start = fitted[before[-1]] if before else None
+            if start is not None and reuse and lam == 0.0:  # the flat model: the dictionary plays no part, no fit
+                model = copy.copy(start)
+                model.residual_penalty = model.residual_penalty_ = 0.0
+            else:
+                start = start if warm else None
+                model = fixed_learner(learner, k, lam)
+                model.features = sub_features
+                if start is not None:
+                    model.init = (start.dictionary_, start.coefficients_)
+                    model.max_iter = max(1, int(round(WARM_BUDGET * learner.max_iter)))
+                model.fit(sub_mdp, _take(demos_per_task, train),
+                          flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
+            fitted[k, lam] = model
+            scores[k, lam].append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
+    return scores
 
 
 def fixed_learner(learner: Any, k: int, lam: float) -> Any:

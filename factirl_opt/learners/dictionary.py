@@ -9,7 +9,10 @@ coefficients ``H`` (n, k), tasks on the leading axis, with rewards ``R_i = Phi D
 - :func:`shrink_coefficients`: halve a start's coefficients while the total loss decreases;
 - :func:`orient_nonneg`: sign-flip primitives before a nonnegative H-step;
 - :func:`normalise_dictionary`: unit-norm primitives, H rescaled to match;
-- :func:`check_dictionary_norms`: refuse a dictionary whose primitives' norms overflow.
+- :func:`check_dictionary_norms`: refuse a dictionary whose primitives' norms overflow;
+- :func:`constrained_dictionary_solver` and :func:`constrained_start`: the D-step and the
+  start of a constrained dictionary (unit-norm columns, nonnegative and/or L1-penalised,
+  docs/maths.md §8b).
 """
 
 from __future__ import annotations
@@ -19,12 +22,15 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_array, check_int
-from ..exceptions import FitInterrupted, ValidationError
+import solvers
+
+from .._validation import as_rng, check_array, check_int, check_real
+from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
 from ..tasks.features import StateBroadcast, TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
-           "check_dictionary_norms", "PCA_MAX_HALVINGS"]
+           "check_dictionary_norms", "PCA_MAX_HALVINGS", "DICTIONARY_CONSTRAINTS", "check_dictionary_constraint",
+           "constrained_dictionary_solver", "constrained_start"]
 
 #: most halvings of a PCA start's coefficients tried by ``FactIRL(pca_shrink=True)`` (factor 2**-20)
 PCA_MAX_HALVINGS = 20
@@ -288,3 +294,86 @@ def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> 
         raise ValidationError(f"{name} is too large to normalise: the squared norms of its columns overflow float64 "
                               f"(largest |{name}| entry {np.max(np.abs(D)):.3g}); rescale it (D -> D c, H -> H / c "
                               f"gives the same rewards)")
+
+
+#: the constraints of ``FactIRL(dictionary_constraint=...)`` (None: the paper's free dictionary)
+DICTIONARY_CONSTRAINTS = ("nonneg", "sparse", "nonneg-sparse")
+
+
+def check_dictionary_constraint(constraint: Any, alpha: Any) -> tuple[str | None, float]:
+    """The validated ``(dictionary_constraint, dictionary_alpha)`` of a FactIRL.
+
+    Raises
+    ------
+    ValidationError
+        When the constraint is not None or one of :data:`DICTIONARY_CONSTRAINTS`, or ``alpha``
+        is not a finite number >= 0 (> 0 for a sparse constraint).
+    """
+    if constraint is not None and not (isinstance(constraint, str) and constraint in DICTIONARY_CONSTRAINTS):
+        raise ValidationError(f"dictionary_constraint must be None or one of {DICTIONARY_CONSTRAINTS}; got {constraint!r}")
+    alpha = check_real(alpha, "dictionary_alpha", 0.0, None)
+    if constraint is not None and constraint.endswith("sparse") and not alpha > 0:
+        raise ValidationError(f"dictionary_constraint={constraint!r} needs dictionary_alpha > 0 (the L1 weight); got {alpha!r}")
+    return constraint, float(alpha)
+
+
+def constrained_dictionary_solver(d_solver: solvers.StepSolver, constraint: str, alpha: float, n_params: int,
+                                  n_primitives: int, n_tasks: int) -> solvers.StepSolver:
+    """The D-step of a constrained dictionary (docs/maths.md §8b): proximal Armijo descent
+    (:class:`solvers.ProximalArmijoSolver`) with the Armijo options of ``d_solver``, on unit-norm
+    columns, nonnegative for ``"nonneg*"``, with the penalty ``alpha * n_tasks * ||D||_1`` for
+    ``"*sparse"`` (per task, so one alpha means the same trade-off whatever the number of tasks).
+
+    Parameters
+    ----------
+    d_solver : solvers.StepSolver
+        The resolved D-solver: an unconstrained :class:`solvers.ArmijoSolver` (``"armijo"``).
+    constraint : {"nonneg", "sparse", "nonneg-sparse"}
+    alpha : float
+    n_params, n_primitives, n_tasks : int
+        p, k and n.
+
+    Raises
+    ------
+    ValidationError
+        When ``d_solver`` is not a plain Armijo solver (a projected or proximal step needs one).
+    """
+    if type(d_solver) is not solvers.ArmijoSolver or d_solver.nonneg:
+        raise ValidationError(f"dictionary_constraint={constraint!r} takes projected/proximal Armijo steps on the "
+                              f"dictionary: d_solver must be 'armijo' (options allowed); got {d_solver.name!r}")
+    weight = alpha * n_tasks if constraint.endswith("sparse") else 0.0
+    with translate_solver_errors():
+        prox, penalty = solvers.unit_columns_prox(n_params, n_primitives, nonneg=constraint.startswith("nonneg"),
+                                                  alpha=weight)
+        options = {f: getattr(d_solver, f) for f in ("initial_step", "shrink", "grow", "c", "max_backtracks", "max_step")}
+        return solvers.ProximalArmijoSolver(prox=prox, prox_penalty=penalty, **options)
+
+
+def constrained_start(d_solver: solvers.StepSolver, D: NDArray[np.float64], H: NDArray[np.float64],
+                      nonneg: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A start ``(D, H)`` moved onto a constrained dictionary's feasible set.
+
+    The primitives are scaled to unit norm (``H`` rescaled: the rewards unchanged); for
+    nonnegative columns each primitive's sign is chosen (with its coefficients') so that its
+    positive part is the larger; then ``D`` is projected (``d_solver.project``: the positive
+    part normalised, or the largest entry where nothing is positive). ``H`` is kept: the first
+    H-step refits it.
+
+    Parameters
+    ----------
+    d_solver : solvers.StepSolver
+        From :func:`constrained_dictionary_solver`.
+    D : ndarray, shape (p, k)
+    H : ndarray, shape (n, k)
+    nonneg : bool
+        Whether the columns are nonnegative.
+
+    Returns
+    -------
+    D, H : ndarray, shapes (p, k) and (n, k)
+    """
+    D, H = normalise_dictionary(D, H, band=1.0)
+    if nonneg:
+        sign = np.where(np.linalg.norm(np.maximum(-D, 0.0), axis=0) > np.linalg.norm(np.maximum(D, 0.0), axis=0), -1.0, 1.0)
+        D, H = D * sign, H * sign
+    return d_solver.project(D.reshape(1, -1)).reshape(D.shape), H

@@ -22,7 +22,10 @@ from .._validation import as_rng, check_array, check_bool, check_int, check_mdp,
 from .estimator import EXECUTION_PARAM_KINDS, Estimator, renamed_attribute, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
+    check_dictionary_constraint,
     check_dictionary_norms,
+    constrained_dictionary_solver,
+    constrained_start,
     feature_weights,
     metric_pca_dictionary,
     normalise_dictionary,
@@ -166,6 +169,16 @@ class FactIRL(Estimator):
         H-step moves ``[h_i, delta_i]`` together, from ``delta = 0``) and in ``transfer``. A
         finite value needs an unconstrained ``h_solver``. ``"auto"``: chosen by validation
         over tasks (:mod:`factirl_opt.learners.adaptive`).
+    dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
+        Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
+        paper's free dictionary; otherwise every primitive has unit norm and is nonnegative
+        (``"nonneg"``), penalised by ``dictionary_alpha * n * ||D||_1`` (``"sparse"``, n the
+        number of tasks), or both. The D-step is then projected/proximal Armijo descent
+        (:class:`solvers.ProximalArmijoSolver`) with the options of ``d_solver``, which must be
+        ``"armijo"``; the start is moved onto the constraint (:func:`~factirl_opt.learners.dictionary.constrained_start`),
+        and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
+    dictionary_alpha : float, default=0.01
+        The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -259,7 +272,8 @@ class FactIRL(Estimator):
                  d_solver_options: dict | None = None, objective: Any = "policy-matching", planner: str = "auto",
                  rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
                  client: Any = None, planner_options: dict | None = None, verbose: bool = False,
-                 callback: Callable | None = None, residual_penalty: Any = np.inf) -> None:
+                 callback: Callable | None = None, residual_penalty: Any = np.inf,
+                 dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -280,6 +294,8 @@ class FactIRL(Estimator):
         self.verbose = verbose
         self.callback = callback
         self.residual_penalty = residual_penalty
+        self.dictionary_constraint = dictionary_constraint
+        self.dictionary_alpha = dictionary_alpha
 
     def _features(self, mdp):
         k = getattr(self, "n_primitives_", self.n_primitives)
@@ -366,6 +382,7 @@ class FactIRL(Estimator):
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={tasks.n_params}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         check_bool(self.pca_shrink, "pca_shrink")
+        check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
         return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
 
@@ -402,6 +419,10 @@ class FactIRL(Estimator):
         h_name, h_options, d_name, d_options = estimator_solvers(self)
         h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
         d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
+        constraint, alpha = check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
+        if constraint is not None:
+            d_solver = constrained_dictionary_solver(d_solver, constraint, alpha, tasks.n_params, self.n_primitives,
+                                                     len(tasks.demos_per_task))
         lam = self._residual_penalty(h_solver, self.residual_penalty)
         obj = task_objective(tasks, self.beta, self.objective, self.planner)
         try:
@@ -409,6 +430,8 @@ class FactIRL(Estimator):
                 D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
+                if constraint is not None:
+                    D, H = constrained_start(d_solver, D, H, constraint.startswith("nonneg"))
                 fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
                                     tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
                                     residual_penalty=lam)

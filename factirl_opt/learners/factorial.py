@@ -83,13 +83,14 @@ class FactorialFit:
     residuals: np.ndarray | None = None
 
 
-def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None):
+def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None, d_solver=None):
     """Norm of the first-order optimality measure of eq. (10) over ``(H, D)``, from ``y = dJ/dR``.
 
     ``dJ/dh_i = F^T y_i`` with ``F = Phi D`` (eq. 12; projected or minimum-norm subgradient
     for a constrained or penalised H-solver, :meth:`solvers.StepSolver.optimality`) and
     ``dJ/dD = Phi^T sum_i y_i h_i^T`` (eq. 11), restricted to the tangent space of unit-norm
-    primitives when the D-step keeps them at unit norm.
+    primitives when the D-step keeps them at unit norm; for a constrained dictionary
+    (``d_solver.constraint == "proximal"``, docs/maths.md §8b) its proximal-gradient map.
     """
     with np.errstate(over="ignore", invalid="ignore"):
         if G is not None or isinstance(Phi, TaskFeatures):
@@ -99,34 +100,51 @@ def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None):
             Y = y.reshape(H.shape[0], -1)
             gH = Y @ (D if Phi is None else Phi @ D)
             gD = Y.T @ H if Phi is None else Phi.T @ (Y.T @ H)
-        if unit_norm:
+        if d_solver is not None and d_solver.constraint == "proximal":
+            gD = d_solver.optimality(D.reshape(1, -1), gD.reshape(1, -1))
+        elif unit_norm:
             gD = gD - D * np.sum(D * gD, axis=0)
         norm = float(np.hypot(np.linalg.norm(h_solver.optimality(H, gH)), np.linalg.norm(gD)))
     return norm if np.isfinite(norm) else np.inf
 
 
-def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm):
+def _dictionary_penalty(d_solver, D):
+    """The D-solver's penalty at ``D`` (a constrained dictionary's L1 term; 0.0 otherwise)."""
+    return float(d_solver.penalty(D.reshape(1, -1)).sum()) if d_solver.constraint == "proximal" else 0.0
+
+
+def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm, d_solver=None):
     """Loss per task at ``(D, H)`` (served from the objective's cache after a D-step), the
-    normalised pair, the total (with the H-solver's penalty) and the optimality measure."""
+    normalised pair, the total (with the H-solver's and a constrained D-solver's penalty) and
+    the optimality measure."""
     if hasattr(objective, "factorial_point"):  # a sharded objective: G = Phi^T y_i formed where the tasks are
         (loss, G), y = objective.factorial_point(Phi, D, H), None
     else:
         (loss, y), G = objective.loss_and_grad(factorial_rewards(objective.mdp, Phi, D, H)), None
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + h_solver.penalty(H).sum())
-    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm, G)
+    if d_solver is not None and d_solver.constraint == "proximal":
+        total += _dictionary_penalty(d_solver, D)
+    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm, G, d_solver)
 
 
-def _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band):
+def _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band, d_solver=None):
     """:func:`_evaluate_point` of the residual model (:mod:`factirl_opt.objectives.residuals`): the loss per
-    task without the penalty, the normalised pair, the total with it, and the optimality measure
-    over ``(H, D, Delta)`` from the flat gradient ``g_i = Phi_i^T y_i``."""
+    task without the penalty, the normalised pair, the total with it (and a constrained
+    D-solver's penalty), and the optimality measure over ``(H, D, Delta)`` from the flat
+    gradient ``g_i = Phi_i^T y_i``."""
     flat = weights_problem(objective, Phi, ("features @ dictionary", "coefficients"))
     loss, G = flat.loss_and_grad(residual_weights(D, H, Delta), np.arange(H.shape[0]))
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + lam * np.sum(Delta * Delta))
+    constrained = d_solver is not None and d_solver.constraint == "proximal"
+    if constrained:
+        total += _dictionary_penalty(d_solver, D)
     with np.errstate(over="ignore", invalid="ignore"):
-        norm = float(np.sqrt(np.sum(np.square(G @ D)) + np.sum(np.square(G.T @ H))
+        gD = G.T @ H
+        if constrained:
+            gD = d_solver.optimality(D.reshape(1, -1), gD.reshape(1, -1))
+        norm = float(np.sqrt(np.sum(np.square(G @ D)) + np.sum(np.square(gD))
                              + np.sum(np.square(G + 2.0 * lam * Delta))))
     return loss, D, H, total, norm if np.isfinite(norm) else np.inf
 
@@ -160,7 +178,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
     history, evaluations, gnorm, it = [], [], np.nan, 0
     try:
         D, H = normalise_dictionary(D, H, band)  # the H-step starts where the loss is evaluated (no band: no rescaling)
-        loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, np.inf, penalised)
+        loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, np.inf, penalised, d_solver)
         history, evaluations, gnorm = [total], [objective.n_evaluations - ev0], g0
         best = (total, D, H, loss)
         h_state = d_state = None
@@ -172,7 +190,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
             rd = d_solver.run(dictionary_problem(objective, H, Phi, unit_norm=penalised), D.reshape(1, -1),
                               inner_steps, state=d_state, gtol=gtol)
             D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
-            loss, D, H, total, gnorm = _evaluate_point(objective, Phi, D, H, h_solver, band, penalised)
+            loss, D, H, total, gnorm = _evaluate_point(objective, Phi, D, H, h_solver, band, penalised, d_solver)
             history.append(total)
             evaluations.append(objective.n_evaluations - ev0)
             if total <= best[0]:
@@ -199,7 +217,7 @@ def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, ma
     history, evaluations, gnorm, it = [], [], np.nan, 0
     try:
         D, H = normalise_dictionary(D, H, band)
-        loss, D, H, total, g0 = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, np.inf)
+        loss, D, H, total, g0 = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, np.inf, d_solver)
         history, evaluations, gnorm = [total], [objective.n_evaluations - ev0], g0
         best = (total, D, H, loss, Delta)
         h_state = d_state = None
@@ -211,7 +229,7 @@ def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, ma
             rd = d_solver.run(residual_dictionary_problem(objective, Phi, H, Delta), D.reshape(1, -1), inner_steps,
                               state=d_state, gtol=gtol)
             D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
-            loss, D, H, total, gnorm = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band)
+            loss, D, H, total, gnorm = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band, d_solver)
             history.append(total)
             evaluations.append(objective.n_evaluations - ev0)
             if total <= best[0]:

@@ -20,6 +20,8 @@ BENCHMARKS = {
     "robustness": "robustness",
     "unlabeled": "unlabeled",
     "mce": "mce",
+    "dictionary": "dictionary",
+    "auto-cost": "auto_cost",
 }
 
 
