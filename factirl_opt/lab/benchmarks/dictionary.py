@@ -1,4 +1,4 @@
-"""Constrained dictionaries (issue 29, item 3): do nonnegative and/or sparse primitives recover the true ones better, and at what cost in deviation?
+"""Constrained dictionaries (the paper's discussion): do nonnegative and/or sparse primitives recover the true ones better, and at what cost in deviation?
 
 On the paper's grid world (default: the ``quick`` preset's size, 8x8, 40 training tasks x 10
 demonstrations of 10 steps, k = 5, 15 test tasks with one demonstration, its budgets), for

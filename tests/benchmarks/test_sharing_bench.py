@@ -1,4 +1,4 @@
-"""The benchmarks of issue 29: ``bench dictionary`` (constrained dictionaries against the true primitives) and
+"""The benchmarks of how much tasks share: ``bench dictionary`` (constrained dictionaries against the true primitives) and
 ``bench auto-cost`` (the cost of auto against one fixed fit), in their tiny configurations."""
 
 import json
