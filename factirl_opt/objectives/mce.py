@@ -42,7 +42,7 @@ Gradient by one adjoint solve per task. With ``g = dlogL/dQ = beta (c - c(s) pi)
 policy); ``dJ/dR = -(that)``.
 
 Reused factorisations (:class:`MCEObjective`, with a planner whose systems expose per-task
-solvers: the sparse LU; issue 30, ``results/mce-speed``). A factorisation of
+solvers: the sparse LU; ``results/mce-speed``). A factorisation of
 ``I - gamma P_pi`` costs 2 ms at S = 1024, 20 solves' worth. Each task keeps the factorisation
 ``K`` of its last Newton step, between evaluations too (:class:`MCEObjective`), and tries the
 *chord step* ``V + K^-1 (T V - V)`` first: Newton's step with an earlier policy's system. It is
