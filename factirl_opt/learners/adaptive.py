@@ -133,10 +133,10 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     candidate whose predecessor (the candidate before it with the same k: the next larger
     lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
     with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
-    spent ``max_iter``). Measured on the ``tiny`` grid (results/README.md): the race
-    cost 20-23x one fixed fit against 30x for the full search, with the same choice; the warm
-    race 16-18x, but its shortened fits moved the scores enough to change the choice on both
-    seeds, to pairs that transferred worse.
+    spent ``max_iter``). Measured (results/README.md): on the ``tiny`` grid the race
+    cost 19-21x one fixed fit against 26-30x for the full search, with the same choice, on the
+    ``quick`` grid 11.9x against 30.3x; the warm race 16-18x on ``tiny``, but its shortened fits
+    moved the scores enough to change the choice on both seeds, to pairs that transferred worse.
 
     Parameters
     ----------
