@@ -2,5 +2,5 @@
 
 Nothing in the library imports it, and ``import factirl_opt`` does not load it. The command
 line is :mod:`factirl_opt.lab.cli` (``factirl-opt``); the benchmarks are
-:mod:`factirl_opt.lab.bench` (``python -m factirl_opt.bench``).
+:mod:`factirl_opt.lab.bench` (``python -m factirl_opt.lab.bench`` or ``factirl-opt bench``).
 """
