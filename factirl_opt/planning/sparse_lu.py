@@ -146,6 +146,7 @@ class SparseLUPlanner(Planner):
         self.order, self.permc_spec = self._ordering()
         self.inverse_order = np.argsort(self.order)
         self._augmented()
+        self._pattern = None if self._union_nnz is None else self._stochastic_pattern()
         self._local = threading.local()  # this thread's FactorCache and bytes factorised since the last trim
         self._caches: weakref.WeakSet[FactorCache] = weakref.WeakSet()  # every live thread's cache
         self._caches_lock = threading.Lock()
@@ -226,10 +227,7 @@ class SparseLUPlanner(Planner):
         """The CSR pattern (indices, indptr) of every stochastic policy's ``M`` in the fixed order
         (the actions' union with the diagonal), the position of each row's diagonal entry in it,
         and the sparse map ``W`` (nnz, S*A) with ``(W pi)[k] = (P_pi)`` at entry ``k`` (``pi``
-        raveled as ``s * A + a``, the MDP's order); built on first use."""
-        pattern = getattr(self, "_pattern", None)
-        if pattern is not None:
-            return pattern
+        raveled as ``s * A + a``, the MDP's order); built with the planner (with the fixed order)."""
         S, A, Paug = self.S, self.A, self.augmented
         rows = np.repeat(np.arange(S * A), np.diff(Paug.indptr))  # row s * A + a of each entry
         new_row = self.inverse_order[rows // A]
@@ -240,8 +238,7 @@ class SparseLUPlanner(Planner):
         W = sp.csr_matrix((Paug.data, (np.searchsorted(unique, keys), rows)), shape=(unique.size, S * A))
         W.sum_duplicates()
         diag = np.searchsorted(unique, np.arange(S, dtype=np.int64) * (S + 1))
-        self._pattern = (indices, indptr, diag, W)
-        return self._pattern
+        return indices, indptr, diag, W
 
     def _stochastic_matrix_transpose(self, policy_i):
         """:meth:`matrix_transpose` of a stochastic policy with no zero entry, in the fixed order:
@@ -249,7 +246,7 @@ class SparseLUPlanner(Planner):
         sparse-matrix algebra (5x faster at S = 1024). The same matrix, bit for bit, as the sparse
         product it replaces (same pattern: no product vanishes; same sums, in the same order);
         a policy with zeros takes that product, which drops the vanishing entries."""
-        indices, indptr, diag, W = self._stochastic_pattern()
+        indices, indptr, diag, W = self._pattern
         data = W @ np.ascontiguousarray(policy_i, dtype=np.float64).reshape(-1)
         data *= -self.gamma
         data[diag] += 1.0
