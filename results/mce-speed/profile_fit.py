@@ -11,9 +11,9 @@ import pstats
 import sys
 import time
 
-from factirl_opt import bench
+from factirl_opt.lab import bench
 from factirl_opt._threads import limit_blas_threads
-from factirl_opt.benchmarks import mce as m
+from factirl_opt.lab.benchmarks import mce as m
 
 objective, n_tasks, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 settings = m.resolve_settings(bench.build_parser().parse_args(["mce", "--n-tasks", str(n_tasks)]), m.DEFAULTS, m.QUICK)
