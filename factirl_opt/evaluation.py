@@ -31,7 +31,7 @@ from .exceptions import FactIRLError, ValidationError
 from .objectives.mce import soft_values
 from .planning import Planner, get_planner, plan
 from .mdp.environments import (
-    by_environment, environments, is_environment_sequence, one_for_all, per_task_values,
+    by_environment, check_environments, is_environment_sequence, one_for_all, per_task_values,
     check_task_rewards,
 )
 
@@ -46,7 +46,7 @@ __all__ = ["score", "optimal_score", "deviation", "soft_deviation", "dictionary_
 def _per_environment(func: typing.Callable[..., typing.Any], mdps: typing.Any, rewards: dict[str, typing.Any],
                      per_task: dict[str, typing.Any] | None = None, **kwargs: typing.Any) -> NDArray[np.float64]:
     """``func`` (a scorer of this module) over tasks in many environments: the (n,) scores in task order."""
-    envs = environments(mdps)
+    envs = check_environments(mdps)
     values: dict[str, list[typing.Any] | None] = {k: check_task_rewards(envs, v, k) for k, v in rewards.items()}
     values.update({k: per_task_values(envs, v, k) for k, v in (per_task or {}).items()})
     return np.array(by_environment(envs, lambda m, **r: func(m, **r, **kwargs), values), dtype=np.float64)

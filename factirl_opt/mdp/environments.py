@@ -33,18 +33,13 @@ from .._validation import check_rewards
 from ..exceptions import FactIRLError, ValidationError
 from .tabular import TabularMDP
 
-__all__ = ["is_environment_sequence", "environments", "check_task_rewards", "check_environments", "group_tasks", "one_for_all", "per_task_values", "by_environment",
+__all__ = ["is_environment_sequence", "check_task_rewards", "check_environments", "group_tasks", "one_for_all", "per_task_values", "by_environment",
            "assemble"]
 
 
 def is_environment_sequence(mdp: Any) -> TypeGuard[Sequence[TabularMDP]]:
     """Whether ``mdp`` is a sequence of per-task MDPs (a list or tuple, not one model)."""
     return not isinstance(mdp, TabularMDP) and isinstance(mdp, Sequence) and not isinstance(mdp, (str, bytes))
-
-
-def environments(mdps: Sequence[TabularMDP], n_tasks: int | None = None) -> list[TabularMDP]:
-    """The validated list of per-task MDPs (one home: :func:`~factirl_opt.objectives.environments.check_environments`)."""
-    return check_environments(mdps, n_tasks)
 
 
 def check_environments(mdps: TabularMDP | Sequence[TabularMDP], n_tasks: int | None = None) -> list[TabularMDP]:

@@ -39,7 +39,7 @@ from .._threads import blas_limited
 from .._validation import check_array, check_beta, check_int, check_mdp, check_policy, check_real, check_rewards, check_stochastic_policy
 from ..exceptions import FactIRLError, ValidationError
 from ..mdp.environments import (
-    assemble, by_environment, environments, is_environment_sequence, per_task_values,
+    assemble, by_environment, check_environments, is_environment_sequence, per_task_values,
     check_task_rewards,
 )
 from .base import Planner, PolicySystem
@@ -215,7 +215,7 @@ def policy_evaluation(mdp: Any, rewards: ArrayLike, policy: ArrayLike, planner: 
 
 def _optimal_q_per_environment(mdps: Any, rewards: Any, policy: Any, **kwargs: Any) -> tuple[Any, Any]:
     """:func:`optimal_q` over tasks in many environments, one call per distinct MDP."""
-    envs = environments(mdps)
+    envs = check_environments(mdps)
     per_task = {"rewards": check_task_rewards(envs, rewards, "rewards"), "policy": per_task_values(envs, policy, "policy")}
     out = by_environment(envs, lambda m, **args: optimal_q(m, **args, **kwargs), per_task)
     return assemble(envs, [q for q, _ in out]), assemble(envs, [p for _, p in out])

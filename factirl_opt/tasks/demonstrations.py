@@ -22,7 +22,7 @@ from .._threads import blas_limited
 from .._validation import RNGLike, as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
 from ..planning import get_planner, plan
 from ..mdp.environments import (
-    by_environment, environments, is_environment_sequence, one_for_all, per_task_values,
+    by_environment, check_environments, is_environment_sequence, one_for_all, per_task_values,
     check_task_rewards,
 )
 from .trajectories import parse_demonstrations, task_steps
@@ -105,7 +105,7 @@ def _start_states(start: int | NDArray[np.float64] | None, n: int, m: int, S: in
 def _sample_per_environment(mdps: Sequence[TabularMDP], rewards: typing.Any, rng: np.random.Generator,
                             start: typing.Any, return_final_states: bool, **kwargs: typing.Any) -> typing.Any:
     """:func:`sample_demonstrations` over tasks in many environments, one call per distinct MDP."""
-    envs = environments(mdps)
+    envs = check_environments(mdps)
     per_task: dict[str, list[typing.Any] | None] = {"rewards": check_task_rewards(envs, rewards, "rewards")}
     fixed = {"start": start} if one_for_all(start) else {}  # None, or one state for every task
     if not fixed:

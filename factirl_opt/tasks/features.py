@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._batched import rows_matmul
 from .._validation import check_array, check_int
 from ..exceptions import ValidationError
-from ..mdp.environments import environments
+from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
 
 __all__ = ["TaskFeatures", "StateBroadcast", "task_rewards", "linear_rewards", "factorial_rewards", "feature_rewards",
@@ -233,7 +233,7 @@ def feature_rewards(features: ArrayLike | Sequence[ArrayLike], weights: ArrayLik
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported below, naming the task
             R = _check_overflow(TaskFeatures(F, rows, 1).rewards(W), F, W)
         return [r[:, 0] for r in R] if isinstance(R, list) else R[:, :, 0]
-    envs = environments([mdps] * n if isinstance(mdps, TabularMDP) else mdps, n)
+    envs = check_environments(mdps, n)
     with np.errstate(over="ignore", invalid="ignore"):
         return _check_overflow(TaskFeatures(F, [m.n_states for m in envs], envs[0].n_actions).rewards(W), F, W)
 
