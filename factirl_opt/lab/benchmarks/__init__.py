@@ -22,6 +22,7 @@ BENCHMARKS = {
     "mce": "mce",
     "dictionary": "dictionary",
     "auto-cost": "auto_cost",
+    "which-learner": "which_learner",
 }
 
 

@@ -41,11 +41,12 @@ import numpy as np
 from ...datasets.babyai import BabyAITasks
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
-from .learner_names import FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT, FLAT_FEATURES, FLAT_MCE_FEATURES
+from .learner_names import ADAPTIVE_FEATURES, FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT, FLAT_FEATURES, FLAT_MCE_FEATURES
 from .learner_solvers import factorial_options, flat_solver
 from .lineup import Fit, Learner, Lineup
 
-__all__ = ["flat_tabular", "flat_features", "factorial_features", "factorial_features_transfer", "LINEUP", "babyai_claims"]
+__all__ = ["flat_tabular", "flat_features", "factorial_features", "factorial_features_transfer", "LINEUP",
+           "SHARING_LINEUP", "babyai_claims"]
 
 # --- builders of the line-up "babyai": (gt, preset, ctx) -> Fit; the row is ctx.learner ---------
 
@@ -81,7 +82,7 @@ def factorial_features(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
     objective = ctx.learner.objective
     flat = FLAT_MCE_FEATURES if objective == "mce" else FLAT_FEATURES
     model = FactIRL(init="pca", rng=ctx.rngs["pca"], features=gt.features("train"),
-                    **factorial_options(preset, ctx.spec.solvers, objective))
+                    **factorial_options(preset, ctx.spec.solvers, objective, ctx.learner.adaptive))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     return Fit(list(model.rewards_), np.asarray(model.loss_), int(model.n_evaluations_))
@@ -113,6 +114,27 @@ LINEUP = Lineup(
                 solvers=_FACTORIAL),
         Learner("test", FACTORIAL_MCE_FEATURES, factorial_features_transfer, needs=(("train", FACTORIAL_MCE_FEATURES),),
                 solvers=_FACTORIAL, objective="mce"),
+    ),
+    worlds=("babyai", "babyai-large"),
+)
+
+
+#: the line-up ``"babyai-sharing"`` ("which learner when"): flat on features, factorial on
+#: features (the preset's k) and the adaptive learner on features (``n_primitives="auto",
+#: residual_penalty="auto"``), both from the PCA of the flat weights; train, and test from one
+#: demonstration of each new layout
+SHARING_LINEUP = Lineup(
+    name="babyai-sharing",
+    learners=(
+        Learner("train", FLAT_FEATURES, flat_features, solvers=_FEATURES),
+        Learner("train", FACTORIAL_FEATURES, factorial_features, needs=(("train", FLAT_FEATURES),), solvers=_FACTORIAL),
+        Learner("train", ADAPTIVE_FEATURES, factorial_features, needs=(("train", FLAT_FEATURES),), solvers=_FACTORIAL,
+                adaptive=True),
+        Learner("test", FLAT_FEATURES, flat_features, per_seed=True, solvers=_FEATURES),
+        Learner("test", FACTORIAL_FEATURES, factorial_features_transfer, needs=(("train", FACTORIAL_FEATURES),),
+                solvers=_FACTORIAL),
+        Learner("test", ADAPTIVE_FEATURES, factorial_features_transfer, needs=(("train", ADAPTIVE_FEATURES),),
+                solvers=_FACTORIAL, adaptive=True),
     ),
     worlds=("babyai", "babyai-large"),
 )

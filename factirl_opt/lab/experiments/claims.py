@@ -17,15 +17,15 @@ import numpy as np
 
 from ...exceptions import ValidationError
 from ...files import write_text_atomic
-from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+from .learner_names import (ADAPTIVE, ADAPTIVE_FEATURES, FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
                             FACTORIAL_MCE_FEATURES, FACTORIAL_MCE_FEATURES_RANDOM_INIT, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
                             FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
                             FLAT_PCA_FEATURES)
-from .babyai import LINEUP as BABYAI_LINEUP, babyai_claims
+from .babyai import LINEUP as BABYAI_LINEUP, SHARING_LINEUP as BABYAI_SHARING_LINEUP, babyai_claims
 from .tables import read_results
 
 __all__ = ["CLAIMS_FILE", "CLAIMS", "evaluate_claims", "claims_markdown", "write_claims", "paper_claims", "objectworld_claims",
-           "mce_claims", "per_task_claims"]
+           "mce_claims", "per_task_claims", "sharing_claims", "SHARING_MARGINS", "sharing_verdicts"]
 
 
 def _by_seed(rows, split, learner, n, m, column="deviation"):
@@ -166,6 +166,80 @@ def per_task_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
                   for split in ("train", "test")]
 
 
+#: how far the adaptive learner may be from the better of flat and factorial and still count as
+#: "no worse" (issue 29's acceptance): 10% of the better deviation; 0.05 of success rate
+SHARING_MARGINS = {"deviation": 0.10, "success_rate": 0.05}
+
+
+def _sharing_learners(rows):
+    """``(flat, factorial, adaptive)`` names of a "which learner when" run: tabular or on features."""
+    names = {r["learner"] for r in rows}
+    return (FLAT, FACTORIAL, ADAPTIVE) if ADAPTIVE in names else (FLAT_FEATURES, FACTORIAL_FEATURES, ADAPTIVE_FEATURES)
+
+
+def sharing_verdicts(rows: Sequence[dict], split: str = "test", column: str = "deviation") -> list[dict]:
+    """Per point and seed of a "which learner when" run: the three learners' ``column`` and how the
+    adaptive learner compares with the better of flat and factorial.
+
+    ``column="deviation"`` (lower is better): the adaptive learner is *no worse* when its deviation
+    is at most ``(1 + SHARING_MARGINS["deviation"])`` times the better one; ``"success_rate"``
+    (higher is better; BabyAI): when it is at least the better one minus
+    ``SHARING_MARGINS["success_rate"]``. It *beats both* when it is strictly better than both.
+
+    Returns
+    -------
+    list of dict
+        ``n_tasks``, ``demos_per_task``, ``seed``, ``flat``, ``factorial``, ``adaptive`` (the
+        values), ``best`` (the better of flat and factorial), ``no_worse``, ``beats_both``;
+        points where one of the three is missing are left out.
+    """
+    flat, fact, auto = _sharing_learners(rows)
+    lower = column != "success_rate"
+    margin = SHARING_MARGINS["success_rate" if not lower else "deviation"]
+    values: dict = {}
+    for r in rows:
+        if r["split"] == split and r["learner"] in (flat, fact, auto) and r.get(column) is not None:
+            values.setdefault((r["n_tasks"], r["demos_per_task"], r["seed"]), {})[r["learner"]] = float(r[column])
+    out = []
+    for (n, m, seed), v in sorted(values.items()):
+        if len(v) < 3:
+            continue
+        a, b, c = v[flat], v[fact], v[auto]
+        best = min(a, b) if lower else max(a, b)
+        no_worse = c <= (1 + margin) * best if lower else c >= best - margin
+        beats = c < best if lower else c > best
+        out.append(dict(n_tasks=n, demos_per_task=m, seed=seed, flat=a, factorial=b, adaptive=c, best=best,
+                        no_worse=bool(no_worse), beats_both=bool(beats)))
+    return out
+
+
+def sharing_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
+    """The claims of a "which learner when" run (line-ups ``"sharing"``, ``"objectworld-sharing"``,
+    ``"objectworld-per-task-sharing"``, ``"babyai-sharing"``), at every point of the sweeps, on the
+    test tasks (one demonstration each): the adaptive learner is no worse than the better of flat
+    and factorial (within :data:`SHARING_MARGINS`), and where it beats both. ``holds``: on every
+    seed; ``seeds``: the seeds where it does. BabyAI runs are judged on the success rate in the
+    environment, the others on the deviation."""
+    column = "success_rate" if any(r.get("success_rate") is not None for r in rows) else "deviation"
+    flat, fact, auto = _sharing_learners(rows)
+    what = "success rate" if column == "success_rate" else "deviation"
+    within = (f"{SHARING_MARGINS['success_rate']:.2f}" if column == "success_rate"
+              else f"{SHARING_MARGINS['deviation']:.0%}")
+    by_point: dict = {}
+    for v in sharing_verdicts(rows, "test", column):
+        by_point.setdefault((v["n_tasks"], v["demos_per_task"]), []).append(v)
+    out: list[dict | None] = []
+    for (n, m), vs in sorted(by_point.items()):
+        measured = (f"{auto}: {_fmt(v['adaptive'] for v in vs)}; {flat}: {_fmt(v['flat'] for v in vs)}; "
+                    f"{fact}: {_fmt(v['factorial'] for v in vs)} ({what})")
+        for key, claim in (("no_worse", f"test: {auto} is within {within} of the better of {flat} and {fact}"),
+                           ("beats_both", f"test: {auto} beats both {flat} and {fact}")):
+            wins = sum(v[key] for v in vs)
+            out.append(dict(claim=claim, source="issue 29", point=f"{n} tasks, {m} demos", measured=measured,
+                            holds=bool(wins == len(vs)), seeds=f"{wins}/{len(vs)}"))
+    return out
+
+
 #: the claims' file in a reproduce directory
 CLAIMS_FILE = "claims.md"
 
@@ -179,6 +253,10 @@ CLAIMS: dict[str, tuple[str, Callable[[Sequence[dict], Any], list]]] = {
                         + mce_claims(rows, preset, FLAT_MCE_FEATURES, FACTORIAL_MCE_FEATURES)),
     "objectworld-per-task": ("Claims with a map per task", per_task_claims),
     BABYAI_LINEUP.name: ("BabyAI claims", babyai_claims),
+    "sharing": ("Which learner when", sharing_claims),
+    "objectworld-sharing": ("Which learner when", sharing_claims),
+    "objectworld-per-task-sharing": ("Which learner when", sharing_claims),
+    BABYAI_SHARING_LINEUP.name: ("Which learner when", sharing_claims),
 }
 
 

@@ -28,7 +28,7 @@ from ...exceptions import PersistenceError, ValidationError
 from ...files import atomic_write, open_for_reading, os_error
 from ...mdp.tabular import GridWorld
 from ...datasets.objectworld import make_objectworld, plot_objectworld
-from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+from .learner_names import (ADAPTIVE, ADAPTIVE_FEATURES, FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
                             FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES, FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH,
                             FLAT_MCE, FLAT_PCA_FEATURES)
 from .learners import get_lineup
@@ -49,6 +49,8 @@ STYLES: dict[str, dict[str, Any]] = {
     FACTORIAL_FEATURES_RANDOM_INIT: dict(color="#6baed6", marker="D", linestyle="--"),
     FLAT_MCE: dict(color="#8c564b", marker="o", linestyle=":"),
     FACTORIAL_MCE: dict(color="#bcbd22", marker="s", linestyle="-", linewidth=2.2),
+    ADAPTIVE: dict(color="#000000", marker="*", linestyle="-", linewidth=2.2),
+    ADAPTIVE_FEATURES: dict(color="#404040", marker="*", linestyle="-", linewidth=2.2),
 }
 
 #: figure 3's row labels of the paper's learners (other learners are labelled by their names)

@@ -11,6 +11,7 @@ __all__ = [
     "FLAT", "FLAT_GROUND_TRUTH", "FLAT_PCA_FEATURES", "FLAT_FEATURES_FROM_EXAMPLES", "FLAT_FEATURES",
     "FACTORIAL", "FACTORIAL_RANDOM_INIT", "FACTORIAL_FEATURES", "FACTORIAL_FEATURES_RANDOM_INIT",
     "FLAT_MCE", "FACTORIAL_MCE", "FLAT_MCE_FEATURES", "FACTORIAL_MCE_FEATURES", "FACTORIAL_MCE_FEATURES_RANDOM_INIT",
+    "ADAPTIVE", "ADAPTIVE_FEATURES",
 ]
 
 #: GradIRL on tabular rewards, one task at a time (the paper's flat learner)
@@ -41,3 +42,7 @@ FLAT_MCE_FEATURES = "flat MCE, features"
 FACTORIAL_MCE_FEATURES = "factorial MCE, features"
 #: FactIRL on the MCE likelihood and the base features from a random start
 FACTORIAL_MCE_FEATURES_RANDOM_INIT = "factorial MCE, features, random init"
+#: FactIRL with k and the residual penalty chosen by validation (``"auto"``), tabular, from the PCA of ``flat``
+ADAPTIVE = "adaptive"
+#: the same on the base features, from the PCA of ``flat, features``
+ADAPTIVE_FEATURES = "adaptive, features"

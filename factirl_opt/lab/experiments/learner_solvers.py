@@ -90,17 +90,22 @@ def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[st
     return out
 
 
-def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> dict[str, Any]:
+def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE,
+                      adaptive: bool = False) -> dict[str, Any]:
     """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
 
     Solver options and the D-step solver are passed only when the run names them
     (:meth:`SolverSettings.learner_kwargs`), so a run with the defaults builds exactly the
     FactIRL it always did; solvers that do not apply to ``objective`` are replaced
-    (:func:`factorial_solvers`).
+    (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
+    penalty by validation (``n_primitives="auto", residual_penalty="auto"``,
+    :mod:`factirl_opt.learners.adaptive`) instead of the preset's k without residuals.
     """
-    kw = dict(n_primitives=preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
+    kw = dict(n_primitives="auto" if adaptive else preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
               tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
               inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
+    if adaptive:
+        kw["residual_penalty"] = "auto"
     kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
     return kw

@@ -46,6 +46,15 @@ least-squares objective: where a run names one, the MCE learners take L-BFGS ste
 (:data:`GRADIENT_FALLBACK`), and :func:`substitutions` names every such replacement before the
 runs start (the command line prints it and the manifest records it).
 
+Line-ups ``"sharing"`` (the grid) and ``"objectworld-sharing"`` (Objectworld, one map): "which
+learner when", the flat learner, the factorial learner with the preset's k, and the *adaptive*
+learner (``FactIRL(n_primitives="auto", residual_penalty="auto")``: k and the residual penalty
+chosen by validation, :mod:`factirl_opt.learners.adaptive`), each from the same flat start,
+train and test (``transfer`` from one demonstration): ``flat``, ``factorial``, ``adaptive`` on
+the grid; ``flat, features``, ``factorial, features``, ``adaptive, features`` on Objectworld.
+The same three on the worlds with a task per map and on BabyAI: ``"objectworld-per-task-sharing"``
+(:func:`.per_task.per_task_sharing_rows`) and ``"babyai-sharing"`` (:data:`.babyai.SHARING_LINEUP`).
+
 Line-up ``"objectworld-per-task"`` (the world with a map per task; every learner on feature
 weights, scored on its tasks' own maps and on fresh maps): see :mod:`.per_task`.
 Line-up ``"babyai"`` (the BabyAI worlds: a layout per task, its own features) is defined by
@@ -63,15 +72,15 @@ from ...learners.factirl import FactIRL, pca_dictionary
 from ...learners.gradirl import GradIRL
 from .learner_solvers import (DEFAULT_OBJECTIVE, GRADIENT_FALLBACK, SOLVER_ROLES, factorial_options, factorial_solvers,
                               flat_solver, substitutions)
-from .babyai import LINEUP as BABYAI_LINEUP
+from .babyai import LINEUP as BABYAI_LINEUP, SHARING_LINEUP as BABYAI_SHARING_LINEUP
 from .lineup import STREAMS, Fit, Learner, Lineup, RunContext
-from .per_task import per_task_rows
-from .learner_names import (FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
+from .per_task import per_task_rows, per_task_sharing_rows
+from .learner_names import (ADAPTIVE, ADAPTIVE_FEATURES, FACTORIAL, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE,
                             FACTORIAL_MCE_FEATURES, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
                             FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
                             FLAT_PCA_FEATURES)
 
-__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options", "flat_solver",
+__all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "factorial_options", "flat_solver", "transfer",
            "factorial_solvers", "substitutions", "SOLVER_ROLES", "GRADIENT_FALLBACK", "DEFAULT_OBJECTIVE"]
 
 # --- builders: (gt, preset, ctx) -> Fit; the row being built is ctx.learner -----------------
@@ -136,7 +145,7 @@ def _fit_factorial(gt, preset, ctx, init, flat=None, features=None):
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
     model = FactIRL(init=init, rng=rng, features=features,
-                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective))
+                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective, ctx.learner.adaptive))
     model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
@@ -162,6 +171,11 @@ def factorial_random_init(gt, preset, ctx):
 def factorial_transfer(gt, preset, ctx):
     """``FactIRL.transfer`` of the training dictionary to the test tasks."""
     return _transfer(gt, ctx, FACTORIAL)
+
+
+def transfer(gt, preset, ctx):
+    """``FactIRL.transfer`` of the training row of the same name to the test tasks."""
+    return _transfer(gt, ctx, ctx.learner.name)
 
 
 def factorial_features(gt, preset, ctx):
@@ -276,6 +290,40 @@ LINEUPS["objectworld-per-task"] = Lineup(name="objectworld-per-task", learners=p
                                          worlds=("objectworld-per-task",))
 
 LINEUPS[BABYAI_LINEUP.name] = BABYAI_LINEUP
+
+LINEUPS["sharing"] = Lineup(
+    name="sharing",
+    learners=(
+        Learner("train", FLAT, flat),
+        Learner("train", FACTORIAL, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL),
+        Learner("train", ADAPTIVE, factorial, needs=_TRAIN_FLAT, solvers=_FACTORIAL, adaptive=True),
+        Learner("test", FLAT, flat, per_seed=True),
+        Learner("test", FACTORIAL, transfer, needs=(("train", FACTORIAL),), solvers=_FACTORIAL),
+        Learner("test", ADAPTIVE, transfer, needs=(("train", ADAPTIVE),), solvers=_FACTORIAL, adaptive=True),
+    ),
+    value_maps=(FLAT, FACTORIAL, ADAPTIVE),
+    one_mdp=True,
+)
+_TRAIN_FLAT_FEATURES = (("train", FLAT_FEATURES),)
+LINEUPS["objectworld-sharing"] = Lineup(
+    name="objectworld-sharing",
+    learners=(
+        Learner("train", FLAT_FEATURES, flat_features, solvers=_FEATURES),
+        Learner("train", FACTORIAL_FEATURES, factorial_features, needs=_TRAIN_FLAT_FEATURES, solvers=_FACTORIAL),
+        Learner("train", ADAPTIVE_FEATURES, factorial_features, needs=_TRAIN_FLAT_FEATURES, solvers=_FACTORIAL,
+                adaptive=True),
+        Learner("test", FLAT_FEATURES, flat_features, per_seed=True, solvers=_FEATURES),
+        Learner("test", FACTORIAL_FEATURES, transfer, needs=(("train", FACTORIAL_FEATURES),), solvers=_FACTORIAL),
+        Learner("test", ADAPTIVE_FEATURES, transfer, needs=(("train", ADAPTIVE_FEATURES),), solvers=_FACTORIAL,
+                adaptive=True),
+    ),
+    value_maps=(FLAT_FEATURES, FACTORIAL_FEATURES, ADAPTIVE_FEATURES),
+    worlds=("objectworld",),
+)
+LINEUPS["objectworld-per-task-sharing"] = Lineup(name="objectworld-per-task-sharing",
+                                                 learners=per_task_sharing_rows(Learner),
+                                                 worlds=("objectworld-per-task",))
+LINEUPS[BABYAI_SHARING_LINEUP.name] = BABYAI_SHARING_LINEUP
 
 
 def get_lineup(lineup: str | Lineup) -> Lineup:

@@ -50,6 +50,10 @@ class Learner:
     solvers : {"flat", "flat features", "factorial"}
         Which solvers it takes (:data:`.learner_solvers.SOLVER_ROLES`); where they do not apply to the objective
         it takes :data:`GRADIENT_FALLBACK` (:func:`substitutions`).
+    adaptive : bool
+        A FactIRL row (``solvers="factorial"``) whose learner chooses k and the residual
+        penalty by validation (``n_primitives="auto", residual_penalty="auto"``;
+        :func:`.learner_solvers.factorial_options`), its transfer with what it chose.
     """
 
     split: str
@@ -60,11 +64,15 @@ class Learner:
     per_seed: bool = False
     objective: str = DEFAULT_OBJECTIVE
     solvers: str = "flat"
+    adaptive: bool = False
 
     def __post_init__(self) -> None:
         if self.solvers not in SOLVER_ROLES:
             raise ValidationError(f"learner {self.split}: {self.name}: solvers must be one of "
                                   f"{', '.join(SOLVER_ROLES)}; got {self.solvers!r}")
+        if self.adaptive and self.solvers != "factorial":
+            raise ValidationError(f"learner {self.split}: {self.name}: only a FactIRL row (solvers='factorial') can be "
+                                  f"adaptive; got solvers={self.solvers!r}")
 
 
 @dataclasses.dataclass(frozen=True)

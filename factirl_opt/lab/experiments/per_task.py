@@ -36,11 +36,12 @@ from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...datasets.objectworld import state_action_rewards
 from ...tasks.features import feature_rewards
-from .learner_names import (FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE_FEATURES,
+from .learner_names import (ADAPTIVE_FEATURES, FACTORIAL_FEATURES, FACTORIAL_FEATURES_RANDOM_INIT, FACTORIAL_MCE_FEATURES,
                             FACTORIAL_MCE_FEATURES_RANDOM_INIT, FLAT_FEATURES, FLAT_GROUND_TRUTH, FLAT_MCE_FEATURES)
 from .learner_solvers import factorial_options, flat_solver
 
 __all__ = ["WeightsFit", "NEW_MAP_COLUMNS", "FEATURES", "PRIMITIVES", "add_new_map_scores", "per_task_rows",
+           "per_task_sharing_rows",
            "flat_map_features", "flat_map_primitives", "factorial_map_features", "factorial_map_features_random_init",
            "transfer_map_features"]
 
@@ -89,10 +90,11 @@ def _factorial(gt: Any, preset: Any, ctx: Any, init: str, flat: str | None = Non
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
     model = FactIRL(init=init, rng=rng, features=_map_columns(gt.task_maps["train"], FEATURES),
-                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective))
+                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective,
+                                      ctx.learner.adaptive))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
-    weights = model.coefficients_ @ model.dictionary_.T
+    weights = model.coefficients_ @ model.dictionary_.T + model.residuals_  # w_i = D h_i + delta_i
     return WeightsFit(model.rewards_, model.loss_, model.n_evaluations_, weights, FEATURES)
 
 
@@ -112,7 +114,7 @@ def transfer_map_features(gt: Any, preset: Any, ctx: Any) -> WeightsFit:
     model = ctx.models[ctx.learner.name]
     H = model.transfer(gt.mdps("test"), gt.test_demos, features=_map_columns(gt.task_maps["test"], FEATURES))
     return WeightsFit(model.transfer_rewards_, model.transfer_loss_, model.transfer_n_evaluations_,
-                      H @ model.dictionary_.T, FEATURES)
+                      H @ model.dictionary_.T + model.transfer_residuals_, FEATURES)
 
 
 def per_task_rows(learner_type: Any) -> tuple:
@@ -136,6 +138,22 @@ def per_task_rows(learner_type: Any) -> tuple:
              for name, obj, _, _ in facts]
     test.append(L("test", FLAT_GROUND_TRUTH, flat_map_primitives, solvers=feats, per_seed=True))
     return tuple(train + test)
+
+
+def per_task_sharing_rows(learner_type: Any) -> tuple:
+    """The rows of the line-up ``"objectworld-per-task-sharing"`` ("which learner when"), as
+    ``learner_type`` instances: ``flat, features``, ``factorial, features`` (the preset's k) and
+    ``adaptive, features`` (k and the residual penalty chosen by validation), both factorial
+    learners from the PCA of the flat weights; train, and test from one demonstration.
+    """
+    L, feats, fact, flat = learner_type, "flat features", "factorial", (("train", FLAT_FEATURES),)
+    return (L("train", FLAT_FEATURES, flat_map_features, solvers=feats),
+            L("train", FACTORIAL_FEATURES, factorial_map_features, solvers=fact, needs=flat),
+            L("train", ADAPTIVE_FEATURES, factorial_map_features, solvers=fact, needs=flat, adaptive=True),
+            L("test", FLAT_FEATURES, flat_map_features, solvers=feats, per_seed=True),
+            L("test", FACTORIAL_FEATURES, transfer_map_features, solvers=fact, needs=(("train", FACTORIAL_FEATURES),)),
+            L("test", ADAPTIVE_FEATURES, transfer_map_features, solvers=fact, needs=(("train", ADAPTIVE_FEATURES),),
+              adaptive=True))
 
 
 def add_new_map_scores(gt: Any, preset: Any, fits: dict, rows: Sequence[dict]) -> None:

@@ -65,6 +65,14 @@ Presets
     BabyAI-GoToLocal-v0 / GoToOpen-v0 (world and line-up ``"babyai"``, :mod:`.babyai`; k = 8,
     :data:`BABYAI_SOLVERS`): 10-30-100 / 10-30 / 12 training layouts x 4 / 2 / 3 bot
     demonstrations, 100 / 30 / 10 test layouts with ONE each, 3 / 1 / 1 seeds; scored by success.
+``sharing-grid`` / ``sharing-objectworld-quick`` / ``sharing-objectworld-per-task-quick`` / ``sharing-babyai`` / ``sharing-babyai-large``
+    "Which learner when" (:data:`SHARING_PRESETS`; ``factirl-opt bench which-learner`` runs them all): the
+    flat learner, the factorial learner with the preset's k and the adaptive learner (k and the
+    residual penalty chosen by validation), line-ups ``"sharing"``, ``"objectworld-sharing"``,
+    ``"objectworld-per-task-sharing"`` and ``"babyai-sharing"`` (:mod:`.learners`), 3 seeds, in
+    the worlds and with the budgets of ``paper`` (at 5, 20 and 100 training tasks x 10 demos),
+    ``objectworld-quick``, ``objectworld-per-task-quick``, ``babyai`` (10 and 30 training layouts)
+    and ``babyai-large`` (10 training layouts). ``sharing-tiny``: the same on ``tiny`` (seconds).
 
 Any preset runs another line-up (``dataclasses.replace(preset, lineup="paper+mce")``, or
 ``factirl-opt reproduce --lineup``) or planner; those fields enter the fingerprint only when
@@ -87,7 +95,7 @@ from ...planning import available_planners
 from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import COEFFICIENT_KINDS
 
-__all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "get_preset"]
+__all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "SHARING_PRESETS", "get_preset"]
 
 #: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
 #: (and so its runs' keys) only when they differ from these
@@ -444,6 +452,25 @@ PRESETS = {
     ),
 }
 
+#: "which learner when" (issue 29): flat, factorial (the preset's k) and the adaptive learner
+#: (k and the residual penalty chosen by validation), 3 seeds, on the paper's grid at 5, 20 and
+#: 100 training tasks, on both quick Objectworld presets, on BabyAI GoToLocal and GoToOpen
+SHARING_PRESETS = ("sharing-grid", "sharing-objectworld-quick", "sharing-objectworld-per-task-quick", "sharing-babyai",
+                   "sharing-babyai-large")
+PRESETS.update({
+    "sharing-grid": Preset(name="sharing-grid", lineup="sharing", demos_sweep=(10,), tasks_sweep=(5, 20, 100)),
+    "sharing-objectworld-quick": dataclasses.replace(PRESETS["objectworld-quick"], name="sharing-objectworld-quick",
+                                                     lineup="objectworld-sharing"),
+    "sharing-objectworld-per-task-quick": dataclasses.replace(PRESETS["objectworld-per-task-quick"],
+                                                              name="sharing-objectworld-per-task-quick",
+                                                              lineup="objectworld-per-task-sharing"),
+    "sharing-babyai": dataclasses.replace(PRESETS["babyai"], name="sharing-babyai", lineup="babyai-sharing",
+                                          tasks_sweep=(10, 30), default_tasks=30),
+    "sharing-babyai-large": dataclasses.replace(PRESETS["babyai-large"], name="sharing-babyai-large",
+                                                lineup="babyai-sharing", tasks_sweep=(10,), default_tasks=10, n_seeds=3),
+    "sharing-tiny": dataclasses.replace(PRESETS["tiny"], name="sharing-tiny", lineup="sharing"),
+})
+
 
 #: one line per preset, for ``factirl-opt reproduce --help``
 PRESET_DESCRIPTIONS = {
@@ -469,6 +496,16 @@ PRESET_DESCRIPTIONS = {
     "babyai-quick": "BabyAI-GoToLocal-v0: 12 training layouts x 3 demos, 10 test layouts, short budgets, 1 seed "
                     "(under a minute)",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
+    "sharing-grid": "which learner when: flat, factorial (k = 5) and adaptive (k and residual penalty by validation) "
+                    "on the paper's grid at 5, 20 and 100 training tasks x 10 demos, 100 test tasks, 3 seeds",
+    "sharing-objectworld-quick": "which learner when on objectworld-quick (one 16x16 map), on features, 3 seeds",
+    "sharing-objectworld-per-task-quick": "which learner when on objectworld-per-task-quick (a map per task), on "
+                                          "features, 3 seeds",
+    "sharing-babyai": "which learner when on BabyAI-GoToLocal-v0: 10 and 30 training layouts x 4 demos, 100 test "
+                      "layouts, success rate in the environment, 3 seeds",
+    "sharing-babyai-large": "which learner when on BabyAI-GoToOpen-v0: 10 training layouts x 2 demos, 30 test layouts, "
+                            "3 seeds",
+    "sharing-tiny": "which learner when on the tiny grid: seconds; tests the machinery",
 }
 
 

@@ -253,6 +253,9 @@ def _run_one(preset, spec, progress, reuse):
         dev, extra = (gt.scores(learner.split, fit.rewards, preset.planner) if hasattr(gt, "scores")  # BabyAI: in the env
                       else (deviation(gt.mdps(learner.split), gt.rewards(learner.split), fit.rewards, planner=preset.planner), {}))
         head = dict(split=learner.split, learner=learner.name, **common)
+        if learner.adaptive:  # what the validation chose (in the run records, not the CSV tables)
+            model = ctx.models[learner.name]
+            extra = dict(extra, n_primitives=int(model.n_primitives_), residual_penalty=float(model.residual_penalty_))
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
                          loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations), **extra))
         timings.append(dict(head, fit_time=elapsed))
