@@ -328,7 +328,9 @@ def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(fie
 def test_pca_shrink_reaches_every_factirl_and_is_validated():
     assert [name for name, p in PRESETS.items() if p.pca_shrink and not p.world.startswith("babyai")] == ["fast", "objectworld", "objectworld-quick",
                                                                       "objectworld-tiny", "objectworld-per-task",
-                                                                      "objectworld-per-task-quick"]
+                                                                      "objectworld-per-task-quick",
+                                                                      "sharing-objectworld-quick",
+                                                                      "sharing-objectworld-per-task-quick"]
     for preset in (TINY, PRESETS["fast"]):
         assert factorial_options(preset, plan_runs(preset, [0])[0].solvers)["pca_shrink"] is preset.pca_shrink
     with pytest.raises(ValidationError, match="preset 'x': pca_shrink must be True or False; got 1"):
