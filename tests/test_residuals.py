@@ -214,3 +214,23 @@ def test_every_planner_fits_the_residual_model(shared):
     sparse.dictionary_, sparse.coefficients_ = dense.dictionary_, dense.coefficients_
     np.testing.assert_allclose(sparse.transfer(mdp, demos[:2]), dense.transfer(mdp, demos[:2]), rtol=0, atol=1e-6)
     np.testing.assert_allclose(sparse.transfer_residuals_, dense.transfer_residuals_, rtol=0, atol=1e-6)
+
+
+def test_residual_h_step_solves_each_task_alone_without_a_block_qp(shared, monkeypatch):
+    """The H-step of the residual model is separable over tasks given D: an unconstrained Gauss-Newton
+    subproblem of k + p variables per task is solved exactly, never compiled into one QP over every task
+    (which ran out of memory at Objectworld's sizes)."""
+    import solvers.gauss_newton as gn
+
+    def no_block_qp(self, *args, **kwargs):
+        raise AssertionError("the residual H-step built a block QP over the tasks")
+
+    mdp, F, demos = shared
+    fitted = fo.FactIRL(n_primitives=2, features=F, residual_penalty=LAM, h_solver="gn-qp-osqp", max_iter=3, rng=0)
+    monkeypatch.setattr(gn.GaussNewtonSolver, "solve_subproblems", no_block_qp)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        fitted.fit(mdp, demos)
+    assert np.all(np.isfinite(fitted.residuals_)) and np.any(fitted.residuals_ != 0)
+    with pytest.raises(AssertionError, match="block QP"):  # the fixed-k model's H-step does use it (unchanged)
+        fo.FactIRL(n_primitives=2, features=F, h_solver="gn-qp-osqp", max_iter=1, rng=0).fit(mdp, demos)

@@ -208,7 +208,10 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
 
 def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, max_iter, inner_steps, tol, gtol, report, ev0):
     """:func:`_alternate` for the residual model (:mod:`factirl_opt.objectives.residuals`): the H-step runs on
-    ``[h_i, delta_i]`` jointly (:func:`residual_weights_problem`), the D-step with ``H`` and
+    ``[h_i, delta_i]`` jointly (:func:`residual_weights_problem`), each task stepping as it would
+    alone (``separable=True``: the tasks are independent given ``D``; an unconstrained Gauss-Newton
+    subproblem of ``k + p`` variables per task is then solved exactly, never compiled into one
+    block QP over every task, whose size grows as ``(n (k + p))^2``), the D-step with ``H`` and
     ``Delta`` fixed (:func:`residual_dictionary_problem`). The best point carries ``Delta``."""
     band = 2.0
     names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
@@ -224,7 +227,7 @@ def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, ma
         status, reason = "max_iter", f"max_iter={max_iter} outer iterations done"
         for it in range(1, max_iter + 1):
             rh = h_solver.run(residual_weights_problem(objective, Phi, D, lam, names), np.concatenate([H, Delta], axis=1),
-                              inner_steps, state=h_state, gtol=gtol)
+                              inner_steps, state=h_state, gtol=gtol, separable=True)
             H, Delta, h_state = rh.coefficients[:, :k], rh.coefficients[:, k:], h_solver.carry_over(rh.state)
             rd = d_solver.run(residual_dictionary_problem(objective, Phi, H, Delta), D.reshape(1, -1), inner_steps,
                               state=d_state, gtol=gtol)
