@@ -4,7 +4,8 @@ Runs the "which learner when" presets (:data:`factirl_opt.lab.experiments.preset
 the paper's grid at 5, 20 and 100 training tasks, ``objectworld-quick``,
 ``objectworld-per-task-quick``, BabyAI GoToLocal and GoToOpen), each with the experiment
 runner into ``OUT/<preset>`` (resumable: finished runs are reused, as ``factirl-opt reproduce``
-does; each directory gets its tables and ``claims.md``), then compares, on the test tasks
+does; each directory gets its tables and ``claims.md``; runs of other seeds computed into the
+same directories, e.g. by ``--seed 1 --seeds 2`` elsewhere and copied in, are reused), then compares, on the test tasks
 (``transfer`` from ONE demonstration) of every point and seed, the adaptive learner
 (``FactIRL(n_primitives="auto", residual_penalty="auto")``) with the better of the flat and the
 factorial learner: *no worse* within 10% of the deviation, or 0.05 of the success rate on
@@ -26,7 +27,7 @@ from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "sharing_table"]
 
-DEFAULTS = {"presets": list(SHARING_PRESETS), "seeds": 3, "jobs": 1, "out": os.path.join("runs", "which-learner")}
+DEFAULTS = {"presets": list(SHARING_PRESETS), "seed": 0, "seeds": 3, "jobs": 1, "out": os.path.join("runs", "which-learner")}
 QUICK = {"presets": ["sharing-tiny"], "seeds": 1}
 #: the file of the comparison in OUT
 TABLE_FILE = "which-learner.md"
@@ -38,7 +39,8 @@ def add_arguments(parser):
 
     opt("--presets", choices=[*SHARING_PRESETS, "sharing-tiny"], nargs="+", metavar="PRESET",
         help=f"benchmarks to run, of {', '.join(SHARING_PRESETS)}, sharing-tiny")
-    opt("--seeds", type=integer(1), help="seeds per benchmark (0, 1, ...)")
+    opt("--seed", type=integer(0), metavar="BASE", help="base seed: the runs use seeds BASE, BASE+1, ...")
+    opt("--seeds", type=integer(1), metavar="N", help="seeds per benchmark")
     opt("--jobs", type=integer(-1), help="runs executed in parallel (-1: every core); results do not depend on it")
     opt("--out", help="output directory: one reproduce directory per preset, and the table")
     parser.add_argument("--quick", action="store_true",
@@ -77,8 +79,9 @@ def run(args):
     out = os.fspath(s["out"])
     results = {}
     for name in s["presets"]:
-        res = run_sweep(PRESETS[name], os.path.join(out, name), seeds=s["seeds"], jobs=s["jobs"], progress=True,
-                        command=f"factirl-opt bench which-learner --presets {name} --seeds {s['seeds']} --out {out}")
+        res = run_sweep(PRESETS[name], os.path.join(out, name), seeds=s["seeds"], base_seed=s["seed"], jobs=s["jobs"],
+                        progress=True, command=f"factirl-opt bench which-learner --presets {name} --seed {s['seed']} "
+                                               f"--seeds {s['seeds']} --out {out}")
         write_claims(res["out"], PRESETS[name])
         rows = res["rows"]
         column = _column(rows)
