@@ -10,19 +10,23 @@ same directories, e.g. by ``--seed 1 --seeds 2`` elsewhere and copied in, are re
 (``FactIRL(n_primitives="auto", residual_penalty="auto")``) with the better of the flat and the
 factorial learner: *no worse* within 10% of the deviation, or 0.05 of the success rate on
 BabyAI (:data:`factirl_opt.lab.experiments.claims.SHARING_MARGINS`); *beats both* when it is
-better than both. Prints the comparison as JSON, with the (k, lambda) each adaptive fit chose,
-and writes it as a markdown table to ``OUT/which-learner.md``.
+better than both. Prints the comparison as JSON, with the (k, lambda) each adaptive fit chose and
+the cost of ``"auto"`` (``auto_cost_ratio``: the median over runs of the adaptive training fit's
+wall time over the factorial one's, both from the same flat start; wall time, so compare it on a
+quiet machine), and writes it as a markdown table to ``OUT/which-learner.md``.
 
 ``--quick`` runs the tiny grid only (``sharing-tiny``, one seed): seconds, for tests.
 """
 
 import os
+import statistics
 
 from ...files import write_text_atomic
 from ..arguments import integer
 from ..experiments.claims import SHARING_MARGINS, sharing_verdicts, write_claims
 from ..experiments.presets import PRESETS, SHARING_PRESETS
 from ..experiments.runner import run_sweep
+from ..experiments.tables import read_csv
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "sharing_table"]
@@ -61,6 +65,20 @@ def _lam(value):
     return "inf" if value == float("inf") else f"{value:g}"
 
 
+def _cost(out, rows):
+    """Median over the runs of the adaptive training fit's time over the factorial one's (both from the
+    same flat start, which neither includes): the cost of ``"auto"`` against one fixed fit, in wall time."""
+    times: dict = {}
+    for r in read_csv(os.path.join(out, "timings.csv")):
+        if r["split"] == "train":
+            times.setdefault((r["n_tasks"], r["demos_per_task"], r["seed"]), {})[r["learner"]] = r["fit_time"]
+    names = {r["learner"] for r in rows if "n_primitives" in r}
+    fixed = {r["learner"] for r in rows if r["split"] == "train"} - names
+    ratios = sorted(t[a] / t[f] for t in times.values() for a in names for f in fixed
+                    if a in t and f in t and f.startswith("factorial"))
+    return float(statistics.median(ratios)) if ratios else None
+
+
 def sharing_table(results: dict) -> str:
     """The markdown table of :func:`run`'s ``benchmarks``: one line per benchmark, point and seed."""
     lines = ["| benchmark | point | seed | score | flat | factorial | adaptive (k, lambda) | no worse | beats both |",
@@ -92,6 +110,7 @@ def run(args):
         results[name] = {"column": column, "margin": SHARING_MARGINS[column], "verdicts": verdicts,
                          "no_worse": f"{sum(v['no_worse'] for v in verdicts)}/{len(verdicts)}",
                          "beats_both": f"{sum(v['beats_both'] for v in verdicts)}/{len(verdicts)}",
+                         "auto_cost_ratio": _cost(res["out"], rows),
                          "wall_time_s": res["wall_time"], "n_computed": res["n_computed"]}
     write_text_atomic(os.path.join(out, TABLE_FILE),
                       "# Which learner when: the adaptive learner against the better of flat and factorial\n\n"
