@@ -234,3 +234,27 @@ def test_residual_h_step_solves_each_task_alone_without_a_block_qp(shared, monke
     assert np.all(np.isfinite(fitted.residuals_)) and np.any(fitted.residuals_ != 0)
     with pytest.raises(AssertionError, match="block QP"):  # the fixed-k model's H-step does use it (unchanged)
         fo.FactIRL(n_primitives=2, features=F, h_solver="gn-qp-osqp", max_iter=1, rng=0).fit(mdp, demos)
+
+
+@pytest.mark.parametrize("flat_solver", ["armijo", "lbfgs"])
+def test_flat_model_transfers_as_the_flat_learner(shared, flat_solver):
+    """lambda = 0: the dictionary plays no part, and transfer fits each new task as GradIRL does (the same
+    solver, budget and tolerance): the same rewards to the last bit, h = 0, delta = the flat weights."""
+    mdp, F, demos = shared
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        model = fo.FactIRL(n_primitives=2, features=F, residual_penalty=0.0, max_iter=2, flat_max_iter=15,
+                           flat_solver=flat_solver, rng=0).fit(mdp, demos[:3])
+        new = [d[:1] for d in demos[3:]]
+        H = model.transfer(mdp, new)
+        flat = fo.GradIRL(features=F, max_iter=15, solver=flat_solver).fit(mdp, new)
+    assert np.array_equal(H, np.zeros((2, 2)))
+    assert np.array_equal(model.transfer_residuals_, flat.weights_)
+    assert np.array_equal(np.asarray(model.transfer_rewards_), flat.rewards_)
+    np.testing.assert_allclose(model.transfer_loss_, flat.loss_, rtol=1e-12)
+
+
+def test_flat_solver_is_validated(shared):
+    mdp, F, demos = shared
+    with pytest.raises(fo.exceptions.UnknownSolverError, match="unknown solver 'no-such-solver'"):
+        fo.FactIRL(n_primitives=2, features=F, flat_solver="no-such-solver", rng=0).fit(mdp, demos)

@@ -118,7 +118,8 @@ class FactIRL(Estimator):
         once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
         Objectworld the start shrinks 32-fold. False: the PCA start as it is.
     flat_max_iter : int, default=100
-        Iterations of the flat learner used by ``init="pca"``.
+        Iterations of the flat learner used by ``init="pca"``, and by ``transfer`` of the flat
+        model (``residual_penalty=0``).
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -167,7 +168,11 @@ class FactIRL(Estimator):
         0 lets every task's weights free (the flat model, reparametrised), values between
         share as much as the penalty makes worth it. The residuals are fitted in ``fit`` (the
         H-step moves ``[h_i, delta_i]`` together, from ``delta = 0``) and in ``transfer``. A
-        finite value needs an unconstrained ``h_solver``. ``"auto"``: chosen by validation
+        finite value needs an unconstrained ``h_solver``. With 0 the dictionary plays no part,
+        and ``transfer`` fits each new task as the flat learner does (``flat_solver`` for
+        ``flat_max_iter`` iterations from zero weights, :func:`~factirl_opt.learners.gradirl.fit_weights`;
+        ``h = 0``, ``delta`` the weights): the same rewards as ``GradIRL`` with that solver and
+        budget on the new tasks' features. ``"auto"``: chosen by validation
         over tasks (:mod:`factirl_opt.learners.adaptive`).
     dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
         Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
@@ -177,6 +182,9 @@ class FactIRL(Estimator):
         (:class:`solvers.ProximalArmijoSolver`) with the options of ``d_solver``, which must be
         ``"armijo"``; the start is moved onto the constraint (:func:`~factirl_opt.learners.dictionary.constrained_start`),
         and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
+    flat_solver : str or solvers.StepSolver, default="armijo"
+        Step solver of the flat learner: the ``init="pca"`` start's flat fit and the transfer of
+        the flat model (``residual_penalty=0``), with its default options and tolerance 1e-5.
     dictionary_alpha : float, default=0.01
         The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
 
@@ -273,7 +281,8 @@ class FactIRL(Estimator):
                  rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
                  client: Any = None, planner_options: dict | None = None, verbose: bool = False,
                  callback: Callable | None = None, residual_penalty: Any = np.inf,
-                 dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01) -> None:
+                 dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
+                 flat_solver: Any = FLAT_SOLVER) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -296,6 +305,7 @@ class FactIRL(Estimator):
         self.residual_penalty = residual_penalty
         self.dictionary_constraint = dictionary_constraint
         self.dictionary_alpha = dictionary_alpha
+        self.flat_solver = flat_solver
 
     def _features(self, mdp):
         k = getattr(self, "n_primitives_", self.n_primitives)
@@ -303,7 +313,7 @@ class FactIRL(Estimator):
 
     def _flat_start(self, mdp, n, Phi, obj, rng):
         """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
-        flat_solver = resolve_step_solver(FLAT_SOLVER, None, self.objective, "the flat learner's solver")
+        flat_solver = resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver")
         ev0 = obj.n_evaluations
         try:
             res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
@@ -456,7 +466,7 @@ class FactIRL(Estimator):
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
         if flat_rewards is None and self.init == "pca":
-            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, FLAT_SOLVER, FLAT_TOL)
+            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver, FLAT_TOL)
         k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
         model = fixed_learner(self, k, lam)
         model.verbose, model.callback = self.verbose, self.callback
@@ -574,10 +584,14 @@ class FactIRL(Estimator):
             obj, Phi, D = new
         step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
         lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
+        flat = None
+        if lam == 0.0:  # the flat model: fitted as the flat learner fits
+            flat = (resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver"),
+                    check_int(self.flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam)
+                                   verbose=self.verbose, residual_penalty=lam, flat=flat)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)

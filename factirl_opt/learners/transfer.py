@@ -28,6 +28,7 @@ from ..objectives.problems import weights_problem
 from ..tasks.features import TaskFeatures, linear_rewards, weights_rewards
 from ..mdp.environments import check_environments
 from ..objectives.residuals import residual_weights, residual_weights_problem
+from .gradirl import fit_weights
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
 
@@ -104,7 +105,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
-                 verbose: bool = False, residual_penalty: float = np.inf) -> TransferFit:
+                 verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -123,11 +124,21 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
         ``lambda`` of the residual model (:mod:`factirl_opt.objectives.residuals`): each new task's
         ``[h_i, delta_i]`` is fitted from zero with ``lambda ||delta_i||^2`` added to its loss
         (an unconstrained ``solver``); np.inf fits the coefficients only.
+    flat : (solvers.StepSolver, int, float), optional
+        With ``residual_penalty=0`` (the flat model, where the dictionary plays no part): the
+        flat learner's solver, iterations and tolerance; each new task's weights are then
+        fitted as the flat learner fits them (:func:`~factirl_opt.learners.gradirl.fit_weights`,
+        from zero), ``h_i = 0`` and ``delta_i`` the weights, instead of running ``solver`` on
+        ``[h_i, delta_i]``.
 
     Returns
     -------
     TransferFit
     """
+    if residual_penalty == 0.0 and flat is not None:
+        flat_solver, flat_max_iter, flat_tol = flat
+        return _run_flat_transfer(objective, dictionary, base_features, flat_solver, flat_max_iter, flat_tol, callback,
+                                  verbose)
     if np.isfinite(residual_penalty):
         return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
                                       float(residual_penalty))
@@ -166,6 +177,25 @@ def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, v
                                  "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
     return _residual_fit(objective, Phi, D, k, lam, res, objective.n_evaluations - ev0)
+
+
+def _run_flat_transfer(objective, D, Phi, flat_solver, max_iter, tol, callback, verbose):
+    """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
+    task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
+    ev0 = objective.n_evaluations
+    k = D.shape[1]
+
+    def as_transfer(res):
+        res.coefficients = np.concatenate([np.zeros((res.coefficients.shape[0], k)), res.coefficients], axis=1)
+        return _residual_fit(objective, Phi, D, k, 0.0, res, objective.n_evaluations - ev0)
+
+    with translate_solver_errors():
+        try:
+            res = fit_weights(objective, Phi, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)")
+        except FitInterrupted as exc:
+            raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
+    warn_if_max_iter(res, "transfer", max_iter)
+    return as_transfer(res)
 
 
 def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):

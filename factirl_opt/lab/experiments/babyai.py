@@ -82,7 +82,7 @@ def factorial_features(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
     objective = ctx.learner.objective
     flat = FLAT_MCE_FEATURES if objective == "mce" else FLAT_FEATURES
     model = FactIRL(init="pca", rng=ctx.rngs["pca"], features=gt.features("train"),
-                    **factorial_options(preset, ctx.spec.solvers, objective, ctx.learner.adaptive))
+                    **factorial_options(preset, ctx.spec.solvers, objective, ctx.learner.adaptive, features=True))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     return Fit(list(model.rewards_), np.asarray(model.loss_), int(model.n_evaluations_))

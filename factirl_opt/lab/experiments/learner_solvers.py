@@ -91,7 +91,7 @@ def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[st
 
 
 def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE,
-                      adaptive: bool = False) -> dict[str, Any]:
+                      adaptive: bool = False, features: bool = False) -> dict[str, Any]:
     """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
 
     Solver options and the D-step solver are passed only when the run names them
@@ -99,7 +99,10 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
     FactIRL it always did; solvers that do not apply to ``objective`` are replaced
     (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
     penalty by validation (``n_primitives="auto", residual_penalty="auto"``,
-    :mod:`factirl_opt.learners.adaptive`) instead of the preset's k without residuals.
+    :mod:`factirl_opt.learners.adaptive`) instead of the preset's k without residuals, and its
+    flat model (``residual_penalty=0``) transfers as the line-up's flat learner does: with the
+    preset's ``flat_features_solver`` (``features``: the row learns feature weights) or
+    ``flat_solver`` (GradIRL's fallback for an objective a Gauss-Newton solver does not apply to).
     """
     kw = dict(n_primitives="auto" if adaptive else preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
               tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
@@ -107,5 +110,7 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
     if adaptive:
         kw["residual_penalty"] = "auto"
+        name = preset.flat_features_solver if features else preset.flat_solver
+        kw["flat_solver"] = name if _applies(name, {}, objective) else GRADIENT_FALLBACK
     kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
     return kw

@@ -145,7 +145,8 @@ def _fit_factorial(gt, preset, ctx, init, flat=None, features=None):
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
     model = FactIRL(init=init, rng=rng, features=features,
-                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective, ctx.learner.adaptive))
+                    **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective, ctx.learner.adaptive,
+                                      features=features is not None))
     model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)

@@ -91,7 +91,7 @@ def _factorial(gt: Any, preset: Any, ctx: Any, init: str, flat: str | None = Non
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
     model = FactIRL(init=init, rng=rng, features=_map_columns(gt.task_maps["train"], FEATURES),
                     **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective,
-                                      ctx.learner.adaptive))
+                                      ctx.learner.adaptive, features=True))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     weights = model.coefficients_ @ model.dictionary_.T + model.residuals_  # w_i = D h_i + delta_i
