@@ -65,11 +65,15 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
         kr, lr, race = adaptive.choose_sharing(learner, mdp, demos, flat, search="race")
     assert all(len(r["fold_scores"]) == 3 for r in full)
     by_pair = {(r["n_primitives"], r["residual_penalty"]): r for r in full}
-    for r in race:  # lambda = 0 is not fitted in a race (it takes another candidate's dictionary)
+    for r in race:  # lambda = 0 is not fitted in a race; its transfer, the flat learner's, needs no dictionary
         other = by_pair[r["n_primitives"], r["residual_penalty"]]
-        if r["residual_penalty"] > 0:
-            assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
-    assert (kr, lr) == (k, lam) and sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
+        assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
+    assert sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
+    complete = [r for r in race if len(r["fold_scores"]) == 3]
+    assert (kr, lr) == min(((r["n_primitives"], r["residual_penalty"]) for r in complete),
+                           key=lambda pair: by_pair[pair]["score"])
+    if any((r["n_primitives"], r["residual_penalty"]) == (k, lam) for r in complete):
+        assert (kr, lr) == (k, lam)  # the full search's winner stayed in the race
     assert [r["fold_scores"] for r in race] == [r["fold_scores"] for r in auto.validation_]  # the default
     # the warm race starts each candidate from its predecessor's fit: the first candidate of each k is
     # scored as in the full search on the first fold
@@ -157,3 +161,28 @@ def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
     bad = rewrite(lambda a: a["validation_"][1].pop("score"), "keys.npz")
     with pytest.raises(PersistenceError, match=r"attribute validation_\[1\] must be a dict with keys"):
         fo.load_model(bad)
+
+
+def test_held_out_likelihood_is_the_boltzmann_policys(data):
+    """The default held-out score of policy matching: minus the mean log-probability of the held-out
+    (state, action) pairs under the Boltzmann policy of the transferred reward's Q* (eq. 7)."""
+    mdp, F, demos = data
+    R = np.random.default_rng(0).normal(size=(mdp.n_states, mdp.n_actions))
+    pi = fo.boltzmann_policy(fo.optimal_q(mdp, R[None])[0][0], 5.0)
+    pairs = demos[0].reshape(-1, 2)
+    expected = -np.mean(np.log(pi[pairs[:, 0], pairs[:, 1]]))
+    assert adaptive._boltzmann_nll(mdp, demos[0], R, 5.0, "auto") == pytest.approx(expected, rel=1e-12)
+
+
+def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data):
+    mdp, F, demos = data
+    learner = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto", residual_penalty="auto")
+    flat = adaptive.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        for score in adaptive.SCORES:
+            k, lam, table = adaptive.choose_sharing(learner, mdp, demos, flat, score=score)
+            best = min((r for r in table if len(r["fold_scores"]) == 3), key=lambda r: r["score"])
+            assert (k, lam) == (best["n_primitives"], best["residual_penalty"])
+    with pytest.raises(ValidationError, match="score must be one of"):
+        adaptive.choose_sharing(learner, mdp, demos, flat, score="accuracy")

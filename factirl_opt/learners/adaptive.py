@@ -8,8 +8,10 @@ that task's expert does elsewhere.
 K-fold over tasks (:func:`choose_sharing`): the tasks are split into ``n_folds`` folds; for each
 fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' tasks, each
 held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
-its remaining demonstrations by the learner's own objective (policy matching, or the MCE
-negative log-likelihood) of the transferred reward. The candidate of lowest mean score wins
+its remaining demonstrations by their negative log-likelihood per step under the learner's
+policy model with the transferred reward (policy matching: the Boltzmann policy of its Q*, eq. 7;
+MCE: the soft-optimal policy, the MCE objective itself; ``score="objective"`` scores by the
+learner's objective instead, which for policy matching is the squared policy difference). The candidate of lowest mean score wins
 (ties: the earlier candidate, i.e. more sharing). By default the folds are a race: every
 candidate is scored on the first fold, only those within ``RACE_MARGIN`` of the best there on
 the others (``search``, :func:`choose_sharing`).
@@ -38,8 +40,11 @@ from ..tasks.task_set import per_task_features
 from .solver_settings import estimator_solvers
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
+from ..planning import optimal_q
+from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
+           "SCORES", "DEFAULT_SCORE",
            "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
 
 #: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
@@ -60,6 +65,11 @@ DEFAULT_SEARCH = "race"
 RACE_MARGIN = 0.1
 #: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
 WARM_BUDGET = 0.5
+#: held-out scores of :func:`choose_sharing`: the negative log-likelihood under the learner's
+#: policy model, or the learner's own objective
+SCORES = ("likelihood", "objective")
+#: the score ``FactIRL.fit`` uses
+DEFAULT_SCORE = "likelihood"
 
 
 def _count(demos: Any) -> int:
@@ -102,22 +112,39 @@ def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool) -> 
     return out
 
 
-def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], t: int) -> np.ndarray:
-    """Held-out score of tasks ``idx``: transfer from their first t demonstrations, the learner's
-    objective on the others (one value per task)."""
+def _boltzmann_nll(mdp: Any, demos: Any, rewards: np.ndarray, beta: float, planner: Any) -> float:
+    """Negative log-likelihood per step of the demonstrations under the Boltzmann policy of the
+    rewards' optimal Q (eq. 7, the policy-matching learner's policy model)."""
+    mu, pi_hat = empirical_statistics(mdp, [demos])
+    Q = optimal_q(mdp, rewards[None], planner=planner)[0][0]
+    z = beta * Q
+    top = z.max(axis=-1, keepdims=True)
+    log_pi = z - top - np.log(np.exp(z - top).sum(axis=-1, keepdims=True))
+    return float(-np.einsum("s,sa,sa->", mu[0], pi_hat[0], log_pi))
+
+
+def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], t: int,
+           score: str = DEFAULT_SCORE) -> np.ndarray:
+    """Held-out score of tasks ``idx``: transfer from their first t demonstrations, then, on the
+    others, the negative log-likelihood per step under the learner's policy model
+    (``score="likelihood"``: the Boltzmann policy of Q* for policy matching, the MCE objective
+    for MCE) or the learner's objective (``"objective"``); one value per task."""
     sub_mdp, sub_features = _subset(mdp, features, idx)
     first = [demos[i][:t] for i in idx]
     model.transfer(sub_mdp, first, features=sub_features if per_task_features(features) else None)
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
+        if score == "likelihood" and model.objective == "policy-matching":
+            out[j] = _boltzmann_nll(_task_mdp(mdp, i), demos[i][t:], np.asarray(rewards[j]), model.beta, model.planner)
+            continue
         obj = make_objective(_task_mdp(mdp, i), [demos[i][t:]], model.beta, model.objective, model.planner)
         out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
     return out
 
 
 def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None,
-                   search: str = DEFAULT_SEARCH) -> tuple[int, float, list[dict]]:
+                   search: str = DEFAULT_SEARCH, score: str = DEFAULT_SCORE) -> tuple[int, float, list[dict]]:
     """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over tasks.
 
     ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
@@ -147,6 +174,9 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     flat_rewards : optional
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
+    search : {"full", "race", "race-warm"}
+    score : {"likelihood", "objective"}
+        The held-out score (:data:`SCORES`; module docstring).
 
     Returns
     -------
@@ -160,10 +190,12 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     ------
     ValidationError
         Fewer than 2 tasks, or a task with at most ``N_TRANSFER_DEMOS`` demonstrations (no
-        demonstration left to score it on), or an unknown ``search``.
+        demonstration left to score it on), or an unknown ``search`` or ``score``.
     """
     if search not in SEARCHES:
         raise ValidationError(f"search must be one of {SEARCHES}; got {search!r}")
+    if score not in SCORES:
+        raise ValidationError(f"score must be one of {SCORES}; got {score!r}")
     n = _count(demos_per_task)
     t = N_TRANSFER_DEMOS
     if n < 2:
@@ -184,12 +216,12 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
         first = folds[:1] if search != "full" and len(folds) > 1 else folds
         warm, reuse = search == "race-warm", search != "full"
-        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse)
+        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse, score)
         if len(first) < len(folds):
             lead = min(np.mean(v) for v in scores.values())
             contenders = [c for c in candidates if np.mean(scores[c]) <= lead + RACE_MARGIN * abs(lead)]
             for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
-                                      reuse).items():
+                                      reuse, score).items():
                 scores[c] = scores[c] + more
         for (k, lam), fold_scores in scores.items():
             rows.append({"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
@@ -200,7 +232,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
 
 
-def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse):
+def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
     """The held-out scores ``{(k, lambda): [score per fold]}`` of ``candidates`` on ``folds``;
     with ``warm``, each fold's candidates start from their predecessor's fit; with ``reuse``,
     ``lambda = 0`` takes its predecessor's dictionary without a fit (see :func:`choose_sharing`)."""
@@ -226,7 +258,7 @@ def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t,
                 model.fit(sub_mdp, _take(demos_per_task, train),
                           flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
             fitted[k, lam] = model
-            scores[k, lam].append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t))))
+            scores[k, lam].append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t, score))))
     return scores
 
 
