@@ -22,7 +22,7 @@ import os
 import statistics
 
 from ...files import write_text_atomic
-from ..arguments import integer
+from ..arguments import integer, text
 from ..experiments.claims import SHARING_MARGINS, sharing_verdicts, write_claims
 from ..experiments.presets import PRESETS, SHARING_PRESETS
 from ..experiments.runner import run_sweep
@@ -45,8 +45,9 @@ def add_arguments(parser):
         help=f"benchmarks to run, of {', '.join(SHARING_PRESETS)}, sharing-tiny")
     opt("--seed", type=integer(0), metavar="BASE", help="base seed: the runs use seeds BASE, BASE+1, ...")
     opt("--seeds", type=integer(1), metavar="N", help="seeds per benchmark")
-    opt("--jobs", type=integer(-1), help="runs executed in parallel (-1: every core); results do not depend on it")
-    opt("--out", help="output directory: one reproduce directory per preset, and the table")
+    opt("--jobs", type=integer(1, also=(-1,)), help="runs executed in parallel (-1: every core); results do not depend on it")
+    opt("--out", type=text("an output directory"), metavar="DIR",
+        help="output directory: one reproduce directory per preset, and the table")
     parser.add_argument("--quick", action="store_true",
                         help="the tiny grid only, one seed (for tests); options given explicitly keep their value")
 
