@@ -182,11 +182,11 @@ class FactIRL(Estimator):
         (:class:`solvers.ProximalArmijoSolver`) with the options of ``d_solver``, which must be
         ``"armijo"``; the start is moved onto the constraint (:func:`~factirl_opt.learners.dictionary.constrained_start`),
         and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
+    dictionary_alpha : float, default=0.01
+        The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
     flat_solver : str or solvers.StepSolver, default="armijo"
         Step solver of the flat learner: the ``init="pca"`` start's flat fit and the transfer of
         the flat model (``residual_penalty=0``), with its default options and tolerance 1e-5.
-    dictionary_alpha : float, default=0.01
-        The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
