@@ -171,7 +171,8 @@ def test_held_out_likelihood_is_the_boltzmann_policys(data):
     pi = fo.boltzmann_policy(fo.optimal_q(mdp, R[None])[0][0], 5.0)
     pairs = demos[0].reshape(-1, 2)
     expected = -np.mean(np.log(pi[pairs[:, 0], pairs[:, 1]]))
-    assert adaptive._boltzmann_nll(mdp, demos[0], R, 5.0, "auto") == pytest.approx(expected, rel=1e-12)
+    model = fo.FactIRL(beta=5.0)
+    assert adaptive._held_out_nll(mdp, demos[0], R, model) == pytest.approx(expected, rel=1e-12)
 
 
 def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data):

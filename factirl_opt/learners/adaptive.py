@@ -38,9 +38,10 @@ from ..exceptions import ConvergenceWarning, ValidationError
 from .fitting import make_objective, resolve_step_solver
 from ..tasks.task_set import per_task_features
 from .solver_settings import estimator_solvers
+from .em import log_policies
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
-from ..planning import optimal_q
+from ..planning import get_planner
 from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
@@ -112,14 +113,12 @@ def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool) -> 
     return out
 
 
-def _boltzmann_nll(mdp: Any, demos: Any, rewards: np.ndarray, beta: float, planner: Any) -> float:
-    """Negative log-likelihood per step of the demonstrations under the Boltzmann policy of the
-    rewards' optimal Q (eq. 7, the policy-matching learner's policy model)."""
+def _held_out_nll(mdp: Any, demos: Any, rewards: np.ndarray, model: Any) -> float:
+    """Negative log-likelihood per step of the demonstrations under the policy the learner's
+    objective models for the rewards (:func:`~factirl_opt.learners.em.log_policies`; policy
+    matching: the Boltzmann policy of the optimal Q*, eq. 7)."""
     mu, pi_hat = empirical_statistics(mdp, [demos])
-    Q = optimal_q(mdp, rewards[None], planner=planner)[0][0]
-    z = beta * Q
-    top = z.max(axis=-1, keepdims=True)
-    log_pi = z - top - np.log(np.exp(z - top).sum(axis=-1, keepdims=True))
+    log_pi = log_policies(get_planner(mdp, model.planner), rewards[None], model.beta, model.objective)[0]
     return float(-np.einsum("s,sa,sa->", mu[0], pi_hat[0], log_pi))
 
 
@@ -136,7 +135,7 @@ def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], 
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
         if score == "likelihood" and model.objective == "policy-matching":
-            out[j] = _boltzmann_nll(_task_mdp(mdp, i), demos[i][t:], np.asarray(rewards[j]), model.beta, model.planner)
+            out[j] = _held_out_nll(_task_mdp(mdp, i), demos[i][t:], np.asarray(rewards[j]), model)
             continue
         obj = make_objective(_task_mdp(mdp, i), [demos[i][t:]], model.beta, model.objective, model.planner)
         out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]

@@ -186,8 +186,9 @@ def _run_flat_transfer(objective, D, Phi, flat_solver, max_iter, tol, callback, 
     k = D.shape[1]
 
     def as_transfer(res):
-        res.coefficients = np.concatenate([np.zeros((res.coefficients.shape[0], k)), res.coefficients], axis=1)
-        return _residual_fit(objective, Phi, D, k, 0.0, res, objective.n_evaluations - ev0)
+        x = np.concatenate([np.zeros((res.coefficients.shape[0], k)), res.coefficients], axis=1)
+        return _residual_fit(objective, Phi, D, k, 0.0, dataclasses.replace(res, coefficients=x),
+                             objective.n_evaluations - ev0)
 
     with translate_solver_errors():
         try:

@@ -46,12 +46,18 @@ def _replaced(what: str, name: str, objective: str) -> str:
             f"{objective!r} objective has none)")
 
 
+def _flat_solver(preset: Any, features: bool, objective: str) -> tuple[str, str | None]:
+    """The preset's GradIRL solver on features or tabular rewards for ``objective``, and a note
+    naming the substitution if there is one."""
+    name = preset.flat_features_solver if features else preset.flat_solver
+    if _applies(name, {}, objective):
+        return name, None
+    return GRADIENT_FALLBACK, _replaced("solver", name, objective)
+
+
 def flat_solver(learner: Any, preset: Any) -> tuple[str, str | None]:
     """The step solver of a GradIRL row, and a note naming the substitution if there is one."""
-    name = preset.flat_solver if learner.solvers == "flat" else preset.flat_features_solver
-    if _applies(name, {}, learner.objective):
-        return name, None
-    return GRADIENT_FALLBACK, _replaced("solver", name, learner.objective)
+    return _flat_solver(preset, learner.solvers != "flat", learner.objective)
 
 
 def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[SolverSettings, list[str]]:
@@ -110,7 +116,6 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
     if adaptive:
         kw["residual_penalty"] = "auto"
-        name = preset.flat_features_solver if features else preset.flat_solver
-        kw["flat_solver"] = name if _applies(name, {}, objective) else GRADIENT_FALLBACK
+        kw["flat_solver"] = _flat_solver(preset, features, objective)[0]
     kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
     return kw
