@@ -7,6 +7,8 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.learners import adaptive
+from factirl_opt.learners.em import log_policies
+from factirl_opt.planning import get_planner
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 
 
@@ -40,16 +42,44 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
     # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
     assert sorted(p for p in pairs if p[1] > 0) == sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
     assert [p for p in pairs if p[1] == 0.0] == [(1, 0.0)]
-    # the default search is a race: the candidates far behind on the first fold are not scored on the others
-    complete = [r for r in rows if len(r["fold_scores"]) == 3]
-    best = min(complete, key=lambda r: r["score"])
-    assert [r["chosen"] for r in rows].count(True) == 1 and best["chosen"]
-    assert (auto.n_primitives_, auto.residual_penalty_) == (best["n_primitives"], best["residual_penalty"])
+    # the default search is a race: the candidates far behind on the first fold are not scored on the
+    # others; the flat model always is (unless it is the only contender left: then it is the choice)
+    assert [r["chosen"] for r in rows].count(True) == 1
+    chosen = next(r for r in rows if r["chosen"])
+    assert rows.index(chosen) == adaptive._choice(rows)
+    assert (auto.n_primitives_, auto.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
     lead = min(r["fold_scores"][0] for r in rows)
+    contenders = [r for r in rows if r["fold_scores"][0] <= lead + adaptive.RACE_MARGIN * abs(lead)
+                  or r["residual_penalty"] == 0.0]
     for r in rows:
         assert len(r["fold_scores"]) in (1, 3) and r["score"] == pytest.approx(np.mean(r["fold_scores"]))
-        assert (len(r["fold_scores"]) == 3) == (r["fold_scores"][0] <= lead + adaptive.RACE_MARGIN * abs(lead))
+        assert len(r["task_scores"]) == 2 * len(r["fold_scores"])  # 6 tasks, 3 folds of 2
+        assert r["score"] == pytest.approx(np.mean(r["task_scores"]))
+        assert (len(r["fold_scores"]) == 3) == (r in contenders and len(contenders) > 1)
     assert auto.dictionary_.shape == (4, auto.n_primitives_) and auto.n_primitives == "auto"
+
+
+def _rows(flat, shared):
+    """A validation table of the flat model and one sharing candidate, scored on the same tasks."""
+    return [{"n_primitives": 2, "residual_penalty": 1.0, "score": float(np.mean(shared)), "score_std": 0.0,
+             "fold_scores": [float(np.mean(shared))], "task_scores": list(shared), "chosen": False},
+            {"n_primitives": 1, "residual_penalty": 0.0, "score": float(np.mean(flat)), "score_std": 0.0,
+             "fold_scores": [float(np.mean(flat))], "task_scores": list(flat), "chosen": False}]
+
+
+def test_sharing_must_beat_the_flat_model_by_more_than_a_standard_error():
+    flat = np.array([1.0, 2.0, 3.0, 4.0])
+    # the paired gains 0.1, -0.2, 0.3, 0.2: mean 0.1 < their standard error 0.108: the flat model stays
+    assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])) == 1
+    # gains 0.1, 0.2, 0.3, 0.2: mean 0.2 > standard error 0.041: the sharing candidate
+    assert adaptive._choice(_rows(flat, flat - [0.1, 0.2, 0.3, 0.2])) == 0
+    # the flat model leads: it is the choice; without a flat row, the lowest mean wins
+    assert adaptive._choice(_rows(flat, flat + 0.5)) == 1
+    assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])[:1]) == 0
+    # a row scored on fewer folds (pruned in a race) is never chosen
+    rows = _rows(flat, flat - 5.0)
+    rows[1]["fold_scores"] = rows[1]["fold_scores"] * 2
+    assert adaptive._choice(rows) == 1
 
 
 def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
@@ -70,9 +100,10 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
         assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
     assert sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
     complete = [r for r in race if len(r["fold_scores"]) == 3]
-    assert (kr, lr) == min(((r["n_primitives"], r["residual_penalty"]) for r in complete),
-                           key=lambda pair: by_pair[pair]["score"])
-    if any((r["n_primitives"], r["residual_penalty"]) == (k, lam) for r in complete):
+    assert (kr, lr) == (race[adaptive._choice(race)]["n_primitives"], race[adaptive._choice(race)]["residual_penalty"])
+    assert (k, lam) == (full[adaptive._choice(full)]["n_primitives"], full[adaptive._choice(full)]["residual_penalty"])
+    if all(any(r["fold_scores"] == by_pair[pair]["fold_scores"] for r in complete)
+           for pair in by_pair if by_pair[pair]["score"] <= by_pair[k, lam]["score"] or pair[1] == 0.0):
         assert (kr, lr) == (k, lam)  # the full search's winner stayed in the race
     assert [r["fold_scores"] for r in race] == [r["fold_scores"] for r in auto.validation_]  # the default
     # the warm race starts each candidate from its predecessor's fit: the first candidate of each k is
@@ -158,21 +189,50 @@ def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
     bad = rewrite(lambda a: a.update(residual_penalty_=-1.0), "neg.npz")
     with pytest.raises(PersistenceError, match=r"attribute residual_penalty_ must be a number >= 0, or inf; got -1.0"):
         fo.load_model(bad)
+    old = rewrite(lambda a: [row.pop("task_scores") for row in a["validation_"]], "old.npz")  # files before task_scores
+    assert fo.load_model(old).validation_ == [{k: v for k, v in r.items() if k != "task_scores"} for r in auto.validation_]
+    bad = rewrite(lambda a: a["validation_"][0].update(task_scores="1.0"), "tasks.npz")
+    with pytest.raises(PersistenceError, match=r"attribute validation_\[0\] task_scores must be a list of numbers"):
+        fo.load_model(bad)
     bad = rewrite(lambda a: a["validation_"][1].pop("score"), "keys.npz")
     with pytest.raises(PersistenceError, match=r"attribute validation_\[1\] must be a dict with keys"):
         fo.load_model(bad)
 
 
-def test_held_out_likelihood_is_the_boltzmann_policys(data):
-    """The default held-out score of policy matching: minus the mean log-probability of the held-out
-    (state, action) pairs under the Boltzmann policy of the transferred reward's Q* (eq. 7)."""
+def test_held_out_likelihood_is_the_boltzmann_policys_at_its_best_temperature(data):
+    """The held-out score of policy matching: minus the mean log-probability of the held-out
+    (state, action) pairs under the Boltzmann policy of the transferred reward's Q* (eq. 7), at
+    the learner's beta (``temper=False``) or at the inverse temperature that fits them best."""
     mdp, F, demos = data
     R = np.random.default_rng(0).normal(size=(mdp.n_states, mdp.n_actions))
-    pi = fo.boltzmann_policy(fo.optimal_q(mdp, R[None])[0][0], 5.0)
+    Q = fo.optimal_q(mdp, R[None])[0][0]
     pairs = demos[0].reshape(-1, 2)
-    expected = -np.mean(np.log(pi[pairs[:, 0], pairs[:, 1]]))
+
+    def nll(beta):
+        pi = fo.boltzmann_policy(Q, beta)
+        with np.errstate(divide="ignore"):
+            return -np.mean(np.log(pi[pairs[:, 0], pairs[:, 1]]))
+
     model = fo.FactIRL(beta=5.0)
-    assert adaptive._held_out_nll(mdp, demos[0], R, model) == pytest.approx(expected, rel=1e-12)
+    assert adaptive.held_out_nll(mdp, demos[0], R, model, temper=False) == pytest.approx(nll(5.0), rel=1e-12)
+    betas = np.exp(np.linspace(-6, 6, 4001))
+    grid = min(nll(b) for b in betas)
+    tempered = adaptive.held_out_nll(mdp, demos[0], R, model)
+    assert grid - 1e-6 <= tempered <= min(grid, nll(5.0), np.log(mdp.n_actions)) + 1e-9
+    # the reward's scale does not matter (Q* is positively homogeneous), its direction does
+    assert adaptive.held_out_nll(mdp, demos[0], 7.0 * R, model) == pytest.approx(tempered, abs=1e-7)
+    assert adaptive.held_out_nll(mdp, demos[0], np.zeros_like(R), model) == pytest.approx(np.log(mdp.n_actions))
+
+
+def test_held_out_likelihood_of_mce_is_the_soft_policys(data):
+    mdp, F, demos = data
+    R = np.random.default_rng(1).normal(size=(mdp.n_states, mdp.n_actions))
+    model = fo.FactIRL(beta=2.0, objective="mce")
+    log_pi = log_policies(get_planner(mdp), R[None], 2.0, "mce")[0]
+    pairs = demos[1].reshape(-1, 2)
+    fixed = adaptive.held_out_nll(mdp, demos[1], R, model, temper=False)
+    assert fixed == pytest.approx(-np.mean(log_pi[pairs[:, 0], pairs[:, 1]]), rel=1e-12)
+    assert adaptive.held_out_nll(mdp, demos[1], R, model) <= min(fixed, np.log(mdp.n_actions)) + 1e-12
 
 
 def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data):
@@ -183,7 +243,7 @@ def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data)
         warnings.simplefilter("ignore", ConvergenceWarning)
         for score in adaptive.SCORES:
             k, lam, table = adaptive.choose_sharing(learner, mdp, demos, flat, score=score)
-            best = min((r for r in table if len(r["fold_scores"]) == 3), key=lambda r: r["score"])
-            assert (k, lam) == (best["n_primitives"], best["residual_penalty"])
+            chosen = table[adaptive._choice(table)]
+            assert (k, lam) == (chosen["n_primitives"], chosen["residual_penalty"]) and chosen["chosen"]
     with pytest.raises(ValidationError, match="score must be one of"):
         adaptive.choose_sharing(learner, mdp, demos, flat, score="accuracy")

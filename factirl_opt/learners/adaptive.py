@@ -10,11 +10,20 @@ fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' 
 held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
 its remaining demonstrations by their negative log-likelihood per step under the learner's
 policy model with the transferred reward (policy matching: the Boltzmann policy of its Q*, eq. 7;
-MCE: the soft-optimal policy, the MCE objective itself; ``score="objective"`` scores by the
-learner's objective instead, which for policy matching is the squared policy difference). The candidate of lowest mean score wins
-(ties: the earlier candidate, i.e. more sharing). By default the folds are a race: every
-candidate is scored on the first fold, only those within ``RACE_MARGIN`` of the best there on
-the others (``search``, :func:`choose_sharing`).
+MCE: the soft-optimal policy), the policy's inverse temperature profiled out per task
+(:func:`held_out_nll`: a reward's scale is not what transfer is judged on; ``score="fixed-beta"``
+keeps the learner's ``beta``, ``score="objective"`` scores by the learner's objective, which for
+policy matching is the squared policy difference).
+
+The choice (:func:`choose_sharing`). The candidate of lowest mean score leads (ties: the earlier
+candidate, i.e. more sharing); it replaces the flat model (``lambda = 0``, each task learnt
+alone) only if it beats it by more than one standard error of their paired difference over the
+held-out tasks (the one-standard-error rule, as for the number of intentions,
+:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`). Sharing has to earn
+its place: where the candidates' held-out scores are within their noise, the learner keeps what
+each task's own demonstrations say. By default
+the folds are a race: every candidate is scored on the first fold, only those within
+``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``).
 
 Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
 flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
@@ -32,6 +41,9 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import minimize_scalar
+from scipy.special import log_softmax
 
 from .._validation import as_rng
 from ..exceptions import ConvergenceWarning, ValidationError
@@ -39,6 +51,7 @@ from .fitting import make_objective, resolve_step_solver
 from ..tasks.task_set import per_task_features
 from .solver_settings import estimator_solvers
 from .em import log_policies
+from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner
@@ -46,7 +59,8 @@ from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
            "SCORES", "DEFAULT_SCORE",
-           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "plot_validation"]
+           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "held_out_nll",
+           "plot_validation"]
 
 #: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
 AUTO = "auto"
@@ -67,8 +81,9 @@ RACE_MARGIN = 0.1
 #: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
 WARM_BUDGET = 0.5
 #: held-out scores of :func:`choose_sharing`: the negative log-likelihood under the learner's
-#: policy model, or the learner's own objective
-SCORES = ("likelihood", "objective")
+#: policy model with its inverse temperature fitted per task (:func:`held_out_nll`), the same
+#: with the learner's ``beta``, or the learner's own objective
+SCORES = ("likelihood", "fixed-beta", "objective")
 #: the score ``FactIRL.fit`` uses
 DEFAULT_SCORE = "likelihood"
 
@@ -113,29 +128,63 @@ def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool) -> 
     return out
 
 
-def _held_out_nll(mdp: Any, demos: Any, rewards: np.ndarray, model: Any) -> float:
-    """Negative log-likelihood per step of the demonstrations under the policy the learner's
-    objective models for the rewards (:func:`~factirl_opt.learners.em.log_policies`; policy
-    matching: the Boltzmann policy of the optimal Q*, eq. 7)."""
+def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: bool = True) -> float:
+    """Negative log-likelihood per step of demonstrations under the policy a learner models for a reward.
+
+    The policy is the one the learner's objective models (:func:`~factirl_opt.learners.em.log_policies`;
+    policy matching: the Boltzmann policy of the optimal Q*, eq. 7; MCE: the soft-optimal policy),
+    ``log pi(a|s)``. With ``temper`` its logits are rescaled by the ``c >= 0`` that fits the
+    demonstrations best, ``min_c -sum_(s,a) mu(s) pi_hat(a|s) log softmax_a(c log pi(.|s))``
+    (convex in c; ``c = 0`` is the uniform policy, so the score is at most ``log |A|``). For policy
+    matching this is exactly the likelihood of the Boltzmann policy with the inverse temperature
+    ``c * beta`` (Q* is positively homogeneous in the reward), i.e. the likelihood of the best
+    rescaled reward: transfer is judged on the reward's direction, which the policy it induces
+    depends on, and not on its scale, which one demonstration does not fix.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    demos : array of int, shape (n_demos, horizon, 2)
+        (state, action) pairs.
+    rewards : array, shape (S, A)
+    model : FactIRL or GradIRL
+        Its ``beta``, ``objective`` and ``planner``.
+    temper : bool, default True
+
+    Returns
+    -------
+    float
+    """
     mu, pi_hat = empirical_statistics(mdp, [demos])
-    log_pi = log_policies(get_planner(mdp, model.planner), rewards[None], model.beta, model.objective)[0]
-    return float(-np.einsum("s,sa,sa->", mu[0], pi_hat[0], log_pi))
+    weights = mu[0][:, None] * pi_hat[0]
+    log_pi = log_policies(get_planner(mdp, model.planner), np.asarray(rewards, dtype=float)[None], model.beta,
+                          model.objective)[0]
+    if not temper:
+        return float(-np.sum(weights * log_pi))
+    seen = weights.sum(axis=1) > 0
+    weights, log_pi = weights[seen], log_pi[seen]
+    log_pi = log_pi - log_pi.max(axis=1, keepdims=True)  # finite, and the same policy
+
+    def nll(log_c: float) -> float:
+        return float(-np.sum(weights * log_softmax(np.exp(log_c) * log_pi, axis=1)))
+
+    best = minimize_scalar(nll, bounds=(-12.0, 12.0), method="bounded", options={"xatol": 1e-6})
+    return min(best.fun, float(np.log(log_pi.shape[1]) * weights.sum()))
 
 
 def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], t: int,
            score: str = DEFAULT_SCORE) -> np.ndarray:
     """Held-out score of tasks ``idx``: transfer from their first t demonstrations, then, on the
-    others, the negative log-likelihood per step under the learner's policy model
-    (``score="likelihood"``: the Boltzmann policy of Q* for policy matching, the MCE objective
-    for MCE) or the learner's objective (``"objective"``); one value per task."""
+    others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not) or the
+    learner's objective (``"objective"``); one value per task."""
     sub_mdp, sub_features = _subset(mdp, features, idx)
     first = [demos[i][:t] for i in idx]
     model.transfer(sub_mdp, first, features=sub_features if per_task_features(features) else None)
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
-        if score == "likelihood" and model.objective == "policy-matching":
-            out[j] = _held_out_nll(_task_mdp(mdp, i), demos[i][t:], np.asarray(rewards[j]), model)
+        if score != "objective":
+            out[j] = held_out_nll(_task_mdp(mdp, i), demos[i][t:], rewards[j], model, temper=score == "likelihood")
             continue
         obj = make_objective(_task_mdp(mdp, i), [demos[i][t:]], model.beta, model.objective, model.planner)
         out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
@@ -148,14 +197,18 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
 
     ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
     every candidate on the first fold, keeps those whose score there is at most
-    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and scores only
-    these on the other folds: a candidate far behind on one fold has no chance of the best mean,
-    and the folds after the first cost only the contenders (a race, as in F-race or successive
-    halving). The pruned candidates keep their first fold's score as ``score`` (one entry in
-    ``fold_scores``); the choice is among the candidates scored on every fold. In a race
-    ``lambda = 0`` is not fitted when another candidate with its k was fitted on the fold: its
-    transfer, the flat model reparametrised, uses that candidate's dictionary (which plays no
-    part in the model there). ``"race-warm"`` also warm-starts along lambda: on each fold, a
+    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and the flat
+    model, and scores only these on the other folds: a candidate far behind on one fold has no
+    chance of the best mean, and the folds after the first cost only the contenders (a race, as
+    in F-race or successive halving). The pruned candidates keep their first fold's scores (one
+    entry in ``fold_scores``); the choice is among the candidates scored on every fold (the flat
+    model alone, if it is the only contender left). In a race ``lambda = 0`` is not fitted when
+    another candidate was fitted on the fold: its transfer, the flat learner's, takes that
+    candidate's model (whose dictionary plays no part there).
+
+    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
+    candidate and the leader's mean gain over it, paired over the held-out tasks, is at most one
+    standard error of that gain: then the flat model. ``"race-warm"`` also warm-starts along lambda: on each fold, a
     candidate whose predecessor (the candidate before it with the same k: the next larger
     lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
     with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
@@ -174,7 +227,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
     search : {"full", "race", "race-warm"}
-    score : {"likelihood", "objective"}
+    score : {"likelihood", "fixed-beta", "objective"}
         The held-out score (:data:`SCORES`; module docstring).
 
     Returns
@@ -183,7 +236,9 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     lambda : float
     validation : list of dict
         One row per candidate: ``n_primitives``, ``residual_penalty``, ``score`` (mean held-out
-        score over tasks and folds), ``score_std`` (over folds), ``fold_scores``, ``chosen``.
+        score over the held-out tasks of the folds it was scored on), ``score_std`` (of the
+        folds' means), ``fold_scores`` (each fold's mean), ``task_scores`` (each held-out task's
+        score, fold after fold), ``chosen``.
 
     Raises
     ------
@@ -207,7 +262,6 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     folds = np.array_split(as_rng(learner.rng).permutation(n), min(N_FOLDS, n))
     p = _reward_dimension(learner, mdp)
     k_max = min(p, min(n - len(f) for f in folds))
-    rows = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
         h_name, h_options, _, _ = estimator_solvers(learner)
@@ -217,24 +271,42 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         warm, reuse = search == "race-warm", search != "full"
         scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse, score)
         if len(first) < len(folds):
-            lead = min(np.mean(v) for v in scores.values())
-            contenders = [c for c in candidates if np.mean(scores[c]) <= lead + RACE_MARGIN * abs(lead)]
-            for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
-                                      reuse, score).items():
-                scores[c] = scores[c] + more
-        for (k, lam), fold_scores in scores.items():
-            rows.append({"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(fold_scores)),
-                         "score_std": float(np.std(fold_scores)), "fold_scores": fold_scores, "chosen": False})
-    complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == len(folds)]
+            lead = min(np.mean(v[0]) for v in scores.values())
+            contenders = [c for c in candidates
+                          if np.mean(scores[c][0]) <= lead + RACE_MARGIN * abs(lead) or c[1] == 0.0]
+            if len(contenders) > 1:  # the flat model alone left: it is the choice
+                for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
+                                          reuse, score).items():
+                    scores[c] = scores[c] + more
+    rows = [{"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(np.concatenate(per_fold))),
+             "score_std": float(np.std([np.mean(f) for f in per_fold])),
+             "fold_scores": [float(np.mean(f)) for f in per_fold],
+             "task_scores": [float(v) for v in np.concatenate(per_fold)], "chosen": False}
+            for (k, lam), per_fold in scores.items()]
+    rows[_choice(rows)]["chosen"] = True
+    chosen = next(r for r in rows if r["chosen"])
+    return chosen["n_primitives"], chosen["residual_penalty"], rows
+
+
+def _choice(rows: list[dict]) -> int:
+    """The chosen row: the lowest mean score among the rows with the most folds, unless the flat
+    model (``lambda = 0``) is among them and within one standard error of it, paired over the
+    held-out tasks (:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`)."""
+    most = max(len(r["fold_scores"]) for r in rows)
+    complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == most]
     best = min(complete, key=lambda r: rows[r]["score"])
-    rows[best]["chosen"] = True
-    return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
+    flat = [r for r in complete if rows[r]["residual_penalty"] == 0.0]
+    if not flat or flat[0] == best:
+        return best
+    pair = -np.array([rows[flat[0]]["task_scores"], rows[best]["task_scores"]])  # higher is better there
+    return (flat[0], best)[one_standard_error_choice(pair)]
 
 
 def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
-    """The held-out scores ``{(k, lambda): [score per fold]}`` of ``candidates`` on ``folds``;
-    with ``warm``, each fold's candidates start from their predecessor's fit; with ``reuse``,
-    ``lambda = 0`` takes its predecessor's dictionary without a fit (see :func:`choose_sharing`)."""
+    """The held-out scores ``{(k, lambda): [array of per-task scores, one per fold]}`` of
+    ``candidates`` on ``folds``; with ``warm``, each fold's candidates start from their
+    predecessor's fit; with ``reuse``, ``lambda = 0`` takes the fold's last fitted candidate
+    instead of a fit of its own (its transfer, the flat learner's, does not use the dictionary)."""
     n = _count(demos_per_task)
     scores = {c: [] for c in candidates}
     for held in folds:
@@ -244,8 +316,8 @@ def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t,
         for k, lam in candidates:
             before = [c for c in fitted if c[0] == k]
             start = fitted[before[-1]] if before else None
-            if start is not None and reuse and lam == 0.0:  # the flat model: the dictionary plays no part, no fit
-                model = copy.copy(start)
+            if reuse and lam == 0.0 and fitted:  # the flat model: the dictionary plays no part, no fit
+                model = copy.copy(fitted[before[-1] if before else list(fitted)[-1]])
                 model.residual_penalty = model.residual_penalty_ = 0.0
             else:
                 start = start if warm else None
@@ -257,7 +329,7 @@ def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t,
                 model.fit(sub_mdp, _take(demos_per_task, train),
                           flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
             fitted[k, lam] = model
-            scores[k, lam].append(float(np.mean(_score(model, mdp, demos_per_task, learner.features, held, t, score))))
+            scores[k, lam].append(_score(model, mdp, demos_per_task, learner.features, held, t, score))
     return scores
 
 

@@ -34,7 +34,7 @@ __all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "arra
 
 
 #: The keys of a row of a validation table (``FactIRL.validation_``, :mod:`factirl_opt.learners.adaptive`).
-VALIDATION_KEYS = ("n_primitives", "residual_penalty", "score", "score_std", "fold_scores", "chosen")
+VALIDATION_KEYS = ("n_primitives", "residual_penalty", "score", "score_std", "fold_scores", "task_scores", "chosen")
 
 #: The kinds of learnt attributes that are not arrays, and what each holds.
 KINDS = {
@@ -111,16 +111,19 @@ def _check_validation(key: str, value: Any) -> None:
     if not isinstance(value, list) or not value:
         raise ValidationError(f"attribute {key} must be {KINDS['validation']}; got {value!r:.80}")
     for t, row in enumerate(value):
-        if not isinstance(row, dict) or sorted(row) != sorted(VALIDATION_KEYS):
+        if not isinstance(row, dict) or set(row) not in (set(VALIDATION_KEYS), set(VALIDATION_KEYS) - {"task_scores"}):
             raise ValidationError(f"attribute {key}[{t}] must be a dict with keys {list(VALIDATION_KEYS)}; got {row!r:.80}")
         check_int(row["n_primitives"], f"attribute {key}[{t}] n_primitives", minimum=1)
         _check_penalty(row["residual_penalty"], f"attribute {key}[{t}] residual_penalty")
         check_real(row["score"], f"attribute {key}[{t}] score")
         check_real(row["score_std"], f"attribute {key}[{t}] score_std", 0.0)
-        if not isinstance(row["fold_scores"], list):
-            raise ValidationError(f"attribute {key}[{t}] fold_scores must be a list of numbers; got {row['fold_scores']!r:.60}")
-        for f, v in enumerate(row["fold_scores"]):
-            check_real(v, f"attribute {key}[{t}] fold_scores[{f}]")
+        for name in ("fold_scores", "task_scores"):  # task_scores: absent in files of 0.1.0 before 2026-11-26
+            if name not in row:
+                continue
+            if not isinstance(row[name], list):
+                raise ValidationError(f"attribute {key}[{t}] {name} must be a list of numbers; got {row[name]!r:.60}")
+            for f, v in enumerate(row[name]):
+                check_real(v, f"attribute {key}[{t}] {name}[{f}]")
         if not isinstance(row["chosen"], bool):
             raise ValidationError(f"attribute {key}[{t}] chosen must be true or false; got {row['chosen']!r:.60}")
     if sum(row["chosen"] for row in value) != 1:
