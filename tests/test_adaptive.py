@@ -67,12 +67,20 @@ def _rows(flat, shared):
              "fold_scores": [float(np.mean(flat))], "task_scores": list(flat), "chosen": False}]
 
 
-def test_sharing_must_beat_the_flat_model_by_more_than_a_standard_error():
+def test_sharing_must_beat_the_flat_model_significantly():
+    """A one-sided paired t-test at SHARE_LEVEL = 0.05 over the held-out tasks: with 4 tasks the
+    mean gain must exceed t_3(0.95) = 2.353 standard errors."""
+    assert adaptive.SHARE_LEVEL == 0.05
     flat = np.array([1.0, 2.0, 3.0, 4.0])
     # the paired gains 0.1, -0.2, 0.3, 0.2: mean 0.1 < their standard error 0.108: the flat model stays
     assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])) == 1
-    # gains 0.1, 0.2, 0.3, 0.2: mean 0.2 > standard error 0.041: the sharing candidate
-    assert adaptive._choice(_rows(flat, flat - [0.1, 0.2, 0.3, 0.2])) == 0
+    # gains 0.1, 0.3, 0.3, 0.3: mean 0.25, standard error 0.05: t = 5 > 2.353: the sharing candidate
+    assert adaptive._choice(_rows(flat, flat - [0.1, 0.3, 0.3, 0.3])) == 0
+    # gains 0.0, 0.3, 0.3, 0.3: mean 0.225, standard error 0.075: t = 3 > 2.353 > 1 ...
+    assert adaptive._choice(_rows(flat, flat - [0.0, 0.3, 0.3, 0.3])) == 0
+    # ... gains -0.1, 0.3, 0.3, 0.3: mean 0.2, standard error 0.1: t = 2, beyond one standard error
+    # but not significant: the flat model stays
+    assert adaptive._choice(_rows(flat, flat - [-0.1, 0.3, 0.3, 0.3])) == 1
     # the flat model leads: it is the choice; without a flat row, the lowest mean wins
     assert adaptive._choice(_rows(flat, flat + 0.5)) == 1
     assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])[:1]) == 0

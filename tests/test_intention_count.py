@@ -54,6 +54,9 @@ def test_one_standard_error_rule_prefers_the_smaller_k_within_the_noise():
     better = np.stack([base - 3.0, base, base + 1.0])  # K=3 better on every episode
     assert one_standard_error_choice(better) == 2
     assert one_standard_error_choice(np.array([[-1.0], [-2.0]])) == 0  # one episode: no noise estimate
+    # gains 1.2, 0.8, 1.6, -0.8 (total 2.8): standard error of the total sqrt(4) * 1.052 = 2.104
+    close = np.array([[0.0, 0.0, 0.0, 0.0], [1.2, 0.8, 1.6, -0.8]])
+    assert one_standard_error_choice(close) == 1 and one_standard_error_choice(close, n_se=1.5) == 0
 
 
 @pytest.mark.parametrize("given, n, folds, match", [

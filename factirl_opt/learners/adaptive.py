@@ -17,11 +17,11 @@ policy matching is the squared policy difference).
 
 The choice (:func:`choose_sharing`). The candidate of lowest mean score leads (ties: the earlier
 candidate, i.e. more sharing); it replaces the flat model (``lambda = 0``, each task learnt
-alone) only if it beats it by more than one standard error of their paired difference over the
-held-out tasks (the one-standard-error rule, as for the number of intentions,
-:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`). Sharing has to earn
-its place: where the candidates' held-out scores are within their noise, the learner keeps what
-each task's own demonstrations say. By default
+alone) only if its gain over it, paired over the held-out tasks, is significant: more than
+``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of the gains (a one-sided paired t-test; the
+standard-error rule of :func:`~factirl_opt.learners.intention_count.one_standard_error_choice`
+with the t quantile for a multiple). Sharing has to earn its place: where the candidates'
+held-out scores are within their noise, the learner keeps what each task's own demonstrations say. By default
 the folds are a race: every candidate is scored on the first fold, only those within
 ``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``).
 
@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
+from scipy.stats import t as t_dist
 
 from .._validation import as_rng
 from ..exceptions import ConvergenceWarning, ValidationError
@@ -58,7 +59,7 @@ from ..planning import get_planner
 from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
-           "SCORES", "DEFAULT_SCORE",
+           "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL",
            "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "held_out_nll",
            "plot_validation"]
 
@@ -86,6 +87,9 @@ WARM_BUDGET = 0.5
 SCORES = ("likelihood", "fixed-beta", "objective")
 #: the score ``FactIRL.fit`` uses
 DEFAULT_SCORE = "likelihood"
+#: a sharing candidate replaces the flat model only if a one-sided paired t-test over the held-out
+#: tasks finds its gain significant at this level
+SHARE_LEVEL = 0.05
 
 
 def _count(demos: Any) -> int:
@@ -204,18 +208,19 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     entry in ``fold_scores``); the choice is among the candidates scored on every fold (the flat
     model alone, if it is the only contender left). In a race ``lambda = 0`` is not fitted when
     another candidate was fitted on the fold: its transfer, the flat learner's, takes that
-    candidate's model (whose dictionary plays no part there).
-
-    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
-    candidate and the leader's mean gain over it, paired over the held-out tasks, is at most one
-    standard error of that gain: then the flat model. ``"race-warm"`` also warm-starts along lambda: on each fold, a
-    candidate whose predecessor (the candidate before it with the same k: the next larger
-    lambda) was fitted on that fold starts from the predecessor's dictionary and coefficients,
-    with ``WARM_BUDGET * max_iter`` outer iterations (at least one; the predecessor already
-    spent ``max_iter``). Measured (results/README.md): on the ``tiny`` grid the race
+    candidate's model (whose dictionary plays no part there). ``"race-warm"`` also warm-starts
+    along lambda: on each fold, a candidate whose predecessor (the candidate before it with the
+    same k: the next larger lambda) was fitted on that fold starts from the predecessor's
+    dictionary and coefficients, with ``WARM_BUDGET * max_iter`` outer iterations (at least one;
+    the predecessor already spent ``max_iter``). Measured (results/README.md): on the ``tiny`` grid the race
     cost 19-21x one fixed fit against 26-30x for the full search, with the same choice, on the
     ``quick`` grid 11.9x against 30.3x; the warm race 16-18x on ``tiny``, but its shortened fits
     moved the scores enough to change the choice on both seeds, to pairs that transferred worse.
+
+    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
+    candidate and the leader's mean gain over it, paired over the n held-out tasks, is at most
+    ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of that gain (not significant): then the flat
+    model.
 
     Parameters
     ----------
@@ -290,8 +295,9 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
 
 def _choice(rows: list[dict]) -> int:
     """The chosen row: the lowest mean score among the rows with the most folds, unless the flat
-    model (``lambda = 0``) is among them and within one standard error of it, paired over the
-    held-out tasks (:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`)."""
+    model (``lambda = 0``) is among them and the leader's gain over it, paired over the n held-out
+    tasks, is within ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors
+    (:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`)."""
     most = max(len(r["fold_scores"]) for r in rows)
     complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == most]
     best = min(complete, key=lambda r: rows[r]["score"])
@@ -299,7 +305,8 @@ def _choice(rows: list[dict]) -> int:
     if not flat or flat[0] == best:
         return best
     pair = -np.array([rows[flat[0]]["task_scores"], rows[best]["task_scores"]])  # higher is better there
-    return (flat[0], best)[one_standard_error_choice(pair)]
+    n_se = t_dist.ppf(1.0 - SHARE_LEVEL, pair.shape[1] - 1) if pair.shape[1] > 1 else 0.0
+    return (flat[0], best)[one_standard_error_choice(pair, n_se)]
 
 
 def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):

@@ -107,21 +107,23 @@ def held_out_scores(fit: Callable[[NDArray[np.int64], int], Any],
     return out
 
 
-def one_standard_error_choice(per_episode: NDArray[np.float64]) -> int:
+def one_standard_error_choice(per_episode: NDArray[np.float64], n_se: float = 1.0) -> int:
     """Index of the smallest candidate within one standard error of the best held-out total.
 
     ``per_episode`` (m, n) holds each episode's held-out log-likelihood under each of the m
     candidates (in increasing K). With ``b`` the candidate of highest total, candidate i
-    qualifies when ``total_b - total_i <= sqrt(n) std_j(l_bj - l_ij)``, the standard error of
-    the difference of totals over episodes (Breiman et al.'s one-standard-error rule): a larger
-    K must beat a smaller one by more than the noise of the held-out sample.
+    qualifies when ``total_b - total_i <= n_se sqrt(n) std_j(l_bj - l_ij)``, ``n_se`` times the
+    standard error of the difference of totals over episodes (Breiman et al.'s one-standard-error
+    rule for ``n_se = 1``): a larger K must beat a smaller one by more than the noise of the
+    held-out sample. Any rows and columns will do: rows are candidates in order of preference,
+    columns paired held-out units (episodes, tasks).
     """
     totals = per_episode.sum(axis=1)
     b = int(np.argmax(totals))
     n = per_episode.shape[1]
     diff = per_episode[b][None, :] - per_episode
     se = np.sqrt(n) * diff.std(axis=1, ddof=1) if n > 1 else np.zeros(len(totals))
-    return int(np.flatnonzero(totals[b] - totals <= se)[0])
+    return int(np.flatnonzero(totals[b] - totals <= n_se * se)[0])
 
 
 def bic_scores(fit: Callable[[NDArray[np.int64], int], Any], log_likelihood: Callable[[Any], float],
