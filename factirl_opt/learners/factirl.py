@@ -236,6 +236,12 @@ class FactIRL(Estimator):
         include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
     transfer_residuals_ : ndarray, shape (n_new, p)
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
+    validation_ : list of dict
+        With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
+        :func:`~factirl_opt.learners.adaptive.choose_sharing`, one row per candidate
+        ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
+        ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
+        :func:`~factirl_opt.learners.adaptive.plot_validation` draws it.
 
     Notes
     -----
