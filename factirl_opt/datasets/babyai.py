@@ -8,8 +8,8 @@ the bot's demonstrations; :class:`BabyAITasks` holds them and scores learnt rewa
 
 Protocol
 --------
-- **Training**: ``n_tasks`` layouts, ``demos_per_task`` bot episodes each: the first from the
-  environment's start, the others from start states drawn uniformly among the layout's
+- **Training**: ``n_tasks`` layouts (a layout from whose start the bot would leave the model is
+  drawn again), ``demos_per_task`` bot episodes each: the first from the environment's start, the others from start states drawn uniformly among the layout's
   non-terminal states (the agent is moved there after the reset, as
   :func:`factirl_opt.adapters.minigrid.bot_demonstration` allows; a start from which the bot
   would pick up or move an object, which the model does not hold, is redrawn).
@@ -172,7 +172,12 @@ def _check_split(split: str) -> str:
 
 
 def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: float) -> tuple[list, list]:
-    """``n`` layout seeds drawn one by one (skipping ``exclude`` and refused layouts) and their models."""
+    """``n`` layout seeds drawn one by one (skipping ``exclude`` and refused layouts) and their models.
+
+    A layout is refused when it is not modelled (e.g. the agent starts in front of its target) or
+    when the bot, from the layout's start, leaves the model (it would pick up or move an object in
+    its way: GoToOpen's larger rooms have such layouts); every task's first episode is the bot's
+    from the start."""
     seeds: list[int] = []
     models: list[MiniGridModel] = []
     refused = 0
@@ -184,7 +189,8 @@ def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: fl
         try:
             model = from_minigrid(env, gamma)
             parse_goto_mission(model.mission)
-        except ValidationError:  # e.g. the agent starts in front of its target
+            bot_demonstration(env, seed=seed, gamma=gamma)
+        except ValidationError:  # e.g. the agent starts in front of its target, or the bot picks up an object
             refused += 1
             if refused > 10 * n + 100:
                 raise

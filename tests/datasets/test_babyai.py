@@ -28,3 +28,29 @@ def test_babyai_tasks_is_the_draw_of_the_experiments_world():
 def test_babyai_tasks_refuses_bad_parameters(kwargs, match):
     with pytest.raises(ValidationError, match=match):
         fo.datasets.babyai_tasks(**kwargs)
+
+
+class _Draws:
+    """An rng whose ``integers`` returns the given layout seeds in turn."""
+
+    def __init__(self, seeds):
+        self.seeds = list(seeds)
+
+    def integers(self, high):
+        return self.seeds.pop(0)
+
+
+def test_a_layout_whose_bot_leaves_the_model_from_its_start_is_refused():
+    """GoToOpen layout 315: from the start, the bot picks up an object in its way at step 6 (the
+    model holds no pick-up); the layout is skipped for the next draw instead of failing the whole
+    draw (the `sharing-babyai-large` preset's seed 1 met one)."""
+    import gymnasium
+
+    from factirl_opt.adapters.minigrid import bot_demonstration
+    from factirl_opt.datasets.babyai import _layouts
+
+    env = gymnasium.make("BabyAI-GoToOpen-v0")
+    with pytest.raises(ValidationError, match=r"step 6: the bot chose action 3 \('pickup'\)"):
+        bot_demonstration(env, seed=315, gamma=0.9)
+    seeds, models = _layouts(env, 1, _Draws([315, 1]), set(), 0.9)
+    assert seeds == [1] and len(models) == 1
