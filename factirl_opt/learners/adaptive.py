@@ -13,7 +13,8 @@ policy model with the transferred reward (policy matching: the Boltzmann policy 
 MCE: the soft-optimal policy), the policy's inverse temperature profiled out per task
 (:func:`held_out_nll`: a reward's scale is not what transfer is judged on; ``score="fixed-beta"``
 keeps the learner's ``beta``, ``score="objective"`` scores by the learner's objective, which for
-policy matching is the squared policy difference).
+policy matching is the squared policy difference; ``score="occupancy"`` compares where the
+transferred reward's optimal policy goes with where the expert went, :func:`held_out_occupancy_gap`).
 
 The choice (:func:`choose_sharing`). The candidate of lowest mean score leads (ties: the earlier
 candidate, i.e. more sharing); it replaces the flat model (``lambda = 0``, each task learnt
@@ -55,11 +56,12 @@ from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from ..mdp.tabular import TabularMDP
-from ..planning import get_planner
+from ..planning import get_planner, optimal_q
+from ..tasks.trajectories import parse_demonstrations
 from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
-           "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL",
+           "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL", "held_out_occupancy_gap",
            "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "fixed_learner", "flat_start_rewards", "held_out_nll",
            "plot_validation"]
 
@@ -83,8 +85,10 @@ RACE_MARGIN = 0.1
 WARM_BUDGET = 0.5
 #: held-out scores of :func:`choose_sharing`: the negative log-likelihood under the learner's
 #: policy model with its inverse temperature fitted per task (:func:`held_out_nll`), the same
-#: with the learner's ``beta``, or the learner's own objective
-SCORES = ("likelihood", "fixed-beta", "objective")
+#: with the learner's ``beta``, the learner's own objective, or the distance between the
+#: occupancies of the transferred reward's optimal policy and of the demonstrations
+#: (:func:`held_out_occupancy_gap`)
+SCORES = ("likelihood", "fixed-beta", "objective", "occupancy")
 #: the score ``FactIRL.fit`` uses
 DEFAULT_SCORE = "likelihood"
 #: a sharing candidate replaces the flat model only if a one-sided paired t-test over the held-out
@@ -176,17 +180,68 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
     return min(best.fun, float(np.log(log_pi.shape[1]) * weights.sum()))
 
 
+def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: str = "auto") -> float:
+    """Where the reward's optimal policy goes against where the demonstrations went.
+
+    The total variation ``sum_(s,a) |rho_pi(s, a) - rho_hat(s, a)|`` between two discounted
+    state-action occupancies over the demonstrations' horizon: ``rho_hat`` of the
+    demonstrations themselves (``sum_t gamma^t 1[(s_t, a_t) = (s, a)]``, averaged over the
+    episodes), and ``rho_pi`` of the optimal (greedy) policy of ``rewards`` started from each
+    episode's first state and run for as many steps as the episode has (``d_(t+1) = P^T (d_t *
+    pi)``, through the model), averaged over the episodes. It is what the expert's value for any reward ``r`` bounds: ``|V_hat(r) - V_pi(r)| <=
+    max|r| * gap``. Unlike a likelihood it does not reward a model for imitating how the expert
+    moves between equally good actions, only for going where the expert goes (BabyAI: the bot's
+    tie-breaking, shared by every mission, improves the held-out likelihood of a shared model
+    whose transferred rewards reach the target less often; ``results/which-learner/README.md``).
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    demos : array of int, shape (n_demos, horizon, 2), or list of (L_j, 2) episodes
+    rewards : array, shape (S, A)
+    planner : str, default="auto"
+
+    Returns
+    -------
+    float
+        In ``[0, 2 (1 - gamma^L) / (1 - gamma)]``, L the longest episode; 0 when the
+        demonstrations follow the greedy policy through a deterministic model.
+    """
+    episodes = parse_demonstrations([demos], mdp.n_states, mdp.n_actions)[0].episodes()
+    S, A, gamma = mdp.n_states, mdp.n_actions, mdp.gamma
+    _, greedy = optimal_q(mdp, np.asarray(rewards, dtype=float)[None], planner=planner)
+    pi = np.zeros((S, A))
+    pi[np.arange(S), np.asarray(greedy).reshape(S)] = 1.0
+    P = mdp.csr()
+    expert, learnt = np.zeros((S, A)), np.zeros((S, A))
+    for e in episodes:  # each episode's start, for its own length
+        np.add.at(expert, (e[:, 0], e[:, 1]), gamma ** np.arange(len(e)))
+        d = np.zeros(S)
+        d[e[0, 0]] = 1.0
+        for t in range(len(e)):
+            x = d[:, None] * pi
+            learnt += gamma ** t * x
+            d = P.T @ x.reshape(-1)
+    learnt /= len(episodes)
+    expert /= len(episodes)
+    return float(np.abs(learnt - expert).sum())
+
+
 def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], t: int,
            score: str = DEFAULT_SCORE) -> np.ndarray:
     """Held-out score of tasks ``idx``: transfer from their first t demonstrations, then, on the
-    others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not) or the
-    learner's objective (``"objective"``); one value per task."""
+    others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not), the
+    learner's objective (``"objective"``) or :func:`held_out_occupancy_gap` (``"occupancy"``);
+    one value per task."""
     sub_mdp, sub_features = _subset(mdp, features, idx)
     first = [demos[i][:t] for i in idx]
     model.transfer(sub_mdp, first, features=sub_features if per_task_features(features) else None)
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
+        if score == "occupancy":
+            out[j] = held_out_occupancy_gap(_task_mdp(mdp, i), demos[i][t:], rewards[j], model.planner)
+            continue
         if score != "objective":
             out[j] = held_out_nll(_task_mdp(mdp, i), demos[i][t:], rewards[j], model, temper=score == "likelihood")
             continue
@@ -232,7 +287,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
     search : {"full", "race", "race-warm"}
-    score : {"likelihood", "fixed-beta", "objective"}
+    score : {"likelihood", "fixed-beta", "objective", "occupancy"}
         The held-out score (:data:`SCORES`; module docstring).
 
     Returns
