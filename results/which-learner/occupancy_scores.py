@@ -1,42 +1,22 @@
 """Diagnostic: per candidate and held-out task, tempered NLL and feature-expectation distance of the greedy
 policy (from the held-out demos' start states, over their horizon) against the demos'; plus test deviation."""
-import sys, json, warnings
+import json
 import numpy as np
-import scipy.sparse as sp
 import factirl_opt as fo
 from factirl_opt.learners import adaptive
 from factirl_opt.tasks.task_set import per_task_features
-from factirl_opt.lab.experiments import PRESETS, make_ground_truth
-from factirl_opt.lab.experiments.learner_solvers import factorial_options
-from factirl_opt.lab.experiments.lineup import RunContext
-from factirl_opt.lab.experiments.runner import RunSpec
-from factirl_opt._validation import as_rng
-warnings.simplefilter("ignore")
+from _point import held_out_transfers, setup
 
-preset = PRESETS[sys.argv[1]]; n = int(sys.argv[2]); seed = int(sys.argv[3]); out_path = sys.argv[4]
-gt = make_ground_truth(preset, n, preset.default_demos, seed)
-if hasattr(gt, "features") and callable(gt.features):      # BabyAI
-    Ftr, Fte = gt.features("train"), gt.features("test")
-elif gt.task_maps:
-    Ftr, Fte = list(gt.task_maps["train"].features), list(gt.task_maps["test"].features)
-else:
-    Ftr, Fte = gt.features, None
-mdp, demos = gt.mdps("train"), gt.demos("train") if hasattr(gt, "demos") and callable(gt.demos) else gt.train_demos
-test_demos = gt.demos("test") if callable(getattr(gt, "demos", None)) else gt.test_demos
-ctx = RunContext(gt, RunSpec(n, preset.default_demos, seed))
-kw = factorial_options(preset, preset.solvers, adaptive=True, features=True)
-flat = fo.GradIRL(beta=preset.beta, features=Ftr, max_iter=preset.flat_max_iter, solver=kw.get("flat_solver", "armijo"),
-                  planner=preset.planner).fit(mdp, demos)
-learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
-folds = np.array_split(as_rng(learner.rng).permutation(n), 3)
-p = adaptive._reward_dimension(learner, mdp)
-k_max = min(p, min(n - len(f) for f in folds))
-cands = adaptive._candidates("auto", "auto", k_max, False)
+P = setup()
+preset, n, out_path, gt, Ftr, Fte, mdp, demos = P.preset, P.n, P.out_path, P.gt, P.Ftr, P.Fte, P.mdp, P.demos
+test_demos, flat, learner, folds, cands = P.test_demos, P.flat, P.learner, P.folds, P.cands
 t = 1
 
 def feat(i):
-    F = Ftr[i] if per_task_features(Ftr) else Ftr
-    return np.asarray(F)
+    """Task i's features (None for tabular rewards: the state-action indicators)."""
+    if Ftr is None:
+        return None
+    return np.asarray(Ftr[i] if per_task_features(Ftr) else Ftr)
 
 def fe_distance(tm, F, R, dem):
     """|| Phi^T (occupancy of greedy pi from demo starts) - Phi^T (empirical discounted occupancy) ||_2 / horizon-normaliser."""
@@ -59,26 +39,21 @@ def fe_distance(tm, F, R, dem):
         x = d[:, None] * pi
         occ_pi += g ** k * x
         d = P.T @ x.reshape(-1)
-    Fs = F if F.shape[0] == S * A else np.repeat(F, A, axis=0) if F.shape[0] == S else F
     diff = (occ_pi - occ_e).reshape(-1)
+    if F is None:
+        return float(np.linalg.norm(diff)), float(np.abs(diff).sum())
+    Fs = F if F.shape[0] == S * A else np.repeat(F, A, axis=0)
     return float(np.linalg.norm(Fs.T @ diff)), float(np.abs(diff).sum())
 
 res = {str(c): {"temp": {}, "fe": {}, "tv": {}} for c in cands}
-for fi, held in enumerate(folds):
-    train = np.setdiff1d(np.arange(n), held)
-    sub_mdp, sub_F = adaptive._subset(mdp, Ftr, train)
-    for (k, lam) in cands:
-        m = adaptive.fixed_learner(learner, k, lam); m.features = sub_F
-        m.fit(sub_mdp, adaptive._take(demos, train), flat_rewards=adaptive._take(flat.rewards_, train))
-        hm, hF = adaptive._subset(mdp, Ftr, held)
-        m.transfer(hm, [demos[i][:t] for i in held], features=hF if per_task_features(Ftr) else None)
-        for j, i in enumerate(held):
-            tm = adaptive._task_mdp(mdp, i)
-            R = np.asarray(m.transfer_rewards_[j])
-            res[str((k, lam))]["temp"][int(i)] = adaptive.held_out_nll(tm, demos[i][t:], R, m)
-            fe, tv = fe_distance(tm, feat(i), R, demos[i][t:])
-            res[str((k, lam))]["fe"][int(i)] = fe; res[str((k, lam))]["tv"][int(i)] = tv
-        print(fi, (k, lam), {s: round(np.mean([res[str((k, lam))][s][int(i)] for i in held]), 4) for s in ("temp", "fe", "tv")}, flush=True)
+for fi, (k, lam), m, held in held_out_transfers(P, t):
+    for j, i in enumerate(held):
+        tm = adaptive._task_mdp(mdp, i)
+        R = np.asarray(m.transfer_rewards_[j])
+        res[str((k, lam))]["temp"][int(i)] = adaptive.held_out_nll(tm, demos[i][t:], R, m)
+        fe, tv = fe_distance(tm, feat(i), R, demos[i][t:])
+        res[str((k, lam))]["fe"][int(i)] = fe; res[str((k, lam))]["tv"][int(i)] = tv
+    print(fi, (k, lam), {s: round(np.mean([res[str((k, lam))][s][int(i)] for i in held]), 4) for s in ("temp", "fe", "tv")}, flush=True)
 json.dump(res, open(out_path, "w"))
 for (k, lam) in cands:
     m = adaptive.fixed_learner(learner, k, lam)

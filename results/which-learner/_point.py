@@ -1,0 +1,58 @@
+"""One "which learner when" point for the diagnostics (`scores.py`, `occupancy_scores.py`): the ground
+truth, the flat fit of the PCA start, the adaptive learner of the runner's line-up, its folds and
+candidates, from the command line ``PRESET N_TASKS SEED OUT.json``."""
+import sys
+import types
+import warnings
+
+import numpy as np
+
+import factirl_opt as fo
+from factirl_opt._validation import as_rng
+from factirl_opt.lab.experiments import PRESETS, make_ground_truth
+from factirl_opt.lab.experiments.learner_solvers import factorial_options
+from factirl_opt.lab.experiments.lineup import RunContext
+from factirl_opt.lab.experiments.runner import RunSpec
+from factirl_opt.learners import adaptive
+
+
+def setup(argv=None):
+    warnings.simplefilter("ignore")
+    argv = sys.argv[1:] if argv is None else argv
+    preset, n, seed, out_path = PRESETS[argv[0]], int(argv[1]), int(argv[2]), argv[3]
+    gt = make_ground_truth(preset, n, preset.default_demos, seed)
+    if preset.world == "babyai":
+        Ftr, Fte, demos, test_demos = gt.features("train"), gt.features("test"), gt.demos("train"), gt.demos("test")
+    elif gt.task_maps:  # a map per task
+        Ftr, Fte = list(gt.task_maps["train"].features), list(gt.task_maps["test"].features)
+        demos, test_demos = gt.train_demos, gt.test_demos
+    else:  # one map: Objectworld's features, or the grid's tabular rewards
+        Ftr, Fte, demos, test_demos = (None if preset.world == "grid" else gt.features), None, gt.train_demos, gt.test_demos
+    mdp = gt.mdps("train")
+    ctx = RunContext(gt, RunSpec(n, preset.default_demos, seed))
+    kw = factorial_options(preset, preset.solvers, adaptive=True, features=Ftr is not None)
+    flat = fo.GradIRL(beta=preset.beta, features=Ftr, max_iter=preset.flat_max_iter,
+                      solver=kw.get("flat_solver", "armijo"), planner=preset.planner).fit(mdp, demos)
+    learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
+    folds = np.array_split(as_rng(learner.rng).permutation(n), 3)
+    k_max = min(adaptive._reward_dimension(learner, mdp), min(n - len(f) for f in folds))
+    return types.SimpleNamespace(preset=preset, n=n, out_path=out_path, gt=gt, Ftr=Ftr, Fte=Fte, mdp=mdp, demos=demos,
+                                 test_demos=test_demos, flat=flat, learner=learner, folds=folds,
+                                 cands=adaptive._candidates("auto", "auto", k_max, False))
+
+
+def held_out_transfers(P, t=1):
+    """For each fold and candidate: ``(fold, (k, lambda), model, held)``, the model fitted on the other
+    folds' tasks and transferred to the held-out tasks from their first ``t`` demonstrations."""
+    from factirl_opt.tasks.task_set import per_task_features
+
+    for fi, held in enumerate(P.folds):
+        train = np.setdiff1d(np.arange(P.n), held)
+        sub_mdp, sub_F = adaptive._subset(P.mdp, P.Ftr, train)
+        for k, lam in P.cands:
+            m = adaptive.fixed_learner(P.learner, k, lam)
+            m.features = sub_F
+            m.fit(sub_mdp, adaptive._take(P.demos, train), flat_rewards=adaptive._take(P.flat.rewards_, train))
+            hm, hF = adaptive._subset(P.mdp, P.Ftr, held)
+            m.transfer(hm, [P.demos[i][:t] for i in held], features=hF if per_task_features(P.Ftr) else None)
+            yield fi, (k, lam), m, held
