@@ -5,9 +5,11 @@ How much to share: the number of primitives and the residual penalty, chosen by 
 ``FactIRL(n_primitives="auto", residual_penalty="auto")`` chooses k and the residual penalty
 lambda of ``R_i = Phi_i (D h_i + delta_i)`` by K-fold validation over tasks: learn a dictionary on
 some tasks, transfer it to each held-out task from one demonstration, and score the transferred
-reward on that task's other demonstrations. ``validation_`` holds the table (one row per
-candidate) and ``plot_validation`` draws it: lambda = inf is the paper's factorial model, 0 the
-flat one.
+reward on that task's other demonstrations (their likelihood under the learner's policy
+model, its temperature fitted per task). A candidate that shares replaces the flat model only if
+its gain, paired over the held-out tasks, is significant. ``validation_`` holds the table (one
+row per candidate) and ``plot_validation`` draws it: lambda = inf is the paper's factorial model,
+0 the flat one.
 """
 
 import matplotlib.pyplot as plt
