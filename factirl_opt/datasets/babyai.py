@@ -9,8 +9,8 @@ the bot's demonstrations; :class:`BabyAITasks` holds them and scores learnt rewa
 Protocol
 --------
 - **Training**: ``n_tasks`` layouts (a layout from whose start the bot would leave the model is
-  drawn again), ``demos_per_task`` bot episodes each: the first from the environment's start, the others from start states drawn uniformly among the layout's
-  non-terminal states (the agent is moved there after the reset, as
+  drawn again), ``demos_per_task`` bot episodes each: the first from the environment's start,
+  the others from start states drawn uniformly among the layout's non-terminal states (the agent is moved there after the reset, as
   :func:`factirl_opt.adapters.minigrid.bot_demonstration` allows; a start from which the bot
   would pick up or move an object, which the model does not hold, is redrawn).
 - **Test**: ``n_test_tasks`` further layouts (seeds never used in training) with their own
@@ -171,15 +171,16 @@ def _check_split(split: str) -> str:
     return split
 
 
-def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: float) -> tuple[list, list]:
-    """``n`` layout seeds drawn one by one (skipping ``exclude`` and refused layouts) and their models.
+def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: float) -> tuple[list, list, list]:
+    """``n`` layout seeds drawn one by one (skipping ``exclude`` and refused layouts), their models,
+    and the bot's episode from each layout's start (:func:`bot_demonstration`).
 
     A layout is refused when it is not modelled (e.g. the agent starts in front of its target) or
     when the bot, from the layout's start, leaves the model (it would pick up or move an object in
-    its way: GoToOpen's larger rooms have such layouts); every task's first episode is the bot's
-    from the start."""
+    its way: GoToOpen's larger rooms have such layouts)."""
     seeds: list[int] = []
     models: list[MiniGridModel] = []
+    firsts: list = []
     refused = 0
     while len(seeds) < n:
         seed = int(rng.integers(SEED_RANGE))
@@ -189,7 +190,7 @@ def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: fl
         try:
             model = from_minigrid(env, gamma)
             parse_goto_mission(model.mission)
-            bot_demonstration(env, seed=seed, gamma=gamma)
+            first = bot_demonstration(env, seed=seed, gamma=gamma)
         except ValidationError:  # e.g. the agent starts in front of its target, or the bot picks up an object
             refused += 1
             if refused > 10 * n + 100:
@@ -197,19 +198,19 @@ def _layouts(env: Any, n: int, rng: np.random.Generator, exclude: set, gamma: fl
             continue
         seeds.append(seed)
         models.append(model)
-    return seeds, models
+        firsts.append(first)
+    return seeds, models, firsts
 
 
-def _bot_episodes(env: Any, seed: int, model: MiniGridModel, m: int, rng: np.random.Generator, gamma: float,
-                  from_start: bool) -> tuple[list, bool]:
+def _bot_episodes(env: Any, seed: int, model: MiniGridModel, first: Any, m: int, rng: np.random.Generator,
+                  gamma: float, from_start: bool) -> tuple[list, bool]:
     """``m`` bot episodes in a layout, and whether the bot succeeds from the layout's start.
 
-    With ``from_start`` the first episode is the one from the start, the others from uniform
+    With ``from_start`` the first episode is ``first``, the bot's from the start, the others from uniform
     non-terminal starts; without, every episode starts from a uniform non-terminal state
     other than the layout's start. A start from which the bot leaves the model (it would pick
     up an object in its way) is redrawn.
     """
-    first = bot_demonstration(env, seed=seed, gamma=gamma)
     episodes = [first.demonstration] if from_start else []
     candidates = np.flatnonzero(~model.terminal)
     if not from_start:
@@ -266,15 +267,17 @@ def babyai_tasks(env_id: str = "BabyAI-GoToLocal-v0", n_tasks: int = 4, demos_pe
     require_minigrid("the BabyAI tasks")
     env = importlib.import_module("gymnasium").make(env_id)
     s_test, s_train, s_train_starts, s_learn, s_test_starts = np.random.SeedSequence(seed).spawn(N_STREAMS)
-    test_seeds, test_models = _layouts(env, n_test_tasks, np.random.default_rng(s_test), set(), gamma)
-    train_seeds, train_models = _layouts(env, n_tasks, np.random.default_rng(s_train), set(test_seeds), gamma)
+    test_seeds, test_models, test_firsts = _layouts(env, n_test_tasks, np.random.default_rng(s_test), set(), gamma)
+    train_seeds, train_models, train_firsts = _layouts(env, n_tasks, np.random.default_rng(s_train), set(test_seeds),
+                                                       gamma)
     demos: dict = {"train": [], "test": []}
     bot: dict = {"train": [], "test": []}
-    for split, seeds, models, m, s_starts in (("train", train_seeds, train_models, demos_per_task, s_train_starts),
-                                              ("test", test_seeds, test_models, 1, s_test_starts)):
+    for split, seeds, models, firsts, m, s_starts in (
+            ("train", train_seeds, train_models, train_firsts, demos_per_task, s_train_starts),
+            ("test", test_seeds, test_models, test_firsts, 1, s_test_starts)):
         starts = np.random.default_rng(s_starts)
-        for layout, model in zip(seeds, models):
-            episodes, ok = _bot_episodes(env, layout, model, m, starts, gamma, from_start=split == "train")
+        for layout, model, first in zip(seeds, models, firsts):
+            episodes, ok = _bot_episodes(env, layout, model, first, m, starts, gamma, from_start=split == "train")
             demos[split].append(episodes)
             bot[split].append(ok)
     return BabyAITasks(env, dict(train=train_seeds, test=test_seeds), dict(train=train_models, test=test_models),

@@ -52,5 +52,6 @@ def test_a_layout_whose_bot_leaves_the_model_from_its_start_is_refused():
     env = gymnasium.make("BabyAI-GoToOpen-v0")
     with pytest.raises(ValidationError, match=r"step 6: the bot chose action 3 \('pickup'\)"):
         bot_demonstration(env, seed=315, gamma=0.9)
-    seeds, models = _layouts(env, 1, _Draws([315, 1]), set(), 0.9)
+    seeds, models, firsts = _layouts(env, 1, _Draws([315, 1]), set(), 0.9)
     assert seeds == [1] and len(models) == 1
+    np.testing.assert_array_equal(firsts[0].demonstration, bot_demonstration(env, seed=1, gamma=0.9).demonstration)
