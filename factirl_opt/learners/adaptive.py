@@ -22,9 +22,9 @@ alone) only if its gain over it, paired over the held-out tasks, is significant:
 ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of the gains (a one-sided paired t-test; the
 standard-error rule of :func:`~factirl_opt.learners.intention_count.one_standard_error_choice`
 with the t quantile for a multiple). Sharing has to earn its place: where the candidates'
-held-out scores are within their noise, the learner keeps what each task's own demonstrations say. By default
-the folds are a race: every candidate is scored on the first fold, only those within
-``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``).
+held-out scores are within their noise, the learner keeps what each task's own demonstrations
+say. By default the folds are a race: every candidate is scored on the first fold, only those
+within ``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``).
 
 Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
 flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
@@ -188,11 +188,12 @@ def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: st
     demonstrations themselves (``sum_t gamma^t 1[(s_t, a_t) = (s, a)]``, averaged over the
     episodes), and ``rho_pi`` of the optimal (greedy) policy of ``rewards`` started from each
     episode's first state and run for as many steps as the episode has (``d_(t+1) = P^T (d_t *
-    pi)``, through the model), averaged over the episodes. It is what the expert's value for any reward ``r`` bounds: ``|V_hat(r) - V_pi(r)| <=
-    max|r| * gap``. Unlike a likelihood it does not reward a model for imitating how the expert
-    moves between equally good actions, only for going where the expert goes (BabyAI: the bot's
-    tie-breaking, shared by every mission, improves the held-out likelihood of a shared model
-    whose transferred rewards reach the target less often; ``results/which-learner/README.md``).
+    pi)``, through the model), averaged over the episodes. It bounds the difference of values for
+    any reward ``r``: ``|V_hat(r) - V_pi(r)| <= max|r| * gap``. Unlike a likelihood it does not
+    reward a model for imitating how the expert moves between equally good actions, only for
+    going where the expert goes (BabyAI: the bot's tie-breaking, shared by every mission,
+    improves the held-out likelihood of a shared model whose transferred rewards reach the target
+    less often; ``results/which-learner/README.md``).
 
     Parameters
     ----------
@@ -343,8 +344,8 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
              "fold_scores": [float(np.mean(f)) for f in per_fold],
              "task_scores": [float(v) for v in np.concatenate(per_fold)], "chosen": False}
             for (k, lam), per_fold in scores.items()]
-    rows[_choice(rows)]["chosen"] = True
-    chosen = next(r for r in rows if r["chosen"])
+    chosen = rows[_choice(rows)]
+    chosen["chosen"] = True
     return chosen["n_primitives"], chosen["residual_penalty"], rows
 
 
