@@ -240,14 +240,14 @@ def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int], 
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
+        task_mdp, rest = _task_mdp(mdp, i), demos[i][t:]
         if score == "occupancy":
-            out[j] = held_out_occupancy_gap(_task_mdp(mdp, i), demos[i][t:], rewards[j], model.planner)
-            continue
-        if score != "objective":
-            out[j] = held_out_nll(_task_mdp(mdp, i), demos[i][t:], rewards[j], model, temper=score == "likelihood")
-            continue
-        obj = make_objective(_task_mdp(mdp, i), [demos[i][t:]], model.beta, model.objective, model.planner)
-        out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
+            out[j] = held_out_occupancy_gap(task_mdp, rest, rewards[j], model.planner)
+        elif score == "objective":
+            obj = make_objective(task_mdp, [rest], model.beta, model.objective, model.planner)
+            out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
+        else:
+            out[j] = held_out_nll(task_mdp, rest, rewards[j], model, temper=score == "likelihood")
     return out
 
 
@@ -335,7 +335,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
             lead = min(np.mean(v[0]) for v in scores.values())
             contenders = [c for c in candidates
                           if np.mean(scores[c][0]) <= lead + RACE_MARGIN * abs(lead) or c[1] == 0.0]
-            if len(contenders) > 1:  # the flat model alone left: it is the choice
+            if len(contenders) > 1:  # else the flat model alone is left: it is the choice, scored on one fold
                 for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
                                           reuse, score).items():
                     scores[c] = scores[c] + more
