@@ -40,7 +40,10 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
     pairs = [(r["n_primitives"], r["residual_penalty"]) for r in rows]
     assert len(set(pairs)) == len(pairs)
     # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
-    assert sorted(p for p in pairs if p[1] > 0) == sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
+    grid = sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
+    assert sorted(p for p in pairs if p[1] > 0 and p[0] in adaptive.K_CANDIDATES) == grid
+    # and k = 3 only if the bisection of k ran, at the chosen lambda, around a chosen k of 2 or 4
+    assert [p for p in pairs if p[0] not in adaptive.K_CANDIDATES] in ([], [(3, auto.residual_penalty_)])
     assert [p for p in pairs if p[1] == 0.0] == [(1, 0.0)]
     # the default search is a race: the candidates far behind on the first fold are not scored on the
     # others; the flat model always is (unless it is the only contender left: then it is the choice)
@@ -88,6 +91,39 @@ def test_sharing_must_beat_the_flat_model_significantly():
     rows = _rows(flat, flat - 5.0)
     rows[1]["fold_scores"] = rows[1]["fold_scores"] * 2
     assert adaptive._choice(rows) == 1
+
+
+def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkeypatch):
+    """After the race over K_CANDIDATES, k is refined between the chosen k and its nearest tried
+    neighbours, at the chosen lambda, scored on every fold, while the choice moves."""
+    mdp, _, demos = data
+    noise = np.random.default_rng(0).normal(scale=0.01, size=30)
+
+    def run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
+        def one(k, lam, held):
+            base = 3.0 if lam == 0.0 else 1.0 + (k - 6) ** 2 / 100 + (0.0 if lam == 1.0 else 0.5)
+            return base + noise[held]
+        return {(k, lam): [one(k, lam, held) for held in folds] for k, lam in candidates}
+
+    monkeypatch.setattr(adaptive, "_run_folds", run_folds)
+    learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
+    k, lam, rows = adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])
+    assert (k, lam) == (6, 1.0)
+    refined = [(r["n_primitives"], r["residual_penalty"]) for r in rows if r["n_primitives"] not in adaptive.K_CANDIDATES]
+    assert refined == [(3, 1.0), (6, 1.0), (5, 1.0), (7, 1.0)]  # 4 -> {3, 6}; 6 -> {5, 7}; 6 stays: the end
+    assert all(len(r["fold_scores"]) == 3 for r in rows if (r["n_primitives"], r["residual_penalty"]) in refined)
+    # a fixed k is not refined
+    learner = fo.FactIRL(rng=0, n_primitives=4, residual_penalty="auto")
+    assert adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])[:2] == (4, 1.0)
+
+
+def test_the_bisection_steps_between_tried_numbers_of_primitives():
+    assert adaptive._between(8, [1, 2, 4, 8, 16], 67) == [6, 12]
+    assert adaptive._between(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]
+    assert adaptive._between(4, [1, 2, 4, 8], 5) == [3]          # 6 is beyond k_max
+    assert adaptive._between(16, [1, 2, 4, 8, 16], 20) == [12]   # never beyond the tried range
+    assert adaptive._between(1, [1, 2], 5) == []
+    assert adaptive._between(5, [4, 5, 6], 9) == []
 
 
 def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
