@@ -1,0 +1,27 @@
+"""Some points of a which-learner preset (``sharing-grid`` by default), computed and sealed as the runner
+does, into a runs/ directory that ``factirl-opt bench which-learner`` and ``table.py`` read:
+
+    python results/which-learner/points.py RUNS_DIR --tasks 5 20 --seeds 0 1 2
+    python results/which-learner/points.py RUNS_DIR --preset sharing-babyai --tasks 30 --seeds 1 2
+
+(the bench runs every point of a preset, the largest first; this runs the ones asked for).
+"""
+import argparse
+
+from factirl_opt.lab.experiments import PRESETS, store
+from factirl_opt.lab.experiments.learners import get_lineup
+from factirl_opt.lab.experiments.runner import RunSpec, run_one
+
+parser = argparse.ArgumentParser()
+parser.add_argument("runs_dir")
+parser.add_argument("--tasks", type=int, nargs="+", required=True)
+parser.add_argument("--seeds", type=int, nargs="+", required=True)
+parser.add_argument("--preset", default="sharing-grid")
+args = parser.parse_args()
+preset = PRESETS[args.preset]
+expected = store.expected_provenance(preset, get_lineup(preset.lineup))
+for n in args.tasks:
+    for s in args.seeds:
+        rec = run_one(preset, RunSpec(n, preset.default_demos, s, preset.solvers))
+        store.write_record(args.runs_dir, store.seal(rec, expected, f"{preset.name}-{n}-seed{s}"))
+        print("done", rec["key"], flush=True)
