@@ -7,6 +7,7 @@ does, into a runs/ directory that ``factirl-opt bench which-learner`` and ``tabl
 (the bench runs every point of a preset, the largest first; this runs the ones asked for).
 """
 import argparse
+import os
 
 from factirl_opt.lab.experiments import PRESETS, store
 from factirl_opt.lab.experiments.learners import get_lineup
@@ -18,6 +19,7 @@ parser.add_argument("--tasks", type=int, nargs="+", required=True)
 parser.add_argument("--seeds", type=int, nargs="+", required=True)
 parser.add_argument("--preset", default="sharing-grid")
 args = parser.parse_args()
+os.makedirs(args.runs_dir, exist_ok=True)  # before the runs: a record is never computed and then lost
 preset = PRESETS[args.preset]
 expected = store.expected_provenance(preset, get_lineup(preset.lineup))
 for n in args.tasks:
