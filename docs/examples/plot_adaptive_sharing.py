@@ -7,7 +7,8 @@ lambda of ``R_i = Phi_i (D h_i + delta_i)`` by K-fold validation over tasks: lea
 some tasks, transfer it to each held-out task from one demonstration, and score the transferred
 reward on that task's other demonstrations (their likelihood under the learner's policy
 model, its temperature fitted per task). A candidate that shares replaces the flat model only if
-its gain, paired over the held-out tasks, is significant. ``validation_`` holds the table (one
+its gain, paired over the held-out tasks, is significant; k is then bisected around a chosen
+shared candidate. ``validation_`` holds the table (one
 row per candidate) and ``plot_validation`` draws it: lambda = inf is the paper's factorial model,
 0 the flat one.
 """
