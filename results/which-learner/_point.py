@@ -56,3 +56,13 @@ def held_out_transfers(P, t=1):
             hm, hF = adaptive._subset(P.mdp, P.Ftr, held)
             m.transfer(hm, [P.demos[i][:t] for i in held], features=hF if per_task_features(P.Ftr) else None)
             yield fi, (k, lam), m, held
+
+
+def test_deviation(P, k, lam):
+    """Mean test deviation of the candidate ``(k, lambda)`` fitted on all the point's training tasks
+    (from the flat start) and transferred to its test tasks from their one demonstration."""
+    m = adaptive.fixed_learner(P.learner, k, lam)
+    m.fit(P.mdp, P.demos, flat_rewards=P.flat.rewards_)
+    m.transfer(P.gt.mdps("test"), P.test_demos, features=P.Fte)
+    return float(np.mean(fo.deviation(P.gt.mdps("test"), P.gt.rewards("test"), m.transfer_rewards_,
+                                      planner=P.preset.planner)))

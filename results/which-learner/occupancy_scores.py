@@ -5,7 +5,7 @@ import numpy as np
 import factirl_opt as fo
 from factirl_opt.learners import adaptive
 from factirl_opt.tasks.task_set import per_task_features
-from _point import held_out_transfers, setup
+from _point import held_out_transfers, setup, test_deviation
 
 P = setup()
 preset, n, out_path, gt, Ftr, Fte, mdp, demos = P.preset, P.n, P.out_path, P.gt, P.Ftr, P.Fte, P.mdp, P.demos
@@ -56,10 +56,7 @@ for fi, (k, lam), m, held in held_out_transfers(P, t):
     print(fi, (k, lam), {s: round(np.mean([res[str((k, lam))][s][int(i)] for i in held]), 4) for s in ("temp", "fe", "tv")}, flush=True)
 json.dump(res, open(out_path, "w"))
 for (k, lam) in cands:
-    m = adaptive.fixed_learner(learner, k, lam)
-    m.fit(mdp, demos, flat_rewards=flat.rewards_)
-    m.transfer(gt.mdps("test"), test_demos, features=Fte)
-    dev = float(np.mean(fo.deviation(gt.mdps("test"), gt.rewards("test"), m.transfer_rewards_, planner=preset.planner)))
+    dev = test_deviation(P, k, lam)
     res[str((k, lam))]["test"] = dev
     print("test", (k, lam), dev, {s: round(np.mean(list(res[str((k, lam))][s].values())), 4) for s in ("temp", "fe", "tv")}, flush=True)
     json.dump(res, open(out_path, "w"))

@@ -4,13 +4,11 @@ import json
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
-import factirl_opt as fo
 from factirl_opt.learners import adaptive
 from factirl_opt.learners.em import log_policies
 from factirl_opt.planning import get_planner
 from factirl_opt.tasks.demonstrations import empirical_statistics
-from factirl_opt.tasks.task_set import per_task_features
-from _point import held_out_transfers, setup
+from _point import held_out_transfers, setup, test_deviation
 
 P = setup()
 preset, n, out_path, gt, Ftr, Fte, mdp, demos = P.preset, P.n, P.out_path, P.gt, P.Ftr, P.Fte, P.mdp, P.demos
@@ -35,10 +33,7 @@ for fi, (k, lam), m, held in held_out_transfers(P, t):
         res[str((k, lam))]["agree"][int(i)] = float(-np.sum(w * greedy / greedy.sum(axis=1, keepdims=True)))
     print(fi, (k, lam), {s: np.mean([res[str((k, lam))][s][int(i)] for i in held]) for s in ("raw", "temp", "agree")}, flush=True)
 for (k, lam) in cands:
-    m = adaptive.fixed_learner(learner, k, lam)
-    m.fit(mdp, demos, flat_rewards=flat.rewards_)
-    m.transfer(gt.mdps("test"), P.test_demos, features=Fte)
-    dev = float(np.mean(fo.deviation(gt.mdps("test"), gt.rewards("test"), m.transfer_rewards_, planner=preset.planner)))
+    dev = test_deviation(P, k, lam)
     res[str((k, lam))]["test"] = dev
     print("test", (k, lam), dev, {s: np.mean(list(res[str((k, lam))][s].values())) for s in ("raw", "temp", "agree")}, flush=True)
     json.dump(res, open(out_path, "w"))
