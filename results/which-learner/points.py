@@ -4,6 +4,8 @@ does, into a runs/ directory that ``factirl-opt bench which-learner`` and ``tabl
     python results/which-learner/points.py RUNS_DIR --tasks 5 20 --seeds 0 1 2
     python results/which-learner/points.py RUNS_DIR --preset sharing-babyai --tasks 30 --seeds 1 2
 
+``--folds K`` sets ``adaptive.N_FOLDS`` (the bench's code folds over tasks 3 times) for a diagnostic: such
+records are not the bench's and do not belong in ``runs/``.
 (the bench runs every point of a preset, the largest first; this runs the ones asked for).
 """
 import argparse
@@ -18,7 +20,11 @@ parser.add_argument("runs_dir")
 parser.add_argument("--tasks", type=int, nargs="+", required=True)
 parser.add_argument("--seeds", type=int, nargs="+", required=True)
 parser.add_argument("--preset", default="sharing-grid")
+parser.add_argument("--folds", type=int, default=None, help="override adaptive.N_FOLDS (a diagnostic)")
 args = parser.parse_args()
+if args.folds is not None:
+    from factirl_opt.learners import adaptive
+    adaptive.N_FOLDS = args.folds
 os.makedirs(args.runs_dir, exist_ok=True)  # before the runs: a record is never computed and then lost
 preset = PRESETS[args.preset]
 expected = store.expected_provenance(preset, get_lineup(preset.lineup))
