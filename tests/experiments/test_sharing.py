@@ -2,14 +2,17 @@
 (k and the residual penalty chosen by validation), their presets, claims and benchmark."""
 
 import dataclasses
+import glob
 import json
 import math
+import os
 
 import numpy as np
 import pytest
 
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.lab import bench
+from factirl_opt.lab.benchmarks.which_learner import benchmark_verdicts, sharing_table
 from factirl_opt.lab.experiments import PRESETS, get_lineup, make_ground_truth, run_one, run_sweep
 from factirl_opt.lab.experiments.claims import SHARING_MARGINS, evaluate_claims, sharing_verdicts
 from factirl_opt.lab.experiments.learner_names import (ADAPTIVE, ADAPTIVE_FEATURES, FACTORIAL, FACTORIAL_FEATURES, FLAT,
@@ -164,3 +167,26 @@ def test_which_learner_options_are_checked_by_the_parser(argv):
     with pytest.raises(SystemExit) as exc:
         bench.build_parser().parse_args(argv)
     assert exc.value.code == 2
+
+
+def test_the_committed_which_learner_table_is_that_of_its_records():
+    """``results/which-learner``: every point of every benchmark has its three seeds, and the README's
+    table and tally are the verdicts of the committed records, as ``table.py`` computes them (a record
+    added without the README, or a figure edited by hand, fails here)."""
+    root = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "results",
+                        "which-learner")
+    if not os.path.isdir(os.path.join(root, "runs")):
+        pytest.skip("no committed results/ in this checkout")
+    results = {}
+    for name in sorted(SHARING_PRESETS):  # table.py's order: the folders sorted
+        records = [json.load(open(f)) for f in sorted(glob.glob(os.path.join(root, "runs", name, "*.json")))]
+        seeds = {}
+        for r in records:
+            seeds.setdefault((r["spec"]["n_tasks"], r["spec"]["demos_per_task"]), set()).add(r["spec"]["seed"])
+        assert seeds == {point: {0, 1, 2} for point in PRESETS[name].points()}, name
+        results[name] = benchmark_verdicts([row for r in records for row in r["rows"]])
+    readme = open(os.path.join(root, "README.md")).read()
+    assert sharing_table(results).strip() in readme
+    verdicts = [v for res in results.values() for v in res["verdicts"]]
+    no_worse, beats = sum(v["no_worse"] for v in verdicts), sum(v["beats_both"] for v in verdicts)
+    assert f"No worse on {no_worse} of {len(verdicts)} (point, seed) pairs; better than both on {beats}." in readme

@@ -29,7 +29,7 @@ from ..experiments.runner import run_sweep
 from ..experiments.tables import read_csv
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "sharing_table"]
+__all__ = ["add_arguments", "benchmark_verdicts", "run", "sharing_table"]
 
 DEFAULTS = {"presets": list(SHARING_PRESETS), "seed": 0, "seeds": 3, "jobs": 1, "out": os.path.join("runs", "which-learner")}
 QUICK = {"presets": ["sharing-tiny"], "seeds": 1}
@@ -60,6 +60,30 @@ def _chosen(rows):
     """``{(n_tasks, demos, seed): (k, lambda)}`` of the adaptive test rows (what the validation chose)."""
     return {(r["n_tasks"], r["demos_per_task"], r["seed"]): (r["n_primitives"], r["residual_penalty"])
             for r in rows if r["split"] == "test" and "n_primitives" in r}
+
+
+def benchmark_verdicts(rows):
+    """The verdicts of one benchmark's run rows (of any points and seeds, whatever code computed them).
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows of the benchmark's run records (``record["rows"]``), train and test.
+
+    Returns
+    -------
+    dict
+        ``column``: the score compared (``"success_rate"`` when the rows have one, else
+        ``"deviation"``); ``verdicts``: one dict per point and seed,
+        :func:`~factirl_opt.lab.experiments.claims.sharing_verdicts` on the test rows, with the
+        ``n_primitives`` and ``residual_penalty`` the adaptive learner chose.
+    """
+    column = _column(rows)
+    chosen = _chosen(rows)
+    verdicts = [dict(v, n_primitives=chosen[key][0], residual_penalty=chosen[key][1])
+                for v in sharing_verdicts(rows, "test", column)
+                for key in [(v["n_tasks"], v["demos_per_task"], v["seed"])]]
+    return {"column": column, "verdicts": verdicts}
 
 
 def _lam(value):
@@ -103,11 +127,8 @@ def run(args):
                                                f"--seeds {s['seeds']} --out {out}")
         write_claims(res["out"], PRESETS[name])
         rows = res["rows"]
-        column = _column(rows)
-        chosen = _chosen(rows)
-        verdicts = [dict(v, n_primitives=chosen[key][0], residual_penalty=chosen[key][1])
-                    for v in sharing_verdicts(rows, "test", column)
-                    for key in [(v["n_tasks"], v["demos_per_task"], v["seed"])]]
+        judged = benchmark_verdicts(rows)
+        column, verdicts = judged["column"], judged["verdicts"]
         results[name] = {"column": column, "margin": SHARING_MARGINS[column], "verdicts": verdicts,
                          "no_worse": f"{sum(v['no_worse'] for v in verdicts)}/{len(verdicts)}",
                          "beats_both": f"{sum(v['beats_both'] for v in verdicts)}/{len(verdicts)}",
