@@ -158,10 +158,10 @@ class SolverResult:
 class StepSolver:
     """Base class of step solvers: subclasses define ``init_state`` and ``update``.
 
-    Class attributes
-    ----------------
+    Attributes
+    ----------
     name : str
-        Registry name.
+        Registry name (a class attribute, as are the three below).
     needs_jacobian : bool
         Whether the solver calls ``problem.residual_jacobian``.
     needs_linearization : bool
