@@ -10,7 +10,8 @@ by default):
   (:func:`moved_attribute`, called by the package's ``__getattr__``);
 - a former module path (``factirl_opt.learners.gradirl``) imports the module at its new path
   (:func:`install_module_aliases`: a finder on :data:`sys.meta_path` that hands the import
-  system the module itself, so both paths name one module object and its state is shared).
+  system the module itself, so both paths name one module object and its state is shared);
+  ``python -m`` on a former path (``python -m factirl_opt.bench``) runs the new one.
 """
 
 from __future__ import annotations
@@ -62,6 +63,14 @@ class _AliasLoader(importlib.abc.Loader):
 
     def exec_module(self, module: ModuleType) -> None:  # already executed under its new name
         pass
+
+    def get_code(self, fullname: str) -> Any:
+        """``python -m <old path>``: code that runs the module at its new path as ``__main__``
+        (with its own package, so that its relative imports resolve), after the one-time warning."""
+        warn_once(f"module:{fullname}", f"the module {fullname} moved to {self.target}; the old path will be removed "
+                                        f"in the next release (run python -m {self.target})", stacklevel=3)
+        return compile(f"import runpy\nrunpy.run_module({self.target!r}, run_name='__main__', alter_sys=True)\n",
+                       f"<{fullname}, moved to {self.target}>", "exec")
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder):

@@ -53,3 +53,16 @@ def test_a_former_module_path_imports_the_module_itself(old, new):
             f"assert a is b, (a, b)\n"
             f"assert any('moved to {new}' in str(x.message) and issubclass(x.category, FutureWarning) for x in w), [str(x.message) for x in w]\n")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("old, new, argv, expected", [
+    ("factirl_opt.bench", "factirl_opt.lab.bench", ["--help"], "usage: python -m factirl_opt.lab.bench"),
+    ("factirl_opt.cli", "factirl_opt.lab.cli", ["reproduce", "--help"], "--preset"),
+])
+def test_python_m_on_a_former_module_path_runs_the_new_one(old, new, argv, expected):
+    """``python -m factirl_opt.bench ...`` (the commands of older READMEs) runs ``factirl_opt.lab.bench``
+    with the same arguments and warns; it used to fail inside runpy (the alias loader had no code)."""
+    res = subprocess.run([sys.executable, "-W", "always", "-m", old, *argv], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert expected in res.stdout
+    assert f"moved to {new}" in res.stderr and "DeprecatedNameWarning" in res.stderr
