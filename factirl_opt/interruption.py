@@ -69,6 +69,34 @@ def raise_interrupted(exc: FitInterrupted, what: str) -> NoReturn:
     raise FitInterrupted(exc.result, what) from cause
 
 
+class _BestPoints:
+    """The record of :class:`BestRows`: per row the best point seen, and the first full evaluation's
+    total. It holds no reference to the problem, so the wrapped problem's functions (which refer
+    to it) and the problem form no reference cycle: a finished fit's objective, and the model and
+    planner caches it holds, are freed when the fit's last reference goes, not at the next full
+    garbage collection."""
+
+    def __init__(self, penalty: Callable, x0: np.ndarray) -> None:
+        self.penalty = penalty
+        # one tuple, replaced in one assignment: an interrupt never sees it half updated
+        self.best = (x0, np.full(x0.shape[0], np.inf), np.full(x0.shape[0], np.nan))
+        self.start_total: float | None = None
+
+    def record(self, x_rows: np.ndarray, rows: np.ndarray, loss: np.ndarray) -> None:
+        x_rows, rows = np.asarray(x_rows, dtype=np.float64), np.asarray(rows)
+        with np.errstate(invalid="ignore", over="ignore"):
+            score = np.asarray(loss, dtype=np.float64) + self.penalty(x_rows)
+        X, best, plain = self.best
+        if self.start_total is None and rows.size == X.shape[0] and np.all(np.isfinite(score)):
+            self.start_total = float(np.sum(score))
+        better = np.isfinite(score) & (score < best[rows])
+        if better.any():
+            X, best, plain = X.copy(), best.copy(), plain.copy()
+            X[rows[better]], best[rows[better]] = x_rows[better], score[better]
+            plain[rows[better]] = np.asarray(loss, dtype=np.float64)[better]
+            self.best = (X, best, plain)
+
+
 class BestRows:
     """Per-row best point of a row-separable :class:`solvers.StepProblem` over its evaluations.
 
@@ -85,50 +113,45 @@ class BestRows:
     problem : StepProblem
         The same problem, recording every evaluation of ``loss_and_grad``,
         ``residual_jacobian`` and ``linearize`` (the values are passed on unchanged).
+    start_total : float or None
+        The objective's total at the first evaluation of every row (None before it).
     """
 
     def __init__(self, problem: StepProblem, solver: StepSolver, x0: np.ndarray) -> None:
-        x0 = np.array(x0, dtype=np.float64)
-        self._penalty = solver.penalty
-        # one tuple, replaced in one assignment: an interrupt never sees it half updated
-        self._best = (x0, np.full(x0.shape[0], np.inf), np.full(x0.shape[0], np.nan))
-        self.start_total: float | None = None
+        self._points = _BestPoints(solver.penalty, np.array(x0, dtype=np.float64))
         self.problem = dataclasses.replace(
             problem,
-            loss_and_grad=self._recording(problem.loss_and_grad, lambda out: out[0]),
+            loss_and_grad=_recording(self._points, problem.loss_and_grad, lambda out: out[0]),
             residual_jacobian=None if problem.residual_jacobian is None
-            else self._recording(problem.residual_jacobian, lambda out: out[0]),
-            linearize=None if problem.linearize is None else self._recording(problem.linearize, _linearization_loss),
+            else _recording(self._points, problem.residual_jacobian, lambda out: out[0]),
+            linearize=None if problem.linearize is None
+            else _recording(self._points, problem.linearize, _linearization_loss),
         )
 
-    def _recording(self, func: Callable, loss_of: Callable) -> Callable:
-        def recorded(x_rows, rows):
-            out = func(x_rows, rows)
-            self.record(x_rows, rows, loss_of(out))
-            return out
-
-        return recorded
+    @property
+    def start_total(self) -> float | None:
+        return self._points.start_total
 
     def record(self, x_rows: np.ndarray, rows: np.ndarray, loss: np.ndarray) -> None:
         """Keep ``x_rows`` for the rows whose objective ``loss + penalty`` is their lowest yet."""
-        x_rows, rows = np.asarray(x_rows, dtype=np.float64), np.asarray(rows)
-        with np.errstate(invalid="ignore", over="ignore"):
-            score = np.asarray(loss, dtype=np.float64) + self._penalty(x_rows)
-        X, best, plain = self._best
-        if self.start_total is None and rows.size == X.shape[0] and np.all(np.isfinite(score)):
-            self.start_total = float(np.sum(score))
-        better = np.isfinite(score) & (score < best[rows])
-        if better.any():
-            X, best, plain = X.copy(), best.copy(), plain.copy()
-            X[rows[better]], best[rows[better]] = x_rows[better], score[better]
-            plain[rows[better]] = np.asarray(loss, dtype=np.float64)[better]
-            self._best = (X, best, plain)
+        self._points.record(x_rows, rows, loss)
 
     def best(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(x, objective, loss)``: per row the best parameters (n, p), their objective with the
         penalty (n,) and without it (n,); NaN objective for rows never evaluated."""
-        X, best, plain = self._best
+        X, best, plain = self._points.best
         return X.copy(), np.where(np.isfinite(best), best, np.nan), plain.copy()
+
+
+def _recording(points: _BestPoints, func: Callable, loss_of: Callable) -> Callable:
+    """``func``, recording each evaluation's loss in ``points`` (which does not refer back to it)."""
+
+    def recorded(x_rows, rows):
+        out = func(x_rows, rows)
+        points.record(x_rows, rows, loss_of(out))
+        return out
+
+    return recorded
 
 
 def _linearization_loss(lin: Linearization) -> np.ndarray:

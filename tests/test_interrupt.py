@@ -214,3 +214,27 @@ def test_the_kept_loss_is_described_plainly():
     assert loss_phrase(np.array([1.0, np.nan, 2.0])) == ("total loss 3 over the 2 tasks evaluated; loss_ is NaN for the "
                                                          "1 tasks never evaluated")
     assert loss_phrase(np.full(3, np.nan)) == "its loss was not evaluated before the interrupt: loss_ is NaN"
+
+
+@pytest.mark.parametrize("make", [lambda: fo.GradIRL(max_iter=3), lambda: fo.FactIRL(n_primitives=K, max_iter=2)])
+def test_a_finished_fit_leaves_no_reference_cycle(data, make):
+    """The Ctrl-C tracker wraps the problem's functions without a cycle back to them: a fitted model's
+    objective, environment and planner caches go when its last reference does, not at the next full
+    garbage collection (a sweep in one process grew by gigabytes while they waited for it)."""
+    import gc
+    import weakref
+
+    _, demos = data
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)  # the fit's own environment, referenced by nothing else
+    gc.collect()
+    gc.disable()
+    try:
+        model = make().fit(mdp, demos)
+        if isinstance(model, fo.FactIRL):
+            model.transfer(mdp, demos[:1])
+        alive = weakref.ref(mdp)
+        del model, mdp
+        assert alive() is None
+        assert gc.collect() == 0
+    finally:
+        gc.enable()
