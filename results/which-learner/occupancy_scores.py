@@ -8,8 +8,7 @@ from factirl_opt.tasks.task_set import per_task_features
 from _point import held_out_transfers, setup, test_deviation
 
 P = setup()
-preset, n, out_path, gt, Ftr, Fte, mdp, demos = P.preset, P.n, P.out_path, P.gt, P.Ftr, P.Fte, P.mdp, P.demos
-test_demos, flat, learner, folds, cands = P.test_demos, P.flat, P.learner, P.folds, P.cands
+out_path, Ftr, mdp, demos, cands = P.out_path, P.Ftr, P.mdp, P.demos, P.cands
 t = 1
 
 def feat(i):

@@ -4,9 +4,10 @@ does, into a runs/ directory that ``factirl-opt bench which-learner`` and ``tabl
     python results/which-learner/points.py RUNS_DIR --tasks 5 20 --seeds 0 1 2
     python results/which-learner/points.py RUNS_DIR --preset sharing-babyai --tasks 30 --seeds 1 2
 
+(the bench runs every point of a preset, the largest first; this runs the ones asked for).
+
 ``--folds K`` sets ``adaptive.N_FOLDS`` (the bench's code folds over tasks 3 times) for a diagnostic: such
 records are not the bench's and do not belong in ``runs/``.
-(the bench runs every point of a preset, the largest first; this runs the ones asked for).
 """
 import argparse
 import os

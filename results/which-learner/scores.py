@@ -11,8 +11,7 @@ from factirl_opt.tasks.demonstrations import empirical_statistics
 from _point import held_out_transfers, setup, test_deviation
 
 P = setup()
-preset, n, out_path, gt, Ftr, Fte, mdp, demos = P.preset, P.n, P.out_path, P.gt, P.Ftr, P.Fte, P.mdp, P.demos
-flat, learner, folds, cands = P.flat, P.learner, P.folds, P.cands
+out_path, mdp, demos, cands = P.out_path, P.mdp, P.demos, P.cands
 t = 1
 
 def tempered(z, w):
