@@ -50,7 +50,7 @@ class NotFittedError(FactIRLError, AttributeError):
 
 
 class SolverError(FactIRLError, _solvers.SolverError):
-    """A step solver or its backend failed in a way the caller must know about."""
+    """A step solver (or a QP solver it calls) failed in a way the caller must know about."""
 
 
 class UnknownSolverError(FactIRLError, _solvers.UnknownSolverError):
@@ -86,9 +86,11 @@ class ConvergenceWarning(UserWarning):
     the message says what to check (scaling of features or initialisation, beta)."""
 
 
-class DeprecatedNameWarning(FutureWarning):
+class DeprecatedNameWarning(_solvers.DeprecatedNameWarning):
     """A name (an estimator parameter) was renamed; the old one still works for now and warns
-    once per process. A ``FutureWarning``, so that users see it by default."""
+    once per process. A ``FutureWarning``, so that users see it by default; it derives from
+    ``solvers.DeprecatedNameWarning``, the warning of a renamed solver option, so one filter
+    on that class covers both."""
 
 
 class MaxIterWarning(ConvergenceWarning):
@@ -97,7 +99,8 @@ class MaxIterWarning(ConvergenceWarning):
 
 
 class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):
-    """A solver's backend module is not installed (a :class:`MissingDependencyError`)."""
+    """A module a registered solver needs (e.g. its QP solver) is not installed (a
+    :class:`MissingDependencyError`)."""
 
 
 #: solvers exception -> the library's exception it becomes (most specific first)

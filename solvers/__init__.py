@@ -1,7 +1,7 @@
 """Step-solver registry: a plain mapping from a name to a step-solver factory.
 
 >>> import solvers
->>> solvers.available_solvers()          # names whose backend is installed
+>>> solvers.available_solvers()          # names whose required modules are installed
 >>> solver = solvers.get_solver("armijo", initial_step=0.5)
 
 Register your own solver (a :class:`StepSolver` subclass or any factory returning one)::
@@ -11,7 +11,7 @@ Register your own solver (a :class:`StepSolver` subclass or any factory returnin
         ...
 
 Errors derive from :class:`SolversError` (module :mod:`solvers.exceptions`): an unknown name
-raises :class:`UnknownSolverError` listing what is available; a registered name whose backend
+raises :class:`UnknownSolverError` listing what is available; a registered name whose required
 module is not installed raises :class:`MissingBackendError` with the ``pip install`` command;
 a bad option (wrong name, type or value; options given as anything but a mapping) raises
 :class:`SolverOptionError` naming the option and the value; a run that fails raises
@@ -24,7 +24,8 @@ Built-in solvers
     The paper's Armijo gradient descent (projected onto ``x >= 0`` for the second).
 ``gn-qp-{osqp,clarabel}``
     Gauss-Newton / Levenberg-Marquardt steps, each a QP solved through cvxpy with the named
-    backend (:class:`GaussNewtonSolver`; needs ``residual_jacobian``).
+    QP solver (:class:`GaussNewtonSolver`, option ``qp_solver``, one of :data:`QP_SOLVERS`;
+    needs ``residual_jacobian``).
 ``gn-qp-{osqp,clarabel}-nonneg``
     The same with ``h >= 0`` (``constraint="nonneg"``).
 ``gn-qp-{osqp,clarabel}-sparse``
@@ -63,7 +64,8 @@ uses each solver's :meth:`StepSolver.for_alternating` form and warm-starts it wi
 
 Every Gauss-Newton name also takes the options of :class:`GaussNewtonSolver`, e.g.
 ``get_solver("gn-qp-osqp", interface="direct")`` calls OSQP without cvxpy. A name is only
-*available* when its backend (and cvxpy) is installed.
+*available* when the modules it needs (for a Gauss-Newton name: cvxpy and its QP solver) are
+installed.
 """
 
 from __future__ import annotations
@@ -74,10 +76,17 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from ._base import Linearization, SolverResult, StepProblem, StepSolver
-from ._blockqp import BACKENDS, CONSTRAINTS
-from ._validation import check_options
+from ._blockqp import CONSTRAINTS, QP_SOLVERS
+from ._validation import check_options, deprecated, rename_options
 from .armijo import ArmijoSolver
-from .exceptions import MissingBackendError, SolverError, SolverOptionError, SolversError, UnknownSolverError
+from .exceptions import (
+    DeprecatedNameWarning,
+    MissingBackendError,
+    SolverError,
+    SolverOptionError,
+    SolversError,
+    UnknownSolverError,
+)
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
@@ -105,6 +114,8 @@ __all__ = [
     "UnknownSolverError",
     "SolverOptionError",
     "MissingBackendError",
+    "DeprecatedNameWarning",
+    "QP_SOLVERS",
     "register_solver",
     "unregister_solver",
     "available_solvers",
@@ -135,7 +146,7 @@ def register_solver(
         Called as ``factory(**defaults, **options)``; must return a :class:`StepSolver`.
         Omit it to use ``register_solver(name)`` as a class decorator.
     requires : tuple of str
-        Modules that must be importable for the solver to be available (its backend); each
+        Modules that must be importable for the solver to be available (e.g. its QP solver); each
         is also the name of the package ``pip`` installs it from.
     overwrite : bool
         Allow replacing an existing name.
@@ -176,12 +187,12 @@ def _missing(requires: tuple[str, ...]) -> list[str]:
 
 
 def registered_solvers() -> list[str]:
-    """All registered names, whether or not their backend is installed (sorted)."""
+    """All registered names, whether or not the modules they need are installed (sorted)."""
     return sorted(_REGISTRY)
 
 
 def available_solvers() -> list[str]:
-    """Registered names whose backend is installed (sorted)."""
+    """Registered names whose required modules are installed (sorted)."""
     return sorted(n for n, (_, _, req) in _REGISTRY.items() if not _missing(req))
 
 
@@ -229,6 +240,7 @@ def get_solver(name: str, **options: Any) -> StepSolver:
             f"install them with: pip install {' '.join(missing)}",
             name=missing[0],
         )
+    options = rename_options(f"solver {name!r}", getattr(factory, "renamed_options", {}), options)
     kwargs = {**defaults, **options}
     _check_accepted(name, factory, kwargs, options)
     try:
@@ -285,13 +297,21 @@ register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
 register_solver("lbfgs", LBFGSSolver)
 register_solver("gn-cg", GaussNewtonCGSolver)
-for _backend in BACKENDS:
+for _qp_solver in QP_SOLVERS:
     for _constraint in CONSTRAINTS:
         register_solver(
-            qp_solver_name(_backend, _constraint),
+            qp_solver_name(_qp_solver, _constraint),
             GaussNewtonSolver,
-            requires=("cvxpy", _backend),
-            backend=_backend,
+            requires=("cvxpy", _qp_solver),
+            qp_solver=_qp_solver,
             constraint=_constraint,
         )
-del _backend, _constraint
+del _qp_solver, _constraint
+
+
+def __getattr__(name: str) -> Any:
+    """The former name ``BACKENDS`` of :data:`QP_SOLVERS`, with a :class:`DeprecatedNameWarning`."""
+    if name == "BACKENDS":
+        deprecated("solvers.BACKENDS was renamed solvers.QP_SOLVERS; the old name will be removed in the next release")
+        return QP_SOLVERS
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""The block-separable QP of one Gauss-Newton H-step, shared by every backend (docs/maths.md §5).
+"""The block-separable QP of one Gauss-Newton H-step, shared by every QP solver (docs/maths.md §5).
 
 After the per-task QR reduction (see :func:`solvers.gn_subproblem.reduce_least_squares`) the
 subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is
@@ -7,10 +7,10 @@ subproblem of task ``i`` over its new coefficients ``z_i`` (k,) is
 
 with ``R_i`` (k, k) upper triangular. All tasks of an H-step are solved together as one
 problem over ``z`` (n, k) whose objective is the sum of the tasks' objectives; the problem is
-block-separable, so its solution is each task's solution. Every backend module takes the
+block-separable, so its solution is each task's solution. Every module that solves it (one route to the QP solvers) takes the
 stacked data ``R`` (n, k, k), ``b`` (n, k) and returns a :class:`BlockQPResult`.
 
-Backends pose the least squares with an auxiliary ``t = R z - b`` (objective ``||t||^2``), the
+Both routes pose the least squares with an auxiliary ``t = R z - b`` (objective ``||t||^2``), the
 form cvxpy's QP canonicalisation produces, so the direct and the cvxpy routes solve the same
 problem and neither forms ``R^T R`` (which would square the condition number).
 """
@@ -23,11 +23,11 @@ from .exceptions import SolverOptionError
 
 __all__ = [
     "CONSTRAINTS",
-    "BACKENDS",
+    "QP_SOLVERS",
     "DATA_LIMIT",
     "BlockQPResult",
     "check_constraint",
-    "check_backend",
+    "check_qp_solver",
     "check_block_data",
     "check_alpha",
     "refine_active_set",
@@ -35,9 +35,9 @@ __all__ = [
 
 #: constraint variants of the H-step
 CONSTRAINTS = ("none", "nonneg", "sparse")
-#: QP backends; each is also the name of the module (and pip package) it needs
-BACKENDS = ("osqp", "clarabel")
-#: cvxpy solver names of the backends
+#: the QP solvers (a Gauss-Newton solver's ``qp_solver``); each is also the name of the module (and pip package) it needs
+QP_SOLVERS = ("osqp", "clarabel")
+#: cvxpy solver names of the QP solvers
 CVXPY_NAMES = {"osqp": "OSQP", "clarabel": "CLARABEL"}
 #: largest magnitude of block QP data: OSQP takes bounds beyond 1e30 for infinite (and prints
 #: an error when an equality bound is beyond it), so data must stay far below
@@ -51,16 +51,16 @@ class BlockQPResult:
     Attributes
     ----------
     z : ndarray, shape (n, k) or None
-        New coefficients (None when the backend returned no point).
+        New coefficients (None when the QP solver returned no point).
     status : str
-        The backend's status, mapped to cvxpy's vocabulary (``"optimal"``,
+        The QP solver's status, mapped to cvxpy's vocabulary (``"optimal"``,
         ``"optimal_inaccurate"``, ``"user_limit"``, ``"solver_error"``, ...).
     ok : bool
         Whether ``z`` may be used: only an ``"optimal"`` status counts. Inaccurate solutions
         and iteration limits fill ``z`` in anyway; they are failures all the same.
     solve_time : float
-        Wall time of the call, seconds (parameter update, backend solve, retrieval).
-    backend : str
+        Wall time of the call, seconds (parameter update, QP solver's solve, retrieval).
+    qp_solver : str
         ``"osqp"`` or ``"clarabel"``.
     """
 
@@ -68,7 +68,7 @@ class BlockQPResult:
     status: str
     ok: bool
     solve_time: float
-    backend: str
+    qp_solver: str
 
 
 def check_constraint(constraint):
@@ -77,10 +77,10 @@ def check_constraint(constraint):
     return constraint
 
 
-def check_backend(backend):
-    if not isinstance(backend, str) or backend not in BACKENDS:
-        raise SolverOptionError(f"backend must be one of {BACKENDS}; got {backend!r}")
-    return backend
+def check_qp_solver(qp_solver):
+    if not isinstance(qp_solver, str) or qp_solver not in QP_SOLVERS:
+        raise SolverOptionError(f"qp_solver must be one of {QP_SOLVERS}; got {qp_solver!r}")
+    return qp_solver
 
 
 def check_block_data(R, b, n, k):
@@ -146,7 +146,7 @@ def refine_active_set(R, b, z, constraint, alpha=0.0, snap=1e-6, kkt_tol=1e-7):
     R : ndarray, shape (n, k, k)
     b : ndarray, shape (n, k)
     z : ndarray, shape (n, k)
-        A backend's solution.
+        A QP solver's solution.
     constraint : {"nonneg", "sparse"}
         Any other value returns ``z`` unchanged.
     alpha : float or ndarray, shape (n,)

@@ -8,12 +8,14 @@ The checks of what a problem's callables return (:func:`check_evaluation`) raise
 :class:`~solvers.exceptions.SolverError`.
 """
 
+import functools
+import warnings
 from collections.abc import Mapping
 from dataclasses import field, fields
 
 import numpy as np
 
-from .exceptions import SolverError, SolverOptionError
+from .exceptions import DeprecatedNameWarning, SolverError, SolverOptionError
 
 __all__ = [
     "option",
@@ -26,6 +28,9 @@ __all__ = [
     "check_number",
     "check_options",
     "check_evaluation",
+    "renamed_options",
+    "rename_options",
+    "deprecated",
 ]
 
 _REALS = (int, float, np.integer, np.floating)
@@ -144,6 +149,53 @@ def validate_fields(obj, owner):
         if check is None:
             raise TypeError(f"{type(obj).__name__}.{f.name} is declared without a check; use solvers._validation.option")
         setattr(obj, f.name, check(getattr(obj, f.name), f.name, owner))
+
+
+def deprecated(message, stacklevel=3):
+    """Warn that a name or value of an option is deprecated (a :class:`DeprecatedNameWarning`)."""
+    warnings.warn(message, DeprecatedNameWarning, stacklevel=stacklevel)
+
+
+def rename_options(owner, renames, options, stacklevel=4):
+    """``options`` (a dict) with the deprecated names in ``renames`` (old -> new) replaced, each
+    with a :class:`DeprecatedNameWarning`.
+
+    Raises
+    ------
+    SolverOptionError
+        When an option is given under both its old and its new name.
+    """
+    out = dict(options)
+    for old, new in renames.items():
+        if old in out:
+            if new in out:
+                raise SolverOptionError(f"{owner}: {old!r} is the deprecated name of {new!r}; give only {new!r}")
+            deprecated(f"{owner}: the option {old!r} was renamed {new!r}; the old name will be removed in the "
+                       "next release", stacklevel=stacklevel)
+            out[new] = out.pop(old)
+    return out
+
+
+def renamed_options(**renames):
+    """Class decorator: the solver's ``__init__`` also takes the deprecated option names
+    ``old=new`` (with a :class:`DeprecatedNameWarning`); its signature shows the new names only.
+
+    The mapping is kept as the class attribute ``renamed_options``, which
+    :func:`solvers.get_solver` reads, so the registry accepts the old names too.
+    """
+
+    def decorate(cls):
+        init = cls.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs):
+            init(self, *args, **rename_options(cls.__name__, renames, kwargs))
+
+        cls.__init__ = __init__
+        cls.renamed_options = {**getattr(cls, "renamed_options", {}), **renames}
+        return cls
+
+    return decorate
 
 
 def check_options(options, where):

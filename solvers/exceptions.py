@@ -12,7 +12,8 @@ re-raises them as the library's own family.
 
 from __future__ import annotations
 
-__all__ = ["SolversError", "SolverError", "UnknownSolverError", "SolverOptionError", "MissingBackendError"]
+__all__ = ["SolversError", "SolverError", "UnknownSolverError", "SolverOptionError", "MissingBackendError",
+           "DeprecatedNameWarning"]
 
 
 class SolversError(Exception):
@@ -20,7 +21,7 @@ class SolversError(Exception):
 
 
 class SolverError(SolversError, RuntimeError):
-    """A solver, its backend or the problem it was given failed during a run (e.g. a
+    """A solver, a library it calls (a QP solver) or the problem it was given failed during a run (e.g. a
     non-finite objective at the starting point); the message says where."""
 
 
@@ -37,5 +38,11 @@ class SolverOptionError(SolversError, ValueError):
 
 
 class MissingBackendError(SolversError, ImportError):
-    """A registered solver needs a module (its backend) that is not installed; the message
+    """A registered solver needs a module that is not installed (e.g. the QP solver of a Gauss-Newton name); the message
     names the module and the ``pip install`` command that provides it."""
+
+
+class DeprecatedNameWarning(FutureWarning):
+    """An option (or one of its values) was renamed; the old name still works for now and
+    warns. A ``FutureWarning``, so that users see it by default;
+    ``factirl_opt.exceptions.DeprecatedNameWarning`` derives from it."""

@@ -12,10 +12,10 @@ Before any QP solver sees it, the (m + k, k) least squares is reduced to a k x k
 factor ``||R_i z - b_i||^2`` over the new coefficients ``z = h_i + delta``
 (:func:`solvers.gn_subproblem.reduce_least_squares`). All tasks' reduced subproblems of one
 step are solved together as one block-separable QP (:mod:`solvers.qp_cvxpy`, compiled once
-per shape; or :mod:`solvers.qp_direct`). For the constrained variants the backend's solution
+per shape; or :mod:`solvers.qp_direct`). For the constrained variants the QP solver's solution
 is then made exact on its active set (:func:`solvers._blockqp.refine_active_set`: exact
 zeros, checked against the KKT conditions), so the sparse variant reports true zeros whatever
-the backend.
+the QP solver.
 
 Levenberg-Marquardt: a task's step is accepted if its true objective (loss plus penalty)
 drops and is finite; then ``lam_i`` shrinks by ``lam_down``; otherwise the step is rejected and
@@ -25,11 +25,11 @@ an accepted step needs no further evaluation). A step in which no task is accept
 for the rejected tasks with their larger ``lam`` (up to ``max_retries`` times) before the solver
 reports that it stalled.
 
-Backend failures (``optimal_inaccurate``, ``user_limit``, other statuses, exceptions) are never
-accepted silently: with ``fallback="backend"`` the QP is re-solved with the other backend,
+QP solver failures (``optimal_inaccurate``, ``user_limit``, other statuses, exceptions) are never
+accepted silently: with ``fallback="qp-solver"`` the QP is re-solved with the other QP solver,
 then, if that fails too, a safe step is taken (one proximal-gradient step on the reduced
 model, which cannot increase it), each time with a :class:`QPFallbackWarning`. With
-``fallback="none"`` a failed status rejects the step (``lam`` up, with a warning) and a backend
+``fallback="none"`` a failed status rejects the step (``lam`` up, with a warning) and a QP solver's
 exception is re-raised as :class:`solvers.SolverError`.
 
 Step bound (a trust-region-like cap): no row moves further than ``Delta_i = max_step_norm *
@@ -55,8 +55,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import StepProblem, StepSolver, limit_step, row_norms, update_damping
-from ._blockqp import BACKENDS, CONSTRAINTS, DATA_LIMIT, check_backend, check_constraint, refine_active_set
-from ._validation import check_evaluation, check_number, choice, integer, number, option, optional, validate_fields
+from ._blockqp import CONSTRAINTS, DATA_LIMIT, QP_SOLVERS, check_constraint, check_qp_solver, refine_active_set
+from ._validation import (
+    check_evaluation,
+    check_number,
+    choice,
+    deprecated,
+    integer,
+    number,
+    option,
+    optional,
+    renamed_options,
+    validate_fields,
+)
 from .exceptions import SolverError, SolverOptionError
 from .gn_subproblem import (
     COMPILED_CACHE_SIZE,  # re-exported; the cache reads solvers.gn_subproblem.COMPILED_CACHE_SIZE
@@ -78,14 +89,14 @@ __all__ = [
 ]
 
 INTERFACES = ("cvxpy", "direct")
-FALLBACKS = ("backend", "safe-step", "none")
+FALLBACKS = ("qp-solver", "safe-step", "none")
 
 
-def qp_solver_name(backend: str, constraint: str = "none", interface: str = "cvxpy") -> str:
-    """The name of a Gauss-Newton QP solver: ``gn-qp-{backend}[-{constraint}][-direct]``.
+def qp_solver_name(qp_solver: str, constraint: str = "none", interface: str = "cvxpy") -> str:
+    """The name of a Gauss-Newton QP solver: ``gn-qp-{qp_solver}[-{constraint}][-direct]``.
 
     The one place the pattern is built: the registry registers ``qp_solver_name(b, c)`` for
-    every backend and constraint; a solver with ``interface="direct"`` reports the same name
+    every QP solver and constraint; a solver with ``interface="direct"`` reports the same name
     with ``-direct`` appended (that name is not registered: pass ``interface="direct"``).
 
     Examples
@@ -93,14 +104,14 @@ def qp_solver_name(backend: str, constraint: str = "none", interface: str = "cvx
     >>> qp_solver_name("osqp"), qp_solver_name("clarabel", "nonneg")
     ('gn-qp-osqp', 'gn-qp-clarabel-nonneg')
     """
-    check_backend(backend)
+    check_qp_solver(qp_solver)
     check_constraint(constraint)
-    name = f"gn-qp-{backend}" + ("" if constraint == "none" else f"-{constraint}")
+    name = f"gn-qp-{qp_solver}" + ("" if constraint == "none" else f"-{constraint}")
     return name + ("-direct" if interface == "direct" else "")
 
 
 class QPFallbackWarning(RuntimeWarning):
-    """A QP backend failed and the Gauss-Newton step used a fallback."""
+    """A QP solver failed and the Gauss-Newton step used a fallback."""
 
 
 @dataclass
@@ -120,11 +131,11 @@ class GaussNewtonState:
         ``max(diag(J_i^T J_i))`` at the start of the run (1 where zero); ``lam`` bounds are
         relative to it.
     qp_time : float
-        Total wall time spent in QP solves (backend calls included), seconds.
+        Total wall time spent in QP solves (the QP solvers' calls included), seconds.
     qp_solves : int
         Number of block QP solves.
     qp_failures : int
-        Block QP solves whose first backend failed.
+        Block QP solves whose first QP solver failed.
     bounded_steps : int
         Row steps the step bound acted on (damping raised or step shortened).
     """
@@ -140,14 +151,15 @@ class GaussNewtonState:
     bounded_steps: int = 0
 
 
+@renamed_options(backend="qp_solver")
 @dataclass
 class GaussNewtonSolver(StepSolver):
     """Levenberg-Marquardt steps with a QP subproblem per row, solved as one block QP.
 
     Parameters
     ----------
-    backend : {"osqp", "clarabel"}, default="osqp"
-        QP backend.
+    qp_solver : {"osqp", "clarabel"}, default="osqp"
+        The QP solver (:data:`solvers.QP_SOLVERS`). ``backend`` is its deprecated name.
     constraint : {"none", "nonneg", "sparse"}, default="none"
         ``"nonneg"``: ``h >= 0`` (kept by :meth:`project`, so also in FactIRL's initialisation
         and transfer). ``"sparse"``: the objective gains ``alpha ||h||_1`` per row (reported by
@@ -156,9 +168,11 @@ class GaussNewtonSolver(StepSolver):
         L1 weight of the sparse variant (ignored otherwise), >= 0.
     interface : {"cvxpy", "direct"}, default="cvxpy"
         Solve the block QP through cvxpy (compiled once per shape with DPP parameters) or by
-        calling the backend directly.
-    fallback : {"backend", "safe-step", "none"}, default="backend"
-        What to do when the backend fails (see the module docstring).
+        calling the QP solver directly.
+    fallback : {"qp-solver", "safe-step", "none"}, default="qp-solver"
+        What to do when the QP solver fails (see the module docstring): re-solve with the
+        other QP solver then take a safe step, take a safe step, or reject the step.
+        ``"backend"`` is the deprecated name of ``"qp-solver"``.
     damping : float, default=1e-3
         Initial ``lam_i = damping * max(diag(J_i^T J_i))`` (Marquardt's scale-free start), > 0.
     lam_down, lam_up : float, default=1/3 and 4
@@ -167,17 +181,17 @@ class GaussNewtonSolver(StepSolver):
         Bounds (``0 < lam_min < lam_max``) of the adaptation of ``lam_i``, relative to the row's scale ``max(diag(J_i^T J_i))`` at the start of
         a run: the floor keeps the reduced factor ``R_i`` well conditioned (cond <= ~1e5) when
         some directions have no data (e.g. unvisited states of tabular rewards), which the
-        backends need to certify optimality.
+        QP solvers need to certify optimality.
     max_retries : int, default=10
         Extra trials within one step when no row was accepted, >= 0.
     xtol : float, default=1e-12
         A row whose step is below ``xtol * (||h|| + xtol)`` has converged: it is not evaluated
         (>= 0).
     tolerance : dict, optional
-        Per-backend accuracy, e.g. ``{"osqp": 1e-6, "clarabel": 1e-12}`` (OSQP's eps must be
+        Accuracy per QP solver, e.g. ``{"osqp": 1e-6, "clarabel": 1e-12}`` (OSQP's eps must be
         <= 1e-5; it always polishes). Defaults: :data:`solvers.qp_cvxpy.DEFAULT_TOLERANCE`.
     max_qp_iter : int, default=10000
-        Backend iteration limit (reaching it counts as a failure), >= 1.
+        QP solver iteration limit (reaching it counts as a failure), >= 1.
     alternating_damping : float or None, default=1.0
         ``damping`` of the copy returned by :meth:`for_alternating`, i.e. of the H-step inside
         ``FactIRL.fit``; None keeps this solver's own damping there.
@@ -204,11 +218,11 @@ class GaussNewtonSolver(StepSolver):
     evaluations). ``transfer`` (D fixed) uses the solver as configured.
     """
 
-    backend: str = option("osqp", choice(*BACKENDS))
+    qp_solver: str = option("osqp", choice(*QP_SOLVERS))
     constraint: str = option("none", choice(*CONSTRAINTS))
     alpha: float = option(0.01, number(low=0.0))
     interface: str = option("cvxpy", choice(*INTERFACES))
-    fallback: str = option("backend", choice(*FALLBACKS))
+    fallback: str = option("qp-solver", choice(*FALLBACKS))
     damping: float = option(1e-3, number(low=0.0, low_open=True))
     lam_down: float = option(1.0 / 3.0, number(0.0, 1.0, low_open=True, high_open=True))
     lam_up: float = option(4.0, number(low=1.0, low_open=True))
@@ -226,11 +240,21 @@ class GaussNewtonSolver(StepSolver):
     needs_jacobian = True
 
     def __post_init__(self) -> None:
-        valid = self.backend in BACKENDS and self.constraint in CONSTRAINTS
-        validate_fields(self, qp_solver_name(self.backend, self.constraint) if valid else "gn-qp")
-        self.name = qp_solver_name(self.backend, self.constraint, self.interface)
+        if self.fallback == "backend":
+            deprecated('GaussNewtonSolver: fallback="backend" was renamed fallback="qp-solver"; the old value will be '
+                       "removed in the next release", stacklevel=5)
+            self.fallback = "qp-solver"
+        valid = self.qp_solver in QP_SOLVERS and self.constraint in CONSTRAINTS
+        validate_fields(self, qp_solver_name(self.qp_solver, self.constraint) if valid else "gn-qp")
+        self.name = qp_solver_name(self.qp_solver, self.constraint, self.interface)
         if not self.lam_min < self.lam_max:
             raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
+
+    @property
+    def backend(self) -> str:
+        """Deprecated name of :attr:`qp_solver` (warns)."""
+        deprecated("GaussNewtonSolver.backend was renamed qp_solver; the old name will be removed in the next release")
+        return self.qp_solver
 
     def for_alternating(self) -> GaussNewtonSolver:
         """A proximal copy (``alternating_damping``, ``alternating_lam_down``) for FactIRL's fit."""
@@ -271,10 +295,10 @@ class GaussNewtonSolver(StepSolver):
             self._cache[key] = compiled_block_qp(*key)
         return self._cache[key]
 
-    def _backends(self) -> list[str]:
-        order = [self.backend]
-        if self.fallback == "backend":
-            order += [b for b in BACKENDS if b != self.backend and importlib.util.find_spec(b) is not None]
+    def _qp_solvers(self) -> list[str]:
+        order = [self.qp_solver]
+        if self.fallback == "qp-solver":
+            order += [b for b in QP_SOLVERS if b != self.qp_solver and importlib.util.find_spec(b) is not None]
         return order if self.fallback != "safe-step" else order[:1]
 
     def solve_subproblems(
@@ -301,21 +325,21 @@ class GaussNewtonSolver(StepSolver):
         fresh = (self.interface, n, k, self.constraint) not in self._cache  # this solver's first use of the shape
         qp = self._block_qp(n, k)
         Rs, bs, alphas = rescale_subproblems(R, b, self.alpha if self.constraint == "sparse" else 0.0)
-        failures, backends = [], self._backends()
+        failures, qp_solvers = [], self._qp_solvers()
         big = max(np.max(np.abs(bs), initial=0.0), np.max(alphas, initial=0.0))
-        if not big <= DATA_LIMIT:  # cannot happen after the step bound; never feed it to a backend
-            failures, backends = [f"the rescaled QP data reach {big:.3g} (limit {DATA_LIMIT:g})"], []
-        for backend in backends:
+        if not big <= DATA_LIMIT:  # cannot happen after the step bound; never feed it to a QP solver
+            failures, qp_solvers = [f"the rescaled QP data reach {big:.3g} (limit {DATA_LIMIT:g})"], []
+        for qp_solver in qp_solvers:
             try:
-                res = qp.solve(Rs, bs, backend, alpha=alphas, tolerance=self.tolerance.get(backend), max_iter=self.max_qp_iter,
+                res = qp.solve(Rs, bs, qp_solver, alpha=alphas, tolerance=self.tolerance.get(qp_solver), max_iter=self.max_qp_iter,
                                fresh=fresh)
                 fresh = False
             except SolverOptionError as exc:  # our own data check: a bug, not the user's option
                 raise SolverError(f"{self.name}: the block QP rejected its data: {exc}") from exc
-            except Exception as exc:  # any backend crash: recover below or re-raise as ours
+            except Exception as exc:  # any QP solver crash: recover below or re-raise as ours
                 if self.fallback == "none":
-                    raise SolverError(f"{self.name}: QP backend {backend!r} failed: {type(exc).__name__}: {exc}") from exc
-                failures.append(f"{backend} raised {type(exc).__name__}: {exc}")
+                    raise SolverError(f"{self.name}: QP solver {qp_solver!r} failed: {type(exc).__name__}: {exc}") from exc
+                failures.append(f"{qp_solver} raised {type(exc).__name__}: {exc}")
                 continue
             finally:
                 if state is not None:
@@ -325,15 +349,15 @@ class GaussNewtonSolver(StepSolver):
             if res.ok:
                 z, _ = refine_active_set(R, b, res.z, self.constraint, self.alpha)
                 if failures:
-                    warnings.warn(f"{self.name}: {'; '.join(failures)}; used the {backend} solution instead", QPFallbackWarning, stacklevel=4)
+                    warnings.warn(f"{self.name}: {'; '.join(failures)}; used the {qp_solver} solution instead", QPFallbackWarning, stacklevel=4)
                 return z
-            failures.append(f"{backend} returned status {res.status!r}")
+            failures.append(f"{qp_solver} returned status {res.status!r}")
             if state is not None and len(failures) == 1:
                 state.qp_failures += 1
         return self._after_failures(R, b, x, failures)
 
     def _after_failures(self, R, b, x, failures):
-        """Every backend failed: reject the step (``fallback="none"``) or take a safe step."""
+        """Every QP solver failed: reject the step (``fallback="none"``) or take a safe step."""
         if self.fallback == "none":
             warnings.warn(f"{self.name}: {'; '.join(failures)}; step rejected (damping increased)", QPFallbackWarning, stacklevel=5)
             return None
@@ -341,7 +365,7 @@ class GaussNewtonSolver(StepSolver):
         warnings.warn(f"{self.name}: {reason}; took a safe proximal-gradient step instead", QPFallbackWarning, stacklevel=5)
         z = safe_step(R, b, x, self.constraint, self.alpha)
         if not np.all(np.isfinite(z)):
-            raise SolverError(f"{self.name}: every QP backend failed ({reason}) and the safe step is not finite")
+            raise SolverError(f"{self.name}: every QP solver failed ({reason}) and the safe step is not finite")
         return z
 
     # -- init / update ------------------------------------------------------------------------
@@ -448,7 +472,7 @@ class GaussNewtonSolver(StepSolver):
 
     def _solve_rows(self, R, b, x, state):
         """The subproblems of a separable step: without a constraint, the exact minimiser
-        ``R_i^{-1} b_i`` of every row (a QP backend's answer depends on the other rows through
+        ``R_i^{-1} b_i`` of every row (a QP solver's answer depends on the other rows through
         its joint stopping test); with one, the block QP (:meth:`solve_subproblems`)."""
         if self.constraint == "none":
             try:
@@ -501,14 +525,14 @@ class GaussNewtonSolver(StepSolver):
 
 
 def _check_tolerance(value: Any, owner: str) -> dict[str, float]:
-    """The ``tolerance`` option: None or a dict from backend names to accuracies."""
+    """The ``tolerance`` option: None or a dict from QP solver names to accuracies."""
     if value is None:
         return {}
     if not isinstance(value, dict):
         raise SolverOptionError(f"{owner}: tolerance must be a dict such as {{'osqp': 1e-6}}; got {value!r} ({type(value).__name__})")
     for key, tol in value.items():
-        if key not in BACKENDS:
-            raise SolverOptionError(f"{owner}: tolerance keys must be QP backends {BACKENDS}; got {key!r}")
+        if key not in QP_SOLVERS:
+            raise SolverOptionError(f"{owner}: tolerance keys must be QP solvers {QP_SOLVERS}; got {key!r}")
         check_number(tol, f"tolerance[{key!r}]", owner, low=0.0, high=1e-5 if key == "osqp" else 1e-6, low_open=True)
     return dict(value)
 

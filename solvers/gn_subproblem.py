@@ -11,7 +11,7 @@ is reduced before any QP solver sees it to a k x k triangular factor: with
 rescaling of every row's reduced problem to unit size (:func:`rescale_subproblems`), the
 length of the unconstrained damped step used by the step bound
 (:func:`unconstrained_step_norm`), the safe proximal-gradient step taken when every QP
-backend failed (:func:`safe_step`), and the per-thread cache of compiled block QPs
+QP solver failed (:func:`safe_step`), and the per-thread cache of compiled block QPs
 (:func:`compiled_block_qp`). The solver that uses them is
 :class:`solvers.gauss_newton.GaussNewtonSolver`.
 """
@@ -105,7 +105,7 @@ def safe_step(R: NDArray[np.float64], b: NDArray[np.float64], coefficients: Arra
     """One proximal-gradient step on ``||R z - b||^2 [+ alpha ||z||_1]`` from ``h`` (no QP solver).
 
     With step ``1 / L``, ``L = 2 ||R||_2^2`` (the gradient's Lipschitz constant), the step cannot
-    increase the (damped) model; it is the fallback when every QP backend failed.
+    increase the (damped) model; it is the fallback when every QP solver failed.
 
     Returns
     -------
@@ -148,7 +148,7 @@ def rescale_subproblems(
     """Scale every row's reduced subproblem to unit size, without changing its minimiser.
 
     With ``s_i = max|R_i|`` (1 where zero), ``||R_i z - b_i||^2 + a_i ||z||_1 = s_i^2 (||R_i z / s_i
-    - b_i / s_i||^2 + (a_i / s_i^2) ||z||_1)``, so the backends' absolute tolerances mean the
+    - b_i / s_i||^2 + (a_i / s_i^2) ||z||_1)``, so the QP solvers' absolute tolerances mean the
     same thing for a tiny Jacobian (near a fit). The scaled L1 weight is capped at
     ``2 ||(R_i / s_i)^T (b_i / s_i)||_inf``, the smallest weight for which ``z = 0`` is the
     minimiser: every larger weight has the same minimiser (zero), so the cap changes nothing

@@ -12,7 +12,7 @@ One :class:`CvxpyBlockQP` holds a ``cp.Problem`` over ``z`` (n*k,) for a fixed n
 ``z_i[col]`` for each entry) and ``G`` (sums each entry into ``row`` of its task): a
 parameter times a parameter-free affine expression, so the problem is DPP and cvxpy
 canonicalises it once; every later ``solve`` only maps the new parameter values to the
-backend's data (and, for OSQP, updates the cached factorisation). A fresh ``cp.Problem`` per
+QP solver's data (and, for OSQP, updates the cached factorisation). A fresh ``cp.Problem`` per
 task per step would pay the canonicalisation every time; the block form pays it once per
 shape (measured by ``python -m factirl_opt.lab.bench solvers``). The maths: docs/maths.md §5.
 """
@@ -25,32 +25,32 @@ import scipy.sparse as sp
 
 from .exceptions import SolverError
 
-from ._blockqp import CVXPY_NAMES, BlockQPResult, block_structure, check_alpha, check_backend, check_block_data, check_constraint
+from ._blockqp import CVXPY_NAMES, BlockQPResult, block_structure, check_alpha, check_qp_solver, check_block_data, check_constraint
 
-__all__ = ["CvxpyBlockQP", "backend_options", "DEFAULT_TOLERANCE"]
+__all__ = ["CvxpyBlockQP", "qp_solver_options", "DEFAULT_TOLERANCE"]
 
 
-#: default accuracy of each backend: OSQP's eps_abs = eps_rel (<= 1e-5, with polishing) and
+#: default accuracy of each QP solver: OSQP's eps_abs = eps_rel (<= 1e-5, with polishing) and
 #: Clarabel's gap and feasibility tolerances (an interior-point method needs ~1e-10 for the
 #: step to match the exact one to ~1e-7 when constraints are weakly active; 2 extra iterations)
 DEFAULT_TOLERANCE = {"osqp": 1e-6, "clarabel": 1e-10}
 
 
-def backend_options(backend, tolerance=None, max_iter=10000):
-    """Solver keyword arguments for a backend, accurate enough for a Gauss-Newton step.
+def qp_solver_options(qp_solver, tolerance=None, max_iter=10000):
+    """Solver keyword arguments for a QP solver, accurate enough for a Gauss-Newton step.
 
     Parameters
     ----------
-    backend : {"osqp", "clarabel"}
+    qp_solver : {"osqp", "clarabel"}
     tolerance : float, optional
         OSQP: ``eps_abs = eps_rel`` (polishing on); Clarabel: ``tol_gap_abs = tol_gap_rel =
         tol_feas``. Default :data:`DEFAULT_TOLERANCE`.
     max_iter : int
         Iteration limit (Clarabel: capped at 500; it needs ~20).
     """
-    check_backend(backend)
-    tol = DEFAULT_TOLERANCE[backend] if tolerance is None else float(tolerance)
-    if backend == "osqp":
+    check_qp_solver(qp_solver)
+    tol = DEFAULT_TOLERANCE[qp_solver] if tolerance is None else float(tolerance)
+    if qp_solver == "osqp":
         import osqp
 
         polish = "polish" if int(osqp.__version__.split(".")[0]) < 1 else "polishing"
@@ -93,7 +93,7 @@ class CvxpyBlockQP:
         if not self.problem.is_dcp(dpp=True):  # pragma: no cover - a construction invariant
             raise SolverError("the Gauss-Newton block QP is not DPP")
 
-    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
+    def solve(self, R, b, qp_solver="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
         """Solve every task's subproblem with new data (re-using the compiled problem).
 
         Parameters
@@ -101,14 +101,14 @@ class CvxpyBlockQP:
         R : ndarray, shape (n, k, k)
             Upper-triangular factors.
         b : ndarray, shape (n, k)
-        backend : {"osqp", "clarabel"}
+        qp_solver : {"osqp", "clarabel"}
         alpha : float or ndarray, shape (n,)
             L1 weight (sparse variant only), shared or one per task.
         tolerance : float, optional
-            Backend accuracy (see :func:`backend_options`).
+            QP solver accuracy (see :func:`qp_solver_options`).
         max_iter : int
         fresh : bool
-            Do not warm-start the backend from the previous solve (the first solve of a solver
+            Do not warm-start the QP solver from the previous solve (the first solve of a solver
             that shares this compiled problem with others: its result then does not depend on
             what they solved before).
 
@@ -119,9 +119,9 @@ class CvxpyBlockQP:
         Raises
         ------
         cvxpy.error.SolverError
-            When the backend fails outright (the caller decides what to do about it).
+            When the QP solver fails outright (the caller decides what to do about it).
         """
-        check_backend(backend)
+        check_qp_solver(qp_solver)
         R, b = check_block_data(R, b, self.n, self.k)
         t0 = time.perf_counter()
         self.r_entries.value = R[:, self._triu[0], self._triu[1]].ravel()
@@ -129,10 +129,21 @@ class CvxpyBlockQP:
         self.alpha.value = np.repeat(check_alpha(alpha, self.n), self.k)
         with warnings.catch_warnings():  # the status is checked below and reported by the caller
             warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-            self.problem.solve(solver=CVXPY_NAMES[backend], warm_start=not fresh, verbose=False,
-                               **backend_options(backend, tolerance, max_iter))
+            self.problem.solve(solver=CVXPY_NAMES[qp_solver], warm_start=not fresh, verbose=False,
+                               **qp_solver_options(qp_solver, tolerance, max_iter))
         status = str(self.problem.status)
         value = self.z.value
         z = None if value is None else np.asarray(value, dtype=np.float64).reshape(self.n, self.k)
         ok = status == "optimal" and z is not None and bool(np.all(np.isfinite(z)))
-        return BlockQPResult(z=z, status=status, ok=ok, solve_time=time.perf_counter() - t0, backend=backend)
+        return BlockQPResult(z=z, status=status, ok=ok, solve_time=time.perf_counter() - t0, qp_solver=qp_solver)
+
+
+def __getattr__(name):
+    """The former name ``backend_options`` of :func:`qp_solver_options` (deprecated)."""
+    if name == "backend_options":
+        from ._validation import deprecated
+
+        deprecated("solvers.qp_cvxpy.backend_options was renamed qp_solver_options; the old name will be removed "
+                   "in the next release")
+        return qp_solver_options
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -18,8 +18,8 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from ._blockqp import BlockQPResult, block_structure, check_alpha, check_backend, check_block_data, check_constraint
-from .qp_cvxpy import backend_options
+from ._blockqp import BlockQPResult, block_structure, check_alpha, check_qp_solver, check_block_data, check_constraint
+from .qp_cvxpy import qp_solver_options
 
 __all__ = ["DirectBlockQP"]
 
@@ -107,19 +107,19 @@ class DirectBlockQP:
             q[2 * self.n * self.k :] = np.repeat(alpha, self.k)
         return q
 
-    def solve(self, R, b, backend="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
+    def solve(self, R, b, qp_solver="osqp", alpha=0.0, tolerance=None, max_iter=10000, fresh=False):
         """Solve every task's subproblem; same contract as :meth:`CvxpyBlockQP.solve`.
 
         Raises
         ------
         Exception
-            Whatever the backend raises when it fails outright.
+            Whatever the QP solver raises when it fails outright.
         """
-        check_backend(backend)
+        check_qp_solver(qp_solver)
         R, b = check_block_data(R, b, self.n, self.k)
         t0 = time.perf_counter()
         Ax = self._matrix(R)
-        if backend == "osqp":
+        if qp_solver == "osqp":
             if fresh:  # no warm start from another solver's last solution
                 self._osqp = None
             z, status = self._solve_osqp(Ax, b.ravel(), check_alpha(alpha, self.n), tolerance, max_iter)
@@ -128,7 +128,7 @@ class DirectBlockQP:
         if z is not None:
             z = z[: self.n * self.k].reshape(self.n, self.k)
         ok = status == "optimal" and z is not None and bool(np.all(np.isfinite(z)))
-        return BlockQPResult(z=z, status=status, ok=ok, solve_time=time.perf_counter() - t0, backend=backend)
+        return BlockQPResult(z=z, status=status, ok=ok, solve_time=time.perf_counter() - t0, qp_solver=qp_solver)
 
     def _solve_osqp(self, Ax, b, alpha, tolerance, max_iter):
         import osqp
@@ -136,7 +136,7 @@ class DirectBlockQP:
         l = np.concatenate([b, np.zeros(self.n_ineq)])
         u = np.concatenate([b, np.full(self.n_ineq, np.inf)])
         q = self._q(alpha)
-        settings = backend_options("osqp", tolerance, max_iter)
+        settings = qp_solver_options("osqp", tolerance, max_iter)
         if self._osqp is None:
             A = self._A.copy()
             A.data = Ax
@@ -165,7 +165,7 @@ class DirectBlockQP:
             cones.append(clarabel.NonnegativeConeT(self.n_ineq))
         settings = clarabel.DefaultSettings()
         settings.verbose = False
-        for key, value in backend_options("clarabel", tolerance, max_iter).items():
+        for key, value in qp_solver_options("clarabel", tolerance, max_iter).items():
             setattr(settings, key, value)
         solver = clarabel.DefaultSolver(self._P, self._q(alpha), A, rhs, cones, settings)
         sol = solver.solve()

@@ -132,7 +132,7 @@ def test_pca_of_non_finite_parameters_is_refused_not_hung():
 def test_sparse_h_step_fit_is_monotone_and_ends_on_its_best_point(grid4, solver):
     t = fo.synthetic_tasks(grid4, 6, 5, 8, n_primitives=3, rng=1)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # backend fallbacks are reported by QPFallbackWarning
+        warnings.simplefilter("ignore")  # QP solver fallbacks are reported by QPFallbackWarning
         model = fo.FactIRL(n_primitives=3, max_iter=15, solver=solver).fit(grid4, t.demos)
     h = np.asarray(model.loss_history_)
     assert np.all(np.diff(h) <= 1e-9 * np.abs(h[:-1])), h

@@ -129,7 +129,7 @@ def test_sparse_zeros_grow_with_alpha(name, rng):
 @pytest.mark.parametrize("name", GN)
 def test_gn_step_tiny_jacobian_no_fallback(name, rng):
     """Near a fit the Jacobian is tiny (saturated softmax); the step must stay exact and the
-    backends must not report inaccurate solutions (each task's QP is rescaled)."""
+    QP solvers must not report inaccurate solutions (each task's QP is rescaled)."""
     import warnings
 
     problem, A, y = linear_problem(rng)

@@ -1,5 +1,5 @@
 """Robustness of the Gauss-Newton QP steps: zero, tiny and huge Jacobians, zero residuals,
-saturated rows (the step bound), silent backends, and non-finite evaluations."""
+saturated rows (the step bound), silent QP solvers, and non-finite evaluations."""
 
 import warnings
 
@@ -162,10 +162,10 @@ def test_rescale_caps_the_l1_weight_exactly():
 
 
 @pytest.mark.parametrize("interface", ["cvxpy", "direct"])
-@pytest.mark.parametrize("backend", ["osqp", "clarabel"])
-def test_backends_are_silent(backend, interface, capfd, rng):
+@pytest.mark.parametrize("qp_solver", ["osqp", "clarabel"])
+def test_qp_solvers_are_silent(qp_solver, interface, capfd, rng):
     problem, A, y = linear_problem(rng)
-    solvers.get_solver(f"gn-qp-{backend}-sparse", interface=interface).run(problem, np.zeros((N, K)), 3)
+    solvers.get_solver(f"gn-qp-{qp_solver}-sparse", interface=interface).run(problem, np.zeros((N, K)), 3)
     assert_silent(capfd)
 
 

@@ -123,7 +123,7 @@ def test_benchmark_quick_mode():
     timing = out["subproblem_timing"]["routes"]
     assert set(timing) == {f"{c}/{b}" for c in ("none", "nonneg", "sparse") for b in ("osqp", "clarabel")}
     for route in timing.values():
-        assert route["cvxpy_block_dpp_per_task_us"] > 0 and route["direct_backend_per_task_us"] > 0
+        assert route["cvxpy_block_dpp_per_task_us"] > 0 and route["direct_qp_solver_per_task_us"] > 0
         assert route["max_abs_difference"] < 1e-5
 
 

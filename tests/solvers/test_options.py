@@ -68,7 +68,7 @@ def test_integer_option_rejects_fractions(cls, name):
         ("armijo", {"nonneg": 1}, r"nonneg must be True or False; got 1 \(int\)"),
         ("gn-qp-osqp", {"max_step_norm": 0.0}, r"max_step_norm must be a finite number > 0; got 0\.0"),
         ("gn-qp-osqp", {"lam_min": 1.0, "lam_max": 0.5}, r"lam_max must be > lam_min = 1\.0; got 0\.5"),
-        ("gn-qp-osqp", {"backend": ["osqp"]}, r"backend must be one of \('osqp', 'clarabel'\); got \['osqp'\] \(list\)"),
+        ("gn-qp-osqp", {"qp_solver": ["osqp"]}, r"qp_solver must be one of \('osqp', 'clarabel'\); got \['osqp'\] \(list\)"),
         ("gn-qp-osqp", {"tolerance": {"osqp": "1e-6"}}, r"tolerance\['osqp'\] must be a finite number"),
         ("gn-qp-osqp", {"alternating_damping": -1.0}, r"alternating_damping must be a finite number > 0; got -1\.0"),
     ],

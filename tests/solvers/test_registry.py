@@ -1,4 +1,4 @@
-"""Registry, option validation and backend-failure handling of the step solvers."""
+"""Registry, option validation and QP-solver-failure handling of the step solvers."""
 
 import warnings
 
@@ -44,7 +44,7 @@ def test_gauss_newton_names_come_from_one_builder():
     gn = {n for n in solvers.registered_solvers() if n.startswith("gn-qp-")}
     assert gn == {solvers.qp_solver_name(b, c) for b in ("osqp", "clarabel") for c in ("none", "nonneg", "sparse")}
     assert solvers.qp_solver_name("osqp", "sparse", "direct") == solvers.get_solver("gn-qp-osqp-sparse", interface="direct").name
-    with pytest.raises(SolverOptionError, match="backend must be one of"):
+    with pytest.raises(SolverOptionError, match="qp_solver must be one of"):
         solvers.qp_solver_name("mosek")
     with pytest.raises(SolverOptionError, match="constraint must be one of"):
         solvers.qp_solver_name("osqp", "l2")
@@ -60,7 +60,7 @@ def test_unknown_name_lists_available():
 @pytest.mark.parametrize(
     "options, word",
     [
-        ({"backend": "gurobi"}, "backend"),
+        ({"qp_solver": "gurobi"}, "qp_solver"),
         ({"constraint": "l2"}, "constraint"),
         ({"interface": "ctypes"}, "interface"),
         ({"fallback": "pray"}, "fallback"),
@@ -70,7 +70,7 @@ def test_unknown_name_lists_available():
         ({"damping": 0.0}, "damping"),
         ({"max_retries": 1.5}, "max_retries"),
         ({"tolerance": {"osqp": 1e-3}}, "tolerance"),
-        ({"tolerance": {"mosek": 1e-8}}, "backend"),
+        ({"tolerance": {"mosek": 1e-8}}, "QP solvers"),
         ({"tolerance": 1e-6}, "tolerance"),
         ({"no_such_option": 1}, "no_such_option"),
     ],
@@ -143,12 +143,12 @@ def test_gn_needs_least_squares_problem(rng):
 
 
 def _inaccurate(real_solve, failing):
-    """A CvxpyBlockQP.solve that reports optimal_inaccurate for the backends in ``failing``."""
+    """A CvxpyBlockQP.solve that reports optimal_inaccurate for the QP solvers in ``failing``."""
 
-    def solve(self, R, b, backend="osqp", **kw):
-        res = real_solve(self, R, b, backend, **kw)
-        if backend in failing:
-            return BlockQPResult(z=res.z + 0.1, status="optimal_inaccurate", ok=False, solve_time=res.solve_time, backend=backend)
+    def solve(self, R, b, qp_solver="osqp", **kw):
+        res = real_solve(self, R, b, qp_solver, **kw)
+        if qp_solver in failing:
+            return BlockQPResult(z=res.z + 0.1, status="optimal_inaccurate", ok=False, solve_time=res.solve_time, qp_solver=qp_solver)
         return res
 
     return solve
@@ -163,7 +163,7 @@ def _setup(rng, **options):
     return problem, solver, x0, state, ref
 
 
-def test_inaccurate_status_falls_back_to_other_backend(rng, monkeypatch):
+def test_inaccurate_status_falls_back_to_other_qp_solver(rng, monkeypatch):
     monkeypatch.setattr(CvxpyBlockQP, "solve", _inaccurate(CvxpyBlockQP.solve, {"osqp"}))
     problem, solver, x0, state, ref = _setup(rng)
     with pytest.warns(solvers.QPFallbackWarning, match="optimal_inaccurate.*clarabel"):
@@ -172,7 +172,7 @@ def test_inaccurate_status_falls_back_to_other_backend(rng, monkeypatch):
     np.testing.assert_allclose(x1, ref, atol=1e-6)  # the clarabel solution, not the perturbed one
 
 
-def test_all_backends_inaccurate_takes_safe_step(rng, monkeypatch):
+def test_all_qp_solvers_inaccurate_takes_safe_step(rng, monkeypatch):
     monkeypatch.setattr(CvxpyBlockQP, "solve", _inaccurate(CvxpyBlockQP.solve, {"osqp", "clarabel"}))
     problem, solver, x0, state, ref = _setup(rng)
     loss0 = state.loss.copy()
@@ -197,22 +197,22 @@ def test_fallback_none_rejects_inaccurate_step(rng, monkeypatch):
     assert problem.n_evaluations() == evals  # nothing was evaluated at the rejected point
 
 
-def test_backend_exception_reraised_as_solver_error(rng, monkeypatch):
+def test_qp_solver_exception_reraised_as_solver_error(rng, monkeypatch):
     def crash(self, *args, **kwargs):
-        raise RuntimeError("backend exploded")
+        raise RuntimeError("QP solver exploded")
 
     monkeypatch.setattr(CvxpyBlockQP, "solve", crash)
     problem, solver, x0, state, _ = _setup(rng, fallback="none")
-    with pytest.raises(SolverError, match="backend exploded"):
+    with pytest.raises(SolverError, match="QP solver exploded"):
         solver.update(problem, x0, state)
-    # with the default fallback both backends crash: a warned safe step, not an exception
+    # with the default fallback both QP solvers crash: a warned safe step, not an exception
     problem, solver, x0, state, _ = _setup(rng)
     with pytest.warns(solvers.QPFallbackWarning, match="exploded"):
         x1, state, ok = solver.update(problem, x0, state)
     assert ok
 
 
-def test_no_warning_on_healthy_backend(rng):
+def test_no_warning_on_healthy_qp_solver(rng):
     problem, solver, x0, state, ref = _setup(rng)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -227,8 +227,8 @@ def test_block_qp_validates_data(cls):
         qp.solve(np.ones((2, 2, 2)), np.ones((3, 2)))
     with pytest.raises(SolverOptionError, match="upper triangular"):
         qp.solve(np.ones((3, 2, 2)), np.ones((3, 2)))
-    with pytest.raises(SolverOptionError, match="backend"):
-        qp.solve(np.tile(np.eye(2), (3, 1, 1)), np.ones((3, 2)), backend="mosek")
+    with pytest.raises(SolverOptionError, match="qp_solver"):
+        qp.solve(np.tile(np.eye(2), (3, 1, 1)), np.ones((3, 2)), qp_solver="mosek")
 
 
 @pytest.mark.parametrize("constraint", ["none", "nonneg", "sparse"])
@@ -239,9 +239,9 @@ def test_direct_and_cvxpy_agree_on_resolves(constraint, rng):
     for _ in range(3):
         R = np.triu(rng.standard_normal((n, k, k))) + 2 * np.eye(k)
         b = rng.standard_normal((n, k))
-        for backend in ("osqp", "clarabel"):
-            a = cv.solve(R, b, backend, alpha=0.5)
-            d = di.solve(R, b, backend, alpha=0.5)
+        for qp_solver in ("osqp", "clarabel"):
+            a = cv.solve(R, b, qp_solver, alpha=0.5)
+            d = di.solve(R, b, qp_solver, alpha=0.5)
             assert a.ok and d.ok
             np.testing.assert_allclose(a.z, d.z, atol=1e-6)
         if constraint == "none":

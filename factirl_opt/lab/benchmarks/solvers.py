@@ -18,7 +18,7 @@ all measured in the same run on the same data (a random ground-truth dictionary 
   variants for increasing ``--alphas``: exact zeros among the learnt coefficients.
 - ``subproblem_timing``: per-task time of one block QP (all tasks' subproblems of an H-step,
   data from a real Gauss-Newton state) through cvxpy (compiled once, DPP re-solve with new
-  parameter values) vs the same problem handed to the backend directly (OSQP workspace
+  parameter values) vs the same problem handed to the QP solver directly (OSQP workspace
   updated in place; Clarabel set up per call), and a fresh ``cp.Problem`` per task for scale.
   The data are those of ``--repeats`` successive LM steps of a transfer (median time kept).
 
@@ -113,7 +113,7 @@ def add_arguments(parser):
 
 
 def _gn_names(constraint="none"):
-    names = (solvers.qp_solver_name(backend, constraint) for backend in ("osqp", "clarabel"))
+    names = (solvers.qp_solver_name(qp_solver, constraint) for qp_solver in ("osqp", "clarabel"))
     return [n for n in names if n in solvers.available_solvers()]
 
 
@@ -149,12 +149,12 @@ def _tasks(mdp, s, rng, D, n_tasks, n_demos, kind="gaussian", sparsity=0.0):
 def _part_transfer(mdp, s, rng, D):
     tasks = _tasks(mdp, s, rng, D, s["transfer_tasks"], s["transfer_demos"])
     R, demos = tasks.rewards, tasks.demos
-    for name in _gn_names():  # warm-up, untimed: cvxpy's and the backends' one-off import costs
+    for name in _gn_names():  # warm-up, untimed: cvxpy's and the QP solvers' one-off import costs
         _transfer(mdp, D, demos[:2], R[:2], name, 1, s["beta"])
     rows = {"armijo": _transfer(mdp, D, demos, R, "armijo", s["armijo_iter"], s["beta"])[0]}
     for name in _gn_names():
         rows[name] = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"])[0]
-        rows[name + " (direct backend)"] = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"], interface="direct")[0]
+        rows[name + " (direct QP solver)"] = _transfer(mdp, D, demos, R, name, s["gn_iter"], s["beta"], interface="direct")[0]
     arm = rows["armijo"]
     checks = {}
     for name in _gn_names():
@@ -235,10 +235,10 @@ def _part_nonneg(mdp, s, rng, D):
         row["negative_coefficients"] = int(np.sum(Hl < 0))
         rows[name] = row
     checks = {}
-    for backend in ("osqp", "clarabel"):
-        a, b = rows.get(solvers.qp_solver_name(backend)), rows.get(solvers.qp_solver_name(backend, "nonneg"))
+    for qp_solver in ("osqp", "clarabel"):
+        a, b = rows.get(solvers.qp_solver_name(qp_solver)), rows.get(solvers.qp_solver_name(qp_solver, "nonneg"))
         if a and b:
-            checks[solvers.qp_solver_name(backend, "nonneg")] = {
+            checks[solvers.qp_solver_name(qp_solver, "nonneg")] = {
                 "all_coefficients_nonneg": b["min_coefficient"] >= 0.0,
                 "deviation_no_worse_than_unconstrained": b["mean_deviation"] <= a["mean_deviation"],
                 "deviation_ratio_vs_unconstrained": b["mean_deviation"] / max(a["mean_deviation"], 1e-300),
@@ -310,7 +310,7 @@ def _median_time(fn, repeats):
 def _part_timing(mdp, s, rng, D):
     import cvxpy as cp
 
-    from solvers.qp_cvxpy import CVXPY_NAMES, CvxpyBlockQP, backend_options
+    from solvers.qp_cvxpy import CVXPY_NAMES, CvxpyBlockQP, qp_solver_options
     from solvers.qp_direct import DirectBlockQP
 
     reps = max(int(s["repeats"]), 1)
@@ -323,21 +323,21 @@ def _part_timing(mdp, s, rng, D):
         cv = CvxpyBlockQP(n, k, constraint)
         build = time.perf_counter() - t0
         di = DirectBlockQP(n, k, constraint)
-        for backend in ("osqp", "clarabel"):
-            if solvers.qp_solver_name(backend) not in solvers.available_solvers():
+        for qp_solver in ("osqp", "clarabel"):
+            if solvers.qp_solver_name(qp_solver) not in solvers.available_solvers():
                 continue
             t0 = time.perf_counter()
-            first = cv.solve(*variants[0], backend, alpha=0.05)  # canonicalisation happens here
+            first = cv.solve(*variants[0], qp_solver, alpha=0.05)  # canonicalisation happens here
             compile_time = time.perf_counter() - t0 + build
-            di.solve(*variants[0], backend, alpha=0.05)
+            di.solve(*variants[0], qp_solver, alpha=0.05)
             it = iter(variants[1:])
-            t_cv = _median_time(lambda: cv.solve(*next(it), backend, alpha=0.05), reps)
+            t_cv = _median_time(lambda: cv.solve(*next(it), qp_solver, alpha=0.05), reps)
             it = iter(variants[1:])
-            t_di = _median_time(lambda: di.solve(*next(it), backend, alpha=0.05), reps)
-            a, d = cv.solve(*variants[0], backend, alpha=0.05), di.solve(*variants[0], backend, alpha=0.05)
-            out["routes"][f"{constraint}/{backend}"] = {
+            t_di = _median_time(lambda: di.solve(*next(it), qp_solver, alpha=0.05), reps)
+            a, d = cv.solve(*variants[0], qp_solver, alpha=0.05), di.solve(*variants[0], qp_solver, alpha=0.05)
+            out["routes"][f"{constraint}/{qp_solver}"] = {
                 "cvxpy_block_dpp_per_task_us": 1e6 * t_cv / n,
-                "direct_backend_per_task_us": 1e6 * t_di / n,
+                "direct_qp_solver_per_task_us": 1e6 * t_di / n,
                 "ratio_cvxpy_over_direct": t_cv / t_di,
                 "cvxpy_compile_and_first_solve_s": compile_time,
                 "max_abs_difference": float(np.max(np.abs(a.z - d.z))),
@@ -351,7 +351,7 @@ def _part_timing(mdp, s, rng, D):
         t0 = time.perf_counter()
         for i in range(m):
             z = cp.Variable(k)
-            cp.Problem(cp.Minimize(cp.sum_squares(Rf[i] @ z - b[i]))).solve(solver=CVXPY_NAMES["osqp"], **backend_options("osqp"))
+            cp.Problem(cp.Minimize(cp.sum_squares(Rf[i] @ z - b[i]))).solve(solver=CVXPY_NAMES["osqp"], **qp_solver_options("osqp"))
         out["fresh_cp_problem_per_task_us"] = {"none/osqp": 1e6 * (time.perf_counter() - t0) / m, "tasks_timed": m}
     return out
 
