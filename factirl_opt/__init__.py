@@ -110,6 +110,7 @@ _NAMESPACES = {
     "minigrid": "factirl_opt.adapters.minigrid",
     "adapters": "factirl_opt.adapters",
     "datasets": "factirl_opt.datasets",
+    "validation": "factirl_opt.validation",
 }
 
 #: former top-level names -> (module that holds them now, the namespace to use)

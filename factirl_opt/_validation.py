@@ -56,23 +56,36 @@ def as_rng(rng: RNGLike) -> np.random.Generator:
     raise ValidationError(f"rng must be a numpy Generator, a SeedSequence, an int seed or None; got {type(rng).__name__}")
 
 
-def check_bool(value, name):
-    """``value`` as a Python bool, rejecting anything but True, False and numpy bools."""
+def check_bool(value: object, name: str) -> bool:
+    """``value`` as a Python bool, rejecting anything but True, False and numpy bools.
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name`` and the value given.
+    """
     if not isinstance(value, (bool, np.bool_)):
         raise ValidationError(f"{name} must be True or False; got {value!r}")
     return bool(value)
 
 
-def check_int(value, name, minimum=None, maximum=None):
-    """``value`` as a Python int, rejecting bools, floats and values outside [minimum, maximum]."""
+def check_int(value: object, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """``value`` as a Python int, rejecting bools, floats and values outside [minimum, maximum].
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the rule (e.g. "an integer >= 1") and the value given.
+    """
     bounds = [f">= {minimum}"] if minimum is not None else []
     bounds += [f"<= {maximum}"] if maximum is not None else []
     rule = f"{name} must be an integer" + (" " + " and ".join(bounds) if bounds else "")
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ValidationError(f"{rule}; got {value!r}")
-    if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
+    number = int(value)
+    if (minimum is not None and number < minimum) or (maximum is not None and number > maximum):
         raise ValidationError(f"{rule}; got {value!r}")
-    return int(value)
+    return number
 
 
 def _interval(low, high, low_open, high_open):
@@ -86,14 +99,20 @@ def _interval(low, high, low_open, high_open):
     return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
 
 
-def check_real(value, name, low=None, high=None, low_open=False, high_open=False, what="a finite number"):
+def check_real(value: object, name: str, low: float | None = None, high: float | None = None, low_open: bool = False,
+               high_open: bool = False, what: str = "a finite number") -> float:
     """``value`` as a finite float in the interval given (open or closed ends).
 
     Bools, strings, arrays and non-finite numbers are rejected (``gamma=False`` is an error,
     not 0). ``what`` names the kind of number in the message ("a probability").
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name``, the interval and the value given.
     """
     ok = not isinstance(value, bool) and isinstance(value, numbers.Real)
-    v = float(value) if ok else np.nan
+    v = float(value) if ok else np.nan  # type: ignore[arg-type]  # a numbers.Real
     ok = ok and bool(np.isfinite(v))
     if ok and low is not None:
         ok = v > low if low_open else v >= low
@@ -109,8 +128,8 @@ def check_beta(beta):
     return check_real(beta, "beta", low=0.0, low_open=True)
 
 
-def check_probability(value, name):
-    """A probability in [0, 1]."""
+def check_probability(value: object, name: str) -> float:
+    """A probability in [0, 1], as a float (:func:`check_real` with ``low=0``, ``high=1``)."""
     return check_real(value, name, 0.0, 1.0, what="a probability")
 
 

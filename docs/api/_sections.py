@@ -28,6 +28,8 @@ SECTIONS = [
      "Gymnasium toy-text environments and Minari datasets."),
     ("exceptions", "fo.exceptions", "factirl_opt.exceptions", "Exceptions and warnings: ``fo.exceptions``",
      "Every error the library raises on bad input is one of these."),
+    ("validation", "fo.validation", "factirl_opt.validation", "Argument checks: ``fo.validation``",
+     "The library's checks of scalar arguments, for code built on it (presets, scripts, extensions)."),
     ("solvers", "solvers", "solvers", "Step solvers: ``solvers``",
      "The step-solver registry, a leaf package that imports nothing from factirl_opt."),
 ]

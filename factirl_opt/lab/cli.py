@@ -27,7 +27,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
-from .._validation import check_int
+from ..validation import check_int
 from ..exceptions import FactIRLError, ValidationError
 from ..parallel import BACKENDS
 from .arguments import mark_checked, scheduler_address

@@ -1,4 +1,4 @@
-"""Profile one FactIRL fit of ``bench mce`` in CPU time (issue 30's profiles, results/mce-speed/README.md).
+"""Profile one FactIRL fit of ``bench mce`` in CPU time (the profiles of results/mce-speed/README.md).
 
     PYTHONPATH=. python results/mce-speed/profile_fit.py mce 10 /tmp/mce.prof
 
@@ -12,19 +12,21 @@ import sys
 import time
 
 from factirl_opt.lab import bench
-from factirl_opt._threads import limit_blas_threads
 from factirl_opt.lab.benchmarks import mce as m
+from factirl_opt.lab.benchmarks import resolve_settings
+from factirl_opt.lab.experiments.worlds import objectworld_per_task
+from factirl_opt.parallel import limit_blas_threads
 
 objective, n_tasks, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
-settings = m.resolve_settings(bench.build_parser().parse_args(["mce", "--n-tasks", str(n_tasks)]), m.DEFAULTS, m.QUICK)
-preset = m._preset(settings)
+settings = resolve_settings(bench.build_parser().parse_args(["mce", "--n-tasks", str(n_tasks)]), m.DEFAULTS, m.QUICK)
+preset = m.benchmark_preset(settings)
 with limit_blas_threads(1):
-    gt = m.objectworld_per_task(preset, n_tasks, settings["n_demos"], settings["seed"])
+    gt = objectworld_per_task(preset, n_tasks, settings["n_demos"], settings["seed"])
     profiler = cProfile.Profile(time.process_time)
     profiler.enable()
-    model, wall, cpu, planner = m._fit(preset, gt, objective, settings["seed"] + 1)
+    model, wall, cpu, planner = m.fit_once(preset, gt, objective, settings["seed"] + 1)
     profiler.disable()
-entry = m._entry(model, wall, planner, gt, preset)
+entry = m.fit_entry(model, wall, planner, gt, preset)
 print(objective, "wall", wall, "cpu", cpu, "evaluations", model.n_evaluations_, planner.counts(),
       "deviation", entry["mean_train_deviation"])
 profiler.dump_stats(out)

@@ -219,7 +219,7 @@ def make_objectworld(size: int = 32, n_inner: int = 5, n_outer: int = 2, object_
         if value > size * size:
             raise ValidationError(f"{name} must be at most the number of cells {size * size}; got {value}")
     n_inner, n_outer = int(n_inner), int(n_outer)
-    density = check_real(object_density, "object_density", 0.0, 1.0, low_open=True)
+    density: float | None = check_real(object_density, "object_density", 0.0, 1.0, low_open=True)
     det = check_real(determinism, "determinism", 0.0, 1.0)
     gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
     rng = as_rng(rng)

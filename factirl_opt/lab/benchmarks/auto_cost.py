@@ -21,7 +21,7 @@ import warnings
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
 from ...learners import adaptive

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...datasets.synthetic import synthetic_tasks
 from ...evaluation import deviation, dictionary_match
 from ...learners.dictionary import DICTIONARY_CONSTRAINTS

@@ -33,7 +33,7 @@ import time
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...tasks.demonstrations import sample_demonstrations
 from ...learners.factirl import FactIRL
 from ...datasets.objectworld.maps import objectworld_maps

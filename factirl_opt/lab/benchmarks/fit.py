@@ -32,7 +32,7 @@ import numpy as np
 
 import solvers
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
 from ...learners.factirl import FactIRL

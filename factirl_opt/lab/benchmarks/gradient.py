@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...tasks.demonstrations import empirical_statistics
 from ...mdp.tabular import GridWorld
 from ...objectives.policy_matching import (

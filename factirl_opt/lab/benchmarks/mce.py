@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
 from ..experiments.learner_solvers import factorial_options
@@ -42,7 +42,7 @@ from ...planning import CountingPlanner, get_planner
 from ..arguments import integer
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "OBJECTIVES"]
+__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry"]
 
 #: the objectives compared (policy matching the reference of the ratios)
 OBJECTIVES = ("policy-matching", "mce")
@@ -72,7 +72,7 @@ def add_arguments(parser):
                         help="tiny configuration for tests; options given explicitly keep their value")
 
 
-def _preset(s):
+def benchmark_preset(s):
     """The preset with the benchmark's size, primitives, demonstration length and budgets."""
     preset = get_preset(s["preset"])
     if preset.world != "objectworld-per-task":
@@ -89,8 +89,9 @@ def _preset(s):
     return dataclasses.replace(preset, **changes)
 
 
-def _fit(preset, gt, objective, seed):
-    """One FactIRL fit from scratch with ``objective``; its model, wall time and counting planner."""
+def fit_once(preset, gt, objective, seed):
+    """One FactIRL fit from scratch with ``objective``: its model, wall time, CPU time and
+    counting planner (the benchmark's unit of work; ``results/mce-speed/profile_fit.py`` profiles it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
@@ -102,7 +103,9 @@ def _fit(preset, gt, objective, seed):
     return model, time.perf_counter() - t0, time.process_time() - c0, planner
 
 
-def _entry(model, elapsed, planner, gt, preset):
+def fit_entry(model, elapsed, planner, gt, preset):
+    """The benchmark's record of one fit: times, evaluations, loss, train deviation (eq. 13) and
+    the counting planner's work per evaluation (the keys of ``fits[objective]`` in the output)."""
     counts = planner.counts()
     n_eval = max(int(model.n_evaluations_), 1)
     mdps = gt.mdps("train")
@@ -117,7 +120,7 @@ def _entry(model, elapsed, planner, gt, preset):
 
 def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
-    preset = _preset(s)
+    preset = benchmark_preset(s)
     objectives = list(dict.fromkeys(s["objectives"]))
     entries, times, cpus = {}, {name: [] for name in objectives}, {name: [] for name in objectives}
     with limit_blas_threads(s["blas_threads"]) as threads:
@@ -126,10 +129,10 @@ def run(args):
         t_data = time.perf_counter() - t0
         for _ in range(s["repeats"]):
             for name in objectives:
-                model, elapsed, cpu, planner = _fit(preset, gt, name, s["seed"] + 1)
+                model, elapsed, cpu, planner = fit_once(preset, gt, name, s["seed"] + 1)
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
-                entries[name] = _entry(model, elapsed, planner, gt, preset)
+                entries[name] = fit_entry(model, elapsed, planner, gt, preset)
     for name in objectives:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
         entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]

@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
 from ..arguments import count, integer, real, text

@@ -77,7 +77,7 @@ import time
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...tasks.demonstrations import empirical_statistics, sample_demonstrations
 from ...evaluation import deviation
 from ...exceptions import ValidationError

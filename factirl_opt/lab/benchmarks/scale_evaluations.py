@@ -53,7 +53,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...tasks.features import factorial_rewards
 from ...learners.fitting import make_objective
 from ...tasks.task_set import reward_features

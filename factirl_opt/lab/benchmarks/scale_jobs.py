@@ -38,7 +38,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
+from ...parallel import limit_blas_threads
 from ...exceptions import MissingDependencyError, ValidationError
 from ...objectives import distributed
 from ...planning import planning_budget

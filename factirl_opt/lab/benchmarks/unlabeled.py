@@ -70,7 +70,7 @@ from typing import Any, Callable
 import numpy as np
 from scipy.special import logsumexp
 
-from ..._validation import check_int
+from ...validation import check_int
 from ...evaluation import deviation
 from ...exceptions import ValidationError
 from ..arguments import integer, real

@@ -89,7 +89,7 @@ from typing import Any
 
 import solvers
 
-from ..._validation import check_bool, check_int, check_probability, check_real
+from ...validation import check_bool, check_int, check_probability, check_real
 from ...exceptions import FactIRLError, ValidationError, translate_solver_errors
 from ...planning import available_planners
 from ...learners.solver_settings import SolverSettings

@@ -43,8 +43,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._threads import limit_blas_threads
-from ..._validation import check_int
+from ...parallel import limit_blas_threads
+from ...validation import check_int
 from ...evaluation import deviation
 from ...parallel import BACKENDS  # how shards and sweep runs are served (``"loky"`` is the former name of ``"processes"``)
 from ...exceptions import MaxIterWarning, PersistenceError, ValidationError
