@@ -9,7 +9,7 @@ dataset from local storage and gives
   demonstrations, ``[logged.episodes]``, for the learners;
 - the final state of each episode, so that :meth:`LoggedEpisodes.transitions` gives every
   (s, a, s') transition, the L-th included, for :func:`~factirl_opt.estimate_mdp` and
-  :func:`~factirl_opt.transition_log_likelihood`.
+  :func:`~factirl_opt.mdp.transition_log_likelihood`.
 
 States. With a ``Discrete(n)`` observation space (Gymnasium's toy-text environments) the
 observation is the state and S = n. Other observations must be mapped to state indices by the

@@ -64,7 +64,7 @@ FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
 
 
 def _is_auto(value: Any) -> bool:
-    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.adaptive`)."""
+    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.adaptive`)."""
     return isinstance(value, str) and value == AUTO
 
 
@@ -247,8 +247,8 @@ class FactIRL(Estimator):
     -----
     A KeyboardInterrupt (Ctrl-C) during ``fit`` or ``transfer`` keeps the best point seen so
     far as the fitted state (status and stop reason ``"interrupted"``), warns with
-    :class:`factirl_opt.interruption.InterruptedFitWarning`, and propagates (as
-    :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt). In the
+    :class:`factirl_opt.exceptions.InterruptedFitWarning`, and propagates (as
+    :class:`factirl_opt.exceptions.FitInterrupted`, a KeyboardInterrupt). In the
     alternating loop the best point is the best of the start and the completed outer
     iterations; during the flat fit of the PCA start (or its PCA) it is that start, the PCA of
     the flat rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's

@@ -178,7 +178,7 @@ class GradIRL(Estimator):
         object) one signature per task.
     features_sha256_ : str or None
         SHA-256 of the validated features (S*A, p) of the fit
-        (:func:`factirl_opt.learners.fitting.features_digest`); None without features and with
+        (:func:`factirl_opt.tasks.task_set.features_digest`); None without features and with
         per-task features.
 
     Notes
@@ -186,7 +186,7 @@ class GradIRL(Estimator):
     A KeyboardInterrupt (Ctrl-C) during ``fit`` leaves the estimator fitted with each task's
     best weights seen so far (``status_ == stop_reason_ == "interrupted"``, ``loss_`` their
     loss, NaN for a task never evaluated), warns with :class:`InterruptedFitWarning`, and
-    propagates (as :class:`factirl_opt.interruption.FitInterrupted`, a KeyboardInterrupt).
+    propagates (as :class:`factirl_opt.exceptions.FitInterrupted`, a KeyboardInterrupt).
     """
 
     #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and

@@ -29,7 +29,7 @@ Every function here reads ``data`` through :func:`as_transitions`. Accepted:
   (m, L, 2) array per task) are accepted as they are; messages number the episodes in order
   (the m episodes of a 3-d array count as m).
 
-Logged episodes read by :func:`~factirl_opt.read_minari` (any object with a ``transitions()``
+Logged episodes read by :func:`~factirl_opt.adapters.read_minari` (any object with a ``transitions()``
 method returning one of these layouts) are accepted as they are.
 
 Values must be integers (floats holding whole numbers are accepted); states in [0, S) and
@@ -50,7 +50,7 @@ maximum-likelihood frequencies and only untried rows come from the prior. Prior 
 - ``"self-loop"`` (default): ``m = e_s``, the agent stays where it is (the pseudo-counts all
   on staying put). Rows keep the data's support plus at most the entry ``s' = s``; untried
   actions of states never left (terminal states of an episodic task) become absorbing, the
-  convention of :func:`~factirl_opt.from_gymnasium`.
+  convention of :func:`~factirl_opt.adapters.from_gymnasium`.
 - ``"uniform"``: ``m = 1/S`` (a symmetric Dirichlet, ``c / S`` per next state). Every row the
   prior touches is dense: with ``c > 0`` the whole (S*A, S) matrix; with ``c = 0`` the untried
   rows only. Refused when those rows would hold more than :data:`UNIFORM_ENTRY_LIMIT` entries.

@@ -82,7 +82,7 @@ def residual_weights_problem(objective: Any, features: Any, dictionary: NDArray[
     penalty : float
         ``lambda``, finite and >= 0.
     names : (str, str)
-        For the message of an overflow (:func:`factirl_opt.objectives.problems.linear_rewards`).
+        For the message of an overflow (:func:`factirl_opt.tasks.features.linear_rewards`).
 
     Returns
     -------

@@ -205,7 +205,7 @@ def test_the_true_start_learner_starts_the_shared_em_from_the_true_labels(capsys
     assert learners["em_shared_true_start"]["transfer_deviation"] is not None
 
 
-@pytest.mark.filterwarnings("ignore::factirl_opt.ConvergenceWarning")  # the tiny MCE fit may stall
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.ConvergenceWarning")  # the tiny MCE fit may stall
 def test_objective_reaches_every_learner(capsys, monkeypatch):
     seen = []
 

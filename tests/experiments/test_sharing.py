@@ -1,4 +1,4 @@
-"""The "which learner when" line-ups (issue 29): flat, factorial with the preset's k and the adaptive learner
+"""The "which learner when" line-ups: flat, factorial with the preset's k and the adaptive learner
 (k and the residual penalty chosen by validation), their presets, claims and benchmark."""
 
 import dataclasses

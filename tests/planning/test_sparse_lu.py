@@ -89,7 +89,7 @@ def test_each_thread_has_its_own_factorisations():
 def test_stochastic_system_assembly_is_the_sparse_product_bit_for_bit():
     """The union-pattern assembly of a stochastic policy's M^T equals the sparse product it
     replaces (values and pattern), and a policy with zeros takes that product."""
-    from factirl_opt.objectworld import make_objectworld
+    from factirl_opt.datasets.objectworld import make_objectworld
 
     rng = np.random.default_rng(3)
     for mdp in (fo.GridWorld(7), make_objectworld(size=8, n_inner=2, n_outer=2, object_density=0.15, rng=rng).mdp()):

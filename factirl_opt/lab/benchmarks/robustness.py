@@ -24,7 +24,7 @@ Learners (tabular rewards, the preset's solvers and budgets; docs/maths.md §5 a
 ``deviation(true_mdp, true_rewards, learnt_rewards)`` (eq. 13; docs/maths.md §9).
 
 Each estimated model is also scored on ``--n-heldout`` held-out exploration transitions
-(:func:`factirl_opt.transition_log_likelihood`): the mean log-likelihood per transition
+(:func:`factirl_opt.mdp.transition_log_likelihood`): the mean log-likelihood per transition
 (``-inf`` when the model gives probability 0 to a held-out transition), the fraction of
 held-out transitions given probability 0, the mean over the others, and the largest absolute
 error of a transition probability against the true model. The true model's own held-out
@@ -155,7 +155,7 @@ def fit_and_score(gt: Any, mdp: TabularMDP, preset: Any, rng: np.random.SeedSequ
 def exploration_sequence(mdp: TabularMDP, n: int, rng: np.random.SeedSequence) -> np.ndarray:
     """The first ``n`` transitions of the seed's exploration sequence, an (n, 3) array.
 
-    Drawn by :func:`factirl_opt.sample_transitions` in blocks of :data:`EXPLORATION_BLOCK` from one
+    Drawn by :func:`factirl_opt.mdp.sample_transitions` in blocks of :data:`EXPLORATION_BLOCK` from one
     generator, so the first M transitions are the same whatever ``n >= M``: the models of a run
     are nested (each M's data extends the smaller M's), and an M gives the same model in a run
     with other values of ``--extra``.

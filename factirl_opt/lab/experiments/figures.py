@@ -8,7 +8,7 @@
   with its single demonstration drawn on it, then the models of the line-up's ``value_maps``
   learners (the paper's: flat and factorial). Each map has its own colour scale (learnt rewards
   are defined up to scale); blue is high, as in the paper. On Objectworld the objects are drawn
-  over every map (:func:`factirl_opt.plot_objectworld`: dots filled with the inner colour,
+  over every map (:func:`factirl_opt.datasets.objectworld.plot_objectworld`: dots filled with the inner colour,
   ringed with the outer one).
 
 A figure shows a sweep's panel only when the sweep has at least two points (Objectworld's
@@ -199,7 +199,7 @@ def _map_style(data, size):
 
     The paper's grid: blue heat maps, red demonstrations. Objectworld: grey heat maps (the
     objects' colours stay readable) with the objects drawn over them
-    (:func:`factirl_opt.plot_objectworld`), demonstrations in cyan (no object has that colour).
+    (:func:`factirl_opt.datasets.objectworld.plot_objectworld`), demonstrations in cyan (no object has that colour).
     """
     if "objects" not in data:
         return (lambda ax, V: ax.imshow(V, cmap="Blues", interpolation="nearest")), "#d62728", "blue is high"
@@ -221,7 +221,7 @@ def plot_value_functions(data: dict, path_base: str, point: tuple[int, int] | No
     data : dict
         Contents of figure3.json: ``grid_size``, ``true``, ``demos``, and for each learner its
         maps and ``deviation_<learner>``; Objectworld's (``objects``, ``n_inner``, ``n_outer``,
-        ``moves``) draw the objects over the maps (:func:`factirl_opt.plot_objectworld`) and the
+        ``moves``) draw the objects over the maps (:func:`factirl_opt.datasets.objectworld.plot_objectworld`) and the
         demonstrations with the world's actions.
     path_base : str
     point : tuple (n_tasks, demos_per_task), optional

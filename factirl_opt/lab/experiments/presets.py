@@ -452,7 +452,7 @@ PRESETS = {
     ),
 }
 
-#: "which learner when" (issue 29): flat, factorial (the preset's k) and the adaptive learner
+#: "which learner when": flat, factorial (the preset's k) and the adaptive learner
 #: (k and the residual penalty chosen by validation), 3 seeds, on the paper's grid at 5, 20 and
 #: 100 training tasks, on both quick Objectworld presets, on BabyAI GoToLocal and GoToOpen
 SHARING_PRESETS = ("sharing-grid", "sharing-objectworld-quick", "sharing-objectworld-per-task-quick", "sharing-babyai",

@@ -10,14 +10,14 @@ recipe; a new world is one more entry.
     :func:`factirl_opt.datasets.synthetic.synthetic_tasks` from a random dictionary (``D ~ N(0, 1)``;
     coefficients ``N(0, 1)`` or ``|N(0, 1)|``). No base features.
 ``"objectworld"`` (the multi-task Objectworld of ELIRL, Mendez et al. 2018)
-    :func:`factirl_opt.make_objectworld` with ``N = grid_size``, ``c1 = n_primitives`` inner
+    :func:`factirl_opt.datasets.objectworld.make_objectworld` with ``N = grid_size``, ``c1 = n_primitives`` inner
     colours, ``c2 = n_outer_colours`` outer colours, ``object_density``, ``determinism =
     p_success`` and ``gamma``; tasks drawn by ELIRL's rule
-    (:func:`factirl_opt.multitask_rewards`: 2-4 inner colours per task, weights
+    (:func:`factirl_opt.datasets.objectworld.multitask_rewards`: 2-4 inner colours per task, weights
     ``5 (3u - 2)``, reward ``sum_c w_c 1[distance to colour c < 3]``), state rewards repeated
     over the 5 actions; the true dictionary is the c1 primitives ``1[distance to colour c < 3]``
     (S, c1); the base features are Levine's discrete features (S, (N-1)(c1+c2))
-    (:func:`factirl_opt.objectworld_features`). Demonstrations of the greedy expert
+    (:func:`factirl_opt.datasets.objectworld.objectworld_features`). Demonstrations of the greedy expert
     (:func:`factirl_opt.sample_demonstrations`, uniform start states), planned with the
     preset's planner. ``coefficient_kind`` is not used.
 
@@ -28,7 +28,7 @@ recipe; a new world is one more entry.
     test tasks on further maps never seen in training, one demonstration each. Every map has
     the same dynamics, so the tasks of a split share one MDP object (planned as one batch).
     Each split's tasks are also scored on *fresh maps* (:meth:`GroundTruth.fresh`,
-    :func:`factirl_opt.fresh_maps`: the same coefficients on newly drawn maps), where a learnt
+    :func:`factirl_opt.datasets.objectworld.fresh_maps`: the same coefficients on newly drawn maps), where a learnt
     reward is carried as feature weights: ELIRL's and Levine's "transfer" score. Protocol
     differences with ELIRL's script: the greedy expert demonstrates (ELIRL samples the
     soft-optimal policy at temperature 1), no bias column, every colour present on every map.
@@ -125,7 +125,7 @@ class GroundTruth:
         return self.mdp if maps is None else list(maps.mdps)
 
     def fresh(self, split):
-        """The ``split`` tasks on maps never seen (same true coefficients; :func:`factirl_opt.fresh_maps`).
+        """The ``split`` tasks on maps never seen (same true coefficients; :func:`factirl_opt.datasets.objectworld.fresh_maps`).
 
         Drawn anew at each call, from the split's fresh-map seed (same maps every time).
         """
@@ -223,7 +223,7 @@ def objectworld_per_task(preset, n_tasks, demos_per_task, seed):
     Returns
     -------
     GroundTruth
-        ``task_maps`` holds the training and test tasks' :class:`~factirl_opt.ObjectWorldMaps`
+        ``task_maps`` holds the training and test tasks' :class:`~factirl_opt.datasets.objectworld.ObjectWorldMaps`
         (``mdp`` is the training maps' shared MDP, ``dictionary`` the training maps' true
         primitives, ``features`` None: the features are per task) and ``fresh_seeds`` the
         seeds of their fresh maps.
