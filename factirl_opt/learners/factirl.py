@@ -13,10 +13,13 @@ The plain functions stay importable from here.
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+import solvers
 
 from .._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, Estimator, renamed_attribute, renamed_params
@@ -47,6 +50,10 @@ from ..mdp.tabular import check_signature
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from .solver_settings import SolverSettings, estimator_solvers
+from ..objectives import Objective
+
+if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
+    from distributed import Client
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
 from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
 from ..objectives.residuals import check_residual_penalty, residual_weights
@@ -279,16 +286,19 @@ class FactIRL(Estimator):
     }
 
     @renamed_params
-    def __init__(self, n_primitives: int = 5, beta: float = 5.0, *, features: Any = None, reward: str = "state-action",
-                 init: Any = "pca", pca_shrink: bool = True, flat_max_iter: int = 100, max_iter: int = 100,
-                 inner_steps: int = 5, tol: float = 1e-5, gtol: float = GTOL, transfer_max_iter: int = 100,
-                 solver: Any = "armijo", solver_options: dict | None = None, d_solver: Any = "armijo",
-                 d_solver_options: dict | None = None, objective: Any = "policy-matching", planner: str = "auto",
+    def __init__(self, n_primitives: int | Literal["auto"] = 5, beta: float = 5.0, *,
+                 features: ArrayLike | Sequence[ArrayLike] | None = None, reward: str = "state-action",
+                 init: Literal["pca", "random"] | tuple[ArrayLike, ArrayLike] = "pca", pca_shrink: bool = True,
+                 flat_max_iter: int = 100, max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5,
+                 gtol: float = GTOL, transfer_max_iter: int = 100,
+                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
+                 d_solver: str | solvers.StepSolver = "armijo", d_solver_options: dict | None = None,
+                 objective: str | type[Objective] = "policy-matching", planner: str = "auto",
                  rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
-                 client: Any = None, planner_options: dict | None = None, verbose: bool = False,
-                 callback: Callable | None = None, residual_penalty: Any = np.inf,
+                 client: Client | None = None, planner_options: dict | None = None, verbose: bool = False,
+                 callback: Callable | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 flat_solver: Any = FLAT_SOLVER) -> None:
+                 flat_solver: str | solvers.StepSolver = FLAT_SOLVER) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -437,7 +447,8 @@ class FactIRL(Estimator):
         d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
         constraint, alpha = check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
         if constraint is not None:
-            d_solver = constrained_dictionary_solver(d_solver, constraint, alpha, tasks.n_params, self.n_primitives,
+            d_solver = constrained_dictionary_solver(d_solver, constraint, alpha, tasks.n_params,
+                                                     check_int(self.n_primitives, "n_primitives", minimum=1),
                                                      len(tasks.demos_per_task))
         lam = self._residual_penalty(h_solver, self.residual_penalty)
         obj = task_objective(tasks, self.beta, self.objective, self.planner)

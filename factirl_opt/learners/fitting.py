@@ -62,8 +62,8 @@ def learner_entry(fn: F) -> F:
 STALL_ULPS = 4
 
 
-def make_objective(mdp: Any, demos_per_task: Any, beta: float, objective: str = "policy-matching",
-                   planner: str = "auto") -> Objective:
+def make_objective(mdp: Any, demos_per_task: Any, beta: float,
+                   objective: str | type[Objective] = "policy-matching", planner: str = "auto") -> Objective:
     """The named objective bound to the empirical statistics of ``demos_per_task``.
 
     Parameters

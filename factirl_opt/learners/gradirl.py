@@ -6,9 +6,11 @@ already built, which ``FactIRL`` also runs for its PCA start on the same objecti
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 import solvers
 
@@ -25,7 +27,11 @@ from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keep
 from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from ..objectives.problems import weights_problem
-from .solver_settings import estimator_solvers
+from .solver_settings import SolverSettings, estimator_solvers
+from ..objectives import Objective
+
+if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
+    from distributed import Client
 
 __all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
@@ -202,10 +208,11 @@ class GradIRL(Estimator):
     param_kinds: ClassVar[dict[str, str]] = {"features": "features", "solver": "solver", "objective": "objective",
                                              "planner": "planner", **EXECUTION_PARAM_KINDS}
 
-    def __init__(self, beta: float = 5.0, features: Any = None, *, reward: str = "state-action", max_iter: int = 100,
-                 tol: float = 1e-5, solver: Any = "armijo", solver_options: dict | None = None,
-                 objective: Any = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
-                 backend: str = "processes", client: Any = None, planner_options: dict | None = None,
+    def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | None = None, *,
+                 reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5,
+                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
+                 objective: str | type[Objective] = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
+                 backend: str = "processes", client: Client | None = None, planner_options: dict | None = None,
                  verbose: bool = False, callback: Callable | None = None) -> None:
         self.beta = beta
         self.features = features

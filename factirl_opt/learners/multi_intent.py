@@ -20,11 +20,13 @@ labels and pair recovered intentions with true tasks.
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
+
+import solvers
 
 from .._progress import fit_progress
 from .._validation import as_rng, check_array, check_bool, check_int
@@ -37,7 +39,10 @@ from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_cand
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
 from ..planning.budget import options_budget
-from .solver_settings import estimator_solvers
+from .solver_settings import SolverSettings, estimator_solvers
+
+if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
+    from distributed import Client
 from ..tasks.task_set import task_set
 from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
 
@@ -215,15 +220,18 @@ class MultiIntentIRL(Estimator):
         "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
     }
 
-    def __init__(self, n_intentions: int | str, n_primitives: int | None = None, *, features: Any = None,
+    def __init__(self, n_intentions: int | Literal["auto"], n_primitives: int | None = None, *,
+                 features: ArrayLike | None = None,
                  reward: str = "state-action", objective: str = "policy-matching", beta: float = 5.0,
                  n_intentions_range: tuple[int, int] | None = None, selection: str = "held-out", n_folds: int = 3,
-                 init: Any = "agreement", n_init: int = 1, max_iter: int = 20, tol: float = 1e-6,
+                 init: Literal["agreement", "frequencies", "random"] | ArrayLike = "agreement", n_init: int = 1,
+                 max_iter: int = 20, tol: float = 1e-6,
                  m_step_max_iter: int = 20, m_step_tol: float = 1e-5, inner_steps: int = 5,
-                 solver: Any = "armijo", solver_options: dict | None = None, d_solver: Any = None,
+                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
+                 d_solver: str | solvers.StepSolver | None = None,
                  d_solver_options: dict | None = None, planner: str = "auto",
                  rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
-                 client: Any = None, planner_options: dict | None = None, verbose: bool = False,
+                 client: Client | None = None, planner_options: dict | None = None, verbose: bool = False,
                  callback: Callable | None = None) -> None:
         self.n_intentions = n_intentions
         self.n_primitives = n_primitives
