@@ -353,3 +353,21 @@ def test_a_tabular_model_transfers_to_a_list_of_its_own_mdp(data):
         model.transfer([grid3, fo.GridWorld(size=3, p_success=0.5)], demos[:2])
     with pytest.raises(ValidationError, match="got 2 MDPs for 3 tasks"):
         model.transfer([grid3, grid3], demos[:3])
+
+
+@pytest.mark.parametrize("reward", ["state-action", "state"])
+def test_a_tabular_model_refuses_other_maps_of_the_same_size(data, reward):
+    """Tabular (or state) rewards live on the states of the model's own MDP: as ``fit`` refuses them
+    across environments, ``transfer`` refuses every other map, even one of the same sizes."""
+    grid3, _, demos = data
+    model = fo.FactIRL(n_primitives=K, reward=reward, max_iter=2, flat_max_iter=2, rng=0).fit(grid3, demos)
+    P = np.array(grid3.transitions)
+    P[4] = np.eye(9)[4][None, :].repeat(4, axis=0)  # a wall around the centre cell: every move stays put
+    other = fo.TabularMDP(P, grid3.gamma)
+    assert (other.n_states, other.n_actions) == (grid3.n_states, grid3.n_actions) and other.signature() != grid3.signature()
+    for mdps in ([grid3, other], [other, grid3], [other, other], other):
+        with pytest.raises(ValidationError, match="another MDP|transfers only to that MDP"):
+            model.transfer(mdps, demos[:2], max_iter=2)
+    with pytest.raises(ValidationError, match="transfers only to that MDP"):
+        model.transfer([grid3, other], demos[:2], features=np.ones((9, K)))
+    assert model.transfer([grid3, grid3], demos[:2], max_iter=2).shape == (2, K)

@@ -11,7 +11,7 @@ from factirl_opt.learners.dictionary import feature_weights, metric_pca_dictiona
 from factirl_opt.exceptions import NotFittedError, ValidationError
 from factirl_opt.learners.fitting import task_objective
 from factirl_opt.tasks.task_set import task_set
-from factirl_opt.objectives.problems import task_dictionary_problem, task_weights_problem
+from factirl_opt.objectives.problems import dictionary_problem, weights_problem
 from factirl_opt.tasks.features import TaskFeatures
 
 
@@ -147,15 +147,15 @@ def test_problem_gradients_match_central_differences_on_mixed_sizes(worlds, rng,
     mdps, Phis, demos = worlds
     envs = task_set(mdps, demos, Phis)
     obj = task_objective(envs, 2.0, objective)
-    tf = envs.features
-    wp = task_weights_problem(obj, tf)
+    basis = envs.basis
+    wp = weights_problem(obj, basis)
     W, rows = 0.5 * rng.normal(size=(2, 3)), np.array([2, 1])
     _, g = wp.loss_and_grad(W, rows)
     num = central_difference(lambda x: wp.loss_and_grad(x, rows)[0].sum(), W)
     assert rel_err(g, num) < 1e-6
     H, D = rng.normal(size=(3, 2)), 0.5 * rng.normal(size=(3, 2))
     for unit_norm in (False, True):
-        dp = task_dictionary_problem(obj, H, tf, unit_norm)
+        dp = dictionary_problem(obj, H, basis, unit_norm)
         _, gD = dp.loss_and_grad(D.reshape(1, -1), None)
         num = central_difference(lambda x: dp.loss_and_grad(x, None)[0][0], D.reshape(1, -1))
         assert rel_err(gD, num) < 1e-6
@@ -166,7 +166,7 @@ def test_least_squares_pieces_match_central_differences(worlds, rng):
     mdps, Phis, demos = worlds
     envs = task_set(mdps, demos, Phis)
     obj = task_objective(envs, 2.0)
-    wp = task_weights_problem(obj, envs.features)
+    wp = weights_problem(obj, envs.basis)
     W, rows, V = 0.5 * rng.normal(size=(3, 3)), np.arange(3), rng.normal(size=(3, 3))
     _, res, jac = wp.residual_jacobian(W, rows)
     assert res.shape == (3, 64) and jac.shape == (3, 64, 3) and np.all(res[[0, 2], 36:] == 0)
@@ -178,8 +178,8 @@ def test_least_squares_pieces_match_central_differences(worlds, rng):
     U = rng.normal(size=res.shape)
     np.testing.assert_allclose(np.sum(lin.vjp(U) * V), np.sum(U * lin.jvp(V)), rtol=1e-10)
     H, D, dD = rng.normal(size=(3, 2)), 0.5 * rng.normal(size=(3, 2)), rng.normal(size=(1, 6))
-    lin = task_dictionary_problem(obj, H, envs.features).linearize(D.reshape(1, -1), None)
-    dp = task_dictionary_problem(obj, H, envs.features)
+    lin = dictionary_problem(obj, H, envs.basis).linearize(D.reshape(1, -1), None)
+    dp = dictionary_problem(obj, H, envs.basis)
     r = [dp.linearize(D.reshape(1, -1) + s * eps * dD, None).residual for s in (1, -1)]
     assert rel_err(lin.jvp(dD), (r[0] - r[1]) / (2 * eps)) < 1e-6
     U = rng.normal(size=lin.residual.shape)

@@ -44,7 +44,7 @@ def _setups(kind, shared, worlds, objective):
     mdps, Phis, demos = worlds
     envs = task_set(mdps, demos, Phis)
     obj = task_objective(envs, 2.0, objective)
-    return obj, envs.features, 3
+    return obj, envs.basis, 3
 
 
 @pytest.mark.parametrize("kind", ["shared", "environments"])

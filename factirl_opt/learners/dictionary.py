@@ -26,7 +26,8 @@ import solvers
 
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
-from ..tasks.features import StateBroadcast, TaskFeatures
+from ..tasks.basis import TaskBasis, least_squares_weights
+from ..tasks.features import TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
            "check_dictionary_norms", "PCA_MAX_HALVINGS", "DICTIONARY_CONSTRAINTS", "check_dictionary_constraint",
@@ -82,8 +83,8 @@ def feature_weights(features: Any, rewards: NDArray[np.float64]) -> NDArray[np.f
     Parameters
     ----------
     features : ndarray, shape (S*A, p), or StateBroadcast
-        ``Phi``. For a :class:`~factirl_opt.objectives.problems.StateBroadcast` the solution is the
-        mean over the actions.
+        ``Phi``. For a :class:`~factirl_opt.tasks.features.StateBroadcast` the solution is the
+        mean over the actions (:func:`factirl_opt.tasks.basis.least_squares_weights`).
     rewards : ndarray, shape (S*A, m)
         ``X``, one column per reward.
 
@@ -91,9 +92,7 @@ def feature_weights(features: Any, rewards: NDArray[np.float64]) -> NDArray[np.f
     -------
     ndarray, shape (p, m)
     """
-    if isinstance(features, StateBroadcast):
-        return (features.T @ rewards) / features.n_actions
-    return np.linalg.lstsq(features, rewards, rcond=None)[0]
+    return least_squares_weights(features, rewards)
 
 
 def metric_pca_dictionary(weights: ArrayLike, features: TaskFeatures, n_components: int,
@@ -105,8 +104,9 @@ def metric_pca_dictionary(weights: ArrayLike, features: TaskFeatures, n_componen
     the metric is their mean Gram matrix ``G = mean_i Phi_i^T Phi_i`` (state features counted
     once per action): ``D`` (p, k) and ``H`` (n, k) come from the uncentred PCA of
     ``W G^{1/2}`` mapped back by the minimum-norm pre-image, so ``G^{1/2} D`` has orthonormal
-    columns and ``H = W G D``. When every task has the same features this is the shared
-    start, up to the signs of the primitives.
+    columns and ``H = W G D`` (:meth:`factirl_opt.tasks.basis.TaskBasis.start_dictionary`).
+    When every task has the same features this is the shared start, up to the signs of the
+    primitives.
 
     Parameters
     ----------
@@ -123,19 +123,7 @@ def metric_pca_dictionary(weights: ArrayLike, features: TaskFeatures, n_componen
     dictionary : ndarray, shape (p, k)
     coefficients : ndarray, shape (n, k)
     """
-    W = check_array(weights, "weights", ndim=2)
-    G = np.zeros((features.n_features, features.n_features))
-    for i in range(features.n_tasks):
-        F = features.matrix(i)
-        G += (features.n_actions if features.state_features[i] else 1) * (F.T @ F)
-    e, V = np.linalg.eigh(G / features.n_tasks)
-    keep = e > max(float(e.max()), 0.0) * 1e-12
-    if int(keep.sum()) < n_components:
-        raise ValidationError(f"n_components={n_components} exceeds the rank {int(keep.sum())} of the features' mean "
-                              "Gram matrix: the features span fewer reward directions than primitives")
-    root = np.sqrt(e[keep])
-    Dr, H = pca_dictionary(W @ (V[:, keep] * root), n_components, rng)
-    return V[:, keep] @ (Dr / root[:, None]), H
+    return TaskBasis(features).start_dictionary(weights, n_components, rng, pca_dictionary)
 
 
 def task_feature_weights(features: TaskFeatures, rewards: Any) -> NDArray[np.float64]:
@@ -143,16 +131,7 @@ def task_feature_weights(features: TaskFeatures, rewards: Any) -> NDArray[np.flo
 
     ``rewards`` is a stacked (n, S, A) array or a list of (S_i, A) arrays.
     """
-    if len(rewards) != features.n_tasks:
-        raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({features.n_tasks}); got {len(rewards)}")
-    out = np.empty((features.n_tasks, features.n_features))
-    for i, (F, R) in enumerate(zip(features.dense(), rewards)):
-        R = check_array(R, f"flat_rewards[{i}] (task {i})")
-        shape = (int(features.n_states[i]), features.n_actions)
-        if R.shape != shape:
-            raise ValidationError(f"flat_rewards of task {i} must have shape (S_i, A) = {shape} (its MDP); got {R.shape}")
-        out[i] = np.linalg.lstsq(F, R.reshape(-1), rcond=None)[0]
-    return out
+    return TaskBasis(features).start_points_from_rewards(rewards, features.n_tasks)
 
 
 def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: ArrayLike,

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 import solvers
 
-from .._validation import as_rng, check_array, check_bool, check_int, check_mdp, check_tol
+from .._validation import as_rng, check_array, check_bool, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, Estimator, renamed_attribute, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
@@ -29,32 +29,24 @@ from .dictionary import (
     check_dictionary_norms,
     constrained_dictionary_solver,
     constrained_start,
-    feature_weights,
-    metric_pca_dictionary,
     normalise_dictionary,
     orient_nonneg,
     pca_dictionary,
     shrink_coefficients,
-    task_feature_weights,
 )
-from ..exceptions import FitInterrupted, NotFittedError, ValidationError
+from ..exceptions import FitInterrupted, ValidationError
 from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
-from ..tasks.features import TaskFeatures, factorial_rewards, weights_rewards
-from .fitting import (
-    check_features_digest, learner_entry, make_objective, resolve_step_solver, task_objective, warn_if_stalled,
-)
-from ..tasks.task_set import reward_dimension, reward_features, task_set
+from .fitting import learner_entry, resolve_step_solver, task_objective, warn_if_stalled
+from ..tasks.task_set import task_set
 from .gradirl import fit_weights
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
-from ..mdp.tabular import check_signature
-from ..objectives.sharding import sharded
-from ..planning.budget import options_budget
+from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
 from ..objectives import Objective
 
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
     from distributed import Client
-from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
+from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
 from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
 from ..objectives.residuals import check_residual_penalty, residual_weights
 
@@ -73,13 +65,6 @@ FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
 def _is_auto(value: Any) -> bool:
     """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.adaptive`)."""
     return isinstance(value, str) and value == AUTO
-
-
-def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
-    """What the PCA start decomposes: the flat rewards (n, S*A), or with per-task features the weights (n, p)."""
-    if isinstance(Phi, TaskFeatures):
-        return weights
-    return weights_rewards(Phi, weights, mdp.n_states, mdp.n_actions).reshape(len(weights), -1)
 
 
 class FactIRL(Estimator):
@@ -323,56 +308,45 @@ class FactIRL(Estimator):
         self.dictionary_alpha = dictionary_alpha
         self.flat_solver = flat_solver
 
-    def _features(self, mdp):
-        k = getattr(self, "n_primitives_", self.n_primitives)
-        return reward_features(mdp, self.features, self.reward, min_columns=1 if isinstance(k, str) else k)
-
-    def _flat_start(self, mdp, n, Phi, obj, rng):
-        """Parameters of the flat learner on ``obj`` (n, S*A) and its evaluations; the objective is reset after."""
+    def _flat_start(self, n, basis, obj, rng):
+        """What the PCA start decomposes (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_points` of
+        the flat learner's weights on ``obj``) and its evaluations; the objective is reset after."""
         flat_solver = resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver")
         ev0 = obj.n_evaluations
         try:
-            res = fit_weights(obj, Phi, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
+            res = fit_weights(obj, basis, flat_solver, self.flat_max_iter, FLAT_TOL, what="FactIRL.fit (flat start)")
         except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
-            D, H = self._pca(_flat_points(mdp, Phi, exc.result.coefficients), Phi, rng)
+            D, H = self._pca(basis.start_points(exc.result.coefficients), basis, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
             raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
-        return _flat_points(mdp, Phi, res.coefficients), obj.n_evaluations - ev0
+        return basis.start_points(res.coefficients), obj.n_evaluations - ev0
 
-    def _pca(self, X, Phi, rng):
-        """The PCA start (D, H) of flat rewards X (n, S*A), mapped back to feature space; with
-        per-task features, of the flat weights X (n, p) (:func:`metric_pca_dictionary`)."""
-        if isinstance(Phi, TaskFeatures):
-            return metric_pca_dictionary(X, Phi, self.n_primitives, rng)
-        D, H = pca_dictionary(X, self.n_primitives, rng)
-        return (D if Phi is None else feature_weights(Phi, D)), H
+    def _pca(self, X, basis, rng):
+        """The PCA start (D, H) of the flat points X in the basis' metric
+        (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_dictionary`: the rewards' PCA mapped back
+        to feature space; with per-task features,
+        :func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`)."""
+        return basis.start_dictionary(X, self.n_primitives, rng, pca_dictionary)
 
-    def _pca_init(self, mdp, n, Phi, flat_rewards, rng, obj):
+    def _pca_init(self, n, basis, flat_rewards, rng, obj):
         if flat_rewards is None:
-            X, evals = self._flat_start(mdp, n, Phi, obj, rng)
-        elif isinstance(Phi, TaskFeatures):
-            X, evals = task_feature_weights(Phi, flat_rewards), 0
+            X, evals = self._flat_start(n, basis, obj, rng)
         else:
-            Theta, evals = check_array(flat_rewards, "flat_rewards"), 0
-            if Theta.shape != (n, mdp.n_states, mdp.n_actions):
-                raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
-            X = Theta.reshape(n, -1)
-            if Phi is not None:  # the rewards the least-squares feature weights give
-                X = (Phi @ feature_weights(Phi, X.T)).T
+            X, evals = basis.start_points_from_rewards(flat_rewards, n), 0
         try:
-            D, H = self._pca(X, Phi, rng)
+            D, H = self._pca(X, basis, rng)
         except KeyboardInterrupt as exc:
             if isinstance(exc, FitInterrupted):
                 raise
             # Ctrl-C in the PCA itself: redo it, and keep it as the start (not evaluated)
-            D, H = self._pca(X, Phi, rng)
+            D, H = self._pca(X, basis, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
             raise FitInterrupted(start, "FactIRL.fit") from exc
         if self.pca_shrink:
             try:
-                H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)
+                H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(basis.factorial_rewards(D, Hs))[0], H)
             except FitInterrupted as exc:
                 Hs, _, _, loss = exc.result
                 history = [] if loss is None else [float(np.sum(loss))]
@@ -383,8 +357,8 @@ class FactIRL(Estimator):
             obj.reset()
         return D, H, evals
 
-    def _initial(self, mdp, n, Phi, flat_rewards, rng, obj):
-        k, p = self.n_primitives, reward_dimension(mdp, Phi)
+    def _initial(self, n, basis, flat_rewards, rng, obj):
+        k, p = self.n_primitives, basis.n_params
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
@@ -398,7 +372,7 @@ class FactIRL(Estimator):
             D0 /= np.linalg.norm(D0, axis=0)
             return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
         if isinstance(self.init, str) and self.init == "pca":
-            return self._pca_init(mdp, n, Phi, flat_rewards, rng, obj)
+            return self._pca_init(n, basis, flat_rewards, rng, obj)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
     def _check_params(self, tasks):
@@ -440,7 +414,7 @@ class FactIRL(Estimator):
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
-        where, Phi = tasks.mdp, tasks.features
+        basis = tasks.basis
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
         h_name, h_options, d_name, d_options = estimator_solvers(self)
         h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
@@ -453,13 +427,13 @@ class FactIRL(Estimator):
         lam = self._residual_penalty(h_solver, self.residual_penalty)
         obj = task_objective(tasks, self.beta, self.objective, self.planner)
         try:
-            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
-                D, H, init_evals = self._initial(where, obj.n_tasks, Phi, flat_rewards, as_rng(self.rng), obj)
+            with Execution.of(self).evaluate(obj) as obj:
+                D, H, init_evals = self._initial(obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj)
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
                 if constraint is not None:
                     D, H = constrained_start(d_solver, D, H, constraint.startswith("nonneg"))
-                fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps,
+                fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=basis, max_iter=max_iter, inner_steps=inner_steps,
                                     tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
                                     residual_penalty=lam)
         except FitInterrupted as exc:
@@ -508,7 +482,7 @@ class FactIRL(Estimator):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
         self.residual_penalty_, self.n_primitives_ = lam, int(fit.dictionary.shape[1])
         if fit.residuals is None:
-            self.rewards_ = factorial_rewards(tasks.mdp, tasks.features, fit.dictionary, fit.coefficients)
+            self.rewards_ = tasks.basis.factorial_rewards(fit.dictionary, fit.coefficients)
             self.residuals_ = np.zeros((fit.coefficients.shape[0], fit.dictionary.shape[0]))
         else:
             self.residuals_ = fit.residuals
@@ -517,25 +491,6 @@ class FactIRL(Estimator):
         self.n_evaluations_ = n_evaluations
         self.n_iter_, self.status_, self.stop_reason_ = fit.n_iter, fit.status, fit.reason
         self.mdp_signature_, self.features_sha256_ = tasks.signature(), tasks.digest
-
-    def _transfer_dictionary(self, mdp):
-        """The base features and the validated ``dictionary_`` of a fitted model, for ``transfer``."""
-        if not hasattr(self, "dictionary_"):
-            raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
-        check_mdp(mdp)
-        if isinstance(getattr(self, "mdp_signature_", None), dict):  # a list: fitted on several environments
-            check_signature(self.mdp_signature_, mdp, "this FactIRL model")
-        Phi = self._features(mdp)
-        if hasattr(self, "features_sha256_"):
-            check_features_digest(self.features_sha256_, None if self.features is None else Phi, "this FactIRL model")
-        p = mdp.n_params if Phi is None else Phi.shape[1]
-        D = check_array(self.dictionary_, "dictionary_", ndim=2)
-        if D.shape[0] != p:
-            raise ValidationError(f"dictionary_ must have shape (p, k) with p = {p} (the reward dimension); got {D.shape}")
-        k = getattr(self, "n_primitives_", self.n_primitives)
-        if D.shape[1] != k:
-            raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
-        return Phi, D
 
     @renamed_params
     @learner_entry
@@ -580,10 +535,7 @@ class FactIRL(Estimator):
             ``dictionary_`` does not fit the MDP, ``features`` are missing for a per-task
             model or have another p, or the environments another number of actions.
         """
-        new = environments_transfer_setup(mdp, demos_per_task, features, self, self.beta, self.objective, self.planner)
-        if new is None:  # the one-MDP path: ``[m] * n_new`` of one MDP is ``m``, as in ``fit``
-            mdp = transfer_mdp(mdp, demos_per_task, self)
-            Phi, D = self._transfer_dictionary(mdp)
+        tasks, D = transfer_tasks(mdp, demos_per_task, features, self)
         if solver is None:
             if solver_options is not None:
                 raise ValidationError("solver_options given without solver")
@@ -595,10 +547,7 @@ class FactIRL(Estimator):
             solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol = check_tol(self.tol)
-        if new is None:
-            obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
-        else:
-            obj, Phi, D = new
+        obj = task_objective(tasks, self.beta, self.objective, self.planner)
         step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
         lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
         flat = None
@@ -606,8 +555,8 @@ class FactIRL(Estimator):
             flat = (resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver"),
                     check_int(self.flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
         try:
-            with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
-                res = run_transfer(obj, D, step_solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
+            with Execution.of(self).evaluate(obj) as obj:
+                res = run_transfer(obj, D, step_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=self.callback,
                                    verbose=self.verbose, residual_penalty=lam, flat=flat)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)

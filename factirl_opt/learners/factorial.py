@@ -6,7 +6,29 @@ leading axis (docs/maths.md §8). :func:`fit_factorial` minimises
 ``J_Xi(D, H) = sum_i J_i(Phi D h_i)`` from a given start by alternating a fixed number of
 steps on H with D fixed (the H-step, gradient eq. 12) and on D with H fixed (the D-step,
 gradient eq. 11), each with any registered step solver; :func:`run_factorial` does the same
-on an objective and solvers already built (what ``FactIRL.fit`` hands down).
+on an objective and solvers already built (what ``FactIRL.fit`` hands down). The rewards are
+those of the fit's :class:`~factirl_opt.tasks.basis.RewardBasis` ``Phi_i`` (tabular, state,
+shared or per-task features alike).
+
+**What residual_penalty runs.** The one parameter ``lambda`` (``FactIRL(residual_penalty=...)``, :func:`run_factorial`) selects
+the model; the alternating loop (:func:`_alternate`) is the same for all of them, only its
+blocks differ (docs/maths.md §8, §8a):
+
+- ``inf`` (the default): the paper's factorial model ``R_i = Phi_i D h_i`` (eq. 10). The
+  H-step moves the coefficients with ``solver`` (any constraint), the D-step the dictionary
+  with ``d_solver``.
+- finite ``lambda > 0``: the residual model ``R_i = Phi_i (D h_i + delta_i)`` with the penalty
+  ``lambda ||delta_i||^2``. The H-step moves ``[h_i, delta_i]`` together with ``solver``
+  (unconstrained only), task by task; the D-step as above.
+- ``0``: the residual model without penalty, i.e. the flat model reparametrised: ``fit`` runs
+  the loop above with ``lambda = 0``, but the dictionary plays no part in the rewards, so
+  ``FactIRL.transfer`` fits each new task as the flat learner does, with ``flat_solver``
+  (and ``flat_max_iter``, from zero weights) instead of ``solver``
+  (:func:`factirl_opt.learners.transfer.run_transfer`). Why another solver there: with
+  ``lambda = 0`` the transfer is exactly ``GradIRL``'s problem on the new tasks, and
+  ``flat_solver`` is the one the model's own flat start (``init="pca"``) used, so the
+  transferred rewards are those GradIRL gives with that solver and budget, whatever H-step
+  solver the factorial fit used.
 """
 
 from __future__ import annotations
@@ -24,10 +46,10 @@ from .._validation import check_array, check_int, check_tol
 from .dictionary import normalise_dictionary
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
 from .fitting import first_step_stall, learner_entry, resolve_step_solver, task_objective
+from ..tasks.basis import DICTIONARY_NAMES
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED
-from ..objectives.problems import dictionary_problem, weights_problem
-from ..tasks.features import TaskFeatures, factorial_rewards
+from ..objectives.problems import as_problem_basis, dictionary_problem, weights_problem
 from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
@@ -83,8 +105,9 @@ class FactorialFit:
     residuals: np.ndarray | None = None
 
 
-def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None, d_solver=None):
-    """Norm of the first-order optimality measure of eq. (10) over ``(H, D)``, from ``y = dJ/dR``.
+def _optimality(gradients, D, H, h_solver, unit_norm, d_solver=None):
+    """Norm of the first-order optimality measure of eq. (10) over ``(H, D)``, from ``gradients``
+    (:meth:`~factirl_opt.objectives.contract.TaskObjective.factorial_point`).
 
     ``dJ/dh_i = F^T y_i`` with ``F = Phi D`` (eq. 12; projected or minimum-norm subgradient
     for a constrained or penalised H-solver, :meth:`solvers.StepSolver.optimality`) and
@@ -93,13 +116,7 @@ def _optimality(y, Phi, D, H, h_solver, unit_norm, G=None, d_solver=None):
     (``d_solver.constraint == "proximal"``, docs/maths.md §8b) its proximal-gradient map.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        if G is not None or isinstance(Phi, TaskFeatures):
-            G = Phi.pull(y) if G is None else G  # Phi_i^T y_i (n, p)
-            gH, gD = G @ D, G.T @ H
-        else:
-            Y = y.reshape(H.shape[0], -1)
-            gH = Y @ (D if Phi is None else Phi @ D)
-            gD = Y.T @ H if Phi is None else Phi.T @ (Y.T @ H)
+        gH, gD = gradients(D, H)
         if d_solver is not None and d_solver.constraint == "proximal":
             gD = d_solver.optimality(D.reshape(1, -1), gD.reshape(1, -1))
         elif unit_norm:
@@ -113,27 +130,24 @@ def _dictionary_penalty(d_solver, D):
     return float(d_solver.penalty(D.reshape(1, -1)).sum()) if d_solver.constraint == "proximal" else 0.0
 
 
-def _evaluate_point(objective, Phi, D, H, h_solver, band, unit_norm, d_solver=None):
+def _evaluate_point(objective, basis, D, H, h_solver, band, unit_norm, d_solver=None):
     """Loss per task at ``(D, H)`` (served from the objective's cache after a D-step), the
     normalised pair, the total (with the H-solver's and a constrained D-solver's penalty) and
     the optimality measure."""
-    if hasattr(objective, "factorial_point"):  # a sharded objective: G = Phi^T y_i formed where the tasks are
-        (loss, G), y = objective.factorial_point(Phi, D, H), None
-    else:
-        (loss, y), G = objective.loss_and_grad(factorial_rewards(objective.mdp, Phi, D, H)), None
+    loss, gradients = objective.factorial_point(basis, D, H)
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + h_solver.penalty(H).sum())
     if d_solver is not None and d_solver.constraint == "proximal":
         total += _dictionary_penalty(d_solver, D)
-    return loss, D, H, total, _optimality(y, Phi, D, H, h_solver, unit_norm, G, d_solver)
+    return loss, D, H, total, _optimality(gradients, D, H, h_solver, unit_norm, d_solver)
 
 
-def _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band, d_solver=None):
+def _evaluate_residual_point(objective, basis, D, H, Delta, lam, band, d_solver=None):
     """:func:`_evaluate_point` of the residual model (:mod:`factirl_opt.objectives.residuals`): the loss per
     task without the penalty, the normalised pair, the total with it (and a constrained
     D-solver's penalty), and the optimality measure over ``(H, D, Delta)`` from the flat
     gradient ``g_i = Phi_i^T y_i``."""
-    flat = weights_problem(objective, Phi, ("features @ dictionary", "coefficients"))
+    flat = weights_problem(objective, basis, DICTIONARY_NAMES)
     loss, G = flat.loss_and_grad(residual_weights(D, H, Delta), np.arange(H.shape[0]))
     D, H = normalise_dictionary(D, H, band)
     total = float(loss.sum() + lam * np.sum(Delta * Delta))
@@ -161,8 +175,67 @@ def _outer_stop(history, gnorm, g0, tol, gtol, it):
     return None, None
 
 
-def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, tol, gtol, report, ev0):
-    """The alternating loop of eqs. (10)-(12); returns the best point seen, the history and the stop.
+class _FactorialBlocks:
+    """The blocks of the factorial model (``residual_penalty = inf``, eq. 10): the H-step on the
+    coefficients over the basis ``Phi_i D`` (eq. 12), the D-step on ``vec(D)`` (eq. 11), kept at
+    unit norm under a sparse H-solver."""
+
+    extra: tuple = ()
+
+    def __init__(self, objective, basis, h_solver, d_solver):
+        self.objective, self.basis, self.h_solver, self.d_solver = objective, basis, h_solver, d_solver
+        self.unit_norm = h_solver.constraint == "sparse"
+        self.band = 1.0 if self.unit_norm else 2.0
+
+    def evaluate(self, D, H, band):
+        return _evaluate_point(self.objective, self.basis, D, H, self.h_solver, band, self.unit_norm, self.d_solver)
+
+    def h_step(self, D, H, state, inner_steps, gtol):
+        rh = self.h_solver.run(weights_problem(self.objective, self.basis.compose(D)), H, inner_steps, state=state,
+                               gtol=gtol)
+        return rh.coefficients, self.h_solver.carry_over(rh.state)
+
+    def d_problem(self, H):
+        return dictionary_problem(self.objective, H, self.basis, unit_norm=self.unit_norm)
+
+
+class _ResidualBlocks:
+    """The blocks of the residual model (finite ``residual_penalty``, :mod:`factirl_opt.objectives.residuals`):
+    the H-step runs on ``[h_i, delta_i]`` jointly (:func:`residual_weights_problem`), each task
+    stepping as it would alone (``separable=True``: the tasks are independent given ``D``; an
+    unconstrained Gauss-Newton subproblem of ``k + p`` variables per task is then solved
+    exactly, never compiled into one block QP over every task, whose size grows as
+    ``(n (k + p))^2``), the D-step with ``H`` and ``Delta`` fixed
+    (:func:`residual_dictionary_problem`). The best point carries ``Delta``."""
+
+    band = 2.0
+
+    def __init__(self, objective, basis, h_solver, d_solver, residuals, penalty):
+        self.objective, self.basis, self.h_solver, self.d_solver = objective, basis, h_solver, d_solver
+        self.Delta, self.lam = residuals, penalty
+
+    @property
+    def extra(self):
+        return (self.Delta,)
+
+    def evaluate(self, D, H, band):
+        return _evaluate_residual_point(self.objective, self.basis, D, H, self.Delta, self.lam, band, self.d_solver)
+
+    def h_step(self, D, H, state, inner_steps, gtol):
+        k = H.shape[1]
+        rh = self.h_solver.run(residual_weights_problem(self.objective, self.basis, D, self.lam, DICTIONARY_NAMES),
+                               np.concatenate([H, self.Delta], axis=1), inner_steps, state=state, gtol=gtol,
+                               separable=True)
+        self.Delta = rh.coefficients[:, k:]
+        return rh.coefficients[:, :k], self.h_solver.carry_over(rh.state)
+
+    def d_problem(self, H):
+        return residual_dictionary_problem(self.objective, self.basis, H, self.Delta)
+
+
+def _alternate(objective, blocks, D, H, d_solver, max_iter, inner_steps, tol, gtol, report, ev0):
+    """The alternating loop of eqs. (10)-(12), for either model's ``blocks``; returns the best point
+    seen, the history and the stop.
 
     Each block runs ``inner_steps`` steps of its solver's alternating form, warm-started by
     what the solver carries over from its previous run (:meth:`solvers.StepSolver.carry_over`);
@@ -171,72 +244,24 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
     point among the start and the completed outer iterations (the start, loss NaN, if even its
     evaluation was interrupted).
     """
-    penalised = h_solver.constraint == "sparse"
-    band = 1.0 if penalised else 2.0
-    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
-    best = (np.nan, D, H, np.full(H.shape[0], np.nan))
+    best = (np.nan, D, H, np.full(H.shape[0], np.nan), *blocks.extra)
     history, evaluations, gnorm, it = [], [], np.nan, 0
     try:
-        D, H = normalise_dictionary(D, H, band)  # the H-step starts where the loss is evaluated (no band: no rescaling)
-        loss, D, H, total, g0 = _evaluate_point(objective, Phi, D, H, h_solver, np.inf, penalised, d_solver)
+        D, H = normalise_dictionary(D, H, blocks.band)  # the H-step starts where the loss is evaluated (no band: no rescaling)
+        loss, D, H, total, g0 = blocks.evaluate(D, H, np.inf)
         history, evaluations, gnorm = [total], [objective.n_evaluations - ev0], g0
-        best = (total, D, H, loss)
+        best = (total, D, H, loss, *blocks.extra)
         h_state = d_state = None
         status, reason = "max_iter", f"max_iter={max_iter} outer iterations done"
         for it in range(1, max_iter + 1):
-            F = D if Phi is None else Phi.times(D) if isinstance(Phi, TaskFeatures) else Phi @ D
-            rh = h_solver.run(weights_problem(objective, F, names), H, inner_steps, state=h_state, gtol=gtol)
-            H, h_state = rh.coefficients, h_solver.carry_over(rh.state)
-            rd = d_solver.run(dictionary_problem(objective, H, Phi, unit_norm=penalised), D.reshape(1, -1),
-                              inner_steps, state=d_state, gtol=gtol)
+            H, h_state = blocks.h_step(D, H, h_state, inner_steps, gtol)
+            rd = d_solver.run(blocks.d_problem(H), D.reshape(1, -1), inner_steps, state=d_state, gtol=gtol)
             D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
-            loss, D, H, total, gnorm = _evaluate_point(objective, Phi, D, H, h_solver, band, penalised, d_solver)
+            loss, D, H, total, gnorm = blocks.evaluate(D, H, blocks.band)
             history.append(total)
             evaluations.append(objective.n_evaluations - ev0)
             if total <= best[0]:
-                best = (total, D, H, loss)
-            report(it, total)
-            stop = _outer_stop(history, gnorm, g0, tol, gtol, it)
-            if stop[0] is not None:
-                status, reason = stop
-                break
-    except KeyboardInterrupt as exc:
-        done = len(history) - 1 if history else 0
-        raise FitInterrupted((best, (history, evaluations), done, INTERRUPTED, INTERRUPTED, gnorm), "fit") from exc
-    return best, (history, evaluations), it, status, reason, gnorm
-
-
-def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, max_iter, inner_steps, tol, gtol, report, ev0):
-    """:func:`_alternate` for the residual model (:mod:`factirl_opt.objectives.residuals`): the H-step runs on
-    ``[h_i, delta_i]`` jointly (:func:`residual_weights_problem`), each task stepping as it would
-    alone (``separable=True``: the tasks are independent given ``D``; an unconstrained Gauss-Newton
-    subproblem of ``k + p`` variables per task is then solved exactly, never compiled into one
-    block QP over every task, whose size grows as ``(n (k + p))^2``), the D-step with ``H`` and
-    ``Delta`` fixed (:func:`residual_dictionary_problem`). The best point carries ``Delta``."""
-    band = 2.0
-    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
-    k = H.shape[1]
-    best = (np.nan, D, H, np.full(H.shape[0], np.nan), Delta)
-    history, evaluations, gnorm, it = [], [], np.nan, 0
-    try:
-        D, H = normalise_dictionary(D, H, band)
-        loss, D, H, total, g0 = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, np.inf, d_solver)
-        history, evaluations, gnorm = [total], [objective.n_evaluations - ev0], g0
-        best = (total, D, H, loss, Delta)
-        h_state = d_state = None
-        status, reason = "max_iter", f"max_iter={max_iter} outer iterations done"
-        for it in range(1, max_iter + 1):
-            rh = h_solver.run(residual_weights_problem(objective, Phi, D, lam, names), np.concatenate([H, Delta], axis=1),
-                              inner_steps, state=h_state, gtol=gtol, separable=True)
-            H, Delta, h_state = rh.coefficients[:, :k], rh.coefficients[:, k:], h_solver.carry_over(rh.state)
-            rd = d_solver.run(residual_dictionary_problem(objective, Phi, H, Delta), D.reshape(1, -1), inner_steps,
-                              state=d_state, gtol=gtol)
-            D, d_state = rd.coefficients.reshape(D.shape), d_solver.carry_over(rd.state)
-            loss, D, H, total, gnorm = _evaluate_residual_point(objective, Phi, D, H, Delta, lam, band, d_solver)
-            history.append(total)
-            evaluations.append(objective.n_evaluations - ev0)
-            if total <= best[0]:
-                best = (total, D, H, loss, Delta)
+                best = (total, D, H, loss, *blocks.extra)
             report(it, total)
             stop = _outer_stop(history, gnorm, g0, tol, gtol, it)
             if stop[0] is not None:
@@ -332,7 +357,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
         best point seen (status ``"interrupted"``).
     """
     tasks = task_set(mdp, demos_per_task, base_features, reward)
-    Phi, p = tasks.features, tasks.n_params
+    p = tasks.n_params
     D = check_array(dictionary, "dictionary", ndim=2)
     H = check_array(coefficients, "coefficients", ndim=2)
     if D.shape[0] != p or H.shape[1] != D.shape[1]:
@@ -344,7 +369,7 @@ def fit_factorial(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, coeffici
         raise ValidationError(f"coefficients describe {H.shape[0]} tasks but the demonstrations {obj.n_tasks}")
     h = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
     d = resolve_step_solver(d_solver, d_solver_options, objective, "d_solver")
-    return run_factorial(obj, D, H, h, d, base_features=Phi, max_iter=max_iter, inner_steps=inner_steps, tol=tol,
+    return run_factorial(obj, D, H, h, d, base_features=tasks.basis, max_iter=max_iter, inner_steps=inner_steps, tol=tol,
                          gtol=gtol, callback=callback, verbose=verbose)
 
 def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients: NDArray[np.float64],
@@ -363,14 +388,17 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     h_solver, d_solver : solvers.StepSolver
         Resolved and checked (:func:`factirl_opt.learners.fitting.resolve_step_solver`); used in their
         alternating form.
-    base_features : ndarray, shape (S*A, p), StateBroadcast or TaskFeatures, optional
-        Validated ``Phi``; TaskFeatures (one matrix per task) with a
-        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`.
+    base_features : RewardBasis
+        The fit's basis ``Phi_i`` (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`; a
+        :class:`~factirl_opt.tasks.basis.TaskBasis` with a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`). The older
+        forms (None for tabular, a validated matrix) are read on the objective's MDP.
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
     residual_penalty : float, default=np.inf
         ``lambda`` of the residual model ``R_i = Phi_i (D h_i + delta_i)``
-        (:mod:`factirl_opt.objectives.residuals`); np.inf is the factorial model. A finite value needs an
+        (:mod:`factirl_opt.objectives.residuals`); np.inf is the factorial model (see "What
+        residual_penalty runs" in :mod:`factirl_opt.learners.factorial`). A finite value needs an
         unconstrained H-solver (the H-step moves ``[h_i, delta_i]`` together).
     residuals : ndarray, shape (n, p), optional
         Initial ``Delta`` of a finite ``residual_penalty`` (default zeros).
@@ -381,16 +409,17 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     """
     ev0 = objective.n_evaluations
     h, d = h_solver.for_alternating(), d_solver.for_alternating()
+    basis = as_problem_basis(objective, base_features)
+    blocks: _FactorialBlocks | _ResidualBlocks
+    if np.isfinite(residual_penalty):
+        p = dictionary.shape[0]
+        Delta = np.zeros((coefficients.shape[0], p)) if residuals is None else np.array(residuals, dtype=np.float64)
+        blocks, H0 = _ResidualBlocks(objective, basis, h, d, Delta, float(residual_penalty)), coefficients
+    else:
+        blocks, H0 = _FactorialBlocks(objective, basis, h, d), h.project(coefficients)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
         try:
-            if np.isfinite(residual_penalty):
-                p = dictionary.shape[0]
-                Delta = np.zeros((coefficients.shape[0], p)) if residuals is None else np.array(residuals, dtype=np.float64)
-                out = _alternate_residual(objective, base_features, dictionary, coefficients, Delta, float(residual_penalty),
-                                          h, d, max_iter, inner_steps, tol, gtol, report, ev0)
-            else:
-                out = _alternate(objective, base_features, dictionary, h.project(coefficients), h, d, max_iter,
-                                 inner_steps, tol, gtol, report, ev0)
+            out = _alternate(objective, blocks, dictionary, H0, d, max_iter, inner_steps, tol, gtol, report, ev0)
         except FitInterrupted as exc:
             raise FitInterrupted(_result(out=exc.result, n_evaluations=objective.n_evaluations - ev0),
                                  "fit_factorial") from exc.__cause__

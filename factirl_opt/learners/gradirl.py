@@ -24,8 +24,7 @@ from .fitting import (
 )
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
-from ..objectives.sharding import sharded
-from ..planning.budget import options_budget
+from ..objectives.sharding import Execution
 from ..objectives.problems import weights_problem
 from .solver_settings import SolverSettings, estimator_solvers
 from ..objectives import Objective
@@ -48,8 +47,9 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     ----------
     objective : Objective
         Bound to the n tasks' statistics.
-    features : ndarray, shape (S*A, p), or StateBroadcast, optional
-        Validated; None for tabular weights (p = S*A).
+    features : RewardBasis
+        The tasks' basis (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`); the older forms
+        (None for tabular weights, a validated matrix) are read on the objective's MDP.
     solver : solvers.StepSolver
         Resolved and checked against the objective.
     max_iter : int
@@ -249,15 +249,14 @@ class GradIRL(Estimator):
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
         objective = task_objective(tasks, self.beta, self.objective, self.planner)
-        return self._run(objective, tasks.features, loop, lambda res, obj: self._store(tasks, res, obj))
+        return self._run(objective, tasks.basis, loop, lambda res, obj: self._store(tasks, res, obj))
 
-    def _run(self, objective, F, loop, store):
+    def _run(self, objective, basis, loop, store):
         max_iter, tol = loop
         solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
         try:
-            with options_budget(self.planner_options), \
-                    sharded(objective, self.n_jobs, self.backend, self.client, self.planner) as objective:  # n_jobs=1: itself
-                res = fit_weights(objective, F, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
+            with Execution.of(self).evaluate(objective) as objective:  # n_jobs=1: the objective itself
+                res = fit_weights(objective, basis, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
         except FitInterrupted as exc:
             store(exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "

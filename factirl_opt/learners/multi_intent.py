@@ -34,11 +34,10 @@ from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
 from .fitting import learner_entry
-from ..tasks.task_set import features_digest
 from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
-from ..planning.budget import options_budget
+from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
 
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
@@ -313,7 +312,7 @@ class MultiIntentIRL(Estimator):
             raise ValidationError(f"callback must be callable as callback(iteration, log_likelihood); "
                                   f"got {type(self.callback).__name__}")
         rng = as_rng(self.rng)
-        with options_budget(self.planner_options):
+        with Execution.of(self).budget():
             if isinstance(self.n_intentions, str):
                 K, run = self._select(tasks, steps, lengths, init, n_init, rng)
             else:
@@ -378,7 +377,7 @@ class MultiIntentIRL(Estimator):
             scores, best, runs = per_episode.sum(axis=1), one_standard_error_choice(per_episode), None
         else:
             first = settings[int(candidates[0])]
-            p = mdp.n_params if first.features is None else first.features.shape[1]
+            p = first.basis.n_params
             scores, runs = bic_scores(fit, lambda run: run.best_log_likelihood,
                                       lambda K: free_parameters(K, p, first.n_primitives), candidates, n,
                                       int(lengths.sum()))
@@ -401,7 +400,7 @@ class MultiIntentIRL(Estimator):
         self.converged_ = run.converged
         self.n_intentions_ = run.rewards.shape[0]
         self.mdp_signature_ = mdp.signature()
-        self.features_sha256_ = None if self.features is None else features_digest(settings.features)
+        self.features_sha256_ = settings.basis.digest()
 
     def to_factirl(self) -> FactIRL:
         """A fitted :class:`FactIRL` holding the learnt dictionary, ready for :meth:`FactIRL.transfer`.

@@ -22,16 +22,17 @@ from scipy.special import logsumexp
 import solvers
 
 from .._validation import check_beta, check_int, check_tol
-from .dictionary import feature_weights, pca_dictionary, shrink_coefficients
+from .dictionary import pca_dictionary, shrink_coefficients
 from .em import agreement_clustering, e_step, episode_counts, kmeans, log_policies, weighted_statistics
 from ..exceptions import ValidationError, translate_solver_errors
 from .factorial import GTOL, run_factorial
-from ..tasks.features import factorial_rewards, weights_rewards
+from ..tasks.basis import WEIGHT_NAMES, RewardBasis
 from .fitting import resolve_step_solver
 from ..tasks.task_set import TaskSet
 from ..interruption import run_keeping_best
 from ..objectives import available_objectives, get_objective
-from ..objectives.sharding import sharded
+from ..objectives.contract import TaskObjective
+from ..objectives.sharding import Execution
 from ..planning import get_planner
 from ..objectives.problems import weights_problem
 from .solver_settings import estimator_solvers
@@ -42,7 +43,7 @@ __all__ = ["WeightedObjective", "EMSettings", "EMRun", "flat_m_step", "factorial
 WHAT = "MultiIntentIRL.fit"
 
 
-class WeightedObjective:
+class WeightedObjective(TaskObjective):
     """An objective whose task (intention) c has loss ``w_c J_c``: what the step problems need.
 
     Residuals and Jacobian products are scaled by ``sqrt(w_c)``, so least-squares solvers
@@ -98,6 +99,9 @@ class WeightedObjective:
     def reset(self) -> None:
         self.objective.reset()
 
+    def reward_limit(self) -> float:
+        return float(self.objective.reward_limit())
+
 
 @dataclasses.dataclass
 class EMSettings:
@@ -106,11 +110,9 @@ class EMSettings:
     n_intentions: int
     n_primitives: int | None
     objective: Any
-    objective_name: str
     beta: float
-    planner: Any
-    planner_name: str
-    features: Any
+    planner: Any  # the Planner of the fit's MDP (E-steps)
+    basis: RewardBasis  # the intentions' rewards R_c = Phi w_c (the task set's basis)
     solver: solvers.StepSolver
     max_iter: int
     tol: float
@@ -118,9 +120,7 @@ class EMSettings:
     m_tol: float
     inner_steps: int
     d_solver: solvers.StepSolver | None = None  # the D-step's; None: ``solver``
-    n_jobs: int | None = None  # shards of each M-step's objective (objectives.distributed.sharded)
-    backend: str = "processes"
-    client: Any = None
+    execution: Execution = Execution()  # shards and planner (name) of each M-step's objective
 
     @classmethod
     def build(cls, est: Any, tasks: TaskSet, K: int) -> EMSettings:
@@ -130,7 +130,7 @@ class EMSettings:
             with_policy = [name for name in available_objectives() if get_objective(name).models_policy()]
             raise ValidationError(f"objective must be one of {', '.join(map(repr, with_policy))} (its policy scores "
                                   f"the episodes in the E-step); got {est.objective!r}")
-        mdp, Phi, p = tasks.mdp, tasks.features, tasks.n_params
+        mdp, p = tasks.mdp, tasks.n_params
         k = None
         if est.n_primitives is not None:
             k = check_int(est.n_primitives, "n_primitives", minimum=1)
@@ -139,13 +139,13 @@ class EMSettings:
         solver, options, d_solver, d_options = estimator_solvers(est)
         if d_solver is None and d_options is not None:
             raise ValidationError("d_solver_options given without d_solver")
-        return cls(K, k, objective, objective.name, check_beta(est.beta), get_planner(mdp, est.planner), est.planner,
-                   Phi, resolve_step_solver(solver, options, objective.name, "solver"),
+        return cls(K, k, objective, check_beta(est.beta), get_planner(mdp, est.planner),
+                   tasks.basis, resolve_step_solver(solver, options, objective.name, "solver"),
                    check_int(est.max_iter, "max_iter", minimum=1), check_tol(est.tol),
                    check_int(est.m_step_max_iter, "m_step_max_iter", minimum=0), check_tol(est.m_step_tol, "m_step_tol"),
                    check_int(est.inner_steps, "inner_steps", minimum=1),
                    None if d_solver is None else resolve_step_solver(d_solver, d_options, objective.name, "d_solver"),
-                   est.n_jobs, est.backend, est.client)
+                   Execution.of(est))
 
 
 @dataclasses.dataclass
@@ -163,7 +163,7 @@ class EMRun:
 
 def flat_m_step(objective: WeightedObjective, settings: EMSettings, W0: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per-intention weights (K, p) from ``W0`` by the step solver; a row never ends above its start."""
-    problem = weights_problem(objective, settings.features)
+    problem = weights_problem(objective, settings.basis)
     start = problem.loss_and_grad(W0, np.arange(problem.n_rows))[0]
     with translate_solver_errors():
         res = run_keeping_best(settings.solver, problem, W0, settings.m_max_iter, WHAT, tol=settings.m_tol)
@@ -178,19 +178,16 @@ def factorial_m_step(objective: WeightedObjective, settings: EMSettings, params:
     The first start is FactIRL's: the uncentred PCA of flat rewards fitted to the same weighted
     statistics, its coefficients halved while the loss decreases (:mod:`factirl_opt.learners.dictionary`).
     """
-    mdp, Phi, k = objective.mdp, settings.features, settings.n_primitives
+    basis, k = settings.basis, settings.n_primitives
     assert k is not None  # the caller's branch; never user input
     if params is None:
-        p = mdp.n_params if Phi is None else Phi.shape[1]
-        W = flat_m_step(objective, settings, np.zeros((objective.n_tasks, p)))
-        X = weights_rewards(Phi, W, mdp.n_states, mdp.n_actions).reshape(objective.n_tasks, -1)
-        D, H = pca_dictionary(X, k, rng)
-        D = D if Phi is None else feature_weights(Phi, D)
-        H = shrink_coefficients(lambda Hs: objective.loss_and_grad(factorial_rewards(mdp, Phi, D, Hs))[0], H)[0]
+        W = flat_m_step(objective, settings, np.zeros((objective.n_tasks, basis.n_params)))
+        D, H = basis.start_dictionary(basis.start_points(W), k, rng, pca_dictionary)
+        H = shrink_coefficients(lambda Hs: objective.loss_and_grad(basis.factorial_rewards(D, Hs))[0], H)[0]
     else:
         D, H = params
     d_solver = settings.solver if settings.d_solver is None else settings.d_solver
-    fit = run_factorial(objective, D, H, settings.solver, d_solver, base_features=Phi,
+    fit = run_factorial(objective, D, H, settings.solver, d_solver, base_features=basis,
                         max_iter=settings.m_max_iter, inner_steps=settings.inner_steps, tol=settings.m_tol, gtol=GTOL)
     return fit.dictionary, fit.coefficients
 
@@ -218,16 +215,15 @@ def start_responsibilities(counts: Any, lengths: NDArray[np.int64], K: int, init
 def _m_step(mdp, counts, resp, settings, params, rng):
     """Parameters and rewards (K, S, A) fitted to the responsibilities, and the mixture weights."""
     mu, pi, steps = weighted_statistics(counts, resp, mdp.n_states, mdp.n_actions)
-    base = settings.objective(mdp, mu, pi, settings.beta, planner=settings.planner_name)
-    S, A, Phi = mdp.n_states, mdp.n_actions, settings.features
-    with sharded(base, settings.n_jobs, settings.backend, settings.client, settings.planner_name) as base:
+    base = settings.objective(mdp, mu, pi, settings.beta, planner=settings.execution.planner)
+    basis = settings.basis
+    with settings.execution.shards(base) as base:
         obj = WeightedObjective(base, steps / steps.sum())
         if settings.n_primitives is None:
-            p = mdp.n_params if Phi is None else Phi.shape[1]
-            W = flat_m_step(obj, settings, np.zeros((settings.n_intentions, p)) if params is None else params)
-            return W, weights_rewards(Phi, W, S, A), resp.mean(axis=0)
+            W = flat_m_step(obj, settings, np.zeros((settings.n_intentions, basis.n_params)) if params is None else params)
+            return W, basis.rewards(W, names=WEIGHT_NAMES), resp.mean(axis=0)
         D, H = factorial_m_step(obj, settings, params, rng)
-    return (D, H), factorial_rewards(mdp, Phi, D, H), resp.mean(axis=0)
+    return (D, H), basis.factorial_rewards(D, H), resp.mean(axis=0)
 
 
 def run_em(mdp: Any, steps: NDArray[np.int64], lengths: NDArray[np.int64], settings: EMSettings, init: str,

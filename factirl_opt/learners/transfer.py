@@ -22,15 +22,14 @@ from ..exceptions import FitInterrupted, NotFittedError, ValidationError, transl
 from .fitting import (
     first_step_stall, held_by_constraint, learner_entry, resolve_step_solver, task_objective, warn_if_max_iter,
 )
-from ..tasks.task_set import environment_tasks, one_environment, per_task_features, task_set
+from ..tasks.basis import DICTIONARY_NAMES, WEIGHT_NAMES
+from ..tasks.task_set import TaskSet, task_set, transfer_task_set
 from ..interruption import INTERRUPTED, run_keeping_best
-from ..objectives.problems import weights_problem
-from ..tasks.features import TaskFeatures, linear_rewards, weights_rewards
-from ..mdp.environments import check_environments
+from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
 
-__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "environments_transfer_setup"]
+__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks"]
 
 
 @dataclasses.dataclass
@@ -100,7 +99,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
     obj = task_objective(tasks, beta, objective, planner)
     solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
-    return run_transfer(obj, D, solver, base_features=tasks.features, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
+    return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
@@ -115,9 +114,11 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     dictionary : ndarray, shape (p, k)
     solver : solvers.StepSolver
         Resolved and checked.
-    base_features : ndarray, shape (S*A, p), StateBroadcast or TaskFeatures, optional
-        TaskFeatures for new tasks in several environments (``objective`` then a
-        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
+    base_features : RewardBasis
+        The new tasks' basis (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`; a per-task one
+        for new tasks in several environments, ``objective`` then a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`). The older
+        forms (None for tabular, a validated matrix) are read on the objective's MDP.
     max_iter, tol, callback, verbose
         As in :func:`transfer_coefficients`.
     residual_penalty : float, default=np.inf
@@ -129,43 +130,36 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
         flat learner's solver, iterations and tolerance; each new task's weights are then
         fitted as the flat learner fits them (:func:`~factirl_opt.learners.gradirl.fit_weights`,
         from zero), ``h_i = 0`` and ``delta_i`` the weights, instead of running ``solver`` on
-        ``[h_i, delta_i]``.
+        ``[h_i, delta_i]`` (why: "What residual_penalty runs" in :mod:`factirl_opt.learners.factorial`).
 
     Returns
     -------
     TransferFit
     """
+    basis = as_problem_basis(objective, base_features)
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
-        return _run_flat_transfer(objective, dictionary, base_features, flat_solver, flat_max_iter, flat_tol, callback,
-                                  verbose)
+        return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose)
     if np.isfinite(residual_penalty):
-        return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
+        return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
                                       float(residual_penalty))
-    mdp = objective.mdp
-    F: Any
-    if isinstance(base_features, TaskFeatures):
-        F = base_features.times(dictionary)
-    else:
-        F = dictionary if base_features is None else base_features @ dictionary
-    names = ("dictionary" if base_features is None else "features @ dictionary", "coefficients")
-    problem = weights_problem(objective, F, names)
+    F = basis.compose(dictionary)
+    problem = weights_problem(objective, F)
     ev0 = objective.n_evaluations
     x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, separable=True)
         except FitInterrupted as exc:
-            raise FitInterrupted(_transfer_fit(mdp, F, solver, exc.result, objective.n_evaluations - ev0, names),
+            raise FitInterrupted(_transfer_fit(F, solver, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
-    return _transfer_fit(mdp, F, solver, res, objective.n_evaluations - ev0, names)
+    return _transfer_fit(F, solver, res, objective.n_evaluations - ev0)
 
 
 def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, verbose, lam):
     """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
-    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
-    problem = residual_weights_problem(objective, Phi, D, lam, names)
+    problem = residual_weights_problem(objective, Phi, D, lam, DICTIONARY_NAMES)
     ev0 = objective.n_evaluations
     k = D.shape[1]
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
@@ -201,12 +195,7 @@ def _run_flat_transfer(objective, D, Phi, flat_solver, max_iter, tol, callback, 
 
 def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):
     H, Delta = res.coefficients[:, :k], res.coefficients[:, k:]
-    W = residual_weights(D, H, Delta)
-    if isinstance(Phi, TaskFeatures):
-        rewards = Phi.rewards(W)
-    else:
-        mdp = objective.mdp
-        rewards = weights_rewards(Phi, W, mdp.n_states, mdp.n_actions)
+    rewards = Phi.rewards(residual_weights(D, H, Delta), names=WEIGHT_NAMES)
     loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
@@ -215,11 +204,8 @@ def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):
                        Delta.copy())
 
 
-def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
-    if isinstance(F, TaskFeatures):
-        rewards = F.rewards(res.coefficients)
-    else:
-        rewards = linear_rewards(F, res.coefficients, mdp.n_states, mdp.n_actions, names)
+def _transfer_fit(F, solver, res, n_evaluations):
+    rewards = F.rewards(res.coefficients)
     loss = res.loss - solver.penalty(res.coefficients)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
@@ -228,25 +214,9 @@ def _transfer_fit(mdp, F, solver, res, n_evaluations, names):
                        reason)
 
 
-def transfer_mdp(mdp: Any, demos_per_task: Any, model: Any) -> Any:
-    """The one MDP of a transfer on the one-MDP path (no features given), else None.
-
-    ``mdp`` itself when it is not a sequence (the one-MDP path checks it); a sequence of one
-    MDP object (``[m] * n_new``, as in ``fit``); or, for a model fitted without features on
-    one MDP, a sequence of MDPs that each have that MDP's saved signature (equal models).
-    """
-    one = one_environment(mdp, demos_per_task, None)
-    if one is not None or model.features is not None:
-        return one
-    sig = getattr(model, "mdp_signature_", None)
-    mdps = check_environments(mdp)  # their count is checked against the demonstrations' by the one-MDP path
-    return mdps[0] if isinstance(sig, dict) and all(m.signature() == sig for m in mdps) else None
-
-
-def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, model: Any, beta: float,
-                                objective: Any = "policy-matching",
-                                planner: Any = "auto") -> tuple[Any, TaskFeatures, NDArray[np.float64]] | None:
-    """Objective, features and dictionary of new tasks in their own environments, checked against a model.
+def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> tuple[TaskSet, NDArray[np.float64]]:
+    """The new tasks of ``model.transfer`` as a :class:`~factirl_opt.tasks.task_set.TaskSet`, and the
+    model's dictionary, both checked against what the model was fitted on.
 
     Parameters
     ----------
@@ -254,56 +224,39 @@ def environments_transfer_setup(mdp: Any, demos_per_task: Any, features: Any, mo
     demos_per_task : list of n_new task demonstrations
     features : array_like or sequence of n_new array_like, or None
         The new tasks' features: one shared matrix or one (S_i*A, p) or (S_i, p) per task;
-        None: the model's own shared features.
+        None: the model's own.
     model : FactIRL
-        Fitted: its ``features``, ``dictionary_`` (p, k), ``mdp_signature_`` (one dict, a list
-        of one per task, or None) and ``features_sha256_`` are read.
-    beta, objective, planner
-        The model's.
+        Fitted: its ``features``, ``reward``, ``dictionary_`` (p, k), ``mdp_signature_`` (one
+        dict, a list of one per task, or None) and ``features_sha256_`` are read.
 
     Returns
     -------
-    (objective, features, dictionary) or None
-        A :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`, the
-        :class:`TaskFeatures` and the validated dictionary; None when the new tasks share one
-        MDP object and no features are given (the one-MDP path, whose signature is checked).
+    tasks : TaskSet
+        The model's own MDP (one object, or MDPs equal to it) with its basis, or the new
+        environments with their features (:func:`~factirl_opt.tasks.task_set.transfer_task_set`).
+    dictionary : ndarray, shape (p, k)
 
     Raises
     ------
     NotFittedError
         The model has no dictionary.
     ValidationError
-        Features missing for a model fitted with per-task features, given to a tabular model,
-        with another p than the dictionary's, environments with another number of actions than
-        the model's, the model's shared features changed since ``fit``, or as
-        :func:`factirl_opt.tasks.task_set.task_set` does.
+        As :func:`~factirl_opt.tasks.task_set.transfer_task_set`; a dictionary with another
+        p than the tasks' basis or another number of primitives than the model's.
     """
-    fitted = model.features
-    per_task = per_task_features(fitted)
-    if features is None and not per_task and transfer_mdp(mdp, demos_per_task, model) is not None:
-        return None
     if not hasattr(model, "dictionary_"):
         raise NotFittedError("this FactIRL has no dictionary_: call fit first, or set dictionary_ by hand")
-    if fitted is None:
-        raise ValidationError("this FactIRL model was fitted without features (tabular rewards): its dictionary lives "
-                              "on the states of its MDP, so it transfers only to that MDP, without features")
-    if features is None and per_task:
-        raise ValidationError("this FactIRL model was fitted with one feature matrix per task: transfer to new "
-                              "environments needs their features (features=[one (S_i*A, p) or (S_i, p) per new task])")
+    k = getattr(model, "n_primitives_", model.n_primitives)
+    tasks = transfer_task_set(mdp, demos_per_task, features, model.features, reward=model.reward,
+                              signature=getattr(model, "mdp_signature_", None), digest=getattr(model, "features_sha256_", None),
+                              check_digest=hasattr(model, "features_sha256_"), min_columns=1 if isinstance(k, str) else k)
     D = check_array(model.dictionary_, "dictionary_", ndim=2)
-    tasks = environment_tasks(mdp, demos_per_task, fitted if features is None else features)
-    obj = task_objective(tasks, beta, objective, planner)
-    if tasks.n_params != D.shape[0]:
+    if D.shape[0] != tasks.n_params:
+        if tasks.shared:
+            raise ValidationError(f"dictionary_ must have shape (p, k) with p = {tasks.n_params} (the reward dimension); "
+                                  f"got {D.shape}")
         raise ValidationError(f"the new tasks' features have p = {tasks.n_params} columns, but the dictionary "
                               f"is over p = {D.shape[0]} features: give features with the columns of fit")
-    sig = getattr(model, "mdp_signature_", None)
-    n_actions = sig["n_actions"] if isinstance(sig, dict) else sig[0]["n_actions"] if sig else None
-    new_actions = tasks.mdps[0].n_actions if tasks.mdps else None
-    if n_actions is not None and new_actions != n_actions:
-        raise ValidationError(f"the new tasks' environments have {new_actions} actions, but the model was fitted with "
-                              f"{n_actions}")
-    expected = getattr(model, "features_sha256_", tasks.digest)
-    if features is None and expected != tasks.digest:
-        raise ValidationError(f"this FactIRL model was fitted with other features than the ones set now (sha256 "
-                              f"{str(tasks.digest)[:12]}... instead of {str(expected)[:12]}...): restore them or fit again")
-    return obj, tasks.features, D
+    if tasks.shared and D.shape[1] != k:
+        raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
+    return tasks, D

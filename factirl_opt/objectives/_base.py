@@ -24,11 +24,12 @@ from .._validation import check_beta, check_mdp, check_statistics
 from ..exceptions import ValidationError
 from ..planning import get_planner
 from ..planning.budget import check_planner_options, chunk_size, effective_budget, task_bytes
+from .contract import TaskObjective, limit_of
 
 __all__ = ["Objective"]
 
 
-class Objective:
+class Objective(TaskObjective):
     """A per-task loss over a fixed set of tasks, with warm-started planning and counts.
 
     Parameters
@@ -57,6 +58,7 @@ class Objective:
     """
 
     name = "base"
+    n_evaluations = 0  # counted per instance (the contract's property, as a plain attribute)
     #: whether the loss is ``||residual||^2`` per task (Gauss-Newton solvers apply)
     least_squares = False
 
@@ -93,6 +95,10 @@ class Objective:
         self._last_R = np.full((self.n_tasks, S, A), np.nan)
         self._last_loss = np.zeros(self.n_tasks)
         self._last_grad = np.zeros((self.n_tasks, S, A))
+
+    def reward_limit(self):
+        """The largest |reward| planned without overflow on this objective's MDP (:func:`limit_of`)."""
+        return limit_of([self.mdp.gamma])
 
     def reset(self):
         """Forget the warm starts and the last-point cache; keep the statistics and ``n_evaluations``.

@@ -29,6 +29,7 @@ from solvers import Linearization
 from ..parallel.shards import Shards, contiguous_shards
 from ..planning.budget import budget_options
 from ._base import Objective
+from .contract import TaskObjective, limit_of
 
 __all__ = ["ShardState", "ShardedBase", "ShardedObjective", "reduced_least_squares", "KEEP_LINEARIZATIONS"]
 
@@ -112,10 +113,10 @@ class ShardState:
         """``jvp`` or ``vjp`` (``name``) of the linearisation ``token`` applied to X."""
         return getattr(self.linearizations[token], name)(X)
 
-    def receive(self, key: int, features: Any, keep: tuple) -> Any:
-        """The features kept under ``key`` (``features`` None: those already kept); only ``keep`` stay."""
-        if features is not None:
-            self.features[key] = None if isinstance(features, NoFeatures) else features
+    def receive(self, key: int, payload: Any, keep: tuple) -> Any:
+        """The basis kept under ``key`` (``payload`` None: the one already kept); only ``keep`` stay."""
+        if payload is not None:
+            self.features[key] = payload
         self.features = {kk: v for kk, v in self.features.items() if kk in keep}
         return self.features[key]
 
@@ -140,24 +141,17 @@ class ShardState:
 
     def factorial_point(self, features: tuple, D: NDArray[np.float64], H: NDArray[np.float64]) -> tuple:
         """Loss (m,) at the rewards ``Phi D h_i`` of the shard's tasks and ``Phi^T y_i`` (m, p)
-        (features as in :meth:`receive`): what the factorial loop's optimality measure needs."""
-        from ..tasks.features import factorial_rewards
-
-        Phi = self.receive(*features)
-        (loss, y), n = self._counted(self.objective.loss_and_grad, factorial_rewards(self.objective.mdp, Phi, D, H), None)
-        Y = y.reshape(len(H), -1)
-        return (loss, Y if Phi is None else Y @ Phi), n
+        (the basis as in :meth:`receive`): what the factorial loop's optimality measure needs."""
+        basis = self.receive(*features)
+        (loss, y), n = self._counted(self.objective.loss_and_grad, basis.factorial_rewards(D, H), None)
+        return (loss, basis.point_pull(y)), n
 
     def reset(self) -> None:
         self.objective.reset()
         self.linearizations.clear()
 
 
-class NoFeatures:
-    """Tabular rewards' features (None) as sent to a shard, where None means "already kept"."""
-
-
-class ShardedBase:
+class ShardedBase(TaskObjective):
     """What the sharded objectives share: their ``parts`` (task indices per shard), ``shards``
     (:class:`~factirl_opt.parallel.shards.Shards`), the kept linearisations ``_lins`` and
     :meth:`rebuilt`, which restores a rebuilt shard's state."""
@@ -211,6 +205,10 @@ class ShardedObjective(ShardedBase):
         The backend (``bytes_sent``, ``n_restarts``).
     """
 
+    #: its step problems are built on the shards, from the weights (:mod:`.shard_problems`)
+    builds_problems = True
+    n_evaluations = 0  # counted per instance
+
     def __init__(self, objective: Objective, n_shards: int, backend: str = "processes", client: Any = None,
                  planner: str | None = None) -> None:
         self.mdp, self.name, self.least_squares = objective.mdp, objective.name, objective.least_squares
@@ -231,6 +229,10 @@ class ShardedObjective(ShardedBase):
         self._features: dict[int, Any] = {}  # id -> features kept (the id stays theirs while kept)
         self._sent: list[set] = [set() for _ in self.parts]  # features ids each shard holds
         self._point_key: int | None = None  # the features of the last factorial_point
+
+    def reward_limit(self) -> float:
+        """The largest |reward| planned without overflow on the MDP (:func:`limit_of`)."""
+        return limit_of([self.mdp.gamma])
 
     def keep_linearization(self, again: Any) -> int:
         """A token for a new linearisation; ``again(k)`` gives the ``(method, args)`` that makes it again on a
@@ -322,7 +324,7 @@ class ShardedObjective(ShardedBase):
     def _features_args(self, k: int, key: int) -> tuple:
         """``(key, payload, keep)`` for :meth:`ShardState.receive` on shard k: the features travel once."""
         features = self._features[key]
-        payload = None if key in self._sent[k] else NoFeatures() if features is None else features
+        payload = None if key in self._sent[k] else features  # None: the shard keeps it already
         self._sent[k] = {kk for kk in self._sent[k] if kk in self._features} | {key}
         return key, payload, tuple(self._features)
 
@@ -330,18 +332,20 @@ class ShardedObjective(ShardedBase):
         build, key, shard_args = self._problems[token]
         return (token, build, shard_args(k), *self._features_args(k, key))
 
-    def factorial_point(self, base_features: Any, D: NDArray[np.float64], H: NDArray[np.float64]) -> tuple:
-        """Loss (n,) at ``R_i = Phi D h_i`` and ``G = [Phi^T y_i]`` (n, p), rewards formed on the shards.
+    def factorial_point(self, basis: Any, dictionary: NDArray[np.float64], coefficients: NDArray[np.float64]) -> tuple:
+        """Loss (n,) at ``R_i = Phi D h_i`` and the gradients there from ``G = [Phi^T y_i]`` (n, p),
+        rewards formed on the shards (:meth:`TaskObjective.factorial_point`).
 
-        What the factorial loop's optimality measure needs (``dJ/dH = G D``, ``dJ/dD = G^T H``,
-        eqs. 11-12), with O(n p) numbers back instead of ``dJ/dR`` (n, S, A).
+        ``dJ/dH = G D``, ``dJ/dD = G^T H`` (eqs. 11-12): O(n p) numbers come back instead of
+        ``dJ/dR`` (n, S, A).
         """
-        key = self._point_key = id(base_features)
-        self._features[key] = base_features
+        key = self._point_key = id(basis)
+        self._features[key] = basis
         self._prune_features()
-        out = self.call("factorial_point", [(k, (self._features_args(k, key), D, H[rows]))
+        out = self.call("factorial_point", [(k, (self._features_args(k, key), dictionary, coefficients[rows]))
                                             for k, rows in enumerate(self.parts)])
-        return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+        G = np.concatenate([o[1] for o in out])
+        return np.concatenate([o[0] for o in out]), lambda D, H: (G @ D, G.T @ H)
 
     def rebuilt(self, k: int) -> None:
         """A rebuilt shard ``k`` gets the kept problems and linearisations again (its state was lost)."""
@@ -363,7 +367,7 @@ class ShardedObjective(ShardedBase):
         pos = np.flatnonzero(self.owner[rows] == k)
         return (method, (X[pos], self.local[rows[pos]], *extra)) if pos.size else None
 
-    def weights_problem(self, features: Any, names: tuple[str, str]) -> Any:
+    def weights_problem(self, features: Any, names: tuple[str, str] | None) -> Any:
         """:func:`factirl_opt.objectives.problems.weights_problem` evaluated on the shards (see :mod:`.shard_problems`)."""
         from .shard_problems import sharded_weights_problem
 

@@ -30,6 +30,7 @@ from ..exceptions import ValidationError
 from ..mdp.environments import check_environments, group_tasks
 from ..mdp.tabular import TabularMDP
 from . import get_objective
+from .contract import TaskObjective, limit_of
 
 __all__ = ["MultiEnvironmentObjective", "multi_environment_objective"]
 
@@ -54,7 +55,7 @@ def _task_statistics(mdps: list[TabularMDP], mu_hat: Any, pi_hat: Any) -> tuple[
     return mus, pis
 
 
-class MultiEnvironmentObjective:
+class MultiEnvironmentObjective(TaskObjective):
     """A registered objective over tasks in several environments (see the module docstring).
 
     Parameters
@@ -120,6 +121,10 @@ class MultiEnvironmentObjective:
     def n_evaluations(self) -> int:
         """Batched planning evaluations so far, summed over the groups (one per group and call)."""
         return int(sum(obj.n_evaluations for obj in self.objectives))
+
+    def reward_limit(self) -> float:
+        """The largest |reward| planned without overflow on every task's MDP (:func:`limit_of`)."""
+        return limit_of([m.gamma for m in self.mdps])
 
     def reset(self) -> None:
         """Forget every group's warm starts and last-point cache (statistics and counts kept)."""

@@ -24,6 +24,7 @@ from ..exceptions import FactIRLError, ValidationError
 from ..planning import adjoint, boltzmann_policy, get_planner, plan, tangent
 from solvers import Linearization
 
+from ..tasks.task_set import parameter_matrix, reward_dimension
 from ._base import Objective
 
 __all__ = [
@@ -231,7 +232,7 @@ def dq_dtheta(mdp, policy, features=None, route="direct", tol=1e-13, max_iter=10
             f"{REFERENCE_MAX_PARAMS}: use policy_matching_loss (adjoint route)"
         )
     pol = check_policy(mdp, policy, 1)[0]
-    F = np.eye(S * A) if features is None else check_features(features, mdp.n_params)
+    F = parameter_matrix(mdp, features)
     if route == "direct":  # forward mode with p right-hand sides: the engine's tangent kernel
         planner = get_planner(mdp)
         dQ = tangent(planner, planner.system(pol[None]), pol[None], F.reshape(1, S, A, -1))
@@ -274,7 +275,7 @@ def policy_matching_grad_reference(mdp, rewards, mu_hat, pi_hat, beta=5.0, featu
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
     if R.shape[0] == 0:  # no tasks: empty loss and gradient, as policy_matching_loss returns
-        p = mdp.n_params if features is None else np.shape(features)[1]
+        p = reward_dimension(mdp, features)
         return np.zeros(0), np.zeros((0, p))
     point = forward_point(get_planner(mdp), R, mu, pi_hat, beta)
     g = softmax_vjp(point.pi, 2.0 * mu[:, :, None] * point.diff, beta).reshape(R.shape[0], -1)

@@ -1,20 +1,22 @@
-"""Step problems: what the learners hand to a step solver, built on any objective.
+"""Step problems: what the learners hand to a step solver, built on any objective and any basis.
 
-- :func:`weights_problem`: rows are tasks, ``x_i = w_i`` with ``R_i = F w_i`` (tabular when
-  ``F`` is None); used by GradIRL, FactIRL's H-step (``F = Phi D``, eq. 12) and transfer.
-- :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi D h_i``,
-  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``Phi^T sum_i y_i h_i^T`` (eq. 11;
-  docs/maths.md §8).
-- :func:`task_weights_problem` and :func:`task_dictionary_problem`: the same with one feature
-  matrix per task (:class:`~factirl_opt.tasks.features.TaskFeatures`, tasks in several
-  environments, ``R_i = Phi_i w_i``; least-squares residuals padded to the largest ``S_i*A``);
-  :func:`weights_problem` and :func:`dictionary_problem` hand such features to them;
-- :class:`StateBroadcast`: the features of a state-only reward ``R(s, a) = r(s)``,
-  ``Phi = kron(I_S, 1_A)`` (S*A, S), applied without forming the matrix (docs/maths.md §7).
+One builder per block, each taking the fit's :class:`~factirl_opt.tasks.basis.RewardBasis`
+(tabular, state, shared or per-task features: the builders never ask which):
 
-Gradients come from the objective's ``dJ/dR`` (``y_i``) by the chain rule; least-squares
-objectives also provide residuals, Jacobians (for the QP steps, k columns) and Jacobian-vector
-products (for matrix-free Gauss-Newton on the dictionary).
+- :func:`weights_problem`: rows are tasks, ``x_i = w_i`` with ``R_i = Phi_i w_i``; used by
+  GradIRL, FactIRL's H-step (the basis ``Phi_i D``, :meth:`~factirl_opt.tasks.basis.RewardBasis.compose`,
+  eq. 12) and transfer;
+- :func:`dictionary_problem`: one row, ``x = vec(D)`` with every task's ``R_i = Phi_i D h_i``,
+  loss ``J_Xi = sum_i J_i`` (eq. 10) and gradient ``sum_i Phi_i^T y_i h_i^T`` (eq. 11;
+  docs/maths.md §8);
+- the residual block: :mod:`factirl_opt.objectives.residuals`.
+
+Gradients come from the objective's ``dJ/dR`` (``y_i``) by the chain rule (the basis'
+adjoint); least-squares objectives also provide residuals, Jacobians (for the QP steps, k
+columns) and Jacobian-vector products (for matrix-free Gauss-Newton on the dictionary), padded
+to the largest ``S_i*A`` for tasks in several environments. An objective that declares
+:attr:`~factirl_opt.objectives.contract.TaskObjective.builds_problems` (a sharded one) builds
+them where its tasks are.
 """
 
 from __future__ import annotations
@@ -26,11 +28,9 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
-from .._batched import rows_matmul
-from .._validation import REWARD_LIMIT
-from ..tasks.features import StateBroadcast, TaskFeatures, check_reward_scale, dense_features, linear_rewards
+from ..tasks.basis import RewardBasis, as_basis
 
-__all__ = ["weights_problem", "dictionary_problem", "task_weights_problem", "task_dictionary_problem"]
+__all__ = ["weights_problem", "dictionary_problem", "as_problem_basis"]
 
 
 def effective_dictionary(x: np.ndarray, p: int, k: int, unit_norm: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -95,63 +95,61 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
 def reward_limit(objective: Any) -> float:
     """The largest |reward| the objective plans without overflow: ``REWARD_LIMIT * (1 - gamma)`` as
     :func:`~factirl_opt._validation.check_rewards` has it, for the largest gamma of its MDPs."""
-    mdps = getattr(objective, "mdps", None) or [getattr(objective, "mdp", None)]
-    gammas = [m.gamma for m in mdps if m is not None]
-    return REWARD_LIMIT * (1.0 - max(gammas)) if gammas else np.inf
+    return float(objective.reward_limit())
 
 
-def weights_problem(objective: Any, features: Any = None,
-                    names: tuple[str, str] = ("features", "weights")) -> StepProblem:
-    """Problem over per-task weights ``w`` (n, p), rewards ``R_i = F w_i``.
+def as_problem_basis(objective: Any, features: Any) -> RewardBasis:
+    """``features`` as a :class:`~factirl_opt.tasks.basis.RewardBasis`: a basis as is; the older
+    forms (None for tabular, a (S*A, p) matrix, a StateBroadcast, TaskFeatures) read on the
+    objective's MDP (:func:`~factirl_opt.tasks.basis.as_basis`)."""
+    if isinstance(features, RewardBasis):
+        return features
+    mdp = objective.mdp
+    return as_basis(features, *((None, None) if mdp is None else (mdp.n_states, mdp.n_actions)))
+
+
+def weights_problem(objective: Any, basis: Any = None, names: tuple[str, str] | None = None) -> StepProblem:
+    """Problem over per-task weights ``w`` (n, p), rewards ``R_i = Phi_i w_i``.
 
     Parameters
     ----------
-    objective : Objective
-    features : ndarray, shape (S*A, p), or StateBroadcast, optional
-        Shared features (``Phi D`` in FactIRL's H-step; a :class:`StateBroadcast` for
-        state-only rewards, p = S). None: tabular rewards, p = S*A.
-    names : (str, str)
-        What ``F`` and ``w`` are, for the message of an overflow (:func:`linear_rewards`).
+    objective : TaskObjective
+        Over the n tasks (any kind: :mod:`factirl_opt.objectives.contract`).
+    basis : RewardBasis
+        ``Phi_i`` (``Phi_i D`` in FactIRL's H-step). The older forms of features are read by
+        :func:`as_problem_basis` (None: tabular rewards, p = S*A).
+    names : (str, str), optional
+        What ``Phi`` and ``w`` are, for the message of an overflow (default the basis' own).
 
     Returns
     -------
     StepProblem
-        n rows (the objective's tasks), p parameters each.
+        n rows (the objective's tasks), p parameters each; the gradient is ``Phi_i^T y_i``
+        (docs/maths.md §7).
     """
-    if isinstance(features, TaskFeatures):
-        return task_weights_problem(objective, features)
-    if hasattr(objective, "weights_problem"):  # evaluated where its tasks are (objectives.shard_problems)
-        return objective.weights_problem(features, names)
-    mdp = objective.mdp
-    S, A = mdp.n_states, mdp.n_actions
-    F = features if features is None or isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
-    p = S * A if F is None else F.shape[1]
+    basis = as_problem_basis(objective, basis)
+    if objective.builds_problems:  # evaluated where its tasks are (objectives.shard_problems)
+        return objective.weights_problem(basis, names)
     limit = reward_limit(objective)
 
-    def directions(x):
-        return x.reshape(-1, S, A) if F is None else linear_rewards(F, x, S, A, names)
-
-    def rewards(x):  # a point: rewards the planner can take
-        R = directions(x)
-        return R if F is None else check_reward_scale(R, limit, F, x, names)
+    def rewards(x, rows):  # a point: rewards the planner can take
+        return basis.point_rewards(x, rows, limit, names)
 
     def loss_and_grad(x, rows):
-        loss, y = objective.loss_and_grad(rewards(x), rows)
-        y = y.reshape(len(rows), S * A)
-        return loss, (y if F is None else rows_matmul(y, F))
+        loss, y = objective.loss_and_grad(rewards(x, rows), rows)
+        return loss, basis.pull(y, rows)
 
     def residual_jacobian(x, rows):
-        return objective.residual_jacobian(rewards(x), rows, np.eye(S * A) if F is None else dense_features(F))
+        return objective.residual_jacobian(rewards(x, rows), rows, basis.jacobian_features(rows))
 
     def linearize(x, rows):
-        lin = objective.linearize(rewards(x), rows)
+        lin = objective.linearize(rewards(x, rows), rows)
 
-        def jvp(V):  # weight directions (r, p) -> reward directions F v_i
-            return lin.jvp(directions(V))
+        def jvp(V):  # weight directions (r, p) -> reward directions Phi_i v_i
+            return lin.jvp(basis.rewards(V, rows, names))
 
         def vjp(U):
-            y = lin.vjp(U).reshape(len(U), S * A)
-            return y if F is None else rows_matmul(y, F)
+            return basis.pull(lin.vjp(U), rows)
 
         return Linearization(lin.loss, lin.residual, jvp, vjp)
 
@@ -162,23 +160,24 @@ def weights_problem(objective: Any, features: Any = None,
         linearize=linearize if ls else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
-        n_params=p,
+        n_params=basis.n_params,
     )
 
 
-def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_features: Any = None,
+def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], basis: Any = None,
                        unit_norm: bool = False) -> StepProblem:
     """One-row problem over the dictionary ``vec(D)`` (1, p*k) with ``H`` fixed (eqs. 10-11).
 
     Parameters
     ----------
-    objective : Objective
+    objective : TaskObjective
     coefficients : ndarray, shape (n, k)
         ``H``, tasks on the leading axis.
-    base_features : ndarray, shape (S*A, p), or StateBroadcast, optional
-        ``Phi``: rewards ``R_i = Phi D h_i`` with ``D`` of shape (p, k). None: tabular, p = S*A.
+    basis : RewardBasis
+        ``Phi_i``: rewards ``R_i = Phi_i D h_i`` with ``D`` of shape (p, k) (older forms of
+        features as in :func:`weights_problem`; None: tabular, p = S*A).
     unit_norm : bool, default=False
-        Use the primitives at unit norm: rewards ``R_i = Phi D~ h_i`` with
+        Use the primitives at unit norm: rewards ``R_i = Phi_i D~ h_i`` with
         ``D~ = D diag(1 / ||D[:, l]||)``, so the step cannot trade the scale of D against that
         of H (needed when H carries a penalty such as L1). The gradient is then
         ``(G - D~ diag(sum_j D~_jl G_jl)) diag(1 / ||D[:, l]||)`` with ``G`` the gradient at ``D~``.
@@ -186,106 +185,24 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], base_f
     Returns
     -------
     StepProblem
-        One row of ``p * k`` parameters.
+        One row of ``p * k`` parameters; least-squares residuals are every task's (padded)
+        residuals as one row.
     """
-    if isinstance(base_features, TaskFeatures):
-        return task_dictionary_problem(objective, coefficients, base_features, unit_norm)
-    if hasattr(objective, "dictionary_problem"):  # evaluated where its tasks are (objectives.shard_problems)
-        return objective.dictionary_problem(coefficients, base_features, unit_norm)
-    mdp = objective.mdp
-    S, A = mdp.n_states, mdp.n_actions
+    basis = as_problem_basis(objective, basis)
+    if objective.builds_problems:  # evaluated where its tasks are (objectives.shard_problems)
+        return objective.dictionary_problem(coefficients, basis, unit_norm)
     H = np.asarray(coefficients, dtype=np.float64)
     n, k = H.shape
-    Phi = base_features
-    if Phi is not None and not isinstance(Phi, StateBroadcast):
-        Phi = np.asarray(Phi, dtype=np.float64)
-    p = S * A if Phi is None else Phi.shape[1]
-    names = ("dictionary" if Phi is None else "features @ dictionary", "coefficients")
     limit = reward_limit(objective)
 
     def rewards(D):
-        return linear_rewards(D if Phi is None else Phi @ D, H, S, A, names)
+        return basis.dictionary_rewards(D, H)
 
     def check(R, D):
-        return check_reward_scale(R, limit, D if Phi is None else Phi @ D, H, names)
+        return basis.check_dictionary_rewards(R, D, H, limit)
 
     def gradient(y):
-        """``Phi^T sum_i y_i h_i^T`` (eq. 11), (p, k)."""
-        g = y.reshape(n, S * A).T @ H
-        return g if Phi is None else Phi.T @ g
+        """``sum_i Phi_i^T y_i h_i^T`` (eq. 11), (p, k)."""
+        return basis.dictionary_gradient(y, H)
 
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)
-
-
-def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
-    """:func:`weights_problem` with one feature matrix per task: ``R_i = Phi_i w_i``, w (n, p).
-
-    Parameters
-    ----------
-    objective : MultiEnvironmentObjective
-        Over the tasks of ``features`` (one environment each; see
-        :mod:`factirl_opt.objectives.environments`).
-    features : TaskFeatures
-        ``Phi_i`` (or ``Phi_i D`` in the H-step, :meth:`TaskFeatures.times`).
-
-    Returns
-    -------
-    StepProblem
-        n rows, p parameters each; the gradient is ``Phi_i^T y_i`` (docs/maths.md §7) and the
-        least-squares residuals are padded to the largest ``S_i * A``.
-    """
-    tf, limit = features, reward_limit(objective)
-
-    def rewards(x, rows):  # a point: rewards the planners can take
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported, naming the inputs
-            R = tf.rewards(x, rows)
-        return check_reward_scale(R, limit, tf, x, ("features", "weights"))
-
-    def loss_and_grad(x, rows):
-        loss, y = objective.loss_and_grad(rewards(x, rows), rows)
-        return loss, tf.pull(y, rows)
-
-    def residual_jacobian(x, rows):
-        return objective.residual_jacobian(rewards(x, rows), rows, tf.dense(rows))
-
-    def linearize(x, rows):
-        lin = objective.linearize(rewards(x, rows), rows)
-        return Linearization(lin.loss, lin.residual, lambda V: lin.jvp(tf.rewards(V, rows)),
-                             lambda U: tf.pull(lin.vjp(U), rows))
-
-    ls = objective.least_squares
-    return StepProblem(
-        loss_and_grad=loss_and_grad,
-        residual_jacobian=residual_jacobian if ls else None,
-        linearize=linearize if ls else None,
-        n_evaluations=lambda: objective.n_evaluations,
-        n_rows=objective.n_tasks,
-        n_params=tf.n_features,
-    )
-
-
-def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], features: TaskFeatures,
-                            unit_norm: bool = False) -> StepProblem:
-    """:func:`dictionary_problem` with one feature matrix per task: ``R_i = Phi_i D h_i``.
-
-    The gradient is ``sum_i Phi_i^T y_i h_i^T`` (eq. 11, :meth:`TaskFeatures.dictionary_gradient`);
-    ``unit_norm`` as in :func:`dictionary_problem`. Least-squares residuals are the tasks'
-    padded residuals (n, max S_i*A) as one row.
-    """
-    tf, H = features, np.asarray(coefficients, dtype=np.float64)
-    n, k = H.shape
-    p = tf.n_features
-
-    limit = reward_limit(objective)
-
-    def rewards(D):
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by ``check``
-            return tf.rewards(H @ D.T)
-
-    def check(R, D):
-        return check_reward_scale(R, limit, tf, H @ D.T, ("features", "dictionary @ coefficients"))
-
-    def gradient(y):
-        return tf.pull(y).T @ H
-
-    return alternating_dictionary_problem(objective, n, p, k, unit_norm, rewards, gradient, check)
+    return alternating_dictionary_problem(objective, n, basis.n_params, k, unit_norm, rewards, gradient, check)

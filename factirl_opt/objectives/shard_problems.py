@@ -31,7 +31,7 @@ from solvers import Linearization, StepProblem
 __all__ = ["sharded_weights_problem", "sharded_dictionary_problem"]
 
 
-def _weights_build(objective: Any, features: Any, names: tuple[str, str]) -> StepProblem:
+def _weights_build(objective: Any, features: Any, names: tuple[str, str] | None) -> StepProblem:
     """On a shard: :func:`factirl_opt.objectives.problems.weights_problem` over its tasks."""
     from .problems import weights_problem
 
@@ -45,10 +45,10 @@ def _dictionary_build(objective: Any, base_features: Any, coefficients: NDArray[
     return dictionary_problem(objective, coefficients, base_features, unit_norm)
 
 
-def sharded_weights_problem(sobj: Any, features: Any, names: tuple[str, str]) -> StepProblem:
-    """:func:`factirl_opt.objectives.problems.weights_problem` on the shards of ``sobj`` (rows: tasks; x (r, p))."""
-    S, A = sobj.mdp.n_states, sobj.mdp.n_actions
-    p = S * A if features is None else features.shape[1]
+def sharded_weights_problem(sobj: Any, features: Any, names: tuple[str, str] | None) -> StepProblem:
+    """:func:`factirl_opt.objectives.problems.weights_problem` on the shards of ``sobj`` (rows: tasks; x (r, p));
+    ``features`` a :class:`~factirl_opt.tasks.basis.RewardBasis`."""
+    p = features.n_params
     token = sobj.make_problem(_weights_build, features, lambda k: (names,))
 
     def evaluate(method, x, rows, count):
@@ -78,8 +78,7 @@ def sharded_dictionary_problem(sobj: Any, coefficients: NDArray[np.float64], bas
                                unit_norm: bool) -> StepProblem:
     """:func:`factirl_opt.objectives.problems.dictionary_problem` on the shards of ``sobj`` (one row, ``vec(D)``)."""
     H = np.asarray(coefficients, dtype=np.float64)
-    S, A = sobj.mdp.n_states, sobj.mdp.n_actions
-    p = S * A if base_features is None else base_features.shape[1]
+    p = base_features.n_params
     token = sobj.make_problem(_dictionary_build, base_features, lambda k: (H[sobj.parts[k]], unit_norm))
     shards = range(sobj.n_shards)
 

@@ -91,12 +91,15 @@ class ShardedEnvironments(ShardedBase):
         The planner name the objective was built with (``"auto"`` resolves per environment).
     """
 
+    n_evaluations = 0  # counted per instance
+
     def __init__(self, objective: MultiEnvironmentObjective, n_shards: int, backend: str = "processes",
                  client: Any = None, planner: Any = "auto") -> None:
         src = objective
         self.name, self.least_squares, self.mdp = src.name, src.least_squares, src.mdp
         self.n_tasks, self.ragged, self.n_residuals, self.n_evaluations = src.n_tasks, src.ragged, src.n_residuals, 0
         self.n_states, self.n_actions = src.n_states, src.n_actions
+        self._limit = src.reward_limit()
         self.parts = deal_groups(src.task_group, n_shards)
         self.owner = np.empty(self.n_tasks, dtype=np.intp)
         self.local = np.empty(self.n_tasks, dtype=np.intp)
@@ -115,6 +118,10 @@ class ShardedEnvironments(ShardedBase):
         self.shards = Shards(specs, backend, client)
         self._token = 0
         self._lins: dict[int, tuple] = {}  # token -> (rewards, rows): linearised again on a rebuilt shard
+
+    def reward_limit(self) -> float:
+        """The largest |reward| planned without overflow on every task's MDP (:func:`limit_of`)."""
+        return self._limit
 
     def rebuilt(self, k: int) -> None:
         """A rebuilt shard ``k`` linearises its tasks again at the kept points (its state was lost)."""

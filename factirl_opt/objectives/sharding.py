@@ -1,23 +1,79 @@
 """How an objective is evaluated: in this process, or sharded by tasks or by whole environments.
 
-:func:`sharded` is the one place that chooses: the learners call it with the execution
-settings (``n_jobs``, ``backend``, ``client``) and use what it yields as their objective.
+:func:`sharded` is the one place that chooses. The learners hold their execution settings as
+one value, :class:`Execution` (``n_jobs``, ``backend``, ``client``, the planner and its
+``planner_options``), built once from the estimator and passed down whole; its
+:meth:`Execution.evaluate` opens the planning budget and the shards around a fit and yields
+the objective to use.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import warnings
 from collections.abc import Iterator
 from typing import Any
 
 from ..parallel.shards import check_backend, dask_workers, effective_n_jobs, in_worker
+from ..planning.budget import options_budget
 from ._base import Objective
 from .distributed import ShardedObjective
 from .environments import MultiEnvironmentObjective
 from .sharded_environments import ShardedEnvironments
 
-__all__ = ["sharded"]
+__all__ = ["sharded", "Execution"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Execution:
+    """Where and how a fit's objective is evaluated: the estimators' execution parameters as one value.
+
+    Attributes
+    ----------
+    n_jobs : int or None
+        Shards (:func:`sharded`; None or 1: this process).
+    backend : {"processes", "dask"}
+        How the shards run (:mod:`factirl_opt.parallel.shards`).
+    client : dask.distributed.Client, optional
+    planner : str or Planner, optional
+        The planner the objectives were built with; its name is what the shards use.
+    planner_options : dict, optional
+        ``{"max_bytes": ...}``: the planning budget in force during the fit
+        (:func:`~factirl_opt.planning.budget.options_budget`).
+    """
+
+    n_jobs: int | None = None
+    backend: str = "processes"
+    client: Any = None
+    planner: Any = None
+    planner_options: dict | None = None
+
+    @classmethod
+    def of(cls, estimator: Any) -> Execution:
+        """The execution settings of an estimator (its ``n_jobs``, ``backend``, ``client``,
+        ``planner`` and ``planner_options`` parameters)."""
+        return cls(estimator.n_jobs, estimator.backend, estimator.client, estimator.planner, estimator.planner_options)
+
+    def params(self) -> dict[str, Any]:
+        """These settings as keyword arguments of an estimator (e.g. the flat learner a FactIRL
+        fits for its start: ``GradIRL(beta=..., **Execution.of(model).params())``)."""
+        return {"n_jobs": self.n_jobs, "backend": self.backend, "client": self.client, "planner": self.planner,
+                "planner_options": self.planner_options}
+
+    def budget(self) -> contextlib.AbstractContextManager:
+        """The planning budget of ``planner_options`` in force while the block is open."""
+        return options_budget(self.planner_options)
+
+    def shards(self, objective: Any) -> contextlib.AbstractContextManager:
+        """:func:`sharded` with these settings: the objective to use while the block is open."""
+        return sharded(objective, self.n_jobs, self.backend, self.client, self.planner)
+
+    @contextlib.contextmanager
+    def evaluate(self, objective: Any) -> Iterator[Any]:
+        """The planning budget and the shards of a fit, together: yields the objective to use."""
+        with self.budget(), self.shards(objective) as obj:
+            yield obj
 
 
 @contextlib.contextmanager

@@ -114,6 +114,15 @@ class TaskFeatures:
     def _rows(self, rows: ArrayLike | None) -> NDArray[np.intp]:
         return np.arange(self.n_tasks) if rows is None else np.asarray(rows, dtype=np.intp).reshape(-1)
 
+    def take(self, rows: ArrayLike) -> TaskFeatures:
+        """The features of tasks ``rows`` only (a row subset, in the order of ``rows``)."""
+        idx = self._rows(rows)
+        out = TaskFeatures.__new__(TaskFeatures)
+        out._F, out.n_actions, out.n_states = [self._F[i] for i in idx], self.n_actions, self.n_states[idx]
+        out.n_tasks, out.n_features, out.state_features = idx.size, self.n_features, self.state_features[idx]
+        out.ragged = bool(idx.size and np.any(out.n_states != out.n_states[0]))
+        return out
+
     def matrix(self, task: int) -> NDArray[np.float64]:
         """Task ``task``'s features as given ((S_i, p) or (S_i*A, p))."""
         return self._F[task]
@@ -395,7 +404,10 @@ def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, 
 def factorial_rewards(mdp: Any, Phi: Any, D: NDArray[np.float64], H: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rewards ``R_i = Phi D h_i`` (n, S, A) from D (p, k) and H (n, k); ``Phi`` None is tabular.
 
-    An overflow names the inputs (:func:`factirl_opt.objectives.problems.linear_rewards`). With per-task
+    The older form of :meth:`factirl_opt.tasks.basis.RewardBasis.factorial_rewards` (the same
+    products), for callers holding features rather than a basis.
+
+    An overflow names the inputs (:func:`linear_rewards`). With per-task
     features ``Phi`` (:class:`~factirl_opt.tasks.features.TaskFeatures`; ``mdp`` unused) the
     rewards are stacked (n, S, A) for equal-sized environments, else a list of (S_i, A).
     """

@@ -8,21 +8,23 @@ Every learner entry point (``GradIRL.fit``, ``FactIRL.fit``, ``FactIRL.transfer`
 branch at the call sites:
 
 - *one environment*: every task on one MDP object with one feature matrix (or tabular or state
-  rewards): ``TaskSet.mdp`` is that MDP, ``features`` None, an (S*A, p) matrix or a
-  :class:`~factirl_opt.tasks.features.StateBroadcast`; ``fit([m] * n, ...)`` with one object
-  ``m`` takes this path, bit for bit the one of ``fit(m, ...)``;
+  rewards): ``TaskSet.mdp`` is that MDP and ``basis`` a shared
+  :class:`~factirl_opt.tasks.basis.RewardBasis` (tabular, state or one matrix);
+  ``fit([m] * n, ...)`` with one object ``m`` takes this path, bit for bit the one of
+  ``fit(m, ...)``;
 - *several environments*: one MDP per task, or one feature matrix per task (docs/maths.md §7):
-  ``TaskSet.mdps`` lists them and ``features`` is their
-  :class:`~factirl_opt.tasks.features.TaskFeatures`.
+  ``TaskSet.mdps`` lists them and ``basis`` is a :class:`~factirl_opt.tasks.basis.TaskBasis`.
 
-The objective is bound later by the learners (:func:`factirl_opt.learners.fitting.make_objective`),
-after their own hyper-parameters are checked: a TaskSet holds data only.
+Whatever the features, the fit's reward model is ``TaskSet.basis``: the code below the
+estimators never asks which kind it is. The objective is bound later by the learners
+(:func:`factirl_opt.learners.fitting.task_objective`), after their own hyper-parameters are
+checked: a TaskSet holds data only. :meth:`TaskSet.subset` gives the task set of some of its
+tasks (validation folds, transfer of a subset).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -33,10 +35,12 @@ from .._validation import check_features, check_mdp
 from ..exceptions import ValidationError
 from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
-from .features import StateBroadcast, TaskFeatures, weights_rewards
+from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, matrix_digest
+from .features import StateBroadcast, TaskFeatures
 
-__all__ = ["TaskSet", "task_set", "environment_tasks", "REWARDS", "reward_features", "reward_dimension", "per_task_features",
-           "features_digest", "environment_signatures"]
+__all__ = ["TaskSet", "task_set", "environment_tasks", "REWARDS", "reward_features", "reward_basis", "reward_dimension",
+           "per_task_features", "features_digest", "environment_signatures", "transfer_task_set",
+           "parameter_matrix"]
 
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
@@ -85,17 +89,36 @@ def features_digest(features: np.ndarray | None) -> str | None:
     """
     if features is None:
         return None
-    F = np.ascontiguousarray(features, dtype=np.float64)
-    h = hashlib.sha256(repr(F.shape).encode())
-    h.update(F.tobytes())
-    return h.hexdigest()
+    return matrix_digest(features)
+
+
+def reward_basis(mdp: Any, features: Any = None, reward: str = "state-action", min_columns: int = 1) -> RewardBasis:
+    """The :class:`~factirl_opt.tasks.basis.RewardBasis` of a learner's ``features`` and ``reward``
+    parameters on one MDP (validated as :func:`reward_features` does; a basis given as
+    ``features`` is checked against the MDP and taken as it is)."""
+    if isinstance(features, RewardBasis):
+        return _given_basis(features, [mdp.n_states], mdp.n_actions, reward, min_columns)
+    F = reward_features(mdp, features, reward, min_columns)
+    if F is None:
+        return TabularBasis(mdp.n_states, mdp.n_actions)
+    if isinstance(F, StateBroadcast):
+        return StateBasis(mdp.n_states, mdp.n_actions)
+    return SharedBasis(F, mdp.n_states, mdp.n_actions)
 
 
 def reward_dimension(mdp: Any, features: Any) -> int:
     """p, the number of reward parameters per task: ``S*A`` (tabular), or the features' columns."""
+    if isinstance(features, RewardBasis):
+        return features.n_params
     if isinstance(features, TaskFeatures):
         return features.n_features
-    return mdp.n_params if features is None else features.shape[1]
+    return mdp.n_params if features is None else int(np.shape(features)[1])
+
+
+def parameter_matrix(mdp: Any, features: Any = None) -> NDArray[np.float64]:
+    """``Phi`` of a public ``features`` parameter as a dense (S*A, p) matrix: the identity for None
+    (tabular rewards, p = S*A), else the validated (S*A, p) features."""
+    return np.eye(mdp.n_params) if features is None else check_features(features, mdp.n_params)
 
 
 def per_task_features(features: Any) -> bool:
@@ -128,7 +151,18 @@ def one_environment(mdp: Any, demos_per_task: Any, features: Any) -> Any:
     return mdps[0] if all(m is mdps[0] for m in mdps) else None
 
 
-def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> tuple[TaskFeatures, str | None]:
+def _given_basis(basis: RewardBasis, n_states: list, n_actions: int, reward: str, min_columns: int) -> RewardBasis:
+    """A :class:`~factirl_opt.tasks.basis.RewardBasis` given as ``features``, checked against the environments."""
+    if reward != "state-action":
+        raise ValidationError(f"reward={reward!r} learns one free reward per state and takes no features (got a "
+                              f"{type(basis).__name__})")
+    basis.check_environments(n_states, n_actions)
+    if basis.n_params < min_columns:
+        raise ValidationError(f"features must have p >= {min_columns} columns; got p = {basis.n_params}")
+    return basis
+
+
+def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> tuple[RewardBasis, str | None]:
     if reward != "state-action":
         raise ValidationError(f"reward={reward!r} learns one free reward per state of one MDP; tasks in several "
                               "environments need features (pass state features (S_i, p) per task instead)")
@@ -137,6 +171,9 @@ def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> 
             "tasks in several environments need features (one shared (S*A, p) matrix, or one (S_i*A, p) or (S_i, p) "
             "matrix per task): tabular rewards are defined on one MDP")
     S = [m.n_states for m in mdps]
+    if isinstance(features, RewardBasis):
+        basis = _given_basis(features, S, mdps[0].n_actions, reward, min_columns)
+        return basis, basis.digest()
     if per_task_features(features):
         tf = TaskFeatures(list(features), S, mdps[0].n_actions)
         digest = None
@@ -149,7 +186,7 @@ def _task_features(mdps: list, features: Any, reward: str, min_columns: int) -> 
         tf, digest = TaskFeatures([F] * len(mdps), S, mdps[0].n_actions), features_digest(F)
     if tf.n_features < min_columns:
         raise ValidationError(f"features must have p >= {min_columns} columns; got p = {tf.n_features}")
-    return tf, digest
+    return TaskBasis(tf, digest), digest
 
 
 def environment_signatures(mdps: Sequence[TabularMDP]) -> list[dict]:
@@ -169,8 +206,9 @@ class TaskSet:
     ----------
     demos_per_task : list of n task demonstrations
         As given (parsed when the objective is bound to them).
-    features : None, ndarray (S*A, p), StateBroadcast or TaskFeatures
-        What the rewards are linear in: ``R_i = Phi_i w_i`` (None: tabular, ``w_i = R_i``).
+    basis : RewardBasis
+        What the rewards are linear in: ``R_i = Phi_i w_i`` (:mod:`factirl_opt.tasks.basis`;
+        tabular rewards are a basis too).
     mdp : TabularMDP or None
         The one MDP every task shares (one environment), else None.
     mdps : list of n TabularMDP or None
@@ -181,7 +219,7 @@ class TaskSet:
     """
 
     demos_per_task: Any
-    features: Any
+    basis: RewardBasis
     mdp: TabularMDP | None
     mdps: list[TabularMDP] | None
     digest: str | None
@@ -194,13 +232,32 @@ class TaskSet:
     @property
     def n_params(self) -> int:
         """p, the reward parameters per task (``S*A`` for tabular rewards)."""
-        return reward_dimension(self.mdp, self.features)
+        return self.basis.n_params
+
+    @property
+    def n_tasks(self) -> int:
+        """n, the number of tasks."""
+        return len(self.demos_per_task)
 
     def rewards(self, weights: NDArray[np.float64]) -> NDArray[np.float64] | list[NDArray[np.float64]]:
         """Rewards ``R_i = Phi_i w_i`` of weights (n, p): (n, S, A), or a list of (S_i, A) arrays."""
-        if self.mdp is None:
-            return self.features.rewards(weights)
-        return weights_rewards(self.features, weights, self.mdp.n_states, self.mdp.n_actions)
+        return self.basis.rewards(weights)
+
+    def subset(self, rows: Any) -> TaskSet:
+        """The task set of tasks ``rows`` only (in that order): their demonstrations, MDPs and basis
+        rows (validation folds, held-out tasks).
+
+        Raises
+        ------
+        ValidationError
+            For rows that are not task indices.
+        """
+        idx = np.asarray(rows).reshape(-1)
+        if idx.size == 0 or idx.dtype.kind not in "iu" or idx.min() < 0 or idx.max() >= self.n_tasks:
+            raise ValidationError(f"rows must be a nonempty list of task indices in [0, {self.n_tasks}); got {np.asarray(rows).tolist()}")
+        demos = [self.demos_per_task[int(i)] for i in idx]
+        mdps = None if self.mdps is None else [self.mdps[int(i)] for i in idx]
+        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest)
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""
@@ -243,9 +300,8 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
     one = one_environment(mdp, demos_per_task, features)
     if one is not None:
         check_mdp(one)
-        F = reward_features(one, features, reward, min_columns)
-        digest = features_digest(F) if isinstance(F, np.ndarray) else None  # of the matrix given, not of a StateBroadcast
-        return TaskSet(demos_per_task, F, one, None, digest)
+        basis = reward_basis(one, features, reward, min_columns)
+        return TaskSet(demos_per_task, basis, one, None, basis.digest())
     return environment_tasks(mdp, demos_per_task, features, reward, min_columns)
 
 
@@ -260,6 +316,105 @@ def environment_tasks(mdp: Any, demos_per_task: Any, features: Any, reward: str 
     if n is None:
         raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
     mdps = check_environments(mdp, n)
-    tf, digest = _task_features(mdps, features, reward, min_columns)
-    return TaskSet(demos_per_task, tf, None, mdps, digest)
+    basis, digest = _task_features(mdps, features, reward, min_columns)
+    return TaskSet(demos_per_task, basis, None, mdps, digest)
 
+
+
+def _transfer_mdp(mdp: Any, demos_per_task: Any, fitted: Any, signature: Any) -> Any:
+    """The one MDP of a transfer on the one-MDP path (no features given), else None.
+
+    ``mdp`` itself when it is not a sequence (the one-MDP path checks it); a sequence of one
+    MDP object (``[m] * n_new``, as in ``fit``); or, for a model fitted without features on
+    one MDP, a sequence of MDPs that each have that MDP's saved signature (equal models).
+    """
+    one = one_environment(mdp, demos_per_task, None)
+    if one is not None or fitted is not None:
+        return one
+    mdps = check_environments(mdp)  # their count is checked against the demonstrations' by the one-MDP path
+    return mdps[0] if isinstance(signature, dict) and all(m.signature() == signature for m in mdps) else None
+
+
+def transfer_task_set(mdp: Any, demos_per_task: Any, features: Any, fitted_features: Any, *,
+                      reward: str = "state-action", signature: Any = None, digest: Any = None, check_digest: bool = False,
+                      min_columns: int = 1, what: str = "this FactIRL model") -> TaskSet:
+    """The new tasks of a fitted model's transfer, checked against what the model was fitted on.
+
+    Parameters
+    ----------
+    mdp : TabularMDP or sequence of n_new TabularMDP
+    demos_per_task : list of n_new task demonstrations
+    features : array_like or sequence of n_new array_like, or None
+        The new environments' features (one shared matrix, or one per new task); None: the
+        model's own.
+    fitted_features : the model's ``features`` parameter (None: tabular or state rewards)
+    reward : {"state-action", "state"}
+        The model's.
+    signature : dict, list of dict or None
+        The model's ``mdp_signature_``.
+    digest : str or None
+        The model's ``features_sha256_``, checked when ``check_digest``.
+    min_columns : int
+        The model's number of primitives (smallest accepted p).
+
+    Returns
+    -------
+    TaskSet
+        On the one-MDP path (no ``features``; the model's own MDP, one object or a sequence of
+        MDPs equal to it) the model's basis on that MDP, whose signature is checked; else the
+        new tasks in their own environments (:func:`environment_tasks`).
+
+    Raises
+    ------
+    ValidationError
+        Another MDP than the one of a model fitted on one MDP without ``features``; tabular
+        or state rewards carried to other environments (they live on the states of the
+        model's MDP); features missing for a model fitted with per-task features; environments
+        with another number of actions; the model's shared features changed since ``fit``.
+    """
+    from ..mdp.tabular import check_signature
+
+    per_task = per_task_features(fitted_features)
+    given = features is not None
+    one = None if given or per_task else _transfer_mdp(mdp, demos_per_task, fitted_features, signature)
+    if one is not None:  # the one-MDP path: ``[m] * n_new`` of one MDP is ``m``, as in ``fit``
+        check_mdp(one)
+        if isinstance(signature, dict):  # a list: fitted on several environments
+            check_signature(signature, one, what)
+        basis = reward_basis(one, fitted_features, reward, min_columns)
+        if check_digest:
+            _check_digest(digest, basis, fitted_features is not None, what)
+        return TaskSet(demos_per_task, basis, one, None, basis.digest())
+    if fitted_features is None:
+        raise ValidationError(f"{what} was fitted without features (tabular rewards): its dictionary lives on the states "
+                              "of its MDP, so it transfers only to that MDP, without features")
+    if not given and per_task:
+        raise ValidationError(f"{what} was fitted with one feature matrix per task: transfer to new environments needs "
+                              "their features (features=[one (S_i*A, p) or (S_i, p) per new task])")
+    tasks = environment_tasks(mdp, demos_per_task, features if given else fitted_features)
+    n_actions = signature["n_actions"] if isinstance(signature, dict) else signature[0]["n_actions"] if signature else None
+    new_actions = tasks.mdps[0].n_actions if tasks.mdps else None
+    if n_actions is not None and new_actions != n_actions:
+        raise ValidationError(f"the new tasks' environments have {new_actions} actions, but the model was fitted with "
+                              f"{n_actions}")
+    if check_digest and not given and digest != tasks.digest:
+        raise ValidationError(f"{what} was fitted with other features than the ones set now (sha256 "
+                              f"{str(tasks.digest)[:12]}... instead of {str(digest)[:12]}...): restore them or fit again")
+    return tasks
+
+
+def _check_digest(expected: str | None, basis: RewardBasis, has_features: bool, what: str) -> None:
+    """Refuse model features other than those it was fitted with (digest ``expected``)."""
+    actual = basis.digest() if has_features else None
+    if actual == expected:
+        return
+    shape = np.shape(basis.dense()[0]) if has_features else None
+    if expected is None:
+        raise ValidationError(f"{what} was fitted without features, but features of shape {shape} are set now")
+    if actual is None:
+        raise ValidationError(f"{what} was fitted with features (sha256 {expected[:12]}...), but features=None now")
+    raise ValidationError(
+        f"{what} was fitted with other features than the ones set now (shape {shape}, sha256 "
+        f"{actual[:12]}... instead of {expected[:12]}...): the dictionary only means something on the features it was "
+        "learnt with; restore those features or fit again"
+    )

@@ -6,7 +6,7 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.fitting import task_objective
-from factirl_opt.tasks import StateBroadcast, TaskFeatures
+from factirl_opt.tasks.basis import SharedBasis, StateBasis, TabularBasis, TaskBasis
 from factirl_opt.tasks.task_set import TaskSet, environment_tasks, features_digest, task_set
 
 
@@ -26,15 +26,16 @@ def test_one_mdp_is_one_environment(grids, demos):
     g3, _ = grids
     tabular = task_set(g3, demos)
     assert isinstance(tabular, TaskSet) and tabular.shared and tabular.mdp is g3 and tabular.mdps is None
-    assert tabular.features is None and tabular.digest is None and tabular.n_params == 36
+    assert isinstance(tabular.basis, TabularBasis) and tabular.digest is None and tabular.n_params == 36
     assert task_set([g3, g3], demos).mdp is g3  # the same object for every task: the one-MDP path
     state = task_set(g3, demos, reward="state")
-    assert isinstance(state.features, StateBroadcast) and state.n_params == 9 and state.digest is None
+    assert isinstance(state.basis, StateBasis) and state.n_params == 9 and state.digest is None
     F = np.random.default_rng(2).random((9, 3))
     feats = task_set(g3, demos, F)
-    assert feats.features.shape == (36, 3) and feats.digest == features_digest(feats.features)
+    assert isinstance(feats.basis, SharedBasis) and feats.basis.features.shape == (36, 3)
+    assert feats.digest == features_digest(feats.basis.features)
     W = np.random.default_rng(3).normal(size=(2, 3))
-    np.testing.assert_allclose(feats.rewards(W), (feats.features @ W.T).T.reshape(2, 9, 4), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(feats.rewards(W), (feats.basis.features @ W.T).T.reshape(2, 9, 4), rtol=0, atol=1e-14)
     assert feats.signature() == g3.signature()
 
 
@@ -43,7 +44,7 @@ def test_several_mdps_or_per_task_features_are_environments(grids, demos):
     d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
     Phis = [np.random.default_rng(5).random((9, 2)), np.random.default_rng(6).random((16, 2))]
     tasks = task_set([g3, g4], [demos[0], d4[0]], Phis)
-    assert not tasks.shared and tasks.mdps == [g3, g4] and isinstance(tasks.features, TaskFeatures)
+    assert not tasks.shared and tasks.mdps == [g3, g4] and isinstance(tasks.basis, TaskBasis)
     assert tasks.n_params == 2 and tasks.digest is None
     assert tasks.signature() == [g3.signature(), g4.signature()]
     R = tasks.rewards(np.ones((2, 2)))
@@ -82,3 +83,25 @@ def test_every_entry_point_refuses_what_task_set_refuses(grids, demos, entry):
     }
     with pytest.raises(ValidationError, match="reward='state' learns one free reward per state and takes no features"):
         calls[entry]()
+
+
+def test_a_row_subset_keeps_the_tasks_of_its_rows(grids, demos):
+    g3, g4 = grids
+    d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
+    Phis = [np.random.default_rng(5).random((9, 2)), np.random.default_rng(6).random((16, 2)),
+            np.random.default_rng(7).random((9, 2))]
+    tasks = task_set([g3, g4, g3], [demos[0], d4[0], demos[1]], Phis)
+    sub = tasks.subset([2, 1])
+    assert sub.n_tasks == 2 and sub.mdps == [g3, g4] and sub.demos_per_task[0] is demos[1]
+    W = np.random.default_rng(8).normal(size=(2, 2))
+    whole = tasks.rewards(np.stack([W[1], W[1], W[0]]))
+    assert [r.shape for r in sub.rewards(W)] == [(9, 4), (16, 4)]
+    np.testing.assert_array_equal(sub.rewards(W)[0], whole[2])
+    np.testing.assert_array_equal(sub.rewards(W)[1], whole[1])
+    shared = task_set(g3, demos).subset([1])
+    assert shared.mdp is g3 and shared.n_tasks == 1 and isinstance(shared.basis, TabularBasis)
+    assert task_objective(sub, 2.0).n_tasks == 2 and task_objective(shared, 2.0).n_tasks == 1
+    with pytest.raises(ValidationError, match="task indices"):
+        tasks.subset([3])
+    with pytest.raises(ValidationError, match="task indices"):
+        tasks.subset([])

@@ -1,0 +1,598 @@
+"""The reward basis of a fit: ``R_i = Phi_i w_i``, one type for every kind of reward features.
+
+Whatever the features of a fit, its rewards are linear in per-task weights ``w_i`` (p,)
+(docs/maths.md §7, §8). :class:`RewardBasis` is that linear map and everything the objectives,
+the step problems and the learners need of it, so that no code below the estimators branches
+on the kind of features:
+
+=====================  ==========================================  ===========================
+kind                   ``Phi_i``                                   p
+=====================  ==========================================  ===========================
+:class:`TabularBasis`  the identity (tabular rewards ``R_i = w_i``)  ``S*A``
+:class:`StateBasis`    ``kron(I_S, 1_A)``, never formed              ``S`` (``reward="state"``)
+:class:`SharedBasis`   one (S*A, p) matrix shared by every task      its columns
+:class:`TaskBasis`     one (S_i*A, p) or (S_i, p) matrix per task    their (common) columns
+=====================  ==========================================  ===========================
+
+A basis is always present (tabular rewards are a basis, never None). It offers:
+
+- :attr:`RewardBasis.n_params`, the number of weights per task;
+- :meth:`RewardBasis.rewards` and :meth:`RewardBasis.point_rewards`: rewards from weights of
+  chosen rows (the latter refused when the planner would overflow on them);
+- :meth:`RewardBasis.pull`: the adjoint ``Phi_i^T y_i`` for chosen rows (the chain rule from
+  ``y_i = dJ_i/dR_i``); :meth:`RewardBasis.jacobian_features`: the features a least-squares
+  Jacobian is taken along;
+- :meth:`RewardBasis.compose`: the basis ``Phi_i D`` of a dictionary (the H-step, eq. 12), and
+  the dictionary's own products (:meth:`RewardBasis.dictionary_rewards`,
+  :meth:`RewardBasis.dictionary_gradient`, eq. 11; :meth:`RewardBasis.factorial_gradients`);
+- :meth:`RewardBasis.dense` (dense rows), :meth:`RewardBasis.subset` (a row subset) and
+  :meth:`RewardBasis.digest` (what a model records of the features);
+- the PCA start of the factorial model in the basis' own metric
+  (:meth:`RewardBasis.start_points`, :meth:`RewardBasis.start_dictionary`).
+
+Each implementation keeps the arithmetic its kind always had (the same products in the same
+order), so a fit gives the same bits whatever code path carries the basis. A new kind of
+features (low-rank, sparse, ...) is one more subclass: the learners and objectives take it
+unchanged.
+"""
+
+from __future__ import annotations
+
+import abc
+import hashlib
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._batched import rows_matmul
+from .._validation import check_array
+from ..exceptions import ValidationError
+from .features import StateBroadcast, TaskFeatures, check_reward_scale, linear_rewards
+
+__all__ = ["RewardBasis", "TabularBasis", "StateBasis", "SharedBasis", "TaskBasis", "ComposedBasis", "as_basis", "matrix_digest", "least_squares_weights",
+           "PCA", "WEIGHT_NAMES", "DICTIONARY_NAMES"]
+
+#: ``pca(X, k, rng) -> (D, H)``: the uncentred PCA the factorial start uses (``learners.dictionary.pca_dictionary``)
+PCA = Callable[[NDArray[np.float64], int, Any], tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+WEIGHT_NAMES = ("features", "weights")
+DICTIONARY_NAMES = ("features @ dictionary", "coefficients")
+
+
+def matrix_digest(features: NDArray[np.float64]) -> str:
+    """SHA-256 (hex) of a validated (S*A, p) feature matrix as float64, shape included."""
+    F = np.ascontiguousarray(features, dtype=np.float64)
+    h = hashlib.sha256(repr(F.shape).encode())
+    h.update(F.tobytes())
+    return h.hexdigest()
+
+
+class RewardBasis(abc.ABC):
+    """What rewards are linear in: ``R_i = Phi_i w_i`` for the rows (tasks) ``i`` (module docstring).
+
+    Rows index the tasks of the fit. A basis shared by every task (tabular, state, one
+    matrix; :attr:`shared`) takes any rows; a per-task basis (:class:`TaskBasis`) has one
+    ``Phi_i`` per row. Per-task arrays (rewards, ``dJ/dR``) are stacked (r, S, A) arrays, or
+    lists of (S_i, A) arrays when the tasks' environments differ in size.
+
+    A new kind of features subclasses this and implements :attr:`n_params`, :attr:`n_actions`,
+    :meth:`rewards`, :meth:`pull`, :meth:`dense` and :meth:`check_environments`; every other
+    operation has a default in terms of those (the built-in kinds override them with the
+    products they always used, for the same bits).
+
+    Attributes
+    ----------
+    n_params : int
+        p, the weights per task.
+    n_actions : int
+    shared : bool
+        Whether one ``Phi`` serves every row (else one per task, in task order).
+    names : (str, str)
+        What ``Phi`` and ``w`` are called in the message of an overflow.
+    """
+
+    n_params: int
+    n_actions: int
+    shared: bool = True
+    names: tuple[str, str] = WEIGHT_NAMES
+
+    # -- what every kind implements ----------------------------------------------------------------
+    @abc.abstractmethod
+    def rewards(self, weights: ArrayLike, rows: ArrayLike | None = None, names: tuple[str, str] | None = None) -> Any:
+        """Rewards ``Phi_i w_i`` of weights (r, p) of tasks ``rows`` (all tasks when None).
+
+        Also reward *directions* (the products of a Jacobian-vector product). An overflow
+        of float64 is a ValidationError naming the inputs (``names``, default :attr:`names`).
+        """
+
+    @abc.abstractmethod
+    def pull(self, grads: Any, rows: ArrayLike | None = None) -> NDArray[np.float64]:
+        """The adjoint ``Phi_i^T y_i`` (r, p) of reward gradients ``y_i`` (S_i, A) of tasks ``rows``."""
+
+    @abc.abstractmethod
+    def dense(self, rows: ArrayLike | None = None) -> list[NDArray[np.float64]]:
+        """``Phi_i`` of ``rows`` as dense (S_i*A, p) matrices (a shared basis: one per row, or one
+        when ``rows`` is None)."""
+
+    @abc.abstractmethod
+    def check_environments(self, n_states: Any, n_actions: int) -> None:
+        """Raise :class:`~factirl_opt.exceptions.ValidationError` unless the basis fits tasks on
+        environments of ``n_states`` (one S_i per task) states and ``n_actions`` actions."""
+
+    # -- defaults in terms of the above ------------------------------------------------------------
+    def point_rewards(self, weights: ArrayLike, rows: ArrayLike | None, limit: float,
+                      names: tuple[str, str] | None = None) -> Any:
+        """:meth:`rewards` at a point the planner evaluates, refused (ValidationError) when their
+        largest magnitude reaches ``limit`` (:func:`~factirl_opt.tasks.features.check_reward_scale`)."""
+        names = _names(names, self.names)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported, naming the inputs
+            R = self.rewards(weights, rows, names)
+        return check_reward_scale(R, limit, self.dense(rows), weights, names)
+
+    def jacobian_features(self, rows: ArrayLike | None = None) -> Any:
+        """The features a least-squares Jacobian is taken along (``residual_jacobian``'s last
+        argument): one (S*A, p) matrix for a shared basis, else one per row."""
+        return self.dense()[0] if self.shared else self.dense(rows)
+
+    def subset(self, rows: ArrayLike) -> RewardBasis:
+        """The basis of the tasks ``rows`` only (a shared basis is its own subset)."""
+        if not self.shared:
+            raise NotImplementedError(f"{type(self).__name__} defines no row subset")
+        return self
+
+    def digest(self) -> str | None:
+        """What a model records of its features (``features_sha256_``): the SHA-256 of the one
+        matrix given, None for tabular or state rewards, per-task features and other kinds."""
+        return None
+
+    # -- a dictionary: R_i = Phi_i D h_i (docs/maths.md §8) -----------------------------------------
+    def compose(self, dictionary: NDArray[np.float64]) -> RewardBasis:
+        """The basis ``Phi_i D`` (p, k) -> k weights per task: the features of the H-step (eq. 12)."""
+        return ComposedBasis(self, dictionary)
+
+    def factorial_rewards(self, dictionary: NDArray[np.float64], coefficients: NDArray[np.float64]) -> Any:
+        """Every task's ``R_i = Phi_i D h_i`` from D (p, k) and H (n, k); an overflow names the inputs."""
+        return self.compose(dictionary).rewards(coefficients, names=DICTIONARY_NAMES)
+
+    def dictionary_rewards(self, dictionary: NDArray[np.float64], coefficients: NDArray[np.float64]) -> Any:
+        """``Phi_i D h_i`` as the dictionary step forms them (also directions ``dD``)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by the check
+            return self.rewards(coefficients @ dictionary.T)
+
+    def check_dictionary_rewards(self, rewards: Any, dictionary: NDArray[np.float64],
+                                 coefficients: NDArray[np.float64], limit: float) -> Any:
+        """:meth:`dictionary_rewards` at a point, refused when the planner would overflow on them."""
+        return check_reward_scale(rewards, limit, self.dense(), coefficients @ dictionary.T,
+                                  ("features", "dictionary @ coefficients"))
+
+    def dictionary_gradient(self, grads: Any, coefficients: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``sum_i Phi_i^T y_i h_i^T`` (p, k) over every task (eq. 11)."""
+        return self.pull(grads).T @ coefficients
+
+    def factorial_gradients(self, grads: Any, dictionary: NDArray[np.float64],
+                            coefficients: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(dJ/dH, dJ/dD)`` = ``([D^T Phi_i^T y_i], sum_i Phi_i^T y_i h_i^T)`` (eqs. 11-12)."""
+        G = self.pull(grads)
+        return G @ dictionary, G.T @ coefficients
+
+    def point_pull(self, grads: Any) -> NDArray[np.float64]:
+        """``[Phi_i^T y_i]`` (n, p) of every task, as a shard returns it for the factorial loop's
+        optimality measure (``dJ/dH = G D``, ``dJ/dD = G^T H``)."""
+        return self.pull(grads)
+
+    # -- the PCA start of the factorial model ---------------------------------------------------------
+    def start_points(self, weights: NDArray[np.float64]) -> NDArray[np.float64]:
+        """What the PCA start decomposes (n, d), from flat weights (n, p): the flat rewards
+        (n, S*A) of the built-in shared kinds, the weights themselves otherwise (then
+        :meth:`start_dictionary` works in the basis' metric)."""
+        return weights
+
+    def start_points_from_rewards(self, rewards: Any, n_tasks: int) -> NDArray[np.float64]:
+        """:meth:`start_points` of flat rewards given by the user ((n, S, A), or a list of (S_i, A)),
+        through their least-squares weights; a ValidationError names a wrong shape."""
+        if len(rewards) != n_tasks:
+            raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({n_tasks}); got {len(rewards)}")
+        out = np.empty((n_tasks, self.n_params))
+        for i, (F, R) in enumerate(zip(self.dense(np.arange(n_tasks)), rewards)):
+            R = check_array(R, f"flat_rewards[{i}] (task {i})")
+            shape = (F.shape[0] // self.n_actions, self.n_actions)
+            if R.shape != shape:
+                raise ValidationError(f"flat_rewards of task {i} must have shape (S_i, A) = {shape} (its MDP); got {R.shape}")
+            out[i] = np.linalg.lstsq(F, R.reshape(-1), rcond=None)[0]
+        return out
+
+    def gram(self, n_tasks: int) -> NDArray[np.float64]:
+        """The metric of the PCA start: ``mean_i Phi_i^T Phi_i`` (p, p) over ``n_tasks`` tasks."""
+        G = np.zeros((self.n_params, self.n_params))
+        for F in self.dense(np.arange(n_tasks)):
+            G += F.T @ F
+        return G / n_tasks
+
+    def start_dictionary(self, points: NDArray[np.float64], n_components: int, rng: Any,
+                         pca: PCA) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The PCA start ``(D, H)`` ((p, k), (n, k)) of :meth:`start_points`, in the basis' metric.
+
+        By default the PCA of the weights in the metric ``G`` (:meth:`gram`): the uncentred PCA
+        of ``W G^{1/2}`` mapped back by the minimum-norm pre-image, so ``G^{1/2} D`` has
+        orthonormal columns and ``H = W G D`` (the PCA of the rewards ``Phi_i w_i``).
+        """
+        W = check_array(points, "weights", ndim=2)
+        return _metric_pca(W, self.gram(W.shape[0]), n_components, rng, pca)
+
+
+def _metric_pca(W: NDArray[np.float64], G: NDArray[np.float64], n_components: int, rng: Any,
+                pca: PCA) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The uncentred PCA of weights W (n, p) in the metric G (p, p) (:meth:`RewardBasis.start_dictionary`)."""
+    e, V = np.linalg.eigh(G)
+    keep = e > max(float(e.max()), 0.0) * 1e-12
+    if int(keep.sum()) < n_components:
+        raise ValidationError(f"n_components={n_components} exceeds the rank {int(keep.sum())} of the features' mean "
+                              "Gram matrix: the features span fewer reward directions than primitives")
+    root = np.sqrt(e[keep])
+    Dr, H = pca(W @ (V[:, keep] * root), n_components, rng)
+    return V[:, keep] @ (Dr / root[:, None]), H
+
+
+class ComposedBasis(RewardBasis):
+    """The basis ``Phi_i D`` of a basis and a dictionary D (p, k): weights ``h_i`` (k,), ``R_i = Phi_i D h_i``
+    (the default :meth:`RewardBasis.compose`)."""
+
+    names = DICTIONARY_NAMES
+
+    def __init__(self, base: RewardBasis, dictionary: NDArray[np.float64]) -> None:
+        self.base, self.dictionary = base, np.asarray(dictionary, dtype=np.float64)
+        self.n_params, self.n_actions, self.shared = self.dictionary.shape[1], base.n_actions, base.shared
+
+    def rewards(self, weights, rows=None, names=None):
+        W = np.asarray(weights, dtype=np.float64)
+        return self.base.rewards(np.einsum("pk,rk...->rp...", self.dictionary, W), rows, _names(names, self.names))
+
+    def pull(self, grads, rows=None):
+        return self.base.pull(grads, rows) @ self.dictionary
+
+    def dense(self, rows=None):
+        return [F @ self.dictionary for F in self.base.dense(rows)]
+
+    def check_environments(self, n_states, n_actions):
+        self.base.check_environments(n_states, n_actions)
+
+    def subset(self, rows):
+        return ComposedBasis(self.base.subset(rows), self.dictionary)
+
+
+def _names(names: tuple[str, str] | None, default: tuple[str, str]) -> tuple[str, str]:
+    return default if names is None else names
+
+
+class TabularBasis(RewardBasis):
+    """Tabular rewards: ``Phi`` the identity (S*A, S*A), ``R_i = w_i`` reshaped (p = S*A)."""
+
+    names = ("dictionary", "coefficients")
+
+    def __init__(self, n_states: int, n_actions: int) -> None:
+        self.n_states, self.n_actions = int(n_states), int(n_actions)
+        self.n_params = self.n_states * self.n_actions
+
+    def check_environments(self, n_states, n_actions):
+        _check_one_environment(self, n_states, n_actions, "tabular rewards are defined on one MDP")
+
+    def rewards(self, weights, rows=None, names=None):
+        return np.asarray(weights).reshape(-1, self.n_states, self.n_actions)
+
+    def point_rewards(self, weights, rows, limit, names=None):
+        return self.rewards(weights, rows)
+
+    def pull(self, grads, rows=None):
+        return np.asarray(grads).reshape(len(grads), self.n_params)
+
+    def jacobian_features(self, rows=None):
+        return np.eye(self.n_params)
+
+    def dense(self, rows=None):
+        n = 1 if rows is None else np.asarray(rows).size
+        return [np.eye(self.n_params)] * n
+
+    def compose(self, dictionary):
+        return SharedBasis(dictionary, self.n_states, self.n_actions, names=("dictionary", "coefficients"))
+
+    def factorial_rewards(self, dictionary, coefficients):
+        return linear_rewards(dictionary, coefficients, self.n_states, self.n_actions, ("dictionary", "coefficients"))
+
+    def dictionary_rewards(self, dictionary, coefficients):
+        return linear_rewards(dictionary, coefficients, self.n_states, self.n_actions, ("dictionary", "coefficients"))
+
+    def check_dictionary_rewards(self, rewards, dictionary, coefficients, limit):
+        return check_reward_scale(rewards, limit, dictionary, coefficients, ("dictionary", "coefficients"))
+
+    def dictionary_gradient(self, grads, coefficients):
+        H = np.asarray(coefficients, dtype=np.float64)
+        return grads.reshape(H.shape[0], self.n_params).T @ H
+
+    def factorial_gradients(self, grads, dictionary, coefficients):
+        Y = grads.reshape(coefficients.shape[0], -1)
+        return Y @ dictionary, Y.T @ coefficients
+
+    def point_pull(self, grads):
+        return grads.reshape(len(grads), -1)
+
+    def start_points(self, weights):
+        return self.rewards(weights).reshape(len(weights), -1)
+
+    def start_points_from_rewards(self, rewards, n_tasks):
+        return _flat_reward_rows(rewards, n_tasks, self.n_states, self.n_actions)
+
+    def start_dictionary(self, points, n_components, rng, pca):
+        return pca(points, n_components, rng)
+
+
+def _check_one_environment(basis: Any, n_states: Any, n_actions: int, what: str) -> None:
+    """Refuse environments other than the ``(n_states, n_actions)`` of a basis made for one MDP."""
+    S = np.asarray(n_states).reshape(-1)
+    if n_actions != basis.n_actions or np.any(S != basis.n_states):
+        raise ValidationError(f"{what}: the basis is for S = {basis.n_states} states and A = {basis.n_actions} "
+                              f"actions; got environments of S = {sorted(set(S.tolist()))} and A = {n_actions}")
+
+
+def _flat_reward_rows(rewards: Any, n: int, S: int, A: int) -> NDArray[np.float64]:
+    Theta = check_array(rewards, "flat_rewards")
+    if Theta.shape != (n, S, A):
+        raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {S}, {A}); got {Theta.shape}")
+    return Theta.reshape(n, -1)
+
+
+class SharedBasis(RewardBasis):
+    """One feature matrix ``Phi`` (S*A, p) shared by every task: ``R_i = Phi w_i``.
+
+    Parameters
+    ----------
+    features : ndarray, shape (S*A, p)
+        Validated (state features already repeated over the actions).
+    n_states, n_actions : int
+    names : (str, str), default=("features", "weights")
+        For the message of an overflow (e.g. ``("features @ dictionary", "coefficients")``
+        for a composed basis).
+    digest : str, optional
+        The digest a model records (:meth:`digest`); default that of ``features``.
+    """
+
+    def __init__(self, features: Any, n_states: int, n_actions: int, names: tuple[str, str] = WEIGHT_NAMES,
+                 digest: str | None = None) -> None:
+        self.features = features if isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
+        self.n_states, self.n_actions = int(n_states), int(n_actions)
+        self.n_params = int(self.features.shape[1])
+        self.names = names
+        self._digest = digest
+
+    def check_environments(self, n_states, n_actions):
+        _check_one_environment(self, n_states, n_actions, "one shared feature matrix cannot fit every environment")
+
+    def rewards(self, weights, rows=None, names=None):
+        return linear_rewards(self.features, weights, self.n_states, self.n_actions, _names(names, self.names))
+
+    def point_rewards(self, weights, rows, limit, names=None):
+        names = _names(names, self.names)
+        return check_reward_scale(self.rewards(weights, rows, names), limit, self.features, weights, names)
+
+    def pull(self, grads, rows=None):
+        y = np.asarray(grads).reshape(len(grads), self.n_states * self.n_actions)
+        return rows_matmul(y, self.features)
+
+    def jacobian_features(self, rows=None):
+        return self.features
+
+    def dense(self, rows=None):
+        n = 1 if rows is None else np.asarray(rows).size
+        return [np.asarray(self.jacobian_features())] * n
+
+    def digest(self):
+        if self._digest is None:
+            self._digest = matrix_digest(self.features)
+        return self._digest
+
+    def compose(self, dictionary):
+        return SharedBasis(self.features @ dictionary, self.n_states, self.n_actions, names=DICTIONARY_NAMES)
+
+    def factorial_rewards(self, dictionary, coefficients):
+        with np.errstate(over="ignore", invalid="ignore"):
+            F = self.features @ dictionary
+        if not np.all(np.isfinite(F)):  # a StateBroadcast only repeats D: a feature matrix overflowed
+            raise ValidationError(
+                f"the product features @ dictionary overflows float64: the largest |feature| is "
+                f"{np.max(np.abs(self.features)):.3g} and the largest |dictionary entry| {np.max(np.abs(dictionary)):.3g}; "
+                "rescale the features (e.g. to entries of order 1)")
+        return linear_rewards(F, coefficients, self.n_states, self.n_actions, DICTIONARY_NAMES)
+
+    def dictionary_rewards(self, dictionary, coefficients):
+        return linear_rewards(self.features @ dictionary, coefficients, self.n_states, self.n_actions, DICTIONARY_NAMES)
+
+    def check_dictionary_rewards(self, rewards, dictionary, coefficients, limit):
+        return check_reward_scale(rewards, limit, self.features @ dictionary, coefficients, DICTIONARY_NAMES)
+
+    def dictionary_gradient(self, grads, coefficients):
+        H = np.asarray(coefficients, dtype=np.float64)
+        return self.features.T @ (grads.reshape(H.shape[0], self.n_states * self.n_actions).T @ H)
+
+    def factorial_gradients(self, grads, dictionary, coefficients):
+        Y = grads.reshape(coefficients.shape[0], -1)
+        return Y @ (self.features @ dictionary), self.features.T @ (Y.T @ coefficients)
+
+    def point_pull(self, grads):
+        return grads.reshape(len(grads), -1) @ self.features
+
+    def least_squares_weights(self, rewards: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Minimum-norm least-squares weights ``W`` (p, m) with ``Phi W ~ X`` for rewards X (S*A, m)."""
+        return least_squares_weights(self.features, rewards)
+
+    def start_points(self, weights):
+        return self.rewards(weights, names=WEIGHT_NAMES).reshape(len(weights), -1)
+
+    def start_points_from_rewards(self, rewards, n_tasks):
+        X = _flat_reward_rows(rewards, n_tasks, self.n_states, self.n_actions)
+        return (self.features @ self.least_squares_weights(X.T)).T  # the rewards the least-squares weights give
+
+    def start_dictionary(self, points, n_components, rng, pca):
+        D, H = pca(points, n_components, rng)
+        return self.least_squares_weights(D), H
+
+
+class StateBasis(SharedBasis):
+    """Rewards of the states only, ``R(s, a) = w(s)``: ``Phi = kron(I_S, 1_A)`` (S*A, S), never formed
+    (a :class:`~factirl_opt.tasks.features.StateBroadcast`; p = S, docs/maths.md §7)."""
+
+    def __init__(self, n_states: int, n_actions: int) -> None:
+        super().__init__(StateBroadcast(n_states, n_actions), n_states, n_actions)
+
+    def jacobian_features(self, rows=None):
+        return self.features.toarray()
+
+    def digest(self):
+        return None
+
+
+
+class TaskBasis(RewardBasis):
+    """One feature matrix per task, ``R_i = Phi_i w_i`` on task i's own environment (docs/maths.md §7).
+
+    Parameters
+    ----------
+    features : TaskFeatures
+        Validated against each task's environment.
+    digest : str, optional
+        What a model records (one shared matrix given for every environment); default None.
+    """
+
+    shared = False
+
+    def __init__(self, features: TaskFeatures, digest: str | None = None) -> None:
+        self.features = features
+        self.n_params, self.n_actions = features.n_features, features.n_actions
+        self._digest = digest
+
+    def check_environments(self, n_states, n_actions):
+        S = np.asarray(n_states).reshape(-1)
+        if n_actions != self.n_actions or S.size != self.n_tasks or np.any(S != self.features.n_states):
+            raise ValidationError(f"the per-task features fit {self.n_tasks} environments of S = "
+                                  f"{self.features.n_states.tolist()} states and A = {self.n_actions} actions; got "
+                                  f"{S.tolist()} and A = {n_actions}")
+
+    @property
+    def n_tasks(self) -> int:
+        return self.features.n_tasks
+
+    def rewards(self, weights, rows=None, names=None):
+        return self.features.rewards(weights, rows)
+
+    def point_rewards(self, weights, rows, limit, names=None):
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported, naming the inputs
+            R = self.features.rewards(weights, rows)
+        return check_reward_scale(R, limit, self.features, weights, WEIGHT_NAMES)
+
+    def pull(self, grads, rows=None):
+        return self.features.pull(grads, rows)
+
+    def jacobian_features(self, rows=None):
+        return self.features.dense(rows)
+
+    def dense(self, rows=None):
+        return self.features.dense(rows)
+
+    def subset(self, rows):
+        return TaskBasis(self.features.take(rows), self._digest)
+
+    def digest(self):
+        return self._digest
+
+    def compose(self, dictionary):
+        return TaskBasis(self.features.times(dictionary))
+
+    def factorial_rewards(self, dictionary, coefficients):
+        return self.features.times(dictionary).rewards(coefficients)
+
+    def dictionary_rewards(self, dictionary, coefficients):
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported by the check
+            return self.features.rewards(coefficients @ dictionary.T)
+
+    def check_dictionary_rewards(self, rewards, dictionary, coefficients, limit):
+        return check_reward_scale(rewards, limit, self.features, coefficients @ dictionary.T,
+                                  ("features", "dictionary @ coefficients"))
+
+    def dictionary_gradient(self, grads, coefficients):
+        return self.features.pull(grads).T @ coefficients
+
+    def factorial_gradients(self, grads, dictionary, coefficients):
+        G = self.features.pull(grads)  # Phi_i^T y_i (n, p)
+        return G @ dictionary, G.T @ coefficients
+
+    def point_pull(self, grads):
+        return self.features.pull(grads)
+
+    def start_points(self, weights):
+        return weights
+
+    def start_points_from_rewards(self, rewards, n_tasks):
+        tf = self.features
+        if len(rewards) != tf.n_tasks:
+            raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({tf.n_tasks}); got {len(rewards)}")
+        out = np.empty((tf.n_tasks, tf.n_features))
+        for i, (F, R) in enumerate(zip(tf.dense(), rewards)):
+            R = check_array(R, f"flat_rewards[{i}] (task {i})")
+            shape = (int(tf.n_states[i]), tf.n_actions)
+            if R.shape != shape:
+                raise ValidationError(f"flat_rewards of task {i} must have shape (S_i, A) = {shape} (its MDP); got {R.shape}")
+            out[i] = np.linalg.lstsq(F, R.reshape(-1), rcond=None)[0]
+        return out
+
+    def start_dictionary(self, points, n_components, rng, pca):
+        """The PCA of the weights in the metric ``G = mean_i Phi_i^T Phi_i`` (state features counted
+        once per action): the uncentred PCA of ``W G^{1/2}`` mapped back by the minimum-norm
+        pre-image, so ``G^{1/2} D`` has orthonormal columns and ``H = W G D``; the shared start,
+        up to the signs of the primitives, when every task has the same features."""
+        W = check_array(points, "weights", ndim=2)
+        return _metric_pca(W, self.gram(W.shape[0]), n_components, rng, pca)
+
+    def gram(self, n_tasks):
+        tf = self.features
+        G = np.zeros((tf.n_features, tf.n_features))
+        for i in range(tf.n_tasks):
+            F = tf.matrix(i)
+            G += (tf.n_actions if tf.state_features[i] else 1) * (F.T @ F)
+        return G / tf.n_tasks
+
+
+def least_squares_weights(features: Any, rewards: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Minimum-norm least-squares weights ``W`` with ``Phi W ~ X``: rewards mapped back to feature space.
+
+    Parameters
+    ----------
+    features : ndarray, shape (S*A, p), or StateBroadcast
+        ``Phi``. For a :class:`~factirl_opt.tasks.features.StateBroadcast` the solution is the
+        mean over the actions.
+    rewards : ndarray, shape (S*A, m)
+        ``X``, one column per reward.
+
+    Returns
+    -------
+    ndarray, shape (p, m)
+    """
+    if isinstance(features, StateBroadcast):
+        return (features.T @ rewards) / features.n_actions
+    return np.linalg.lstsq(features, rewards, rcond=None)[0]
+
+
+def as_basis(features: Any, n_states: int | None = None, n_actions: int | None = None) -> RewardBasis:
+    """The :class:`RewardBasis` of validated features: a basis as is, None (tabular), a
+    :class:`StateBroadcast`, a :class:`TaskFeatures` or one (S*A, p) matrix (``n_states`` and
+    ``n_actions`` are then needed)."""
+    if isinstance(features, RewardBasis):
+        return features
+    if isinstance(features, TaskFeatures):
+        return TaskBasis(features)
+    if n_states is None or n_actions is None:
+        raise ValidationError("the features of a shared basis need the MDP's numbers of states and actions")
+    if features is None:
+        return TabularBasis(n_states, n_actions)
+    if isinstance(features, StateBroadcast):
+        return StateBasis(n_states, n_actions)
+    return SharedBasis(features, n_states, n_actions)
