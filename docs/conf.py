@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import re
 import sys
 
 import matplotlib
@@ -43,6 +44,7 @@ extensions = [
     "myst_parser",
     "sphinx_gallery.gen_gallery",
     "_ext.public_names",
+    "_ext.maths_links",  # docstrings' "docs/maths.md §N" link the section; deprecated aliases off the pages
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -76,6 +78,19 @@ autosummary_generate = True
 autosummary_imported_members = True
 autodoc_default_options = {"members": True, "inherited-members": False, "show-inheritance": True}
 autodoc_typehints = "signature"  # hints in the signature; types with shapes in the Parameters sections
+# numpy's array aliases as written (``ArrayLike``, ``NDArray[np.float64]``), not expanded into their unions;
+# where Sphinx leaves such an alias as a forward reference, _alias_names shows its name
+autodoc_type_aliases = {"ArrayLike": "numpy.typing.ArrayLike", "NDArray": "numpy.typing.NDArray"}
+_FORWARD_ALIAS = re.compile(r"TypeAliasForwardRef\('numpy\.typing\.(\w+)'\)")
+
+
+def _alias_names(app, what, name, obj, options, signature, return_annotation):
+    """``autodoc-process-signature``: ``TypeAliasForwardRef('numpy.typing.ArrayLike')`` -> ``ArrayLike``."""
+    return tuple(text and _FORWARD_ALIAS.sub(r"\1", text) for text in (signature, return_annotation))
+
+
+def setup(app):
+    app.connect("autodoc-process-signature", _alias_names)
 autodoc_member_order = "bysource"
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False

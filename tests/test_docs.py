@@ -61,6 +61,46 @@ def test_every_public_name_has_one_page(api):
     assert {name for (ns, name) in where if ns == "fo"} == set(fo.__all__)
 
 
+@pytest.fixture(scope="module")
+def maths_links():
+    return _load(DOCS / "_ext" / "maths_links.py", "docs_maths_links")
+
+
+@pytest.mark.parametrize("text, linked", [
+    ("(docs/maths.md §5).", "(:ref:`docs/maths.md §5 <maths-5>`)."),
+    ("docs/maths.md §7, §8 and", ":ref:`docs/maths.md §7 <maths-7>`, :ref:`§8 <maths-8>` and"),
+    ("docs/maths.md §2 and §4;", ":ref:`docs/maths.md §2 <maths-2>` and :ref:`§4 <maths-4>`;"),
+    ("docs/maths.md §5-6", ":ref:`docs/maths.md §5 <maths-5>`-:ref:`6 <maths-6>`"),
+    ("docs/maths.md §8a,", ":ref:`docs/maths.md §8a <maths-8a>`,"),
+    ("the docs/maths.md page", "the :doc:`docs/maths.md </maths>` page"),
+    ("``docs/maths.md §8`` stays", "``docs/maths.md §8`` stays"),
+    ("no citation", "no citation"),
+])
+def test_docstring_citations_of_the_maths_link_its_sections(maths_links, text, linked):
+    assert maths_links.link_line(text) == linked
+
+
+def test_every_cited_maths_section_has_its_label(maths_links):
+    """Each section the docstrings cite (docs/maths.md §N) is a label of docs/maths.md, so the link resolves."""
+    labels = set(re.findall(r"^\((maths-[0-9]+[a-z]?)\)=$", (DOCS / "maths.md").read_text(), re.M))
+    cited = set()
+    for path in [*(ROOT / "factirl_opt").rglob("*.py"), *(ROOT / "solvers").rglob("*.py")]:
+        for line in path.read_text().splitlines():
+            cited.update(re.findall(r"<(maths-[0-9]+[a-z]?)>", maths_links.link_line(line)))
+    assert {"maths-5", "maths-8"} <= cited
+    assert cited <= labels, sorted(cited - labels)
+
+
+def test_deprecated_aliases_are_kept_off_the_api_pages(maths_links):
+    import factirl_opt as fo
+    import solvers
+
+    assert maths_links.skip_deprecated(None, "class", "h_solver", fo.FactIRL.__dict__["h_solver"], False, None)
+    assert maths_links.skip_deprecated(None, "class", "backend", solvers.GaussNewtonSolver.__dict__["backend"], False, None)
+    assert maths_links.skip_deprecated(None, "class", "h_options", fo.SolverSettings.__dict__["h_options"], False, None) is None
+    assert maths_links.skip_deprecated(None, "class", "fit", fo.FactIRL.fit, False, None) is None
+
+
 def test_guide_pages_cut_the_guide_at_its_headings():
     guide = (DOCS / "guide.md").read_text()
     pages = sorted((DOCS / "guide").glob("*.md")) + [DOCS / "getting-started.md"]

@@ -72,8 +72,9 @@ class FactIRL(Estimator):
 
     Parameters
     ----------
-    n_primitives : int, default=5
-        Number of primitive rewards k.
+    n_primitives : int or "auto", default=5
+        Number of primitive rewards k. ``"auto"``: chosen by validation over tasks
+        (:mod:`factirl_opt.learners.adaptive`), as ``residual_penalty="auto"``.
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
     features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
