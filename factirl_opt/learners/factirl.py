@@ -165,8 +165,9 @@ class FactIRL(Estimator):
         and ``transfer`` fits each new task as the flat learner does (``flat_solver`` for
         ``flat_max_iter`` iterations from zero weights, :func:`~factirl_opt.learners.gradirl.fit_weights`;
         ``h = 0``, ``delta`` the weights): the same rewards as ``GradIRL`` with that solver and
-        budget on the new tasks' features. ``"auto"``: chosen by validation
-        over tasks (:mod:`factirl_opt.learners.adaptive`).
+        budget on the new tasks' features (why ``flat_solver`` there: "What residual_penalty
+        runs" in :mod:`factirl_opt.learners.factorial`, the one place that states what each value
+        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.adaptive`).
     dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
         Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
         paper's free dictionary; otherwise every primitive has unit norm and is nonnegative

@@ -12,10 +12,14 @@ never know which one runs.
     Maximum causal entropy (Ziebart et al. 2010), infinite horizon, discounted: the negative
     log-likelihood of the demonstrated pairs under the soft-optimal policy of the soft Bellman
     equation (:class:`MCEObjective`, :func:`mce_loss`; not least squares: gradient solvers only).
+
+Every kind of objective a fit runs on (these, the multi-environment, sharded and weighted ones)
+implements one contract, :class:`TaskObjective` (:mod:`factirl_opt.objectives.contract`).
 """
 
 from ..exceptions import ValidationError
 from ._base import Objective
+from .contract import TaskObjective
 from .mce import MCEObjective, mce_loss, soft_values
 from .policy_matching import (
     PolicyMatchingObjective,
@@ -27,6 +31,7 @@ from .policy_matching import (
 
 __all__ = [
     "Objective",
+    "TaskObjective",
     "PolicyMatchingObjective",
     "policy_matching_loss",
     "policy_matching_grad_reference",

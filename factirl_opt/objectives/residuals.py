@@ -8,8 +8,8 @@ residual ``delta_i`` (p,), penalised by ``lambda ||delta_i||^2``. The objective 
 ``lambda = inf`` forcing ``delta = 0`` (the paper's factorial model, eq. 10) and ``lambda = 0``
 leaving every ``w_i`` free (the flat model). Both blocks are the flat learner's problem
 (:func:`factirl_opt.objectives.problems.weights_problem`, over ``w``) composed with a linear map, so every
-objective, planner, feature layout (tabular, state rewards, features, per-task features) and
-sharded evaluation of the flat problem serves them unchanged:
+objective, planner, reward basis (tabular, state rewards, features, per-task features,
+:mod:`factirl_opt.tasks.basis`) and sharded evaluation of the flat problem serves them unchanged:
 
 - :func:`residual_weights_problem`: rows are tasks, ``x_i = [h_i, delta_i]`` (k + p), the
   H-step of the fit and transfer. With ``g_i = dJ_i/dw_i = Phi_i^T y_i`` (the flat gradient)
@@ -76,8 +76,9 @@ def residual_weights_problem(objective: Any, features: Any, dictionary: NDArray[
     ----------
     objective : Objective
         Over the n tasks (also a sharded or multi-environment one).
-    features : ndarray (S*A, p), StateBroadcast, TaskFeatures or None
-        ``Phi`` (None: tabular, p = S*A).
+    features : RewardBasis
+        ``Phi_i`` (:mod:`factirl_opt.tasks.basis`; the older forms, None for tabular rewards
+        with p = S*A, as :func:`factirl_opt.objectives.problems.weights_problem` reads them).
     dictionary : ndarray, shape (p, k)
     penalty : float
         ``lambda``, finite and >= 0.
@@ -153,7 +154,7 @@ def residual_dictionary_problem(objective: Any, features: Any, coefficients: NDA
     Parameters
     ----------
     objective : Objective
-    features : ndarray (S*A, p), StateBroadcast, TaskFeatures or None
+    features : RewardBasis
     coefficients : ndarray, shape (n, k)
     residuals : ndarray, shape (n, p)
     unit_norm : bool
