@@ -35,6 +35,7 @@ from .._validation import check_features, check_mdp
 from ..exceptions import ValidationError
 from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
+from .demonstrations import empirical_statistics
 from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, matrix_digest
 from .features import StateBroadcast, TaskFeatures
 
@@ -258,6 +259,29 @@ class TaskSet:
         demos = [self.demos_per_task[int(i)] for i in idx]
         mdps = None if self.mdps is None else [self.mdps[int(i)] for i in idx]
         return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest)
+
+    def with_demonstrations(self, demos_per_task: Any) -> TaskSet:
+        """The same tasks (environments and basis) with other demonstrations, one entry per task
+        (e.g. a held-out part of each task's episodes, to score a model on).
+
+        Raises
+        ------
+        ValidationError
+            For a number of entries other than the tasks'.
+        """
+        n = _n_tasks(demos_per_task)
+        if n != self.n_tasks:
+            raise ValidationError(f"demos_per_task must hold one entry per task ({self.n_tasks}); got "
+                                  f"{type(demos_per_task).__name__ if n is None else n}")
+        return dataclasses.replace(self, demos_per_task=demos_per_task)
+
+    def statistics(self) -> tuple[Any, Any]:
+        """The empirical statistics ``(mu_hat, pi_hat)`` of the demonstrations (eq. 5): stacked
+        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A)."""
+        if self.mdp is not None:
+            return empirical_statistics(self.mdp, self.demos_per_task)
+        pairs = [empirical_statistics(m, [d]) for m, d in zip(self.mdps or [], self.demos_per_task)]
+        return [mu[0] for mu, _ in pairs], [pi[0] for _, pi in pairs]
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""

@@ -105,3 +105,21 @@ def test_a_row_subset_keeps_the_tasks_of_its_rows(grids, demos):
         tasks.subset([3])
     with pytest.raises(ValidationError, match="task indices"):
         tasks.subset([])
+
+
+def test_other_demonstrations_and_the_statistics_of_a_task_set(grids, demos):
+    g3, g4 = grids
+    tasks = task_set(g3, demos)
+    other = tasks.with_demonstrations([demos[1], demos[0]])
+    assert other.basis is tasks.basis and other.mdp is g3 and other.demos_per_task[0] is demos[1]
+    mu, pi = other.statistics()
+    mu0, pi0 = fo.empirical_statistics(g3, [demos[1], demos[0]])
+    np.testing.assert_array_equal(mu, mu0)
+    np.testing.assert_array_equal(pi, pi0)
+    d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
+    envs = task_set([g3, g4], [demos[0], d4[0]], [np.ones((9, 2)), np.ones((16, 2))])
+    mus, pis = envs.statistics()
+    assert [m.shape for m in mus] == [(9,), (16,)] and [p.shape for p in pis] == [(9, 4), (16, 4)]
+    np.testing.assert_array_equal(mus[1], fo.empirical_statistics(g4, [d4[0]])[0][0])
+    with pytest.raises(ValidationError, match="one entry per task"):
+        tasks.with_demonstrations([demos[0]])
