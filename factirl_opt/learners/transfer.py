@@ -157,9 +157,9 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     return _transfer_fit(F, solver, res, objective.n_evaluations - ev0)
 
 
-def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, verbose, lam):
+def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam):
     """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
-    problem = residual_weights_problem(objective, Phi, D, lam, DICTIONARY_NAMES)
+    problem = residual_weights_problem(objective, basis, D, lam, DICTIONARY_NAMES)
     ev0 = objective.n_evaluations
     k = D.shape[1]
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
@@ -167,13 +167,13 @@ def _run_residual_transfer(objective, D, solver, Phi, max_iter, tol, callback, v
             res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
                                    callback=report, tol=tol, separable=True)
         except FitInterrupted as exc:
-            raise FitInterrupted(_residual_fit(objective, Phi, D, k, lam, exc.result, objective.n_evaluations - ev0),
+            raise FitInterrupted(_residual_fit(objective, basis, D, k, lam, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
-    return _residual_fit(objective, Phi, D, k, lam, res, objective.n_evaluations - ev0)
+    return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0)
 
 
-def _run_flat_transfer(objective, D, Phi, flat_solver, max_iter, tol, callback, verbose):
+def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose):
     """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
     task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
     ev0 = objective.n_evaluations
@@ -181,21 +181,21 @@ def _run_flat_transfer(objective, D, Phi, flat_solver, max_iter, tol, callback, 
 
     def as_transfer(res):
         x = np.concatenate([np.zeros((res.coefficients.shape[0], k)), res.coefficients], axis=1)
-        return _residual_fit(objective, Phi, D, k, 0.0, dataclasses.replace(res, coefficients=x),
+        return _residual_fit(objective, basis, D, k, 0.0, dataclasses.replace(res, coefficients=x),
                              objective.n_evaluations - ev0)
 
     with translate_solver_errors():
         try:
-            res = fit_weights(objective, Phi, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)")
+            res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)")
         except FitInterrupted as exc:
             raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
     return as_transfer(res)
 
 
-def _residual_fit(objective, Phi, D, k, lam, res, n_evaluations):
+def _residual_fit(objective, basis, D, k, lam, res, n_evaluations):
     H, Delta = res.coefficients[:, :k], res.coefficients[:, k:]
-    rewards = Phi.rewards(residual_weights(D, H, Delta), names=WEIGHT_NAMES)
+    rewards = basis.rewards(residual_weights(D, H, Delta), names=WEIGHT_NAMES)
     loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:

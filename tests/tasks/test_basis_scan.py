@@ -18,7 +18,7 @@ PACKAGE = ROOT / "factirl_opt"
 #: the classes that name a kind of features
 KIND_CLASSES = {"TaskFeatures", "StateBroadcast"}
 #: the names whose None-ness would be a test of the kind of features
-FEATURE_NAMES = {"features", "Phi", "base_features"}
+FEATURE_NAMES = {"features", "Phi", "base_features", "F"}
 #: where no None test of the features may stand
 NO_NONE_TESTS = ["learners", "objectives", "evaluation.py", "parallel", "planning"]
 #: the validation search, being rewritten on the task set's row subsets elsewhere (it reads the
