@@ -13,6 +13,7 @@ this module, so code that calls the registry inside it gives users one family to
 """
 
 import contextlib
+import warnings
 from typing import Any
 
 from solvers import exceptions as _solvers
@@ -26,7 +27,7 @@ __all__ = [
     "SolverOptionError",
     "PersistenceError",
     "MissingDependencyError",
-    "MissingSolverBackendError",
+    "MissingSolverDependencyError",
     "ConvergenceWarning",
     "FitInterrupted",
     "InterruptedFitWarning",
@@ -98,14 +99,14 @@ class MaxIterWarning(ConvergenceWarning):
     message names them. The experiments, which run the paper's fixed budgets, ignore it."""
 
 
-class MissingSolverBackendError(MissingDependencyError, _solvers.MissingBackendError):
+class MissingSolverDependencyError(MissingDependencyError, _solvers.MissingDependencyError):
     """A module a registered solver needs (e.g. its QP solver) is not installed (a
     :class:`MissingDependencyError`)."""
 
 
 #: solvers exception -> the library's exception it becomes (most specific first)
 _TRANSLATION = (
-    (_solvers.MissingBackendError, MissingSolverBackendError),
+    (_solvers.MissingDependencyError, MissingSolverDependencyError),
     (_solvers.SolverOptionError, SolverOptionError),
     (_solvers.UnknownSolverError, UnknownSolverError),
     (_solvers.SolversError, SolverError),
@@ -125,7 +126,7 @@ def translate_solver_errors():
     ============================== ==================================
     ``solvers``                    ``factirl_opt.exceptions``
     ============================== ==================================
-    ``MissingBackendError``        :class:`MissingSolverBackendError`
+    ``MissingDependencyError``     :class:`MissingSolverDependencyError`
     ``SolverOptionError``          :class:`SolverOptionError`
     ``UnknownSolverError``         :class:`UnknownSolverError`
     ``SolverError`` (and the base) :class:`SolverError`
@@ -162,3 +163,12 @@ class FitInterrupted(KeyboardInterrupt):
 
 class InterruptedFitWarning(ConvergenceWarning):
     """A fit was interrupted (Ctrl-C): the estimator holds the best point seen, not a finished fit."""
+
+
+def __getattr__(name: str) -> type:
+    """The former name ``MissingSolverBackendError`` of :class:`MissingSolverDependencyError` (deprecated)."""
+    if name == "MissingSolverBackendError":
+        warnings.warn("factirl_opt.exceptions.MissingSolverBackendError was renamed MissingSolverDependencyError; the "
+                      "old name will be removed in the next release", DeprecatedNameWarning, stacklevel=2)
+        return MissingSolverDependencyError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,7 +12,7 @@ Register your own solver (a :class:`StepSolver` subclass or any factory returnin
 
 Errors derive from :class:`SolversError` (module :mod:`solvers.exceptions`): an unknown name
 raises :class:`UnknownSolverError` listing what is available; a registered name whose required
-module is not installed raises :class:`MissingBackendError` with the ``pip install`` command;
+module is not installed raises :class:`MissingDependencyError` with the ``pip install`` command;
 a bad option (wrong name, type or value; options given as anything but a mapping) raises
 :class:`SolverOptionError` naming the option and the value; a run that fails raises
 :class:`SolverError`. ``solvers`` imports nothing from ``factirl_opt`` (a leaf package);
@@ -81,7 +81,7 @@ from ._validation import check_options, deprecated, rename_options
 from .armijo import ArmijoSolver
 from .exceptions import (
     DeprecatedNameWarning,
-    MissingBackendError,
+    MissingDependencyError,
     SolverError,
     SolverOptionError,
     SolversError,
@@ -113,7 +113,7 @@ __all__ = [
     "SolverError",
     "UnknownSolverError",
     "SolverOptionError",
-    "MissingBackendError",
+    "MissingDependencyError",
     "DeprecatedNameWarning",
     "QP_SOLVERS",
     "register_solver",
@@ -221,7 +221,7 @@ def get_solver(name: str, **options: Any) -> StepSolver:
     ------
     UnknownSolverError
         ``name`` is not registered (the message lists the available names).
-    MissingBackendError
+    MissingDependencyError
         ``name`` is registered but a module it needs is not installed.
     SolverOptionError
         An option is unknown to the solver or has a bad type or value.
@@ -235,7 +235,7 @@ def get_solver(name: str, **options: Any) -> StepSolver:
     factory, defaults, requires = _REGISTRY[name]
     missing = _missing(requires)
     if missing:
-        raise MissingBackendError(
+        raise MissingDependencyError(
             f"solver {name!r} needs the module(s) {', '.join(missing)}, which are not installed; "
             f"install them with: pip install {' '.join(missing)}",
             name=missing[0],
@@ -276,7 +276,7 @@ def resolve_solver(solver: str | StepSolver, options: Mapping[str, Any] | None =
     SolverOptionError
         When ``options`` is not a mapping, a key is repeated, options are given with a solver
         object, or ``solver`` is neither a name nor a :class:`StepSolver`.
-    UnknownSolverError, MissingBackendError, SolverError
+    UnknownSolverError, MissingDependencyError, SolverError
         As :func:`get_solver`.
     """
     opts = check_options(options, "resolve_solver")
@@ -310,8 +310,13 @@ del _qp_solver, _constraint
 
 
 def __getattr__(name: str) -> Any:
-    """The former name ``BACKENDS`` of :data:`QP_SOLVERS`, with a :class:`DeprecatedNameWarning`."""
+    """The former names ``BACKENDS`` of :data:`QP_SOLVERS` and ``MissingBackendError`` of
+    :class:`MissingDependencyError`, with a :class:`DeprecatedNameWarning`."""
     if name == "BACKENDS":
         deprecated("solvers.BACKENDS was renamed solvers.QP_SOLVERS; the old name will be removed in the next release")
         return QP_SOLVERS
+    if name == "MissingBackendError":
+        deprecated("solvers.MissingBackendError was renamed solvers.MissingDependencyError; the old name will be "
+                   "removed in the next release")
+        return MissingDependencyError
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

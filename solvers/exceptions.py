@@ -12,7 +12,7 @@ re-raises them as the library's own family.
 
 from __future__ import annotations
 
-__all__ = ["SolversError", "SolverError", "UnknownSolverError", "SolverOptionError", "MissingBackendError",
+__all__ = ["SolversError", "SolverError", "UnknownSolverError", "SolverOptionError", "MissingDependencyError",
            "DeprecatedNameWarning"]
 
 
@@ -37,7 +37,7 @@ class SolverOptionError(SolversError, ValueError):
     and the value given."""
 
 
-class MissingBackendError(SolversError, ImportError):
+class MissingDependencyError(SolversError, ImportError):
     """A registered solver needs a module that is not installed (e.g. the QP solver of a Gauss-Newton name); the message
     names the module and the ``pip install`` command that provides it."""
 
@@ -46,3 +46,14 @@ class DeprecatedNameWarning(FutureWarning):
     """An option (or one of its values) was renamed; the old name still works for now and
     warns. A ``FutureWarning``, so that users see it by default;
     ``factirl_opt.exceptions.DeprecatedNameWarning`` derives from it."""
+
+
+def __getattr__(name: str) -> type:
+    """The former name ``MissingBackendError`` of :class:`MissingDependencyError` (deprecated)."""
+    if name == "MissingBackendError":
+        import warnings
+
+        warnings.warn("solvers.MissingBackendError was renamed MissingDependencyError; the old name will be removed in "
+                      "the next release", DeprecatedNameWarning, stacklevel=2)
+        return MissingDependencyError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -72,7 +72,7 @@ class SolverSettings:
     ValidationError
         Naming the bad field: a name that is not a non-empty string, options that are not a
         dict of plain values, options of the default D-step.
-    UnknownSolverError, SolverOptionError, MissingSolverBackendError
+    UnknownSolverError, SolverOptionError, MissingSolverDependencyError
         A name that is not registered, options the solver does not accept, a backend that is
         not installed.
 

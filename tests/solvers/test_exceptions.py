@@ -34,7 +34,7 @@ def test_solvers_sources_do_not_mention_factirl_opt_imports():
         (se.SolverError, RuntimeError),
         (se.UnknownSolverError, KeyError),
         (se.SolverOptionError, ValueError),
-        (se.MissingBackendError, ImportError),
+        (se.MissingDependencyError, ImportError),
     ],
 )
 def test_hierarchy(cls, builtin):
@@ -53,8 +53,8 @@ def test_library_classes_derive_from_both_families():
     assert issubclass(fe.SolverError, fe.FactIRLError) and issubclass(fe.SolverError, se.SolverError)
     assert issubclass(fe.UnknownSolverError, fe.FactIRLError) and issubclass(fe.UnknownSolverError, se.UnknownSolverError)
     assert issubclass(fe.SolverOptionError, fe.ValidationError) and issubclass(fe.SolverOptionError, se.SolverOptionError)
-    assert issubclass(fe.MissingSolverBackendError, fe.MissingDependencyError)
-    assert issubclass(fe.MissingSolverBackendError, se.MissingBackendError)
+    assert issubclass(fe.MissingSolverDependencyError, fe.MissingDependencyError)
+    assert issubclass(fe.MissingSolverDependencyError, se.MissingDependencyError)
     assert fe.ValidationError.__bases__ == (fe.FactIRLError, ValueError)
     assert not issubclass(fe.MissingDependencyError, se.SolversError)  # e.g. a missing gymnasium
 
@@ -70,7 +70,7 @@ def _raise(exc):
         (se.SolversError("base"), fe.SolverError),
         (se.UnknownSolverError("unknown solver 'x'"), fe.UnknownSolverError),
         (se.SolverOptionError("armijo: shrink must be ..."), fe.SolverOptionError),
-        (se.MissingBackendError("pip install osqp"), fe.MissingSolverBackendError),
+        (se.MissingDependencyError("pip install osqp"), fe.MissingSolverDependencyError),
     ],
 )
 def test_translate_as_context_manager_and_decorator(original, expected):

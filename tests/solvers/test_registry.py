@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import solvers
-from solvers import MissingBackendError, SolverError, SolverOptionError, UnknownSolverError
+from solvers import MissingDependencyError, SolverError, SolverOptionError, UnknownSolverError
 from solvers._blockqp import BlockQPResult
 from solvers.gauss_newton import reduce_least_squares, safe_step
 from solvers.qp_cvxpy import CvxpyBlockQP
@@ -87,12 +87,12 @@ def test_options_only_with_names():
         solvers.resolve_solver(3)
 
 
-def test_missing_backend_not_available():
+def test_missing_dependency_not_available():
     solvers.register_solver("needs-missing", solvers.ArmijoSolver, requires=("no_such_module_xyz_123",))
     try:
         assert "needs-missing" in solvers.registered_solvers()
         assert "needs-missing" not in solvers.available_solvers()
-        with pytest.raises(MissingBackendError, match="no_such_module_xyz_123.*pip install no_such_module_xyz_123") as info:
+        with pytest.raises(MissingDependencyError, match="no_such_module_xyz_123.*pip install no_such_module_xyz_123") as info:
             solvers.get_solver("needs-missing")
         assert isinstance(info.value, ImportError) and "unknown" not in str(info.value)
     finally:

@@ -84,3 +84,20 @@ def test_a_deprecated_solver_name_warning_is_a_future_warning_and_the_librarys_d
 
     assert issubclass(DeprecatedNameWarning, FutureWarning)
     assert issubclass(fe.DeprecatedNameWarning, DeprecatedNameWarning)
+
+
+def test_missing_backend_error_is_the_former_name_of_missing_dependency_error():
+    import factirl_opt as fo
+    import factirl_opt.exceptions as fe
+    from solvers import exceptions as se
+
+    with pytest.warns(DeprecatedNameWarning, match="MissingDependencyError"):
+        assert solvers.MissingBackendError is solvers.MissingDependencyError
+    with pytest.warns(DeprecatedNameWarning, match="MissingDependencyError"):
+        assert se.MissingBackendError is se.MissingDependencyError
+    with pytest.warns(DeprecatedNameWarning, match="MissingSolverDependencyError"):
+        assert fe.MissingSolverBackendError is fe.MissingSolverDependencyError
+    with pytest.warns(DeprecatedNameWarning):
+        assert fo.MissingSolverBackendError is fe.MissingSolverDependencyError  # the former top-level name
+    with pytest.raises(AttributeError):
+        fe.NO_SUCH_NAME  # noqa: B018
