@@ -73,8 +73,8 @@ class SolverSettings:
         Naming the bad field: a name that is not a non-empty string, options that are not a
         dict of plain values, options of the default D-step.
     UnknownSolverError, SolverOptionError, MissingSolverDependencyError
-        A name that is not registered, options the solver does not accept, a backend that is
-        not installed.
+        A name that is not registered, options the solver does not accept, a module the solver
+        needs that is not installed (e.g. its QP solver).
 
     Examples
     --------

@@ -117,7 +117,7 @@ def _combinations(s):
     Raises
     ------
     ValidationError
-        When a name is not registered, or the 'factorial' pair needs a backend that is not installed.
+        When a name is not registered, or the 'factorial' pair needs a solver whose modules are not installed.
     """
     wanted = [(h, d) for h in s["h_solvers"] for d in s["d_solvers"]]
     for pair in (REFERENCE, (s["h_solver"], s["d_solver"])):
@@ -128,8 +128,8 @@ def _combinations(s):
         raise ValidationError(f"bench fit: unknown solver(s) {', '.join(unknown)}; available: {', '.join(solvers.available_solvers())}")
     available = set(solvers.available_solvers())
     if not {s["h_solver"], s["d_solver"]} <= available:
-        raise ValidationError(f"bench fit: the 'factorial' pair {s['h_solver']}|{s['d_solver']} needs a solver whose backend "
-                              f"is not installed; available: {', '.join(sorted(available))}")
+        raise ValidationError(f"bench fit: the 'factorial' pair {s['h_solver']}|{s['d_solver']} needs a solver whose modules "
+                              f"are not installed; available: {', '.join(sorted(available))}")
     keep = [(h, d) for h, d in wanted if h in available and d in available]
     return keep, [f"{h}|{d}" for h, d in wanted if (h, d) not in keep]
 
