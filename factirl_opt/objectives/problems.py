@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from solvers import Linearization, StepProblem
 
+from .._deprecation import warn_once
 from ..tasks.basis import RewardBasis, as_basis
 
 __all__ = ["weights_problem", "dictionary_problem", "as_problem_basis"]
@@ -206,3 +207,18 @@ def dictionary_problem(objective: Any, coefficients: NDArray[np.float64], basis:
         return basis.dictionary_gradient(y, H)
 
     return alternating_dictionary_problem(objective, n, basis.n_params, k, unit_norm, rewards, gradient, check)
+
+
+def task_weights_problem(objective: Any, features: Any) -> StepProblem:
+    """Deprecated: :func:`weights_problem` takes per-task features (any basis) itself."""
+    warn_once("objectives.problems.task_weights_problem", "factirl_opt.objectives.problems.task_weights_problem is "
+              "deprecated: weights_problem takes every basis, per-task features included")
+    return weights_problem(objective, features)
+
+
+def task_dictionary_problem(objective: Any, coefficients: NDArray[np.float64], features: Any,
+                            unit_norm: bool = False) -> StepProblem:
+    """Deprecated: :func:`dictionary_problem` takes per-task features (any basis) itself."""
+    warn_once("objectives.problems.task_dictionary_problem", "factirl_opt.objectives.problems.task_dictionary_problem "
+              "is deprecated: dictionary_problem takes every basis, per-task features included")
+    return dictionary_problem(objective, coefficients, features, unit_norm)

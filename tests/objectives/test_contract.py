@@ -66,3 +66,22 @@ def test_execution_settings_are_one_value():
     flat = fo.GradIRL(beta=1.0, **ex.params())
     assert {k: flat.get_params()[k] for k in ex.params()} == ex.params()
     assert set(ex.params()) <= set(inspect.signature(fo.MultiIntentIRL).parameters)
+
+
+def test_the_former_per_task_builders_warn_and_build_the_same_problem(grid3):
+    from factirl_opt.exceptions import DeprecatedNameWarning
+    from factirl_opt.objectives import problems
+
+    rng = np.random.default_rng(1)
+    tasks = task_set([grid3, grid3], fo.sample_demonstrations(grid3, rng.normal(size=(2, 9, 4)), 2, 4, rng),
+                     [np.ones((9, 2)), np.abs(rng.normal(size=(9, 2)))])
+    obj = task_objective(tasks, 2.0)
+    W, H, D = rng.normal(size=(2, 2)), rng.normal(size=(2, 2)), rng.normal(size=(2, 2))
+    with pytest.warns(DeprecatedNameWarning, match="task_weights_problem"):
+        old = problems.task_weights_problem(obj, tasks.basis)
+    np.testing.assert_array_equal(old.loss_and_grad(W, np.arange(2))[1],
+                                  weights_problem(obj, tasks.basis).loss_and_grad(W, np.arange(2))[1])
+    with pytest.warns(DeprecatedNameWarning, match="task_dictionary_problem"):
+        old = problems.task_dictionary_problem(obj, H, tasks.basis)
+    new = problems.dictionary_problem(obj, H, tasks.basis)
+    np.testing.assert_array_equal(old.loss_and_grad(D.reshape(1, -1), None)[1], new.loss_and_grad(D.reshape(1, -1), None)[1])
