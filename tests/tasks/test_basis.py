@@ -187,3 +187,19 @@ def test_the_default_start_is_the_pca_of_the_rewards(low_rank_problem):
     Dr, Hr = pca_dictionary(X, 2, 0)
     np.testing.assert_allclose(np.abs(basis.rewards(H @ D.T).reshape(4, -1)), np.abs(Hr @ Dr.T), rtol=1e-8, atol=1e-10)
     assert isinstance(basis.compose(D), ComposedBasis)
+
+
+def test_a_basis_defined_outside_the_library_serves_the_functions_and_multi_intent(low_rank_problem):
+    mdp, basis, demos = low_rank_problem
+    rng = np.random.default_rng(5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        fit = fo.fit_factorial(mdp, demos, rng.normal(size=(5, 2)), 0.1 * rng.normal(size=(4, 2)), base_features=basis,
+                               max_iter=3)
+        assert fit.loss_history[-1] < fit.loss_history[0]
+        moved = fo.transfer_coefficients(mdp, demos[:2], fit.dictionary, base_features=basis, max_iter=3)
+        np.testing.assert_allclose(moved.rewards, basis.rewards(moved.coefficients @ fit.dictionary.T), rtol=1e-10, atol=1e-12)
+        episodes = [ep for task in demos for ep in task]
+        mixture = fo.MultiIntentIRL(n_intentions=2, n_primitives=2, features=basis, max_iter=3, rng=0).fit(mdp, episodes)
+    np.testing.assert_allclose(mixture.rewards_, basis.rewards(mixture.coefficients_ @ mixture.dictionary_.T),
+                               rtol=1e-10, atol=1e-12)
