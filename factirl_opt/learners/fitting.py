@@ -35,6 +35,7 @@ from ..tasks.task_set import TaskSet, features_digest
 
 __all__ = [
     "make_objective",
+    "statistics_objective",
     "check_solver_applies",
     "resolve_step_solver",
     "first_step_stall",
@@ -83,7 +84,26 @@ def make_objective(mdp: Any, demos_per_task: Any, beta: float,
         Over the n tasks (``objective.n_tasks``).
     """
     mu, pi_hat = empirical_statistics(mdp, demos_per_task)
-    return get_objective(objective)(mdp, mu, pi_hat, check_beta(beta), planner=planner)
+    return statistics_objective(mdp, mu, pi_hat, beta, objective, planner)
+
+
+def statistics_objective(mdp: Any, mu_hat: Any, pi_hat: Any, beta: float, objective: Any = "policy-matching",
+                         planner: Any = "auto") -> Objective:
+    """The named objective bound to given statistics of tasks on one MDP (eq. 5).
+
+    :func:`make_objective` binds those of demonstrations; the EM M-step binds the intentions'
+    weighted statistics (:func:`factirl_opt.learners.em.weighted_statistics`).
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    mu_hat : ndarray, shape (n, S)
+    pi_hat : ndarray, shape (n, S, A)
+    beta : float
+    objective : str or Objective subclass
+    planner : str
+    """
+    return get_objective(objective)(mdp, mu_hat, pi_hat, check_beta(beta), planner=planner)
 
 
 def least_squares_only(solver: solvers.StepSolver) -> bool:

@@ -27,7 +27,7 @@ from .em import agreement_clustering, e_step, episode_counts, kmeans, log_polici
 from ..exceptions import ValidationError, translate_solver_errors
 from .factorial import GTOL, run_factorial
 from ..tasks.basis import WEIGHT_NAMES, RewardBasis
-from .fitting import resolve_step_solver
+from .fitting import resolve_step_solver, statistics_objective
 from ..tasks.task_set import TaskSet
 from ..interruption import run_keeping_best
 from ..objectives import available_objectives, get_objective
@@ -215,7 +215,7 @@ def start_responsibilities(counts: Any, lengths: NDArray[np.int64], K: int, init
 def _m_step(mdp, counts, resp, settings, params, rng):
     """Parameters and rewards (K, S, A) fitted to the responsibilities, and the mixture weights."""
     mu, pi, steps = weighted_statistics(counts, resp, mdp.n_states, mdp.n_actions)
-    base = settings.objective(mdp, mu, pi, settings.beta, planner=settings.execution.planner)
+    base = statistics_objective(mdp, mu, pi, settings.beta, settings.objective, settings.execution.planner)
     basis = settings.basis
     with settings.execution.shards(base) as base:
         obj = WeightedObjective(base, steps / steps.sum())
