@@ -5,14 +5,10 @@ Whatever the features of a fit, its rewards are linear in per-task weights ``w_i
 the step problems and the learners need of it, so that no code below the estimators branches
 on the kind of features:
 
-=====================  ==========================================  ===========================
-kind                   ``Phi_i``                                   p
-=====================  ==========================================  ===========================
-:class:`TabularBasis`  the identity (tabular rewards ``R_i = w_i``)  ``S*A``
-:class:`StateBasis`    ``kron(I_S, 1_A)``, never formed              ``S`` (``reward="state"``)
-:class:`SharedBasis`   one (S*A, p) matrix shared by every task      its columns
-:class:`TaskBasis`     one (S_i*A, p) or (S_i, p) matrix per task    their (common) columns
-=====================  ==========================================  ===========================
+- :class:`TabularBasis`: ``Phi`` the identity, tabular rewards ``R_i = w_i`` (p = S*A);
+- :class:`StateBasis`: ``Phi = kron(I_S, 1_A)``, never formed, rewards of the states (p = S);
+- :class:`SharedBasis`: one (S*A, p) matrix shared by every task;
+- :class:`TaskBasis`: one (S_i*A, p) or (S_i, p) matrix per task, on its own environment.
 
 A basis is always present (tabular rewards are a basis, never None). It offers:
 
