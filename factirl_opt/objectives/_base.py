@@ -97,7 +97,7 @@ class Objective(TaskObjective):
         self._last_grad = np.zeros((self.n_tasks, S, A))
 
     def reward_limit(self):
-        """The largest |reward| planned without overflow on this objective's MDP (:func:`limit_of`)."""
+        """The largest ``|reward|`` planned without overflow on this objective's MDP (:func:`limit_of`)."""
         return limit_of([self.mdp.gamma])
 
     def reset(self):

@@ -31,7 +31,7 @@ FactorialPoint = Callable[[NDArray[np.float64], NDArray[np.float64]], tuple[NDAr
 
 
 def limit_of(gammas: list[float]) -> float:
-    """The largest |reward| planned without overflow over MDPs of discounts ``gammas``:
+    """The largest ``|reward|`` planned without overflow over MDPs of discounts ``gammas``:
     ``REWARD_LIMIT * (1 - max gamma)`` (as :func:`~factirl_opt._validation.check_rewards`), inf without any."""
     return REWARD_LIMIT * (1.0 - max(gammas)) if gammas else np.inf
 
@@ -84,7 +84,7 @@ class TaskObjective(abc.ABC):
 
     @abc.abstractmethod
     def reward_limit(self) -> float:
-        """The largest |reward| the objective plans without overflow (:func:`limit_of` of its MDPs)."""
+        """The largest ``|reward|`` the objective plans without overflow (:func:`limit_of` of its MDPs)."""
 
     def factorial_point(self, basis: Any, dictionary: NDArray[np.float64],
                         coefficients: NDArray[np.float64]) -> tuple[NDArray[np.float64], FactorialPoint]:
