@@ -231,7 +231,7 @@ class ShardedObjective(ShardedBase):
         self._point_key: int | None = None  # the features of the last factorial_point
 
     def reward_limit(self) -> float:
-        """The largest |reward| planned without overflow on the MDP (:func:`limit_of`)."""
+        """The largest ``|reward|`` planned without overflow on the MDP (:func:`limit_of`)."""
         return limit_of([self.mdp.gamma])
 
     def keep_linearization(self, again: Any) -> int:

@@ -123,7 +123,7 @@ class MultiEnvironmentObjective(TaskObjective):
         return int(sum(obj.n_evaluations for obj in self.objectives))
 
     def reward_limit(self) -> float:
-        """The largest |reward| planned without overflow on every task's MDP (:func:`limit_of`)."""
+        """The largest ``|reward|`` planned without overflow on every task's MDP (:func:`limit_of`)."""
         return limit_of([m.gamma for m in self.mdps])
 
     def reset(self) -> None:

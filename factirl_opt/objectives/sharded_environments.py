@@ -120,7 +120,7 @@ class ShardedEnvironments(ShardedBase):
         self._lins: dict[int, tuple] = {}  # token -> (rewards, rows): linearised again on a rebuilt shard
 
     def reward_limit(self) -> float:
-        """The largest |reward| planned without overflow on every task's MDP (:func:`limit_of`)."""
+        """The largest ``|reward|`` planned without overflow on every task's MDP (:func:`limit_of`)."""
         return self._limit
 
     def rebuilt(self, k: int) -> None:
