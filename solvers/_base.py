@@ -47,6 +47,10 @@ class StepProblem:
         ``(x_rows, rows) -> Linearization``: loss, residual and matrix-free products with the
         Jacobian of the residual at ``x_rows`` (see :class:`Linearization`); None when the
         problem has no least-squares form or no matrix-free derivative. Used by ``gn-cg``.
+    hessian : callable or None
+        ``(x_rows, rows) -> (r, p, p)``: the Hessian of every row's loss at ``x_rows``
+        (symmetric, possibly indefinite); None when the problem gives none. Called at points
+        where ``loss_and_grad`` was just evaluated. Used by ``newton``.
 
     Raises
     ------
@@ -60,11 +64,12 @@ class StepProblem:
     n_params: int
     residual_jacobian: Optional[Callable] = None
     linearize: Optional[Callable] = None
+    hessian: Optional[Callable] = None
 
     def __post_init__(self) -> None:
-        for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize"):
+        for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize", "hessian"):
             value = getattr(self, name)
-            if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize")):
+            if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize", "hessian")):
                 raise SolverOptionError(f"StepProblem: {name} must be callable; got {value!r} ({type(value).__name__})")
         check_number(self.n_rows, "n_rows", "StepProblem", low=1, integer=True)
         check_number(self.n_params, "n_params", "StepProblem", low=1, integer=True)

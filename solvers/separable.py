@@ -65,7 +65,8 @@ def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[
     return dataclasses.replace(
         problem, loss_and_grad=wrap(problem.loss_and_grad),
         residual_jacobian=None if problem.residual_jacobian is None else wrap(problem.residual_jacobian),
-        linearize=None if problem.linearize is None else wrap(problem.linearize), n_rows=int(rows.size))
+        linearize=None if problem.linearize is None else wrap(problem.linearize),
+        hessian=None if problem.hessian is None else wrap(problem.hessian), n_rows=int(rows.size))
 
 
 def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: NDArray[np.float64],
