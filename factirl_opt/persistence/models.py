@@ -70,7 +70,7 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
             arrays[key] = value
         else:
             attributes[key] = to_json(value, f"{name} attribute {key}")
-    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params()), f"cannot save {name}")
+    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params(deep=False)), f"cannot save {name}")
     return attributes, arrays
 
 

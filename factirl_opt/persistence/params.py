@@ -146,7 +146,7 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     arrays: dict[str, np.ndarray] = {}
     array_params: list[str] = []
     cls = type(model)
-    for key, value in model.get_params().items():
+    for key, value in model.get_params(deep=False).items():
         kind = param_kind(cls, key)
         if kind == "runtime":
             continue
