@@ -9,7 +9,7 @@ import factirl_opt as fo
 from factirl_opt.learners import adaptive
 from factirl_opt.learners.em import log_policies
 from factirl_opt.planning import get_planner
-from factirl_opt.exceptions import ConvergenceWarning, ValidationError
+from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
 
 
 @pytest.fixture(scope="module")
@@ -99,11 +99,12 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
     mdp, _, demos = data
     noise = np.random.default_rng(0).normal(scale=0.01, size=30)
 
-    def run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
+    def run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score, progress):
         def one(k, lam, held):
             base = 3.0 if lam == 0.0 else 1.0 + (k - 6) ** 2 / 100 + (0.0 if lam == 1.0 else 0.5)
             return base + noise[held]
-        return {(k, lam): [one(k, lam, held) for held in folds] for k, lam in candidates}
+        for k, lam in candidates:
+            progress.scores.setdefault((k, lam), []).extend(one(k, lam, held) for held in folds)
 
     monkeypatch.setattr(adaptive, "_run_folds", run_folds)
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
@@ -331,3 +332,128 @@ def test_occupancy_gap_is_zero_for_the_greedy_policys_own_paths_and_matches_enum
     # the value of any reward under the two occupancies differs by at most max|r| times the gap
     r = rng.normal(size=(9, 4))
     assert abs((r * expert).sum() - (r * learnt).sum()) <= np.abs(r).max() * gap + 1e-12
+
+
+def test_an_interrupted_final_fit_keeps_its_best_point_and_the_table(data):
+    """Ctrl-C (here a callback raising KeyboardInterrupt) in the final fit of the chosen pair: the
+    estimator keeps that fit's best point and the whole validation table, warns and re-raises."""
+    mdp, F, demos = data
+
+    def stop(iteration, loss):
+        if iteration == 2:
+            raise KeyboardInterrupt
+
+    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto", callback=stop)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    message = [str(w.message) for w in caught if issubclass(w.category, InterruptedFitWarning)]
+    assert len(message) == 1 and "kept the best of 2 outer iterations" in message[0]
+    assert model.status_ == "interrupted" and model.n_iter_ == 2
+    assert [r["chosen"] for r in model.validation_].count(True) == 1
+    chosen = next(r for r in model.validation_ if r["chosen"])
+    assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
+    assert model.dictionary_.shape == (4, model.n_primitives_) and model.rewards_.shape == (6, 9, 4)
+    model.callback = None
+    assert model.transfer(mdp, [d[:1] for d in demos[:2]]).shape == (2, model.n_primitives_)
+
+
+def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monkeypatch):
+    """Ctrl-C during the search (here at the third candidate's score): the estimator keeps the fit of
+    the best candidate scored so far, on its fold's training tasks, and the table of the candidates
+    scored; interrupted before any candidate was fitted, it stays unfitted."""
+    mdp, F, demos = data
+    calls = []
+    score = adaptive._score
+
+    def interrupted(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return score(*args, **kw)
+
+    monkeypatch.setattr(adaptive, "_score", interrupted)
+    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    message = [str(w.message) for w in caught if issubclass(w.category, InterruptedFitWarning)]
+    assert len(message) == 1 and "the best candidate scored so far, fitted on 4 of the 6 tasks" in message[0]
+    rows = model.validation_
+    assert len(rows) == 2 and [r["chosen"] for r in rows].count(True) == 1  # the two candidates scored
+    chosen = next(r for r in rows if r["chosen"])
+    assert chosen["score"] == min(r["score"] for r in rows)
+    assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
+    assert model.status_ == "interrupted" and model.rewards_.shape == (4, 9, 4)
+    assert model.transfer(mdp, [d[:1] for d in demos[:2]]).shape == (2, model.n_primitives_)
+
+    calls.clear()
+    monkeypatch.setattr(adaptive, "_score", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    model = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    assert any("kept the fit of (1, inf), the last candidate fitted (none was scored yet)" in str(w.message)
+               for w in caught)
+    assert not hasattr(model, "validation_") and model.n_primitives_ == 1 and model.rewards_.shape == (4, 9, 4)
+
+
+def test_a_fixed_fit_after_an_auto_fit_drops_the_search(data):
+    mdp, F, demos = data
+    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto")
+    assert hasattr(model, "validation_")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        model.set_params(residual_penalty=np.inf).fit(mdp, demos)
+    assert not hasattr(model, "validation_") and model.residual_penalty_ == np.inf
+    with pytest.raises(ValidationError, match=r"has no validation_"):
+        adaptive.plot_validation(model)
+
+
+def test_flat_rewards_of_the_wrong_shape_are_refused_before_the_search(data):
+    mdp, F, demos = data
+    flat = np.zeros((6, 9, 4))
+    for bad in (flat[:4], flat[:, :8]):
+        with pytest.raises(ValidationError, match=r"flat_rewards must have shape \(n, S, A\) = \(6, 9, 4\); got"):
+            fo.FactIRL(n_primitives="auto", features=F).fit(mdp, demos, flat_rewards=bad)
+    with pytest.raises(ValidationError, match=r"flat_rewards must be finite"):
+        fo.FactIRL(residual_penalty="auto", features=F).fit(mdp, demos, flat_rewards=flat + np.nan)
+    mdps = [fo.GridWorld(size=3, p_success=0.7, gamma=0.9) for _ in range(6)]
+    with pytest.raises(ValidationError, match=r"flat_rewards must hold one \(S_i, A\) array per task \(6\); got 4"):
+        fo.FactIRL(n_primitives="auto", features=F).fit(mdps, demos, flat_rewards=flat[:4])
+
+
+def test_plot_validation_names_a_missing_key_of_an_edited_table(auto):
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    import copy
+
+    edited = copy.copy(auto)
+    edited.validation_ = [dict(r) for r in auto.validation_]
+    del edited.validation_[1]["score_std"]
+    with pytest.raises(ValidationError, match=r"validation_\[1\] has no key 'score_std'"):
+        adaptive.plot_validation(edited)
+    edited.validation_ = [1.0]
+    with pytest.raises(ValidationError, match=r"validation_\[0\] must be a dict with keys"):
+        adaptive.plot_validation(edited)
+    edited.validation_ = []
+    with pytest.raises(ValidationError, match=r"validation_ must be a non-empty list"):
+        adaptive.plot_validation(edited)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_the_held_out_scores_refuse_non_finite_rewards(data, bad):
+    mdp, F, demos = data
+    R = np.zeros((mdp.n_states, mdp.n_actions))
+    R[2, 1] = bad
+    with pytest.raises(ValidationError, match=r"rewards must be finite; found .* at index \(2, 1\)"):
+        adaptive.held_out_nll(mdp, demos[0], R, fo.FactIRL())
+    with pytest.raises(ValidationError, match=r"rewards must be finite"):
+        adaptive.held_out_occupancy_gap(mdp, demos[0], R)
+    with pytest.raises(ValidationError, match=r"rewards must be one task's reward"):
+        adaptive.held_out_nll(mdp, demos[0], np.zeros((2, 9, 4)), fo.FactIRL())
+    with pytest.raises(ValidationError, match=r"rewards must have shape \(S, A\)"):
+        adaptive.held_out_occupancy_gap(mdp, demos[0], np.zeros((9, 3)))

@@ -50,8 +50,8 @@ from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
 from scipy.stats import t as t_dist
 
-from .._validation import as_rng
-from ..exceptions import ConvergenceWarning, ValidationError
+from .._validation import as_rng, check_rewards
+from ..exceptions import ConvergenceWarning, FitInterrupted, ValidationError
 from .fitting import make_objective, resolve_step_solver
 from ..tasks.task_set import per_task_features
 from .solver_settings import estimator_solvers
@@ -139,6 +139,15 @@ def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool) -> 
     return out
 
 
+def _one_reward(mdp: Any, rewards: ArrayLike) -> np.ndarray:
+    """One task's reward, validated (finite, shape (S, A) or (S,)), as (S, A)."""
+    R, single = check_rewards(mdp, rewards, "rewards")
+    if not single:
+        raise ValidationError(f"rewards must be one task's reward, of shape (S, A) = ({mdp.n_states}, {mdp.n_actions}) "
+                              f"or (S,) = ({mdp.n_states},); got {np.shape(rewards)}")
+    return R[0]
+
+
 def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: bool = True) -> float:
     """Negative log-likelihood per step of demonstrations under the policy a learner models for a reward.
 
@@ -165,11 +174,16 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
     Returns
     -------
     float
+
+    Raises
+    ------
+    ValidationError
+        ``rewards`` not finite, or not one task's reward of the MDP's shape.
     """
+    R = _one_reward(mdp, rewards)
     mu, pi_hat = empirical_statistics(mdp, [demos])
     weights = mu[0][:, None] * pi_hat[0]
-    log_pi = log_policies(get_planner(mdp, model.planner), np.asarray(rewards, dtype=float)[None], model.beta,
-                          model.objective)[0]
+    log_pi = log_policies(get_planner(mdp, model.planner), R[None], model.beta, model.objective)[0]
     if not temper:
         return float(-np.sum(weights * log_pi))
     seen = weights.sum(axis=1) > 0
@@ -210,10 +224,16 @@ def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: st
     float
         In ``[0, 2 (1 - gamma^L) / (1 - gamma)]``, L the longest episode; 0 when the
         demonstrations follow the greedy policy through a deterministic model.
+
+    Raises
+    ------
+    ValidationError
+        ``rewards`` not finite, or not one task's reward of the MDP's shape.
     """
+    R = _one_reward(mdp, rewards)
     episodes = parse_demonstrations([demos], mdp.n_states, mdp.n_actions)[0].episodes()
     S, A, gamma = mdp.n_states, mdp.n_actions, mdp.gamma
-    _, greedy = optimal_q(mdp, np.asarray(rewards, dtype=float)[None], planner=planner)
+    _, greedy = optimal_q(mdp, R[None], planner=planner)
     pi = np.zeros((S, A))
     pi[np.arange(S), np.asarray(greedy).reshape(S)] = 1.0
     P = mdp.csr()
@@ -335,37 +355,96 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     folds = np.array_split(as_rng(learner.rng).permutation(n), min(N_FOLDS, n))
     p = _reward_dimension(learner, mdp)
     k_max = min(p, min(n - len(f) for f in folds))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
-        h_name, h_options, _, _ = estimator_solvers(learner)
-        constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
-        candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
-        first = folds[:1] if search != "full" and len(folds) > 1 else folds
-        warm, reuse = search == "race-warm", search != "full"
-        scores = _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse, score)
-        if len(first) < len(folds):
-            lead = min(np.mean(v[0]) for v in scores.values())
-            contenders = [c for c in candidates
-                          if np.mean(scores[c][0]) <= lead + RACE_MARGIN * abs(lead) or c[1] == 0.0]
-            if len(contenders) > 1:  # else the flat model alone is left: it is the choice, scored on one fold
-                for c, more in _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm,
-                                          reuse, score).items():
-                    scores[c] = scores[c] + more
-        rows = _rows(scores)
-        best = _choice(rows)
-        while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
-            k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-            between = _between(k, [c[0] for c in scores if c[1] == lam], k_max)
-            if not between:
-                break
-            scores.update(_run_folds(learner, mdp, demos_per_task, flat_rewards, folds, [(m, lam) for m in between],
-                                     t, False, False, score))
+    progress = SearchProgress()
+    scores = progress.scores
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
+            h_name, h_options, _, _ = estimator_solvers(learner)
+            constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
+            candidates = _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained)
+            first = folds[:1] if search != "full" and len(folds) > 1 else folds
+            warm, reuse = search == "race-warm", search != "full"
+            _run_folds(learner, mdp, demos_per_task, flat_rewards, first, candidates, t, warm, reuse, score, progress)
+            if len(first) < len(folds):
+                lead = min(np.mean(v[0]) for v in scores.values())
+                contenders = [c for c in candidates
+                              if np.mean(scores[c][0]) <= lead + RACE_MARGIN * abs(lead) or c[1] == 0.0]
+                if len(contenders) > 1:  # else the flat model alone is left: it is the choice, scored on one fold
+                    _run_folds(learner, mdp, demos_per_task, flat_rewards, folds[1:], contenders, t, warm, reuse, score,
+                               progress)
             rows = _rows(scores)
             best = _choice(rows)
-            if rows[best]["n_primitives"] == k:
-                break
+            while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+                k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
+                between = _between(k, [c[0] for c in scores if c[1] == lam], k_max)
+                if not between:
+                    break
+                _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, [(m, lam) for m in between], t, False,
+                           False, score, progress)
+                rows = _rows(scores)
+                best = _choice(rows)
+                if rows[best]["n_primitives"] == k:
+                    break
+    except KeyboardInterrupt as exc:
+        cause: BaseException = exc
+        while isinstance(cause, FitInterrupted) and cause.__cause__ is not None:
+            cause = cause.__cause__
+        raise FitInterrupted(progress.interrupted(), "the search of choose_sharing") from cause
     rows[best]["chosen"] = True
     return rows[best]["n_primitives"], rows[best]["residual_penalty"], rows
+
+
+class SearchProgress:
+    """What a search of :func:`choose_sharing` has done so far: the ``result`` of the
+    :class:`~factirl_opt.exceptions.FitInterrupted` it raises when interrupted.
+
+    Attributes
+    ----------
+    scores : dict
+        ``{(k, lambda): [array of per-task held-out scores, one per fold scored]}``.
+    fits : dict
+        ``{(k, lambda): FactIRL}``: each candidate's last fit (on the training tasks of the last
+        fold it was scored on, ``train_tasks[(k, lambda)]``); a race's flat model, which takes
+        another candidate's fit instead of one of its own, is not among them.
+    train_tasks : dict
+        ``{(k, lambda): array of int}``: the tasks each fit of ``fits`` was fitted on.
+    last : tuple or None
+        The candidate fitted last (or being fitted), its model and training tasks: ``((k,
+        lambda), FactIRL, tasks)``; None before the first fit.
+    rows : list of dict
+        After an interrupt: the validation table of the candidates scored so far (as
+        :func:`choose_sharing` returns it), the kept candidate's row ``chosen``.
+    kept : tuple or None
+        After an interrupt: ``((k, lambda), FactIRL, tasks)``, the fit kept: the fitted
+        candidate of lowest mean score among those scored on the most folds (flat model aside,
+        the rule of :func:`choose_sharing`); when none was scored, the last candidate's fit
+        (complete, or as far as it got if it was interrupted); None when nothing was fitted.
+    """
+
+    def __init__(self) -> None:
+        self.scores: dict = {}
+        self.fits: dict = {}
+        self.train_tasks: dict = {}
+        self.last: tuple | None = None
+        self.rows: list[dict] = []
+        self.kept: tuple | None = None
+
+    def interrupted(self) -> "SearchProgress":
+        """Fill ``rows`` and ``kept`` from what was done; returns self."""
+        fitted = {c: v for c, v in self.scores.items() if c in self.fits}
+        if fitted:
+            rows = _rows(fitted)
+            best = rows[_choice(rows)]
+            pair = (best["n_primitives"], best["residual_penalty"])
+            self.kept = (pair, self.fits[pair], self.train_tasks[pair])
+            self.rows = _rows(self.scores)
+            for row in self.rows:
+                row["chosen"] = (row["n_primitives"], row["residual_penalty"]) == pair
+        elif self.last is not None and hasattr(self.last[1], "dictionary_"):
+            self.kept = self.last
+            self.rows = []
+        return self
 
 
 def _rows(scores: dict) -> list[dict]:
@@ -403,13 +482,16 @@ def _choice(rows: list[dict]) -> int:
     return (flat[0], best)[one_standard_error_choice(pair, n_se)]
 
 
-def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
+def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score, progress=None):
     """The held-out scores ``{(k, lambda): [array of per-task scores, one per fold]}`` of
     ``candidates`` on ``folds``; with ``warm``, each fold's candidates start from their
     predecessor's fit; with ``reuse``, ``lambda = 0`` takes the fold's last fitted candidate
-    instead of a fit of its own (its transfer, the flat learner's, does not use the dictionary)."""
+    instead of a fit of its own (its transfer, the flat learner's, does not use the dictionary).
+    With ``progress`` (a :class:`SearchProgress`), each score is appended to ``progress.scores``
+    as soon as it is computed, and each fit recorded, so an interrupt loses none of them."""
     n = _count(demos_per_task)
-    scores = {c: [] for c in candidates}
+    progress = SearchProgress() if progress is None else progress
+    scores: dict = {}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)
         sub_mdp, sub_features = _subset(mdp, learner.features, train)
@@ -427,10 +509,14 @@ def _run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t,
                 if start is not None:
                     model.init = (start.dictionary_, start.coefficients_)
                     model.max_iter = max(1, int(round(WARM_BUDGET * learner.max_iter)))
+                progress.last = ((k, lam), model, train)
                 model.fit(sub_mdp, _take(demos_per_task, train),
                           flat_rewards=None if flat_rewards is None else _take(flat_rewards, train))
+                progress.fits[k, lam], progress.train_tasks[k, lam] = model, train
             fitted[k, lam] = model
-            scores[k, lam].append(_score(model, mdp, demos_per_task, learner.features, held, t, score))
+            value = _score(model, mdp, demos_per_task, learner.features, held, t, score)
+            scores.setdefault((k, lam), []).append(value)
+            progress.scores.setdefault((k, lam), []).append(value)
     return scores
 
 
@@ -465,6 +551,10 @@ def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str,
         return flat.fit(mdp, demos_per_task).rewards_
 
 
+#: the keys of a validation row that :func:`plot_validation` reads
+PLOT_KEYS = ("n_primitives", "residual_penalty", "score", "score_std", "chosen")
+
+
 def plot_validation(model: Any, ax: Any = None) -> Any:
     """Plot ``model.validation_``: mean held-out score (error bars: the folds' spread) against
     lambda, one line per k; the chosen candidate circled. Needs matplotlib.
@@ -472,14 +562,28 @@ def plot_validation(model: Any, ax: Any = None) -> Any:
     Returns
     -------
     matplotlib.axes.Axes
+
+    Raises
+    ------
+    ValidationError
+        The model has no ``validation_``, or a row of it is not a dict with the keys the plot
+        reads (:data:`PLOT_KEYS`; an edited table), naming the row and the missing key.
     """
     if not hasattr(model, "validation_"):
         raise ValidationError("this model has no validation_: fit it with n_primitives='auto' or residual_penalty='auto'")
+    rows = model.validation_
+    if not isinstance(rows, (list, tuple)) or not rows:
+        raise ValidationError(f"validation_ must be a non-empty list of rows (dicts); got {rows!r:.80}")
+    for i, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise ValidationError(f"validation_[{i}] must be a dict with keys {list(PLOT_KEYS)}; got {row!r:.80}")
+        missing = [key for key in PLOT_KEYS if key not in row]
+        if missing:
+            raise ValidationError(f"validation_[{i}] has no key {missing[0]!r}: plot_validation reads {list(PLOT_KEYS)}")
     import matplotlib.pyplot as plt
 
     if ax is None:
         ax = plt.figure().add_subplot()
-    rows = model.validation_
     finite = [r["residual_penalty"] for r in rows if np.isfinite(r["residual_penalty"]) and r["residual_penalty"] > 0]
     lo = min(finite, default=1e-2) / 10.0
     hi = max(finite, default=1.0) * 10.0

@@ -68,6 +68,17 @@ def _is_auto(value: Any) -> bool:
     return isinstance(value, str) and value == AUTO
 
 
+def _check_flat_rewards(tasks: Any, flat_rewards: Any) -> None:
+    """The shape check of ``fit``'s PCA start, made before a search splits ``flat_rewards`` over folds."""
+    if isinstance(tasks.features, TaskFeatures):
+        task_feature_weights(tasks.features, flat_rewards)
+        return
+    n, mdp = len(tasks.demos_per_task), tasks.mdp
+    Theta = check_array(flat_rewards, "flat_rewards")
+    if Theta.shape != (n, mdp.n_states, mdp.n_actions):
+        raise ValidationError(f"flat_rewards must have shape (n, S, A) = ({n}, {mdp.n_states}, {mdp.n_actions}); got {Theta.shape}")
+
+
 def _flat_points(mdp: Any, Phi: Any, weights: NDArray[np.float64]) -> NDArray[np.float64]:
     """What the PCA start decomposes: the flat rewards (n, S*A), or with per-task features the weights (n, p)."""
     if isinstance(Phi, TaskFeatures):
@@ -429,6 +440,7 @@ class FactIRL(Estimator):
         """
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
+        self.__dict__.pop("validation_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         where, Phi = tasks.mdp, tasks.features
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
@@ -469,19 +481,61 @@ class FactIRL(Estimator):
         if isinstance(self.init, tuple):
             raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                                   "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
+        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
+        if flat_rewards is not None:
+            _check_flat_rewards(tasks, flat_rewards)
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
         if flat_rewards is None and self.init == "pca":
-            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver, FLAT_TOL)
-        k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
+            try:
+                flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver, FLAT_TOL)
+            except FitInterrupted as exc:
+                warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
+                                 "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
+                raise_interrupted(exc, "FactIRL.fit")
+        try:
+            k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
+        except FitInterrupted as exc:
+            self._keep_search(exc.result, len(tasks.demos_per_task), exc.__cause__)
+            raise_interrupted(exc, "FactIRL.fit")
         model = fixed_learner(self, k, lam)
         model.verbose, model.callback = self.verbose, self.callback
-        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        try:
+            model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
+            if self._adopt(model):
+                self.validation_ = table
+            raise
+        self._adopt(model)
+        self.validation_ = table
+        return self
+
+    def _adopt(self, model):
+        """Take the fitted state of ``model`` (a fixed-value fit of the search), if it has one; whether it had."""
+        if not hasattr(model, "dictionary_"):
+            return False
         for name, value in vars(model).items():
             if name.endswith("_") and not name.startswith("_"):
                 setattr(self, name, value)
-        self.validation_ = table
-        return self
+        return True
+
+    def _keep_search(self, progress, n, cause):
+        """After an interrupt during the search: keep the best candidate's fit so far and the table so far, and warn."""
+        if progress.kept is None:
+            warn_interrupted("FactIRL.fit", "during the search of n_primitives or residual_penalty, before any "
+                             "candidate was fitted: the model stays unfitted", cause)
+            return
+        (k, lam), model, train = progress.kept
+        self._adopt(model)
+        self.status_ = self.stop_reason_ = INTERRUPTED
+        if progress.rows:
+            self.validation_ = progress.rows
+            what = f"the fit of ({k}, {lam:g}), the best candidate scored so far"
+        else:
+            what = f"the fit of ({k}, {lam:g}), the last candidate fitted (none was scored yet)"
+        warn_interrupted("FactIRL.fit", f"during the search of n_primitives or residual_penalty: kept {what}, "
+                         f"fitted on {len(train)} of the {n} tasks (a fold's training tasks: rewards_ and "
+                         f"coefficients_ are theirs), and the validation table so far", cause)
 
     @staticmethod
     def _residual_penalty(h_solver, value):
