@@ -43,6 +43,13 @@ Built-in solvers
     ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained. Its
     alternating form (FactIRL's D-step) takes proximal, inexact steps.
 
+``newton``
+    Damped Newton steps with a trust-region ratio test, one damping per row
+    (:class:`NewtonSolver`): the exact Hessian where the problem gives one
+    (``StepProblem.hessian``: the MCE likelihood), else the Gauss-Newton matrix of the residuals
+    (``residual_jacobian``: policy matching); options ``damping``, ``eta``, ... Unconstrained;
+    a dense (p, p) curvature per row (feature weights, not large tabular rewards).
+
 Not registered (it needs callables, not only a name): :class:`ProximalArmijoSolver`, the
 Armijo descent with a proximal map ``prox(v, t)`` and its penalty (:mod:`solvers.proximal`;
 ``constraint="proximal"``), and :func:`unit_columns_prox`, the map of unit-norm columns,
@@ -81,6 +88,7 @@ from .exceptions import MissingBackendError, SolverError, SolverOptionError, Sol
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
+from .newton import NewtonSolver
 from .proximal import ProximalArmijoSolver, unit_columns_prox
 from .stopping import gradient_converged, has_converged, relative_decrease
 
@@ -93,6 +101,7 @@ __all__ = [
     "GaussNewtonSolver",
     "LBFGSSolver",
     "GaussNewtonCGSolver",
+    "NewtonSolver",
     "ProximalArmijoSolver",
     "unit_columns_prox",
     "QPFallbackWarning",
@@ -285,6 +294,7 @@ register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
 register_solver("lbfgs", LBFGSSolver)
 register_solver("gn-cg", GaussNewtonCGSolver)
+register_solver("newton", NewtonSolver)
 for _backend in BACKENDS:
     for _constraint in CONSTRAINTS:
         register_solver(

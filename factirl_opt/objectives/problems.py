@@ -92,6 +92,12 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
     )
 
 
+def has_hessian(objective: Any) -> bool:
+    """Whether ``objective`` gives the Hessian of its loss with respect to linear reward weights
+    (a ``hessian(rewards, rows, features)`` method, e.g. :meth:`MCEObjective.hessian`)."""
+    return bool(getattr(objective, "has_hessian", False))
+
+
 def reward_limit(objective: Any) -> float:
     """The largest |reward| the objective plans without overflow: ``REWARD_LIMIT * (1 - gamma)`` as
     :func:`~factirl_opt._validation.check_rewards` has it, for the largest gamma of its MDPs."""
@@ -155,11 +161,15 @@ def weights_problem(objective: Any, features: Any = None,
 
         return Linearization(lin.loss, lin.residual, jvp, vjp)
 
+    def hessian(x, rows):  # the objective's Hessian with respect to the weights, at a point just evaluated
+        return objective.hessian(rewards(x), rows, np.eye(S * A) if F is None else dense_features(F))
+
     ls = objective.least_squares
     return StepProblem(
         loss_and_grad=loss_and_grad,
         residual_jacobian=residual_jacobian if ls else None,
         linearize=linearize if ls else None,
+        hessian=hessian if has_hessian(objective) else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
         n_params=p,
@@ -253,11 +263,15 @@ def task_weights_problem(objective: Any, features: TaskFeatures) -> StepProblem:
         return Linearization(lin.loss, lin.residual, lambda V: lin.jvp(tf.rewards(V, rows)),
                              lambda U: tf.pull(lin.vjp(U), rows))
 
+    def hessian(x, rows):
+        return objective.hessian(rewards(x, rows), rows, tf.dense(rows))
+
     ls = objective.least_squares
     return StepProblem(
         loss_and_grad=loss_and_grad,
         residual_jacobian=residual_jacobian if ls else None,
         linearize=linearize if ls else None,
+        hessian=hessian if has_hessian(objective) else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
         n_params=tf.n_features,
