@@ -37,14 +37,14 @@ Unconstrained only (``constraint = "none"``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._base import StepProblem, StepSolver, limit_step
-from ._validation import check_evaluation, integer, number, option, validate_fields
+from ._validation import check_evaluation, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
 
 __all__ = ["NewtonSolver", "NewtonState", "damped_newton_directions"]
@@ -166,6 +166,11 @@ class NewtonSolver(StepSolver):
         A row whose step is below ``xtol * (||x_i|| + xtol)`` has converged (>= 0).
     max_step_norm : float, default=100.0
         Step bound relative to ``max(1, ||x_i||)``, > 0.
+    alternating_damping : float or None, default=1.0
+        ``damping`` of the copy returned by :meth:`for_alternating` (FactIRL's H-step inside
+        ``fit``); None keeps this solver's own damping there.
+    alternating_lam_down : float, default=0.99
+        ``lam_down`` of that copy, in (0, 1).
     hessian_age : int, default=1
         Accepted steps for which a row keeps its curvature while its steps stay good (ratio
         above 0.75), >= 1. 1: the curvature is computed at every accepted point (Newton's
@@ -192,6 +197,8 @@ class NewtonSolver(StepSolver):
     xtol: float = option(1e-12, number(low=0.0))
     max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
     hessian_age: int = option(1, integer(low=1))
+    alternating_damping: float | None = option(1.0, optional(number(low=0.0, low_open=True)))
+    alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
 
     name = "newton"
 
@@ -199,6 +206,17 @@ class NewtonSolver(StepSolver):
         validate_fields(self, self.name)
         if not self.lam_min < self.lam_max:
             raise SolverOptionError(f"{self.name}: lam_max must be > lam_min = {self.lam_min!r}; got {self.lam_max!r}")
+
+    def for_alternating(self) -> NewtonSolver:
+        """A proximal copy (``alternating_damping``, ``alternating_lam_down``) for FactIRL's fit.
+
+        As :meth:`solvers.GaussNewtonSolver.for_alternating`: in an alternating scheme each
+        H-step should move the coefficients gradually while the dictionary is still poor, so
+        the damping stays near the curvature's scale instead of falling toward Newton's step.
+        """
+        if self.alternating_damping is None:
+            return self
+        return replace(self, damping=self.alternating_damping, lam_down=self.alternating_lam_down)
 
     # -- evaluations ------------------------------------------------------------------------
     @staticmethod

@@ -54,7 +54,9 @@ def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
         assert e["mean_transfer_deviation"] >= 0 and e["transfer_n_evaluations"] > 0 and e["transfer_cpu_s"] >= 0
     assert out["settings"]["flat_solvers"] == ["default", "newton"] and out["settings"]["n_test_tasks"] == 2
     assert out["cpu_ratio_mce_over_pm"] == pytest.approx(fits["mce"]["cpu_s"] / fits["policy-matching"]["cpu_s"])
-    none = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--n-test-tasks", "0", "--max-iter", "1"])
+    none = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--n-test-tasks", "0", "--max-iter", "1",
+                              "--h-solvers", "default", "newton"])
+    assert list(none["fits"]) == ["mce", "mce, H newton"] and none["fits"]["mce, H newton"]["h_solver"] == "newton"
     assert "mean_transfer_deviation" not in none["fits"]["mce"]
 
 

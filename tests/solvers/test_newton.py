@@ -189,3 +189,10 @@ def test_registered():
     assert "newton" in solvers.available_solvers()
     assert isinstance(solvers.get_solver("newton"), NewtonSolver)
     assert not solvers.get_solver("newton").needs_jacobian  # applies to objectives without residuals
+
+
+def test_alternating_copy_is_proximal():
+    solver = solvers.get_solver("newton")
+    alt = solver.for_alternating()
+    assert (alt.damping, alt.lam_down) == (1.0, 0.99) and (solver.damping, solver.lam_down) == (1e-3, 1.0 / 3.0)
+    assert solvers.get_solver("newton", alternating_damping=None).for_alternating().damping == 1e-3

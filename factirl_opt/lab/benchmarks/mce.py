@@ -26,7 +26,9 @@ change between repeats).
 ``--flat-solvers`` fits FactIRL once per objective and flat-start solver (FactIRL's
 ``flat_solver``: ``default`` is FactIRL's own; e.g. ``lbfgs`` or ``newton``, the second-order
 solver), side by side in the same process on the same draw; entries other than ``default``
-are keyed ``"<objective>, flat <solver>"``. With ``--n-test-tasks`` (default 10), every fitted
+are keyed ``"<objective>, flat <solver>"``; ``--h-solvers`` likewise compares H-step solvers
+(``default``: the preset's, or L-BFGS where it names a Gauss-Newton solver for MCE), keyed
+``", H <solver>"``. With ``--n-test-tasks`` (default 10), every fitted
 model is also transferred (``FactIRL.transfer``, its H-step solver) to that many test tasks, each
 on a new map of its own with one demonstration, and the entry gets their mean deviation
 (``mean_transfer_deviation``) and the transfer's CPU time and evaluations (the planning counts are
@@ -58,7 +60,7 @@ __all__ = ["add_arguments", "run", "OBJECTIVES"]
 OBJECTIVES = ("policy-matching", "mce")
 DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demos": 32, "length": 16, "n_primitives": 5,
             "max_iter": None, "flat_max_iter": None, "objectives": list(OBJECTIVES), "repeats": 1, "seed": 0,
-            "blas_threads": 1, "flat_solvers": ["default"], "n_test_tasks": 10}
+            "blas_threads": 1, "flat_solvers": ["default"], "h_solvers": ["default"], "n_test_tasks": 10}
 QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10,
          "n_test_tasks": 2}
 #: the flat solver entry meaning FactIRL's own default
@@ -81,6 +83,8 @@ def add_arguments(parser):
     opt("--repeats", type=integer(1), help="fits per objective, alternating; the fastest is kept")
     opt("--flat-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
         help="FactIRL flat-start solvers compared, a fit per objective and solver ('default': FactIRL's own)")
+    opt("--h-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
+        help="FactIRL H-step solvers compared, a fit per objective, flat solver and H solver ('default': the preset's)")
     opt("--n-test-tasks", type=integer(0), help="test tasks on new maps (one demonstration each) transferred to; 0: none")
     opt("--seed", type=integer(0), help="seed of the maps and demonstrations")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
@@ -108,15 +112,17 @@ def _preset(s):
     return dataclasses.replace(preset, **changes)
 
 
-def _fit(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT):
-    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver`` unless ``"default"``);
-    its model, wall time, CPU time and counting planner."""
+def _fit(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT):
+    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver`` unless
+    ``"default"``); its model, wall time, CPU time and counting planner."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
     kw["planner"] = planner
     if flat_solver != DEFAULT_FLAT:
         kw["flat_solver"] = flat_solver
+    if h_solver != DEFAULT_FLAT:
+        kw["solver"] = h_solver
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -157,8 +163,10 @@ def run(args):
     preset = _preset(s)
     objectives = list(dict.fromkeys(s["objectives"]))
     flats = list(dict.fromkeys(s["flat_solvers"]))
-    runs = [(obj, flat) for obj in objectives for flat in flats]
-    keys = {run: run[0] if run[1] == DEFAULT_FLAT else f"{run[0]}, flat {run[1]}" for run in runs}
+    hs = list(dict.fromkeys(s["h_solvers"]))
+    runs = [(obj, flat, h) for obj in objectives for flat in flats for h in hs]
+    keys = {run: run[0] + ("" if run[1] == DEFAULT_FLAT else f", flat {run[1]}") + ("" if run[2] == DEFAULT_FLAT else f", H {run[2]}")
+            for run in runs}
     entries, times, cpus = {}, {keys[r]: [] for r in runs}, {keys[r]: [] for r in runs}
     with limit_blas_threads(s["blas_threads"]) as threads:
         t0 = time.perf_counter()
@@ -167,11 +175,11 @@ def run(args):
         for _ in range(s["repeats"]):
             for run in runs:
                 name = keys[run]
-                model, elapsed, cpu, planner = _fit(preset, gt, *run[:1], s["seed"] + 1, run[1])
+                model, elapsed, cpu, planner = _fit(preset, gt, run[0], s["seed"] + 1, run[1], run[2])
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
                 entries[name] = _entry(model, elapsed, planner, gt, preset)
-                entries[name].update(flat_solver=run[1], **_transfer(model, gt, preset, s["n_test_tasks"]))
+                entries[name].update(flat_solver=run[1], h_solver=run[2], **_transfer(model, gt, preset, s["n_test_tasks"]))
     for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
         entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]
@@ -183,7 +191,7 @@ def run(args):
         d = ref["mean_train_deviation"]
         out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
     settings = {key: s[key] for key in DEFAULTS}
-    settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives, flat_solvers=flats,
+    settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives, flat_solvers=flats, h_solvers=hs,
                     fact_max_iter=preset.fact_max_iter, flat_max_iter=preset.flat_max_iter)
     out["settings"] = settings
     return out
