@@ -28,8 +28,11 @@ CASES = {
     "MultiIntentIRL": lambda: fo.MultiIntentIRL(2),
     "MultiIntentIRL-settings": lambda: fo.MultiIntentIRL("auto", n_intentions_range=(1, 3), solver=SETTINGS),
 }
+#: scikit-learn's checks that need no fit(X, y) (check_estimators_overwrite_params and the other
+#: fit-based checks do); clone and repr by its own check_estimator_cloneable and check_estimator_repr
 SKLEARN_CHECKS = ["check_parameters_default_constructible", "check_get_params_invariance", "check_set_params",
-                  "check_no_attributes_set_in_init"]
+                  "check_no_attributes_set_in_init", "check_estimator_cloneable", "check_estimator_repr",
+                  "check_do_not_raise_errors_in_init_or_set_params"]
 
 
 @pytest.fixture(autouse=True)
