@@ -48,7 +48,9 @@ from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from .solver_settings import SolverSettings, estimator_solvers
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
-from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
+from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
+from .selection import SharingSearch
+from .._deprecation import warn_once
 from ..objectives.residuals import check_residual_penalty, residual_weights
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -276,7 +278,8 @@ class FactIRL(Estimator):
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
         "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
-        "n_primitives_": "count", "residual_penalty_": "penalty", "validation_": "validation",
+        "n_primitives_": "count", "residual_penalty_": "penalty", "cv_results_": "cv-results",
+        "validation_": "validation",
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -286,7 +289,8 @@ class FactIRL(Estimator):
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
         "features": "features", "init": "dictionary-start", "solver": "solver", "d_solver": "solver",
-        "objective": "objective", "planner": "planner", "rng": "rng", **EXECUTION_PARAM_KINDS,
+        "objective": "objective", "planner": "planner", "rng": "rng", "sharing_search": "sharing-search",
+        **EXECUTION_PARAM_KINDS,
     }
 
     @renamed_params
@@ -299,7 +303,7 @@ class FactIRL(Estimator):
                  client: Any = None, planner_options: dict | None = None, verbose: bool = False,
                  callback: Callable | None = None, residual_penalty: Any = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 flat_solver: Any = FLAT_SOLVER) -> None:
+                 flat_solver: Any = FLAT_SOLVER, sharing_search: SharingSearch | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -323,6 +327,21 @@ class FactIRL(Estimator):
         self.dictionary_constraint = dictionary_constraint
         self.dictionary_alpha = dictionary_alpha
         self.flat_solver = flat_solver
+        self.sharing_search = sharing_search
+
+    @property
+    def validation_(self) -> list[dict]:
+        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.adaptive.validation_rows`)."""
+        if "cv_results_" not in vars(self):
+            raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
+                                 "residual_penalty='auto'; the table is cv_results_ now)")
+        warn_once("attr:FactIRL.validation_", "FactIRL.validation_ is deprecated: read cv_results_ (a dict of arrays, "
+                                              "one entry per candidate; pandas.DataFrame(model.cv_results_))", stacklevel=2)
+        return validation_rows(self.cv_results_)
+
+    @validation_.setter
+    def validation_(self, rows: list[dict]) -> None:
+        self.cv_results_ = rows_cv_results(rows, "validation_")
 
     def _features(self, mdp):
         k = getattr(self, "n_primitives_", self.n_primitives)
@@ -440,7 +459,7 @@ class FactIRL(Estimator):
         """
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
-        self.__dict__.pop("validation_", None)  # a fixed fit: an earlier search's table does not describe it
+        self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         where, Phi = tasks.mdp, tasks.features
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
@@ -493,21 +512,25 @@ class FactIRL(Estimator):
                 warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
                                  "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
                 raise_interrupted(exc, "FactIRL.fit")
+        search = SharingSearch() if self.sharing_search is None else self.sharing_search
+        if not isinstance(search, SharingSearch):
+            raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
         try:
-            k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
+            found = search.search(self, mdp, demos_per_task, flat_rewards)
         except FitInterrupted as exc:
             self._keep_search(exc.result, len(tasks.demos_per_task), exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
-        model = fixed_learner(self, k, lam)
-        model.verbose, model.callback = self.verbose, self.callback
+        table = cv_results(found)
+        model = fixed_learner(self, found.n_primitives, found.residual_penalty, verbose=self.verbose,
+                              callback=self.callback)
         try:
             model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
         except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
             if self._adopt(model):
-                self.validation_ = table
+                self.cv_results_ = table
             raise
         self._adopt(model)
-        self.validation_ = table
+        self.cv_results_ = table
         return self
 
     def _adopt(self, model):
@@ -529,7 +552,7 @@ class FactIRL(Estimator):
         self._adopt(model)
         self.status_ = self.stop_reason_ = INTERRUPTED
         if progress.rows:
-            self.validation_ = progress.rows
+            self.cv_results_ = cv_results(progress.result())
             what = f"the fit of ({k}, {lam:g}), the best candidate scored so far"
         else:
             what = f"the fit of ({k}, {lam:g}), the last candidate fitted (none was scored yet)"
