@@ -26,6 +26,7 @@ import solvers
 
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
+from ..interruption import INTERRUPTIONS
 from ..tasks.features import StateBroadcast, TaskFeatures
 
 __all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
@@ -188,7 +189,7 @@ def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: A
     Raises
     ------
     FitInterrupted
-        On a KeyboardInterrupt; its ``result`` is ``(2**-j H, j, n_calls, total_loss(2**-j H))``
+        On a KeyboardInterrupt (or lost workers); its ``result`` is ``(2**-j H, j, n_calls, total_loss(2**-j H))``
         for the best j found so far (the loss is None when the first call was interrupted).
     """
     H = np.asarray(coefficients, dtype=float)
@@ -201,7 +202,7 @@ def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: A
             if not float(np.sum(trial)) < float(np.sum(best)):
                 break
             best, j = trial, j + 1
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         raise FitInterrupted((H * 2.0 ** -j, j, calls, best), "shrink_coefficients") from exc
     return H * 2.0 ** -j, j, calls
 

@@ -25,7 +25,7 @@ from .dictionary import normalise_dictionary
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
 from .fitting import first_step_stall, learner_entry, resolve_step_solver, task_objective
 from ..tasks.task_set import task_set
-from ..interruption import INTERRUPTED
+from ..interruption import INTERRUPTED, INTERRUPTIONS
 from ..objectives.problems import dictionary_problem, weights_problem
 from ..tasks.features import TaskFeatures, factorial_rewards
 from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
@@ -167,7 +167,8 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
     Each block runs ``inner_steps`` steps of its solver's alternating form, warm-started by
     what the solver carries over from its previous run (:meth:`solvers.StepSolver.carry_over`);
     the inner runs stop early only by the gradient rule or a stall (:func:`fit_factorial`).
-    A KeyboardInterrupt becomes a :class:`FitInterrupted` carrying the same tuple, at the best
+    A KeyboardInterrupt (or lost workers, :data:`~factirl_opt.interruption.INTERRUPTIONS`) becomes a
+    :class:`FitInterrupted` carrying the same tuple, at the best
     point among the start and the completed outer iterations (the start, loss NaN, if even its
     evaluation was interrupted).
     """
@@ -200,7 +201,7 @@ def _alternate(objective, Phi, D, H, h_solver, d_solver, max_iter, inner_steps, 
             if stop[0] is not None:
                 status, reason = stop
                 break
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         done = len(history) - 1 if history else 0
         raise FitInterrupted((best, (history, evaluations), done, INTERRUPTED, INTERRUPTED, gnorm), "fit") from exc
     return best, (history, evaluations), it, status, reason, gnorm
@@ -242,7 +243,7 @@ def _alternate_residual(objective, Phi, D, H, Delta, lam, h_solver, d_solver, ma
             if stop[0] is not None:
                 status, reason = stop
                 break
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         done = len(history) - 1 if history else 0
         raise FitInterrupted((best, (history, evaluations), done, INTERRUPTED, INTERRUPTED, gnorm), "fit") from exc
     return best, (history, evaluations), it, status, reason, gnorm
