@@ -144,7 +144,10 @@ class FactIRL(Estimator):
     gtol : float, default=1e-4
         The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
         value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
-        fixed budgets, as the ``paper`` preset does).
+        fixed budgets, as the ``paper`` preset does). In ``transfer`` each new task also stops
+        when its own gradient norm falls to ``gtol`` times its value at ``h = 0``: the rule that
+        stops a task whose demonstration its coefficients match exactly (the loss falls toward 0
+        as they grow without bound; docs/maths.md §5).
     transfer_max_iter : int, default=100
         Maximum solver steps in ``transfer``.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
@@ -660,7 +663,7 @@ class FactIRL(Estimator):
                                       "in the SolverSettings")
             solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
-        tol = check_tol(self.tol)
+        tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
         if new is None:
             obj = make_objective(mdp, demos_per_task, self.beta, self.objective, self.planner)
         else:
@@ -674,7 +677,7 @@ class FactIRL(Estimator):
         try:
             with options_budget(self.planner_options), sharded(obj, self.n_jobs, self.backend, self.client, self.planner) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=Phi, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam, flat=flat)
+                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)

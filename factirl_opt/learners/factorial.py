@@ -23,7 +23,7 @@ from .._progress import fit_progress
 from .._validation import check_array, check_int, check_tol
 from .dictionary import normalise_dictionary
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
-from .fitting import first_step_stall, learner_entry, resolve_step_solver, task_objective
+from .fitting import GTOL, first_step_stall, learner_entry, resolve_step_solver, task_objective
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, INTERRUPTIONS
 from ..objectives.problems import dictionary_problem, weights_problem
@@ -31,9 +31,6 @@ from ..tasks.features import TaskFeatures, factorial_rewards
 from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
-
-#: default gradient-norm tolerance of :func:`fit_factorial` (relative to the start; see its docstring)
-GTOL = 1e-4
 
 
 @dataclasses.dataclass

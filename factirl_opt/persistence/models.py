@@ -14,6 +14,7 @@ from ..learners.multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, decode_learnt, check_task_features, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params, param_kind
+from .posterior import load_transfer_posterior, save_transfer_posterior
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
 
@@ -125,6 +126,7 @@ def save_model(model: GradIRL | FactIRL | MultiIntentIRL, path: Target) -> str |
               "attributes": attributes, "array_attributes": [key for key in array_attributes if key not in lists]}
     if lists:
         header["array_list_attributes"] = lists
+    save_transfer_posterior(model, header, arrays)
     return write_archive(path, header, arrays)
 
 
@@ -200,6 +202,7 @@ def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
         setattr(model, key, decode_learnt(learnt_attributes(cls).get(key), value))
     if attributes:
         _complete_old_file(model, cls, attributes, features, label)
+    load_transfer_posterior(model, header, contents, label)
     return model
 
 
