@@ -48,6 +48,8 @@ from ..objectives.sharding import sharded
 from ..planning.budget import options_budget
 from .solver_settings import SolverSettings, estimator_solvers
 from .transfer import TransferFit, environments_transfer_setup, run_transfer, transfer_coefficients, transfer_mdp
+from .posterior import cached_transfer_posterior, keep_transfer_inputs
+from .active import request_starts
 from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
 from .selection import SharingSearch
 from .._deprecation import warn_once
@@ -680,9 +682,11 @@ class FactIRL(Estimator):
                                    verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
+            keep_transfer_inputs(self, mdp, demos_per_task, features)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
             raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
+        keep_transfer_inputs(self, mdp, demos_per_task, features)  # transfer_posterior_ is built from them when first read
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 
@@ -693,3 +697,40 @@ class FactIRL(Estimator):
         self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
         self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
         self.transfer_stop_reason_ = res.reason
+
+    @property
+    def transfer_posterior_(self) -> list | None:
+        """Each new task's Laplace posterior over its coefficients (and residual) after ``transfer``.
+
+        A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
+        ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
+        the last transfer's tasks when first read (it costs about one transfer) and kept beside
+        the model; ``save_model`` stores it. None when undefined (fewer than 2 training tasks'
+        coefficients to fit the prior to, or the flat model); AttributeError before any transfer
+        (and on a pickled copy of a model whose posterior was never read or saved).
+        """
+        return cached_transfer_posterior(self)
+
+    def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
+                       features: Any = None) -> list[NDArray[np.intp]]:
+        """Start states to ask a demonstration from, per new task, most informative first.
+
+        :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
+        tasks of the last ``transfer`` when it was given the same objects, else built here):
+        candidates ranked by the expected information gain about the coefficients of a
+        demonstration from each (D-optimal on the Laplace covariance).
+
+        Parameters
+        ----------
+        mdp, demos_per_task, features
+            As in :meth:`transfer`.
+        n_requests : int, default=1
+            States returned per task.
+        candidates : array_like of int, or sequence of n_new of them, optional
+            Start states to rank (default: every state).
+
+        Returns
+        -------
+        list of n_new int arrays, each (n_requests,)
+        """
+        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features)
