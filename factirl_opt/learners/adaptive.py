@@ -753,9 +753,10 @@ def _reward_dimension(learner: Any, mdp: Any) -> int:
 
 
 def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``) on every task at once
-    (separable: each task's rewards are those of its own fit)."""
-    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol,
+    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``, without the gradient rule,
+    as FactIRL's own flat start) on every task at once (separable: each task's rewards are those
+    of its own fit)."""
+    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
                    solver=solver, objective=learner.objective, planner=learner.planner, reward=learner.reward,
                    n_jobs=learner.n_jobs, backend=learner.backend, client=learner.client,
                    planner_options=learner.planner_options)
