@@ -68,7 +68,7 @@ from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
            "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL", "RULES", "DEFAULT_RULE", "held_out_occupancy_gap",
-           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "search_sharing", "SearchResult", "SearchProgress",
+           "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "choose_row", "search_sharing", "SearchResult", "SearchProgress",
            "score_candidates", "sharing_candidates", "max_primitives", "task_folds", "take_tasks", "task_subset",
            "task_mdp", "fixed_learner", "flat_start_rewards", "held_out_nll", "cv_results", "validation_rows",
            "rows_cv_results", "check_cv_results", "CV_RESULTS_KEYS", "plot_validation"]
@@ -420,6 +420,8 @@ def task_folds(n_tasks: int, cv: Any = N_FOLDS, rng: Any = None) -> list[np.ndar
         if cv < 2:
             raise ValidationError(f"cv must be at least 2 folds; got {cv}")
         return np.array_split(as_rng(rng).permutation(n_tasks), min(int(cv), n_tasks))
+    if isinstance(cv, (str, bytes)):
+        raise ValidationError(f"cv must be an int, a splitter with split(X) or an iterable of folds; got {cv!r:.80}")
     if hasattr(cv, "split"):
         parts = [test for _, test in cv.split(np.zeros((n_tasks, 1)))]
     else:
@@ -635,6 +637,21 @@ def _between(k: int, tried: Sequence[int], k_max: int) -> list[int]:
     return sorted(m for m in mids if m not in tried and 1 <= m <= k_max and m != k)
 
 
+def choose_row(rows: list[dict], rule: str = DEFAULT_RULE, share_level: float = SHARE_LEVEL) -> int:
+    """The index of the row a choice ``rule`` (:data:`RULES`) takes in a validation table (rows of
+    :func:`choose_sharing`; ``task_scores`` paired over the same held-out tasks): the rule of
+    :func:`search_sharing`, for a table already scored (e.g. to compare the rules on one search).
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``rule``.
+    """
+    if rule not in RULES:
+        raise ValidationError(f"rule must be one of {RULES}; got {rule!r}")
+    return _choice(rows, share_level, rule)
+
+
 def _choice(rows: list[dict], share_level: float = SHARE_LEVEL, rule: str = DEFAULT_RULE) -> int:
     """The chosen row: the lowest mean score among the rows with the most folds, unless the flat
     model (``lambda = 0``) is among them and the leader's gain over it, paired over the n held-out
@@ -689,7 +706,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
         ``lambda = 0`` takes the fold's last fitted candidate instead of a fit of its own (its
         transfer, the flat learner's, does not use the dictionary).
     candidate_max_iter : int or None
-        Outer iterations of each candidate fit (None: the learner's ``max_iter``).
+        Outer iterations of each candidate fit, at most the learner's ``max_iter`` (None: that).
     transfer_max_iter : int or None
         Steps of each held-out task's transfer (None: the learner's ``transfer_max_iter``).
     progress : SearchProgress, optional
@@ -704,7 +721,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     n = _count(demos_per_task)
     t = n_transfer_demos
     progress = SearchProgress() if progress is None else progress
-    budget = learner.max_iter if candidate_max_iter is None else candidate_max_iter
+    budget = learner.max_iter if candidate_max_iter is None else min(candidate_max_iter, learner.max_iter)
     scores: dict = {}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)

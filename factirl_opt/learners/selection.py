@@ -29,21 +29,27 @@ from .adaptive import (
 )
 from .estimator import Estimator
 
-__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "SHORT_MAX_ITER", "cv_results", "validation_rows"]
+__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "SHORT_MAX_ITER", "SCREEN_TRANSFER_MAX_ITER", "cv_results", "validation_rows"]
 
 #: outer iterations of each candidate fit on the ``"short"`` route
 SHORT_MAX_ITER = 10
+#: steps of each held-out task's transfer on the ``"short"`` and ``"pca"`` routes (the learner's
+#: ``transfer_max_iter`` elsewhere): the tempered held-out likelihood judges the transferred
+#: reward's direction, which the first steps set; from one demonstration the rest of a transfer
+#: mostly grows the reward's scale toward the saturated policy
+SCREEN_TRANSFER_MAX_ITER = 20
 
-#: the routes of a search: ``(search, candidate_max_iter)`` of
+#: the routes of a search: ``(search, candidate_max_iter, transfer_max_iter)`` of
 #: :func:`~factirl_opt.learners.adaptive.search_sharing`. ``"race"``: every candidate on the first
 #: fold, the contenders on the others, each fitted with the learner's ``max_iter`` (the default);
 #: ``"full"``: every candidate on every fold; ``"race-warm"``: the race, candidates warm-started
-#: along lambda; ``"short"``: the race with candidate fits of ``SHORT_MAX_ITER`` outer iterations;
-#: ``"pca"``: every candidate on every fold, each its PCA start from the training tasks' flat
-#: rewards (no alternating fit: the cost of the search is the transfers of the held-out tasks).
-ROUTES: dict[str, tuple[str, int | None]] = {
-    "race": ("race", None), "full": ("full", None), "race-warm": ("race-warm", None),
-    "short": ("race", SHORT_MAX_ITER), "pca": ("full", 0),
+#: along lambda; ``"short"``: the race with candidate fits of ``SHORT_MAX_ITER`` outer iterations
+#: and held-out transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"pca"``: every candidate on every
+#: fold, each its PCA start from the training tasks' flat rewards (no alternating fit), held-out
+#: transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps.
+ROUTES: dict[str, tuple[str, int | None, int | None]] = {
+    "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
+    "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
 }
 #: the route ``SharingSearch()`` takes
 DEFAULT_ROUTE = "race"
@@ -135,8 +141,9 @@ class SharingSearch(Estimator):
             Its :func:`cv_results` is the table ``FactIRL.cv_results_``.
         """
         self.check()
-        search, budget = ROUTES[self.route]
+        search, budget, transfer_budget = ROUTES[self.route]
         return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=self.score, cv=self.cv,
                               k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
                               n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
-                              share_level=self.share_level, rule=self.rule, candidate_max_iter=budget)
+                              share_level=self.share_level, rule=self.rule, candidate_max_iter=budget,
+                              transfer_max_iter=transfer_budget)
