@@ -6,7 +6,10 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.learners.active import information_gains, policy_entropy_starts, start_occupancy, state_information
+from factirl_opt.learners.active import (
+    information_gains, model_policy, policy_entropy_starts, request_starts, start_occupancy, state_information,
+    value_variance_reductions,
+)
 from factirl_opt.planning import get_planner
 
 
@@ -62,6 +65,26 @@ def test_information_is_the_posteriors_curvature_per_pair(fitted, objective):
     np.testing.assert_allclose(post.n_pairs * np.einsum("s,sde->de", mu, info), post.scaling * G[0], rtol=1e-6)
 
 
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_value_criterion_is_the_expected_reduction_of_the_values_variance(fitted, objective):
+    mdp, test, models = fitted
+    model = models[objective]
+    post = model.transfer_posterior_[1]
+    cands = np.arange(mdp.n_states)
+    red = value_variance_reductions(post, objective, model.beta, cands, 8)
+    assert red.shape == (mdp.n_states,) and np.all(red >= -1e-12)
+    # against the definition, for one candidate: trace(M Sigma) - trace(M (Lambda + H_s)^-1)
+    pl, info, pi = state_information(post, objective, model.beta)
+    _, _, dQ = model_policy(post, objective, model.beta)
+    dV = np.einsum("sa,sad->sd", pi, dQ)
+    M = dV.T @ dV / mdp.n_states
+    H = np.einsum("y,yde->de", start_occupancy(pl, pi, np.array([5]), 8)[0], info)
+    after = np.linalg.inv(np.linalg.inv(post.covariance) + H)
+    assert red[5] == pytest.approx(np.trace(M @ post.covariance) - np.trace(M @ after), rel=1e-8)
+    starts = request_starts(model, mdp, test.demos, 2, criterion="value")
+    assert starts[1].tolist() == np.argsort(-red, kind="stable")[:2].tolist()
+
+
 def test_candidates_restrict_and_are_checked(fitted):
     mdp, test, models = fitted
     model = models["policy-matching"]
@@ -75,6 +98,8 @@ def test_candidates_restrict_and_are_checked(fitted):
         model.request_starts(mdp, test.demos, candidates=np.array([0.5]))
     with pytest.raises(ValidationError, match="n_requests"):
         model.request_starts(mdp, test.demos, n_requests=0)
+    with pytest.raises(ValidationError, match="criterion must be one of information, value"):
+        request_starts(model, mdp, test.demos, criterion="entropy")
 
 
 def test_request_starts_for_tasks_other_than_the_transfers(fitted):

@@ -32,8 +32,8 @@ from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
 from .posterior import LaplacePosterior, coefficient_prior, laplace_posteriors, transfer_inputs, transfer_problem
 
-__all__ = ["request_starts", "information_gains", "state_information", "start_occupancy", "policy_entropy_starts",
-           "model_policy"]
+__all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
+           "policy_entropy_starts", "model_policy", "CRITERIA"]
 
 
 def model_policy(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
@@ -97,6 +97,25 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
     return np.linalg.slogdet(Lam[None] + H)[1] - base
 
 
+def value_variance_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                              length: int) -> NDArray[np.float64]:
+    """``trace(M (Sigma - (Lambda + H_s)^-1))`` (c,): the expected reduction of the posterior variance of
+    the state values, linearised, ``M = mean_s dV(s)/dx dV(s)/dx^T`` with ``dV = sum_a pi dQ/dx``."""
+    pl, pi, dQ = model_policy(post, objective, beta)
+    E = dQ - np.einsum("sa,sad->sd", pi, dQ)[:, None, :]
+    weight = pi if objective == "mce" else pi * pi
+    per_pair = post.scaling / post.n_pairs * (1.0 if objective == "mce" else 2.0)
+    info = per_pair * beta * beta * np.einsum("sa,sad,sae->sde", weight, E, E)
+    dV = np.einsum("sa,sad->sd", pi, dQ)
+    M = dV.T @ dV / dV.shape[0]
+    occ = start_occupancy(pl, pi, candidates, length)
+    Lam = np.linalg.inv(post.covariance)
+    Lam = 0.5 * (Lam + Lam.T)
+    H = np.einsum("cy,yde->cde", occ, info)
+    after = np.linalg.inv(Lam[None] + H)
+    return np.einsum("de,ed->", M, post.covariance) - np.einsum("de,ced->c", M, after)
+
+
 def _candidates(candidates: Any, n: int, mdps: list) -> list[NDArray[np.intp]]:
     if candidates is None:
         return [np.arange(m.n_states) for m in mdps]
@@ -138,8 +157,11 @@ def _has_prior(model: Any) -> bool:
     return H is not None and np.shape(H)[0] >= 2 and float(getattr(model, "residual_penalty_", np.inf)) != 0.0
 
 
+CRITERIA = {"information": information_gains, "value": value_variance_reductions}
+
+
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
-                   features: Any = None) -> list[NDArray[np.intp]]:
+                   features: Any = None, criterion: str = "information") -> list[NDArray[np.intp]]:
     """Candidate start states per new task, best first, by expected information gain (module docstring).
 
     Parameters
@@ -153,6 +175,10 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     n_requests : int, default=1
     candidates : array_like of int (c,), or sequence of n_new such arrays, optional
         Default: every state of each task's MDP.
+    criterion : {"information", "value"}, default="information"
+        The expected information gain about the coefficients (:func:`information_gains`,
+        D-optimal), or the expected reduction of the posterior variance of the state values
+        (:func:`value_variance_reductions`).
 
     Returns
     -------
@@ -164,13 +190,15 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         For ``n_requests`` < 1, candidates out of range, or a model whose posterior is undefined.
     """
     n_requests = check_int(n_requests, "n_requests", minimum=1)
+    if criterion not in CRITERIA:
+        raise ValidationError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     posts, _ = _posteriors(model, mdp, demos_per_task, features)
     n = len(posts)
     cands = _candidates(candidates, n, [p.mdp for p in posts])
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
-        gains = information_gains(post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]))
+        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]))
         order = np.argsort(-gains, kind="stable")
         out.append(cands[i][order[:n_requests]])
     return out

@@ -442,15 +442,15 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         step = -np.linalg.solve(damped, g[:, :, None])[:, :, 0]
         predicted = -(np.einsum("rd,rd->r", g, step) + 0.5 * np.einsum("rd,rde,re->r", step, Lam, step))
         xt = x[a] + step
-        lt = _evaluate(problem, xt, a, False)[0]
+        # the trial point's curvature with its loss: one linearisation per step, kept if the step is
+        lt, gt, Gt, _ = _evaluate(problem, xt, a, True)
         ft = s[a] * lt + _prior_terms(xt, k, m, P, s[a], lam)[0]
         ok = np.isfinite(ft) & (f[a] - ft >= 1e-4 * predicted)
         acc = a[ok]
         x[acc], f[acc] = xt[ok], ft[ok]
+        loss[acc], grad[acc], G[acc] = lt[ok], gt[ok], Gt[ok]
         mu[acc] /= 3.0
         mu[a[~ok]] *= 10.0
-        if acc.size:
-            loss[acc], grad[acc], G[acc], _ = _evaluate(problem, x[acc], acc, True)
     _, _, pp = _prior_terms(x, k, m, P, s, lam)
     Lam = s[:, None, None] * G + pp
     out = []

@@ -16,7 +16,7 @@ def run_bench(capsys, argv):
 def test_active_benchmark_quick_records_every_strategy_and_the_calibration(capsys):
     out = run_bench(capsys, ["active", "--quick", "--calibration", "--max-demos", "3"])
     row = out["worlds"]["grid"]["0"]
-    assert set(row["strategies"]) == {"requested", "random", "entropy"}
+    assert set(row["strategies"]) == {"requested", "requested-value", "random", "entropy"}
     for st in row["strategies"].values():
         assert len(st["deviation"]) == len(st["map_deviation"]) == 3
         assert np.all(np.isfinite(st["deviation"])) and min(st["deviation"]) >= 0

@@ -7,6 +7,8 @@ three strategies, and after each transfer records the test tasks' mean deviation
 transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP):
 
 - ``requested``: ``FactIRL.request_starts`` (expected information gain, docs/maths.md §10);
+- ``requested-value``: the same posterior and expected curvature, ranked by the expected
+  reduction of the posterior variance of the state values (``criterion="value"``);
 - ``random``: a uniformly random state;
 - ``entropy``: the state where the model's policy at the posterior mean has the highest
   entropy (Lopes, Melo & Montesano 2009).
@@ -16,7 +18,8 @@ the chosen start. Worlds: ``grid`` (the paper's 10x10 grid with ``--grid-preset`
 dictionary learnt from ``--n-train`` training tasks x 10 demonstrations) and
 ``objectworld-per-task-quick`` (a map per task, 8x8, the preset's training tasks). It also
 measures the CPU time (``time.process_time``) of one request for one task (building its
-posterior and ranking every state) against one transfer of that task, and, with
+posterior and ranking every state) against one transfer of that task, task by task over the
+first ``--cost-tasks`` test tasks, and, with
 ``--calibration``, on the grid's test tasks (one demonstration each): how often the 90%
 upper bound on regret (``sample_regrets``) covers the true deviation of the posterior mean,
 and the Spearman rank correlation between the expected regret and that deviation.
@@ -34,7 +37,7 @@ from scipy.stats import spearmanr
 
 from ..._threads import limit_blas_threads
 from ...evaluation import deviation
-from ...learners.active import policy_entropy_starts
+from ...learners.active import policy_entropy_starts, request_starts
 from ...learners.factirl import FactIRL
 from ...tasks.demonstrations import sample_demonstrations
 from ..arguments import integer
@@ -45,13 +48,13 @@ from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "STRATEGIES", "WORLDS"]
 
-STRATEGIES = ("requested", "random", "entropy")
+STRATEGIES = ("requested", "requested-value", "random", "entropy")
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
-            "max_demos": 8, "strategies": list(STRATEGIES), "calibration": False, "n_samples": 200, "cost_repeats": 3,
+            "max_demos": 8, "strategies": list(STRATEGIES), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
             "blas_threads": 1}
 QUICK = {"worlds": ["grid"], "seeds": [0], "grid_preset": "tiny", "n_train": 6, "n_test": 3, "max_demos": 2,
-         "n_samples": 20, "cost_repeats": 1}
+         "n_samples": 20, "cost_tasks": 2, "cost_repeats": 1}
 
 
 def add_arguments(parser):
@@ -69,7 +72,8 @@ def add_arguments(parser):
     parser.add_argument("--calibration", action="store_true", default=None,
                         help="also measure the regret bound's coverage and rank correlation on the grid's test tasks")
     opt("--n-samples", type=integer(1), help="posterior samples per task for the calibration")
-    opt("--cost-repeats", type=integer(1), help="repeats of the request-cost measurement (median)")
+    opt("--cost-tasks", type=integer(1), help="test tasks whose request cost is measured, one at a time")
+    opt("--cost-repeats", type=integer(1), help="repeats of the request-cost measurement (median per task)")
     opt("--blas-threads", type=integer(1), help="BLAS threads")
     parser.add_argument("--quick", action="store_true", help="a small configuration for tests")
 
@@ -117,8 +121,9 @@ def _strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed):
         out["map_deviation"].append(float(dev_map.mean()))
         if step == s["max_demos"]:
             break
-        if strategy == "requested":
-            starts = [int(r[0]) for r in model.request_starts(m_list, demos, 1, features=f_list)]
+        if strategy.startswith("requested"):
+            criterion = "value" if strategy == "requested-value" else "information"
+            starts = [int(r[0]) for r in request_starts(model, m_list, demos, 1, features=f_list, criterion=criterion)]
         elif strategy == "entropy":
             starts = [int(r[0]) for r in policy_entropy_starts(posts, "policy-matching", model.beta)]
         else:
@@ -130,22 +135,32 @@ def _strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed):
     return out
 
 
-def _request_cost(model, gt, mdps, feats, repeats):
-    """CPU time of one request for one task (posterior + ranking) over that of one transfer of it."""
-    m1 = [_task_mdp(mdps, 0)] if isinstance(mdps, list) else mdps
-    f1 = _take(feats, 1)
-    transfer, request = [], []
-    for _ in range(repeats):
-        demos = [np.asarray(gt.test_demos[0])]
-        t = time.process_time()
-        model.transfer(m1, demos, features=f1)
-        transfer.append(time.process_time() - t)
-        fresh = [demos[0].copy()]  # other objects: the request builds the task's posterior itself
-        t = time.process_time()
-        model.request_starts(m1, fresh, 1, features=f1)
-        request.append(time.process_time() - t)
-    tm, rm = statistics.median(transfer), statistics.median(request)
-    return {"transfer_cpu_s": tm, "request_cpu_s": rm, "request_over_transfer": rm / tm}
+def _request_cost(model, gt, mdps, feats, n, repeats):
+    """CPU time of one request for one task against one transfer of that task, over the first ``n`` test tasks.
+
+    Each task alone (one demonstration): ``transfer``, then the request (its posterior, built
+    when first read, and the ranking of every state). Per task the median over ``repeats``;
+    reported: the ratio of the sums over the tasks and the median and largest per-task ratios.
+    """
+    transfer, request = np.zeros(n), np.zeros(n)
+    for i in range(n):
+        m1 = [_task_mdp(mdps, i)] if isinstance(mdps, list) else mdps
+        f1 = None if feats is None else [feats[i]]
+        t_tr, t_rq = [], []
+        for _ in range(repeats):
+            demos = [np.asarray(gt.test_demos[i])]
+            t = time.process_time()
+            model.transfer(m1, demos, features=f1)
+            t_tr.append(time.process_time() - t)
+            t = time.process_time()
+            model.transfer_posterior_
+            model.request_starts(m1, demos, 1, features=f1)
+            t_rq.append(time.process_time() - t)
+        transfer[i], request[i] = statistics.median(t_tr), statistics.median(t_rq)
+    ratio = request / transfer
+    return {"n_tasks": n, "transfer_cpu_s": float(transfer.sum()), "request_cpu_s": float(request.sum()),
+            "request_over_transfer": float(request.sum() / transfer.sum()),
+            "median_task_ratio": float(np.median(ratio)), "max_task_ratio": float(ratio.max())}
 
 
 def _calibration(model, gt, n_samples, seed):
@@ -186,7 +201,8 @@ def run(args):
                                        "n_train": len(gt.train_demos), "k": model.n_primitives_}
                 row["strategies"] = {st: _strategy_run(model, gt, preset, test_mdps, test_feats, n, st, s, seed)
                                      for st in s["strategies"]}
-                row["request_cost"] = _request_cost(model, gt, test_mdps, test_feats, s["cost_repeats"])
+                row["request_cost"] = _request_cost(model, gt, test_mdps, test_feats, min(n, s["cost_tasks"]),
+                                                    s["cost_repeats"])
                 if s["calibration"] and name == "grid":
                     row["calibration"] = _calibration(model, gt, s["n_samples"], seed)
                 per_seed[str(seed)] = row
