@@ -11,7 +11,10 @@ by default):
 - a former module path (``factirl_opt.learners.gradirl``) imports the module at its new path
   (:func:`install_module_aliases`: a finder on :data:`sys.meta_path` that hands the import
   system the module itself, so both paths name one module object and its state is shared);
-  ``python -m`` on a former path (``python -m factirl_opt.bench``) runs the new one.
+  ``python -m`` on a former path (``python -m factirl_opt.bench``) runs the new one. A name
+  the former module held that now lives in another module (``factirl_opt.successors.to_successors``,
+  now beside ``TabularMDP``) still resolves through the former path, with its own warning
+  (``former_names`` of :func:`install_module_aliases`).
 """
 
 from __future__ import annotations
@@ -52,14 +55,50 @@ def moved_attribute(name: str, module: str, namespace: str) -> Any:
     return value
 
 
+class _FormerNames:
+    """A module's ``__getattr__`` (PEP 562) resolving the names its former path held that moved
+    elsewhere: ``names`` maps a name to ``(former module path, module holding it now)``."""
+
+    def __init__(self, module: str, fallback: Any) -> None:
+        self.module = module
+        self.fallback = fallback  # the module's own __getattr__, if it had one
+        self.names: dict[str, tuple[str, str]] = {}
+
+    def __call__(self, name: str) -> Any:
+        if name in self.names:
+            former, home = self.names[name]
+            value = getattr(importlib.import_module(home), name)
+            warn_once(f"name:{former}.{name}", f"{former}.{name} moved to {home}.{name}; the old path will be removed "
+                                               "in the next release", stacklevel=3)
+            return value
+        if self.fallback is not None:
+            return self.fallback(name)
+        raise AttributeError(f"module {self.module!r} has no attribute {name!r}")
+
+
+def _add_former_names(module: ModuleType, former: str, names: Mapping[str, str]) -> None:
+    """Let ``module`` (imported under its former path ``former``) resolve ``names`` (name -> module holding it now)."""
+    with _lock:
+        getter = module.__dict__.get("__getattr__")
+        if not isinstance(getter, _FormerNames):
+            getter = _FormerNames(module.__name__, getter)
+            module.__getattr__ = getter  # type: ignore[method-assign]
+        for name, home in names.items():
+            getter.names.setdefault(name, (former, home))
+
+
 class _AliasLoader(importlib.abc.Loader):
-    def __init__(self, target: str) -> None:
+    def __init__(self, target: str, former_names: Mapping[str, str] | None = None) -> None:
         self.target = target
+        self.former_names = former_names or {}
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
         warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}; the old path will be removed "
                                          "in the next release", stacklevel=8)
-        return importlib.import_module(self.target)
+        module = importlib.import_module(self.target)
+        if self.former_names:
+            _add_former_names(module, spec.name, self.former_names)
+        return module
 
     def exec_module(self, module: ModuleType) -> None:  # already executed under its new name
         pass
@@ -74,9 +113,11 @@ class _AliasLoader(importlib.abc.Loader):
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder):
-    def __init__(self, package: str, moves: Mapping[str, str]) -> None:
+    def __init__(self, package: str, moves: Mapping[str, str],
+                 former_names: Mapping[str, Mapping[str, str]] | None = None) -> None:
         self.package = package
         self.moves = dict(moves)
+        self.former_names = {old: dict(names) for old, names in (former_names or {}).items()}
 
     def target(self, fullname: str) -> str | None:
         """The new path of a former module path (a moved package maps its children), or None."""
@@ -95,15 +136,23 @@ class _AliasFinder(importlib.abc.MetaPathFinder):
         new = self.target(fullname)
         if new is None or new == fullname:
             return None
-        return importlib.machinery.ModuleSpec(fullname, _AliasLoader(new))
+        former = self.former_names.get(fullname[len(self.package) + 1:], {})
+        return importlib.machinery.ModuleSpec(fullname, _AliasLoader(new, {
+            name: f"{self.package}.{home}" for name, home in former.items()}))
 
 
-def install_module_aliases(package: str, moves: Mapping[str, str]) -> None:
+def install_module_aliases(package: str, moves: Mapping[str, str],
+                           former_names: Mapping[str, Mapping[str, str]] | None = None) -> None:
     """Let the former module paths ``package.<old>`` import ``package.<new>`` (``moves``: old -> new).
 
     Installed once per process, first on :data:`sys.meta_path` (so that the children of a
     moved package resolve through it too); it answers only for the former paths in ``moves``,
     none of which exists any more.
+
+    ``former_names`` maps a former path (``"successors"``, or a child of a moved package:
+    ``"experiments.babyai"``) to the names it held that now live in another module (name ->
+    that module, relative to ``package``). Imported under its former path, the module resolves
+    them (a module ``__getattr__``), each with a one-time warning naming where it is now.
     """
     if not any(isinstance(f, _AliasFinder) and f.package == package for f in sys.meta_path):
-        sys.meta_path.insert(0, _AliasFinder(package, moves))
+        sys.meta_path.insert(0, _AliasFinder(package, moves, former_names))

@@ -71,14 +71,15 @@ class MissingDependencyError(FactIRLError, ImportError):
     """An optional dependency (an extra such as ``gymnasium``) is needed but not installed."""
 
 
-class WorkersLost(FactIRLError, KeyboardInterrupt):
+class WorkersLost(FactIRLError):
     """The workers of a parallel fit were lost and could not be replaced: a Dask client or
     cluster closed, every Dask worker gone and none back in time, or a shard process that kept
     dying or stopped answering; the message says which.
 
-    It is also a ``KeyboardInterrupt``, so a fit treats it as an interruption: the estimator
+    An ordinary library error (``except Exception`` and ``except FactIRLError`` catch it), which
+    a fit nevertheless ends like an interruption (:mod:`factirl_opt.interruption`): the estimator
     keeps the best point seen (``status_ == "interrupted"``, an ``InterruptedFitWarning``) and
-    this error is raised again (``except FactIRLError`` catches it).
+    this error is raised again.
     """
 
 

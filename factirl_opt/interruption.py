@@ -7,6 +7,12 @@ before) that carries the best point seen as the function's usual result, with st
 ``"interrupted"``. The estimators store that result as their fitted state, warn with
 :class:`InterruptedFitWarning` and let the exception propagate.
 
+A fit whose parallel workers are lost for good (:class:`~factirl_opt.exceptions.WorkersLost`,
+an ordinary library error, not a ``KeyboardInterrupt``) ends the same way: the fitting
+functions catch every exception of :data:`INTERRUPTIONS`, the estimators keep the best point
+and raise the ``WorkersLost`` itself again (:func:`raise_interrupted`), which a caller's
+``except Exception`` catches.
+
 For a row-separable step problem (a flat fit, an H-step with the dictionary fixed, transfer)
 the tasks are independent, so the best point is taken per task: :class:`BestRows` records,
 for every task, the lowest objective (with the solver's penalty) among the points at which
@@ -23,12 +29,15 @@ import numpy as np
 
 from solvers import Linearization, SolverResult, StepProblem, StepSolver
 
-from .exceptions import FactIRLError, FitInterrupted, InterruptedFitWarning
+from .exceptions import FactIRLError, FitInterrupted, InterruptedFitWarning, WorkersLost
 
-__all__ = ["BestRows", "run_keeping_best", "warn_interrupted", "raise_interrupted", "loss_phrase"]
+__all__ = ["BestRows", "run_keeping_best", "warn_interrupted", "raise_interrupted", "loss_phrase", "INTERRUPTIONS"]
 
 #: the ``status`` (and ``stop_reason_``) of a fit stopped by a KeyboardInterrupt
 INTERRUPTED = "interrupted"
+#: what stops a fit keeping its best point (``except INTERRUPTIONS`` in the fitting functions): Ctrl-C,
+#: and the library's error for parallel workers lost for good
+INTERRUPTIONS: tuple[type[BaseException], ...] = (KeyboardInterrupt, WorkersLost)
 
 
 def warn_interrupted(what: str, detail: str, cause: BaseException | None = None) -> None:
@@ -59,8 +68,8 @@ def loss_phrase(loss: np.ndarray) -> str:
 
 def raise_interrupted(exc: FitInterrupted, what: str) -> NoReturn:
     """Raise again, from an estimator that kept ``exc.result``, what stopped its fit: the library
-    error that did (e.g. :class:`~factirl_opt.exceptions.WorkersLost`, itself a
-    KeyboardInterrupt), else a :class:`FitInterrupted` for ``what`` chained to the interrupt."""
+    error that did (:class:`~factirl_opt.exceptions.WorkersLost`), else a :class:`FitInterrupted`
+    for ``what`` chained to the interrupt."""
     cause = exc.__cause__
     while isinstance(cause, FitInterrupted):  # an inner step's interruption, wrapped again
         cause = cause.__cause__
@@ -163,7 +172,8 @@ def run_keeping_best(solver: StepSolver, problem: StepProblem, x0: np.ndarray, m
     """``solver.run(problem, x0, max_iter, callback=..., **options)``, keeping the best point on Ctrl-C.
 
     Returns the solver's result unchanged when the run ends. A KeyboardInterrupt raised
-    during the run (in an evaluation, in ``callback``, or by a signal) becomes a
+    during the run (in an evaluation, in ``callback``, or by a signal), or a
+    :class:`~factirl_opt.exceptions.WorkersLost` (:data:`INTERRUPTIONS`), becomes a
     :class:`FitInterrupted` whose ``result`` is a :class:`solvers.SolverResult` at the
     per-row best point seen (:class:`BestRows`), with ``status == "interrupted"``,
     ``loss_history`` the start and the iterations completed, and ``loss`` including the
@@ -180,7 +190,7 @@ def run_keeping_best(solver: StepSolver, problem: StepProblem, x0: np.ndarray, m
 
     try:
         return solver.run(tracker.problem, x0, max_iter, callback=report, **options)
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         x, loss, _ = tracker.best()
         start: list = [] if tracker.start_total is None else [tracker.start_total]
         result = SolverResult(coefficients=x, status=INTERRUPTED, iterations=len(history), solve_time=float("nan"),

@@ -44,6 +44,13 @@ Built-in solvers
     ``StepProblem.linearize``; options ``cg_max_iter``, ``cg_tol``, ...). Unconstrained. Its
     alternating form (FactIRL's D-step) takes proximal, inexact steps.
 
+``newton``
+    Damped Newton steps with a trust-region ratio test, one damping per row
+    (:class:`NewtonSolver`): the exact Hessian where the problem gives one
+    (``StepProblem.hessian``: the MCE likelihood), else the Gauss-Newton matrix of the residuals
+    (``residual_jacobian``: policy matching); options ``damping``, ``eta``, ... Unconstrained;
+    a dense (p, p) curvature per row (feature weights, not large tabular rewards).
+
 Not registered (it needs callables, not only a name): :class:`ProximalArmijoSolver`, the
 Armijo descent with a proximal map ``prox(v, t)`` and its penalty (:mod:`solvers.proximal`;
 ``constraint="proximal"``), and :func:`unit_columns_prox`, the map of unit-norm columns,
@@ -90,6 +97,7 @@ from .exceptions import (
 from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
+from .newton import NewtonSolver
 from .proximal import ProximalArmijoSolver, unit_columns_prox
 from .stopping import gradient_converged, has_converged, relative_decrease
 
@@ -102,6 +110,7 @@ __all__ = [
     "GaussNewtonSolver",
     "LBFGSSolver",
     "GaussNewtonCGSolver",
+    "NewtonSolver",
     "ProximalArmijoSolver",
     "unit_columns_prox",
     "QPFallbackWarning",
@@ -297,6 +306,7 @@ register_solver("armijo", ArmijoSolver)
 register_solver("armijo-nonneg", ArmijoSolver, nonneg=True)
 register_solver("lbfgs", LBFGSSolver)
 register_solver("gn-cg", GaussNewtonCGSolver)
+register_solver("newton", NewtonSolver)
 for _qp_solver in QP_SOLVERS:
     for _constraint in CONSTRAINTS:
         register_solver(

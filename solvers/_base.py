@@ -47,6 +47,10 @@ class StepProblem:
         ``(x_rows, rows) -> Linearization``: loss, residual and matrix-free products with the
         Jacobian of the residual at ``x_rows`` (see :class:`Linearization`); None when the
         problem has no least-squares form or no matrix-free derivative. Used by ``gn-cg``.
+    hessian : callable or None
+        ``(x_rows, rows) -> (r, p, p)``: the Hessian of every row's loss at ``x_rows``
+        (symmetric, possibly indefinite); None when the problem gives none. Called at points
+        where ``loss_and_grad`` was just evaluated. Used by ``newton``.
 
     Raises
     ------
@@ -60,11 +64,12 @@ class StepProblem:
     n_params: int
     residual_jacobian: Optional[Callable] = None
     linearize: Optional[Callable] = None
+    hessian: Optional[Callable] = None
 
     def __post_init__(self) -> None:
-        for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize"):
+        for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize", "hessian"):
             value = getattr(self, name)
-            if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize")):
+            if not callable(value) and not (value is None and name in ("residual_jacobian", "linearize", "hessian")):
                 raise SolverOptionError(f"StepProblem: {name} must be callable; got {value!r} ({type(value).__name__})")
         check_number(self.n_rows, "n_rows", "StepProblem", low=1, integer=True)
         check_number(self.n_params, "n_params", "StepProblem", low=1, integer=True)
@@ -262,6 +267,25 @@ class StepSolver:
         """
         x_new, state, progressed = self.update(problem, x, state)
         return x_new, state, np.full(problem.n_rows, bool(progressed))
+
+    def trial_rows(self, problem: StepProblem, x: NDArray[np.float64], state: Any,
+                   tries: NDArray[np.intp]) -> tuple[NDArray[np.float64], Any, NDArray[np.bool_], NDArray[np.bool_]]:
+        """One round of a separable run: ``(x_new, state, progressed, pending)``, each (n,) for the last two.
+
+        A row is ``pending`` when it tried a step, was rejected, and retries it in the next
+        round (its retries in this step so far: ``tries``, shape (n,)); the other rows finished
+        a step as in :meth:`step_rows` (``progressed`` as there). Rounds let a row retry while
+        the others go on, so a retry shares a batched evaluation with the other rows' next
+        steps instead of costing one of its own, and each row's trials stay those of a run on
+        that row alone. The default is :meth:`step_rows` with no row pending; the
+        Levenberg-Marquardt solvers take one trial per round.
+        """
+        x_new, state, progressed = self.step_rows(problem, x, state)
+        progressed = np.asarray(progressed, dtype=bool)
+        if progressed.shape != (problem.n_rows,):
+            raise SolverError(f"{self.name}: step_rows returned progress of shape {progressed.shape}; expected "
+                              f"({problem.n_rows},)")
+        return x_new, state, progressed, np.zeros(problem.n_rows, dtype=bool)
 
     def take_rows(self, state: Any, rows: NDArray[np.intp]) -> Any:
         """The state of rows ``rows`` only (a separable run drops the rows that stopped).

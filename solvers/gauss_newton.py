@@ -523,6 +523,44 @@ class GaussNewtonSolver(StepSolver):
             todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
         return x, state, progressed
 
+    def trial_rows(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonState, tries: NDArray[np.intp]
+    ) -> tuple[NDArray[np.float64], GaussNewtonState, NDArray[np.bool_], NDArray[np.bool_]]:
+        """One trial of every row, the rounds of :meth:`step_rows` taken one at a time: a
+        rejected row that may retry (damping below its cap, fewer than ``max_retries`` retries
+        in this step: ``tries``) is ``pending`` and retries in the next round, so each row's
+        trials are those of :meth:`step_rows` while rows at different retries share one batched
+        evaluation (:func:`solvers.separable.run_separable`)."""
+        n = x.shape[0]
+        x = x.copy()
+        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        todo = np.arange(n)
+        R, b = self._row_factors(x, state, todo)
+        z = self._solve_rows(R, b, x, state)
+        if z is None:  # failed status with fallback="none": reject every row
+            state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
+            return x, state, progressed, pending
+        z = self.project(z)
+        z, shortened = limit_step(x, z, self.max_step_norm)
+        state.bounded_steps += int(shortened.sum())
+        step = np.linalg.norm(z - x, axis=1)
+        moving = step > self.xtol * (np.linalg.norm(x, axis=1) + self.xtol)
+        progressed[~moving] = True  # a negligible step: the row has converged
+        rows, z = todo[moving], z[moving]
+        if rows.size == 0:
+            return x, state, progressed, pending
+        trial, r, J, finite = self._evaluate(problem, z, rows)
+        with np.errstate(invalid="ignore"):
+            ok = finite & (trial < state.loss[rows])
+        acc, rej = rows[ok], rows[~ok]
+        x[acc] = z[ok]
+        state.loss[acc] = trial[ok]
+        state.residual[acc] = r[ok]
+        state.jacobian[acc] = J[ok]
+        progressed[acc] = True
+        pending[:] = update_damping(self, state, acc, rej, n) & (np.asarray(tries) < int(self.max_retries))
+        return x, state, progressed, pending
+
 
 def _check_tolerance(value: Any, owner: str) -> dict[str, float]:
     """The ``tolerance`` option: None or a dict from QP solver names to accuracies."""

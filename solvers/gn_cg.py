@@ -412,6 +412,34 @@ class GaussNewtonCGSolver(StepSolver):
             todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
         return x, state, progressed
 
+    def trial_rows(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState, tries: NDArray[np.intp]
+    ) -> tuple[NDArray[np.float64], GaussNewtonCGState, NDArray[np.bool_], NDArray[np.bool_]]:
+        """One trial of every row, the rounds of :meth:`step_rows` taken one at a time (a
+        rejected row that may retry is ``pending``; as :meth:`GaussNewtonSolver.trial_rows`)."""
+        n, p = x.shape
+        x = x.copy()
+        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        todo = np.arange(n)
+        z = self._steps(x, state, todo)
+        moving = np.linalg.norm(z - x, axis=1) > self.xtol * (np.linalg.norm(x, axis=1) + self.xtol)
+        progressed[~moving] = True  # a negligible step: the row has converged
+        rows, z = todo[moving], z[moving]
+        if rows.size == 0:
+            return x, state, progressed, pending
+        lin, loss, r, finite = self._linearize(problem, z, rows)
+        grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
+        state.n_vjp += 1
+        with np.errstate(invalid="ignore"):
+            ok = finite & np.all(np.isfinite(grad), axis=1) & (loss < state.loss[rows])
+        acc, rej = rows[ok], rows[~ok]
+        if acc.size:
+            x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
+            state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
+        progressed[acc] = True
+        pending[:] = update_damping(self, state, acc, rej, n) & (np.asarray(tries) < int(self.max_retries))
+        return x, state, progressed, pending
+
     def take_rows(self, state: GaussNewtonCGState, rows: NDArray[np.intp]) -> GaussNewtonCGState:
         """The per-row arrays sliced, and the linearisations of the rows kept."""
         part = super().take_rows(state, rows)

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._base import StepProblem, row_norms
 from ._validation import check_number, option, validate_fields
 from .armijo import ArmijoSolver, ArmijoState
-from .exceptions import SolverOptionError
+from .exceptions import SolverError, SolverOptionError
 
 __all__ = ["ProximalArmijoSolver", "unit_columns_prox"]
 
@@ -75,6 +75,12 @@ class ProximalArmijoSolver(ArmijoSolver):
     ------
     SolverOptionError
         When ``prox`` or ``prox_penalty`` is not callable, or an Armijo option is malformed.
+    SolverError
+        During a run, when ``prox`` returns something other than finite points of the shape
+        of its rows ``v`` (NaN, inf, another shape, not numbers), or ``prox_penalty`` other
+        than one finite-or-inf value per row: the message names the callable, where it was
+        called (the projection of the start, a step, the optimality measure) and what it
+        returned.
     """
 
     prox: Callable = option(None, _callable_check())
@@ -88,18 +94,57 @@ class ProximalArmijoSolver(ArmijoSolver):
         if self.nonneg:
             raise SolverOptionError("armijo-prox: option nonneg is not taken (give the projection as prox)")
 
+    def _prox(self, v: NDArray[np.float64], t: NDArray[np.float64], where: str) -> NDArray[np.float64]:
+        """``prox(v, t)``, checked: finite points of ``v``'s shape (r, p) for finite rows of ``v``.
+
+        A user's map that returns NaN or another shape would otherwise surface far away (as a
+        non-finite reward in the problem's objective, or numpy's broadcasting error).
+        """
+        out = self.prox(v, t)
+        try:
+            z = np.asarray(out, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SolverError(f"{self.name}: prox(v, t) {where} returned {type(out).__name__}, not an array of numbers; "
+                              f"it must return the proximal points, shape {v.shape} like v") from None
+        if z.shape != v.shape:
+            got = f"shape {z.shape}" if isinstance(out, np.ndarray) else f"{type(out).__name__} (shape {z.shape})"
+            raise SolverError(f"{self.name}: prox(v, t) {where} returned {got} for v of shape {v.shape}; it "
+                              f"must return the proximal points, one row of {v.shape[1]} per row of v")
+        bad = ~np.all(np.isfinite(z), axis=1) & np.all(np.isfinite(v), axis=1)
+        if bad.any():
+            rows = np.flatnonzero(bad)
+            raise SolverError(f"{self.name}: prox(v, t) {where} returned non-finite values (NaN or inf) for finite v, "
+                              f"in {rows.size} of {v.shape[0]} row(s) (rows {rows[:10].tolist()}"
+                              f"{' ...' if rows.size > 10 else ''} of v, steps t = {np.asarray(t)[rows[:3]].tolist()}); "
+                              "it must return finite proximal points")
+        return z
+
     def project(self, x: ArrayLike) -> NDArray[np.float64]:
         x = np.asarray(x, dtype=np.float64)
-        return np.asarray(self.prox(x, np.zeros(x.shape[0])), dtype=np.float64)
+        return self._prox(x, np.zeros(x.shape[0]), "at the starting point (t = 0, the projection)")
 
     def penalty(self, x: ArrayLike) -> NDArray[np.float64]:
-        return np.asarray(self.prox_penalty(np.asarray(x, dtype=np.float64)), dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
+        out = self.prox_penalty(x)
+        try:
+            value = np.asarray(out, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SolverError(f"{self.name}: prox_penalty(x) returned {type(out).__name__}, not an array of numbers; "
+                              f"it must return one value per row of x, shape ({x.shape[0]},)") from None
+        if value.shape != (x.shape[0],):
+            raise SolverError(f"{self.name}: prox_penalty(x) returned shape {value.shape} for x of shape {x.shape}; it "
+                              f"must return one value per row, shape ({x.shape[0]},)")
+        if np.isnan(value).any():
+            raise SolverError(f"{self.name}: prox_penalty(x) returned NaN in rows "
+                              f"{np.flatnonzero(np.isnan(value))[:10].tolist()} of x")
+        return value
 
     def optimality(self, x: ArrayLike, grad: ArrayLike) -> NDArray[np.float64]:
         """The norm of the proximal-gradient map at unit step, ``||x_i - prox(x_i - g_i, 1)||``
         per row: zero exactly at the fixed points of the step (stationary points)."""
         x = np.asarray(x, dtype=np.float64)
-        return row_norms(x - self.prox(x - np.asarray(grad, dtype=np.float64), np.ones(x.shape[0])))
+        return row_norms(x - self._prox(x - np.asarray(grad, dtype=np.float64), np.ones(x.shape[0]),
+                                        "in the optimality measure (t = 1)"))
 
     def init_state(self, problem: StepProblem, x: NDArray[np.float64], previous: Any = None) -> ArmijoState:
         state = super().init_state(problem, x, previous)
@@ -114,7 +159,7 @@ class ProximalArmijoSolver(ArmijoSolver):
         rows = np.arange(problem.n_rows)
         t = step.copy()
         for b in range(int(self.max_backtracks)):
-            trial = np.asarray(self.prox(x[rows] - t[rows, None] * grad[rows], t[rows]), dtype=np.float64)
+            trial = self._prox(x[rows] - t[rows, None] * grad[rows], t[rows], "at a proximal-gradient step")
             lt, gt, finite = self._evaluate(problem, trial, rows)
             with np.errstate(invalid="ignore", over="ignore"):
                 lt = lt + self.penalty(trial)

@@ -12,9 +12,18 @@ evaluate only the rows still running (:meth:`StepSolver.take_rows`), so the eval
 would have used are saved, and every row's iterate is the one of a run on that row alone
 (up to the rounding of batched arithmetic).
 
-The steps are :meth:`StepSolver.step_rows`: the solver's step in which a row's trial points do
-not depend on the other rows (the Levenberg-Marquardt retries of a rejected row, for
-instance, are decided by that row alone).
+The run goes in rounds, :meth:`StepSolver.trial_rows`: one trial of every row still running
+per batched evaluation, in which a row's trial points do not depend on the other rows. A
+Levenberg-Marquardt row whose trial was rejected retries in the next round, beside the other
+rows' next steps (its step is not finished: no rule applies to it yet), so a retry costs no
+evaluation of its own and a run costs about as many evaluations as its longest row has trials;
+the other solvers finish a step every round (:meth:`StepSolver.step_rows`). A row's
+iterations are the steps it finished; the run's history has one entry per iteration, the
+most steps a row has finished, updated while the other rows catch up.
+
+A row whose objective tends to 0 (a reward that matches its demonstrations exactly, the
+Boltzmann policy saturating) is stopped by the gradient rule, not by the relative decrease
+(:mod:`solvers.stopping`): give ``gtol > 0``.
 """
 
 from __future__ import annotations
@@ -65,7 +74,8 @@ def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[
     return dataclasses.replace(
         problem, loss_and_grad=wrap(problem.loss_and_grad),
         residual_jacobian=None if problem.residual_jacobian is None else wrap(problem.residual_jacobian),
-        linearize=None if problem.linearize is None else wrap(problem.linearize), n_rows=int(rows.size))
+        linearize=None if problem.linearize is None else wrap(problem.linearize),
+        hessian=None if problem.hessian is None else wrap(problem.hessian), n_rows=int(rows.size))
 
 
 def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: NDArray[np.float64],
@@ -159,6 +169,18 @@ def _rows(rows: NDArray[np.intp], limit: int = 20) -> str:
     return f"[{shown}{', ...' if rows.size > limit else ''}]"
 
 
+def _trial(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], state: Any,
+           tries: NDArray[np.intp]) -> tuple[NDArray[np.float64], Any, NDArray[np.bool_], NDArray[np.bool_]]:
+    """:meth:`StepSolver.trial_rows`, its arrays checked."""
+    x, state, progressed, pending = solver.trial_rows(problem, x, state, tries)
+    r = tries.size
+    progressed, pending = np.asarray(progressed, dtype=bool), np.asarray(pending, dtype=bool)
+    for name, value in (("progress", progressed), ("pending rows", pending)):
+        if value.shape != (r,):
+            raise SolverError(f"{solver.name}: trial_rows returned {name} of shape {value.shape}; expected ({r},)")
+    return x, state, progressed, pending
+
+
 def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], max_iter: int, state: Any,
                   tol: float, callback: Callable | None, gtol: float) -> dict[str, Any]:
     """:meth:`StepSolver.run` with ``separable=True`` (arguments already validated; ``x`` projected).
@@ -185,28 +207,32 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
     status = np.full(n, "max_iter", dtype=object)
     rule = np.full(n, "", dtype=object)
     steps = np.zeros(n, dtype=np.intp)
+    tries = np.zeros(n, dtype=np.intp)
     active, part = everyone, full
     sub = restrict_rows(problem, active, counts)
     x = x.copy()
-    for it in range(1, max_iter + 1):
-        xa, part, progressed = solver.step_rows(sub, x[active], part)
-        progressed = np.asarray(progressed, dtype=bool)
-        if progressed.shape != (active.size,):
-            raise SolverError(f"{solver.name}: step_rows returned progress of shape {progressed.shape}; expected ({active.size},)")
+    while active.size and max_iter > 0:
+        xa, part, progressed, pending = _trial(solver, sub, x[active], part, tries[active])
         new = np.array(part.loss, dtype=np.float64)
         rules = row_rules(loss[active], new, _row_optimality(solver, xa, part), g0[active], progressed, tol, gtol)
+        rules[pending] = ""  # a row retrying a rejected step has not finished its step
         x[active], loss[active] = xa, new
-        steps[active] = it
-        history.append(_total(solver.name, loss))
-        if callback is not None:
-            callback(it, history[-1])
+        tries[active] = np.where(pending, tries[active] + 1, 0)
+        steps[active[~pending]] += 1
+        if steps.max() == len(history):  # a row took a step further than any before: a new iteration
+            history.append(_total(solver.name, loss))
+            if callback is not None:
+                callback(len(history) - 1, history[-1])
+        elif len(history) > 1:  # rows catching up: the iteration's total, updated
+            history[-1] = _total(solver.name, loss)
         done = rules != ""
-        if not done.any():
+        leave = done | (~pending & (steps[active] >= max_iter))
+        if not leave.any():
             continue
         rule[active[done]] = rules[done]
         status[active[done]] = np.where(rules[done] == "stalled", "stalled", "converged")
         full = solver.put_rows(full, active, part)
-        keep = np.flatnonzero(~done)
+        keep = np.flatnonzero(~leave)
         if keep.size == 0:
             active = active[keep]
             break

@@ -24,6 +24,14 @@ scale of the objective or of the parameters. It stops runs whose objective keeps
 geometrically toward a minimum at infinity (the relative decrease never becomes small there;
 for the IRL objectives: Boltzmann policies saturating as the rewards grow) and runs that reach a
 stationary point. ``gtol = 0`` stops only at an exactly zero gradient.
+
+**Per row** (:mod:`solvers.separable`), both rules apply to each row's own objective and
+optimality measure. There the gradient rule is the one that stops a row whose objective tends
+to 0, its infimum (a reward that matches its demonstrations exactly): the relative decrease
+of a row is measured against the row's own, vanishing objective and stays large, while in a
+total the rows near 0 weigh nothing and the rows with a positive minimum decide. So a
+separable run that should stop such rows needs ``gtol > 0`` (the learners' default is 1e-4);
+with ``gtol = 0`` they run to ``max_iter`` (docs/maths.md §5, "Saturation").
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ import factirl_opt as fo
 from factirl_opt.learners import adaptive
 from factirl_opt.learners.em import log_policies
 from factirl_opt.planning import get_planner
-from factirl_opt.exceptions import ConvergenceWarning, ValidationError
+from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
 
 
 @pytest.fixture(scope="module")
@@ -21,6 +21,11 @@ def data():
     D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(6, 2))
     R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(6, 9, 4)
     return mdp, F, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+
+
+def _table(model):
+    """The rows of a model's ``cv_results_`` (the former validation table)."""
+    return adaptive.validation_rows(model.cv_results_)
 
 
 def _fit(mdp, demos, **kw):
@@ -36,7 +41,7 @@ def auto(data):
 
 
 def test_the_chosen_pair_is_the_best_of_the_table(auto):
-    rows = auto.validation_
+    rows = _table(auto)
     pairs = [(r["n_primitives"], r["residual_penalty"]) for r in rows]
     assert len(set(pairs)) == len(pairs)
     # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
@@ -99,13 +104,14 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
     mdp, _, demos = data
     noise = np.random.default_rng(0).normal(scale=0.01, size=30)
 
-    def run_folds(learner, mdp, demos_per_task, flat_rewards, folds, candidates, t, warm, reuse, score):
+    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
         def one(k, lam, held):
             base = 3.0 if lam == 0.0 else 1.0 + (k - 6) ** 2 / 100 + (0.0 if lam == 1.0 else 0.5)
             return base + noise[held]
-        return {(k, lam): [one(k, lam, held) for held in folds] for k, lam in candidates}
+        for k, lam in candidates:
+            progress.scores.setdefault((k, lam), []).extend(one(k, lam, held) for held in folds)
 
-    monkeypatch.setattr(adaptive, "_run_folds", run_folds)
+    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
     k, lam, rows = adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])
     assert (k, lam) == (6, 1.0)
@@ -149,7 +155,7 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     if all(any(r["fold_scores"] == by_pair[pair]["fold_scores"] for r in complete)
            for pair in by_pair if by_pair[pair]["score"] <= by_pair[k, lam]["score"] or pair[1] == 0.0):
         assert (kr, lr) == (k, lam)  # the full search's winner stayed in the race
-    assert [r["fold_scores"] for r in race] == [r["fold_scores"] for r in auto.validation_]  # the default
+    assert [r["fold_scores"] for r in race] == [r["fold_scores"] for r in _table(auto)]  # the default
     # the warm race starts each candidate from its predecessor's fit: the first candidate of each k is
     # scored as in the full search on the first fold
     with warnings.catch_warnings():
@@ -177,15 +183,15 @@ def test_transfer_after_auto(data, auto):
 def test_a_fixed_value_is_kept(data):
     mdp, F, demos = data
     model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto")
-    assert {r["n_primitives"] for r in model.validation_} == {2} and model.n_primitives_ == 2
+    assert {r["n_primitives"] for r in _table(model)} == {2} and model.n_primitives_ == 2
     model = _fit(mdp, demos, features=F, n_primitives="auto", residual_penalty=np.inf)
-    assert {r["residual_penalty"] for r in model.validation_} == {np.inf} and model.residual_penalty_ == np.inf
+    assert {r["residual_penalty"] for r in _table(model)} == {np.inf} and model.residual_penalty_ == np.inf
 
 
 def test_a_constrained_h_solver_validates_only_the_factorial_model(data):
     mdp, F, demos = data
     model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto", h_solver="armijo-nonneg")
-    assert [r["residual_penalty"] for r in model.validation_] == [np.inf]
+    assert [r["residual_penalty"] for r in _table(model)] == [np.inf]
 
 
 def test_validation_needs_two_tasks_and_a_demonstration_to_score(data):
@@ -205,7 +211,7 @@ def test_plot_validation(auto):
     matplotlib.use("Agg")
     ax = adaptive.plot_validation(auto)
     assert len(ax.get_lines()) >= 3 and ax.get_xscale() == "log"
-    with pytest.raises(ValidationError, match=r"has no validation_"):
+    with pytest.raises(ValidationError, match=r"has no cv_results_"):
         adaptive.plot_validation(fo.FactIRL())
 
 
@@ -215,7 +221,13 @@ def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
     from factirl_opt.exceptions import PersistenceError
 
     loaded = fo.load_model(fo.save_model(auto, tmp_path / "auto.npz"))
-    assert loaded.validation_ == auto.validation_ and loaded.n_primitives == "auto"
+    assert loaded.cv_results_.keys() == auto.cv_results_.keys() and loaded.n_primitives == "auto"
+    for key, value in auto.cv_results_.items():
+        if key == "params":
+            assert loaded.cv_results_[key] == value
+        else:
+            np.testing.assert_array_equal(loaded.cv_results_[key], value)
+            assert loaded.cv_results_[key].dtype == value.dtype, key
     assert (loaded.n_primitives_, loaded.residual_penalty_) == (auto.n_primitives_, auto.residual_penalty_)
     np.testing.assert_array_equal(loaded.residuals_, auto.residuals_)
 
@@ -227,20 +239,54 @@ def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
         np.savez(tmp_path / name, __header__=np.array(json.dumps(header)), **arrays)
         return tmp_path / name
 
-    bad = rewrite(lambda a: a["validation_"][0].update(chosen=not a["validation_"][0]["chosen"]), "two.npz")
-    with pytest.raises(PersistenceError, match=r"attribute validation_ must mark exactly one row chosen; [02] are"):
+    bad = rewrite(lambda a: a["cv_results_"]["chosen"].__setitem__(0, not a["cv_results_"]["chosen"][0]), "two.npz")
+    with pytest.raises(PersistenceError, match=r"attribute cv_results_\['chosen'\] must mark exactly one candidate; [02] are"):
         fo.load_model(bad)
     bad = rewrite(lambda a: a.update(residual_penalty_=-1.0), "neg.npz")
     with pytest.raises(PersistenceError, match=r"attribute residual_penalty_ must be a number >= 0, or inf; got -1.0"):
         fo.load_model(bad)
-    old = rewrite(lambda a: [row.pop("task_scores") for row in a["validation_"]], "old.npz")  # files before task_scores
-    assert fo.load_model(old).validation_ == [{k: v for k, v in r.items() if k != "task_scores"} for r in auto.validation_]
-    bad = rewrite(lambda a: a["validation_"][0].update(task_scores="1.0"), "tasks.npz")
+    bad = rewrite(lambda a: a["cv_results_"].pop("mean_test_score"), "keys.npz")
+    with pytest.raises(PersistenceError, match=r"attribute cv_results_ has no key 'mean_test_score'"):
+        fo.load_model(bad)
+    bad = rewrite(lambda a: a["cv_results_"]["std_test_score"].pop(), "short.npz")
+    with pytest.raises(PersistenceError, match=r"attribute cv_results_\['std_test_score'\] must have one entry per candidate"):
+        fo.load_model(bad)
+
+    # a file of 0.1.0: the table as validation_ rows (task_scores absent before 2026-11-26), loaded as cv_results_
+    rows = [{k: v for k, v in r.items() if k != "task_scores"} for r in _table(auto)]
+    old = rewrite(lambda a: a.update(validation_=json.loads(json.dumps(rows))) or a.pop("cv_results_"), "old.npz")
+    model = fo.load_model(old)
+    assert [{k: v for k, v in r.items() if k != "task_scores"} for r in _table(model)] == rows
+    np.testing.assert_array_equal(model.cv_results_["chosen"], auto.cv_results_["chosen"])
+    bad = rewrite(lambda a: a.update(validation_=[dict(rows[0], task_scores="1.0")]) or a.pop("cv_results_"), "tasks.npz")
     with pytest.raises(PersistenceError, match=r"attribute validation_\[0\] task_scores must be a list of numbers"):
         fo.load_model(bad)
-    bad = rewrite(lambda a: a["validation_"][1].pop("score"), "keys.npz")
-    with pytest.raises(PersistenceError, match=r"attribute validation_\[1\] must be a dict with keys"):
-        fo.load_model(bad)
+    with pytest.warns(fo.exceptions.DeprecatedNameWarning, match=r"validation_ is deprecated: read cv_results_"):
+        assert model.validation_ == _table(model)
+
+
+def test_cv_results_is_a_table_of_equal_length_arrays(auto):
+    res = auto.cv_results_
+    m = len(res["params"])
+    assert all(len(v) == m for v in res.values())
+    assert res["chosen"].dtype == bool and res["chosen"].sum() == 1
+    chosen = int(np.flatnonzero(res["chosen"])[0])
+    assert res["params"][chosen] == {"n_primitives": auto.n_primitives_, "residual_penalty": auto.residual_penalty_}
+    splits = np.column_stack([res[f"split{f}_test_score"] for f in range(3)])
+    tasks = np.column_stack([res[f"task{j}_test_score"] for j in range(6)])
+    np.testing.assert_array_equal(res["n_splits_scored"], np.isfinite(splits).sum(axis=1))
+    assert np.all(np.isfinite(tasks).sum(axis=1) == 2 * res["n_splits_scored"])  # 6 tasks, 3 folds of 2
+    np.testing.assert_allclose(res["mean_test_score"], np.nanmean(tasks, axis=1), rtol=1e-12)
+    np.testing.assert_allclose(res["mean_test_score"], np.nanmean(splits, axis=1), rtol=1e-12)
+    complete = res["n_splits_scored"] == res["n_splits_scored"].max()  # the rows chosen from, ranked first
+    assert res["rank_test_score"][complete].min() == 1 and res["rank_test_score"][complete].max() == complete.sum()
+    assert res["rank_test_score"][chosen] <= complete.sum()
+    assert sorted(res["rank_test_score"]) == list(range(1, m + 1))
+    try:
+        import pandas
+    except ImportError:  # the table is plain arrays; pandas only shows it
+        return
+    assert pandas.DataFrame(res).shape[0] == m
 
 
 def test_held_out_likelihood_is_the_boltzmann_policys_at_its_best_temperature(data):
@@ -331,3 +377,134 @@ def test_occupancy_gap_is_zero_for_the_greedy_policys_own_paths_and_matches_enum
     # the value of any reward under the two occupancies differs by at most max|r| times the gap
     r = rng.normal(size=(9, 4))
     assert abs((r * expert).sum() - (r * learnt).sum()) <= np.abs(r).max() * gap + 1e-12
+
+
+def test_an_interrupted_final_fit_keeps_its_best_point_and_the_table(data):
+    """Ctrl-C (here a callback raising KeyboardInterrupt) in the final fit of the chosen pair: the
+    estimator keeps that fit's best point and the whole validation table, warns and re-raises."""
+    mdp, F, demos = data
+
+    def stop(iteration, loss):
+        if iteration == 2:
+            raise KeyboardInterrupt
+
+    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto", callback=stop)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    message = [str(w.message) for w in caught if issubclass(w.category, InterruptedFitWarning)]
+    assert len(message) == 1 and "kept the best of 2 outer iterations" in message[0]
+    assert model.status_ == "interrupted" and model.n_iter_ == 2
+    assert [r["chosen"] for r in _table(model)].count(True) == 1
+    chosen = next(r for r in _table(model) if r["chosen"])
+    assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
+    assert model.dictionary_.shape == (4, model.n_primitives_) and model.rewards_.shape == (6, 9, 4)
+    model.callback = None
+    assert model.transfer(mdp, [d[:1] for d in demos[:2]]).shape == (2, model.n_primitives_)
+
+
+def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monkeypatch):
+    """Ctrl-C during the search (here at the third candidate's score): the estimator keeps the fit of
+    the best candidate scored so far, on its fold's training tasks, and the table of the candidates
+    scored; interrupted before any candidate was fitted, it stays unfitted."""
+    mdp, F, demos = data
+    calls = []
+    score = adaptive._score
+
+    def interrupted(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return score(*args, **kw)
+
+    monkeypatch.setattr(adaptive, "_score", interrupted)
+    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    message = [str(w.message) for w in caught if issubclass(w.category, InterruptedFitWarning)]
+    assert len(message) == 1 and "the best candidate scored so far, fitted on 4 of the 6 tasks" in message[0]
+    rows = _table(model)
+    assert len(rows) == 2 and [r["chosen"] for r in rows].count(True) == 1  # the two candidates scored
+    chosen = next(r for r in rows if r["chosen"])
+    assert chosen["score"] == min(r["score"] for r in rows)
+    assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
+    assert model.status_ == "interrupted" and model.rewards_.shape == (4, 9, 4)
+    assert model.transfer(mdp, [d[:1] for d in demos[:2]]).shape == (2, model.n_primitives_)
+
+    calls.clear()
+    monkeypatch.setattr(adaptive, "_score", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    model = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(KeyboardInterrupt):
+            model.fit(mdp, demos)
+    assert any("kept the fit of (1, inf), the last candidate fitted (none was scored yet)" in str(w.message)
+               for w in caught)
+    assert not hasattr(model, "cv_results_") and model.n_primitives_ == 1 and model.rewards_.shape == (4, 9, 4)
+
+
+def test_a_fixed_fit_after_an_auto_fit_drops_the_search(data):
+    mdp, F, demos = data
+    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto")
+    assert hasattr(model, "cv_results_")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        model.set_params(residual_penalty=np.inf).fit(mdp, demos)
+    assert not hasattr(model, "cv_results_") and not hasattr(model, "validation_") and model.residual_penalty_ == np.inf
+    with pytest.raises(ValidationError, match=r"has no cv_results_"):
+        adaptive.plot_validation(model)
+
+
+def test_flat_rewards_of_the_wrong_shape_are_refused_before_the_search(data):
+    mdp, F, demos = data
+    flat = np.zeros((6, 9, 4))
+    for bad in (flat[:4], flat[:, :8]):
+        with pytest.raises(ValidationError, match=r"flat_rewards must have shape \(n, S, A\) = \(6, 9, 4\); got"):
+            fo.FactIRL(n_primitives="auto", features=F).fit(mdp, demos, flat_rewards=bad)
+    with pytest.raises(ValidationError, match=r"flat_rewards must be finite"):
+        fo.FactIRL(residual_penalty="auto", features=F).fit(mdp, demos, flat_rewards=flat + np.nan)
+    mdps = [fo.GridWorld(size=3, p_success=0.7, gamma=0.9) for _ in range(6)]
+    with pytest.raises(ValidationError, match=r"flat_rewards must hold one \(S_i, A\) array per task \(6\); got 4"):
+        fo.FactIRL(n_primitives="auto", features=F).fit(mdps, demos, flat_rewards=flat[:4])
+
+
+def test_plot_validation_names_a_missing_key_of_an_edited_table(auto):
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    import copy
+
+    edited = copy.copy(auto)
+    edited.cv_results_ = dict(auto.cv_results_)
+    del edited.cv_results_["std_test_score"]
+    with pytest.raises(ValidationError, match=r"cv_results_ has no key 'std_test_score'"):
+        adaptive.plot_validation(edited)
+    edited.cv_results_ = dict(auto.cv_results_, mean_test_score=auto.cv_results_["mean_test_score"][:2])
+    with pytest.raises(ValidationError, match=r"cv_results_\['mean_test_score'\] must have one entry per candidate"):
+        adaptive.plot_validation(edited)
+    # the deprecated table, set by hand, is checked as it is set
+    rows = _table(auto)
+    del rows[1]["score_std"]
+    with pytest.raises(ValidationError, match=r"validation_\[1\] has no key 'score_std'"):
+        edited.validation_ = rows
+    with pytest.raises(ValidationError, match=r"validation_\[0\] must be a dict with keys"):
+        edited.validation_ = [1.0]
+    with pytest.raises(ValidationError, match=r"validation_ must be a non-empty list"):
+        edited.validation_ = []
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_the_held_out_scores_refuse_non_finite_rewards(data, bad):
+    mdp, F, demos = data
+    R = np.zeros((mdp.n_states, mdp.n_actions))
+    R[2, 1] = bad
+    with pytest.raises(ValidationError, match=r"rewards must be finite; found .* at index \(2, 1\)"):
+        adaptive.held_out_nll(mdp, demos[0], R, fo.FactIRL())
+    with pytest.raises(ValidationError, match=r"rewards must be finite"):
+        adaptive.held_out_occupancy_gap(mdp, demos[0], R)
+    with pytest.raises(ValidationError, match=r"rewards must be one task's reward"):
+        adaptive.held_out_nll(mdp, demos[0], np.zeros((2, 9, 4)), fo.FactIRL())
+    with pytest.raises(ValidationError, match=r"rewards must have shape \(S, A\)"):
+        adaptive.held_out_occupancy_gap(mdp, demos[0], np.zeros((9, 3)))

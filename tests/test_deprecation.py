@@ -1,5 +1,8 @@
 """Names and modules that moved when the package was cut into layers stay importable for one release."""
 
+import importlib
+import json
+import pathlib
 import subprocess
 import sys
 import warnings
@@ -66,3 +69,82 @@ def test_python_m_on_a_former_module_path_runs_the_new_one(old, new, argv, expec
     assert res.returncode == 0, res.stderr
     assert expected in res.stdout
     assert f"moved to {new}" in res.stderr and "DeprecatedNameWarning" in res.stderr
+
+
+def test_every_former_top_level_name_resolves_with_a_warning():
+    """All of the package's former top-level names (two of them, the multi-environment objective
+    and its constructor, pointed at a namespace that does not hold them)."""
+    assert len(fo._MOVED_NAMES) >= 45
+    for name, (module, namespace) in fo._MOVED_NAMES.items():
+        with pytest.warns(FutureWarning, match=rf"factirl_opt\.{name} moved to {namespace}\.{name}; "):
+            value = getattr(fo, name)
+        assert value is getattr(sys.modules[module], name), name
+        assert value is eval(namespace + "." + name, {"fo": fo}), name  # the namespace the warning names holds it
+
+
+#: the public names each former module path held at the commit before the move (3825363^), written
+#: by the script in this file's ``former_module_contents`` docstring
+FORMER_CONTENTS = pathlib.Path(__file__).parent / "data" / "former_module_contents.json"
+#: names removed since, on purpose (a former path cannot resolve a name that exists nowhere)
+REMOVED = {
+    "factirl_opt.em": {"POLICY_OBJECTIVES"},  # 014dad2: EM scores episodes through Objective.log_policy
+    "factirl_opt.experiments.babyai": {"BabyAIGroundTruth", "ENV_IDS"},  # 3825363: datasets.babyai.BabyAITasks
+    "factirl_opt.fitting": {"Environments", "environments_setup"},  # 25a26e5: tasks.task_set builds a TaskSet
+    "factirl_opt.task_environments": {"environments",  # 50e3cfd: check_environments is the one home
+                                      "task_rewards"},  # 25a26e5: TaskSet.rewards (tasks.features.task_rewards is D h)
+}
+
+
+def former_module_contents():
+    """The former contents, as written by (from the repository root, with git history)::
+
+        git ls-tree -r --name-only 3825363^ factirl_opt  # each module under a former path of fo._MOVED_MODULES:
+        # its top-level def, class and assigned names without a leading underscore, and its __all__
+    """
+    return json.loads(FORMER_CONTENTS.read_text())
+
+
+def test_every_former_module_path_resolves_what_it_held():
+    contents = former_module_contents()
+    assert {old.split(".")[1] for old in contents} == set(fo._MOVED_MODULES)  # every former path, children too
+    missing = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        for old, names in contents.items():
+            module = importlib.import_module(old)
+            gone = {name for name in names if not hasattr(module, name)}
+            if gone:
+                missing[old] = gone
+    assert missing == REMOVED
+
+
+@pytest.mark.parametrize("old, name, home", [
+    (old, name, home) for old, names in fo._MOVED_MODULE_NAMES.items() for name, home in names.items()])
+def test_a_name_that_left_a_former_module_resolves_through_it_with_a_warning(old, name, home):
+    module = importlib.import_module(f"factirl_opt.{old}")
+    with pytest.warns(FutureWarning, match=rf"factirl_opt\.{old}\.{name} moved to factirl_opt\.{home}\.{name}; "):
+        value = getattr(module, name)
+    assert value is getattr(importlib.import_module(f"factirl_opt.{home}"), name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert getattr(module, name) is value  # once per name
+    with pytest.raises(AttributeError, match=rf"has no attribute 'nonsense'"):
+        module.nonsense
+
+
+def test_to_successors_through_its_former_path_in_a_fresh_process():
+    code = ("import warnings\nwarnings.simplefilter('error')\n"
+            "try:\n    import factirl_opt.successors\nexcept FutureWarning as w:\n    print(w)\n"
+            "warnings.simplefilter('ignore')\nimport factirl_opt.successors\nwarnings.simplefilter('error')\n"
+            "try:\n    from factirl_opt.successors import to_successors\nexcept FutureWarning as w:\n    print(w)\n"
+            "warnings.simplefilter('ignore')\n"
+            "from factirl_opt.successors import to_successors\nimport factirl_opt as fo\n"
+            "sa_s, sa_p = to_successors(fo.GridWorld(size=2))\nprint(sa_s.shape, to_successors is fo.mdp.to_successors)\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines() == [
+        "the module factirl_opt.successors moved to factirl_opt.mdp.successors; the old path will be removed in the "
+        "next release",
+        "factirl_opt.successors.to_successors moved to factirl_opt.mdp.tabular.to_successors; the old path will be "
+        "removed in the next release",
+        "(4, 4, 2) True"]

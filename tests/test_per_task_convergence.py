@@ -160,3 +160,67 @@ def test_transfer_to_new_environments_equals_each_task_alone(worlds, solver):
         for i in range(3):
             alone = model.transfer([mdps[i]], [demos[i]], features=[Phis[i]], max_iter=60)
             np.testing.assert_allclose(together[i], alone[0], rtol=0, atol=1e-10)
+
+
+# ----------------------------------------------------------------------------- saturation
+
+
+@pytest.fixture(scope="module")
+def matched():
+    """One demonstration per task on a 3x3 grid: tabular rewards match each one exactly, as do the
+    coefficients of a transfer with the dictionary that made the tasks; the loss then falls
+    toward 0 as the rewards grow without bound (the Boltzmann policy saturates)."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(7)
+    demos = fo.sample_demonstrations(mdp, 2.0 * rng.standard_normal((5, 9, 4)), 1, 6, rng=rng)
+    D = fo.random_dictionary(mdp.n_params, 3, rng=1)
+    new = fo.sample_demonstrations(mdp, fo.task_rewards(D, fo.random_coefficients(6, 3, rng=2), 9, 4), 1, 8, rng=3)
+    return mdp, demos, D, new
+
+
+@pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-clarabel"])
+def test_flat_tasks_that_match_their_demonstrations_converge(matched, solver):
+    """The relative decrease of a loss that tends to 0 stays large; the gradient rule, per task,
+    stops each task, with no MaxIterWarning; without it (gtol=0) every task runs to max_iter."""
+    mdp, demos, _, _ = matched
+    start = fo.GradIRL(max_iter=0).fit(mdp, demos).loss_
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
+        model = fo.GradIRL(solver=solver).fit(mdp, demos)
+    assert model.status_ == "converged" and model.n_iter_ < 100
+    assert model.stop_reason_ == f"per row, of {len(demos)}: {len(demos)} by gradient norm <= gtol=0.0001 x initial"
+    assert np.all(model.loss_ <= 1e-3 * start)
+    with pytest.warns(fo.exceptions.MaxIterWarning, match=rf"max_iter=100 before its tolerance for {len(demos)} of"):
+        fixed = fo.GradIRL(solver=solver, gtol=0.0).fit(mdp, demos)
+    assert fixed.status_ == "max_iter" and fixed.n_evaluations_ > model.n_evaluations_
+    for i in (0, 3):  # each task stops where it stops alone
+        _assert_alone(model, fo.GradIRL(solver=solver).fit(mdp, demos[i:i + 1]), i)
+
+
+@pytest.mark.parametrize("solver", ["gn-qp-clarabel", "gn-qp-osqp", "gn-cg"])
+def test_transfer_from_one_demonstration_converges(matched, solver):
+    mdp, _, D, new = matched
+    model = fo.FactIRL(n_primitives=3, solver=solver)
+    model.dictionary_ = D
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
+        together = model.transfer(mdp, new)
+    assert model.transfer_status_ == "converged"
+    assert model.transfer_stop_reason_.endswith(f"{len(new)} by gradient norm <= gtol=0.0001 x initial")
+    with pytest.warns(fo.exceptions.MaxIterWarning):
+        fixed = fo.transfer_coefficients(mdp, new, D, h_solver=solver, gtol=0.0)
+    assert fixed.status == "max_iter" and model.transfer_n_evaluations_ < fixed.n_evaluations / 4
+    for i in (0, 5):
+        np.testing.assert_allclose(together[i], model.transfer(mdp, new[i:i + 1])[0], rtol=0, atol=1e-10)
+    model.gtol = 0.0  # FactIRL's gtol is its transfer's
+    with pytest.warns(fo.exceptions.MaxIterWarning):
+        model.transfer(mdp, new)
+
+
+@pytest.mark.parametrize("bad", [-1e-4, float("nan"), "1e-4"])
+def test_gtol_is_checked(matched, bad):
+    mdp, demos, D, new = matched
+    with pytest.raises(fo.ValidationError, match="gtol"):
+        fo.GradIRL(gtol=bad).fit(mdp, demos)
+    with pytest.raises(fo.ValidationError, match="gtol"):
+        fo.transfer_coefficients(mdp, new, D, gtol=bad)

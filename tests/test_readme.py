@@ -2,8 +2,11 @@
 
 import pathlib
 import re
+import warnings
 
 import numpy as np
+
+from factirl_opt.exceptions import MaxIterWarning
 
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
 
@@ -12,7 +15,9 @@ def test_readme_python_example_runs(capsys):
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
     assert blocks, "README.md has no python example"
     namespace = {}
-    exec(compile(blocks[0], "README.md", "exec"), namespace)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MaxIterWarning)  # every task of the example converges
+        exec(compile(blocks[0], "README.md", "exec"), namespace)
     flat_dev, fact_dev = map(float, capsys.readouterr().out.split())
     assert fact_dev < flat_dev  # the README's point: the factorial learner beats the flat one
     assert namespace["h_new"].shape == (10, 5)

@@ -39,14 +39,13 @@ Scores (:meth:`BabyAITasks.scores`)
 from __future__ import annotations
 
 import dataclasses
-import importlib
 from typing import Any
 
 import numpy as np
 
 from .._validation import check_int, check_real
 from ..adapters.minigrid import bot_demonstration, from_minigrid, parse_goto_mission, run_policy
-from ..adapters.minigrid.model import ACTIONS, MiniGridModel, base_env, require_minigrid
+from ..adapters.minigrid.model import ACTIONS, MiniGridModel, base_env, make_env
 from ..evaluation import deviation
 from ..exceptions import ValidationError
 from ..planning import optimal_q
@@ -258,14 +257,14 @@ def babyai_tasks(env_id: str = "BabyAI-GoToLocal-v0", n_tasks: int = 4, demos_pe
     MissingDependencyError
         Without the ``minigrid`` extra.
     ValidationError
-        For a count below 1 or a discount outside [0, 1).
+        For a count below 1, a discount outside [0, 1), or an ``env_id`` that is not a
+        registered environment id (named, with gymnasium's reason).
     """
     n_tasks = check_int(n_tasks, "n_tasks", 1)
     demos_per_task = check_int(demos_per_task, "demos_per_task", 1)
     n_test_tasks = check_int(n_test_tasks, "n_test_tasks", 1)
     gamma = check_real(gamma, "gamma", 0.0, 1.0, high_open=True)
-    require_minigrid("the BabyAI tasks")
-    env = importlib.import_module("gymnasium").make(env_id)
+    env = make_env(env_id, "env_id", "the BabyAI tasks")
     s_test, s_train, s_train_starts, s_learn, s_test_starts = np.random.SeedSequence(seed).spawn(N_STREAMS)
     test_seeds, test_models, test_firsts = _layouts(env, n_test_tasks, np.random.default_rng(s_test), set(), gamma)
     train_seeds, train_models, train_firsts = _layouts(env, n_tasks, np.random.default_rng(s_train), set(test_seeds),

@@ -8,6 +8,8 @@
   episodes (:mod:`~factirl_opt.learners.em`, :mod:`~factirl_opt.learners.multi_intent_fit`)
   and the choice of the number of intentions (:mod:`~factirl_opt.learners.intention_count`).
 - :class:`SolverSettings`: the step solvers a learner runs, as one value.
+- :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
+  values are chosen (:mod:`~factirl_opt.learners.adaptive`, the search's engine).
 
 Learners never know which step solver, objective or planner runs: they take them by name.
 """
@@ -17,6 +19,7 @@ from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
+from .selection import SharingSearch
 from .solver_settings import SolverSettings
 
 __all__ = [
@@ -24,6 +27,7 @@ __all__ = [
     "FactIRL",
     "MultiIntentIRL",
     "SolverSettings",
+    "SharingSearch",
     "clone",
     "plot_validation",
     "fit_factorial",

@@ -26,6 +26,7 @@ import solvers
 
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
+from ..interruption import INTERRUPTIONS
 from ..tasks.basis import TaskBasis, least_squares_weights
 from ..tasks.features import TaskFeatures
 
@@ -167,7 +168,7 @@ def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: A
     Raises
     ------
     FitInterrupted
-        On a KeyboardInterrupt; its ``result`` is ``(2**-j H, j, n_calls, total_loss(2**-j H))``
+        On a KeyboardInterrupt (or lost workers); its ``result`` is ``(2**-j H, j, n_calls, total_loss(2**-j H))``
         for the best j found so far (the loss is None when the first call was interrupted).
     """
     H = np.asarray(coefficients, dtype=float)
@@ -180,7 +181,7 @@ def shrink_coefficients(total_loss: Callable[[np.ndarray], Any], coefficients: A
             if not float(np.sum(trial)) < float(np.sum(best)):
                 break
             best, j = trial, j + 1
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         raise FitInterrupted((H * 2.0 ** -j, j, calls, best), "shrink_coefficients") from exc
     return H * 2.0 ** -j, j, calls
 

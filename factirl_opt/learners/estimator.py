@@ -18,10 +18,17 @@ Renamed parameters. A class lists its old parameter names in ``deprecated_params
 unpickling accept the old name, store the value under the new one and issue a
 :class:`~factirl_opt.exceptions.DeprecatedNameWarning` once per class and name in a process.
 
+Nested parameters. A parameter whose value has parameters of its own (another estimator, or a
+:class:`~factirl_opt.SolverSettings`: any object with ``get_params``) shows them in
+``get_params(deep=True)`` under ``<parameter>__<name>`` (``solver__h_solver``), and
+:meth:`Estimator.set_params` sets them by the same keys, as scikit-learn does.
+
 scikit-learn itself is not a dependency: its ``BaseEstimator`` would bring scikit-learn (and
-its own checks of fitted state and tags) for the 100 lines here. ``sklearn.base.clone`` works
-on these estimators all the same, as it needs only ``get_params(deep=False)`` and a
-constructor taking those parameters.
+its own checks of fitted state and tags) for the 100 lines here. The protocol is scikit-learn's
+all the same, and the test suite runs scikit-learn's own checks on the three estimators
+(default-constructible parameters, ``get_params`` invariance, ``set_params``, no attribute set
+in ``__init__``, ``sklearn.base.clone``): ``sklearn.base.clone`` works on them, as it needs
+only ``get_params(deep=False)`` and a constructor storing those parameters unchanged.
 """
 
 from __future__ import annotations
@@ -106,6 +113,11 @@ def _copied(value: Any) -> Any:
     return value
 
 
+def _has_params(value: Any) -> bool:
+    """Whether a parameter value has parameters of its own (``get_params``, as scikit-learn tells; a class has none)."""
+    return callable(getattr(value, "get_params", None)) and not isinstance(value, type)
+
+
 def _differs(value: Any, default: Any) -> bool:
     """Whether a parameter value differs from its default (arrays and objects: unless the same object)."""
     if value is default:
@@ -180,21 +192,34 @@ class Estimator:
         Parameters
         ----------
         deep : bool, default=True
-            Accepted for scikit-learn's protocol; no parameter holds an estimator, so it
-            changes nothing.
+            Also the parameters of each parameter that has parameters of its own (an object
+            with ``get_params``: another estimator, a :class:`~factirl_opt.SolverSettings`),
+            under ``<parameter>__<name>``, as scikit-learn does.
 
         Returns
         -------
         dict
-            Every argument of ``__init__``: ``type(self)(**self.get_params())`` rebuilds it.
+            Every argument of ``__init__``, and with ``deep`` the nested parameters:
+            ``type(self)(**self.get_params(deep=False))`` rebuilds the estimator.
         """
-        return {name: getattr(self, name) for name in self.param_names()}
+        out: dict[str, Any] = {}
+        for name in self.param_names():
+            value = getattr(self, name)
+            if deep and _has_params(value):
+                out.update((f"{name}__{key}", sub) for key, sub in value.get_params(deep=True).items())
+            out[name] = value
+        return out
 
     def set_params(self: E, **params: Any) -> E:
         """Set parameters by name; the fitted attributes are left as they are (fit again to use them).
 
-        A deprecated name (``deprecated_params``) sets the parameter it was renamed to, with a
-        :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (once per class and name).
+        A key ``<parameter>__<name>`` sets the parameter ``name`` of the parameter's value (an
+        object with ``set_params``, e.g. ``solver__h_solver="lbfgs"`` on a
+        :class:`~factirl_opt.SolverSettings`, which gives a new settings value: the parameter
+        then holds that). With both ``solver=...`` and ``solver__...``, the nested keys apply to
+        the new value. A deprecated name (``deprecated_params``) sets the parameter it was
+        renamed to, with a :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (once per
+        class and name).
 
         Returns
         -------
@@ -203,15 +228,43 @@ class Estimator:
         Raises
         ------
         ValidationError
-            Naming the first name that is not a parameter (nothing is set then), with the
-            parameters there are.
+            Naming the first name that is not a parameter, or a nested key whose parameter
+            has no parameters of its own (nothing is set then), with the parameters there
+            are; a nested value's own refusal (e.g. a SolverSettings field) is raised as it is.
         """
         names = self.param_names()
-        unknown = [key for key in params if key not in names and key not in self.deprecated_params]
-        if unknown:
-            raise ValidationError(f"{unknown[0]!r} is not a parameter of {type(self).__name__}; its parameters are "
-                                  f"{', '.join(names)}")
-        for key, value in _renamed(type(self), params, f"{type(self).__name__}.set_params()").items():
+        cls = type(self)
+        plain: dict[str, Any] = {}
+        nested: dict[str, dict[str, Any]] = {}
+        for key, value in params.items():
+            top, delim, sub = key.partition("__")
+            if top not in names and top not in self.deprecated_params:
+                raise ValidationError(f"{key!r} is not a parameter of {cls.__name__}; its parameters are "
+                                      f"{', '.join(names)}")
+            if delim:
+                if top in self.deprecated_params:
+                    _warn_renamed(cls, top, self.deprecated_params[top], stacklevel=3)
+                    top = self.deprecated_params[top]
+                nested.setdefault(top, {})[sub] = value
+            else:
+                plain[key] = value
+        plain = _renamed(cls, plain, f"{cls.__name__}.set_params()")
+        for top in nested:
+            base = plain.get(top, getattr(self, top))
+            if not (_has_params(base) and callable(getattr(base, "set_params", None))):
+                raise ValidationError(f"{top + '__' + next(iter(nested[top]))!r} is not a parameter of "
+                                      f"{cls.__name__}: its parameter {top}={_short(base)} has no parameters "
+                                      "of its own")
+            inner = list(base.get_params(deep=False))
+            unknown = [sub for sub in nested[top] if sub.partition("__")[0] not in inner]
+            if unknown:
+                raise ValidationError(f"{top + '__' + unknown[0]!r} is not a parameter of {cls.__name__}: its "
+                                      f"parameter {top} ({type(base).__name__}) has the parameters {', '.join(inner)}")
+        for top, sub_params in nested.items():
+            base = plain.get(top, getattr(self, top))
+            changed = base.set_params(**sub_params)  # an estimator changes in place; a settings value gives a new one
+            plain[top] = base if changed is None else changed
+        for key, value in plain.items():
             setattr(self, key, value)
         return self
 
@@ -231,7 +284,8 @@ class Estimator:
             defaults = self.param_defaults()
         except TypeError:  # a subclass whose __init__ takes **kwargs: no parameters to show
             return object.__repr__(self)
-        shown = [f"{name}={_short(value)}" for name, value in self.get_params().items() if _differs(value, defaults[name])]
+        shown = [f"{name}={_short(value)}" for name, value in self.get_params(deep=False).items()
+                 if _differs(value, defaults[name])]
         return f"{type(self).__name__}({', '.join(shown)})"
 
 
@@ -239,8 +293,11 @@ def clone(estimator: E) -> E:
     """A new unfitted estimator of the same class with the same parameters.
 
     Array, list, dict and random-generator parameters are copied (a clone's ``rng`` Generator
-    starts in the state of the original's); other objects (a callback, a Dask client, a
-    solver object) are shared. No fitted attribute is carried over.
+    starts in the state of the original's), and a parameter that is itself an estimator is
+    cloned; other objects (a callback, a Dask client, a solver object, a
+    :class:`~factirl_opt.SolverSettings`, which cannot change) are shared. No fitted attribute
+    is carried over. As ``sklearn.base.clone`` does, the clone's constructor must store each
+    parameter unchanged: the very object it was given.
 
     Parameters
     ----------
@@ -255,8 +312,19 @@ def clone(estimator: E) -> E:
     ------
     ValidationError
         ``estimator`` is not an :class:`Estimator`.
+    RuntimeError
+        The class's ``__init__`` does not store a parameter, or stores another object than the
+        one given (scikit-learn's check and exception): the message names the parameter.
     """
     if not isinstance(estimator, Estimator):
         raise ValidationError(f"clone takes an estimator (GradIRL, FactIRL, MultiIntentIRL); got {type(estimator).__name__}")
-    params = {name: _copied(value) for name, value in estimator.get_params(deep=False).items()}
-    return type(estimator)(**params)
+    params = {name: clone(value) if isinstance(value, Estimator) else _copied(value)
+              for name, value in estimator.get_params(deep=False).items()}
+    new = type(estimator)(**params)
+    stored = new.get_params(deep=False)
+    for name, value in params.items():
+        if stored[name] is not value:
+            raise RuntimeError(f"cannot clone {type(estimator).__name__}: its __init__ does not store the parameter "
+                               f"{name!r} as given ({_short(value):.80} became {_short(stored[name]):.80}); "
+                               "__init__ must only store each argument under its own name")
+    return new

@@ -47,7 +47,11 @@ from ..objectives import Objective
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
     from distributed import Client
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
-from .adaptive import AUTO, choose_sharing, fixed_learner, flat_start_rewards
+from .posterior import cached_transfer_posterior, keep_transfer_inputs
+from .active import request_starts
+from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
+from .selection import SharingSearch
+from .._deprecation import warn_once
 from ..objectives.residuals import check_residual_penalty, residual_weights
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
@@ -65,6 +69,11 @@ FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
 def _is_auto(value: Any) -> bool:
     """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.adaptive`)."""
     return isinstance(value, str) and value == AUTO
+
+
+def _check_flat_rewards(tasks: Any, flat_rewards: Any) -> None:
+    """The shape check of ``fit``'s PCA start, made before a search splits ``flat_rewards`` over folds."""
+    tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)
 
 
 class FactIRL(Estimator):
@@ -124,7 +133,10 @@ class FactIRL(Estimator):
     gtol : float, default=1e-4
         The fit also stops when the gradient norm over (H, D) falls to ``gtol`` times its initial
         value; ``0`` runs the outer iterations to ``tol`` or ``max_iter`` only (the paper's
-        fixed budgets, as the ``paper`` preset does).
+        fixed budgets, as the ``paper`` preset does). In ``transfer`` each new task also stops
+        when its own gradient norm falls to ``gtol`` times its value at ``h = 0``: the rule that
+        stops a task whose demonstration its coefficients match exactly (the loss falls toward 0
+        as they grow without bound; docs/maths.md §5).
     transfer_max_iter : int, default=100
         Maximum solver steps in ``transfer``.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
@@ -259,7 +271,8 @@ class FactIRL(Estimator):
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
         "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
-        "n_primitives_": "count", "residual_penalty_": "penalty", "validation_": "validation",
+        "n_primitives_": "count", "residual_penalty_": "penalty", "cv_results_": "cv-results",
+        "validation_": "validation",
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -269,7 +282,8 @@ class FactIRL(Estimator):
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
         "features": "features", "init": "dictionary-start", "solver": "solver", "d_solver": "solver",
-        "objective": "objective", "planner": "planner", "rng": "rng", **EXECUTION_PARAM_KINDS,
+        "objective": "objective", "planner": "planner", "rng": "rng", "sharing_search": "sharing-search",
+        **EXECUTION_PARAM_KINDS,
     }
 
     @renamed_params
@@ -285,7 +299,7 @@ class FactIRL(Estimator):
                  client: Client | None = None, planner_options: dict | None = None, verbose: bool = False,
                  callback: Callable | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 flat_solver: str | solvers.StepSolver = FLAT_SOLVER) -> None:
+                 flat_solver: str | solvers.StepSolver = FLAT_SOLVER, sharing_search: SharingSearch | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -309,6 +323,21 @@ class FactIRL(Estimator):
         self.dictionary_constraint = dictionary_constraint
         self.dictionary_alpha = dictionary_alpha
         self.flat_solver = flat_solver
+        self.sharing_search = sharing_search
+
+    @property
+    def validation_(self) -> list[dict]:
+        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.adaptive.validation_rows`)."""
+        if "cv_results_" not in vars(self):
+            raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
+                                 "residual_penalty='auto'; the table is cv_results_ now)")
+        warn_once("attr:FactIRL.validation_", "FactIRL.validation_ is deprecated: read cv_results_ (a dict of arrays, "
+                                              "one entry per candidate; pandas.DataFrame(model.cv_results_))", stacklevel=2)
+        return validation_rows(self.cv_results_)
+
+    @validation_.setter
+    def validation_(self, rows: list[dict]) -> None:
+        self.cv_results_ = rows_cv_results(rows, "validation_")
 
     def _flat_start(self, n, basis, obj, rng):
         """What the PCA start decomposes (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_points` of
@@ -415,6 +444,7 @@ class FactIRL(Estimator):
         """
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
+        self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         basis = tasks.basis
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
@@ -456,19 +486,65 @@ class FactIRL(Estimator):
         if isinstance(self.init, tuple):
             raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                                   "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
+        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
+        if flat_rewards is not None:
+            _check_flat_rewards(tasks, flat_rewards)
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
         if flat_rewards is None and self.init == "pca":
-            flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver, FLAT_TOL)
-        k, lam, table = choose_sharing(self, mdp, demos_per_task, flat_rewards)
-        model = fixed_learner(self, k, lam)
-        model.verbose, model.callback = self.verbose, self.callback
-        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+            try:
+                flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver, FLAT_TOL)
+            except FitInterrupted as exc:
+                warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
+                                 "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
+                raise_interrupted(exc, "FactIRL.fit")
+        search = SharingSearch() if self.sharing_search is None else self.sharing_search
+        if not isinstance(search, SharingSearch):
+            raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
+        try:
+            found = search.search(self, mdp, demos_per_task, flat_rewards)
+        except FitInterrupted as exc:
+            self._keep_search(exc.result, len(tasks.demos_per_task), exc.__cause__)
+            raise_interrupted(exc, "FactIRL.fit")
+        table = cv_results(found)
+        model = fixed_learner(self, found.n_primitives, found.residual_penalty, verbose=self.verbose,
+                              callback=self.callback)
+        try:
+            model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
+            if self._adopt(model):
+                self.cv_results_ = table
+            raise
+        self._adopt(model)
+        self.cv_results_ = table
+        return self
+
+    def _adopt(self, model):
+        """Take the fitted state of ``model`` (a fixed-value fit of the search), if it has one; whether it had."""
+        if not hasattr(model, "dictionary_"):
+            return False
         for name, value in vars(model).items():
             if name.endswith("_") and not name.startswith("_"):
                 setattr(self, name, value)
-        self.validation_ = table
-        return self
+        return True
+
+    def _keep_search(self, progress, n, cause):
+        """After an interrupt during the search: keep the best candidate's fit so far and the table so far, and warn."""
+        if progress.kept is None:
+            warn_interrupted("FactIRL.fit", "during the search of n_primitives or residual_penalty, before any "
+                             "candidate was fitted: the model stays unfitted", cause)
+            return
+        (k, lam), model, train = progress.kept
+        self._adopt(model)
+        self.status_ = self.stop_reason_ = INTERRUPTED
+        if progress.rows:
+            self.cv_results_ = cv_results(progress.result())
+            what = f"the fit of ({k}, {lam:g}), the best candidate scored so far"
+        else:
+            what = f"the fit of ({k}, {lam:g}), the last candidate fitted (none was scored yet)"
+        warn_interrupted("FactIRL.fit", f"during the search of n_primitives or residual_penalty: kept {what}, "
+                         f"fitted on {len(train)} of the {n} tasks (a fold's training tasks: rewards_ and "
+                         f"coefficients_ are theirs), and the validation table so far", cause)
 
     @staticmethod
     def _residual_penalty(h_solver, value):
@@ -548,7 +624,7 @@ class FactIRL(Estimator):
                                       "in the SolverSettings")
             solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
-        tol = check_tol(self.tol)
+        tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
         obj = task_objective(tasks, self.beta, self.objective, self.planner)
         step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
         lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
@@ -559,12 +635,14 @@ class FactIRL(Estimator):
         try:
             with Execution.of(self).evaluate(obj) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam, flat=flat)
+                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
+            keep_transfer_inputs(self, mdp, demos_per_task, features)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
             raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
+        keep_transfer_inputs(self, mdp, demos_per_task, features)  # transfer_posterior_ is built from them when first read
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 
@@ -575,3 +653,40 @@ class FactIRL(Estimator):
         self.transfer_loss_, self.transfer_loss_history_ = res.loss, res.loss_history
         self.transfer_n_evaluations_, self.transfer_status_ = res.n_evaluations, res.status
         self.transfer_stop_reason_ = res.reason
+
+    @property
+    def transfer_posterior_(self) -> list | None:
+        """Each new task's Laplace posterior over its coefficients (and residual) after ``transfer``.
+
+        A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
+        ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
+        the last transfer's tasks when first read (it costs about one transfer) and kept beside
+        the model; ``save_model`` stores it. None when undefined (fewer than 2 training tasks'
+        coefficients to fit the prior to, or the flat model); AttributeError before any transfer
+        (and on a pickled copy of a model whose posterior was never read or saved).
+        """
+        return cached_transfer_posterior(self)
+
+    def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
+                       features: Any = None) -> list[NDArray[np.intp]]:
+        """Start states to ask a demonstration from, per new task, most informative first.
+
+        :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
+        tasks of the last ``transfer`` when it was given the same objects, else built here):
+        candidates ranked by the expected information gain about the coefficients of a
+        demonstration from each (D-optimal on the Laplace covariance).
+
+        Parameters
+        ----------
+        mdp, demos_per_task, features
+            As in :meth:`transfer`.
+        n_requests : int, default=1
+            States returned per task.
+        candidates : array_like of int, or sequence of n_new of them, optional
+            Start states to rank (default: every state).
+
+        Returns
+        -------
+        list of n_new int arrays, each (n_requests,)
+        """
+        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features)

@@ -45,17 +45,14 @@ from .._progress import fit_progress
 from .._validation import check_array, check_int, check_tol
 from .dictionary import normalise_dictionary
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
-from .fitting import first_step_stall, learner_entry, resolve_step_solver, task_objective
+from .fitting import GTOL, first_step_stall, learner_entry, resolve_step_solver, task_objective
 from ..tasks.basis import DICTIONARY_NAMES
 from ..tasks.task_set import task_set
-from ..interruption import INTERRUPTED
+from ..interruption import INTERRUPTED, INTERRUPTIONS
 from ..objectives.problems import as_problem_basis, dictionary_problem, weights_problem
 from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL"]
-
-#: default gradient-norm tolerance of :func:`fit_factorial` (relative to the start; see its docstring)
-GTOL = 1e-4
 
 
 @dataclasses.dataclass
@@ -240,7 +237,8 @@ def _alternate(objective, blocks, D, H, d_solver, max_iter, inner_steps, tol, gt
     Each block runs ``inner_steps`` steps of its solver's alternating form, warm-started by
     what the solver carries over from its previous run (:meth:`solvers.StepSolver.carry_over`);
     the inner runs stop early only by the gradient rule or a stall (:func:`fit_factorial`).
-    A KeyboardInterrupt becomes a :class:`FitInterrupted` carrying the same tuple, at the best
+    A KeyboardInterrupt (or lost workers, :data:`~factirl_opt.interruption.INTERRUPTIONS`) becomes a
+    :class:`FitInterrupted` carrying the same tuple, at the best
     point among the start and the completed outer iterations (the start, loss NaN, if even its
     evaluation was interrupted).
     """
@@ -267,7 +265,7 @@ def _alternate(objective, blocks, D, H, d_solver, max_iter, inner_steps, tol, gt
             if stop[0] is not None:
                 status, reason = stop
                 break
-    except KeyboardInterrupt as exc:
+    except INTERRUPTIONS as exc:
         done = len(history) - 1 if history else 0
         raise FitInterrupted((best, (history, evaluations), done, INTERRUPTED, INTERRUPTED, gnorm), "fit") from exc
     return best, (history, evaluations), it, status, reason, gnorm

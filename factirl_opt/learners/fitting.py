@@ -46,6 +46,7 @@ __all__ = [
     "check_features_digest",
     "task_objective",
     "learner_entry",
+    "GTOL",
 ]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -61,6 +62,13 @@ def learner_entry(fn: F) -> F:
 
 #: a first step that moves the total loss by at most this many units of ``eps |loss|`` changed nothing
 STALL_ULPS = 4
+
+#: default ``gtol`` of the learners' fits and transfers: a run (in a separable run, a task) stops when
+#: its gradient norm is at most ``GTOL`` times its value at the start (:func:`solvers.gradient_converged`).
+#: The rule that stops a task whose demonstrations are matched exactly, where the loss falls toward 0
+#: as the rewards grow without bound and the relative decrease of its loss never becomes small
+#: (docs/maths.md §5).
+GTOL = 1e-4
 
 
 def make_objective(mdp: Any, demos_per_task: Any, beta: float,

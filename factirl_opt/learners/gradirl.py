@@ -19,7 +19,7 @@ from .._validation import check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, Estimator
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
-    check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
+    GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
     task_objective, warn_if_max_iter, warn_if_stalled,
 )
 from ..tasks.task_set import task_set
@@ -36,12 +36,13 @@ __all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check
 
 
 def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_iter: int, tol: float,
-                callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL") -> solvers.SolverResult:
+                callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL", *,
+                gtol: float = 0.0) -> solvers.SolverResult:
     """The flat fit on pieces already built: ``solver`` from zero weights on every task at once.
 
-    A separable run (:mod:`solvers.separable`): each task stops by its own rule (``tol`` on the
-    relative decrease of its own loss) and leaves the batch, so its weights are those of a fit
-    of that task alone.
+    A separable run (:mod:`solvers.separable`): each task stops by its own rules (``tol`` on the
+    relative decrease of its own loss, ``gtol`` on its own gradient norm relative to its start)
+    and leaves the batch, so its weights are those of a fit of that task alone.
 
     Parameters
     ----------
@@ -59,6 +60,9 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     verbose : bool
     what : str
         Names the fit in the progress bar and in an interruption.
+    gtol : float, default=0.0
+        The gradient rule's tolerance (:func:`solvers.gradient_converged`); 0 applies only the
+        relative decrease (FactIRL's flat start).
 
     Returns
     -------
@@ -76,7 +80,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     problem = weights_problem(objective, features)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
         res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
-                               callback=report, tol=tol, separable=True)
+                               callback=report, tol=tol, gtol=gtol, separable=True)
     stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
     if stall is not None:
         res.status, res.reason = stall
@@ -112,6 +116,13 @@ class GradIRL(Estimator):
     tol : float, default=1e-5
         A task stops when the relative decrease of its own loss over an iteration is below tol
         (or when no step decreases it: stalled).
+    gtol : float, default=1e-4
+        A task also stops when the norm of its gradient (projected or minimum-norm subgradient
+        for a constrained or penalised solver) is at most ``gtol`` times its value at the start.
+        This is the rule that stops a task whose demonstrations its reward matches exactly: its
+        loss then falls toward 0 as the reward grows without bound (the Boltzmann policy
+        saturates), and the relative decrease of a loss that tends to 0 never becomes small
+        (docs/maths.md §5). 0 turns the rule off (a fixed budget for such tasks).
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         Step solver (see ``solvers.available_solvers()``), or a
         :class:`~factirl_opt.SolverSettings` (its H-step solver and options; it must not name
@@ -209,7 +220,7 @@ class GradIRL(Estimator):
                                              "planner": "planner", **EXECUTION_PARAM_KINDS}
 
     def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | None = None, *,
-                 reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5,
+                 reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5, gtol: float = GTOL,
                  solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
                  objective: str | type[Objective] = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
                  backend: str = "processes", client: Client | None = None, planner_options: dict | None = None,
@@ -219,6 +230,7 @@ class GradIRL(Estimator):
         self.reward = reward
         self.max_iter = max_iter
         self.tol = tol
+        self.gtol = gtol
         self.solver = solver
         self.solver_options = solver_options
         self.objective = objective
@@ -247,16 +259,17 @@ class GradIRL(Estimator):
         self
         """
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
-        loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
+        loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol")
         objective = task_objective(tasks, self.beta, self.objective, self.planner)
         return self._run(objective, tasks.basis, loop, lambda res, obj: self._store(tasks, res, obj))
 
     def _run(self, objective, basis, loop, store):
-        max_iter, tol = loop
+        max_iter, tol, gtol = loop
         solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
         try:
             with Execution.of(self).evaluate(objective) as objective:  # n_jobs=1: the objective itself
-                res = fit_weights(objective, basis, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit")
+                res = fit_weights(objective, basis, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit",
+                                  gtol=gtol)
         except FitInterrupted as exc:
             store(exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "

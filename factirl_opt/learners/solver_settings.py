@@ -37,6 +37,7 @@ def _canonical_options(options: Mapping[str, Any] | str | None, field: str) -> s
     """``options`` (a dict, its JSON, or None) as canonical JSON; ``""`` for none."""
     if options is None or options == "":
         return ""
+    original = options
     if isinstance(options, str):
         try:
             options = json.loads(options)
@@ -45,10 +46,13 @@ def _canonical_options(options: Mapping[str, Any] | str | None, field: str) -> s
     if not isinstance(options, Mapping) or not all(isinstance(k, str) and k for k in options):
         raise ValidationError(f"{field} must be a dict of option names to values; got {options!r}")
     try:
-        return json.dumps(dict(options), sort_keys=True, separators=(",", ":")) if options else ""
+        canonical = json.dumps(dict(options), sort_keys=True, separators=(",", ":")) if options else ""
     except (TypeError, ValueError):
         raise ValidationError(f"{field} must hold plain values (numbers, strings, booleans, lists); "
-                              f"got {options!r}") from None
+                              f"got {original!r}") from None
+    # canonical JSON given is kept as the very object given: SolverSettings(**s.get_params()) stores
+    # each value unchanged, as sklearn.base.clone checks
+    return original if canonical == original else canonical
 
 
 @dataclasses.dataclass(frozen=True, order=True)
@@ -114,6 +118,51 @@ class SolverSettings:
     def d_options(self) -> dict[str, Any]:
         """The D-step solver's options, a dict."""
         return decode_options(self.d_solver_options)
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """The four settings as stored (names, options as canonical JSON), by field name.
+
+        With :meth:`set_params`, the settings follow scikit-learn's parameter protocol, so an
+        estimator whose ``solver`` is a SolverSettings shows them in its
+        ``get_params(deep=True)`` as ``solver__h_solver``, ``solver__h_solver_options``,
+        ``solver__d_solver`` and ``solver__d_solver_options``, and ``SolverSettings(**s.get_params())``
+        equals ``s``.
+
+        Parameters
+        ----------
+        deep : bool, default=True
+            Accepted for scikit-learn's protocol; the settings hold no nested parameters.
+        """
+        return self.fields()
+
+    def set_params(self, **params: Any) -> SolverSettings:
+        """New settings with some fields replaced (the settings are frozen: ``self`` is unchanged).
+
+        An estimator's ``set_params(solver__h_solver="lbfgs")`` calls this and keeps the new
+        settings as its ``solver``.
+
+        Parameters
+        ----------
+        **params
+            Fields (``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options``) and
+            their new values, validated as by the constructor.
+
+        Returns
+        -------
+        SolverSettings
+
+        Raises
+        ------
+        ValidationError
+            Naming a key that is not a field, with the fields there are; the constructor's
+            errors for a bad value.
+        """
+        names = [f.name for f in dataclasses.fields(self)]
+        unknown = [key for key in params if key not in names]
+        if unknown:
+            raise ValidationError(f"{unknown[0]!r} is not a parameter of SolverSettings; its parameters are "
+                                  f"{', '.join(names)}")
+        return dataclasses.replace(self, **params)
 
     def learner_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :class:`~factirl_opt.FactIRL` for these settings, per name.

@@ -20,7 +20,7 @@ from .._progress import fit_progress
 from .._validation import check_array, check_features, check_int, check_tol
 from ..exceptions import FitInterrupted, NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
-    first_step_stall, held_by_constraint, learner_entry, resolve_step_solver, task_objective, warn_if_max_iter,
+    GTOL, first_step_stall, held_by_constraint, learner_entry, resolve_step_solver, task_objective, warn_if_max_iter,
 )
 from ..tasks.basis import DICTIONARY_NAMES, WEIGHT_NAMES
 from ..tasks.task_set import TaskSet, task_set, transfer_task_set
@@ -73,7 +73,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
                           base_features: ArrayLike | None = None, h_solver: Any = "armijo",
                           h_solver_options: dict | None = None, max_iter: int = 100, tol: float = 1e-5,
                           objective: Any = "policy-matching", planner: str = "auto", callback: Callable | None = None,
-                          verbose: bool = False, reward: str = "state-action") -> TransferFit:
+                          verbose: bool = False, reward: str = "state-action", gtol: float = GTOL) -> TransferFit:
     """Coefficients of new tasks with the dictionary fixed (section 4.2).
 
     Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
@@ -82,7 +82,11 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     those of a transfer to that task alone; tasks that reach ``max_iter`` first are named in a
     :class:`ConvergenceWarning`. Parameters as in :func:`factirl_opt.fit_factorial`;
     ``dictionary`` is (p, k). ``mdp`` may be a sequence of one MDP per new task, with
-    ``base_features`` shared or one matrix per task (tasks in several environments).
+    ``base_features`` shared or one matrix per task (tasks in several environments). A task
+    stops when the relative decrease of its loss is at most ``tol``, or when its gradient norm
+    is at most ``gtol`` times its value at ``h = 0``: the rule that stops a task whose one
+    demonstration its coefficients match exactly, where the loss falls toward 0 as they grow
+    without bound (docs/maths.md §5); ``gtol=0`` turns it off.
 
     Returns
     -------
@@ -96,15 +100,17 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     """
     tasks = task_set(mdp, demos_per_task, base_features, reward)
     D = check_features(dictionary, tasks.n_params, name="dictionary")
-    max_iter, tol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol)
+    max_iter, tol, gtol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol), check_tol(gtol, "gtol")
     obj = task_objective(tasks, beta, objective, planner)
     solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
-    return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=callback, verbose=verbose)
+    return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=callback,
+                        verbose=verbose, gtol=gtol)
 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
-                 verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None) -> TransferFit:
+                 verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None,
+                 gtol: float = 0.0) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -131,6 +137,9 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
         fitted as the flat learner fits them (:func:`~factirl_opt.learners.gradirl.fit_weights`,
         from zero), ``h_i = 0`` and ``delta_i`` the weights, instead of running ``solver`` on
         ``[h_i, delta_i]`` (why: "What residual_penalty runs" in :mod:`factirl_opt.learners.factorial`).
+    gtol : float, default=0.0
+        The gradient rule's tolerance, per task (:func:`solvers.gradient_converged`); 0 turns
+        it off. With ``flat``, the flat learner's ``gtol``.
 
     Returns
     -------
@@ -139,17 +148,19 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     basis = as_problem_basis(objective, base_features)
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
-        return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose)
+        return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
+                                  gtol)
     if np.isfinite(residual_penalty):
         return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
-                                      float(residual_penalty))
+                                      float(residual_penalty), gtol)
     F = basis.compose(dictionary)
     problem = weights_problem(objective, F)
     ev0 = objective.n_evaluations
     x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
-            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, separable=True)
+            res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, gtol=gtol,
+                                   separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_transfer_fit(F, solver, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
@@ -157,7 +168,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     return _transfer_fit(F, solver, res, objective.n_evaluations - ev0)
 
 
-def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam):
+def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam, gtol):
     """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
     problem = residual_weights_problem(objective, basis, D, lam, DICTIONARY_NAMES)
     ev0 = objective.n_evaluations
@@ -165,7 +176,7 @@ def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback,
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
-                                   callback=report, tol=tol, separable=True)
+                                   callback=report, tol=tol, gtol=gtol, separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_residual_fit(objective, basis, D, k, lam, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
@@ -173,7 +184,7 @@ def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback,
     return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0)
 
 
-def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose):
+def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol):
     """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
     task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
     ev0 = objective.n_evaluations
@@ -186,7 +197,8 @@ def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback
 
     with translate_solver_errors():
         try:
-            res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)")
+            res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)",
+                              gtol=gtol)
         except FitInterrupted as exc:
             raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)

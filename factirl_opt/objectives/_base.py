@@ -61,6 +61,8 @@ class Objective(TaskObjective):
     n_evaluations = 0  # counted per instance (the contract's property, as a plain attribute)
     #: whether the loss is ``||residual||^2`` per task (Gauss-Newton solvers apply)
     least_squares = False
+    #: whether the objective gives the Hessian of its loss in linear reward weights (``hessian``)
+    has_hessian = False
 
     @classmethod
     def log_policy(cls, planner, rewards, beta):

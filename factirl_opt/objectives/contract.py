@@ -54,12 +54,17 @@ class TaskObjective(abc.ABC):
         are evaluated (:meth:`weights_problem`, :meth:`dictionary_problem`; the sharded
         objective of one MDP, so that only weights travel). Otherwise the step problems are
         built on its :meth:`loss_and_grad` and the other operations, in this process.
+    has_hessian : bool
+        Declared capability: :meth:`hessian` gives the Hessian of the loss in linear reward
+        weights (the MCE objective, :meth:`~factirl_opt.objectives.mce.MCEObjective.hessian`):
+        the step problems then carry it (the ``"newton"`` solver).
     """
 
     name: str
     least_squares: bool
     n_tasks: int
     builds_problems: ClassVar[bool] = False
+    has_hessian: bool = False
 
     @property
     @abc.abstractmethod
@@ -85,6 +90,18 @@ class TaskObjective(abc.ABC):
     @abc.abstractmethod
     def reward_limit(self) -> float:
         """The largest ``|reward|`` the objective plans without overflow (:func:`limit_of` of its MDPs)."""
+
+    def hessian(self, rewards: Any, rows: Any, features: Any) -> NDArray[np.float64]:
+        """Hessian (r, p, p) of the loss of tasks ``rows`` in the weights of ``R_i = F_i w_i``
+        (``features`` one (S*A, p) matrix or one per row; only with :attr:`has_hessian`)."""
+        raise NotImplementedError(f"the {self.name!r} objective gives no Hessian")
+
+    def environment_groups(self) -> list[tuple[Any, NDArray[np.intp], NDArray[np.intp]]]:
+        """``(objective, tasks, local rows)`` per environment: the objective of one MDP that holds
+        those tasks (its ``mdp``, ``mu``, ``pi_hat``) and their rows in it. One group, this
+        objective and every task, for an objective of one MDP in this process."""
+        rows = np.arange(self.n_tasks)
+        return [(self, rows, rows)]
 
     def factorial_point(self, basis: Any, dictionary: NDArray[np.float64],
                         coefficients: NDArray[np.float64]) -> tuple[NDArray[np.float64], FactorialPoint]:

@@ -165,8 +165,13 @@ class ShardedBase(TaskObjective):
         return len(self.parts)
 
     def close(self) -> None:
-        """Stop the shards' workers."""
+        """Stop the shards' workers, and drop what would rebuild them: the kept linearisations and problems
+        refer back to this object (a reference cycle that would keep the shards' specs, the MDP and the
+        statistics until the next full garbage collection)."""
         self.shards.close()
+        self._lins.clear()
+        for kept in ("_problems", "_features"):
+            getattr(self, kept, {}).clear()
 
     def reset(self) -> None:
         """As :meth:`Objective.reset`, on every shard."""

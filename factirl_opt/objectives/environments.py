@@ -110,6 +110,7 @@ class MultiEnvironmentObjective(TaskObjective):
             self.objectives.append(cls(mdp, np.stack([mus[i] for i in tasks]), np.stack([pis[i] for i in tasks]), beta,
                                        planner=planner, planner_options=planner_options))
         self.name, self.least_squares = cls.name, cls.least_squares
+        self.has_hessian = bool(getattr(cls, "has_hessian", False))
         self.n_tasks = len(self.mdps)
         self.n_actions = self.mdps[0].n_actions
         self.n_states = np.array([m.n_states for m in self.mdps], dtype=np.intp)
@@ -237,6 +238,41 @@ class MultiEnvironmentObjective(TaskObjective):
             lin = obj.linearize(R, local)
             loss[pos], res[pos, :m], jac[pos, :m] = lin.loss, lin.residual, lin.jvp(F)
         return loss, res, jac
+
+    def environment_groups(self) -> list[tuple[Any, NDArray[np.intp], NDArray[np.intp]]]:
+        """``(group objective, tasks, local rows)`` per environment (:attr:`objectives`)."""
+        return [(sub, tasks, np.asarray(self.local_index[tasks], dtype=np.intp))
+                for g, sub in enumerate(self.objectives) for tasks in [np.flatnonzero(self.task_group == g)]]
+
+    def hessian(self, rewards: TaskArrays, rows: ArrayLike | None, features: Any) -> NDArray[np.float64]:
+        """Hessian of every task's loss (r, p, p) with respect to weights of rewards ``R_i = F_i w_i``.
+
+        Each group's objective's ``hessian`` (e.g. :meth:`MCEObjective.hessian`) on its tasks.
+
+        Parameters
+        ----------
+        features : ndarray (S*A, p), or sequence of r arrays (S_i*A, p)
+            One ``F`` for every row, or one per row (aligned with ``rows``).
+
+        Raises
+        ------
+        ValidationError
+            When the objective gives no Hessian, or for features of the wrong shape.
+        """
+        if not self.has_hessian:
+            raise ValidationError(f"the {self.name!r} objective gives no Hessian (use a gradient or Gauss-Newton solver)")
+        rows = self._rows(rows)
+        shared = isinstance(features, np.ndarray) and features.ndim == 2
+        if not shared and len(features) != len(rows):
+            raise ValidationError(f"features must be one (S*A, p) array or one per row ({len(rows)}); got {len(features)}")
+        p = np.shape(features if shared else features[0])[-1]
+        out = np.empty((len(rows), p, p))
+        for g, pos, local in self._split(rows):
+            R, obj = self._gather(rewards, rows, pos, "rewards"), self.objectives[g]
+            F = features if shared else np.stack([self._task_features(features[j], int(rows[j]), p).reshape(-1, p)
+                                                  for j in pos])
+            out[pos] = obj.hessian(R, local, F)
+        return out
 
     def linearize(self, rewards: TaskArrays, rows: ArrayLike | None = None) -> Linearization:
         """``solvers.Linearization`` at ``rewards`` of tasks ``rows``, residuals padded to (r, m).

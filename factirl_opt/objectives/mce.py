@@ -71,11 +71,12 @@ from scipy.special import entr
 
 from .._threads import blas_limited
 from .._validation import check_beta, check_int, check_mdp, check_rewards, check_statistics, check_stochastic_policy
-from ..exceptions import FactIRLError
+from ..exceptions import FactIRLError, ValidationError
 from ..planning import adjoint, get_planner
 from ._base import Objective
+from ..tasks.basis import features_matrix
 
-__all__ = ["MCEObjective", "mce_loss", "soft_values", "refined_adjoint_solve"]
+__all__ = ["MCEObjective", "mce_loss", "soft_values", "refined_adjoint_solve", "mce_hessian", "HESSIAN_KINDS"]
 
 #: numpy sums at most this many terms in order (pairwise beyond): :func:`soft_backup` reduces over
 #: the actions one by one up to it, the same values as numpy's reduction
@@ -103,6 +104,13 @@ POLISH_TOL = 1e-13
 #: relative residual ``||b - M^T z||_inf <= ADJOINT_TOL (||b||_inf + ||z||_inf)`` at which the adjoint
 #: solved by iterative refinement with a kept factorisation stops (about 100x above rounding)
 ADJOINT_TOL = 1e-13
+#: what :func:`mce_hessian` returns: the exact Hessian, or its Gauss-Newton (Fisher) part alone
+HESSIAN_KINDS = ("exact", "gauss-newton")
+#: :func:`mce_hessian` forms the tangents ``dQ`` (r, S, A, p) of at most this many bytes at once
+HESSIAN_CHUNK_BYTES = 64 * 2**20
+#: with at most this many weight columns, :func:`mce_hessian` solves for the tangents by iterative
+#: refinement on the tasks' kept factorisations (a few cheap sweeps) instead of factorising anew
+HESSIAN_REFINE_MAX_COLUMNS = 16
 #: refinement sweeps of the adjoint before a task falls back to a new factorisation of its own policy
 ADJOINT_MAX_REFINE = 30
 #: a refinement sweep must shrink the adjoint's residual by this factor, else the task falls back too
@@ -378,6 +386,147 @@ def _gradient(planner, point):
     return -(g + planner.gamma * pi * z[:, :, None])
 
 
+def refined_solve(planner, solvers, pi, B):
+    """``Z`` with ``(I - gamma P_pi) Z = B`` (n, S, k) by iterative refinement on kept factorisations.
+
+    The forward counterpart of :func:`refined_adjoint_solve` with ``k`` right-hand sides per task:
+    each sweep computes the residual with the current policies' systems (a backup, no
+    factorisation) and corrects ``Z += K^-1 r``; a task stops at a relative residual
+    :data:`ADJOINT_TOL`, or is left unconverged when a sweep does not shrink its residual by
+    :data:`ADJOINT_MIN_CONTRACTION` or after :data:`ADJOINT_MAX_REFINE` sweeps.
+
+    Returns
+    -------
+    Z : ndarray, shape (n, S, k)
+    converged : ndarray of bool, shape (n,)
+    """
+    n, S, k = B.shape
+    A = pi.shape[2]
+    Z = planner.solver_system(solvers).solve(B)
+    scale_b = np.abs(B).max(axis=(1, 2))
+    todo, prev = np.arange(n), np.full(n, np.inf)
+    converged = np.zeros(n, dtype=bool)
+    for sweep in range(ADJOINT_MAX_REFINE + 1):
+        t = todo
+        PZ = planner.backup(Z[t]).reshape(len(t), S, A, k)
+        r = B[t] - (Z[t] - planner.gamma * _action_average(pi[t], PZ))
+        norm = np.abs(r).max(axis=(1, 2))
+        done = norm <= ADJOINT_TOL * (scale_b[t] + np.abs(Z[t]).max(axis=(1, 2)))
+        converged[t[done]] = True
+        going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * prev[t])  # False for NaN: stalled
+        prev[t] = norm
+        todo = t[going]
+        if todo.size == 0 or sweep == ADJOINT_MAX_REFINE:
+            break
+        Z[todo] += planner.solver_system([solvers[i] for i in todo]).solve(r[going])
+    return Z, converged
+
+
+def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", chunk=None, kept=None):
+    """Hessian of every task's MCE loss with respect to linear reward weights ``R_i = F_i w_i``.
+
+    Unvalidated kernel (docs/maths.md §6). With the soft-optimal policy ``pi`` of ``R`` and
+    ``M = I - gamma P_pi``, a reward direction ``dR`` moves the soft action values by
+    ``dQ = dR + gamma P dV``, ``M dV = sum_a pi dR`` (:func:`factirl_opt.planning.tangent` with
+    the stochastic policy), and the loss's second derivative along it is
+
+        d^2 J [dR, dR] = sum_s w(s) Var_{pi(.|s)}(dQ(s, .)),
+        w(s) = beta^2 c(s) + gamma beta (P^T y)(s),
+
+    with ``c(s) = sum_a c(s, a)`` the demonstrated state frequencies and ``y = dJ/dR``. The
+    first term is the Gauss-Newton (Fisher) part, the curvature of the log-softmax of the
+    logits ``beta Q`` (positive semidefinite); the second is the curvature of the soft values
+    ``Q(R)`` themselves (``d^2 Q = M_Q^-1 gamma P beta Var_pi(dQ)``) weighted by the adjoint, and
+    may make the Hessian indefinite where the demonstrations' state frequencies are not those
+    of a soft policy. With the centred tangents ``E_j = dQ_j - sum_a pi dQ_j`` of the feature
+    columns, ``H_jk = sum_{s,a} w(s) pi(a|s) E_j(s, a) E_k(s, a)``: one factorisation of ``M`` per
+    task (the current policy's) and ``p`` right-hand sides.
+
+    Parameters
+    ----------
+    planner : Planner
+    R : ndarray, shape (n, S, A)
+        Rewards (only their shape is used: the point is given by ``log_pi`` and ``grad``).
+    log_pi : ndarray, shape (n, S, A)
+        The soft-optimal policy of ``R`` (:func:`soft_values`).
+    counts : ndarray, shape (n, S, A)
+        Demonstrated pair frequencies ``c(s, a) = mu_hat(s) pi_hat(a|s)``.
+    grad : ndarray, shape (n, S, A)
+        ``dJ/dR`` at ``R`` (:func:`mce_loss`).
+    beta : float
+    features : ndarray, shape (S*A, p) or (n, S*A, p)
+        ``F`` shared by the tasks, or one per task.
+    kind : {"exact", "gauss-newton"}
+        The exact Hessian, or its Gauss-Newton part alone (``w = beta^2 c``).
+    chunk : int, optional
+        Tasks whose tangents are formed at once (default: as many as fit in
+        :data:`HESSIAN_CHUNK_BYTES`).
+    kept : list, optional
+        Per task, a kept factorisation of a nearby policy's system (:class:`MCEObjective`);
+        with at most :data:`HESSIAN_REFINE_MAX_COLUMNS` columns the tangents are solved by
+        :func:`refined_solve` on them (a task where that does not converge is factorised anew).
+
+    Returns
+    -------
+    hessian : ndarray, shape (n, p, p)
+        Symmetric.
+    solvers : list
+        Per task, the factorisation of its policy's system (``PolicySystem.solvers``; None
+        entries for planners without per-task solvers).
+    """
+    n, S, A = R.shape
+    p = features.shape[-1]
+    pi = np.exp(log_pi)
+    w = beta * beta * counts.sum(axis=2)
+    if kind == "exact":
+        w = w + planner.gamma * beta * planner.pullback(grad)
+    wpi = w[:, :, None] * pi
+    size = max(1, HESSIAN_CHUNK_BYTES // (8 * S * A * p)) if chunk is None else max(1, int(chunk))
+    H = np.empty((n, p, p))
+    solvers = []
+    for lo in range(0, n, size):
+        c = slice(lo, min(n, lo + size))
+        m = c.stop - c.start
+        F = (features[c] if features.ndim == 3 else np.broadcast_to(features, (m, S * A, p))).reshape(m, S, A, p)
+        # state features (the same for every action) cancel in the centred tangents: E = centre(gamma P dV)
+        state_only = bool(np.all(F == F[:, :, :1, :]))
+        F_pi = F[:, :, 0, :].copy() if state_only else _action_average(pi[c], F)  # sum_a pi dR, (m, S, p)
+        mine = None if kept is None else kept[c]
+        if mine is not None and p <= HESSIAN_REFINE_MAX_COLUMNS and all(k is not None for k in mine):
+            dV, converged = refined_solve(planner, mine, pi[c], F_pi)
+            chunk_solvers = list(mine)
+            if not converged.all():
+                bad = np.flatnonzero(~converged)
+                system = planner.system(pi[c][bad])
+                dV[bad] = system.solve(F_pi[bad])
+                for j, solver in zip(bad, getattr(system, "solvers", None) or [None] * len(bad)):
+                    chunk_solvers[j] = solver
+        else:
+            system = planner.system(pi[c])
+            dV = system.solve(F_pi)
+            chunk_solvers = list(getattr(system, "solvers", None) or [None] * m)
+        U = planner.gamma * planner.backup(dV).reshape(m, S, A, p)  # gamma P dV
+        if not state_only:
+            U += F  # dQ = dR + gamma P dV
+        mean = _action_average(pi[c], U)  # sum_a pi dQ, (m, S, p)
+        # H = sum_{s,a} w pi dQ dQ^T - sum_s w mean mean^T: the centred second moment, action by action
+        Hc = -np.matmul(mean.transpose(0, 2, 1), w[c, :, None] * mean)
+        for a in range(A):
+            Ua = U[:, :, a, :]
+            Hc += np.matmul(Ua.transpose(0, 2, 1), wpi[c, :, a, None] * Ua)
+        H[c] = 0.5 * (Hc + Hc.transpose(0, 2, 1))
+        solvers += chunk_solvers
+    return H, solvers
+
+
+def _action_average(pi, X):
+    """``sum_a pi(a|s) X[:, s, a, :]`` (n, S, k) of X (n, S, A, k), action by action (no einsum)."""
+    out = pi[:, :, 0, None] * X[:, :, 0, :]
+    for a in range(1, X.shape[2]):
+        out += pi[:, :, a, None] * X[:, :, a, :]
+    return out
+
+
 def soft_policy_values(planner, R, policy, beta):
     """Soft value of fixed stochastic policies: ``(I - gamma P_pi) V = sum_a pi R + H(pi) / beta``.
 
@@ -403,6 +552,7 @@ class MCEObjective(Objective):
 
     name = "mce"
     least_squares = False
+    has_hessian = True
 
     @classmethod
     def log_policy(cls, planner, rewards, beta):
@@ -450,6 +600,56 @@ class MCEObjective(Objective):
         grad = _gradient(self.planner, point)
         self._keep(point)
         return grad
+
+    def hessian(self, rewards, rows=None, features=None, kind="exact"):
+        """Hessian of every task's loss with respect to weights ``w_i`` of rewards ``R_i = F w_i``, (r, p, p).
+
+        :func:`mce_hessian` at the rewards of tasks ``rows``: the loss and gradient there come
+        from :meth:`loss_and_grad` (its cache when the tasks were last evaluated at exactly these
+        rewards, as a step solver's accepted trial point; else one evaluation), the soft
+        policy from the tasks' kept soft values (one soft backup, no solve). Each task's
+        policy system is factorised once and kept for the next evaluations' chord steps and
+        adjoints (as a Newton step's factorisation is).
+
+        Parameters
+        ----------
+        rewards : ndarray, shape (r, S, A)
+        rows : ndarray of int, shape (r,), optional
+            The tasks (default: all).
+        features : ndarray, shape (S*A, p) or (r, S*A, p), or RewardBasis, optional
+            ``F`` shared or one per row, or a basis (its dense features of ``rows``,
+            :func:`~factirl_opt.tasks.basis.features_matrix`); None: tabular weights (``F = I``,
+            p = S*A, the Hessian with respect to the rewards themselves).
+        kind : {"exact", "gauss-newton"}, default="exact"
+            The exact Hessian, or its positive semidefinite Gauss-Newton (Fisher) part.
+
+        Raises
+        ------
+        ValidationError
+            For a ``kind`` or ``features`` of the wrong value or shape.
+        """
+        if kind not in HESSIAN_KINDS:
+            raise ValidationError(f"kind must be one of {', '.join(HESSIAN_KINDS)}; got {kind!r}")
+        rows = self._rows(rows)
+        R = np.asarray(rewards, dtype=np.float64)
+        S, A = self.mdp.n_states, self.mdp.n_actions
+        F = np.asarray(features_matrix(features, S, A, rows), dtype=np.float64)
+        if not (F.ndim in (2, 3) and F.shape[-2] == S * A and (F.ndim == 2 or F.shape[0] == len(rows))):
+            raise ValidationError(f"features must have shape (S*A, p) = ({S * A}, p) or (r, S*A, p) with r = {len(rows)}; "
+                                  f"got {F.shape}")
+        _, grad = self.loss_and_grad(R, rows)
+        _, _, log_pi = soft_backup(self.planner, R, self._warm[rows], self.beta)
+        counts = self.mu[rows][:, :, None] * self.pi_hat[rows]
+        budget = self._chunk(len(rows), F.shape[-1])
+        keep = self._kept is not None and budget >= self.n_tasks
+        H, solvers = mce_hessian(self.planner, R, log_pi, counts, grad, self.beta, F, kind,
+                                 chunk=None if budget >= len(rows) else budget,
+                                 kept=[self._kept[i] for i in rows] if keep else None)
+        if keep:
+            for i, solver in zip(rows, solvers):
+                if solver is not None:
+                    self._kept[i] = solver
+        return H
 
 
 @blas_limited

@@ -93,6 +93,13 @@ def alternating_dictionary_problem(objective: Any, n: int, p: int, k: int, unit_
     )
 
 
+def has_hessian(objective: Any) -> bool:
+    """Whether ``objective`` gives the Hessian of its loss with respect to linear reward weights
+    (its declared :attr:`~factirl_opt.objectives.contract.TaskObjective.has_hessian`, e.g.
+    :meth:`MCEObjective.hessian`)."""
+    return bool(objective.has_hessian)
+
+
 def reward_limit(objective: Any) -> float:
     """The largest |reward| the objective plans without overflow: ``REWARD_LIMIT * (1 - gamma)`` as
     :func:`~factirl_opt._validation.check_rewards` has it, for the largest gamma of its MDPs."""
@@ -154,11 +161,15 @@ def weights_problem(objective: Any, basis: Any = None, names: tuple[str, str] | 
 
         return Linearization(lin.loss, lin.residual, jvp, vjp)
 
+    def hessian(x, rows):  # the objective's Hessian with respect to the weights, at a point just evaluated
+        return objective.hessian(rewards(x, rows), rows, basis.jacobian_features(rows))
+
     ls = objective.least_squares
     return StepProblem(
         loss_and_grad=loss_and_grad,
         residual_jacobian=residual_jacobian if ls else None,
         linearize=linearize if ls else None,
+        hessian=hessian if has_hessian(objective) else None,
         n_evaluations=lambda: objective.n_evaluations,
         n_rows=objective.n_tasks,
         n_params=basis.n_params,

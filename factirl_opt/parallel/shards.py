@@ -275,10 +275,19 @@ class InProcessShard:
         self.host = None  # type: ignore[assignment]
 
 
+def _parent_alive(parent_pid: int) -> bool:
+    """Whether the process ``parent_pid`` that started this one is alive: its ``multiprocessing`` sentinel
+    (a fork server's child is not the driver's child), else the parent's pid."""
+    parent = multiprocessing.parent_process()
+    if parent is not None and parent.pid == parent_pid:
+        return parent.is_alive()
+    return os.getppid() == parent_pid
+
+
 def _watch_parent(parent_pid: int) -> None:
     while True:
         time.sleep(POLL_SECONDS)
-        if os.getppid() != parent_pid:
+        if not _parent_alive(parent_pid):
             os._exit(3)
 
 
@@ -352,11 +361,48 @@ def _serve(conn: Any, spec: tuple, parent_pid: int, progress: Any = None) -> Non
         serve_calls(conn, lambda task: host.call(*task))
 
 
+#: the modules the fork server imports once (:func:`_context`): its shard processes start with the
+#: library loaded and marked as workers, before they import anything of the caller's
+FORKSERVER_PRELOAD = ["factirl_opt.parallel._preload"]
+
+
 def _context() -> Any:
-    """Fork where available (the child inherits the imported library and the shard's data: no start-up
-    cost, nothing pickled), else spawn."""
-    methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    """The start method of shard processes: ``forkserver`` where available, else ``spawn``; never ``fork``.
+
+    A process forked from a multithreaded one (a notebook server, a test runner's worker, a
+    program whose other thread runs a fit) can deadlock on any lock another thread held at the
+    fork: the library's own, glibc's or BLAS's. A fork server is a fresh single-threaded process
+    (started once per process, on the first sharded fit) that imports the library once
+    (:data:`FORKSERVER_PRELOAD`) and forks every shard process; a shard's spec and the caller's
+    ``__main__`` are pickled and imported there, as with ``spawn`` (scripts need the usual
+    ``if __name__ == "__main__":`` guard).
+    """
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(FORKSERVER_PRELOAD)  # no effect once the server runs
+    return ctx
+
+
+def _forget_fork_server() -> None:
+    """In a child forked from a process that runs a fork server: start a server of its own when one is
+    needed. The inherited one is not the child's child (``multiprocessing`` would fail with
+    ``ChildProcessError`` checking it), and its lock may have been held by another thread at the fork."""
+    from multiprocessing import forkserver
+
+    server = getattr(forkserver, "_forkserver", None)
+    if server is None or getattr(server, "_forkserver_pid", None) is None:
+        return
+    try:
+        os.close(server._forkserver_alive_fd)
+    except (OSError, TypeError):
+        pass
+    server._forkserver_address = server._forkserver_alive_fd = server._forkserver_pid = None
+    server._lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_fork_server)
 
 
 class ProcessShard:
@@ -498,10 +544,10 @@ class Shards:
     def __init__(self, specs: Sequence[tuple], backend: str = "processes", client: Any = None) -> None:
         self.specs, self.backend, self.client = list(specs), check_backend(backend, client), client
         self.bytes_sent = self.bytes_setup = self.n_restarts = 0
-        self.handles: list[Any] = []
-        try:
-            for k in range(len(self.specs)):
-                self.handles.append(self._start(k))
+        self.handles: list[Any] = [None] * len(self.specs)
+        try:  # the driver's own shard last: it is built while the other shards' processes start
+            for k in sorted(range(len(self.specs)), key=lambda k: backend == "processes" and k == 0):
+                self.handles[k] = self._start(k)
         except BaseException:
             self.close()
             raise
@@ -579,6 +625,7 @@ class Shards:
         handles, self.handles = self.handles, []
         for h in handles:
             try:
-                h.close()
+                if h is not None:
+                    h.close()
             except Exception:  # noqa: BLE001 - closing the others matters more
                 pass

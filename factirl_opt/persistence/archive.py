@@ -38,9 +38,11 @@ def library_version() -> str:
 
 
 def json_default(obj: Any) -> Any:
-    """``json.dumps`` hook: numpy scalars as Python numbers."""
+    """``json.dumps`` hook: numpy scalars as Python numbers, numpy arrays as lists (``FactIRL.cv_results_``)."""
     if isinstance(obj, np.generic):
         return obj.item()
+    if isinstance(obj, np.ndarray) and not obj.dtype.hasobject:
+        return obj.tolist()
     raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
 
 

@@ -27,10 +27,11 @@ from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
 from ..tasks.task_set import features_digest
 from ..mdp.tabular import SIGNATURE_KEYS
+from ..learners.adaptive import CV_RESULTS_KEYS, check_cv_results
 from .archive import check_array
 
 __all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "array_axes", "learnt_attributes",
-           "check_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest", "check_task_features"]
+           "check_learnt", "decode_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest", "check_task_features"]
 
 
 #: The keys of a row of a validation table (``FactIRL.validation_``, :mod:`factirl_opt.learners.adaptive`).
@@ -48,6 +49,7 @@ KINDS = {
     "features-digest": "None (no features) or the features' SHA-256 (64 lowercase hexadecimal digits)",
     "penalty": "a number >= 0, or inf",
     "validation": f"a list of dicts with keys {list(VALIDATION_KEYS)} (a validation table)",
+    "cv-results": f"a dict of equal-length lists with keys {list(CV_RESULTS_KEYS)} and more (a search's cv_results_)",
 }
 
 #: A declared kind: axis names of a float array, or a key of :data:`KINDS`.
@@ -154,6 +156,8 @@ def _check_value(key: str, kind: str, value: Any, context: str) -> None:
             _check_penalty(value, f"attribute {key}")
         elif kind == "validation":
             _check_validation(key, value)
+        elif kind == "cv-results":
+            check_cv_results(value, f"attribute {key}")
     except ValidationError as exc:
         raise PersistenceError(f"{context}: {exc}") from None
     if kind == "mdp-signature":
@@ -254,6 +258,15 @@ def _unevaluated_loss(key: str, value: Any, attributes: dict[str, Any]) -> bool:
     prefix = key[: -len("loss_")] if key.endswith("loss_") else None
     return (prefix is not None and attributes.get(f"{prefix}stop_reason_") == "interrupted"
             and isinstance(value, np.ndarray) and value.dtype.kind == "f")
+
+
+def decode_learnt(kind: Any, value: Any) -> Any:
+    """A learnt attribute as the model holds it, from its checked stored value: a ``cv-results``
+    kind's lists as numpy arrays (``params`` stays a list of dicts), any other value as it is."""
+    if kind != "cv-results":
+        return value
+    return {key: v if key == "params" else np.asarray(v, dtype=bool if key == "chosen" else None)
+            for key, v in value.items()}
 
 
 def check_learnt(cls: type, attributes: dict[str, Any], context: str, n_feature_columns: int | None = None) -> None:

@@ -12,8 +12,9 @@ from ..tasks.task_set import per_task_features
 from ..learners.gradirl import GradIRL
 from ..learners.multi_intent import MultiIntentIRL
 from .archive import Target, read_archive, require, to_json, write_archive
-from .learnt import check_features_digest, check_learnt, check_task_features, fitted_features_sha256, learnt_attributes
+from .learnt import check_features_digest, check_learnt, decode_learnt, check_task_features, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params, param_kind
+from .posterior import load_transfer_posterior, save_transfer_posterior
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
 
@@ -58,7 +59,8 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
     name = cls.__name__
     declared = learnt_attributes(cls)
     attributes, arrays = {}, {}
-    present = {key: getattr(model, key) for key in declared if hasattr(model, key)}
+    present = {key: getattr(model, key) for key in declared  # a property (a deprecated alias) is not stored
+               if not isinstance(getattr(type(model), key, None), property) and hasattr(model, key)}
     present.update({key: value for key, value in vars(model).items()
                     if key.endswith("_") and not key.startswith("_") and key not in declared})
     for key, value in present.items():
@@ -70,7 +72,7 @@ def _encode_attributes(model: Any, cls: type) -> tuple[dict[str, Any], dict[str,
             arrays[key] = value
         else:
             attributes[key] = to_json(value, f"{name} attribute {key}")
-    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params()), f"cannot save {name}")
+    _check(cls, {**attributes, **arrays}, _base_features(cls, model.get_params(deep=False)), f"cannot save {name}")
     return attributes, arrays
 
 
@@ -124,6 +126,7 @@ def save_model(model: GradIRL | FactIRL | MultiIntentIRL, path: Target) -> str |
               "attributes": attributes, "array_attributes": [key for key in array_attributes if key not in lists]}
     if lists:
         header["array_list_attributes"] = lists
+    save_transfer_posterior(model, header, arrays)
     return write_archive(path, header, arrays)
 
 
@@ -196,9 +199,10 @@ def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
     except TypeError as exc:
         raise PersistenceError(f"{label}: the stored parameters do not fit {name}: {exc}") from None
     for key, value in attributes.items():
-        setattr(model, key, value)
+        setattr(model, key, decode_learnt(learnt_attributes(cls).get(key), value))
     if attributes:
         _complete_old_file(model, cls, attributes, features, label)
+    load_transfer_posterior(model, header, contents, label)
     return model
 
 

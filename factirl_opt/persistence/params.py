@@ -18,6 +18,7 @@ from .._validation import check_int
 from ..exceptions import FactIRLError, PersistenceError
 from ..tasks.task_set import per_task_features
 from ..learners.solver_settings import SolverSettings
+from ..learners.selection import SharingSearch
 from .archive import check_array, require, to_json
 
 __all__ = ["PARAM_KINDS", "ARRAY_KINDS", "param_kind", "encode_params", "decode_params", "encode_rng", "decode_rng"]
@@ -33,6 +34,7 @@ PARAM_KINDS = {
     "dictionary-start": "a name, or a tuple (D0, H0) of arrays (members param/<name>/0 and /1)",
     "responsibility-start": "a name, or an array of labels or responsibilities (member param/<name>)",
     "runtime": "not saved: how a fit is watched and where it runs (the loaded model has the default)",
+    "sharing-search": "None or a SharingSearch with an int cv (its parameters as JSON)",
 }
 #: The kinds that may be stored as archive members (listed in the header's ``"array_params"``).
 ARRAY_KINDS = ("features", "dictionary-start", "responsibility-start")
@@ -119,6 +121,14 @@ def _encode_one(name: str, key: str, kind: str, value: Any, arrays: dict[str, np
         raise _named_param_error(name, key, kind, value)
     if kind == "rng":
         return encode_rng(value), False
+    if kind == "sharing-search" and value is not None:
+        if not isinstance(value, SharingSearch):
+            raise PersistenceError(f"cannot save {name} with {key} a {type(value).__name__}: give a SharingSearch or None")
+        sub = value.get_params(deep=False)
+        if isinstance(sub["cv"], bool) or not isinstance(sub["cv"], (int, np.integer)):
+            raise PersistenceError(f"cannot save {name} with {key}.cv={sub['cv']!r:.60}: only a number of folds is "
+                                   "saved (a splitter or explicit folds are not)")
+        return {"sharing_search": to_json(sub, f"{name} parameter {key}")}, False
     if kind == "features" and per_task_features(value):  # one matrix per task: members <key>/0, 1, ...
         arrays.update({f"param/{key}/{i}": _member(F, name, key) for i, F in enumerate(value)})
         return {"per_task": len(value)}, True
@@ -146,7 +156,7 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     arrays: dict[str, np.ndarray] = {}
     array_params: list[str] = []
     cls = type(model)
-    for key, value in model.get_params().items():
+    for key, value in model.get_params(deep=False).items():
         kind = param_kind(cls, key)
         if kind == "runtime":
             continue
@@ -197,6 +207,20 @@ def _decode_solver(key: str, value: Any, label: str) -> Any:
         raise PersistenceError(f"{label}: the solver settings of parameter {key} are not valid here: {exc}") from None
 
 
+def _decode_sharing_search(key: str, value: Any, label: str) -> SharingSearch:
+    """A ``"sharing-search"`` parameter: the parameters of a SharingSearch, checked."""
+    fields = value.get("sharing_search") if isinstance(value, dict) else None
+    if not isinstance(value, dict) or sorted(value) != ["sharing_search"] or not isinstance(fields, dict):
+        raise PersistenceError(f"{label} is malformed: parameter {key} must be {{'sharing_search': {{...}}}}; got {value!r:.80}")
+    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+    try:
+        search = SharingSearch(**fields)
+        search.check()
+    except (TypeError, FactIRLError) as exc:
+        raise PersistenceError(f"{label}: the sharing search of parameter {key} is not valid: {exc}") from None
+    return search
+
+
 def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], label: str) -> dict[str, Any]:
     """The parameters stored by :func:`encode_params` for estimator class ``cls``, checked.
 
@@ -225,6 +249,8 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
         kind = param_kind(cls, key)
         if kind == "solver":
             params[key] = _decode_solver(key, value, label)
+        elif kind == "sharing-search" and value is not None:
+            params[key] = _decode_sharing_search(key, value, label)
         elif kind == "rng":
             try:
                 params[key] = decode_rng(value)

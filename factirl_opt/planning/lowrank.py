@@ -8,11 +8,14 @@ their hint in at most :data:`UPDATE_MAX_RANK` states.
 
 from __future__ import annotations
 
+import weakref
 from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
 from numpy.typing import NDArray
+
+from ..exceptions import FactIRLError
 
 __all__ = ["UpdatedFactor", "UPDATE_MAX_RANK", "RESIDUAL_TOL", "REFINE_ABOVE"]
 
@@ -39,7 +42,11 @@ class UpdatedFactor:
     ----------
     planner : SparseLUPlanner
         Supplies the state order, the augmented ``P`` (``augmented``, ``augmented_transpose``,
-        ``row_block``) and fresh factorisations (``factor``).
+        ``row_block``) and fresh factorisations (``factor``). Held by a weak reference: the
+        planner's factorisation caches hold this update, and a strong reference back would make
+        a reference cycle that keeps the planner and its factorisations (C memory) alive until
+        the next full garbage collection. Whoever solves with an update holds its planner (a
+        :class:`~factirl_opt.planning.sparse_lu.FactorSystem`).
     base : TaskFactor
         The factorisation of a nearby deterministic policy (``base.policy``).
     policy : ndarray of intp, shape (S,)
@@ -48,7 +55,8 @@ class UpdatedFactor:
     """
 
     def __init__(self, planner: Any, base: Any, policy: NDArray[np.intp], changed: NDArray[np.intp]) -> None:
-        self.planner, self.base, self.policy = planner, base, policy
+        self._planner, self.base, self.policy = weakref.ref(planner), base, policy
+        self.gamma, self.augmented, self.augmented_transpose = planner.gamma, planner.augmented, planner.augmented_transpose
         q, A, k = planner.order, planner.A, len(changed)
         self.sel = q * A + policy[q]  # the rows of the augmented P that M' uses, in the planner's order
         old_rows = q[changed] * A + base.policy[q[changed]]
@@ -70,13 +78,12 @@ class UpdatedFactor:
 
     def _residual(self, x: NDArray[np.float64], b: NDArray[np.float64], transpose: bool) -> tuple[float, NDArray[np.float64]]:
         """Largest relative residual over the columns of ``b - M' x`` (or ``M'^T``), and the residual."""
-        pl = self.planner
         if transpose:
-            y = np.zeros((pl.augmented.shape[0],) + x.shape[1:])
+            y = np.zeros((self.augmented.shape[0],) + x.shape[1:])
             y[self.sel] = x
-            r = b - (x - pl.gamma * (pl.augmented_transpose @ y))
+            r = b - (x - self.gamma * (self.augmented_transpose @ y))
         else:
-            r = b - (x - pl.gamma * (pl.augmented @ x)[self.sel])
+            r = b - (x - self.gamma * (self.augmented @ x)[self.sel])
         scale = np.linalg.norm(b, axis=0)
         return np.max(np.linalg.norm(r, axis=0) / np.where(scale > 0, scale, 1.0)), r
 
@@ -90,5 +97,9 @@ class UpdatedFactor:
                 res, _ = self._residual(x, b, transpose)
             if res <= RESIDUAL_TOL:
                 return x
-            self.fresh = self.planner.factor(self.policy)
+            planner = self._planner()
+            if planner is None:
+                raise FactIRLError("a low-rank update needs a fresh factorisation, but its planner was freed "
+                                   "(solve through the planner's system, which holds it)")
+            self.fresh = planner.factor(self.policy)
         return self.fresh.solve(b, transpose)

@@ -47,7 +47,7 @@ from .._validation import check_array
 from ..exceptions import ValidationError
 from .features import StateBroadcast, TaskFeatures, check_reward_scale, linear_rewards
 
-__all__ = ["RewardBasis", "TabularBasis", "StateBasis", "SharedBasis", "TaskBasis", "ComposedBasis", "as_basis", "matrix_digest", "least_squares_weights",
+__all__ = ["RewardBasis", "TabularBasis", "StateBasis", "SharedBasis", "TaskBasis", "ComposedBasis", "as_basis", "features_matrix", "matrix_digest", "least_squares_weights",
            "PCA", "WEIGHT_NAMES", "DICTIONARY_NAMES"]
 
 #: ``pca(X, k, rng) -> (D, H)``: the uncentred PCA the factorial start uses (``learners.dictionary.pca_dictionary``)
@@ -131,6 +131,12 @@ class RewardBasis(abc.ABC):
         """The features a least-squares Jacobian is taken along (``residual_jacobian``'s last
         argument): one (S*A, p) matrix for a shared basis, else one per row."""
         return self.dense()[0] if self.shared else self.dense(rows)
+
+    def recorded_features(self, rows: ArrayLike) -> list[NDArray[np.float64] | None]:
+        """``Phi_i`` of ``rows`` as a record of one task keeps them (a transfer posterior,
+        :class:`~factirl_opt.learners.posterior.LaplacePosterior`): dense (S_i*A, p) matrices
+        (:meth:`dense`), or None where ``Phi`` is the identity (tabular rewards: nothing to keep)."""
+        return list(self.dense(rows))
 
     def subset(self, rows: ArrayLike) -> RewardBasis:
         """The basis of the tasks ``rows`` only (a shared basis is its own subset)."""
@@ -289,6 +295,9 @@ class TabularBasis(RewardBasis):
     def dense(self, rows=None):
         n = 1 if rows is None else np.asarray(rows).size
         return [np.eye(self.n_params)] * n
+
+    def recorded_features(self, rows):
+        return [None] * np.asarray(rows).size
 
     def compose(self, dictionary):
         return SharedBasis(dictionary, self.n_states, self.n_actions, names=("dictionary", "coefficients"))
@@ -592,3 +601,18 @@ def as_basis(features: Any, n_states: int | None = None, n_actions: int | None =
     if isinstance(features, StateBroadcast):
         return StateBasis(n_states, n_actions)
     return SharedBasis(features, n_states, n_actions)
+
+
+def features_matrix(features: Any, n_states: int, n_actions: int, rows: ArrayLike | None = None) -> Any:
+    """The dense features a Jacobian or Hessian in weights is taken along, from features in any form.
+
+    None (tabular): the identity (S*A, S*A); a :class:`StateBroadcast`: formed (S*A, S); a
+    :class:`RewardBasis`: its :meth:`~RewardBasis.jacobian_features` of ``rows`` (one matrix, or
+    one per row); anything else (an (S*A, p) or (r, S*A, p) array, a list of per-row matrices) as
+    given, for the caller to validate.
+    """
+    if isinstance(features, RewardBasis):
+        return features.jacobian_features(rows)
+    if features is None or isinstance(features, StateBroadcast):
+        return as_basis(features, n_states, n_actions).jacobian_features(rows)
+    return features

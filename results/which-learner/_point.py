@@ -8,7 +8,6 @@ import warnings
 import numpy as np
 
 import factirl_opt as fo
-from factirl_opt._validation import as_rng
 from factirl_opt.lab.experiments import PRESETS, make_ground_truth
 from factirl_opt.lab.experiments.learner_solvers import factorial_options
 from factirl_opt.lab.experiments.lineup import RunContext
@@ -34,11 +33,11 @@ def setup(argv=None):
     flat = fo.GradIRL(beta=preset.beta, features=Ftr, max_iter=preset.flat_max_iter,
                       solver=kw.get("flat_solver", "armijo"), planner=preset.planner).fit(mdp, demos)
     learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
-    folds = np.array_split(as_rng(learner.rng).permutation(n), 3)
-    k_max = min(adaptive._reward_dimension(learner, mdp), min(n - len(f) for f in folds))
+    folds = adaptive.task_folds(n, 3, learner.rng)  # the folds of the search (SharingSearch(cv=3))
+    k_max = adaptive.max_primitives(learner, mdp, n, folds)
     return types.SimpleNamespace(preset=preset, n=n, out_path=out_path, gt=gt, Ftr=Ftr, Fte=Fte, mdp=mdp, demos=demos,
                                  test_demos=test_demos, flat=flat, learner=learner, folds=folds,
-                                 cands=adaptive._candidates("auto", "auto", k_max, False))
+                                 cands=adaptive.sharing_candidates(learner, k_max))
 
 
 def held_out_transfers(P, t=1):
@@ -48,12 +47,12 @@ def held_out_transfers(P, t=1):
 
     for fi, held in enumerate(P.folds):
         train = np.setdiff1d(np.arange(P.n), held)
-        sub_mdp, sub_F = adaptive._subset(P.mdp, P.Ftr, train)
+        sub_mdp, sub_F = adaptive.task_subset(P.mdp, P.Ftr, train)
         for k, lam in P.cands:
             m = adaptive.fixed_learner(P.learner, k, lam)
             m.features = sub_F
-            m.fit(sub_mdp, adaptive._take(P.demos, train), flat_rewards=adaptive._take(P.flat.rewards_, train))
-            hm, hF = adaptive._subset(P.mdp, P.Ftr, held)
+            m.fit(sub_mdp, adaptive.take_tasks(P.demos, train), flat_rewards=adaptive.take_tasks(P.flat.rewards_, train))
+            hm, hF = adaptive.task_subset(P.mdp, P.Ftr, held)
             m.transfer(hm, [P.demos[i][:t] for i in held], features=hF if per_task_features(P.Ftr) else None)
             yield fi, (k, lam), m, held
 

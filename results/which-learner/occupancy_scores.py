@@ -47,7 +47,7 @@ def fe_distance(tm, F, R, dem):
 res = {str(c): {"temp": {}, "fe": {}, "tv": {}} for c in cands}
 for fi, (k, lam), m, held in held_out_transfers(P, t):
     for j, i in enumerate(held):
-        tm = adaptive._task_mdp(mdp, i)
+        tm = adaptive.task_mdp(mdp, i)
         R = np.asarray(m.transfer_rewards_[j])
         res[str((k, lam))]["temp"][int(i)] = adaptive.held_out_nll(tm, demos[i][t:], R, m)
         fe, tv = fe_distance(tm, feat(i), R, demos[i][t:])

@@ -6,8 +6,11 @@ does, into a runs/ directory that ``factirl-opt bench which-learner`` and ``tabl
 
 (the bench runs every point of a preset, the largest first; this runs the ones asked for).
 
-``--folds K`` sets ``adaptive.N_FOLDS`` (the bench's code folds over tasks 3 times) for a diagnostic: such
-records are not the bench's and do not belong in ``runs/``.
+The diagnostics with other numbers of folds (``diagnostics/folds5-objectworld-quick-20``, and the 20
+folds of docs/maths.md) were run by this script's former ``--folds K``, which overwrote the library's
+module constant (commit 27407ca); a search with K folds is now ``FactIRL(sharing_search=SharingSearch(cv=K))``,
+and ``foldscores.py`` scores candidates on the search's folds through the public
+``adaptive.task_folds`` / ``adaptive.score_candidates``.
 """
 import argparse
 import os
@@ -21,11 +24,7 @@ parser.add_argument("runs_dir")
 parser.add_argument("--tasks", type=int, nargs="+", required=True)
 parser.add_argument("--seeds", type=int, nargs="+", required=True)
 parser.add_argument("--preset", default="sharing-grid")
-parser.add_argument("--folds", type=int, default=None, help="override adaptive.N_FOLDS (a diagnostic)")
 args = parser.parse_args()
-if args.folds is not None:
-    from factirl_opt.learners import adaptive
-    adaptive.N_FOLDS = args.folds
 os.makedirs(args.runs_dir, exist_ok=True)  # before the runs: a record is never computed and then lost
 preset = PRESETS[args.preset]
 expected = store.expected_provenance(preset, get_lineup(preset.lineup))

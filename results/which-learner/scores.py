@@ -22,7 +22,7 @@ def tempered(z, w):
 res = {str(c): {"raw": {}, "temp": {}, "agree": {}} for c in cands}
 for fi, (k, lam), m, held in held_out_transfers(P, t):
     for j, i in enumerate(held):
-        tm = adaptive._task_mdp(mdp, i)
+        tm = adaptive.task_mdp(mdp, i)
         mu, pi_hat = empirical_statistics(tm, [demos[i][t:]])
         w = mu[0][:, None] * pi_hat[0]
         z = log_policies(get_planner(tm, m.planner), np.asarray(m.transfer_rewards_[j])[None], m.beta, m.objective)[0]

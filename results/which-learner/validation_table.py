@@ -1,21 +1,25 @@
-"""Re-run one which-learner point and record the adaptive learner's validation table and paired t statistics."""
-import sys, json, warnings
+"""One which-learner point's search, its validation table and the paired t statistics of each candidate
+against the flat model, with the chosen pair's test deviation: python validation_table.py PRESET N SEED OUT.json
+
+The search is the adaptive learner's of the runner's line-up (``_point.setup``: the same flat start
+and rng), run through the public ``adaptive.search_sharing`` (this script used to wrap the library's
+``choose_sharing`` by assigning into ``factirl_opt.learners.factirl``)."""
+import json
+import os
+import sys
+
 import numpy as np
 from scipy.stats import t as t_dist
-import factirl_opt.learners.factirl as fmod
-from factirl_opt.lab.experiments import PRESETS
-from factirl_opt.lab.experiments.runner import RunSpec, run_one
-warnings.simplefilter("ignore")
-tables = []
-orig = fmod.choose_sharing
-def rec(*a, **k):
-    out = orig(*a, **k); tables.append(out[2]); return out
-fmod.choose_sharing = rec
-preset = PRESETS[sys.argv[1]]; n = int(sys.argv[2]); seed = int(sys.argv[3])
-record = run_one(preset, RunSpec(n, preset.default_demos, seed))
-table = tables[0]
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from factirl_opt.learners import adaptive  # noqa: E402
+from _point import setup, test_deviation  # noqa: E402
+
+P = setup(sys.argv[1:5])
+found = adaptive.search_sharing(P.learner, P.mdp, P.demos, P.flat.rewards_)
+table = found.rows
 flat = next(r for r in table if r["residual_penalty"] == 0.0)
-out = {"rows": record["rows"], "table": table, "paired": []}
+out = {"chosen": [found.n_primitives, found.residual_penalty], "table": table, "paired": []}
 for r in table:
     if len(r["task_scores"]) != len(flat["task_scores"]) or r is flat:
         continue
@@ -24,7 +28,6 @@ for r in table:
     out["paired"].append({"k": r["n_primitives"], "lam": r["residual_penalty"], "gain": g.mean(), "t": tstat,
                           "p": float(t_dist.sf(tstat, g.size - 1)), "n": g.size})
     print(out["paired"][-1], flush=True)
-for row in record["rows"]:
-    if row["split"] == "test":
-        print(row["learner"], row["deviation"], row.get("success_rate"), row.get("n_primitives"), row.get("residual_penalty"))
-json.dump(out, open(sys.argv[4], "w"), default=float)
+out["test_deviation"] = test_deviation(P, found.n_primitives, found.residual_penalty)
+print("chosen", out["chosen"], "test deviation", out["test_deviation"])
+json.dump(out, open(P.out_path, "w"), default=float)

@@ -45,6 +45,21 @@ def test_mce_benchmark_one_objective_has_no_ratio(capsys):
     assert out["settings"]["fact_max_iter"] == 1
 
 
+def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
+    out = run_bench(capsys, ["mce", "--quick", "--flat-solvers", "default", "newton", "--n-test-tasks", "2"])
+    fits = out["fits"]
+    assert list(fits) == ["policy-matching", "policy-matching, flat newton", "mce", "mce, flat newton"]
+    assert [e["flat_solver"] for e in fits.values()] == ["default", "newton", "default", "newton"]
+    for e in fits.values():
+        assert e["mean_transfer_deviation"] >= 0 and e["transfer_n_evaluations"] > 0 and e["transfer_cpu_s"] >= 0
+    assert out["settings"]["flat_solvers"] == ["default", "newton"] and out["settings"]["n_test_tasks"] == 2
+    assert out["cpu_ratio_mce_over_pm"] == pytest.approx(fits["mce"]["cpu_s"] / fits["policy-matching"]["cpu_s"])
+    none = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--n-test-tasks", "0", "--max-iter", "1",
+                              "--h-solvers", "default", "newton"])
+    assert list(none["fits"]) == ["mce", "mce, H newton"] and none["fits"]["mce, H newton"]["h_solver"] == "newton"
+    assert "mean_transfer_deviation" not in none["fits"]["mce"]
+
+
 def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
     with pytest.raises(SystemExit):
         bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"])
@@ -57,6 +72,8 @@ def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
 
 @pytest.mark.parametrize("argv, fragment", [(["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),
                                             (["--repeats", "0"], "argument --repeats: must be an integer >= 1; got '0'"),
+                                            (["--flat-solvers", "bfgs"], "argument --flat-solvers: invalid choice: 'bfgs'"),
+                                            (["--n-test-tasks", "-1"], "argument --n-test-tasks"),
                                             (["--blas-threads", "-3"], "argument --blas-threads")])
 def test_mce_benchmark_options_are_checked_by_the_parser(capsys, argv, fragment):
     with pytest.raises(SystemExit) as exit_:

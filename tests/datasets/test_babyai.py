@@ -30,6 +30,16 @@ def test_babyai_tasks_refuses_bad_parameters(kwargs, match):
         fo.datasets.babyai_tasks(**kwargs)
 
 
+@pytest.mark.parametrize("env_id, match", [
+    ("BabyAI-GoToNowhere-v0", r"^env_id='BabyAI-GoToNowhere-v0' is not a registered environment id: Environment "
+                              r"`BabyAI-GoToNowhere` doesn't exist"),
+    ("BabyAI-GoToLocal-v7", r"^env_id='BabyAI-GoToLocal-v7' is not a registered environment id: Environment version `v7`"),
+    (7, r"^env_id must be a registered environment id \(a str\); got int$")])
+def test_babyai_tasks_refuses_an_unknown_environment_id_naming_it(env_id, match):
+    with pytest.raises(ValidationError, match=match):
+        fo.datasets.babyai_tasks(env_id, n_tasks=1, demos_per_task=1, n_test_tasks=1)
+
+
 class _Draws:
     """An rng whose ``integers`` returns the given layout seeds in turn."""
 

@@ -166,6 +166,17 @@ def test_a_model_or_another_object_given_for_the_environment_is_refused():
                 call()
 
 
+@pytest.mark.parametrize("env_id, reason", [("BabyAI-GoToLocl-v0", "Environment `BabyAI-GoToLocl` doesn't exist"),
+                                            ("BabyAI-GoToLocal-v9", "Environment version `v9`"),
+                                            ("nowhere/GoTo-v0", "Namespace nowhere not found")])
+def test_an_unknown_environment_id_is_refused_naming_it(env_id, reason):
+    """gymnasium's own exception (NameNotFound and the like) used to pass through."""
+    for call in (lambda: bot_demonstration(env_id, seed=0), lambda: run_policy(env_id, np.zeros(3, dtype=int), seed=0)):
+        with pytest.raises(ValidationError, match=rf"^env={env_id!r} is not a registered environment id: {reason}") as err:
+            call()
+        assert err.value.__cause__ is None and not isinstance(err.value, gym.error.Error)
+
+
 def test_steps_off_the_model_raise():
     episode = bot_demonstration(LOCAL, seed=0)
     model = episode.model

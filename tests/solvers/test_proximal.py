@@ -128,3 +128,66 @@ def test_solver_bad_options(kwargs, fragment):
 def test_unit_columns_prox_bad_arguments(args, kwargs, fragment):
     with pytest.raises(SolverOptionError, match=fragment):
         solvers.unit_columns_prox(*args, **kwargs)
+
+
+def _unit(v, t):
+    return solvers.unit_columns_prox(3, 2)[0](v, t)
+
+
+@pytest.mark.parametrize("prox, fragment", [
+    (lambda v, t: np.full_like(v, np.nan),
+     r"prox\(v, t\) at the starting point \(t = 0, the projection\) returned non-finite values \(NaN or inf\) for "
+     r"finite v, in 2 of 2 row\(s\) \(rows \[0, 1\] of v, steps t = \[0.0, 0.0\]\); it must return finite proximal points"),
+    (lambda v, t: _unit(v, t) if np.all(t <= 1) else np.full_like(v, np.nan),
+     r"prox\(v, t\) at a proximal-gradient step returned non-finite values \(NaN or inf\) for finite v, in 2 of 2 "),
+    (lambda v, t: _unit(v, t) if np.all(t <= 1) else np.where(np.arange(v.shape[0])[:, None] == 1, np.inf, _unit(v, t)),
+     r"prox\(v, t\) at a proximal-gradient step returned non-finite values \(NaN or inf\) for finite v, in 1 of 2 "
+     r"row\(s\) \(rows \[1\] of v, steps t = \[3.0\]\)"),
+    (lambda v, t: _unit(v, t)[:, :-1],
+     r"prox\(v, t\) at the starting point \(t = 0, the projection\) returned shape \(2, 5\) for v of shape \(2, 6\); it must return "
+     r"the proximal points, one row of 6 per row of v"),
+    (lambda v, t: _unit(v, t) if np.all(t <= 1) else _unit(v, t).ravel(),
+     r"prox\(v, t\) at a proximal-gradient step returned shape \(12,\) for v of shape \(2, 6\)"),
+    (lambda v, t: None, r"prox\(v, t\) at the starting point \(t = 0, the projection\) returned NoneType \(shape \(\)\) "
+                        r"for v of shape \(2, 6\)"),
+    (lambda v, t: [["a"] * 6] * 2, r"prox\(v, t\) at the starting point \(t = 0, the projection\) returned list, not an "
+                                   r"array of numbers"),
+])
+def test_a_prox_that_returns_non_finite_points_or_another_shape_is_named(rng, prox, fragment):
+    """A user's prox returning NaN used to reach the problem's objective (in the library, blamed on
+    the planner's Q); one of another shape gave numpy's broadcasting error."""
+    b = rng.normal(size=(2, 6))
+    solver = solvers.ProximalArmijoSolver(prox=prox, initial_step=3.0)
+    with pytest.raises(solvers.SolverError, match=r"^armijo-prox: " + fragment):
+        solver.run(quadratic_problem(b), _unit(b, np.zeros(2)), max_iter=5, separable=True)
+
+
+@pytest.mark.parametrize("penalty, fragment", [
+    (lambda x: np.zeros(x.shape[0] + 1), r"prox_penalty\(x\) returned shape \(3,\) for x of shape \(2, 6\); it must return "
+                                         r"one value per row, shape \(2,\)"),
+    (lambda x: np.array([0.0, np.nan]), r"prox_penalty\(x\) returned NaN in rows \[1\] of x"),
+    (lambda x: "l1", r"prox_penalty\(x\) returned str, not an array of numbers"),
+])
+def test_a_prox_penalty_of_another_shape_or_nan_is_named(rng, penalty, fragment):
+    b = rng.normal(size=(2, 6))
+    solver = solvers.ProximalArmijoSolver(prox=_unit, prox_penalty=penalty)
+    with pytest.raises(solvers.SolverError, match=r"^armijo-prox: " + fragment):
+        solver.run(quadratic_problem(b), _unit(b, np.zeros(2)), max_iter=5, separable=True)
+
+
+def test_optimality_checks_prox_too(rng):
+    solver = solvers.ProximalArmijoSolver(prox=lambda v, t: v[:, :-1])
+    with pytest.raises(solvers.SolverError, match=r"prox\(v, t\) in the optimality measure \(t = 1\) returned shape \(1, 2\)"):
+        solver.optimality(np.ones((1, 3)), np.zeros((1, 3)))
+
+
+def test_a_bad_prox_in_a_factirl_fit_is_the_librarys_error_naming_prox():
+    fo = pytest.importorskip("factirl_opt")
+    mdp = fo.GridWorld(size=3)
+    demos = fo.sample_demonstrations(mdp, np.random.default_rng(0).normal(size=(3, 9, 4)), n_demos=2, length=5, rng=1)
+    good, _ = solvers.unit_columns_prox(36, 2)
+    for prox, fragment in ((lambda v, t: np.full_like(v, np.nan), "non-finite values"),
+                           (lambda v, t: good(v, t)[:, :-1], r"returned shape \(1, 71\) for v of shape \(1, 72\)")):
+        model = fo.FactIRL(2, d_solver=solvers.ProximalArmijoSolver(prox=prox), max_iter=2, flat_max_iter=3)
+        with pytest.raises(fo.exceptions.SolverError, match=r"armijo-prox: prox\(v, t\) .*" + fragment):
+            model.fit(mdp, demos)

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from ..._validation import check_int
 from ...exceptions import ValidationError
 from .features import DEFAULT_THRESHOLDS, grid_objects
-from .model import ACTIONS, MiniGridModel, agent_state, base_env, from_minigrid, require_minigrid
+from .model import ACTIONS, MiniGridModel, agent_state, base_env, from_minigrid, make_env, require_minigrid
 
 __all__ = ["BotDemonstration", "PolicyRun", "bot_demonstration", "run_policy"]
 
@@ -83,7 +83,7 @@ def _layout(env: Any, seed: int | None) -> tuple[Any, bool]:
     require_minigrid("running MiniGrid episodes")
     owned = isinstance(env, str)
     if owned:
-        env = importlib.import_module("gymnasium").make(env)
+        env = make_env(env)
     elif not all(callable(getattr(env, name, None)) for name in ("reset", "step")):
         hint = (" (a model read from an environment: pass the environment itself, or its id and a seed)"
                 if isinstance(env, MiniGridModel) or hasattr(env, "n_states") else "")
@@ -166,7 +166,8 @@ def bot_demonstration(env: Any, seed: int | None = None, *, start: tuple[int, in
     MissingDependencyError
         minigrid is not installed.
     ValidationError
-        The level is not modelled (see :func:`from_minigrid`), is not a BabyAI level, ``start``
+        ``env`` is an id that is not registered (named, with gymnasium's reason), the level is
+        not modelled (see :func:`from_minigrid`), is not a BabyAI level, ``start``
         is not a reachable non-terminal state, or the bot takes a step outside the model
         (pick-up, toggle, drop, done, or a transition the model does not predict).
     """
@@ -251,7 +252,8 @@ def run_policy(env: Any, policy: ArrayLike, seed: int | None = None, *, model: M
     MissingDependencyError
         minigrid is not installed.
     ValidationError
-        Bad ``policy`` (shape, dtype, actions), ``model`` of another layout, ``max_steps`` < 1.
+        ``env`` is an id that is not registered, bad ``policy`` (shape, dtype, actions), ``model`` of
+        another layout, ``max_steps`` < 1.
     """
     if isinstance(env, str) and seed is None:
         raise ValidationError(f"a seed is needed to reset a new {env!r} environment")

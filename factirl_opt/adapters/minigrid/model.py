@@ -44,7 +44,8 @@ from ...exceptions import MissingDependencyError, ValidationError
 from ...mdp.tabular import TabularMDP
 from .features import DEFAULT_THRESHOLDS, grid_objects, minigrid_feature_names, minigrid_features
 
-__all__ = ["ACTIONS", "DIRECTIONS", "INSTALL_HINT", "MiniGridModel", "from_minigrid", "require_minigrid", "base_env"]
+__all__ = ["ACTIONS", "DIRECTIONS", "INSTALL_HINT", "MiniGridModel", "from_minigrid", "require_minigrid", "make_env",
+           "base_env"]
 
 #: The modelled actions, in MiniGrid's numbering.
 ACTIONS = ("left", "right", "forward")
@@ -66,6 +67,36 @@ def require_minigrid(what: str = "this function") -> ModuleType:
         return importlib.import_module("minigrid")
     except ImportError as exc:
         raise MissingDependencyError(f"{what} needs minigrid, which is not installed: {INSTALL_HINT}") from exc
+
+
+def make_env(env_id: Any, name: str = "env", what: str = "running MiniGrid episodes") -> Any:
+    """A new environment of a registered MiniGrid/BabyAI id (``gymnasium.make``), minigrid imported first.
+
+    Parameters
+    ----------
+    env_id : str
+        A gymnasium id, e.g. ``"BabyAI-GoToLocal-v0"``.
+    name : str
+        The caller's parameter, named in the errors.
+    what : str
+        What needs minigrid, named when it is not installed.
+
+    Raises
+    ------
+    ValidationError
+        ``env_id`` is not a string, or not a registered id (the message names it, with
+        gymnasium's own reason, e.g. its closest registered name).
+    MissingDependencyError
+        minigrid is not installed.
+    """
+    require_minigrid(what)
+    if not isinstance(env_id, str):
+        raise ValidationError(f"{name} must be a registered environment id (a str); got {type(env_id).__name__}")
+    gym = importlib.import_module("gymnasium")
+    try:
+        return gym.make(env_id)
+    except gym.error.Error as exc:  # NameNotFound, VersionNotFound, NamespaceNotFound, DeprecatedEnv, ...
+        raise ValidationError(f"{name}={env_id!r} is not a registered environment id: {exc}") from None
 
 
 def base_env(env: Any) -> Any:

@@ -23,6 +23,7 @@ BENCHMARKS = {
     "dictionary": "dictionary",
     "auto-cost": "auto_cost",
     "which-learner": "which_learner",
+    "active": "active",
 }
 
 

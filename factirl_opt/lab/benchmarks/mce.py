@@ -23,6 +23,17 @@ their CPU times, ``deviation_ratio_mce_over_pm`` their deviations. ``--repeats``
 objective that many times, alternating, and keeps each one's fastest times (the counts do not
 change between repeats).
 
+``--flat-solvers`` fits FactIRL once per objective and flat-start solver (FactIRL's
+``flat_solver``: ``default`` is FactIRL's own; e.g. ``lbfgs`` or ``newton``, the second-order
+solver), side by side in the same process on the same draw; entries other than ``default``
+are keyed ``"<objective>, flat <solver>"``; ``--h-solvers`` likewise compares H-step solvers
+(``default``: the preset's, or L-BFGS where it names a Gauss-Newton solver for MCE), keyed
+``", H <solver>"``. With ``--n-test-tasks`` (default 10), every fitted
+model is also transferred (``FactIRL.transfer``, its H-step solver) to that many test tasks, each
+on a new map of its own with one demonstration, and the entry gets their mean deviation
+(``mean_transfer_deviation``) and the transfer's CPU time and evaluations (the planning counts are
+the fit's only).
+
 ``--quick`` is a tiny configuration for tests (options given explicitly keep their value).
 """
 
@@ -30,6 +41,7 @@ import dataclasses
 import time
 
 import numpy as np
+import solvers
 
 from ...parallel import limit_blas_threads
 from ...evaluation import deviation
@@ -48,8 +60,11 @@ __all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once",
 OBJECTIVES = ("policy-matching", "mce")
 DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demos": 32, "length": 16, "n_primitives": 5,
             "max_iter": None, "flat_max_iter": None, "objectives": list(OBJECTIVES), "repeats": 1, "seed": 0,
-            "blas_threads": 1}
-QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10}
+            "blas_threads": 1, "flat_solvers": ["default"], "h_solvers": ["default"], "n_test_tasks": 10}
+QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10,
+         "n_test_tasks": 2}
+#: the flat solver entry meaning FactIRL's own default
+DEFAULT_FLAT = "default"
 
 
 def add_arguments(parser):
@@ -66,6 +81,11 @@ def add_arguments(parser):
     opt("--flat-max-iter", type=integer(0), help="iterations of FactIRL's flat start (None: the preset's)")
     opt("--objectives", nargs="+", choices=OBJECTIVES, metavar="NAME", help="objectives fitted, in this order")
     opt("--repeats", type=integer(1), help="fits per objective, alternating; the fastest is kept")
+    opt("--flat-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
+        help="FactIRL flat-start solvers compared, a fit per objective and solver ('default': FactIRL's own)")
+    opt("--h-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
+        help="FactIRL H-step solvers compared, a fit per objective, flat solver and H solver ('default': the preset's)")
+    opt("--n-test-tasks", type=integer(0), help="test tasks on new maps (one demonstration each) transferred to; 0: none")
     opt("--seed", type=integer(0), help="seed of the maps and demonstrations")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--quick", action="store_true",
@@ -82,25 +102,48 @@ def benchmark_preset(s):
     for key in ("size", "n_tasks", "n_demos", "length", "n_primitives", "repeats"):
         if s[key] < 1:
             raise ValidationError(f"bench mce: --{key.replace('_', '-')} must be at least 1; got {s[key]}")
-    changes = dict(grid_size=s["size"], n_primitives=s["n_primitives"], demo_length=s["length"], n_test_tasks=1)
+    if s["n_test_tasks"] < 0:
+        raise ValidationError(f"bench mce: --n-test-tasks must be at least 0; got {s['n_test_tasks']}")
+    changes = dict(grid_size=s["size"], n_primitives=s["n_primitives"], demo_length=s["length"],
+                   n_test_tasks=max(1, s["n_test_tasks"]))
     for key, field in (("max_iter", "fact_max_iter"), ("flat_max_iter", "flat_max_iter")):
         if s[key] is not None:
             changes[field] = s[key]
     return dataclasses.replace(preset, **changes)
 
 
-def fit_once(preset, gt, objective, seed):
-    """One FactIRL fit from scratch with ``objective``: its model, wall time, CPU time and
-    counting planner (the benchmark's unit of work; ``results/mce-speed/profile_fit.py`` profiles it)."""
+def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT):
+    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver`` unless
+    ``"default"``): its model, wall time, CPU time and counting planner (the benchmark's unit of
+    work; ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
     kw["planner"] = planner
+    if flat_solver != DEFAULT_FLAT:
+        kw["flat_solver"] = flat_solver
+    if h_solver != DEFAULT_FLAT:
+        kw["solver"] = h_solver
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
     t0, c0 = time.perf_counter(), time.process_time()
     model.fit(mdps, gt.train_demos)
     return model, time.perf_counter() - t0, time.process_time() - c0, planner
+
+
+def _transfer(model, gt, preset, n_test):
+    """Mean deviation of the model's transfer to the first ``n_test`` test tasks (each on its own
+    map), the transfer's CPU time and evaluations; an empty dict without test tasks."""
+    if n_test == 0:
+        return {}
+    mdps = gt.mdps("test")[:n_test]
+    model.planner = preset.planner  # the counting planner is bound to the training maps' MDP
+    c0 = time.process_time()
+    model.transfer(mdps, gt.test_demos[:n_test], features=list(gt.task_maps["test"].features)[:n_test])
+    cpu = time.process_time() - c0
+    dev = deviation(mdps, gt.test_rewards[:n_test], np.asarray(model.transfer_rewards_), planner=preset.planner)
+    return {"mean_transfer_deviation": float(np.mean(dev)), "transfer_cpu_s": cpu,
+            "transfer_n_evaluations": int(model.transfer_n_evaluations_)}
 
 
 def fit_entry(model, elapsed, planner, gt, preset):
@@ -122,29 +165,36 @@ def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
     preset = benchmark_preset(s)
     objectives = list(dict.fromkeys(s["objectives"]))
-    entries, times, cpus = {}, {name: [] for name in objectives}, {name: [] for name in objectives}
+    flats = list(dict.fromkeys(s["flat_solvers"]))
+    hs = list(dict.fromkeys(s["h_solvers"]))
+    runs = [(obj, flat, h) for obj in objectives for flat in flats for h in hs]
+    keys = {run: run[0] + ("" if run[1] == DEFAULT_FLAT else f", flat {run[1]}") + ("" if run[2] == DEFAULT_FLAT else f", H {run[2]}")
+            for run in runs}
+    entries, times, cpus = {}, {keys[r]: [] for r in runs}, {keys[r]: [] for r in runs}
     with limit_blas_threads(s["blas_threads"]) as threads:
         t0 = time.perf_counter()
         gt = objectworld_per_task(preset, s["n_tasks"], s["n_demos"], s["seed"])
         t_data = time.perf_counter() - t0
         for _ in range(s["repeats"]):
-            for name in objectives:
-                model, elapsed, cpu, planner = fit_once(preset, gt, name, s["seed"] + 1)
+            for run in runs:
+                name = keys[run]
+                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2])
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
                 entries[name] = fit_entry(model, elapsed, planner, gt, preset)
-    for name in objectives:
+                entries[name].update(flat_solver=run[1], h_solver=run[2], **_transfer(model, gt, preset, s["n_test_tasks"]))
+    for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
         entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]
     out = {"benchmark": "mce", "fits": entries, "data_time_s": t_data}
-    if set(OBJECTIVES) <= set(objectives):
+    if set(OBJECTIVES) <= set(entries):
         ref, other = entries["policy-matching"], entries["mce"]
         out["ratio_mce_over_pm"] = other["time_s"] / ref["time_s"]
         out["cpu_ratio_mce_over_pm"] = other["cpu_s"] / ref["cpu_s"]
         d = ref["mean_train_deviation"]
         out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
     settings = {key: s[key] for key in DEFAULTS}
-    settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives,
+    settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives, flat_solvers=flats, h_solvers=hs,
                     fact_max_iter=preset.fact_max_iter, flat_max_iter=preset.flat_max_iter)
     out["settings"] = settings
     return out

@@ -1,0 +1,219 @@
+"""Active demonstration requests: which start state to ask a demonstration from (docs/maths.md §10).
+
+For a new task with Laplace posterior ``N(x_m, Lambda^-1)`` (:mod:`.posterior`), a demonstration
+of ``L`` steps from start ``s`` adds, in expectation under the model's own policy at ``x_m``,
+the curvature
+
+    H_s = sum_y occ_s(y) I(y),   occ_s(y) = sum_{t < L} P(s_t = y | s_0 = s),
+
+with ``I(y)`` the likelihood's information of one demonstrated pair in state ``y`` (on the
+posterior's scale ``s / N``): ``beta^2 sum_a pi(a|y)^2 E(y, a) E(y, a)^T / sigma^2`` for policy
+matching (its Gauss-Newton matrix), ``beta^2 sum_a pi(a|y) E(y, a) E(y, a)^T`` for MCE (its
+Fisher information), where ``E = dQ/dx - sum_a pi dQ/dx`` are the centred tangents of the
+action values along the posterior's reward basis. The candidates are ranked by the expected
+information gain about the coefficients, the D-optimal criterion
+
+    gain(s) = log det(Lambda + H_s) - log det(Lambda),
+
+the entropy reduction of the Gaussian posterior. It needs one plan, ``d`` right-hand sides and
+``L`` propagations of the candidates' state distributions per task: no sampling, no MCMC.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import check_int
+from ..exceptions import ValidationError
+from ..objectives.mce import soft_values
+from ..planning import boltzmann_policy, get_planner, plan, tangent
+from .posterior import LaplacePosterior, coefficient_prior, laplace_posteriors, transfer_inputs, transfer_problem
+
+__all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
+           "policy_entropy_starts", "model_policy", "CRITERIA"]
+
+
+def model_policy(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
+    """The planner, the model's stochastic policy pi (S, A) and the tangents dQ/dx (S, A, d) at the posterior mean.
+
+    Policy matching: the Boltzmann policy of ``Q*`` and ``dQ*/dx`` (greedy policy held fixed);
+    MCE: the soft-optimal policy and the soft values' tangents.
+    """
+    mdp = post.mdp
+    S, A = mdp.n_states, mdp.n_actions
+    pl = get_planner(mdp)
+    R = post.mean_rewards()[None]
+    B = post.basis().reshape(1, S, A, -1)
+    if objective == "mce":
+        _, _, log_pi = soft_values(pl, R, beta)
+        pi = np.exp(log_pi)
+        system = pl.system(pi)
+        dQ = tangent(pl, system, pi, B)
+    else:
+        res = plan(pl, R)
+        pi = boltzmann_policy(res.Q, beta)
+        dQ = tangent(pl, res.system, res.policy, B)
+    return pl, pi[0], dQ[0]
+
+
+def state_information(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
+    """Per-state information ``I(y)`` (S, d, d) of one demonstrated pair, the planner and the model's policy (S, A)."""
+    pl, pi, dQ = model_policy(post, objective, beta)
+    E = dQ - np.einsum("sa,sad->sd", pi, dQ)[:, None, :]
+    weight = pi if objective == "mce" else pi * pi
+    info = beta * beta * np.einsum("sa,sad,sae->sde", weight, E, E)
+    per_pair = post.scaling / post.n_pairs
+    if objective != "mce":
+        per_pair *= 2.0  # s G = (N / (2 sigma^2)) 2 J_r^T J_r: 1 / sigma^2 per pair
+    return pl, per_pair * info, pi
+
+
+def start_occupancy(planner: Any, pi: NDArray[np.float64], starts: NDArray[np.intp], length: int) -> NDArray[np.float64]:
+    """Expected visits ``occ[c, y]`` (c, S) of an ``length``-step episode from each start under policy pi (S, A)."""
+    S = pi.shape[0]
+    X = np.zeros((len(starts), S))
+    X[np.arange(len(starts)), starts] = 1.0
+    occ = np.zeros_like(X)
+    P = np.broadcast_to(pi, (len(starts), *pi.shape))
+    for t in range(length):
+        occ += X
+        if t + 1 < length:
+            X = planner.pullback(P * X[:, :, None])
+    return occ
+
+
+def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                      length: int) -> NDArray[np.float64]:
+    """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start."""
+    pl, info, pi = state_information(post, objective, beta)
+    occ = start_occupancy(pl, pi, candidates, length)
+    Lam = np.linalg.inv(post.covariance)
+    Lam = 0.5 * (Lam + Lam.T)
+    H = np.einsum("cy,yde->cde", occ, info)
+    base = np.linalg.slogdet(Lam)[1]
+    return np.linalg.slogdet(Lam[None] + H)[1] - base
+
+
+def value_variance_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                              length: int) -> NDArray[np.float64]:
+    """``trace(M (Sigma - (Lambda + H_s)^-1))`` (c,): the expected reduction of the posterior variance of
+    the state values, linearised, ``M = mean_s dV(s)/dx dV(s)/dx^T`` with ``dV = sum_a pi dQ/dx``."""
+    pl, pi, dQ = model_policy(post, objective, beta)
+    E = dQ - np.einsum("sa,sad->sd", pi, dQ)[:, None, :]
+    weight = pi if objective == "mce" else pi * pi
+    per_pair = post.scaling / post.n_pairs * (1.0 if objective == "mce" else 2.0)
+    info = per_pair * beta * beta * np.einsum("sa,sad,sae->sde", weight, E, E)
+    dV = np.einsum("sa,sad->sd", pi, dQ)
+    M = dV.T @ dV / dV.shape[0]
+    occ = start_occupancy(pl, pi, candidates, length)
+    Lam = np.linalg.inv(post.covariance)
+    Lam = 0.5 * (Lam + Lam.T)
+    H = np.einsum("cy,yde->cde", occ, info)
+    after = np.linalg.inv(Lam[None] + H)
+    return np.einsum("de,ed->", M, post.covariance) - np.einsum("de,ced->c", M, after)
+
+
+def _candidates(candidates: Any, n: int, mdps: list) -> list[NDArray[np.intp]]:
+    if candidates is None:
+        return [np.arange(m.n_states) for m in mdps]
+    per_task = not np.isscalar(candidates) and len(candidates) == n and all(np.ndim(c) == 1 for c in candidates) \
+        and not (np.ndim(candidates) == 1)
+    lists = list(candidates) if per_task else [candidates] * n
+    out = []
+    for i, (c, m) in enumerate(zip(lists, mdps)):
+        arr = np.asarray(c)
+        if arr.ndim != 1 or arr.size == 0 or not np.issubdtype(arr.dtype, np.integer):
+            raise ValidationError(f"candidates of task {i} must be a non-empty 1-d array of state indices; got {c!r:.80}")
+        if arr.min() < 0 or arr.max() >= m.n_states:
+            raise ValidationError(f"candidates of task {i} must be states in [0, {m.n_states}); got {arr.min()}..{arr.max()}")
+        out.append(arr.astype(np.intp))
+    return out
+
+
+def _episode_length(n_pairs: float, task_demos: Any) -> int:
+    return max(1, int(round(n_pairs / max(1, len(task_demos)))))
+
+
+def _posteriors(model: Any, mdp: Any, demos_per_task: Any, features: Any) -> tuple[list, Any]:
+    """The posteriors of these tasks: the model's last transfer's when they are its tasks, else built here."""
+    inputs = transfer_inputs(model)
+    problem = None
+    if inputs is not None and inputs[0] is mdp and inputs[1] is demos_per_task and inputs[2] is features:
+        posts = model.transfer_posterior_
+    else:
+        problem = transfer_problem(model, mdp, demos_per_task, features)
+        posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_)) if _has_prior(model) else None
+    if posts is None:
+        raise ValidationError("request_starts needs the tasks' posterior, which is undefined for this model: it needs "
+                              "at least 2 training tasks' coefficients_ and a residual_penalty_ other than 0")
+    return posts, problem
+
+
+def _has_prior(model: Any) -> bool:
+    H = getattr(model, "coefficients_", None)
+    return H is not None and np.shape(H)[0] >= 2 and float(getattr(model, "residual_penalty_", np.inf)) != 0.0
+
+
+CRITERIA = {"information": information_gains, "value": value_variance_reductions}
+
+
+def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
+                   features: Any = None, criterion: str = "information") -> list[NDArray[np.intp]]:
+    """Candidate start states per new task, best first, by expected information gain (module docstring).
+
+    Parameters
+    ----------
+    model : FactIRL
+        Fitted (its ``coefficients_`` give the prior).
+    mdp, demos_per_task, features
+        The new tasks, as in ``FactIRL.transfer``; the posterior is the model's
+        ``transfer_posterior_`` when these are the objects of its last transfer, else the
+        posterior of these tasks (MAP from the prior mean).
+    n_requests : int, default=1
+    candidates : array_like of int (c,), or sequence of n_new such arrays, optional
+        Default: every state of each task's MDP.
+    criterion : {"information", "value"}, default="information"
+        The expected information gain about the coefficients (:func:`information_gains`,
+        D-optimal), or the expected reduction of the posterior variance of the state values
+        (:func:`value_variance_reductions`).
+
+    Returns
+    -------
+    list of n_new int arrays, each (min(n_requests, c),)
+
+    Raises
+    ------
+    ValidationError
+        For ``n_requests`` < 1, candidates out of range, or a model whose posterior is undefined.
+    """
+    n_requests = check_int(n_requests, "n_requests", minimum=1)
+    if criterion not in CRITERIA:
+        raise ValidationError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
+    posts, _ = _posteriors(model, mdp, demos_per_task, features)
+    n = len(posts)
+    cands = _candidates(candidates, n, [p.mdp for p in posts])
+    objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
+    out = []
+    for i, post in enumerate(posts):
+        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]))
+        order = np.argsort(-gains, kind="stable")
+        out.append(cands[i][order[:n_requests]])
+    return out
+
+
+def policy_entropy_starts(posts: list[LaplacePosterior], objective: str, beta: float, n_requests: int = 1,
+                          candidates: Any = None) -> list[NDArray[np.intp]]:
+    """The baseline of Lopes et al. (2009): per task, the candidates where the model's policy at the
+    posterior mean has the highest entropy, best first."""
+    n_requests = check_int(n_requests, "n_requests", minimum=1)
+    cands = _candidates(candidates, len(posts), [p.mdp for p in posts])
+    out = []
+    for post, c in zip(posts, cands):
+        pi = model_policy(post, objective, beta)[1]
+        ent = -np.sum(np.where(pi > 0, pi * np.log(np.where(pi > 0, pi, 1.0)), 0.0), axis=1)
+        order = np.argsort(-ent[c], kind="stable")
+        out.append(c[order[:n_requests]])
+    return out

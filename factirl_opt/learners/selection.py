@@ -1,0 +1,149 @@
+"""The search that chooses how much to share, as a component: :class:`SharingSearch`.
+
+``FactIRL(n_primitives="auto", residual_penalty="auto", sharing_search=SharingSearch(...))``:
+the folds over tasks (``cv``), the candidate grids, the route (how the candidates are fitted
+and which folds each is scored on), the held-out score and the choice rule are the search's
+parameters, and the results a ``cv_results_`` table in the manner of scikit-learn's
+``GridSearchCV`` (a dict of equal-length arrays, one row per candidate, ready for
+``pandas.DataFrame``). The engine is :func:`factirl_opt.learners.adaptive.search_sharing`.
+
+A parameter object and not a separate estimator (``LassoCV`` / ``GridSearchCV``): the
+``"auto"`` values are FactIRL's own parameters, one of them may be fixed while the other is
+searched, the search shares FactIRL's flat start between its candidates and the final fit,
+and the fitted model is a FactIRL (``transfer``, ``save_model``) whatever chose its k. A
+wrapper estimator would have to forward all of that; a parameter travels with ``clone``,
+``get_params(deep=True)`` (``sharing_search__cv``), ``set_params`` and persistence.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..exceptions import ValidationError
+from .adaptive import (
+    DEFAULT_RULE, DEFAULT_SCORE, K_CANDIDATES, LAMBDA_CANDIDATES, N_FOLDS, N_TRANSFER_DEMOS, RACE_MARGIN, RULES,
+    SCORES, SHARE_LEVEL, SearchResult, cv_results, search_sharing, validation_rows,
+)
+from .estimator import Estimator
+
+__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "SHORT_MAX_ITER", "SCREEN_TRANSFER_MAX_ITER", "cv_results", "validation_rows"]
+
+#: outer iterations of each candidate fit on the ``"short"`` route
+SHORT_MAX_ITER = 10
+#: steps of each held-out task's transfer on the ``"short"`` and ``"pca"`` routes (the learner's
+#: ``transfer_max_iter`` elsewhere): the tempered held-out likelihood judges the transferred
+#: reward's direction, which the first steps set; from one demonstration the rest of a transfer
+#: mostly grows the reward's scale toward the saturated policy
+SCREEN_TRANSFER_MAX_ITER = 20
+
+#: the routes of a search: ``(search, candidate_max_iter, transfer_max_iter)`` of
+#: :func:`~factirl_opt.learners.adaptive.search_sharing`. ``"race"``: every candidate on the first
+#: fold, the contenders on the others, each fitted with the learner's ``max_iter`` (the default);
+#: ``"full"``: every candidate on every fold; ``"race-warm"``: the race, candidates warm-started
+#: along lambda; ``"short"``: the race with candidate fits of ``SHORT_MAX_ITER`` outer iterations
+#: and held-out transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"pca"``: every candidate on every
+#: fold, each its PCA start from the training tasks' flat rewards (no alternating fit), held-out
+#: transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps.
+ROUTES: dict[str, tuple[str, int | None, int | None]] = {
+    "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
+    "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
+}
+#: the route ``SharingSearch()`` takes
+DEFAULT_ROUTE = "race"
+
+
+class SharingSearch(Estimator):
+    """How ``FactIRL`` chooses k and the residual penalty lambda for its ``"auto"`` values.
+
+    K-fold over tasks: for each fold and candidate ``(k, lambda)`` a FactIRL with those values
+    is fitted on the other folds' tasks, each held-out task is transferred from its first
+    ``n_transfer_demos`` demonstrations and scored on the others (docs/maths.md §8a; the user
+    guide's page on choosing how much to share).
+
+    Parameters
+    ----------
+    cv : int, splitter or iterable, default=3
+        The folds over tasks: a number of folds (a permutation of the tasks drawn from the
+        learner's ``rng``), a scikit-learn splitter (``split(X)``; its test indices), or an
+        iterable of ``(train, test)`` pairs or of held-out index arrays
+        (:func:`~factirl_opt.learners.adaptive.task_folds`). Only an int is saved by ``save_model``.
+    n_primitives_grid : tuple of int, default=(1, 2, 4, 8, 16)
+        Candidate k (those up to the reward dimension and the training tasks of a fold); then
+        k is bisected around a chosen shared candidate.
+    residual_penalty_grid : tuple of float, default=(inf, 1.0, 0.01, 0.0)
+        Candidate lambda, from the factorial model (inf) to the flat one (0).
+    route : str, default="race"
+        :data:`ROUTES`: how candidates are fitted and on which folds they are scored.
+    score : str, default="likelihood"
+        The held-out score (:data:`~factirl_opt.learners.adaptive.SCORES`).
+    rule : str, default="significant-gain"
+        The choice rule (:data:`~factirl_opt.learners.adaptive.RULES`).
+    n_transfer_demos : int, default=1
+        Demonstrations a held-out task is transferred from.
+    race_margin : float, default=0.1
+        A race keeps, after the first fold, the candidates within this fraction of the best.
+    share_level : float, default=0.05
+        Level of the one-sided paired t-tests of the rule.
+    """
+
+    def __init__(self, cv: Any = N_FOLDS, *, n_primitives_grid: tuple = K_CANDIDATES,
+                 residual_penalty_grid: tuple = LAMBDA_CANDIDATES, route: str = DEFAULT_ROUTE,
+                 score: str = DEFAULT_SCORE, rule: str = DEFAULT_RULE, n_transfer_demos: int = N_TRANSFER_DEMOS,
+                 race_margin: float = RACE_MARGIN, share_level: float = SHARE_LEVEL) -> None:
+        self.cv = cv
+        self.n_primitives_grid = n_primitives_grid
+        self.residual_penalty_grid = residual_penalty_grid
+        self.route = route
+        self.score = score
+        self.rule = rule
+        self.n_transfer_demos = n_transfer_demos
+        self.race_margin = race_margin
+        self.share_level = share_level
+
+    def check(self) -> None:
+        """Validate the parameters (``ValidationError`` naming the first bad one)."""
+        if self.route not in ROUTES:
+            raise ValidationError(f"route must be one of {tuple(ROUTES)}; got {self.route!r}")
+        if self.score not in SCORES:
+            raise ValidationError(f"score must be one of {SCORES}; got {self.score!r}")
+        if self.rule not in RULES:
+            raise ValidationError(f"rule must be one of {RULES}; got {self.rule!r}")
+        ks = list(self.n_primitives_grid) if isinstance(self.n_primitives_grid, (list, tuple)) else None
+        if not ks or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1 for k in ks):
+            raise ValidationError(f"n_primitives_grid must be a non-empty tuple of integers >= 1; got {self.n_primitives_grid!r}")
+        lams = list(self.residual_penalty_grid) if isinstance(self.residual_penalty_grid, (list, tuple)) else None
+        if not lams or any(isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v) or v < 0 for v in lams):
+            raise ValidationError(f"residual_penalty_grid must be a non-empty tuple of numbers >= 0 (inf allowed); got "
+                                  f"{self.residual_penalty_grid!r}")
+        for name in ("race_margin", "share_level"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < (1 if name == "share_level" else math.inf):
+                raise ValidationError(f"{name} must be a number >= 0{' and < 1' if name == 'share_level' else ''}; got {value!r}")
+
+    def search(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> SearchResult:
+        """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values).
+
+        Parameters
+        ----------
+        learner : FactIRL
+        mdp, demos_per_task
+            As in ``FactIRL.fit``.
+        flat_rewards : optional
+            Every task's flat rewards, the PCA start of every candidate
+            (:func:`~factirl_opt.learners.adaptive.flat_start_rewards`).
+
+        Returns
+        -------
+        SearchResult
+            Its :func:`cv_results` is the table ``FactIRL.cv_results_``.
+        """
+        self.check()
+        search, budget, transfer_budget = ROUTES[self.route]
+        return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=self.score, cv=self.cv,
+                              k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
+                              n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
+                              share_level=self.share_level, rule=self.rule, candidate_max_iter=budget,
+                              transfer_max_iter=transfer_budget)

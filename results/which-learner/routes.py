@@ -1,0 +1,62 @@
+"""Search routes side by side on one which-learner point: python routes.py PRESET N SEED OUT.json [ROUTE ...]
+
+For the point's adaptive learner (``_point.setup``: the runner's line-up, its flat start and rng), each
+route of ``SharingSearch`` (default: every route of ``selection.ROUTES``) chooses ``(k, lambda)``; the
+chosen pair is fitted on every training task from the flat start and transferred to the test tasks
+from one demonstration (``_point.test_deviation``). Records per route the CPU time of the search
+(``time.process_time``, this process), the chosen pair, its test deviation, and the CPU time of the
+factorial fit with the preset's k from the same flat start (the benchmark's ``auto_cost_ratio``
+compares the adaptive fit with that one: ratio = (search + final fit) / factorial fit, flat start
+excluded on both sides).
+"""
+import json
+import os
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from factirl_opt.learners import adaptive  # noqa: E402
+from factirl_opt.learners.selection import ROUTES, SharingSearch  # noqa: E402
+from _point import setup  # noqa: E402
+
+import numpy as np  # noqa: E402
+import factirl_opt as fo  # noqa: E402
+
+P = setup(sys.argv[1:5])
+routes = sys.argv[5:] or list(ROUTES)
+out = {"preset": P.preset.name, "n_tasks": P.n, "seed": int(sys.argv[3]), "routes": {}}
+
+
+def fit_and_transfer(k, lam):
+    m = adaptive.fixed_learner(P.learner, k, lam)
+    t0 = time.process_time()
+    m.fit(P.mdp, P.demos, flat_rewards=P.flat.rewards_)
+    t_fit = time.process_time() - t0
+    m.transfer(P.gt.mdps("test"), P.test_demos, features=P.Fte)
+    dev = float(np.mean(fo.deviation(P.gt.mdps("test"), P.gt.rewards("test"), m.transfer_rewards_,
+                                     planner=P.preset.planner)))
+    return t_fit, dev
+
+
+t_fact, dev_fact = fit_and_transfer(P.preset.n_primitives, np.inf)
+out["factorial"] = {"n_primitives": P.preset.n_primitives, "cpu_s": t_fact, "test_deviation": dev_fact}
+print("factorial", out["factorial"], flush=True)
+for route in routes:
+    learner = P.learner.set_params(sharing_search=SharingSearch(route=route))
+    t0 = time.process_time()
+    found = learner.sharing_search.search(learner, P.mdp, P.demos, P.flat.rewards_)
+    t_search = time.process_time() - t0
+    t_final, dev = fit_and_transfer(found.n_primitives, found.residual_penalty)
+    out["routes"][route] = {"chosen": [found.n_primitives, found.residual_penalty], "search_cpu_s": t_search,
+                            "final_cpu_s": t_final, "cost_ratio": (t_search + t_final) / t_fact,
+                            "test_deviation": dev, "candidate_fits": int(sum(len(r["fold_scores"]) for r in found.rows)),
+                            "table": found.rows}
+    # the other rule on the same table: the pair that shares most within noise of the best
+    row = found.rows[adaptive.choose_row(found.rows, "share-within-noise")]
+    pair = [row["n_primitives"], row["residual_penalty"]]
+    out["routes"][route]["share_within_noise"] = {
+        "chosen": pair, "test_deviation": dev if pair == [found.n_primitives, found.residual_penalty]
+        else fit_and_transfer(*pair)[1]}
+    print(route, out["routes"][route], flush=True)
+    with open(P.out_path, "w") as f:
+        json.dump(out, f, indent=1, default=float)

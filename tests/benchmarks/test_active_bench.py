@@ -1,0 +1,42 @@
+"""The active benchmark: deviation after each added demonstration per start strategy, in a tiny configuration."""
+
+import json
+
+import numpy as np
+import pytest
+
+from factirl_opt.lab import bench
+
+
+def run_bench(capsys, argv):
+    assert bench.main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_active_benchmark_quick_records_every_strategy_and_the_calibration(capsys):
+    out = run_bench(capsys, ["active", "--quick", "--calibration", "--max-demos", "3"])
+    row = out["worlds"]["grid"]["0"]
+    assert set(row["strategies"]) == {"requested", "requested-value", "random", "entropy"}
+    for st in row["strategies"].values():
+        assert len(st["deviation"]) == len(st["map_deviation"]) == 3
+        assert np.all(np.isfinite(st["deviation"])) and min(st["deviation"]) >= 0
+        assert len(st["starts"]) == 2 and all(len(s) == row["n_test"] for s in st["starts"])
+    cost = row["request_cost"]
+    assert cost["request_over_transfer"] == pytest.approx(cost["request_cpu_s"] / cost["transfer_cpu_s"])
+    cal = row["calibration"]
+    assert 0 <= cal["coverage_90"] <= 1 and -1 <= cal["spearman"] <= 1 and cal["n_samples"] == 20
+
+
+def test_active_benchmark_random_starts_depend_on_the_seed_only(capsys):
+    argv = ["active", "--quick", "--strategies", "random", "--cost-repeats", "1"]
+    a, b = run_bench(capsys, argv), run_bench(capsys, argv)
+    assert a["worlds"]["grid"]["0"]["strategies"] == b["worlds"]["grid"]["0"]["strategies"]
+
+
+@pytest.mark.parametrize("argv, fragment", [(["--worlds", "maze"], "invalid choice: 'maze'"),
+                                            (["--max-demos", "0"], "--max-demos"),
+                                            (["--strategies", "oracle"], "invalid choice: 'oracle'")])
+def test_active_benchmark_options_are_checked_by_the_parser(capsys, argv, fragment):
+    with pytest.raises(SystemExit):
+        bench.build_parser().parse_args(["active", "--quick", *argv])
+    assert fragment in capsys.readouterr().err

@@ -1,0 +1,150 @@
+"""SharingSearch: the search of FactIRL's "auto" values as a parameter object (folds, grids, route, score, rule)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ConvergenceWarning, PersistenceError, ValidationError
+from factirl_opt.learners import adaptive, clone
+from factirl_opt.learners.selection import ROUTES, SharingSearch
+
+
+@pytest.fixture(scope="module")
+def data():
+    """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(5)
+    F = rng.random((9, 4))
+    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(8, 2))
+    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(8, 9, 4)
+    return mdp, F, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+
+
+def _auto(F, **search):
+    return fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=F, max_iter=3, rng=0,
+                      sharing_search=SharingSearch(**search) if search else None)
+
+
+def _fit(model, mdp, demos):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return model.fit(mdp, demos)
+
+
+def test_the_search_is_a_nested_parameter():
+    model = _auto(None, cv=4, route="pca")
+    params = model.get_params(deep=True)
+    assert params["sharing_search__cv"] == 4 and params["sharing_search__route"] == "pca"
+    twin = clone(model).set_params(sharing_search__cv=5, sharing_search__rule="share-within-noise")
+    assert twin.sharing_search is not model.sharing_search and model.sharing_search.cv == 4
+    assert twin.sharing_search.get_params()["cv"] == 5 and twin.sharing_search.rule == "share-within-noise"
+    assert repr(twin) == ("FactIRL(n_primitives='auto', max_iter=3, rng=0, residual_penalty='auto', "
+                          "sharing_search=SharingSearch(cv=5, route='pca', rule='share-within-noise'))")
+
+
+def test_the_folds_grids_and_route_are_the_searchs(data):
+    mdp, F, demos = data
+    model = _fit(_auto(F, cv=[np.array([0, 1, 2, 3]), np.array([4, 5, 6, 7])], n_primitives_grid=(1, 3),
+                       residual_penalty_grid=(np.inf, 0.0), route="full"), mdp, demos)
+    res = model.cv_results_
+    assert sorted(p["n_primitives"] for p in res["params"] if p["residual_penalty"] == np.inf) in ([1, 3], [1, 2, 3])
+    assert {p["residual_penalty"] for p in res["params"]} == {np.inf, 0.0}
+    assert "split1_test_score" in res and "split2_test_score" not in res and np.all(res["n_splits_scored"] == 2)
+    # the flat fit of the PCA start and the candidates on the folds given: each task held out once
+    tasks = np.column_stack([res[f"task{j}_test_score"] for j in range(8)])
+    assert np.all(np.isfinite(tasks))
+    # a splitter with split(X), as scikit-learn's KFold
+    class Halves:
+        def split(self, X):
+            n = len(X)
+            yield np.arange(n // 2, n), np.arange(n // 2)
+            yield np.arange(n // 2), np.arange(n // 2, n)
+
+    folds = adaptive.task_folds(8, Halves())
+    assert [f.tolist() for f in folds] == [[0, 1, 2, 3], [4, 5, 6, 7]]
+    assert [len(f) for f in adaptive.task_folds(8, 3, rng=0)] == [3, 3, 2]
+
+
+def test_every_route_runs_and_the_pca_route_fits_no_candidate_beyond_its_start(data, monkeypatch):
+    mdp, F, demos = data
+    iterations = []
+    fit = fo.FactIRL.fit
+
+    def counted(self, *args, **kw):
+        out = fit(self, *args, **kw)
+        iterations.append((self.n_primitives, self.max_iter, self.n_iter_))
+        return out
+
+    monkeypatch.setattr(fo.FactIRL, "fit", counted)
+    model = _fit(_auto(F, route="pca", n_primitives_grid=(1, 2), residual_penalty_grid=(np.inf, 1.0, 0.0)), mdp, demos)
+    candidates, final = iterations[:-2], iterations[-2]  # the last two: the final fit, then the auto fit itself
+    assert all(max_iter == 0 and n_iter == 0 for _, max_iter, n_iter in candidates)
+    assert final[1] == 3 and model.n_iter_ == final[2]
+    assert set(ROUTES) == {"race", "full", "race-warm", "short", "pca"}
+    short = _fit(_auto(F, route="short", n_primitives_grid=(1, 2), residual_penalty_grid=(np.inf, 0.0)), mdp, demos)
+    assert [r["chosen"] for r in adaptive.validation_rows(short.cv_results_)].count(True) == 1
+
+
+def test_share_within_noise_takes_the_candidate_that_shares_most_within_noise():
+    def row(k, lam, scores):
+        return {"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(scores)), "score_std": 0.0,
+                "fold_scores": [float(np.mean(scores))], "task_scores": list(scores), "chosen": False}
+
+    base = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    rows = [row(5, np.inf, base + [0.1, -0.1, 0.2, -0.2, 0.1]),   # within noise of the best
+            row(5, 1.0, base - 0.05),                               # the best mean
+            row(2, np.inf, base + 1.0),                             # far behind
+            row(1, 0.0, base + 2.0)]                                # the flat model, far behind
+    assert adaptive.choose_row(rows) == 1
+    assert adaptive.choose_row(rows, "share-within-noise") == 0
+    # nothing within noise: the best stays
+    rows[0] = row(5, np.inf, base + 0.5)
+    assert adaptive.choose_row(rows, "share-within-noise") == 1
+    # the flat model within noise of the best: kept under either rule
+    rows[3] = row(1, 0.0, base + [-0.2, 0.2, -0.1, 0.1, 0.1])
+    assert adaptive.choose_row(rows) == adaptive.choose_row(rows, "share-within-noise") == 3
+    with pytest.raises(ValidationError, match=r"rule must be one of \('significant-gain', 'share-within-noise'\); got 'x'"):
+        adaptive.choose_row(rows, "x")
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"route": "grid"}, r"route must be one of \('race', 'full', 'race-warm', 'short', 'pca'\); got 'grid'"),
+    ({"score": "accuracy"}, r"score must be one of"),
+    ({"rule": "best"}, r"rule must be one of"),
+    ({"n_primitives_grid": (0, 2)}, r"n_primitives_grid must be a non-empty tuple of integers >= 1"),
+    ({"n_primitives_grid": ()}, r"n_primitives_grid must be a non-empty tuple"),
+    ({"residual_penalty_grid": (np.inf, -1.0)}, r"residual_penalty_grid must be a non-empty tuple of numbers >= 0"),
+    ({"residual_penalty_grid": (np.nan,)}, r"residual_penalty_grid must be"),
+    ({"share_level": 1.5}, r"share_level must be a number >= 0 and < 1; got 1.5"),
+    ({"race_margin": -0.1}, r"race_margin must be a number >= 0; got -0.1"),
+    ({"cv": 1}, r"cv must be at least 2 folds; got 1"),
+    ({"cv": [np.array([0, 9])]}, r"cv fold 0 must be a non-empty array of task indices in \[0, 8\)"),
+    ({"cv": [np.arange(8)]}, r"cv fold 0 holds every task out"),
+    ({"cv": "three"}, r"cv must be an int, a splitter with split\(X\) or an iterable of folds; got 'three'"),
+    ({"cv": 3.5}, r"cv must be an int, a splitter with split\(X\) or an iterable of folds; got 3.5"),
+    ({"n_transfer_demos": 0}, r"n_transfer_demos must be an integer >= 1"),
+])
+def test_bad_search_parameters_are_refused_before_any_fit(data, params, message):
+    mdp, F, demos = data
+    with pytest.raises(ValidationError, match=message):
+        _auto(F, **params).fit(mdp, demos, flat_rewards=np.zeros((8, 9, 4)))
+
+
+def test_a_sharing_search_that_is_not_one_is_refused(data):
+    mdp, F, demos = data
+    with pytest.raises(ValidationError, match=r"sharing_search must be a SharingSearch or None; got dict"):
+        fo.FactIRL(n_primitives="auto", features=F, sharing_search={"cv": 3}).fit(mdp, demos, flat_rewards=np.zeros((8, 9, 4)))
+
+
+def test_the_search_is_saved_with_the_model(data, tmp_path):
+    mdp, F, demos = data
+    model = _fit(_auto(F, cv=4, route="pca", residual_penalty_grid=(np.inf, 0.0)), mdp, demos)
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+    assert loaded.sharing_search.get_params() == model.sharing_search.get_params()
+    assert loaded.sharing_search.residual_penalty_grid == (np.inf, 0.0)
+    np.testing.assert_array_equal(loaded.cv_results_["mean_test_score"], model.cv_results_["mean_test_score"])
+    unsaved = _auto(F, cv=[np.arange(4), np.arange(4, 8)])
+    with pytest.raises(PersistenceError, match=r"cannot save FactIRL with sharing_search.cv=\[array"):
+        fo.save_model(unsaved, tmp_path / "folds.npz")
