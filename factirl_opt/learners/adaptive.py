@@ -54,8 +54,9 @@ from scipy.stats import t as t_dist
 
 from .._validation import as_rng, check_int, check_rewards
 from ..exceptions import ConvergenceWarning, FitInterrupted, ValidationError
-from .fitting import make_objective, resolve_step_solver
-from ..tasks.task_set import per_task_features
+from .fitting import resolve_step_solver, task_objective
+from ..objectives.sharding import Execution
+from ..tasks.task_set import TaskSet, per_task_features, task_set
 from .solver_settings import estimator_solvers
 from .em import log_policies
 from .intention_count import one_standard_error_choice
@@ -64,7 +65,6 @@ from .estimator import clone
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, optimal_q
 from ..tasks.trajectories import parse_demonstrations
-from ..tasks.demonstrations import empirical_statistics
 
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
            "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL", "RULES", "DEFAULT_RULE", "held_out_occupancy_gap",
@@ -188,7 +188,7 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
         ``rewards`` not finite, or not one task's reward of the MDP's shape.
     """
     R = _one_reward(mdp, rewards)
-    mu, pi_hat = empirical_statistics(mdp, [demos])
+    mu, pi_hat = task_set(mdp, [demos]).statistics()
     weights = mu[0][:, None] * pi_hat[0]
     log_pi = log_policies(get_planner(mdp, model.planner), R[None], model.beta, model.objective)[0]
     if not temper:
@@ -258,24 +258,31 @@ def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: st
     return float(np.abs(learnt - expert).sum())
 
 
-def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int] | np.ndarray, t: int,
+def _fit_inputs(tasks: TaskSet, features: Any) -> tuple[Any, Any]:
+    """The ``(mdp, features)`` a FactIRL ``fit`` or ``transfer`` takes for a task set's tasks: on one
+    environment its MDP and ``features`` (a learner's own parameter for a fit, None for a
+    transfer: the model's own); else the tasks' MDPs and their rows of the basis."""
+    return (tasks.mdp, features) if tasks.shared else (tasks.mdps, tasks.basis)
+
+
+def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
            score: str = DEFAULT_SCORE, transfer_max_iter: int | None = None) -> np.ndarray:
-    """Held-out score of tasks ``idx``: transfer from their first t demonstrations, then, on the
+    """Held-out score of tasks ``idx`` of ``tasks``: transfer from their first t demonstrations, then, on the
     others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not), the
     learner's objective (``"objective"``) or :func:`held_out_occupancy_gap` (``"occupancy"``);
     one value per task."""
-    sub_mdp, sub_features = task_subset(mdp, features, idx)
-    first = [demos[i][:t] for i in idx]
-    model.transfer(sub_mdp, first, features=sub_features if per_task_features(features) else None,
-                   max_iter=transfer_max_iter)
+    demos = tasks.demos_per_task
+    held = tasks.subset(idx)
+    sub_mdp, sub_features = _fit_inputs(held, None)
+    model.transfer(sub_mdp, [demos[i][:t] for i in idx], features=sub_features, max_iter=transfer_max_iter)
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
-        one, rest = task_mdp(mdp, i), demos[i][t:]
+        one, rest = held.mdp if held.shared else held.mdps[j], demos[i][t:]
         if score == "occupancy":
             out[j] = held_out_occupancy_gap(one, rest, rewards[j], model.planner)
         elif score == "objective":
-            obj = make_objective(one, [rest], model.beta, model.objective, model.planner)
+            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model.planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
             out[j] = held_out_nll(one, rest, rewards[j], model, temper=score == "likelihood")
@@ -457,7 +464,7 @@ def sharing_candidates(learner: Any, k_max: int, k_grid: Sequence[int] = K_CANDI
 
 def max_primitives(learner: Any, mdp: Any, n_tasks: int, folds: Sequence[np.ndarray]) -> int:
     """The largest k a candidate may have: the reward dimension p, and the training tasks of the smallest fold's fit."""
-    return min(_reward_dimension(learner, mdp), min(n_tasks - len(f) for f in folds))
+    return min(_reward_dimension(learner, mdp, n_tasks), min(n_tasks - len(f) for f in folds))
 
 
 def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None, *,
@@ -718,14 +725,15 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     dict
         ``{(k, lambda): [array of per-task scores, one per fold]}``.
     """
-    n = _count(demos_per_task)
+    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
+    n = tasks.n_tasks
     t = n_transfer_demos
     progress = SearchProgress() if progress is None else progress
     budget = learner.max_iter if candidate_max_iter is None else min(candidate_max_iter, learner.max_iter)
     scores: dict = {}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)
-        sub_mdp, sub_features = task_subset(mdp, learner.features, train)
+        sub_mdp, sub_features = _fit_inputs(tasks.subset(train), learner.features)
         fitted: dict = {}
         for k, lam in candidates:
             before = [c for c in fitted if c[0] == k]
@@ -745,7 +753,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                           flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, train))
                 progress.fits[k, lam], progress.train_tasks[k, lam] = model, train
             fitted[k, lam] = model
-            value = _score(model, mdp, demos_per_task, learner.features, held, t, score, transfer_max_iter)
+            value = _score(model, tasks, held, t, score, transfer_max_iter)
             scores.setdefault((k, lam), []).append(value)
             progress.scores.setdefault((k, lam), []).append(value)
     return scores
@@ -761,12 +769,10 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
                                         **params})
 
 
-def _reward_dimension(learner: Any, mdp: Any) -> int:
-    F = learner.features
-    if F is None:
-        one = task_mdp(mdp, 0)
-        return one.n_states if learner.reward == "state" else one.n_params
-    return int(np.shape(F[0] if per_task_features(F) else F)[-1])
+def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
+    """p, the reward parameters per task of ``learner``'s features on ``n_tasks`` tasks of ``mdp``
+    (:attr:`~factirl_opt.tasks.task_set.TaskSet.n_params`; the demonstrations play no part)."""
+    return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
 
 
 def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float) -> Any:
@@ -774,9 +780,7 @@ def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str,
     as FactIRL's own flat start) on every task at once (separable: each task's rewards are those
     of its own fit)."""
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
-                   solver=solver, objective=learner.objective, planner=learner.planner, reward=learner.reward,
-                   n_jobs=learner.n_jobs, backend=learner.backend, client=learner.client,
-                   planner_options=learner.planner_options)
+                   solver=solver, objective=learner.objective, reward=learner.reward, **Execution.of(learner).params())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
         return flat.fit(mdp, demos_per_task).rewards_

@@ -144,7 +144,7 @@ def one_environment(mdp: Any, demos_per_task: Any, features: Any) -> Any:
     ``fit(mdp, ...)`` bit for bit. Anything that is neither a TabularMDP nor a sequence is
     returned as is, for the one-MDP path to refuse.
     """
-    if per_task_features(features):
+    if per_task_features(features) or (isinstance(features, RewardBasis) and not features.shared):
         return None
     if isinstance(mdp, TabularMDP) or not isinstance(mdp, Sequence) or isinstance(mdp, (str, bytes)):
         return mdp
