@@ -278,7 +278,7 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
     rewards = model.transfer_rewards_
     out = np.empty(len(idx))
     for j, i in enumerate(idx):
-        one, rest = held.mdp if held.shared else held.mdps[j], demos[i][t:]
+        one, rest = held.mdp if held.mdps is None else held.mdps[j], demos[i][t:]
         if score == "occupancy":
             out[j] = held_out_occupancy_gap(one, rest, rewards[j], model.planner)
         elif score == "objective":

@@ -37,6 +37,7 @@ from .dictionary import (
 from ..exceptions import FitInterrupted, ValidationError
 from .factorial import GTOL, FactorialFit, fit_factorial, run_factorial
 from .fitting import learner_entry, resolve_step_solver, task_objective, warn_if_stalled
+from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
 from .gradirl import fit_weights
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
@@ -91,7 +92,8 @@ class FactIRL(Estimator):
         (state features are repeated over actions). None: tabular, p = S*A. A sequence gives
         one matrix per task, (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i D h_i`` on
         task i's own environment, the dictionary living in feature space (docs/maths.md §8);
-        ``transfer`` then needs the new environments' features.
+        ``transfer`` then needs the new environments' features. Or any
+        :class:`~factirl_opt.tasks.basis.RewardBasis` (another kind of features), taken as it is.
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
         (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
@@ -288,7 +290,7 @@ class FactIRL(Estimator):
 
     @renamed_params
     def __init__(self, n_primitives: int | Literal["auto"] = 5, beta: float = 5.0, *,
-                 features: ArrayLike | Sequence[ArrayLike] | None = None, reward: str = "state-action",
+                 features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, reward: str = "state-action",
                  init: Literal["pca", "random"] | tuple[ArrayLike, ArrayLike] = "pca", pca_shrink: bool = True,
                  flat_max_iter: int = 100, max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5,
                  gtol: float = GTOL, transfer_max_iter: int = 100,

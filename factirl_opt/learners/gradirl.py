@@ -22,6 +22,7 @@ from .fitting import (
     GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
     task_objective, warn_if_max_iter, warn_if_stalled,
 )
+from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from ..objectives.sharding import Execution
@@ -104,7 +105,8 @@ class GradIRL(Estimator):
         Linear reward features ``R = F w`` (state features are repeated over actions); None
         learns tabular rewards (``theta = R``, d = S*A). A sequence gives one matrix per task,
         (S_i*A, p) or (S_i, p) with the same p: ``R_i = Phi_i w_i`` on task i's own
-        environment (tasks in several environments; docs/maths.md §7).
+        environment (tasks in several environments; docs/maths.md §7). Or any
+        :class:`~factirl_opt.tasks.basis.RewardBasis` (another kind of features), taken as it is.
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state-action"`` learns ``R(s, a)`` (d = S*A); ``"state"`` learns a
         reward of the states only, ``R(s, a) = r(s)`` (d = S), at the cost of the tabular fit
@@ -219,7 +221,7 @@ class GradIRL(Estimator):
     param_kinds: ClassVar[dict[str, str]] = {"features": "features", "solver": "solver", "objective": "objective",
                                              "planner": "planner", **EXECUTION_PARAM_KINDS}
 
-    def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | None = None, *,
+    def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, *,
                  reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5, gtol: float = GTOL,
                  solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
                  objective: str | type[Objective] = "policy-matching", planner: str = "auto", n_jobs: int | None = None,

@@ -42,6 +42,7 @@ from .solver_settings import SolverSettings, estimator_solvers
 
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
     from distributed import Client
+from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
 from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
 
@@ -79,7 +80,8 @@ class MultiIntentIRL(Estimator):
         fit). k: ``R_c = Phi D h_c`` with a dictionary D (p, k) shared by the intentions (the
         M-step is FactIRL's alternating fit; the first one starts from the PCA of flat rewards).
     features : array_like, shape (S*A, p) or (S, p), optional
-        Base features ``Phi``; None for tabular rewards.
+        Base features ``Phi``; None for tabular rewards; or a shared
+        :class:`~factirl_opt.tasks.basis.RewardBasis`, taken as it is.
     reward : {"state-action", "state"}, default="state-action"
         As in :class:`GradIRL`.
     objective : {"policy-matching", "mce"}, default="policy-matching"
@@ -220,7 +222,7 @@ class MultiIntentIRL(Estimator):
     }
 
     def __init__(self, n_intentions: int | Literal["auto"], n_primitives: int | None = None, *,
-                 features: ArrayLike | None = None,
+                 features: ArrayLike | RewardBasis | None = None,
                  reward: str = "state-action", objective: str = "policy-matching", beta: float = 5.0,
                  n_intentions_range: tuple[int, int] | None = None, selection: str = "held-out", n_folds: int = 3,
                  init: Literal["agreement", "frequencies", "random"] | ArrayLike = "agreement", n_init: int = 1,

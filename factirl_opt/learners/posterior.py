@@ -472,7 +472,8 @@ def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = 
     obj = task_objective(tasks, model.beta, model.objective, model.planner)
     lam = float(getattr(model, "residual_penalty_", np.inf))
     rows = np.arange(tasks.n_tasks)
-    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdps is None else list(tasks.mdps)
+    one = tasks.mdp
+    mdps = list(tasks.mdps or []) if one is None else [one] * tasks.n_tasks
     feats = tasks.basis.recorded_features(rows)
     n_pairs = np.array([task_steps(mdps[i], demos_per_task[i], i).shape[0] for i in range(len(mdps))], dtype=np.float64)
     return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, n_pairs)
