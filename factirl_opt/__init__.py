@@ -159,7 +159,9 @@ _MOVED_MODULES = {
 _MOVED_MODULE_NAMES = {
     "successors": {name: "mdp.tabular" for name in ("from_successors", "to_successors")},
     "gradirl": {"weights_rewards": "tasks.features"},
-    "problems": {"FEATURE_SCALE_LIMIT": "tasks.features"},
+    "factorial": {"factorial_rewards": "tasks.features"},
+    "problems": {name: "tasks.features" for name in (
+        "FEATURE_SCALE_LIMIT", "linear_rewards", "dense_features", "StateBroadcast")},
     "task_environments": {"feature_rewards": "tasks.features"},
     "fitting": {name: "tasks.task_set" for name in (
         "REWARDS", "reward_features", "reward_dimension", "per_task_features", "one_environment",

@@ -92,6 +92,7 @@ REMOVED = {
     "factirl_opt.fitting": {"Environments", "environments_setup"},  # 25a26e5: tasks.task_set builds a TaskSet
     "factirl_opt.task_environments": {"environments",  # 50e3cfd: check_environments is the one home
                                       "task_rewards"},  # 25a26e5: TaskSet.rewards (tasks.features.task_rewards is D h)
+    "factirl_opt.transfer": {"environments_transfer_setup"},  # 68946e2: transfer_tasks builds the new tasks' TaskSet
 }
 
 
