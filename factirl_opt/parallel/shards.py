@@ -490,14 +490,45 @@ def _lost_as_shard_lost() -> Iterator[None]:
 
 
 class DaskShard:
-    """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``."""
+    """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``.
+
+    Every wait is bounded: the actor's creation waits at most :data:`DASK_WAIT_SECONDS` while no
+    worker runs it (every worker gone, or a task stranded by workers dying around it), then
+    :class:`WorkersLost`; a call's reply is awaited while the actor's worker is in the cluster, and
+    :class:`ShardLost` (the shard is rebuilt) as soon as it is not (a call to a dead worker's actor can
+    otherwise wait on Dask's own connection timeouts and re-creation of the actor).
+    """
 
     def __init__(self, spec: tuple, client: Any, k: int) -> None:
+        self.client, self.k = client, k
         workers = _wait_for_dask_worker(client)
         with _lost_as_shard_lost():
-            self.actor = client.submit(ShardHost, *spec, actor=True, workers=[workers[k % len(workers)]],
-                                       allow_other_workers=True, pure=False).result()
+            future = client.submit(ShardHost, *spec, actor=True, workers=[workers[k % len(workers)]],
+                                   allow_other_workers=True, pure=False)
+            self.actor = self._created(future)
+        self.worker = getattr(self.actor, "_address", None)  # where the actor lives
         self.future: Any = None
+
+    def _created(self, future: Any) -> Any:
+        since = time.monotonic()  # the last moment a worker was running the creation
+        while True:
+            try:
+                return future.result(timeout=POLL_SECONDS)
+            except TimeoutError:
+                pass
+            workers = dask_workers(self.client, during_fit=True)
+            try:
+                running = any(future.key in keys for keys in self.client.processing(workers=workers).values()) if workers else False
+            except Exception:  # noqa: BLE001 - the scheduler went away meanwhile: judged at the next check
+                running = False
+            now = time.monotonic()
+            if running:
+                since = now
+            elif now - since > DASK_WAIT_SECONDS:
+                future.cancel()
+                raise WorkersLost(f"shard {self.k} was not started on any worker of the Dask cluster of {self.client!r} "
+                                  f"within {DASK_WAIT_SECONDS:g} s (parallel.DASK_WAIT_SECONDS; its workers were lost); "
+                                  "restart workers, or refit with n_jobs=1")
 
     def submit(self, method: str, args: tuple) -> None:
         with _lost_as_shard_lost():
@@ -505,7 +536,13 @@ class DaskShard:
 
     def result(self) -> Any:
         with _lost_as_shard_lost():
-            result, caught = self.future.result()
+            while True:
+                try:
+                    result, caught = self.future.result(timeout=POLL_SECONDS)
+                    break
+                except TimeoutError:
+                    if self.worker is not None and self.worker not in dask_workers(self.client, during_fit=True):
+                        raise ShardLost(f"the Dask worker {self.worker} holding shard {self.k} left the cluster") from None
         replay_warnings(caught)
         return result
 
