@@ -12,11 +12,12 @@ under it; it knows nothing of objectives:
   received (:attr:`Shards.bytes_sent`); a shard whose worker went away is rebuilt and the
   call retried (at most :data:`MAX_RESTARTS` times per call), after an ``on_restart(k)``
   hook lets the caller restore what the call needs (e.g. a linearisation); when the
-  rebuilds run out, or a Dask client or cluster is gone, :class:`WorkersLost` (a fit
-  interruption: the estimator keeps its best point) is raised;
+  rebuilds run out, or a Dask client or cluster is gone, :class:`WorkersLost` (an ordinary
+  library error, which a fit ends like an interruption: the estimator keeps its best point) is raised;
 - handles: :class:`InProcessShard` (the driver's own shard: no copy, no process),
   :class:`ProcessShard` (one ``multiprocessing`` process and pipe per shard, started once
-  per fit, forked where the platform allows, SIGINT ignored, exits when its parent is gone;
+  per fit by a fork server (:func:`_context`: never forked from the caller's process, which
+  may be multithreaded), SIGINT ignored, exits when its parent is gone;
   a shard process that dies, or that sends nothing and uses no CPU time for
   :data:`SILENCE_SECONDS` while a call waits (stopped, or deadlocked), is noticed within
   :data:`POLL_SECONDS`, killed and rebuilt)
@@ -74,8 +75,9 @@ SILENCE_SECONDS = 60.0
 #: how long a fit whose Dask cluster has lost every worker waits for one to come back before
 #: it stops with :class:`WorkersLost` (seconds)
 DASK_WAIT_SECONDS = 30.0
-#: held while a shard process is started: a process forked by another thread meanwhile would
-#: inherit the new shard's end of the pipe, and its death would then go unnoticed
+#: held while a shard process is started: a process forked by another thread meanwhile (the
+#: caller's own, or a fallback start method's) would inherit the new shard's end of the pipe, and
+#: its death would then go unnoticed
 _START_LOCK = threading.Lock()
 
 
