@@ -213,3 +213,62 @@ def test_a_cluster_without_workers_warns_and_fits_in_this_process(data):
     finally:
         c.close()
         cluster.close()
+
+
+def within(seconds, fn, *args):
+    """``fn(*args)`` in a daemon thread: its result or its exception, or a failure if it hangs."""
+    import threading
+
+    out = []
+
+    def run():
+        try:
+            out.append(("ok", fn(*args)))
+        except BaseException as exc:  # noqa: BLE001 - handed to the test's thread
+            out.append(("error", exc))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"still waiting after {seconds} s (a hang)"
+    if out[0][0] == "error":
+        raise out[0][1]
+    return out[0][1]
+
+
+def test_a_shard_no_worker_starts_ends_in_workers_lost_after_the_bounded_wait(client, monkeypatch):
+    # as a shard's creation stranded by workers dying around it: here a task bound to a worker that does not exist
+    from factirl_opt.parallel import shards
+
+    monkeypatch.setattr(shards, "DASK_WAIT_SECONDS", 1.0)
+    submit = client.submit
+    monkeypatch.setattr(client, "submit", lambda *a, **kw: submit(*a, **{**kw, "workers": ["tcp://127.0.0.1:9"],
+                                                                       "allow_other_workers": False}))
+    client.wait_for_workers(2)
+    with pytest.raises(fo.exceptions.WorkersLost, match=r"shard 0 was not started on any worker .* within 1 s"):
+        within(30, shards.Shards, [(dict, ())], "dask", client)
+
+
+@pytest.mark.slow
+def test_every_worker_killed_mid_fit_recovers_or_stops_within_the_bound(client, data):
+    # the nannies restart the killed workers: the fit goes on with rebuilt shards, or stops with WorkersLost
+    # (within DASK_WAIT_SECONDS of waiting for a worker per shard); it used to wait forever now and then
+    mdp, demos, F = data
+
+    def kill_all(iteration, total):
+        if iteration == 1:
+            try:
+                client.run(os._exit, 1)
+            except Exception:  # noqa: BLE001 - the workers die while answering
+                pass
+
+    client.wait_for_workers(2)
+    model = fo.FactIRL(backend="dask", client=client, n_jobs=2, callback=kill_all, n_primitives=2, max_iter=3,
+                       init="random", rng=0, features=F, solver="gn-qp-clarabel", d_solver="lbfgs")
+    try:
+        within(120, model.fit, mdp, demos)
+        assert model.status_ != "interrupted"
+    except fo.exceptions.WorkersLost:
+        assert model.status_ == "interrupted" and np.all(np.isfinite(model.loss_))
+    finally:
+        client.wait_for_workers(2, timeout=60)

@@ -8,6 +8,8 @@
   episodes (:mod:`~factirl_opt.learners.em`, :mod:`~factirl_opt.learners.multi_intent_fit`)
   and the choice of the number of intentions (:mod:`~factirl_opt.learners.intention_count`).
 - :class:`SolverSettings`: the step solvers a learner runs, as one value.
+- :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
+  posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
   values are chosen (:mod:`~factirl_opt.learners.adaptive`, the search's engine).
 
@@ -19,6 +21,7 @@ from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
+from .posterior import LaplacePosterior
 from .selection import SharingSearch
 from .solver_settings import SolverSettings
 
@@ -35,4 +38,5 @@ __all__ = [
     "pca_dictionary",
     "adjusted_rand_index",
     "match_intentions",
+    "LaplacePosterior",
 ]

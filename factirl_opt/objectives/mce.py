@@ -108,9 +108,6 @@ ADJOINT_TOL = 1e-13
 HESSIAN_KINDS = ("exact", "gauss-newton")
 #: :func:`mce_hessian` forms the tangents ``dQ`` (r, S, A, p) of at most this many bytes at once
 HESSIAN_CHUNK_BYTES = 64 * 2**20
-#: with at most this many weight columns, :func:`mce_hessian` solves for the tangents by iterative
-#: refinement on the tasks' kept factorisations (a few cheap sweeps) instead of factorising anew
-HESSIAN_REFINE_MAX_COLUMNS = 16
 #: refinement sweeps of the adjoint before a task falls back to a new factorisation of its own policy
 ADJOINT_MAX_REFINE = 30
 #: a refinement sweep must shrink the adjoint's residual by this factor, else the task falls back too
@@ -386,43 +383,7 @@ def _gradient(planner, point):
     return -(g + planner.gamma * pi * z[:, :, None])
 
 
-def refined_solve(planner, solvers, pi, B):
-    """``Z`` with ``(I - gamma P_pi) Z = B`` (n, S, k) by iterative refinement on kept factorisations.
-
-    The forward counterpart of :func:`refined_adjoint_solve` with ``k`` right-hand sides per task:
-    each sweep computes the residual with the current policies' systems (a backup, no
-    factorisation) and corrects ``Z += K^-1 r``; a task stops at a relative residual
-    :data:`ADJOINT_TOL`, or is left unconverged when a sweep does not shrink its residual by
-    :data:`ADJOINT_MIN_CONTRACTION` or after :data:`ADJOINT_MAX_REFINE` sweeps.
-
-    Returns
-    -------
-    Z : ndarray, shape (n, S, k)
-    converged : ndarray of bool, shape (n,)
-    """
-    n, S, k = B.shape
-    A = pi.shape[2]
-    Z = planner.solver_system(solvers).solve(B)
-    scale_b = np.abs(B).max(axis=(1, 2))
-    todo, prev = np.arange(n), np.full(n, np.inf)
-    converged = np.zeros(n, dtype=bool)
-    for sweep in range(ADJOINT_MAX_REFINE + 1):
-        t = todo
-        PZ = planner.backup(Z[t]).reshape(len(t), S, A, k)
-        r = B[t] - (Z[t] - planner.gamma * _action_average(pi[t], PZ))
-        norm = np.abs(r).max(axis=(1, 2))
-        done = norm <= ADJOINT_TOL * (scale_b[t] + np.abs(Z[t]).max(axis=(1, 2)))
-        converged[t[done]] = True
-        going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * prev[t])  # False for NaN: stalled
-        prev[t] = norm
-        todo = t[going]
-        if todo.size == 0 or sweep == ADJOINT_MAX_REFINE:
-            break
-        Z[todo] += planner.solver_system([solvers[i] for i in todo]).solve(r[going])
-    return Z, converged
-
-
-def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", chunk=None, kept=None):
+def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", chunk=None):
     """Hessian of every task's MCE loss with respect to linear reward weights ``R_i = F_i w_i``.
 
     Unvalidated kernel (docs/maths.md §6). With the soft-optimal policy ``pi`` of ``R`` and
@@ -461,10 +422,6 @@ def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", 
     chunk : int, optional
         Tasks whose tangents are formed at once (default: as many as fit in
         :data:`HESSIAN_CHUNK_BYTES`).
-    kept : list, optional
-        Per task, a kept factorisation of a nearby policy's system (:class:`MCEObjective`);
-        with at most :data:`HESSIAN_REFINE_MAX_COLUMNS` columns the tangents are solved by
-        :func:`refined_solve` on them (a task where that does not converge is factorised anew).
 
     Returns
     -------
@@ -491,21 +448,8 @@ def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", 
         # state features (the same for every action) cancel in the centred tangents: E = centre(gamma P dV)
         state_only = bool(np.all(F == F[:, :, :1, :]))
         F_pi = F[:, :, 0, :].copy() if state_only else _action_average(pi[c], F)  # sum_a pi dR, (m, S, p)
-        mine = None if kept is None else kept[c]
-        if mine is not None and p <= HESSIAN_REFINE_MAX_COLUMNS and all(k is not None for k in mine):
-            dV, converged = refined_solve(planner, mine, pi[c], F_pi)
-            chunk_solvers = list(mine)
-            if not converged.all():
-                bad = np.flatnonzero(~converged)
-                system = planner.system(pi[c][bad])
-                dV[bad] = system.solve(F_pi[bad])
-                for j, solver in zip(bad, getattr(system, "solvers", None) or [None] * len(bad)):
-                    chunk_solvers[j] = solver
-        else:
-            system = planner.system(pi[c])
-            dV = system.solve(F_pi)
-            chunk_solvers = list(getattr(system, "solvers", None) or [None] * m)
-        U = planner.gamma * planner.backup(dV).reshape(m, S, A, p)  # gamma P dV
+        system = planner.system(pi[c])
+        U = planner.gamma * planner.backup(system.solve(F_pi)).reshape(m, S, A, p)  # gamma P dV
         if not state_only:
             U += F  # dQ = dR + gamma P dV
         mean = _action_average(pi[c], U)  # sum_a pi dQ, (m, S, p)
@@ -515,7 +459,7 @@ def mce_hessian(planner, R, log_pi, counts, grad, beta, features, kind="exact", 
             Ua = U[:, :, a, :]
             Hc += np.matmul(Ua.transpose(0, 2, 1), wpi[c, :, a, None] * Ua)
         H[c] = 0.5 * (Hc + Hc.transpose(0, 2, 1))
-        solvers += chunk_solvers
+        solvers += list(getattr(system, "solvers", None) or [None] * m)
     return H, solvers
 
 
@@ -641,11 +585,9 @@ class MCEObjective(Objective):
         _, _, log_pi = soft_backup(self.planner, R, self._warm[rows], self.beta)
         counts = self.mu[rows][:, :, None] * self.pi_hat[rows]
         budget = self._chunk(len(rows), F.shape[-1])
-        keep = self._kept is not None and budget >= self.n_tasks
         H, solvers = mce_hessian(self.planner, R, log_pi, counts, grad, self.beta, F, kind,
-                                 chunk=None if budget >= len(rows) else budget,
-                                 kept=[self._kept[i] for i in rows] if keep else None)
-        if keep:
+                                 chunk=None if budget >= len(rows) else budget)
+        if self._kept is not None and budget >= self.n_tasks:
             for i, solver in zip(rows, solvers):
                 if solver is not None:
                     self._kept[i] = solver

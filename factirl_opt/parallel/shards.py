@@ -12,11 +12,12 @@ under it; it knows nothing of objectives:
   received (:attr:`Shards.bytes_sent`); a shard whose worker went away is rebuilt and the
   call retried (at most :data:`MAX_RESTARTS` times per call), after an ``on_restart(k)``
   hook lets the caller restore what the call needs (e.g. a linearisation); when the
-  rebuilds run out, or a Dask client or cluster is gone, :class:`WorkersLost` (a fit
-  interruption: the estimator keeps its best point) is raised;
+  rebuilds run out, or a Dask client or cluster is gone, :class:`WorkersLost` (an ordinary
+  library error, which a fit ends like an interruption: the estimator keeps its best point) is raised;
 - handles: :class:`InProcessShard` (the driver's own shard: no copy, no process),
   :class:`ProcessShard` (one ``multiprocessing`` process and pipe per shard, started once
-  per fit, forked where the platform allows, SIGINT ignored, exits when its parent is gone;
+  per fit by a fork server (:func:`_context`: never forked from the caller's process, which
+  may be multithreaded), SIGINT ignored, exits when its parent is gone;
   a shard process that dies, or that sends nothing and uses no CPU time for
   :data:`SILENCE_SECONDS` while a call waits (stopped, or deadlocked), is noticed within
   :data:`POLL_SECONDS`, killed and rebuilt)
@@ -74,8 +75,9 @@ SILENCE_SECONDS = 60.0
 #: how long a fit whose Dask cluster has lost every worker waits for one to come back before
 #: it stops with :class:`WorkersLost` (seconds)
 DASK_WAIT_SECONDS = 30.0
-#: held while a shard process is started: a process forked by another thread meanwhile would
-#: inherit the new shard's end of the pipe, and its death would then go unnoticed
+#: held while a shard process is started: a process forked by another thread meanwhile (the
+#: caller's own, or a fallback start method's) would inherit the new shard's end of the pipe, and
+#: its death would then go unnoticed
 _START_LOCK = threading.Lock()
 
 
@@ -490,14 +492,45 @@ def _lost_as_shard_lost() -> Iterator[None]:
 
 
 class DaskShard:
-    """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``."""
+    """A shard held by a Dask actor (:class:`ShardHost`) on worker ``k mod n_workers`` of ``client``.
+
+    Every wait is bounded: the actor's creation waits at most :data:`DASK_WAIT_SECONDS` while no
+    worker runs it (every worker gone, or a task stranded by workers dying around it), then
+    :class:`WorkersLost`; a call's reply is awaited while the actor's worker is in the cluster, and
+    :class:`ShardLost` (the shard is rebuilt) as soon as it is not (a call to a dead worker's actor can
+    otherwise wait on Dask's own connection timeouts and re-creation of the actor).
+    """
 
     def __init__(self, spec: tuple, client: Any, k: int) -> None:
+        self.client, self.k = client, k
         workers = _wait_for_dask_worker(client)
         with _lost_as_shard_lost():
-            self.actor = client.submit(ShardHost, *spec, actor=True, workers=[workers[k % len(workers)]],
-                                       allow_other_workers=True, pure=False).result()
+            future = client.submit(ShardHost, *spec, actor=True, workers=[workers[k % len(workers)]],
+                                   allow_other_workers=True, pure=False)
+            self.actor = self._created(future)
+        self.worker = getattr(self.actor, "_address", None)  # where the actor lives
         self.future: Any = None
+
+    def _created(self, future: Any) -> Any:
+        since = time.monotonic()  # the last moment a worker was running the creation
+        while True:
+            try:
+                return future.result(timeout=POLL_SECONDS)
+            except TimeoutError:
+                pass
+            workers = dask_workers(self.client, during_fit=True)
+            try:
+                running = any(future.key in keys for keys in self.client.processing(workers=workers).values()) if workers else False
+            except Exception:  # noqa: BLE001 - the scheduler went away meanwhile: judged at the next check
+                running = False
+            now = time.monotonic()
+            if running:
+                since = now
+            elif now - since > DASK_WAIT_SECONDS:
+                future.cancel()
+                raise WorkersLost(f"shard {self.k} was not started on any worker of the Dask cluster of {self.client!r} "
+                                  f"within {DASK_WAIT_SECONDS:g} s (parallel.DASK_WAIT_SECONDS; its workers were lost); "
+                                  "restart workers, or refit with n_jobs=1")
 
     def submit(self, method: str, args: tuple) -> None:
         with _lost_as_shard_lost():
@@ -505,7 +538,13 @@ class DaskShard:
 
     def result(self) -> Any:
         with _lost_as_shard_lost():
-            result, caught = self.future.result()
+            while True:
+                try:
+                    result, caught = self.future.result(timeout=POLL_SECONDS)
+                    break
+                except TimeoutError:
+                    if self.worker is not None and self.worker not in dask_workers(self.client, during_fit=True):
+                        raise ShardLost(f"the Dask worker {self.worker} holding shard {self.k} left the cluster") from None
         replay_warnings(caught)
         return result
 

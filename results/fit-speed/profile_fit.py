@@ -61,5 +61,6 @@ for part in parts.values():
 rest = cpu - sum(p["cpu_s"] for p in parts.values())
 out = dict(objective=args.objective, flat_solver=args.flat_solver, h_solver=args.h_solver, n_tasks=args.n_tasks, cpu_s=cpu,
            n_evaluations=int(model.n_evaluations_), n_iter=int(model.n_iter_), status=model.status_,
-           parts=parts, rest_cpu_s=rest, counts=planner.counts())
+           parts=parts, rest_cpu_s=rest, counts=planner.counts(),
+           loss_history=[float(v) for v in model.loss_history_], train_deviation=bench._entry(model, wall, planner, gt, preset)["mean_train_deviation"])
 print(json.dumps(out, indent=1))

@@ -140,39 +140,3 @@ def test_hessian_validation(rng, grid3, kwargs, fragment):
     obj = MCEObjective(grid3, mu, pi_hat, BETA)
     with pytest.raises(ValidationError, match=fragment):
         obj.hessian(np.zeros((2, grid3.n_states, grid3.n_actions)), None, **kwargs)
-
-
-def test_refined_solve_equals_a_fresh_factorisation(rng, grid3):
-    """Forward solves refined on the factorisations of nearby policies: those of the current ones."""
-    from factirl_opt.objectives.mce import refined_solve
-    from factirl_opt.planning import get_planner
-
-    planner = get_planner(grid3, "sparse-lu")
-    pi = rng.dirichlet(np.ones(grid3.n_actions), size=(2, grid3.n_states))
-    near = 0.9 * pi + 0.1 * rng.dirichlet(np.ones(grid3.n_actions), size=(2, grid3.n_states))
-    kept = planner.system(near).solvers
-    B = rng.standard_normal((2, grid3.n_states, 3))
-    Z, converged = refined_solve(planner, kept, pi, B)
-    assert converged.all()
-    np.testing.assert_allclose(Z, planner.system(pi).solve(B), rtol=1e-11, atol=1e-12)
-
-
-def test_few_columns_refine_on_kept_factorisations_many_factorise(rng, grid3, monkeypatch):
-    """With k <= HESSIAN_REFINE_MAX_COLUMNS columns no system is factorised (the kept ones are
-    refined on); with more, one per task; the Hessians agree."""
-    from factirl_opt.objectives import mce as mce_module
-    from factirl_opt.planning import CountingPlanner, get_planner
-
-    mu, pi_hat = random_statistics(rng, grid3, 2)
-    F = rng.standard_normal((grid3.n_params, 3))
-    R = (rng.standard_normal((2, 3)) @ F.T).reshape(2, grid3.n_states, grid3.n_actions)
-    hessians = []
-    for columns, systems in ((16, 0), (2, 2)):
-        counting = CountingPlanner(get_planner(grid3, "sparse-lu"))
-        obj = MCEObjective(grid3, mu, pi_hat, BETA, planner=counting)
-        obj.loss_and_grad(R)
-        before = counting.counts()["n_systems"]
-        monkeypatch.setattr(mce_module, "HESSIAN_REFINE_MAX_COLUMNS", columns)
-        hessians.append(obj.hessian(R, None, F))
-        assert counting.counts()["n_systems"] - before == systems
-    np.testing.assert_allclose(hessians[0], hessians[1], rtol=1e-10, atol=1e-12)

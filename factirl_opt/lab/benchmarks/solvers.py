@@ -186,7 +186,8 @@ def _part_fit(mdp, s, rng, D):
     tasks = _tasks(mdp, s, rng, D, s["fit_tasks"], s["fit_demos"])
     R, demos = tasks.rewards, tasks.demos
     t0 = time.perf_counter()
-    flat = GradIRL(beta=s["beta"], max_iter=s["flat_iter"]).fit(mdp, demos)
+    # gtol=0: the flat fit stops by its loss tolerance, as in the committed runs
+    flat = GradIRL(beta=s["beta"], max_iter=s["flat_iter"], gtol=0.0).fit(mdp, demos)
     flat_time = time.perf_counter() - t0
     rows = {}
     for name in ["armijo"] + _gn_names():
