@@ -370,8 +370,8 @@ def _serve(conn: Any, spec: tuple | bytes, parent_pid: int, progress: Any = None
 #: library loaded and marked as workers, before they import anything of the caller's
 FORKSERVER_PRELOAD = ["factirl_opt.parallel._preload"]
 #: the name of a shard process; one whose spec does not refer to the caller's ``__main__`` (a class
-#: defined in a script) does not import it (:mod:`factirl_opt.parallel._preload`): a script without
-#: the ``if __name__ == "__main__":`` guard is not run again in each shard process
+#: defined in a script) does not import it (:func:`_skip_main_for_shards`): a script without the
+#: ``if __name__ == "__main__":`` guard is not run again in each shard process
 SHARD_PROCESS_NAME = "factirl-opt shard"
 
 
@@ -387,11 +387,37 @@ def _context() -> Any:
     refers to it (:data:`SHARD_PROCESS_NAME`): then a script needs the usual
     ``if __name__ == "__main__":`` guard.
     """
+    _skip_main_for_shards()
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(FORKSERVER_PRELOAD)  # no effect once the server runs
     return ctx
+
+
+_MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
+_WRAP_LOCK = threading.Lock()
+
+
+def _skip_main_for_shards() -> None:
+    """Once per process, on the first sharded fit: ``multiprocessing``'s preparation data of a process
+    named exactly :data:`SHARD_PROCESS_NAME` omits the caller's ``__main__`` (that of every other
+    process is unchanged). A shard whose spec refers to ``__main__`` is named otherwise and imports it."""
+    from multiprocessing import spawn
+
+    with _WRAP_LOCK:
+        original = spawn.get_preparation_data
+        if getattr(original, "skips_main_for_shards", False):
+            return
+
+        def get_preparation_data(name: str) -> dict[str, Any]:
+            data = original(name)
+            if name == SHARD_PROCESS_NAME:
+                data = {key: value for key, value in data.items() if key not in _MAIN_KEYS}
+            return data
+
+        get_preparation_data.skips_main_for_shards = True  # type: ignore[attr-defined]
+        spawn.get_preparation_data = get_preparation_data
 
 
 def _forget_fork_server() -> None:
