@@ -54,8 +54,8 @@ from scipy.stats import t as t_dist
 
 from .._validation import as_rng, check_int, check_rewards
 from ..exceptions import ConvergenceWarning, FitInterrupted, ValidationError
-from .fitting import make_objective, resolve_step_solver
-from ..tasks.task_set import per_task_features
+from .fitting import resolve_step_solver, task_objective
+from ..tasks.task_set import per_task_features, task_set
 from .solver_settings import estimator_solvers
 from .em import log_policies
 from .intention_count import one_standard_error_choice
@@ -275,7 +275,7 @@ def _score(model: Any, mdp: Any, demos: Any, features: Any, idx: Sequence[int] |
         if score == "occupancy":
             out[j] = held_out_occupancy_gap(one, rest, rewards[j], model.planner)
         elif score == "objective":
-            obj = make_objective(one, [rest], model.beta, model.objective, model.planner)
+            obj = task_objective(task_set(one, [rest]), model.beta, model.objective, model.planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
             out[j] = held_out_nll(one, rest, rewards[j], model, temper=score == "likelihood")
