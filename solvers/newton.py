@@ -246,7 +246,7 @@ class NewtonSolver(StepSolver):
                    np.stack([lin.jvp(np.broadcast_to(eye[j], (len(rows), p))) for j in range(p)], axis=2))
         loss, (r, J), finite = check_evaluation(self.name, what, rows, *out, shapes=[(None,), (None, p)], start=start)
         if J.shape[1] != r.shape[1]:
-            raise SolverError(f"{self.name}: problem.residual_jacobian returned residuals {r.shape} and a Jacobian {J.shape}")
+            raise SolverError(f"{self.name}: problem.{what} gave residuals {r.shape} and a Jacobian {J.shape}")
         with np.errstate(over="ignore", invalid="ignore"):
             grad = 2.0 * np.einsum("nmk,nm->nk", J, r)
             hess = 2.0 * np.matmul(np.swapaxes(J, 1, 2), J)

@@ -483,3 +483,20 @@ def test_a_shard_process_never_inherits_a_lock_another_thread_holds(monkeypatch)
         assert shards.n_restarts == 0  # answered at once, not rebuilt after a deadlock
     finally:
         shards.close()
+
+
+def test_a_script_without_a_main_guard_fits_with_n_jobs(tmp_path):
+    # shard processes come from a fork server; they import the script's __main__ only when a shard's
+    # state refers to it, so a script without `if __name__ == "__main__":` runs once, as with fork
+    import subprocess
+    import sys
+
+    script = tmp_path / "fit.py"
+    script.write_text("import numpy as np\nimport factirl_opt as fo\nprint('start')\n"
+                      "rng = np.random.default_rng(0)\nmdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)\n"
+                      "demos = fo.sample_demonstrations(mdp, rng.standard_normal((4, 9, 4)), 2, 5, rng)\n"
+                      "fo.FactIRL(n_primitives=2, max_iter=2, init='random', rng=0, n_jobs=2).fit(mdp, demos)\n"
+                      "print('done')\n")
+    out = subprocess.run([sys.executable, "-W", "ignore", str(script)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["start", "done"]

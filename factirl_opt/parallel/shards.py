@@ -346,8 +346,9 @@ def _beat(progress: Any, clock: Callable[[], float]) -> None:
         time.sleep(POLL_SECONDS / 2)
 
 
-def _serve(conn: Any, spec: tuple, parent_pid: int, progress: Any = None) -> None:
-    """A shard process: build the state, then answer ``(method, args)`` with ``("ok", result)`` or ``("error", exc, tb)``."""
+def _serve(conn: Any, spec: tuple | bytes, parent_pid: int, progress: Any = None) -> None:
+    """A shard process: build the state from ``spec`` (pickled, or not), then answer ``(method, args)``
+    with ``("ok", result)`` or ``("error", exc, tb)``."""
     from .._threads import blas_thread_limit, limit_blas_threads
 
     if progress is not None:
@@ -355,6 +356,8 @@ def _serve(conn: Any, spec: tuple, parent_pid: int, progress: Any = None) -> Non
     become_worker(parent_pid)
     with limit_blas_threads(blas_thread_limit()):
         try:
+            if isinstance(spec, bytes):
+                spec = pickle.loads(spec)
             host, caught = recording_warnings(ShardHost, *spec)
         except Exception as exc:
             conn.send(("error", exc, traceback.format_exc()))
@@ -366,6 +369,10 @@ def _serve(conn: Any, spec: tuple, parent_pid: int, progress: Any = None) -> Non
 #: the modules the fork server imports once (:func:`_context`): its shard processes start with the
 #: library loaded and marked as workers, before they import anything of the caller's
 FORKSERVER_PRELOAD = ["factirl_opt.parallel._preload"]
+#: the name of a shard process; one whose spec does not refer to the caller's ``__main__`` (a class
+#: defined in a script) does not import it (:func:`_skip_main_for_shards`): a script without the
+#: ``if __name__ == "__main__":`` guard is not run again in each shard process
+SHARD_PROCESS_NAME = "factirl-opt shard"
 
 
 def _context() -> Any:
@@ -375,15 +382,42 @@ def _context() -> Any:
     program whose other thread runs a fit) can deadlock on any lock another thread held at the
     fork: the library's own, glibc's or BLAS's. A fork server is a fresh single-threaded process
     (started once per process, on the first sharded fit) that imports the library once
-    (:data:`FORKSERVER_PRELOAD`) and forks every shard process; a shard's spec and the caller's
-    ``__main__`` are pickled and imported there, as with ``spawn`` (scripts need the usual
-    ``if __name__ == "__main__":`` guard).
+    (:data:`FORKSERVER_PRELOAD`) and forks every shard process; a shard's spec is pickled and
+    sent there. The caller's ``__main__`` is imported there, as with ``spawn``, only when the spec
+    refers to it (:data:`SHARD_PROCESS_NAME`): then a script needs the usual
+    ``if __name__ == "__main__":`` guard.
     """
+    _skip_main_for_shards()
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(FORKSERVER_PRELOAD)  # no effect once the server runs
     return ctx
+
+
+_MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
+_WRAP_LOCK = threading.Lock()
+
+
+def _skip_main_for_shards() -> None:
+    """Once per process, on the first sharded fit: ``multiprocessing``'s preparation data of a process
+    named exactly :data:`SHARD_PROCESS_NAME` omits the caller's ``__main__`` (that of every other
+    process is unchanged). A shard whose spec refers to ``__main__`` is named otherwise and imports it."""
+    from multiprocessing import spawn
+
+    with _WRAP_LOCK:
+        original = spawn.get_preparation_data
+        if getattr(original, "skips_main_for_shards", False):
+            return
+
+        def get_preparation_data(name: str) -> dict[str, Any]:
+            data = original(name)
+            if name == SHARD_PROCESS_NAME:
+                data = {key: value for key, value in data.items() if key not in _MAIN_KEYS}
+            return data
+
+        get_preparation_data.skips_main_for_shards = True  # type: ignore[attr-defined]
+        spawn.get_preparation_data = get_preparation_data
 
 
 def _forget_fork_server() -> None:
@@ -413,9 +447,13 @@ class ProcessShard:
     def __init__(self, spec: tuple) -> None:
         ctx = _context()
         self.progress = ctx.RawValue("d", -1.0)  # the shard's serving thread's CPU seconds (:func:`_beat`)
+        # the spec travels pickled: a fork server's child imports the caller's __main__ only when the spec
+        # refers to it (:data:`SHARD_PROCESS_NAME`), and a spec that does not unpickle there is an error reply
+        data = pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL)
+        name = SHARD_PROCESS_NAME + (" (__main__)" if b"__main__" in data else "")
         with _START_LOCK:
             self.conn, child = ctx.Pipe()
-            self.proc = ctx.Process(target=_serve, args=(child, spec, os.getpid(), self.progress), daemon=True)
+            self.proc = ctx.Process(target=_serve, args=(child, data, os.getpid(), self.progress), daemon=True, name=name)
             self.proc.start()
             child.close()
         self._ready = False
