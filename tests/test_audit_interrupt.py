@@ -12,6 +12,8 @@ import pytest
 
 import factirl_opt as fo
 import factirl_opt.learners.factirl as factirl_module
+import factirl_opt.tasks.basis as basis_module
+from factirl_opt.learners.dictionary import feature_weights
 from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
 
@@ -89,12 +91,12 @@ def test_infinite_losses_are_refused_for_an_interrupted_fit(data, tmp_path):
         fo.save_model(model, tmp_path / "m.npz")
 
 
-@pytest.mark.parametrize("where", ["pca_dictionary", "feature_weights"])
+@pytest.mark.parametrize("where", ["pca_dictionary", "least_squares_weights"])
 def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     mdp, demos = data
     features = None if where == "pca_dictionary" else np.eye(36)[:, :30]
     model = fo.FactIRL(n_primitives=2, max_iter=3, flat_max_iter=5, features=features, rng=0)
-    interrupt_call(monkeypatch, factirl_module, where, 1)
+    interrupt_call(monkeypatch, factirl_module if where == "pca_dictionary" else basis_module, where, 1)
     try:
         fit_interrupted(model.fit, mdp, demos)
     except KeyboardInterrupt:  # not FitInterrupted: nothing kept (caught, or pytest itself would stop)
@@ -104,6 +106,6 @@ def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     monkeypatch.undo()  # the kept state is the PCA start of the whole flat fit (GradIRL's), before the shrinking
     flat = fo.GradIRL(max_iter=5, features=features).fit(mdp, demos).rewards_.reshape(len(demos), -1)
     D, H = fo.pca_dictionary(flat, 2, np.random.default_rng(0))
-    np.testing.assert_allclose(model.dictionary_, D if features is None else factirl_module.feature_weights(features, D),
+    np.testing.assert_allclose(model.dictionary_, D if features is None else feature_weights(features, D),
                                rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(model.coefficients_, H, rtol=1e-12, atol=1e-12)
