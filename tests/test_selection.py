@@ -148,3 +148,22 @@ def test_the_search_is_saved_with_the_model(data, tmp_path):
     unsaved = _auto(F, cv=[np.arange(4), np.arange(4, 8)])
     with pytest.raises(PersistenceError, match=r"cannot save FactIRL with sharing_search.cv=\[array"):
         fo.save_model(unsaved, tmp_path / "folds.npz")
+
+
+def test_a_preset_runs_its_adaptive_learner_with_its_route():
+    """``Preset.sharing_route`` (``bench which-learner --route``): the default leaves the preset's
+    fingerprint and the learner's options as they were; another route gives the learner its search."""
+    import dataclasses
+
+    from factirl_opt.lab.experiments.learner_solvers import factorial_options
+    from factirl_opt.lab.experiments.presets import PRESETS
+
+    grid = PRESETS["sharing-grid"]
+    assert grid.sharing_route == "race"
+    assert "sharing_search" not in factorial_options(grid, fo.SolverSettings(), adaptive=True)
+    pca = dataclasses.replace(grid, sharing_route="pca")
+    assert pca.fingerprint() != grid.fingerprint()  # its runs have keys of their own
+    options = factorial_options(pca, fo.SolverSettings(), adaptive=True)
+    assert options["sharing_search"].route == "pca" and "sharing_search" not in factorial_options(pca, fo.SolverSettings())
+    with pytest.raises(ValidationError, match=r"sharing_route must be one of race, full, race-warm, short, pca; got 'x'"):
+        dataclasses.replace(grid, sharing_route="x")

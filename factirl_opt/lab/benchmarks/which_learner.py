@@ -15,9 +15,14 @@ the cost of ``"auto"`` (``auto_cost_ratio``: the median over runs of the adaptiv
 wall time over the factorial one's, both from the same flat start; wall time, so compare it on a
 quiet machine), and writes it as a markdown table to ``OUT/which-learner.md``.
 
+``--route NAME`` runs the adaptive learner with another search route
+(:data:`factirl_opt.learners.selection.ROUTES`; the presets' ``sharing_route``): its runs have
+keys of their own, so give them an ``--out`` of their own too.
+
 ``--quick`` runs the tiny grid only (``sharing-tiny``, one seed): seconds, for tests.
 """
 
+import dataclasses
 import os
 import statistics
 
@@ -26,12 +31,14 @@ from ..arguments import integer, text
 from ..experiments.claims import SHARING_MARGINS, sharing_verdicts, write_claims
 from ..experiments.presets import PRESETS, SHARING_PRESETS
 from ..experiments.runner import run_sweep
+from ...learners.selection import DEFAULT_ROUTE, ROUTES
 from ..experiments.tables import read_csv
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "benchmark_verdicts", "run", "sharing_table"]
 
-DEFAULTS = {"presets": list(SHARING_PRESETS), "seed": 0, "seeds": 3, "jobs": 1, "out": os.path.join("runs", "which-learner")}
+DEFAULTS = {"presets": list(SHARING_PRESETS), "seed": 0, "seeds": 3, "jobs": 1, "out": os.path.join("runs", "which-learner"),
+            "route": DEFAULT_ROUTE}
 QUICK = {"presets": ["sharing-tiny"], "seeds": 1}
 #: the file of the comparison in OUT
 TABLE_FILE = "which-learner.md"
@@ -48,6 +55,7 @@ def add_arguments(parser):
     opt("--jobs", type=integer(1, also=(-1,)), help="runs executed in parallel (-1: every core); results do not depend on it")
     opt("--out", type=text("an output directory"), metavar="DIR",
         help="output directory: one reproduce directory per preset, and the table")
+    opt("--route", choices=list(ROUTES), help="the search route of the adaptive learner")
     parser.add_argument("--quick", action="store_true",
                         help="the tiny grid only, one seed (for tests); options given explicitly keep their value")
 
@@ -121,11 +129,13 @@ def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
     out = os.fspath(s["out"])
     results = {}
+    route = f" --route {s['route']}" if s["route"] != DEFAULT_ROUTE else ""
     for name in s["presets"]:
-        res = run_sweep(PRESETS[name], os.path.join(out, name), seeds=s["seeds"], base_seed=s["seed"], jobs=s["jobs"],
+        preset = dataclasses.replace(PRESETS[name], sharing_route=s["route"])
+        res = run_sweep(preset, os.path.join(out, name), seeds=s["seeds"], base_seed=s["seed"], jobs=s["jobs"],
                         progress=True, command=f"factirl-opt bench which-learner --presets {name} --seed {s['seed']} "
-                                               f"--seeds {s['seeds']} --out {out}")
-        write_claims(res["out"], PRESETS[name])
+                                               f"--seeds {s['seeds']} --out {out}{route}")
+        write_claims(res["out"], preset)
         rows = res["rows"]
         judged = benchmark_verdicts(rows)
         column, verdicts = judged["column"], judged["verdicts"]

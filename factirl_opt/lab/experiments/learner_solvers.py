@@ -15,6 +15,7 @@ import solvers
 
 from ...exceptions import ValidationError
 from ...learners.gradirl import check_solver_applies
+from ...learners.selection import DEFAULT_ROUTE, SharingSearch
 from ...learners.solver_settings import SolverSettings
 
 __all__ = ["DEFAULT_OBJECTIVE", "GRADIENT_FALLBACK", "SOLVER_ROLES", "flat_solver", "factorial_solvers", "substitutions",
@@ -117,5 +118,7 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
     if adaptive:
         kw["residual_penalty"] = "auto"
         kw["flat_solver"] = _flat_solver(preset, features, objective)[0]
+        if preset.sharing_route != DEFAULT_ROUTE:  # the default search: FactIRL's own, as before the routes existed
+            kw["sharing_search"] = SharingSearch(route=preset.sharing_route)
     kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
     return kw

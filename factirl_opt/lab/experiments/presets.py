@@ -101,7 +101,7 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "SHARING_
 #: (and so its runs' keys) only when they differ from these
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05,
                 "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_gtol": 0.0, "flat_solver": "armijo", "flat_features_solver": "armijo",
-                "pca_shrink": False}
+                "pca_shrink": False, "sharing_route": "race"}
 #: the fields of :class:`~factirl_opt.SolverSettings`, flattened into :meth:`Preset.to_dict`: part of
 #: each run's key, not of the fingerprint
 SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
@@ -186,6 +186,10 @@ class Preset:
         ``"armijo"``, the paper's, except in ``fast``. A Gauss-Newton solver is replaced by
         L-BFGS for the learners on an objective without residuals (``"mce"``), like the
         factorial ones' (:data:`.learners.GRADIENT_FALLBACK`).
+    sharing_route : str
+        The route of the adaptive learner's search (``FactIRL(sharing_search=SharingSearch(route=...))``,
+        :data:`factirl_opt.learners.selection.ROUTES`): ``"race"``, the default of ``"auto"``,
+        everywhere unless ``bench which-learner --route`` asks for another.
     solvers : SolverSettings
         The factorial learner's H-step and D-step solvers when a sweep names none
         (:class:`factirl_opt.SolverSettings`; default: Armijo H-steps, FactIRL's default
@@ -226,6 +230,7 @@ class Preset:
     flat_solver: str = "armijo"
     flat_features_solver: str = "armijo"
     pca_shrink: bool = False
+    sharing_route: str = "race"
     solvers: SolverSettings = SolverSettings()
 
     def __post_init__(self) -> None:
@@ -250,9 +255,10 @@ class Preset:
         object.__setattr__(self, "pca_shrink", check_bool(self.pca_shrink, where + "pca_shrink"))
         from .learners import LINEUPS
         from .worlds import PER_TASK_WORLDS, WORLDS
+        from ...learners.selection import ROUTES
 
         for f, choices in (("coefficient_kind", COEFFICIENT_KINDS), ("world", WORLDS), ("lineup", LINEUPS),
-                           ("planner", available_planners())):
+                           ("planner", available_planners()), ("sharing_route", list(ROUTES))):
             if getattr(self, f) not in choices:
                 raise ValidationError(f"{where}{f} must be one of {', '.join(choices)}; got {getattr(self, f)!r}")
         worlds = LINEUPS[self.lineup].worlds
