@@ -17,14 +17,14 @@ from factirl_opt.lab.benchmarks import mce as m
 
 objective, n_tasks, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 settings = m.resolve_settings(bench.build_parser().parse_args(["mce", "--n-tasks", str(n_tasks)]), m.DEFAULTS, m.QUICK)
-preset = m._preset(settings)
+preset = m.benchmark_preset(settings)
 with limit_blas_threads(1):
     gt = m.objectworld_per_task(preset, n_tasks, settings["n_demos"], settings["seed"])
     profiler = cProfile.Profile(time.process_time)
     profiler.enable()
-    model, wall, cpu, planner = m._fit(preset, gt, objective, settings["seed"] + 1)
+    model, wall, cpu, planner = m.fit_once(preset, gt, objective, settings["seed"] + 1)
     profiler.disable()
-entry = m._entry(model, wall, planner, gt, preset)
+entry = m.fit_entry(model, wall, planner, gt, preset)
 print(objective, "wall", wall, "cpu", cpu, "evaluations", model.n_evaluations_, planner.counts(),
       "deviation", entry["mean_train_deviation"])
 profiler.dump_stats(out)

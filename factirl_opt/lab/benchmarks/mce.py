@@ -54,7 +54,7 @@ from ...planning import CountingPlanner, get_planner
 from ..arguments import integer
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "OBJECTIVES"]
+__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry"]
 
 #: the objectives compared (policy matching the reference of the ratios)
 OBJECTIVES = ("policy-matching", "mce")
@@ -92,7 +92,7 @@ def add_arguments(parser):
                         help="tiny configuration for tests; options given explicitly keep their value")
 
 
-def _preset(s):
+def benchmark_preset(s):
     """The preset with the benchmark's size, primitives, demonstration length and budgets."""
     preset = get_preset(s["preset"])
     if preset.world != "objectworld-per-task":
@@ -112,9 +112,10 @@ def _preset(s):
     return dataclasses.replace(preset, **changes)
 
 
-def _fit(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT):
+def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT):
     """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver`` unless
-    ``"default"``); its model, wall time, CPU time and counting planner."""
+    ``"default"``): its model, wall time, CPU time and counting planner (the benchmark's unit of
+    work; ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
@@ -145,7 +146,9 @@ def _transfer(model, gt, preset, n_test):
             "transfer_n_evaluations": int(model.transfer_n_evaluations_)}
 
 
-def _entry(model, elapsed, planner, gt, preset):
+def fit_entry(model, elapsed, planner, gt, preset):
+    """The benchmark's record of one fit: times, evaluations, loss, train deviation (eq. 13) and
+    the counting planner's work per evaluation (the keys of ``fits[objective]`` in the output)."""
     counts = planner.counts()
     n_eval = max(int(model.n_evaluations_), 1)
     mdps = gt.mdps("train")
@@ -160,7 +163,7 @@ def _entry(model, elapsed, planner, gt, preset):
 
 def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
-    preset = _preset(s)
+    preset = benchmark_preset(s)
     objectives = list(dict.fromkeys(s["objectives"]))
     flats = list(dict.fromkeys(s["flat_solvers"]))
     hs = list(dict.fromkeys(s["h_solvers"]))
@@ -175,10 +178,10 @@ def run(args):
         for _ in range(s["repeats"]):
             for run in runs:
                 name = keys[run]
-                model, elapsed, cpu, planner = _fit(preset, gt, run[0], s["seed"] + 1, run[1], run[2])
+                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2])
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
-                entries[name] = _entry(model, elapsed, planner, gt, preset)
+                entries[name] = fit_entry(model, elapsed, planner, gt, preset)
                 entries[name].update(flat_solver=run[1], h_solver=run[2], **_transfer(model, gt, preset, s["n_test_tasks"]))
     for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
