@@ -51,6 +51,9 @@ Built-in solvers
     (``residual_jacobian``: policy matching); options ``damping``, ``eta``, ... Unconstrained;
     a dense (p, p) curvature per row (feature weights, not large tabular rewards).
 
+To watch the runs (profiling), :func:`observe_runs` (module :mod:`solvers.observe`) calls a
+callback after every :meth:`StepSolver.run` inside a ``with`` block.
+
 Not registered (it needs callables, not only a name): :class:`ProximalArmijoSolver`, the
 Armijo descent with a proximal map ``prox(v, t)`` and its penalty (:mod:`solvers.proximal`;
 ``constraint="proximal"``), and :func:`unit_columns_prox`, the map of unit-norm columns,
@@ -98,6 +101,7 @@ from .gauss_newton import GaussNewtonSolver, QPFallbackWarning, qp_solver_name
 from .gn_cg import GaussNewtonCGSolver
 from .lbfgs import LBFGSSolver
 from .newton import NewtonSolver
+from .observe import observe_runs
 from .proximal import ProximalArmijoSolver, unit_columns_prox
 from .stopping import gradient_converged, has_converged, relative_decrease
 
@@ -115,6 +119,7 @@ __all__ = [
     "unit_columns_prox",
     "QPFallbackWarning",
     "qp_solver_name",
+    "observe_runs",
     "relative_decrease",
     "has_converged",
     "gradient_converged",

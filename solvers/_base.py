@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .exceptions import SolverError, SolverOptionError
+from .observe import notify, observing
 from ._validation import check_number
 from .stopping import gradient_converged, has_converged, relative_decrease
 
@@ -363,6 +364,16 @@ class StepSolver:
         SolverError
             When the objective is not finite at ``x0`` or the solver fails.
         """
+        if not observing():
+            return self._run(problem, x0, max_iter, state, tol, callback, gtol, separable)
+        c0 = time.thread_time()
+        result = self._run(problem, x0, max_iter, state, tol, callback, gtol, separable)
+        notify(self, problem, result, separable=bool(separable), cpu_seconds=time.thread_time() - c0)
+        return result
+
+    def _run(self, problem: StepProblem, x0: ArrayLike, max_iter: int, state: Any, tol: float,
+             callback: Callable[[int, float], Any] | None, gtol: float, separable: bool) -> SolverResult:
+        """:meth:`run` without its observers (:func:`solvers.observe_runs`)."""
         x = self._check_run(problem, x0, max_iter, tol, callback)
         check_number(gtol, "gtol", self.name, low=0.0)
         if separable is not False:

@@ -7,7 +7,7 @@ import factirl_opt as fo
 from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
-    information_gains, model_policy, policy_entropy_starts, request_starts, start_occupancy, state_information,
+    demonstrator_policy, information_gains, model_policy, policy_entropy_starts, request_starts, start_occupancy, state_information,
     value_variance_reductions,
 )
 from factirl_opt.planning import get_planner
@@ -122,3 +122,30 @@ def test_policy_entropy_starts(fitted):
     model = models["policy-matching"]
     starts = policy_entropy_starts(model.transfer_posterior_, "policy-matching", model.beta, n_requests=3)
     assert len(starts) == 3 and all(s.shape == (3,) for s in starts)
+
+
+def test_demonstrator_policy_greedy_is_one_hot_on_the_argmax(fitted):
+    pi = np.array([[0.2, 0.5, 0.3], [0.6, 0.1, 0.3]])
+    np.testing.assert_array_equal(demonstrator_policy(pi, "greedy"), [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    assert demonstrator_policy(pi) is pi
+    with pytest.raises(ValidationError, match="policy must be one of"):
+        demonstrator_policy(pi, "softmax")
+
+
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_greedy_policy_ranks_by_the_greedy_episodes_gain(fitted, objective):
+    mdp, test, models = fitted
+    model = models[objective]
+    boltzmann = model.request_starts(mdp, test.demos, n_requests=mdp.n_states)
+    greedy = model.request_starts(mdp, test.demos, n_requests=mdp.n_states, policy="greedy")
+    assert any(not np.array_equal(b, g) for b, g in zip(boltzmann, greedy))
+    for post, s, demos in zip(model.transfer_posterior_, greedy, test.demos):
+        pl, info, pi = state_information(post, objective, model.beta)
+        occ = start_occupancy(pl, demonstrator_policy(pi, "greedy"), np.arange(mdp.n_states), len(demos[0]))
+        assert np.allclose(occ.sum(axis=1), len(demos[0]))
+        gains = information_gains(post, objective, model.beta, np.arange(mdp.n_states), len(demos[0]), "greedy")
+        np.testing.assert_array_equal(s, np.argsort(-gains, kind="stable"))
+    with pytest.raises(ValidationError, match="policy must be one of boltzmann, greedy; got 'soft'"):
+        model.request_starts(mdp, test.demos, policy="soft")
+    with pytest.raises(ValidationError, match="policy must be one of"):
+        request_starts(model, mdp, test.demos, criterion="value", policy=None)

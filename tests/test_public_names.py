@@ -65,11 +65,8 @@ def test_documents_use_no_moved_top_level_name(path):
 # -- the analysis scripts (results/) and the harness (factirl_opt/lab) ------------------------------
 LIBRARY = ("factirl_opt", "solvers")
 HARNESS = "factirl_opt.lab"
-#: scripts not scanned yet. TEMPORARY: results/fit-speed/profile_fit.py times the step solvers' runs
-#: by replacing ``solvers.StepSolver.run``, results/active/variant_greedy_occupancy.py measures a variant
-#: by replacing ``learners.active.start_occupancy`` and uses the active benchmark's private helpers;
-#: remove each entry when its script no longer patches the library.
-EXCLUDED = ("results/fit-speed/profile_fit.py", "results/active/variant_greedy_occupancy.py")
+#: scripts not scanned (none now: every analysis script uses the library through public names)
+EXCLUDED: tuple[str, ...] = ()
 
 
 def _private(name):

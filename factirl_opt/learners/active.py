@@ -33,7 +33,7 @@ from ..planning import boltzmann_policy, get_planner, plan, tangent
 from .posterior import LaplacePosterior, coefficient_prior, laplace_posteriors, transfer_inputs, transfer_problem
 
 __all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
-           "policy_entropy_starts", "model_policy", "CRITERIA"]
+           "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy"]
 
 
 def model_policy(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
@@ -85,11 +85,28 @@ def start_occupancy(planner: Any, pi: NDArray[np.float64], starts: NDArray[np.in
     return occ
 
 
+#: Policies the demonstrator is assumed to follow from a requested start (``request_starts(policy=...)``).
+POLICIES = ("boltzmann", "greedy")
+
+
+def demonstrator_policy(pi: NDArray[np.float64], policy: str = "boltzmann") -> NDArray[np.float64]:
+    """The policy (S, A) whose episodes weight the starts: the model's policy ``pi`` (``"boltzmann"``) or
+    its greedy policy, one-hot on ``argmax_a pi[s, a]`` (``"greedy"``, the path a greedy expert takes)."""
+    if policy not in POLICIES:
+        raise ValidationError(f"policy must be one of {', '.join(POLICIES)}; got {policy!r}")
+    if policy == "boltzmann":
+        return pi
+    greedy = np.zeros_like(pi)
+    greedy[np.arange(pi.shape[0]), pi.argmax(axis=1)] = 1.0
+    return greedy
+
+
 def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
-                      length: int) -> NDArray[np.float64]:
-    """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start."""
+                      length: int, policy: str = "boltzmann") -> NDArray[np.float64]:
+    """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start,
+    the episode's expected visits under :func:`demonstrator_policy` (``policy``)."""
     pl, info, pi = state_information(post, objective, beta)
-    occ = start_occupancy(pl, pi, candidates, length)
+    occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
     Lam = np.linalg.inv(post.covariance)
     Lam = 0.5 * (Lam + Lam.T)
     H = np.einsum("cy,yde->cde", occ, info)
@@ -98,9 +115,10 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
 
 
 def value_variance_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
-                              length: int) -> NDArray[np.float64]:
+                              length: int, policy: str = "boltzmann") -> NDArray[np.float64]:
     """``trace(M (Sigma - (Lambda + H_s)^-1))`` (c,): the expected reduction of the posterior variance of
-    the state values, linearised, ``M = mean_s dV(s)/dx dV(s)/dx^T`` with ``dV = sum_a pi dQ/dx``."""
+    the state values, linearised, ``M = mean_s dV(s)/dx dV(s)/dx^T`` with ``dV = sum_a pi dQ/dx``; the
+    episode's expected visits under :func:`demonstrator_policy` (``policy``)."""
     pl, pi, dQ = model_policy(post, objective, beta)
     E = dQ - np.einsum("sa,sad->sd", pi, dQ)[:, None, :]
     weight = pi if objective == "mce" else pi * pi
@@ -108,7 +126,7 @@ def value_variance_reductions(post: LaplacePosterior, objective: str, beta: floa
     info = per_pair * beta * beta * np.einsum("sa,sad,sae->sde", weight, E, E)
     dV = np.einsum("sa,sad->sd", pi, dQ)
     M = dV.T @ dV / dV.shape[0]
-    occ = start_occupancy(pl, pi, candidates, length)
+    occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
     Lam = np.linalg.inv(post.covariance)
     Lam = 0.5 * (Lam + Lam.T)
     H = np.einsum("cy,yde->cde", occ, info)
@@ -161,7 +179,8 @@ CRITERIA = {"information": information_gains, "value": value_variance_reductions
 
 
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
-                   features: Any = None, criterion: str = "information") -> list[NDArray[np.intp]]:
+                   features: Any = None, criterion: str = "information",
+                   policy: str = "boltzmann") -> list[NDArray[np.intp]]:
     """Candidate start states per new task, best first, by expected information gain (module docstring).
 
     Parameters
@@ -179,6 +198,9 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         The expected information gain about the coefficients (:func:`information_gains`,
         D-optimal), or the expected reduction of the posterior variance of the state values
         (:func:`value_variance_reductions`).
+    policy : {"boltzmann", "greedy"}, default="boltzmann"
+        The policy a demonstration from a start is assumed to follow (:func:`demonstrator_policy`):
+        the model's stochastic policy at the posterior mean, or its greedy policy.
 
     Returns
     -------
@@ -187,18 +209,22 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     Raises
     ------
     ValidationError
-        For ``n_requests`` < 1, candidates out of range, or a model whose posterior is undefined.
+        For ``n_requests`` < 1, candidates out of range, an unknown ``criterion`` or ``policy``, or a
+        model whose posterior is undefined.
     """
     n_requests = check_int(n_requests, "n_requests", minimum=1)
     if criterion not in CRITERIA:
         raise ValidationError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
+    if policy not in POLICIES:
+        raise ValidationError(f"policy must be one of {', '.join(POLICIES)}; got {policy!r}")
     posts, _ = _posteriors(model, mdp, demos_per_task, features)
     n = len(posts)
     cands = _candidates(candidates, n, [p.mdp for p in posts])
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
-        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]))
+        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]),
+                                     policy)
         order = np.argsort(-gains, kind="stable")
         out.append(cands[i][order[:n_requests]])
     return out

@@ -670,7 +670,7 @@ class FactIRL(Estimator):
         return cached_transfer_posterior(self)
 
     def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
-                       features: Any = None) -> list[NDArray[np.intp]]:
+                       features: Any = None, policy: str = "boltzmann") -> list[NDArray[np.intp]]:
         """Start states to ask a demonstration from, per new task, most informative first.
 
         :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
@@ -686,9 +686,17 @@ class FactIRL(Estimator):
             States returned per task.
         candidates : array_like of int, or sequence of n_new of them, optional
             Start states to rank (default: every state).
+        policy : {"boltzmann", "greedy"}, default="boltzmann"
+            The policy a requested demonstration is assumed to follow: the model's Boltzmann
+            (or soft-optimal) policy at the posterior mean, or its greedy policy.
 
         Returns
         -------
         list of n_new int arrays, each (n_requests,)
+
+        Raises
+        ------
+        ValidationError
+            For an unknown ``policy`` (and as :func:`~factirl_opt.learners.active.request_starts`).
         """
-        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features)
+        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features, policy=policy)

@@ -46,7 +46,7 @@ from ..experiments.presets import PRESETS
 from ..experiments.worlds import make_ground_truth
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "STRATEGIES", "WORLDS"]
+__all__ = ["add_arguments", "run", "world", "strategy_run", "STRATEGIES", "WORLDS", "DEFAULTS"]
 
 STRATEGIES = ("requested", "requested-value", "random", "entropy")
 WORLDS = ("grid", "objectworld-per-task-quick")
@@ -78,8 +78,11 @@ def add_arguments(parser):
     parser.add_argument("--quick", action="store_true", help="a small configuration for tests")
 
 
-def _world(name, s, seed):
-    """(preset, ground truth, train mdp(s), train features, test mdp(s), test features, n_test)."""
+def world(name, s, seed):
+    """One world of the benchmark: (preset, ground truth, train mdp(s), train features, test mdp(s), test features).
+
+    ``name`` is ``"grid"`` or a preset name, ``s`` the settings (:data:`DEFAULTS` updated), ``seed`` the
+    ground truth's seed; features are None on the grid (one MDP shared by every task)."""
     if name == "grid":
         preset = PRESETS[s["grid_preset"]]
         gt = make_ground_truth(preset, s["n_train"], 10 if s["grid_preset"] != "tiny" else preset.default_demos, seed)
@@ -106,8 +109,14 @@ def _deviations(model, gt, mdps, n, posts):
     return np.asarray(dev), (None if dev_map is None else np.asarray(dev_map))
 
 
-def _strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed):
-    """Mean deviations after 1..max_demos demonstrations with starts chosen by ``strategy``."""
+def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy="boltzmann"):
+    """Mean deviations after 1..max_demos demonstrations with starts chosen by ``strategy``.
+
+    ``model`` is fitted on the training tasks; the first ``n`` test tasks of ``gt`` (on ``mdps``,
+    ``feats`` as :func:`world` returns them) start from one demonstration each, and each step adds one
+    from the start ``strategy`` (one of :data:`STRATEGIES`) picks; ``policy`` is passed to
+    :func:`~factirl_opt.learners.active.request_starts` by the requested strategies. Returns a dict of
+    lists: ``deviation``, ``map_deviation`` (posterior mean), ``starts``."""
     rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
     demos = [np.asarray(d) for d in gt.test_demos[:n]]
     L = demos[0].shape[1]
@@ -123,7 +132,8 @@ def _strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed):
             break
         if strategy.startswith("requested"):
             criterion = "value" if strategy == "requested-value" else "information"
-            starts = [int(r[0]) for r in request_starts(model, m_list, demos, 1, features=f_list, criterion=criterion)]
+            starts = [int(r[0]) for r in request_starts(model, m_list, demos, 1, features=f_list, criterion=criterion,
+                                                           policy=policy)]
         elif strategy == "entropy":
             starts = [int(r[0]) for r in policy_entropy_starts(posts, "policy-matching", model.beta)]
         else:
@@ -190,7 +200,7 @@ def run(args):
         for name in s["worlds"]:
             per_seed = {}
             for seed in s["seeds"]:
-                preset, gt, train_mdps, train_feats, test_mdps, test_feats = _world(name, s, seed)
+                preset, gt, train_mdps, train_feats, test_mdps, test_feats = world(name, s, seed)
                 n = min(s["n_test"], len(gt.test_demos))
                 t = time.process_time()
                 model = FactIRL(init="pca", rng=seed, features=train_feats,
@@ -199,7 +209,7 @@ def run(args):
                 model.fit(train_mdps, gt.train_demos)
                 row: dict[str, Any] = {"fit_cpu_s": time.process_time() - t, "n_test": n,
                                        "n_train": len(gt.train_demos), "k": model.n_primitives_}
-                row["strategies"] = {st: _strategy_run(model, gt, preset, test_mdps, test_feats, n, st, s, seed)
+                row["strategies"] = {st: strategy_run(model, gt, preset, test_mdps, test_feats, n, st, s, seed)
                                      for st in s["strategies"]}
                 row["request_cost"] = _request_cost(model, gt, test_mdps, test_feats, min(n, s["cost_tasks"]),
                                                     s["cost_repeats"])
