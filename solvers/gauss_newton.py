@@ -497,31 +497,43 @@ class GaussNewtonSolver(StepSolver):
         for _ in range(int(self.max_retries) + 1):
             if todo.size == 0:
                 break
-            R, b = self._row_factors(x[todo], state, todo)
-            z = self._solve_rows(R, b, x[todo], state)
-            if z is None:  # failed status with fallback="none": reject every trying row
-                state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
+            tried = self._trial(problem, x, state, todo, progressed)
+            if tried is None:
                 break
-            z = self.project(z)
-            z, shortened = limit_step(x[todo], z, self.max_step_norm)
-            state.bounded_steps += int(shortened.sum())
-            step = np.linalg.norm(z - x[todo], axis=1)
-            moving = step > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
-            progressed[todo[~moving]] = True  # a negligible step: the row has converged
-            rows, z = todo[moving], z[moving]
-            if rows.size == 0:
-                break
-            trial, r, J, finite = self._evaluate(problem, z, rows)
-            with np.errstate(invalid="ignore"):
-                ok = finite & (trial < state.loss[rows])
-            acc, rej = rows[ok], rows[~ok]
-            x[acc] = z[ok]
-            state.loss[acc] = trial[ok]
-            state.residual[acc] = r[ok]
-            state.jacobian[acc] = J[ok]
-            progressed[acc] = True
-            todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
+            todo = np.flatnonzero(update_damping(self, state, *tried, n))
         return x, state, progressed
+
+    def _trial(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonState, todo: NDArray[np.intp],
+        progressed: NDArray[np.bool_],
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
+        """One trial of rows ``todo``: ``x``, ``state`` and ``progressed`` updated in place where a
+        row is accepted or its step negligible; the accepted and rejected rows, or None where no
+        row was evaluated (every step negligible, or a failed QP whose rows' damping was raised)."""
+        R, b = self._row_factors(x[todo], state, todo)
+        z = self._solve_rows(R, b, x[todo], state)
+        if z is None:  # failed status with fallback="none": reject every trying row
+            state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
+            return None
+        z = self.project(z)
+        z, shortened = limit_step(x[todo], z, self.max_step_norm)
+        state.bounded_steps += int(shortened.sum())
+        step = np.linalg.norm(z - x[todo], axis=1)
+        moving = step > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
+        progressed[todo[~moving]] = True  # a negligible step: the row has converged
+        rows, z = todo[moving], z[moving]
+        if rows.size == 0:
+            return None
+        trial, r, J, finite = self._evaluate(problem, z, rows)
+        with np.errstate(invalid="ignore"):
+            ok = finite & (trial < state.loss[rows])
+        acc, rej = rows[ok], rows[~ok]
+        x[acc] = z[ok]
+        state.loss[acc] = trial[ok]
+        state.residual[acc] = r[ok]
+        state.jacobian[acc] = J[ok]
+        progressed[acc] = True
+        return acc, rej
 
     def trial_rows(
         self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonState, tries: NDArray[np.intp]
@@ -534,31 +546,9 @@ class GaussNewtonSolver(StepSolver):
         n = x.shape[0]
         x = x.copy()
         progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        todo = np.arange(n)
-        R, b = self._row_factors(x, state, todo)
-        z = self._solve_rows(R, b, x, state)
-        if z is None:  # failed status with fallback="none": reject every row
-            state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
-            return x, state, progressed, pending
-        z = self.project(z)
-        z, shortened = limit_step(x, z, self.max_step_norm)
-        state.bounded_steps += int(shortened.sum())
-        step = np.linalg.norm(z - x, axis=1)
-        moving = step > self.xtol * (np.linalg.norm(x, axis=1) + self.xtol)
-        progressed[~moving] = True  # a negligible step: the row has converged
-        rows, z = todo[moving], z[moving]
-        if rows.size == 0:
-            return x, state, progressed, pending
-        trial, r, J, finite = self._evaluate(problem, z, rows)
-        with np.errstate(invalid="ignore"):
-            ok = finite & (trial < state.loss[rows])
-        acc, rej = rows[ok], rows[~ok]
-        x[acc] = z[ok]
-        state.loss[acc] = trial[ok]
-        state.residual[acc] = r[ok]
-        state.jacobian[acc] = J[ok]
-        progressed[acc] = True
-        pending[:] = update_damping(self, state, acc, rej, n) & (np.asarray(tries) < int(self.max_retries))
+        tried = self._trial(problem, x, state, np.arange(n), progressed)
+        if tried is not None:
+            pending[:] = update_damping(self, state, *tried, n) & (np.asarray(tries) < int(self.max_retries))
         return x, state, progressed, pending
 
 

@@ -386,47 +386,33 @@ class GaussNewtonCGSolver(StepSolver):
         """One step per row, each row as it would step alone: a rejected row retries with its
         larger damping (up to ``max_retries`` times) whatever the other rows did.
         ``progressed``: the rows accepted and the rows whose step was negligible (``xtol``)."""
-        n, p = x.shape
+        n = x.shape[0]
         x = x.copy()
         progressed = np.zeros(n, dtype=bool)
         todo = np.arange(n)
         for _ in range(int(self.max_retries) + 1):
             if todo.size == 0:
                 break
-            z = self._steps(x, state, todo)
-            moving = np.linalg.norm(z - x[todo], axis=1) > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
-            progressed[todo[~moving]] = True  # a negligible step: the row has converged
-            rows, z = todo[moving], z[moving]
-            if rows.size == 0:
+            tried = self._trial(problem, x, state, todo, progressed)
+            if tried is None:
                 break
-            lin, loss, r, finite = self._linearize(problem, z, rows)
-            grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
-            state.n_vjp += 1
-            with np.errstate(invalid="ignore"):
-                ok = finite & np.all(np.isfinite(grad), axis=1) & (loss < state.loss[rows])
-            acc, rej = rows[ok], rows[~ok]
-            if acc.size:
-                x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
-                state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
-            progressed[acc] = True
-            todo = np.flatnonzero(update_damping(self, state, acc, rej, n))
+            todo = np.flatnonzero(update_damping(self, state, *tried, n))
         return x, state, progressed
 
-    def trial_rows(
-        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState, tries: NDArray[np.intp]
-    ) -> tuple[NDArray[np.float64], GaussNewtonCGState, NDArray[np.bool_], NDArray[np.bool_]]:
-        """One trial of every row, the rounds of :meth:`step_rows` taken one at a time (a
-        rejected row that may retry is ``pending``; as :meth:`GaussNewtonSolver.trial_rows`)."""
-        n, p = x.shape
-        x = x.copy()
-        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        todo = np.arange(n)
+    def _trial(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState, todo: NDArray[np.intp],
+        progressed: NDArray[np.bool_],
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
+        """One trial of rows ``todo``: ``x``, ``state`` and ``progressed`` updated in place where a
+        row is accepted or its step negligible; the accepted and rejected rows, or None where
+        every step was negligible (no row evaluated)."""
+        p = x.shape[1]
         z = self._steps(x, state, todo)
-        moving = np.linalg.norm(z - x, axis=1) > self.xtol * (np.linalg.norm(x, axis=1) + self.xtol)
-        progressed[~moving] = True  # a negligible step: the row has converged
+        moving = np.linalg.norm(z - x[todo], axis=1) > self.xtol * (np.linalg.norm(x[todo], axis=1) + self.xtol)
+        progressed[todo[~moving]] = True  # a negligible step: the row has converged
         rows, z = todo[moving], z[moving]
         if rows.size == 0:
-            return x, state, progressed, pending
+            return None
         lin, loss, r, finite = self._linearize(problem, z, rows)
         grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
         state.n_vjp += 1
@@ -437,7 +423,19 @@ class GaussNewtonCGSolver(StepSolver):
             x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
             state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
         progressed[acc] = True
-        pending[:] = update_damping(self, state, acc, rej, n) & (np.asarray(tries) < int(self.max_retries))
+        return acc, rej
+
+    def trial_rows(
+        self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState, tries: NDArray[np.intp]
+    ) -> tuple[NDArray[np.float64], GaussNewtonCGState, NDArray[np.bool_], NDArray[np.bool_]]:
+        """One trial of every row, the rounds of :meth:`step_rows` taken one at a time (a
+        rejected row that may retry is ``pending``; as :meth:`GaussNewtonSolver.trial_rows`)."""
+        n = x.shape[0]
+        x = x.copy()
+        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        tried = self._trial(problem, x, state, np.arange(n), progressed)
+        if tried is not None:
+            pending[:] = update_damping(self, state, *tried, n) & (np.asarray(tries) < int(self.max_retries))
         return x, state, progressed, pending
 
     def take_rows(self, state: GaussNewtonCGState, rows: NDArray[np.intp]) -> GaussNewtonCGState:
