@@ -31,7 +31,7 @@ from ..exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, tr
 from ..objectives import Objective, get_objective
 from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
 from ..planning.cache import isolated_planning
-from ..tasks.task_set import TaskSet, features_digest
+from ..tasks.task_set import TaskSet, features_digest, refuse_features_digest
 
 __all__ = [
     "make_objective",
@@ -226,17 +226,8 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
         shape, features where the fit had none, or none where it had some).
     """
     actual = features_digest(features)
-    if actual == expected:
-        return
-    if expected is None:
-        raise ValidationError(f"{what} was fitted without features, but features of shape {np.shape(features)} are set now")
-    if actual is None:
-        raise ValidationError(f"{what} was fitted with features (sha256 {expected[:12]}...), but features=None now")
-    raise ValidationError(
-        f"{what} was fitted with other features than the ones set now (shape {np.shape(features)}, sha256 "
-        f"{actual[:12]}... instead of {expected[:12]}...): the dictionary only means something on the features it was "
-        "learnt with; restore those features or fit again"
-    )
+    if actual != expected:
+        refuse_features_digest(expected, actual, np.shape(features), what)
 
 
 def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matching",

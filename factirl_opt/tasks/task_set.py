@@ -41,7 +41,7 @@ from .features import StateBroadcast, TaskFeatures
 
 __all__ = ["TaskSet", "task_set", "environment_tasks", "REWARDS", "reward_features", "reward_basis", "reward_dimension",
            "per_task_features", "features_digest", "environment_signatures", "transfer_task_set",
-           "parameter_matrix"]
+           "parameter_matrix", "refuse_features_digest"]
 
 
 #: what a learner's reward depends on: ``"state-action"`` R(s, a), or ``"state"`` r(s) broadcast over actions
@@ -430,9 +430,13 @@ def transfer_task_set(mdp: Any, demos_per_task: Any, features: Any, fitted_featu
 def _check_digest(expected: str | None, basis: RewardBasis, has_features: bool, what: str) -> None:
     """Refuse model features other than those it was fitted with (digest ``expected``)."""
     actual = basis.digest() if has_features else None
-    if actual == expected:
-        return
-    shape = np.shape(basis.dense()[0]) if has_features else None
+    if actual != expected:
+        refuse_features_digest(expected, actual, np.shape(basis.dense()[0]) if has_features else None, what)
+
+
+def refuse_features_digest(expected: str | None, actual: str | None, shape: tuple[int, ...] | None, what: str) -> None:
+    """Raise the refusal of features whose digest ``actual`` (of an array of ``shape``, None
+    without features) is not ``expected``, the digest of the features ``what`` was fitted with."""
     if expected is None:
         raise ValidationError(f"{what} was fitted without features, but features of shape {shape} are set now")
     if actual is None:
