@@ -351,27 +351,16 @@ class GaussNewtonCGSolver(StepSolver):
     def update(
         self, problem: StepProblem, x: NDArray[np.float64], state: GaussNewtonCGState
     ) -> tuple[NDArray[np.float64], GaussNewtonCGState, bool]:
-        n, p = x.shape
+        n = x.shape[0]
         x = x.copy()
         retry = np.ones(n, dtype=bool)
         accepted_any = converged_all = False
         for _ in range(int(self.max_retries) + 1):
-            rows = np.flatnonzero(retry)
-            z = self._steps(x, state, rows)
-            moving = np.linalg.norm(z - x[rows], axis=1) > self.xtol * (np.linalg.norm(x[rows], axis=1) + self.xtol)
-            if not moving.any():
+            tried = self._trial(problem, x, state, np.flatnonzero(retry), np.zeros(n, dtype=bool))
+            if tried is None:
                 converged_all = True  # every row still allowed to move has a negligible step
                 break
-            rows, z = rows[moving], z[moving]
-            lin, loss, r, finite = self._linearize(problem, z, rows)
-            grad = product(self.name, lin, "vjp", np.where(finite[:, None], r, 0.0), p)
-            state.n_vjp += 1
-            with np.errstate(invalid="ignore"):
-                ok = finite & np.all(np.isfinite(grad), axis=1) & (loss < state.loss[rows])
-            acc, rej = rows[ok], rows[~ok]
-            if acc.size:
-                x[acc], state.loss[acc], state.residual[acc], state.grad[acc] = z[ok], loss[ok], r[ok], grad[ok]
-                state.lin.replace(acc, lin, np.flatnonzero(ok), len(rows))
+            acc, rej = tried
             retry = update_damping(self, state, acc, rej, n)
             if acc.size:
                 accepted_any = True
