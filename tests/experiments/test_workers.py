@@ -101,7 +101,7 @@ def _start_sweep(out):
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
-    while not (out / "runs").is_dir() or not any(f.endswith(".json") for f in os.listdir(out / "runs")):
+    while not (out / "runs").is_dir() or not _finished_runs(out):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "no run finished in 120 s"
         time.sleep(0.05)
@@ -130,7 +130,8 @@ def _signal_sweep(tmp_path, signum, bound=None):
 
 
 def _finished_runs(out):
-    return sorted(f for f in os.listdir(out / "runs") if f.endswith(".json"))
+    """The run records written in full: an atomic write's temporary file (``.tmp-...json``) is not one."""
+    return sorted(f for f in os.listdir(out / "runs") if f.endswith(".json") and not f.startswith("."))
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
