@@ -2,10 +2,12 @@
 
 import contextlib
 import signal
+import warnings
 
 import numpy as np
 
 import factirl_opt as fo
+from factirl_opt.exceptions import ConvergenceWarning
 
 __all__ = ["hang_guard", "central_difference", "rel_err", "random_statistics", "greedy_gap"]
 
@@ -67,3 +69,31 @@ def greedy_gap(mdp, rewards):
     Q, _ = fo.optimal_q(mdp, rewards)
     Qs = np.sort(np.asarray(Q), axis=-1)
     return float(np.min(Qs[..., -1] - Qs[..., -2]))
+
+
+def five_tasks_on_a_small_grid():
+    """Five tasks on one 3x3 grid with random rewards and features (p = 4): ``(mdp, features, demos)``."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(7)
+    R = 2.0 * rng.standard_normal((5, 9, 4))
+    demos = fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+    return mdp, rng.random((9, 4)), demos
+
+
+def three_tasks_on_two_grids():
+    """Three tasks on grids of 9, 16 and 9 states (the first and last the same object), state
+    features p = 3: ``(mdps, features, demos)``."""
+    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
+    mdps = [g3, g4, g3]
+    rng = np.random.default_rng(0)
+    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
+    R = [2.0 * rng.normal(size=(m.n_states, 4)) for m in mdps]
+    demos = [fo.sample_demonstrations(m, r[None], 2, 5, rng=i)[0] for i, (m, r) in enumerate(zip(mdps, R))]
+    return mdps, Phis, demos
+
+
+def quiet_fit(model, *args):
+    """``model.fit(*args)`` with its ConvergenceWarning silenced (a capped fit on purpose)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return model.fit(*args)

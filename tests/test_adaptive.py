@@ -30,7 +30,7 @@ def _table(model):
 
 def _fit(mdp, demos, **kw):
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)
         return fo.FactIRL(rng=0, max_iter=4, **kw).fit(mdp, demos)
 
 
@@ -190,7 +190,7 @@ def test_a_fixed_value_is_kept(data):
 
 def test_a_constrained_h_solver_validates_only_the_factorial_model(data):
     mdp, F, demos = data
-    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto", h_solver="armijo-nonneg")
+    model = _fit(mdp, demos, features=F, n_primitives=2, residual_penalty="auto", solver="armijo-nonneg")
     assert [r["residual_penalty"] for r in _table(model)] == [np.inf]
 
 

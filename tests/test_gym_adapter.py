@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 
 import factirl_opt as fo
-from factirl_opt.exceptions import MissingDependencyError, ValidationError
+from factirl_opt.exceptions import FactIRLError, MissingDependencyError, ValidationError
 from factirl_opt.adapters.gymnasium import _tabular_model, from_gymnasium, gymnasium_rewards
 
 gym = pytest.importorskip("gymnasium")
@@ -142,7 +142,7 @@ def test_missing_gymnasium_gives_library_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "gymnasium", None)
     with pytest.raises(MissingDependencyError) as info:
         from_gymnasium("FrozenLake-v1")
-    assert isinstance(info.value, ImportError) and isinstance(info.value, fo.FactIRLError)
+    assert isinstance(info.value, ImportError) and isinstance(info.value, FactIRLError)
     # the commands of the documented installs: any install, and the editable install from a clone (README)
     assert 'pip install "gymnasium>=0.29"' in str(info.value)
     assert 'pip install -e ".[gymnasium]"' in str(info.value)

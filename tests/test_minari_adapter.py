@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.exceptions import MissingDependencyError, ValidationError
+from factirl_opt.exceptions import MissingDependencyError, PersistenceError, ValidationError
 from factirl_opt.adapters.minari import LoggedEpisodes, read_minari
 
 
@@ -199,7 +199,7 @@ def _damaged(error, after=0, **extra):
     (ValueError("No data found in data path /data/test/damaged-v0/data"), 1),
 ])
 def test_a_damaged_dataset_is_a_persistence_error_naming_it(error, after):
-    with pytest.raises(fo.PersistenceError, match=r"the Minari dataset 'test/damaged-v0' \(/data/test/damaged-v0/data\) cannot "
+    with pytest.raises(PersistenceError, match=r"the Minari dataset 'test/damaged-v0' \(/data/test/damaged-v0/data\) cannot "
                                                   rf"be read: {type(error).__name__}: .*damaged, truncated or missing") as info:
         read_minari(_damaged(error, after))
     assert info.value.__cause__ is error
@@ -244,11 +244,11 @@ def test_damaged_files_of_a_real_dataset(tmp_path, monkeypatch):
         read_minari("test/fl/damaged-v0", [3])
     hdf5 = data / "main_data.hdf5"
     hdf5.write_bytes(hdf5.read_bytes()[: hdf5.stat().st_size // 2])
-    with pytest.raises(fo.PersistenceError, match=name + r": OSError: .*truncated file"):
+    with pytest.raises(PersistenceError, match=name + r": OSError: .*truncated file"):
         read_minari("test/fl/damaged-v0")
     (data / "metadata.json").write_text("{bad json")
-    with pytest.raises(fo.PersistenceError, match=name + ": JSONDecodeError"):
+    with pytest.raises(PersistenceError, match=name + ": JSONDecodeError"):
         read_minari("test/fl/damaged-v0")
     (data / "metadata.json").unlink()
-    with pytest.raises(fo.PersistenceError, match=name + ": ValueError: No data found"):
+    with pytest.raises(PersistenceError, match=name + ": ValueError: No data found"):
         read_minari("test/fl/damaged-v0")

@@ -6,6 +6,7 @@ import pytest
 from scipy.special import logsumexp
 
 import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.em import e_step, episode_counts, kmeans, kmeans_plus_plus, log_policies, weighted_statistics
 from factirl_opt.learners.multi_intent_fit import WeightedObjective
 from factirl_opt.objectives import MCEObjective, Objective, PolicyMatchingObjective
@@ -314,6 +315,6 @@ def test_sparse_model_gives_the_dense_fit():
     ([], "^episodes are empty"),
 ])
 def test_unlabeled_episodes_are_named_as_given_not_as_a_task(episodes, match):
-    with pytest.raises(fo.ValidationError, match=match) as info:
+    with pytest.raises(ValidationError, match=match) as info:
         fo.MultiIntentIRL(n_intentions=1, max_iter=1).fit(fo.GridWorld(size=3), episodes)
     assert "task" not in str(info.value)

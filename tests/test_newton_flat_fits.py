@@ -2,43 +2,23 @@
 fit of that task alone (per-task convergence), in one environment and in several, and the fit
 reaches the loss of the first-order solvers' fits."""
 
-import warnings
-
 import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.exceptions import ConvergenceWarning
+from helpers import five_tasks_on_a_small_grid, quiet_fit, three_tasks_on_two_grids
 
 OBJECTIVES = ["policy-matching", "mce"]
 
 
 @pytest.fixture(scope="module")
 def tasks():
-    """Five tasks on one 3x3 grid with random rewards and features (p = 4)."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(7)
-    R = 2.0 * rng.standard_normal((5, 9, 4))
-    demos = fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
-    return mdp, rng.random((9, 4)), demos
+    return five_tasks_on_a_small_grid()
 
 
 @pytest.fixture(scope="module")
 def worlds():
-    """Three tasks on grids of 9, 16 and 9 states (the first and last the same object), state features p = 3."""
-    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
-    mdps = [g3, g4, g3]
-    rng = np.random.default_rng(0)
-    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
-    R = [2.0 * rng.normal(size=(m.n_states, 4)) for m in mdps]
-    demos = [fo.sample_demonstrations(m, r[None], 2, 5, rng=i)[0] for i, (m, r) in enumerate(zip(mdps, R))]
-    return mdps, Phis, demos
-
-
-def _fit(model, *args):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        return model.fit(*args)
+    return three_tasks_on_two_grids()
 
 
 def _assert_alone(together, alone, i):
@@ -53,18 +33,18 @@ def test_flat_fit_equals_each_task_fitted_alone(tasks, objective, features, age)
     mdp, F, demos = tasks
     kw = dict(max_iter=40, solver="newton", solver_options={"hessian_age": age}, objective=objective,
               features=F if features else None)
-    together = _fit(fo.GradIRL(**kw), mdp, demos)
+    together = quiet_fit(fo.GradIRL(**kw), mdp, demos)
     for i in range(len(demos)):
-        _assert_alone(together, _fit(fo.GradIRL(**kw), mdp, demos[i:i + 1]), i)
+        _assert_alone(together, quiet_fit(fo.GradIRL(**kw), mdp, demos[i:i + 1]), i)
 
 
 @pytest.mark.parametrize("objective", OBJECTIVES)
 def test_flat_fit_over_environments_equals_each_task_alone(worlds, objective):
     mdps, Phis, demos = worlds
     kw = dict(max_iter=40, solver="newton", objective=objective)
-    together = _fit(fo.GradIRL(features=Phis, **kw), mdps, demos)
+    together = quiet_fit(fo.GradIRL(features=Phis, **kw), mdps, demos)
     for i in range(len(demos)):
-        _assert_alone(together, _fit(fo.GradIRL(features=[Phis[i]], **kw), [mdps[i]], demos[i:i + 1]), i)
+        _assert_alone(together, quiet_fit(fo.GradIRL(features=[Phis[i]], **kw), [mdps[i]], demos[i:i + 1]), i)
 
 
 def test_newton_reaches_the_loss_of_lbfgs_in_fewer_evaluations(tasks):
@@ -72,7 +52,7 @@ def test_newton_reaches_the_loss_of_lbfgs_in_fewer_evaluations(tasks):
     Newton to a loss no higher (to 1e-6) with fewer planning evaluations."""
     objective = "mce"
     mdp, F, demos = tasks
-    fits = {s: _fit(fo.GradIRL(max_iter=300, solver=s, objective=objective, features=F, tol=1e-8, gtol=0.0), mdp, demos)
+    fits = {s: quiet_fit(fo.GradIRL(max_iter=300, solver=s, objective=objective, features=F, tol=1e-8, gtol=0.0), mdp, demos)
             for s in ("lbfgs", "newton")}
     assert np.all(fits["newton"].loss_ <= fits["lbfgs"].loss_ + 1e-6)
     assert fits["newton"].n_evaluations_ < fits["lbfgs"].n_evaluations_
@@ -81,6 +61,6 @@ def test_newton_reaches_the_loss_of_lbfgs_in_fewer_evaluations(tasks):
 def test_factirl_takes_newton_as_its_flat_solver(tasks):
     mdp, F, demos = tasks
     for objective in OBJECTIVES:
-        model = _fit(fo.FactIRL(n_primitives=2, features=F, objective=objective, flat_solver="newton", max_iter=3,
+        model = quiet_fit(fo.FactIRL(n_primitives=2, features=F, objective=objective, flat_solver="newton", max_iter=3,
                                 flat_max_iter=20, rng=0), mdp, demos)
         assert np.all(np.isfinite(model.rewards_))

@@ -16,7 +16,7 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.parallel import shards as parallel
-from factirl_opt.exceptions import FactIRLError, ValidationError
+from factirl_opt.exceptions import FactIRLError, ValidationError, WorkersLost
 from factirl_opt.objectives import MCEObjective, PolicyMatchingObjective
 from factirl_opt.objectives.distributed import ShardedObjective, reduced_least_squares
 from factirl_opt.objectives.sharding import sharded
@@ -339,7 +339,7 @@ def test_a_deadlocked_shard_ends_in_a_clear_error(monkeypatch):
     monkeypatch.setattr(parallel, "MAX_RESTARTS", 1)
     shards = Shards([(Stuck, ()), (Stuck, ())])
     try:
-        with pytest.raises(fo.WorkersLost, match=r"lost 2 times in one call.*used no CPU time for 1 s \(stopped, or deadlocked\)"):
+        with pytest.raises(WorkersLost, match=r"lost 2 times in one call.*used no CPU time for 1 s \(stopped, or deadlocked\)"):
             within(30, shards.call, [(1, "wait", ())])
         assert shards.n_restarts == 1
     finally:

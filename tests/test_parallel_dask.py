@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
+from factirl_opt.exceptions import ValidationError, WorkersLost
 from factirl_opt.objectives import PolicyMatchingObjective
 from factirl_opt.objectives.distributed import ShardedObjective
 
@@ -157,9 +158,9 @@ def test_a_closed_client_is_refused_before_the_fit(threads_cluster, data):
     mdp, demos, F = data
     cluster, c = threads_cluster
     c.close()
-    with pytest.raises(fo.ValidationError, match="Dask client .* cannot be used: its status is 'closed'"):
+    with pytest.raises(ValidationError, match="Dask client .* cannot be used: its status is 'closed'"):
         fo.FactIRL(backend="dask", client=c, features=F, **KW).fit(mdp, demos)
-    with pytest.raises(fo.ValidationError, match=r"needs client= a dask.distributed.Client; got LocalCluster \(a cluster: "
+    with pytest.raises(ValidationError, match=r"needs client= a dask.distributed.Client; got LocalCluster \(a cluster: "
                                                  r"pass dask.distributed.Client\(cluster\)\)"):
         fo.GradIRL(backend="dask", client=cluster).fit(mdp, demos)
 
@@ -175,7 +176,7 @@ def test_a_cluster_closed_during_a_fit_interrupts_it_keeping_the_best_point(thre
     model = fo.FactIRL(backend="dask", client=c, n_jobs=2, callback=close, features=F, **KW)
     # (the InterruptedFitWarning is not asserted: closing a cluster from this thread resets the warnings
     # machinery pytest.warns relies on; test_parallel checks it for lost shard processes)
-    with pytest.raises(fo.WorkersLost, match="status is 'closed'"):
+    with pytest.raises(WorkersLost, match="status is 'closed'"):
         model.fit(mdp, demos)
     assert model.status_ == "interrupted" and model.n_iter_ == 2 and np.all(np.isfinite(model.loss_))
 
@@ -195,7 +196,7 @@ def test_every_worker_lost_interrupts_the_fit_after_a_bounded_wait(threads_clust
                 time.sleep(0.05)
 
     model = fo.GradIRL(max_iter=4, backend="dask", client=c, n_jobs=2, callback=drop, features=F)
-    with pytest.raises(fo.WorkersLost, match="no worker left and none joined within 1 s"):
+    with pytest.raises(WorkersLost, match="no worker left and none joined within 1 s"):
         model.fit(mdp, demos)
     assert model.status_ == "interrupted" and model.weights_.shape == (6, 4)
 

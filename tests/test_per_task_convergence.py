@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
+from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 import solvers
 from factirl_opt.learners.gradirl import fit_weights
 from factirl_opt.learners.fitting import make_objective
 from factirl_opt.tasks.task_set import reward_features
+from helpers import five_tasks_on_a_small_grid, quiet_fit, three_tasks_on_two_grids
 
 FLAT_SOLVERS = [name for name in ("armijo", "armijo-nonneg", "lbfgs", "gn-cg", "gn-qp-osqp", "gn-qp-clarabel")
                 if name in solvers.available_solvers()]
@@ -18,30 +20,12 @@ FLAT_SOLVERS = [name for name in ("armijo", "armijo-nonneg", "lbfgs", "gn-cg", "
 
 @pytest.fixture(scope="module")
 def tasks():
-    """Five tasks on one 3x3 grid with random rewards and features (p = 4)."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(7)
-    R = 2.0 * rng.standard_normal((5, 9, 4))
-    demos = fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
-    return mdp, rng.random((9, 4)), demos
+    return five_tasks_on_a_small_grid()
 
 
 @pytest.fixture(scope="module")
 def worlds():
-    """Three tasks on grids of 9, 16 and 9 states (the first and last the same object), state features p = 3."""
-    g3, g4 = fo.GridWorld(size=3, p_success=0.7, gamma=0.9), fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
-    mdps = [g3, g4, g3]
-    rng = np.random.default_rng(0)
-    Phis = [rng.random((9, 3)), rng.random((16 * 4, 3)), rng.random((9, 3))]
-    R = [2.0 * rng.normal(size=(m.n_states, 4)) for m in mdps]
-    demos = [fo.sample_demonstrations(m, r[None], 2, 5, rng=i)[0] for i, (m, r) in enumerate(zip(mdps, R))]
-    return mdps, Phis, demos
-
-
-def _quiet_fit(model, *args):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
-        return model.fit(*args)
+    return three_tasks_on_two_grids()
 
 
 def _assert_alone(together, alone, i):
@@ -55,9 +39,9 @@ def test_flat_fit_equals_each_task_fitted_alone(tasks, solver, features):
     """The default tol stops the tasks at different iterations; each one's weights are its own fit's."""
     mdp, F, demos = tasks
     kw = dict(max_iter=60, solver=solver, features=F if features else None)
-    together = _quiet_fit(fo.GradIRL(**kw), mdp, demos)
+    together = quiet_fit(fo.GradIRL(**kw), mdp, demos)
     for i in range(len(demos)):
-        _assert_alone(together, _quiet_fit(fo.GradIRL(**kw), mdp, demos[i:i + 1]), i)
+        _assert_alone(together, quiet_fit(fo.GradIRL(**kw), mdp, demos[i:i + 1]), i)
 
 
 def test_tasks_stop_at_different_iterations_and_leave_the_batch(tasks):
@@ -79,27 +63,27 @@ def test_flat_fit_over_environments_equals_each_task_alone(worlds, solver):
     matrix in a list)."""
     mdps, Phis, demos = worlds
     kw = dict(max_iter=40, solver=solver)
-    together = _quiet_fit(fo.GradIRL(features=Phis, **kw), mdps, demos)
+    together = quiet_fit(fo.GradIRL(features=Phis, **kw), mdps, demos)
     for i in range(3):
-        _assert_alone(together, _quiet_fit(fo.GradIRL(features=[Phis[i]], **kw), [mdps[i]], [demos[i]]), i)
+        _assert_alone(together, quiet_fit(fo.GradIRL(features=[Phis[i]], **kw), [mdps[i]], [demos[i]]), i)
 
 
 def test_flat_fit_in_two_shards_equals_each_task_alone(tasks):
     mdp, F, demos = tasks
-    together = _quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs", n_jobs=2), mdp, demos)
+    together = quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs", n_jobs=2), mdp, demos)
     for i in (0, 3):
-        _assert_alone(together, _quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs"), mdp, demos[i:i + 1]), i)
+        _assert_alone(together, quiet_fit(fo.GradIRL(features=F, max_iter=40, solver="lbfgs"), mdp, demos[i:i + 1]), i)
 
 
 def test_max_iter_warning_names_the_tasks_that_did_not_converge(tasks):
     mdp, F, demos = tasks
-    full = _quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos)
-    steps = np.array([_quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos[i:i + 1]).n_iter_
+    full = quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos)
+    steps = np.array([quiet_fit(fo.GradIRL(features=F, max_iter=300, solver="lbfgs"), mdp, demos[i:i + 1]).n_iter_
                       for i in range(len(demos))])
     cut = int(np.median(steps))
     late = np.flatnonzero(steps > cut)
     assert full.status_ == "converged" and 0 < late.size < len(demos)
-    with pytest.warns(fo.ConvergenceWarning, match=rf"max_iter={cut} before its tolerance for {late.size} of "
+    with pytest.warns(ConvergenceWarning, match=rf"max_iter={cut} before its tolerance for {late.size} of "
                                                    rf"{len(demos)} task\(s\): \[{', '.join(map(str, late))}\]"):
         model = fo.GradIRL(features=F, max_iter=cut, solver="lbfgs").fit(mdp, demos)
     assert model.status_ == "max_iter" and model.n_iter_ == cut
@@ -108,7 +92,7 @@ def test_max_iter_warning_names_the_tasks_that_did_not_converge(tasks):
 def test_no_warning_when_every_task_converges(tasks):
     mdp, F, demos = tasks
     with warnings.catch_warnings():
-        warnings.simplefilter("error", fo.ConvergenceWarning)
+        warnings.simplefilter("error", ConvergenceWarning)
         model = fo.GradIRL(features=F, max_iter=300, solver="lbfgs").fit(mdp, demos)
     assert model.status_ == "converged"
 
@@ -129,10 +113,10 @@ def dictionary_tasks():
 @pytest.mark.parametrize("solver", FLAT_SOLVERS)
 def test_transfer_equals_each_task_transferred_alone(dictionary_tasks, solver):
     mdp, D, demos = dictionary_tasks
-    model = fo.FactIRL(n_primitives=3, h_solver=solver)
+    model = fo.FactIRL(n_primitives=3, solver=solver)
     model.dictionary_ = D
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)
         together = model.transfer(mdp, demos, max_iter=60)
         for i in range(len(demos)):
             alone = model.transfer(mdp, demos[i:i + 1], max_iter=60)
@@ -141,9 +125,9 @@ def test_transfer_equals_each_task_transferred_alone(dictionary_tasks, solver):
 
 def test_transfer_warns_naming_the_tasks_at_max_iter(dictionary_tasks):
     mdp, D, demos = dictionary_tasks
-    model = fo.FactIRL(n_primitives=3, h_solver="armijo")
+    model = fo.FactIRL(n_primitives=3, solver="armijo")
     model.dictionary_ = D
-    with pytest.warns(fo.ConvergenceWarning, match=r"transfer stopped at max_iter=2 before its tolerance for \d of 6 task"):
+    with pytest.warns(ConvergenceWarning, match=r"transfer stopped at max_iter=2 before its tolerance for \d of 6 task"):
         model.transfer(mdp, demos, max_iter=2)
     assert model.transfer_status_ == "max_iter"
     assert "at max_iter=2: rows [" in model.transfer_stop_reason_
@@ -152,10 +136,10 @@ def test_transfer_warns_naming_the_tasks_at_max_iter(dictionary_tasks):
 @pytest.mark.parametrize("solver", ["armijo", "gn-qp-clarabel"])
 def test_transfer_to_new_environments_equals_each_task_alone(worlds, solver):
     mdps, Phis, demos = worlds
-    model = fo.FactIRL(n_primitives=2, h_solver=solver)
+    model = fo.FactIRL(n_primitives=2, solver=solver)
     model.features, model.dictionary_ = Phis, np.random.default_rng(2).normal(size=(3, 2))
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)
         together = model.transfer(mdps, demos, features=Phis, max_iter=60)
         for i in range(3):
             alone = model.transfer([mdps[i]], [demos[i]], features=[Phis[i]], max_iter=60)
@@ -220,7 +204,7 @@ def test_transfer_from_one_demonstration_converges(matched, solver):
 @pytest.mark.parametrize("bad", [-1e-4, float("nan"), "1e-4"])
 def test_gtol_is_checked(matched, bad):
     mdp, demos, D, new = matched
-    with pytest.raises(fo.ValidationError, match="gtol"):
+    with pytest.raises(ValidationError, match="gtol"):
         fo.GradIRL(gtol=bad).fit(mdp, demos)
-    with pytest.raises(fo.ValidationError, match="gtol"):
+    with pytest.raises(ValidationError, match="gtol"):
         fo.transfer_coefficients(mdp, new, D, gtol=bad)

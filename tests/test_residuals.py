@@ -7,7 +7,7 @@ import pytest
 from helpers import central_difference, rel_err
 
 import factirl_opt as fo
-from factirl_opt.exceptions import ValidationError
+from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.learners.fitting import make_objective, task_objective
 from factirl_opt.tasks.task_set import task_set
 from factirl_opt.tasks.task_set import reward_features
@@ -97,7 +97,7 @@ def test_least_squares_pieces_match_central_differences(shared, worlds, rng, kin
 
 def _fit(**kw):
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)
         return fo.FactIRL(n_primitives=2, rng=0, **kw)
 
 
@@ -132,9 +132,9 @@ def test_fit_and_transfer_record_the_residuals(shared):
 
 def test_transfer_of_each_task_alone_with_residuals(shared):
     mdp, F, demos = shared
-    model = _fit(features=F, max_iter=4, residual_penalty=LAM, h_solver="lbfgs").fit(mdp, demos)
+    model = _fit(features=F, max_iter=4, residual_penalty=LAM, solver="lbfgs").fit(mdp, demos)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", fo.ConvergenceWarning)
+        warnings.simplefilter("ignore", ConvergenceWarning)
         together = model.transfer(mdp, demos, max_iter=50)
         for i in (0, 4):
             np.testing.assert_allclose(together[i], model.transfer(mdp, demos[i:i + 1], max_iter=50)[0], rtol=0, atol=1e-10)
@@ -147,9 +147,9 @@ def test_small_penalty_approaches_the_flat_learner(shared):
     flat = fo.GradIRL(features=F, max_iter=500, tol=1e-10, solver="lbfgs").fit(mdp, demos)
     losses = {}
     for lam in (1e-6, 1e-2, 1e2):
-        model = _fit(features=F, max_iter=6, residual_penalty=lam, h_solver="lbfgs").fit(mdp, demos)
+        model = _fit(features=F, max_iter=6, residual_penalty=lam, solver="lbfgs").fit(mdp, demos)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", fo.ConvergenceWarning)
+            warnings.simplefilter("ignore", ConvergenceWarning)
             model.transfer(mdp, demos, max_iter=500)
         losses[lam] = model.transfer_loss_.sum()
     assert losses[1e-6] <= losses[1e-2] <= losses[1e2]
@@ -161,7 +161,7 @@ def test_small_penalty_approaches_the_flat_learner(shared):
 def test_fit_over_every_layout(shared, worlds, kind):
     if kind == "tabular":
         mdp, _, demos = shared
-        model = _fit(max_iter=3, residual_penalty=1.0, h_solver="gn-qp-clarabel").fit(mdp, demos)
+        model = _fit(max_iter=3, residual_penalty=1.0, solver="gn-qp-clarabel").fit(mdp, demos)
         assert model.residuals_.shape == (5, 36) and model.rewards_.shape == (5, 9, 4)
         model.transfer(mdp, demos[:1])
         assert model.transfer_rewards_.shape == (1, 9, 4)
@@ -198,7 +198,7 @@ def test_a_constrained_h_solver_is_refused_with_residuals(shared):
     mdp, F, demos = shared
     with pytest.raises(ValidationError, match=r"residual_penalty=0.3 needs an unconstrained h_solver .* 'armijo-nonneg' has "
                                               r"constraint 'nonneg'"):
-        _fit(features=F, max_iter=1, residual_penalty=LAM, h_solver="armijo-nonneg").fit(mdp, demos)
+        _fit(features=F, max_iter=1, residual_penalty=LAM, solver="armijo-nonneg").fit(mdp, demos)
 
 
 def test_every_planner_fits_the_residual_model(shared):
@@ -226,14 +226,14 @@ def test_residual_h_step_solves_each_task_alone_without_a_block_qp(shared, monke
         raise AssertionError("the residual H-step built a block QP over the tasks")
 
     mdp, F, demos = shared
-    fitted = fo.FactIRL(n_primitives=2, features=F, residual_penalty=LAM, h_solver="gn-qp-osqp", max_iter=3, rng=0)
+    fitted = fo.FactIRL(n_primitives=2, features=F, residual_penalty=LAM, solver="gn-qp-osqp", max_iter=3, rng=0)
     monkeypatch.setattr(gn.GaussNewtonSolver, "solve_subproblems", no_block_qp)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
         fitted.fit(mdp, demos)
     assert np.all(np.isfinite(fitted.residuals_)) and np.any(fitted.residuals_ != 0)
     with pytest.raises(AssertionError, match="block QP"):  # the fixed-k model's H-step does use it (unchanged)
-        fo.FactIRL(n_primitives=2, features=F, h_solver="gn-qp-osqp", max_iter=1, rng=0).fit(mdp, demos)
+        fo.FactIRL(n_primitives=2, features=F, solver="gn-qp-osqp", max_iter=1, rng=0).fit(mdp, demos)
 
 
 @pytest.mark.parametrize("flat_solver", ["armijo", "lbfgs"])
