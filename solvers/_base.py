@@ -52,6 +52,15 @@ class StepProblem:
         ``(x_rows, rows) -> (r, p, p)``: the Hessian of every row's loss at ``x_rows``
         (symmetric, possibly indefinite); None when the problem gives none. Called at points
         where ``loss_and_grad`` was just evaluated. Used by ``newton``.
+    ridge_params : int, default=0
+        q > 0 declares a ridge block: the last q parameters ``d_i`` of every row enter the loss
+        also through ``ridge_penalty * ||d_i||^2``, whose residuals ``sqrt(ridge_penalty) d_i``
+        are the last q entries of ``residual_jacobian``'s residuals (its Jacobian's last q rows
+        ``[0, sqrt(ridge_penalty) I]``). The Gauss-Newton QP solver then eliminates the block
+        in closed form (:func:`solvers.gn_subproblem.eliminate_ridge`); other solvers ignore it.
+        0 <= q < ``n_params``.
+    ridge_penalty : float, default=0.0
+        The ridge block's penalty, finite and >= 0.
 
     Raises
     ------
@@ -66,6 +75,8 @@ class StepProblem:
     residual_jacobian: Optional[Callable] = None
     linearize: Optional[Callable] = None
     hessian: Optional[Callable] = None
+    ridge_params: int = 0
+    ridge_penalty: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("loss_and_grad", "n_evaluations", "residual_jacobian", "linearize", "hessian"):
@@ -74,6 +85,8 @@ class StepProblem:
                 raise SolverOptionError(f"StepProblem: {name} must be callable; got {value!r} ({type(value).__name__})")
         check_number(self.n_rows, "n_rows", "StepProblem", low=1, integer=True)
         check_number(self.n_params, "n_params", "StepProblem", low=1, integer=True)
+        check_number(self.ridge_params, "ridge_params", "StepProblem", low=0, high=self.n_params - 1, integer=True)
+        check_number(self.ridge_penalty, "ridge_penalty", "StepProblem", low=0.0)
 
 
 @dataclass(frozen=True)

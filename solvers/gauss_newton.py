@@ -42,6 +42,15 @@ row's Jacobian vanishes (saturated Boltzmann policies at large ``beta``: the und
 would be ``~ r / J``) and only acts on such steps: the default radius, 100, is 5x the longest
 relative step seen in the well-behaved runs of the tests. A row whose Jacobian or residual is
 exactly zero has a zero step: it makes no progress (and is not evaluated).
+
+A ridge block (``StepProblem.ridge_params``: FactIRL's residual model, ``x_i = [h_i, delta_i]``
+with ``lambda ||delta_i||^2``): with ``ridge="eliminate"`` (the default) and no constraint, the
+block is eliminated from the subproblem in closed form
+(:func:`solvers.gn_subproblem.eliminate_ridge`): the factorisations are of the Jacobian's
+nonzero rows and the k kept coefficients, not of the stacked (m + p + k) x (k + p) system, and
+the step is the stacked subproblem's exact minimiser (the same step up to round-off; the step
+bound acts on the whole step, as without elimination). ``ridge="stack"`` factors the stacked
+system as any other.
 """
 
 from __future__ import annotations
@@ -72,6 +81,7 @@ from .exceptions import SolverError, SolverOptionError
 from .gn_subproblem import (
     COMPILED_CACHE_SIZE,  # re-exported; the cache reads solvers.gn_subproblem.COMPILED_CACHE_SIZE
     compiled_block_qp,
+    eliminate_ridge,
     reduce_least_squares,
     rescale_subproblems,
     safe_step,
@@ -89,6 +99,7 @@ __all__ = [
 ]
 
 INTERFACES = ("cvxpy", "direct")
+RIDGE_ROUTES = ("eliminate", "stack")
 FALLBACKS = ("qp-solver", "safe-step", "none")
 
 
@@ -200,6 +211,10 @@ class GaussNewtonSolver(StepSolver):
     max_step_norm : float, default=100.0
         Step bound: no row moves further than ``max_step_norm * max(1, ||h_i||)`` in one step
         (see the module docstring), > 0.
+    ridge : {"eliminate", "stack"}, default="eliminate"
+        A problem's ridge block (``StepProblem.ridge_params``), with ``constraint="none"``:
+        eliminated from each subproblem in closed form, or factored with the rest (the stacked
+        system; the same steps up to round-off, at a higher cost). See the module docstring.
 
     Raises
     ------
@@ -235,6 +250,7 @@ class GaussNewtonSolver(StepSolver):
     alternating_damping: float | None = option(1.0, optional(number(low=0.0, low_open=True)))
     alternating_lam_down: float = option(0.99, number(0.0, 1.0, low_open=True, high_open=True))
     max_step_norm: float = option(100.0, number(low=0.0, low_open=True))
+    ridge: str = option("eliminate", choice(*RIDGE_ROUTES))
     _cache: dict[tuple[str, int, int, str], Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     needs_jacobian = True
@@ -421,9 +437,12 @@ class GaussNewtonSolver(StepSolver):
         x = x.copy()
         retry = np.ones(n, dtype=bool)  # rows allowed to try in this round
         accepted_any = converged_all = False
+        ridge = self._ridge(problem)
         for _ in range(int(self.max_retries) + 1):
-            R, b = self._factors(x, state)
-            z = self.solve_subproblems(R, b, x, state)
+            z = None if ridge is None else self._eliminated_steps(x, state, np.arange(n), *ridge)
+            if z is None:
+                R, b = self._factors(x, state)
+                z = self.solve_subproblems(R, b, x, state)
             if z is None:  # failed status with fallback="none": reject every trying row
                 state.lam[retry] = np.minimum(state.lam[retry] * self.lam_up, self.lam_max * state.scale[retry])
                 break
@@ -470,6 +489,31 @@ class GaussNewtonSolver(StepSolver):
             state.bounded_steps += int(far.sum())
         return R, b
 
+    def _ridge(self, problem: StepProblem) -> tuple[int, float] | None:
+        """``(q, lambda)`` of the problem's ridge block where this solver eliminates it, else None."""
+        q = int(getattr(problem, "ridge_params", 0))
+        if q > 0 and self.ridge == "eliminate" and self.constraint == "none":
+            return q, float(problem.ridge_penalty)
+        return None
+
+    def _eliminated_steps(self, x, state, rows, size, penalty):
+        """The exact minimisers ``[h', d']`` (r, k + q) of rows ``rows``' damped subproblems with
+        the ridge block eliminated, after the step bound (which raises only their ``lam``, as
+        :meth:`_row_factors`); None where a minimiser is not finite (the stacked route then
+        takes the step)."""
+        J, r, lam = state.jacobian[rows], state.residual[rows], state.lam[rows]
+        z = eliminate_ridge(J, r, x, lam, size, penalty).minimiser()
+        radius = self.max_step_norm * np.maximum(1.0, np.linalg.norm(x, axis=1))
+        with np.errstate(all="ignore"):
+            far = ~(np.linalg.norm(z - x, axis=1) <= radius)
+        if far.any():
+            g = np.linalg.norm(np.einsum("nmk,nm->nk", J[far], r[far]), axis=1)
+            lam[far] = np.maximum(lam[far], 2.0 * g / radius[far])
+            state.lam[rows] = lam
+            z[far] = eliminate_ridge(J[far], r[far], x[far], lam[far], size, penalty).minimiser()
+            state.bounded_steps += int(far.sum())
+        return z if np.all(np.isfinite(z)) else None
+
     def _solve_rows(self, R, b, x, state):
         """The subproblems of a separable step: without a constraint, the exact minimiser
         ``R_i^{-1} b_i`` of every row (a QP solver's answer depends on the other rows through
@@ -510,8 +554,11 @@ class GaussNewtonSolver(StepSolver):
         """One trial of rows ``todo``: ``x``, ``state`` and ``progressed`` updated in place where a
         row is accepted or its step negligible; the accepted and rejected rows, or None where no
         row was evaluated (every step negligible, or a failed QP whose rows' damping was raised)."""
-        R, b = self._row_factors(x[todo], state, todo)
-        z = self._solve_rows(R, b, x[todo], state)
+        ridge = self._ridge(problem)
+        z = None if ridge is None else self._eliminated_steps(x[todo], state, todo, *ridge)
+        if z is None:
+            R, b = self._row_factors(x[todo], state, todo)
+            z = self._solve_rows(R, b, x[todo], state)
         if z is None:  # failed status with fallback="none": reject every trying row
             state.lam[todo] = np.minimum(state.lam[todo] * self.lam_up, self.lam_max * state.scale[todo])
             return None

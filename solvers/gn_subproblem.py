@@ -11,15 +11,36 @@ is reduced before any QP solver sees it to a k x k triangular factor: with
 rescaling of every row's reduced problem to unit size (:func:`rescale_subproblems`), the
 length of the unconstrained damped step used by the step bound
 (:func:`unconstrained_step_norm`), the safe proximal-gradient step taken when every QP
-QP solver failed (:func:`safe_step`), and the per-thread cache of compiled block QPs
-(:func:`compiled_block_qp`). The solver that uses them is
+QP solver failed (:func:`safe_step`), the per-thread cache of compiled block QPs
+(:func:`compiled_block_qp`), and the closed-form elimination of a ridge-penalised block of
+parameters (:func:`eliminate_ridge`). The solver that uses them is
 :class:`solvers.gauss_newton.GaussNewtonSolver`.
+
+Eliminating a ridge block. When each row's parameters are ``x = [h, d]`` (k + q) and the
+residuals are ``[r(x), sqrt(lambda) d]`` (m + q; the Jacobian's last q rows ``[0, sqrt(lambda)
+I]``: the residual model of FactIRL, q = p reward parameters), the damped least squares over
+the new ``[h', d']`` is, with ``A = dr/dh`` (m, k), ``B = dr/dd`` (m, q) and ``nu = lambda + lam``,
+
+    ||r + A (h' - h) + B (d' - d)||^2 + lambda ||d'||^2 + lam ||h' - h||^2 + lam ||d' - d||^2.
+
+For fixed ``h'`` it is minimised by ``d' = G^-1 (lam d - B^T e)`` with ``G = B^T B + nu I`` and
+``e = r + A (h' - h) - B d``; putting it back leaves (Woodbury, ``W = B B^T + nu I``)
+
+    ||r~ + A~ (h' - h)||^2 + lam ||h' - h||^2 + const,
+    A~ = sqrt(nu) W^-1/2 A,  r~ = sqrt(nu) W^-1/2 (r - (lambda / nu) B d),
+
+a damped least squares over the k coefficients alone, reduced as any other
+(:func:`reduce_least_squares`). Only the Jacobian's nonzero rows count (a residual whose row
+is zero moves with no parameter: the unvisited states of a demonstration), so with ``m'``
+such rows the factorisations are of ``[B^T; sqrt(nu) I]`` ((q + m') x m', when m' <= q) or
+``[B; sqrt(nu) I]`` ((m' + q) x q), never of the stacked (m + q + k) x (k + q) system.
 """
 
 from __future__ import annotations
 
 import collections
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,7 +48,9 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "COMPILED_CACHE_SIZE",
+    "RidgeElimination",
     "compiled_block_qp",
+    "eliminate_ridge",
     "reduce_least_squares",
     "rescale_subproblems",
     "safe_step",
@@ -99,6 +122,132 @@ def reduce_least_squares(
     c = np.einsum("nmk,nm->nk", Q[:, :m], residual)
     b = np.einsum("nij,nj->ni", R, coefficients) - c
     return R, b
+
+
+@dataclass(frozen=True)
+class RidgeElimination:
+    """The reduced subproblem of every row with its ridge block eliminated (:func:`eliminate_ridge`).
+
+    Attributes
+    ----------
+    R : ndarray, shape (n, k, k)
+        Upper triangular: ``||R h' - b||^2`` is the damped model over the kept coefficients
+        ``h'``, up to a constant (the ridge block at its minimiser for ``h'``).
+    b : ndarray, shape (n, k)
+    """
+
+    R: NDArray[np.float64]
+    b: NDArray[np.float64]
+    _A: NDArray[np.float64]  # (n, m', k), the Jacobian's nonzero rows over h
+    _B: NDArray[np.float64]  # (n, m', q), over d
+    _r: NDArray[np.float64]  # (n, m'), the residuals of those rows
+    _x: NDArray[np.float64]  # (n, k + q), the current parameters
+    _lam: NDArray[np.float64]  # (n,), the damping
+    _nu: NDArray[np.float64]  # (n,), lambda + lam
+    _factor: NDArray[np.float64]  # (n, m', m') or (n, q, q): upper triangular, of W or G
+    _small_rows: bool  # whether _factor is W's (m' <= q) or G's
+
+    def block(self, kept: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The eliminated block's minimiser ``d'`` (n, q) for the kept coefficients ``h'`` (n, k)."""
+        k = self.R.shape[1]
+        h, d = self._x[:, :k], self._x[:, k:]
+        e = self._r + _bmv(self._A, kept - h) - _bmv(self._B, d)
+        v = self._lam[:, None] * d - _bmtv(self._B, e)
+        if self._small_rows:  # G^-1 v = (v - B^T W^-1 B v) / nu
+            return (v - _bmtv(self._B, _cho_solve(self._factor, _bmv(self._B, v)))) / self._nu[:, None]
+        return _cho_solve(self._factor, v)
+
+    def minimiser(self) -> NDArray[np.float64]:
+        """Every row's unconstrained minimiser ``[h', d']`` (n, k + q) of the damped model;
+        NaN in a row whose factor is singular."""
+        with np.errstate(all="ignore"):
+            try:
+                kept = np.asarray(np.linalg.solve(self.R, self.b[..., None])[..., 0], dtype=np.float64)
+            except np.linalg.LinAlgError:
+                kept = np.full_like(self.b, np.nan)
+            return np.concatenate([kept, self.block(kept)], axis=1)
+
+
+def _bmv(M, v):
+    """``M_i v_i`` for a batch: (n, a, b) x (n, b) -> (n, a)."""
+    return np.matmul(M, v[..., None])[..., 0]
+
+
+def _bmtv(M, v):
+    """``M_i^T v_i`` for a batch: (n, a, b) x (n, a) -> (n, b)."""
+    return np.matmul(v[:, None, :], M)[:, 0]
+
+
+def _cho_solve(U, v):
+    """``(U_i^T U_i)^-1 v_i`` for a batch of upper triangular U (n, a, a) and v (n, a)."""
+    y = np.linalg.solve(np.swapaxes(U, 1, 2), v[..., None])
+    return np.linalg.solve(U, y)[..., 0]
+
+
+def _qr_r(M):
+    """The upper triangular factor of a batched reduced QR (n, a, b) -> (n, b, b), a >= b."""
+    return np.linalg.qr(M, mode="r")
+
+
+def eliminate_ridge(
+    jacobian: NDArray[np.float64], residual: NDArray[np.float64], x: NDArray[np.float64], lam: NDArray[np.float64],
+    size: int, penalty: float,
+) -> RidgeElimination:
+    """Each row's damped least squares with its ridge block eliminated in closed form (module docstring).
+
+    The same subproblem as :func:`reduce_least_squares` on the stacked ``jacobian`` (its
+    minimiser over ``[h', d']`` is the same up to round-off), reduced to the k kept
+    coefficients; :meth:`RidgeElimination.block` gives the block's part of a solution.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (n, m + q, k + q)
+        Stacked: the last q rows are ``[0, sqrt(penalty) I]`` (not read).
+    residual : ndarray, shape (n, m + q)
+        The last q entries are ``sqrt(penalty) d`` (not read).
+    x : ndarray, shape (n, k + q)
+        ``[h, d]``, the current parameters.
+    lam : ndarray, shape (n,)
+        Damping (> 0, or ``penalty`` > 0).
+    size : int
+        q, the ridge block's size (the last q parameters).
+    penalty : float
+        ``lambda`` >= 0.
+
+    Returns
+    -------
+    RidgeElimination
+    """
+    n, mq, kq = jacobian.shape
+    q, k = int(size), kq - int(size)
+    m = mq - q
+    top, r_top = jacobian[:, :m], residual[:, :m]
+    live = np.any(top != 0.0, axis=2)  # (n, m): the rows some parameter moves
+    m1 = max(int(live.sum(axis=1).max(initial=0)), 1)
+    order = np.argsort(~live, axis=1, kind="stable")[:, :m1]  # each row's live rows first
+    keep = np.take_along_axis(live, order, axis=1)
+    J = np.take_along_axis(top, order[..., None], axis=1) * keep[..., None]
+    r = np.take_along_axis(r_top, order, axis=1) * keep
+    A, B = J[:, :, :k], J[:, :, k:]
+    lam = np.asarray(lam, dtype=np.float64)
+    nu = float(penalty) + lam
+    d = x[:, k:]
+    s = r - (float(penalty) / nu)[:, None] * _bmv(B, d)
+    small = m1 <= q
+    if small:  # W = B B^T + nu I = U^T U from the QR of [B^T; sqrt(nu) I] ((q + m') x m')
+        U = _qr_r(np.concatenate([np.swapaxes(B, 1, 2), np.sqrt(nu)[:, None, None] * np.eye(m1)], axis=1))
+        Lt = np.swapaxes(U, 1, 2)
+        A_red = np.sqrt(nu)[:, None, None] * np.linalg.solve(Lt, A)
+        r_red = np.sqrt(nu)[:, None] * np.linalg.solve(Lt, s[..., None])[..., 0]
+    else:  # G = B^T B + nu I = U^T U from the QR of [B; sqrt(nu) I] ((m' + q) x q); nu W^-1 = I - Q1 Q1^T
+        Q, U = np.linalg.qr(np.concatenate([B, np.sqrt(nu)[:, None, None] * np.eye(q)], axis=1))
+        Q1 = Q[:, :m1]
+        A_red = np.concatenate([A - np.matmul(Q1, np.matmul(np.swapaxes(Q1, 1, 2), A)),
+                                -np.matmul(Q[:, m1:], np.matmul(np.swapaxes(Q1, 1, 2), A))], axis=1)
+        proj = _bmtv(Q1, s)
+        r_red = np.concatenate([s - _bmv(Q1, proj), -_bmv(Q[:, m1:], proj)], axis=1)
+    R, b = reduce_least_squares(A_red, r_red, x[:, :k], lam)
+    return RidgeElimination(R, b, A, B, r, np.asarray(x, dtype=np.float64), lam, nu, U, small)
 
 
 def safe_step(R: NDArray[np.float64], b: NDArray[np.float64], coefficients: ArrayLike, constraint: str = "none", alpha: float = 0.0) -> NDArray[np.float64]:

@@ -258,3 +258,22 @@ def test_flat_solver_is_validated(shared):
     mdp, F, demos = shared
     with pytest.raises(fo.exceptions.UnknownSolverError, match="unknown solver 'no-such-solver'"):
         fo.FactIRL(n_primitives=2, features=F, flat_solver="no-such-solver", rng=0).fit(mdp, demos)
+
+
+def test_transfer_eliminating_the_residuals_is_the_stacked_transfer(shared):
+    """The Gauss-Newton transfer with each task's residual eliminated in closed form (the default) gives
+    the rewards of the stacked (k + p)-unknown steps, and each task's are those of its transfer alone."""
+    mdp, F, demos = shared
+    model = _fit(features=F, max_iter=4, residual_penalty=LAM, solver="gn-qp-clarabel").fit(mdp, demos)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        eliminated = model.set_params(solver_options={"ridge": "eliminate"}).transfer(mdp, demos, max_iter=50)
+        R, delta = model.transfer_rewards_.copy(), model.transfer_residuals_.copy()
+        stacked = model.set_params(solver_options={"ridge": "stack"}).transfer(mdp, demos, max_iter=50)
+        assert np.max(np.abs(R - model.transfer_rewards_)) <= 1e-6 * np.max(np.abs(model.transfer_rewards_))
+        np.testing.assert_allclose(eliminated, stacked, rtol=0, atol=1e-6 * np.max(np.abs(stacked)))
+        assert np.max(np.abs(delta - model.transfer_residuals_)) <= 1e-6 * np.max(np.abs(delta))
+        assert np.any(delta != 0)
+        model.set_params(solver_options={"ridge": "eliminate"})
+        for i in (0, 4):
+            np.testing.assert_allclose(eliminated[i], model.transfer(mdp, demos[i:i + 1], max_iter=50)[0], rtol=0, atol=1e-10)

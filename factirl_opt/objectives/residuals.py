@@ -14,7 +14,9 @@ objective, planner, reward basis (tabular, state rewards, features, per-task fea
 - :func:`residual_weights_problem`: rows are tasks, ``x_i = [h_i, delta_i]`` (k + p), the
   H-step of the fit and transfer. With ``g_i = dJ_i/dw_i = Phi_i^T y_i`` (the flat gradient)
   the gradient is ``[D^T g_i, g_i + 2 lambda delta_i]``; least squares: the residuals
-  ``[r_i, sqrt(lambda) delta_i]``, the Jacobian ``[[J_i D, J_i], [0, sqrt(lambda) I]]``.
+  ``[r_i, sqrt(lambda) delta_i]``, the Jacobian ``[[J_i D, J_i], [0, sqrt(lambda) I]]``,
+  declared a ridge block (``StepProblem.ridge_params``) so that the Gauss-Newton QP solver
+  eliminates ``delta_i`` from its steps in closed form (:func:`solvers.gn_subproblem.eliminate_ridge`).
 - :func:`residual_dictionary_problem`: one row ``vec(D)`` with ``H`` and ``Delta`` fixed (the
   D-step); the gradient ``sum_i g_i h_i^T`` (eq. 11 with the residuals in ``w_i``); the
   penalty is constant there and left out.
@@ -144,6 +146,8 @@ def residual_weights_problem(objective: Any, features: Any, dictionary: NDArray[
         n_evaluations=flat.n_evaluations,
         n_rows=flat.n_rows,
         n_params=k + p,
+        ridge_params=p,
+        ridge_penalty=lam,
     )
 
 
