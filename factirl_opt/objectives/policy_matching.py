@@ -91,11 +91,76 @@ def _vjp(planner, point, U):
     return adjoint(planner, point.plan.system, point.plan.policy, softmax_vjp(point.pi, e, point.beta))
 
 
-def _features_jacobian(planner, point, F):
-    """Gauss-Newton Jacobian ``dr/dw`` (n, S*A, p) for ``R = F w`` (forward mode, p RHS)."""
+#: how :func:`residual_jacobian` and the objective build the Jacobian: ``"forward"`` (p tangent
+#: right-hand sides), ``"reverse"`` (one adjoint right-hand side per residual row of a visited
+#: state) or ``"auto"`` (reverse where a task batch has fewer such rows than p)
+JACOBIAN_MODES = ("auto", "forward", "reverse")
+
+
+def _check_jacobian_mode(mode):
+    if not (isinstance(mode, str) and mode in JACOBIAN_MODES):
+        raise ValidationError(f"jacobian mode must be one of {', '.join(map(repr, JACOBIAN_MODES))}; got {mode!r}")
+    return mode
+
+
+def _visited(point):
+    """Each task's visited states first (n, c) and which of them are visited (n, c): c is the
+    largest number of visited states of a task (at least 1), the other tasks padded with unvisited ones."""
+    live = point.mu > 0
+    c = max(int(live.sum(axis=1).max(initial=0)), 1)
+    states = np.argsort(~live, axis=1, kind="stable")[:, :c]
+    return states, np.take_along_axis(live, states, axis=1)
+
+
+def _features_jacobian(planner, point, F, mode="auto"):
+    """Gauss-Newton Jacobian ``dr/dw`` (n, S*A, p) for ``R = F w``.
+
+    Only the rows of visited states (``mu > 0``) are nonzero. Forward mode solves with p
+    right-hand sides per task (:func:`_jvp`); reverse mode with one per row of a visited state
+    (:func:`_reverse_features_jacobian`); ``"auto"`` takes reverse where those rows are fewer than p.
+    """
     n, S, A = point.pi.shape
-    dR = np.broadcast_to(F.reshape(1, S, A, -1), (n, S, A, F.shape[1]))
+    p = F.shape[1]
+    if mode == "auto":
+        mode = "reverse" if _visited(point)[0].shape[1] * A < p else "forward"
+    if mode == "reverse":
+        return _reverse_features_jacobian(planner, point, F)
+    dR = np.broadcast_to(F.reshape(1, S, A, -1), (n, S, A, p))
     return _jvp(planner, point, dR)
+
+
+def _reverse_features_jacobian(planner, point, F):
+    """:func:`_features_jacobian` in reverse mode: ``q = c A`` adjoint right-hand sides per task.
+
+    The rows of ``dQ/dw`` at a visited state's actions, ``e_j^T (I + gamma P M^-1 W_pi) F``
+    (``M = I - gamma P_pi``, ``W_pi`` the policy's weights), are ``F_j + gamma z_j^T F_pi`` with
+    ``M^T z_j = P^T e_j``: one transposed solve with q right-hand sides (the adjoint route of
+    :func:`~factirl_opt.planning.adjoint` on the unit residual directions of those rows),
+    then the softmax's Jacobian within each visited state and ``sqrt(mu)``, as in forward mode.
+    """
+    n, S, A = point.pi.shape
+    p = F.shape[1]
+    F3 = F.reshape(S, A, p)
+    states, live = _visited(point)  # (n, c)
+    c = states.shape[1]
+    q = c * A
+    unit = np.zeros((n, c, A, S, A))  # e_j for every row j = (state, action) of the visited states
+    ii, jj, aa = np.meshgrid(np.arange(n), np.arange(c), np.arange(A), indexing="ij")
+    unit[ii, jj, aa, states[:, :, None], aa] = 1.0
+    PtE = planner.pullback(unit.reshape(n * q, S, A)).reshape(n, q, S)  # rows j of P
+    z = point.plan.system.solve_transpose(np.ascontiguousarray(np.swapaxes(PtE, 1, 2)))  # (n, S, q)
+    policy = point.plan.policy
+    if policy.ndim == 2:
+        F_pi = F3[np.arange(S)[None, :], policy]  # (n, S, p)
+    else:
+        F_pi = np.einsum("nsa,sap->nsp", policy, F3)
+    dQ = F3[states] + planner.gamma * np.matmul(np.swapaxes(z, 1, 2), F_pi).reshape(n, c, A, p)  # (n, c, A, p)
+    pi = np.take_along_axis(point.pi, states[:, :, None], axis=1)  # (n, c, A)
+    sq = np.sqrt(np.take_along_axis(point.mu, states, axis=1) * live)
+    rows = sq[:, :, None, None] * softmax_vjp(pi, dQ, point.beta)
+    J = np.zeros((n, S, A, p))
+    J[np.arange(n)[:, None], states] = rows
+    return J.reshape(n, S * A, p)
 
 
 class PolicyMatchingObjective(Objective):
@@ -106,6 +171,10 @@ class PolicyMatchingObjective(Objective):
 
     name = "policy-matching"
     least_squares = True
+    #: how the Jacobian of the residuals is built (:data:`JACOBIAN_MODES`; the same Jacobian to
+    #: round-off): ``"auto"`` takes reverse mode where a batch of tasks has fewer residual rows
+    #: at visited states than reward parameters (one demonstration of a transfer), else forward
+    jacobian_mode = "auto"
 
     @classmethod
     def log_policy(cls, planner, rewards, beta):
@@ -126,7 +195,7 @@ class PolicyMatchingObjective(Objective):
                              lambda U: _vjp(self.planner, point, U))
 
     def _jacobian(self, point, features):
-        return _features_jacobian(self.planner, point, features)
+        return _features_jacobian(self.planner, point, features, self.jacobian_mode)
 
 
 def _validated(mdp, rewards, mu_hat, pi_hat, beta):
@@ -170,14 +239,17 @@ def policy_matching_loss(mdp, rewards, mu_hat, pi_hat, beta=5.0, policy=None, pl
 
 
 @blas_limited
-def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None, planner="auto"):
+def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None, planner="auto", mode="auto"):
     """Residuals of eq. (5) and their Jacobian for rewards linear in parameters.
 
     With ``r_i = sqrt(mu_i) (pi_i - pi_hat_i)`` flattened, ``J_i = ||r_i||^2``. For
     ``R_i = F w_i`` the Jacobian ``dr_i/dw_i = sqrt(mu_i) dpi_i/dw`` comes from forward mode
     with p right-hand sides: ``Phi_V = (I - gamma P_pi)^-1 F[greedy rows]``,
     ``dQ*/dw = F + gamma P Phi_V``, ``dpi/dw = beta pi (dQ/dw - sum_a pi dQ/dw)``
-    (docs/maths.md §5, Gauss-Newton H-step).
+    (docs/maths.md §5, Gauss-Newton H-step). Only the rows of visited states (``mu_i > 0``) are
+    nonzero; reverse mode builds them with one adjoint right-hand side per such row instead:
+    ``dQ*/dw`` at row ``j`` is ``F_j + gamma z_j^T F[greedy rows]`` with
+    ``(I - gamma P_pi)^T z_j = P^T e_j``.
 
     Parameters
     ----------
@@ -185,6 +257,9 @@ def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None,
         Current rewards ``F w_i`` reshaped.
     features : array_like, shape (S*A, p)
         ``F`` (the dictionary D in FactIRL's H-step).
+    mode : {"auto", "forward", "reverse"}, default="auto"
+        Forward mode (p right-hand sides per task), reverse mode (one per residual row of a
+        visited state), or reverse where those rows are fewer than p. The same Jacobian to round-off.
 
     Returns
     -------
@@ -194,9 +269,10 @@ def residual_jacobian(mdp, rewards, mu_hat, pi_hat, beta, features, policy=None,
     """
     R, mu, pi_hat, beta = _validated(mdp, rewards, mu_hat, pi_hat, beta)
     F = check_features(features, mdp.n_params)
+    mode = _check_jacobian_mode(mode)
     pl = get_planner(mdp, planner)
     point = forward_point(pl, R, mu, pi_hat, beta, check_policy(mdp, policy, R.shape[0]))
-    return point.loss, _residual(point), _features_jacobian(pl, point, F)
+    return point.loss, _residual(point), _features_jacobian(pl, point, F, mode)
 
 
 def dq_dtheta(mdp, policy, features=None, route="direct", tol=1e-13, max_iter=100000):

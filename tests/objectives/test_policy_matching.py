@@ -248,6 +248,66 @@ def test_residual_jacobian_through_weights_problem(rng, grid3, make_statistics):
     np.testing.assert_allclose(J, J2, rtol=1e-12, atol=1e-15)
 
 
+def _few_visited(rng, mdp, make_statistics, n, visited):
+    """Statistics of tasks that visit ``visited`` states each (one short demonstration)."""
+    mu, pi_hat = make_statistics(rng, mdp, n)
+    for i in range(n):
+        off = rng.permutation(mdp.n_states)[visited:]
+        mu[i, off] = 0.0
+        pi_hat[i, off] = 0.0
+    return mu / mu.sum(axis=1, keepdims=True), pi_hat
+
+
+@pytest.mark.parametrize("planner", ["dense", "sparse-lu"])
+def test_reverse_jacobian_is_the_forward_one_and_matches_finite_differences(rng, grid3, make_statistics, planner):
+    """Reverse mode (one adjoint right-hand side per residual row of a visited state) builds the
+    Jacobian of forward mode (p tangent right-hand sides); auto takes it when those rows are fewer than p."""
+    n, k = 3, 13  # 2 visited states x 4 actions = 8 rows < 13 parameters
+    F, W = _tie_free_factors(rng, grid3, n, k)
+    mu, pi_hat = _few_visited(rng, grid3, make_statistics, n, 2)
+    S, A = grid3.n_states, grid3.n_actions
+    R = (W @ F.T).reshape(n, S, A)
+    out = {mode: fo.objectives.residual_jacobian(grid3, R, mu, pi_hat, BETA, F, planner=planner, mode=mode)
+           for mode in ("forward", "reverse", "auto")}
+    J = out["reverse"][2]
+    assert J.shape == (n, S * A, k) and np.any(J != 0)
+    np.testing.assert_allclose(J, out["forward"][2], rtol=0, atol=1e-12 * np.max(np.abs(J)))
+    np.testing.assert_array_equal(out["auto"][2], J)
+    np.testing.assert_array_equal(J.reshape(n, S, A, k)[mu == 0], 0.0)  # unvisited states' rows
+
+    def res(i, w):
+        return fo.objectives.residual_jacobian(grid3, (F @ w).reshape(1, S, A), mu[i], pi_hat[i], BETA, F, mode="reverse")[1][0]
+
+    for i in range(n):
+        fd = np.column_stack([(res(i, W[i] + EPS * e) - res(i, W[i] - EPS * e)) / (2 * EPS) for e in np.eye(k)])
+        assert rel_err(J[i], fd) < 1e-5
+
+
+@pytest.mark.parametrize("mode, transposed", [("forward", False), ("reverse", True), ("auto", True)])
+def test_objective_builds_its_jacobian_in_its_mode(rng, grid3, make_statistics, mode, transposed):
+    """The objective's ``jacobian_mode``: reverse mode solves transposed systems (the adjoint), forward mode
+    forward ones; both give one Jacobian."""
+    from factirl_opt.planning import CountingPlanner, get_planner
+
+    n, k = 2, 13
+    F, W = _tie_free_factors(rng, grid3, n, k)
+    mu, pi_hat = _few_visited(rng, grid3, make_statistics, n, 2)
+    counter = CountingPlanner(get_planner(grid3))
+    obj = PolicyMatchingObjective(grid3, mu, pi_hat, BETA, planner=counter)
+    obj.jacobian_mode = mode
+    loss, r, J = weights_problem(obj, F).residual_jacobian(W, np.arange(n))
+    assert (counter.n_transpose > 0) == transposed
+    R = (W @ F.T).reshape(n, grid3.n_states, grid3.n_actions)
+    np.testing.assert_allclose(J, fo.objectives.residual_jacobian(grid3, R, mu, pi_hat, BETA, F, mode="forward")[2],
+                               rtol=0, atol=1e-12 * np.max(np.abs(J)))
+
+
+def test_bad_jacobian_mode_is_refused(grid3):
+    with pytest.raises(ValidationError, match="jacobian mode must be one of 'auto', 'forward', 'reverse'; got 'adjoint'"):
+        fo.objectives.residual_jacobian(grid3, np.zeros((1, 9, 4)), np.full(9, 1 / 9), np.full((9, 4), 0.25), BETA,
+                                        np.ones((36, 2)), mode="adjoint")
+
+
 # --- the objective's cache and evaluation count -------------------------------------------
 
 
