@@ -28,7 +28,12 @@ change between repeats).
 solver), side by side in the same process on the same draw; entries other than ``default``
 are keyed ``"<objective>, flat <solver>"``; ``--h-solvers`` likewise compares H-step solvers
 (``default``: the preset's, or L-BFGS where it names a Gauss-Newton solver for MCE), keyed
-``", H <solver>"``. With ``--n-test-tasks`` (default 10), every fitted
+``", H <solver>"``; ``--schemes`` likewise compares FactIRL's outer schemes (``default``: the
+preset's, the alternation; ``joint``: quasi-Newton steps of the D-step solver on the dictionary and
+coefficients together, :func:`~factirl_opt.learners.factorial.fit_factorial`), keyed
+``", <scheme>"``. Every entry also scores the training tasks' learnt weights on fresh maps of
+their tasks (``mean_new_maps_deviation``, the experiments' ``new_maps_deviation`` of the train
+split). With ``--n-test-tasks`` (default 10), every fitted
 model is also transferred (``FactIRL.transfer``, its H-step solver) to that many test tasks, each
 on a new map of its own with one demonstration, and the entry gets their mean deviation
 (``mean_transfer_deviation``) and the transfer's CPU time and evaluations (the planning counts are
@@ -50,17 +55,21 @@ from ..experiments.learner_solvers import factorial_options
 from ..experiments.presets import PRESETS, get_preset
 from ..experiments.worlds import objectworld_per_task
 from ...learners.factirl import FactIRL
+from ...learners.factorial import SCHEMES
+from ...datasets.objectworld import state_action_rewards
+from ...tasks.features import feature_rewards
 from ...planning import CountingPlanner, get_planner
 from ..arguments import integer
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry"]
+__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry", "new_maps_deviation"]
 
 #: the objectives compared (policy matching the reference of the ratios)
 OBJECTIVES = ("policy-matching", "mce")
 DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demos": 32, "length": 16, "n_primitives": 5,
             "max_iter": None, "flat_max_iter": None, "objectives": list(OBJECTIVES), "repeats": 1, "seed": 0,
-            "blas_threads": 1, "flat_solvers": ["default"], "h_solvers": ["default"], "n_test_tasks": 10}
+            "blas_threads": 1, "flat_solvers": ["default"], "h_solvers": ["default"], "schemes": ["default"],
+            "n_test_tasks": 10}
 QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10,
          "n_test_tasks": 2}
 #: the flat solver entry meaning FactIRL's own default
@@ -85,6 +94,8 @@ def add_arguments(parser):
         help="FactIRL flat-start solvers compared, a fit per objective and solver ('default': FactIRL's own)")
     opt("--h-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
         help="FactIRL H-step solvers compared, a fit per objective, flat solver and H solver ('default': the preset's)")
+    opt("--schemes", nargs="+", choices=[DEFAULT_FLAT, *SCHEMES], metavar="NAME",
+        help="FactIRL outer schemes compared, a fit per objective, flat solver, H solver and scheme ('default': the preset's)")
     opt("--n-test-tasks", type=integer(0), help="test tasks on new maps (one demonstration each) transferred to; 0: none")
     opt("--seed", type=integer(0), help="seed of the maps and demonstrations")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
@@ -112,9 +123,9 @@ def benchmark_preset(s):
     return dataclasses.replace(preset, **changes)
 
 
-def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT):
-    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver`` unless
-    ``"default"``): its model, wall time, CPU time and counting planner (the benchmark's unit of
+def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT, scheme=DEFAULT_FLAT):
+    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver``, ``scheme``
+    unless ``"default"``): its model, wall time, CPU time and counting planner (the benchmark's unit of
     work; ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
@@ -124,6 +135,8 @@ def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEF
         kw["flat_solver"] = flat_solver
     if h_solver != DEFAULT_FLAT:
         kw["solver"] = h_solver
+    if scheme != DEFAULT_FLAT:
+        kw["scheme"] = scheme
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -146,6 +159,18 @@ def _transfer(model, gt, preset, n_test):
             "transfer_n_evaluations": int(model.transfer_n_evaluations_)}
 
 
+def new_maps_deviation(model, gt, preset):
+    """Mean deviation (eq. 13) of the training tasks' learnt weights ``D h_i`` on fresh maps of
+    their tasks (:meth:`~factirl_opt.lab.experiments.worlds.GroundTruth.fresh`): what the
+    experiments report as the train split's ``new_maps_deviation``."""
+    fresh = gt.fresh("train")
+    mdps = list(fresh.mdps)
+    true = state_action_rewards(fresh.rewards, mdps[0].n_actions)
+    weights = model.coefficients_ @ model.dictionary_.T + model.residuals_
+    learnt = feature_rewards(list(fresh.features), weights, mdps)
+    return float(np.mean(deviation(mdps, true, learnt, planner=preset.planner)))
+
+
 def fit_entry(model, elapsed, planner, gt, preset):
     """The benchmark's record of one fit: times, evaluations, loss, train deviation (eq. 13) and
     the counting planner's work per evaluation (the keys of ``fits[objective]`` in the output)."""
@@ -155,6 +180,7 @@ def fit_entry(model, elapsed, planner, gt, preset):
     dev = deviation(mdps, gt.train_rewards, np.asarray(model.rewards_), planner=preset.planner)
     return {"time_s": elapsed, "n_evaluations": int(model.n_evaluations_), "n_iter": int(model.n_iter_),
             "status": model.status_, "final_loss": float(np.sum(model.loss_)), "mean_train_deviation": float(np.mean(dev)),
+            "mean_new_maps_deviation": new_maps_deviation(model, gt, preset),
             **counts, "n_linear_solves": counts["n_forward"] + counts["n_transpose"],
             "forward_calls_per_evaluation": counts["n_forward_calls"] / n_eval,
             "forward_solves_per_task_evaluation": counts["n_forward"] / (n_eval * gt.train_rewards.shape[0]),
@@ -167,9 +193,10 @@ def run(args):
     objectives = list(dict.fromkeys(s["objectives"]))
     flats = list(dict.fromkeys(s["flat_solvers"]))
     hs = list(dict.fromkeys(s["h_solvers"]))
-    runs = [(obj, flat, h) for obj in objectives for flat in flats for h in hs]
+    schemes = list(dict.fromkeys(s["schemes"]))
+    runs = [(obj, flat, h, scheme) for obj in objectives for flat in flats for h in hs for scheme in schemes]
     keys = {run: run[0] + ("" if run[1] == DEFAULT_FLAT else f", flat {run[1]}") + ("" if run[2] == DEFAULT_FLAT else f", H {run[2]}")
-            for run in runs}
+            + ("" if run[3] == DEFAULT_FLAT else f", {run[3]}") for run in runs}
     entries, times, cpus = {}, {keys[r]: [] for r in runs}, {keys[r]: [] for r in runs}
     with limit_blas_threads(s["blas_threads"]) as threads:
         t0 = time.perf_counter()
@@ -178,11 +205,12 @@ def run(args):
         for _ in range(s["repeats"]):
             for run in runs:
                 name = keys[run]
-                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2])
+                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2], run[3])
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
                 entries[name] = fit_entry(model, elapsed, planner, gt, preset)
-                entries[name].update(flat_solver=run[1], h_solver=run[2], **_transfer(model, gt, preset, s["n_test_tasks"]))
+                entries[name].update(flat_solver=run[1], h_solver=run[2], scheme=run[3],
+                                     **_transfer(model, gt, preset, s["n_test_tasks"]))
     for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
         entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]
@@ -195,6 +223,7 @@ def run(args):
         out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
     settings = {key: s[key] for key in DEFAULTS}
     settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives, flat_solvers=flats, h_solvers=hs,
+                    schemes=schemes,
                     fact_max_iter=preset.fact_max_iter, flat_max_iter=preset.flat_max_iter)
     out["settings"] = settings
     return out
