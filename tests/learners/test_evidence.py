@@ -1,0 +1,201 @@
+"""Minka's evidence for the number of primitives (learners.evidence) and the search route that reads k from it."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import factirl_opt as fo
+from factirl_opt.exceptions import ConvergenceWarning, ValidationError
+from factirl_opt.learners import adaptive, evidence
+from factirl_opt.learners.evidence import (
+    evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
+)
+from factirl_opt.learners.selection import ROUTES, SharingSearch
+
+
+def _low_rank(n, d, k, signal, rng):
+    """n samples in d dimensions: k directions of standard deviation ``signal`` plus unit noise."""
+    return rng.standard_normal((n, k)) @ (signal * rng.standard_normal((k, d))) + rng.standard_normal((n, d))
+
+
+@pytest.mark.parametrize("n, d, k", [(300, 30, 5), (20, 200, 4), (40, 40, 3), (6, 100, 2)])
+def test_the_evidence_finds_the_rank_of_low_rank_data_plus_noise(n, d, k):
+    rng = np.random.default_rng(n + d + k)
+    log_ev, rank = pca_rank_evidence(_low_rank(n, d, k, 3.0, rng))
+    assert rank == k
+    assert log_ev.shape == (min(n, d),) and log_ev[k] == log_ev.max()
+    # no direction at all: isotropic noise is k = 0, with or without a mean removed
+    assert pca_rank_evidence(rng.standard_normal((n, d)))[1] == 0
+    assert pca_rank_evidence(rng.standard_normal((n, d)), center=True)[1] == 0
+
+
+def test_the_evidence_does_not_depend_on_the_scale_and_takes_an_exact_rank():
+    rng = np.random.default_rng(0)
+    X = _low_rank(50, 12, 3, 2.0, rng)
+    a, ka = pca_rank_evidence(X)
+    b, kb = pca_rank_evidence(1e3 * X)
+    np.testing.assert_allclose(a - a.max(), b - b.max(), atol=1e-6 * np.abs(a).max())
+    assert ka == kb
+    exact = rng.standard_normal((50, 2)) @ rng.standard_normal((2, 12))  # no noise: the rank itself
+    assert pca_rank_evidence(exact)[1] == 2
+
+
+def test_the_evidence_of_a_spectrum_is_minkas_formula():
+    """k = 0 is the isotropic model; for k = 1 of a two-value spectrum every term written out (Minka 2000, eq. 30)."""
+    from scipy.special import gammaln
+
+    n = 10
+    lam = np.array([4.0, 1.0])
+    ev = laplace_rank_evidence(lam[::-1], n)  # any order
+    assert ev[0] == pytest.approx(-0.5 * n * 2 * np.log(2.5))
+    d, k, v = 2, 1, 1.0
+    log_pu = -np.log(2.0) + gammaln(d / 2.0) - d / 2.0 * np.log(np.pi)
+    log_az = np.log(n * (4.0 - 1.0) * (1.0 / v - 1.0 / 4.0))
+    m = d * k - k * (k + 1) / 2.0
+    expected = (log_pu - 0.5 * n * np.log(4.0) - 0.5 * n * (d - k) * np.log(v) + 0.5 * (m + k) * np.log(2 * np.pi)
+                - 0.5 * log_az - 0.5 * k * np.log(n))
+    assert ev[1] == pytest.approx(expected)
+    assert laplace_rank_evidence([1.0, 0.0, 0.0], 5)[2] == -np.inf  # a zero k-th eigenvalue
+    assert laplace_rank_evidence([3.0, 2.0, 1.0, 0.5], 5, max_rank=1).shape == (2,)
+
+
+@pytest.mark.parametrize("seed, n, d, k", [(0, 200, 10, 3), (1, 500, 20, 4), (2, 60, 8, 2), (3, 300, 15, 6)])
+def test_the_centred_evidence_chooses_as_scikit_learns_pca_mle(seed, n, d, k):
+    decomposition = pytest.importorskip("sklearn.decomposition")
+    X = _low_rank(n, d, k, 1.0, np.random.default_rng(seed)) + 5.0  # a mean, which the centred evidence removes
+    chosen = decomposition.PCA(n_components="mle", svd_solver="full").fit(X).n_components_
+    log_ev, _ = pca_rank_evidence(X, center=True)
+    assert int(np.argmax(log_ev[1:])) + 1 == chosen  # scikit-learn does not consider k = 0
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: laplace_rank_evidence([1.0], 5), r"spectrum must hold at least 2 non-negative eigenvalues"),
+    (lambda: laplace_rank_evidence([1.0, -0.5], 5), r"spectrum must hold at least 2 non-negative eigenvalues"),
+    (lambda: laplace_rank_evidence([0.0, 0.0], 5), r"not all zero"),
+    (lambda: laplace_rank_evidence([1.0, np.nan], 5), r"spectrum"),
+    (lambda: laplace_rank_evidence([[1.0, 0.5]], 5), r"spectrum"),
+    (lambda: laplace_rank_evidence([1.0, 0.5], 0), r"n_samples must be an integer >= 1"),
+    (lambda: laplace_rank_evidence([1.0, 0.5, 0.2], 4, max_rank=3), r"max_rank must be an integer"),
+    (lambda: pca_rank_evidence(np.ones((1, 4))), r"X must have at least 2 rows \(samples\) and 2 columns; got \(1, 4\)"),
+    (lambda: pca_rank_evidence(np.ones((2, 4)), center=True), r"X must have at least 3 rows"),
+    (lambda: pca_rank_evidence(np.ones((5, 1))), r"and 2 columns; got \(5, 1\)"),
+    (lambda: pca_rank_evidence(np.zeros((5, 3))), r"X is all zero"),
+    (lambda: pca_rank_evidence(np.ones((5, 3)), center=True), r"X is all zero \(after centring\)"),
+    (lambda: pca_rank_evidence(np.ones((5, 3)), max_rank=-1), r"max_rank must be an integer >= 0"),
+    (lambda: evidence_primitives(-1, 4), r"rank must be an integer >= 0"),
+    (lambda: evidence_primitives(2, 0), r"k_max must be an integer >= 1"),
+])
+def test_bad_inputs_are_refused(call, message):
+    with pytest.raises(ValidationError, match=message):
+        call()
+
+
+def test_the_candidates_are_the_evidences_k_and_half_of_it():
+    assert evidence_primitives(0, 8) == []
+    assert evidence_primitives(1, 8) == [1]
+    assert evidence_primitives(5, 8) == [3, 5]
+    assert evidence_primitives(14, 8) == [7, 8]
+    assert evidence_primitives(14, 3) == [3]
+
+
+@pytest.fixture(scope="module")
+def data():
+    """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(5)
+    F = rng.random((9, 4))
+    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(8, 2))
+    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(8, 9, 4)
+    return mdp, F, R, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+
+
+def test_the_points_are_what_the_pca_start_decomposes(data):
+    """Tabular rewards: the rewards themselves; features: W G^(1/2), whose Gram matrix is the rewards' own."""
+    mdp, F, R, demos = data
+    tabular = fo.FactIRL(n_primitives=2)
+    np.testing.assert_allclose(flat_start_points(tabular, mdp, demos, R), R.reshape(8, -1), atol=1e-12)
+    featured = fo.FactIRL(n_primitives=2, features=F)
+    Y = flat_start_points(featured, mdp, demos, R)
+    rewards = R.reshape(8, -1)
+    np.testing.assert_allclose(Y @ Y.T, rewards @ rewards.T, rtol=1e-8, atol=1e-8 * np.abs(rewards).max() ** 2)
+    log_ev, rank = flat_start_evidence(featured, mdp, demos, R)
+    assert rank == 2 and log_ev.shape == (min(8, Y.shape[1]),)  # two primitives, exactly
+    with pytest.raises(ValidationError, match=r"flat_rewards must have shape \(n, S, A\) = \(8, 9, 4\); got \(3, 9, 4\)"):
+        flat_start_points(featured, mdp, demos, R[:3])
+
+
+def _auto(F, **search):
+    return fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=F, max_iter=3, rng=0,
+                      sharing_search=SharingSearch(route="evidence", **search))
+
+
+def _fit(model, mdp, demos):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return model.fit(mdp, demos)
+
+
+def _forced_rank(monkeypatch, rank):
+    """The route with the evidence's k forced to ``rank``, and the (k, max_iter) of every candidate fit recorded."""
+    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(rank + 1), rank))
+    fits = []
+    fit = fo.FactIRL.fit
+
+    def counted(self, *args, **kw):
+        fits.append((self.n_primitives, self.residual_penalty, self.max_iter))
+        return fit(self, *args, **kw)
+
+    monkeypatch.setattr(fo.FactIRL, "fit", counted)
+    return fits
+
+
+def test_the_evidence_route_scores_its_k_and_half_of_it_from_pca_starts(data, monkeypatch):
+    mdp, F, _, demos = data
+    assert ROUTES["evidence"][0] == "evidence"
+    fits = _forced_rank(monkeypatch, 4)
+    model = _fit(_auto(F, residual_penalty_grid=(np.inf, 1.0, 0.0)), mdp, demos)
+    res = model.cv_results_
+    assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(2, 0.0), (2, 1.0), (2, np.inf), (4, 1.0),
+                                                                       (4, np.inf)]
+    assert np.all(res["n_splits_scored"] == 3) and np.all(np.isfinite(res["mean_test_score"]))
+    candidates = fits[1:-1]  # the auto fit itself first, the final fit last
+    assert candidates and all(max_iter == 0 for _, _, max_iter in candidates)  # PCA starts only, no bisection
+    assert {k for k, _, _ in candidates} <= {2, 4}
+    assert (model.n_primitives_, model.residual_penalty_) in {tuple(p.values()) for p in res["params"]}
+
+
+def test_no_shared_direction_chooses_the_flat_model_without_a_fit(data, monkeypatch, tmp_path):
+    mdp, F, _, demos = data
+    fits = _forced_rank(monkeypatch, 0)
+    model = _fit(_auto(F), mdp, demos)
+    assert (model.n_primitives_, model.residual_penalty_) == (1, 0.0)
+    assert len(fits) == 2  # the auto fit and the final fit: no candidate
+    res = model.cv_results_
+    adaptive.check_cv_results(res)
+    assert res["params"] == [{"n_primitives": 1, "residual_penalty": 0.0}] and res["n_splits_scored"].tolist() == [0]
+    assert np.isnan(res["mean_test_score"][0]) and res["chosen"].tolist() == [True]
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
+    assert loaded.cv_results_["params"] == res["params"] and np.isnan(loaded.cv_results_["mean_test_score"][0])
+    # at a fixed lambda the evidence's k = 0 gives k = 1 at that lambda, unscored
+    fixed = _fit(fo.FactIRL(n_primitives="auto", residual_penalty=np.inf, features=F, max_iter=3, rng=0,
+                            sharing_search=SharingSearch(route="evidence")), mdp, demos)
+    assert (fixed.n_primitives_, fixed.residual_penalty_) == (1, np.inf)
+
+
+def test_the_evidence_route_reads_k_from_the_data(data):
+    """Unforced, from the true rewards as the flat start: two primitives exactly, so the evidence's k
+    is 2 and the candidates' k are 1 and 2 (the flat model with the smallest)."""
+    mdp, F, R, demos = data
+    assert flat_start_evidence(fo.FactIRL(features=F), mdp, demos, R)[1] == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        model = _auto(F, residual_penalty_grid=(np.inf, 0.0)).fit(mdp, demos, flat_rewards=R)
+    assert sorted(map(tuple, (p.values() for p in model.cv_results_["params"]))) == [(1, 0.0), (1, np.inf), (2, np.inf)]
+
+
+def test_the_evidence_search_needs_the_flat_rewards(data):
+    mdp, F, _, demos = data
+    with pytest.raises(ValidationError, match=r"search='evidence' chooses k from the flat start's rewards: give flat_rewards"):
+        adaptive.search_sharing(_auto(F), mdp, demos, None, search="evidence")
+    assert "evidence" in adaptive.SEARCHES and evidence.__all__
