@@ -24,6 +24,7 @@ from .mce import MCEObjective, mce_loss, soft_values
 from .policy_matching import (
     PolicyMatchingObjective,
     dq_dtheta,
+    jacobian_mode,
     policy_matching_grad_reference,
     policy_matching_loss,
     residual_jacobian,
@@ -36,6 +37,7 @@ __all__ = [
     "policy_matching_loss",
     "policy_matching_grad_reference",
     "residual_jacobian",
+    "jacobian_mode",
     "dq_dtheta",
     "MCEObjective",
     "mce_loss",

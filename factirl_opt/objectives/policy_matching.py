@@ -15,6 +15,9 @@ The paper's own route, eq. (9), builds ``phi = dQ*/dtheta`` explicitly (d right-
 that the tests and the benchmark compare the adjoint with.
 """
 
+import contextlib
+import contextvars
+
 import numpy as np
 from scipy.special import log_softmax
 
@@ -33,6 +36,8 @@ __all__ = [
     "policy_matching_grad_reference",
     "residual_jacobian",
     "dq_dtheta",
+    "jacobian_mode",
+    "JACOBIAN_MODES",
 ]
 
 #: largest S*A for which the dense eq. (9) reference routes build their (S*A, d) matrices
@@ -97,10 +102,34 @@ def _vjp(planner, point, U):
 JACOBIAN_MODES = ("auto", "forward", "reverse")
 
 
+_MODE = contextvars.ContextVar("factirl_opt_jacobian_mode", default="auto")
+
+
 def _check_jacobian_mode(mode):
     if not (isinstance(mode, str) and mode in JACOBIAN_MODES):
         raise ValidationError(f"jacobian mode must be one of {', '.join(map(repr, JACOBIAN_MODES))}; got {mode!r}")
     return mode
+
+
+@contextlib.contextmanager
+def jacobian_mode(mode):
+    """Context manager: policy-matching objectives evaluated inside the block (in this thread or
+    asyncio task) build the Jacobian of their residuals in ``mode`` (:data:`JACOBIAN_MODES`).
+
+    The Jacobian is the same to round-off in every mode; only its cost differs. Outside any
+    block the mode is ``"auto"``; an objective whose own ``jacobian_mode`` is set keeps it.
+    Example: ``with jacobian_mode("forward"): model.transfer(mdp, demos)``.
+
+    Raises
+    ------
+    ValidationError
+        For a mode not in :data:`JACOBIAN_MODES`.
+    """
+    token = _MODE.set(_check_jacobian_mode(mode))
+    try:
+        yield mode
+    finally:
+        _MODE.reset(token)
 
 
 def _visited(point):
@@ -173,8 +202,9 @@ class PolicyMatchingObjective(Objective):
     least_squares = True
     #: how the Jacobian of the residuals is built (:data:`JACOBIAN_MODES`; the same Jacobian to
     #: round-off): ``"auto"`` takes reverse mode where a batch of tasks has fewer residual rows
-    #: at visited states than reward parameters (one demonstration of a transfer), else forward
-    jacobian_mode = "auto"
+    #: at visited states than reward parameters (one demonstration of a transfer), else forward;
+    #: None (default): the mode of the innermost :func:`jacobian_mode` block, else ``"auto"``
+    jacobian_mode = None
 
     @classmethod
     def log_policy(cls, planner, rewards, beta):
@@ -195,7 +225,7 @@ class PolicyMatchingObjective(Objective):
                              lambda U: _vjp(self.planner, point, U))
 
     def _jacobian(self, point, features):
-        return _features_jacobian(self.planner, point, features, self.jacobian_mode)
+        return _features_jacobian(self.planner, point, features, self.jacobian_mode or _MODE.get())
 
 
 def _validated(mdp, rewards, mu_hat, pi_hat, beta):

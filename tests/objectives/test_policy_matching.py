@@ -294,9 +294,14 @@ def test_objective_builds_its_jacobian_in_its_mode(rng, grid3, make_statistics, 
     mu, pi_hat = _few_visited(rng, grid3, make_statistics, n, 2)
     counter = CountingPlanner(get_planner(grid3))
     obj = PolicyMatchingObjective(grid3, mu, pi_hat, BETA, planner=counter)
-    obj.jacobian_mode = mode
-    loss, r, J = weights_problem(obj, F).residual_jacobian(W, np.arange(n))
+    with fo.objectives.jacobian_mode(mode):
+        loss, r, J = weights_problem(obj, F).residual_jacobian(W, np.arange(n))
     assert (counter.n_transpose > 0) == transposed
+    own = PolicyMatchingObjective(grid3, mu, pi_hat, BETA, planner=CountingPlanner(get_planner(grid3)))
+    own.jacobian_mode = mode  # an objective's own mode wins over the block's
+    with fo.objectives.jacobian_mode("reverse" if mode == "forward" else "forward"):
+        weights_problem(own, F).residual_jacobian(W, np.arange(n))
+    assert (own.planner.n_transpose > 0) == transposed
     R = (W @ F.T).reshape(n, grid3.n_states, grid3.n_actions)
     np.testing.assert_allclose(J, fo.objectives.residual_jacobian(grid3, R, mu, pi_hat, BETA, F, mode="forward")[2],
                                rtol=0, atol=1e-12 * np.max(np.abs(J)))
@@ -306,6 +311,9 @@ def test_bad_jacobian_mode_is_refused(grid3):
     with pytest.raises(ValidationError, match="jacobian mode must be one of 'auto', 'forward', 'reverse'; got 'adjoint'"):
         fo.objectives.residual_jacobian(grid3, np.zeros((1, 9, 4)), np.full(9, 1 / 9), np.full((9, 4), 0.25), BETA,
                                         np.ones((36, 2)), mode="adjoint")
+    with pytest.raises(ValidationError, match="got None"):
+        with fo.objectives.jacobian_mode(None):
+            pass
 
 
 # --- the objective's cache and evaluation count -------------------------------------------
