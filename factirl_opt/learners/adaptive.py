@@ -62,7 +62,7 @@ from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
-from .evidence import evidence_primitives, flat_start_evidence
+from .evidence import evidence_penalties, evidence_primitives, flat_start_evidence
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, optimal_q
 from ..tasks.trajectories import parse_demonstrations
@@ -339,8 +339,9 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     search : {"full", "race", "race-warm", "evidence"}
         ``"evidence"``: k is not searched but read from Minka's evidence of the PCA of the flat
         rewards (:func:`~factirl_opt.learners.evidence.flat_start_evidence`; one SVD, no fit):
-        the candidates are that k and about half of it
-        (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at every lambda, scored on
+        the candidates are that k, half and twice it
+        (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at inf, the largest finite
+        lambda and 0 (:func:`~factirl_opt.learners.evidence.evidence_penalties`), scored on
         every fold, without the bisection; when the evidence finds no shared direction the flat
         model is chosen unscored (its row has NaN scores and no fold). Needs ``flat_rewards``.
     score : {"likelihood", "fixed-beta", "objective", "occupancy"}
@@ -654,17 +655,17 @@ def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewar
                          lam_grid: Sequence[float]) -> list[tuple[int, float]]:
     """The candidates of the ``"evidence"`` search: k from the evidence of the flat start's PCA
     (:func:`~factirl_opt.learners.evidence.flat_start_evidence`,
-    :func:`~factirl_opt.learners.evidence.evidence_primitives`), lambda from ``lam_grid``; when
+    :func:`~factirl_opt.learners.evidence.evidence_primitives`) at the penalties of
+    :func:`~factirl_opt.learners.evidence.evidence_penalties`, then the flat model (k = 1); when
     no direction is shared (the evidence's k is 0), the flat model alone (or k = 1 at a fixed lambda)."""
     if flat_rewards is None:
         raise ValidationError("search='evidence' chooses k from the flat start's rewards: give flat_rewards "
                               "(FactIRL.fit computes them with init='pca')")
     _, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
-    ks = evidence_primitives(rank, k_max)
-    if not ks:
-        flat = [c for c in sharing_candidates(learner, k_max, (1,), lam_grid) if c[1] == 0.0]
-        return flat or sharing_candidates(learner, k_max, (1,), lam_grid)[:1]
-    return sharing_candidates(learner, k_max, ks, lam_grid)
+    ks, lams = evidence_primitives(rank, k_max), evidence_penalties(lam_grid)
+    shared = [c for c in sharing_candidates(learner, k_max, ks, lams) if c[1] != 0.0] if ks else []
+    flat = [c for c in sharing_candidates(learner, k_max, (1,), lams) if c[1] == 0.0]
+    return shared + flat or sharing_candidates(learner, k_max, (1,), lams)[:1]
 
 
 def _between(k: int, tried: Sequence[int], k_max: int) -> list[int]:

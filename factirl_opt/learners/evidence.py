@@ -14,6 +14,8 @@ basis' metric), the ``"evidence"`` route of :class:`~factirl_opt.learners.select
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -24,7 +26,8 @@ from .._validation import check_array, check_int
 from ..exceptions import ValidationError
 from ..tasks.task_set import task_set
 
-__all__ = ["laplace_rank_evidence", "pca_rank_evidence", "flat_start_points", "flat_start_evidence", "evidence_primitives"]
+__all__ = ["laplace_rank_evidence", "pca_rank_evidence", "flat_start_points", "flat_start_evidence", "evidence_primitives",
+           "evidence_penalties"]
 
 #: eigenvalues below this fraction of the largest are zero (the noise variance never falls below it)
 _RELATIVE_FLOOR = 1e-12
@@ -219,12 +222,13 @@ def flat_start_evidence(learner: Any, mdp: Any, demos_per_task: Any, flat_reward
 def evidence_primitives(rank: int, k_max: int) -> list[int]:
     """The numbers of primitives the ``"evidence"`` route scores for the evidence's best ``rank``.
 
-    ``rank`` and about half of it, ``ceil(rank / 2)``, both at most ``k_max``: on the
-    which-learner benchmark the evidence of the flat rewards finds the true k (5) with 20 tasks
-    (3 or 4) but grows past it with more (14 or 15 with 100 tasks on the grid, 9 to 11 with 20
-    Objectworld tasks; ``results/which-learner/diagnostics/evidence/``), the flat rewards' noise
-    being neither isotropic nor Gaussian. ``rank = 0`` (no direction shared) gives none: the flat
-    model is chosen without a held-out score.
+    ``ceil(rank / 2)``, ``rank`` and ``2 rank``, each at most ``k_max``: on the which-learner
+    benchmark the evidence of the flat rewards misses the k that transfers best by up to a
+    factor of 2 either way (``results/which-learner/diagnostics/evidence/``): 3 or 4 on the grid
+    with 20 tasks (true k 5; (4, 1) to (8, 1) transfer best), 14 or 15 with 100 tasks (k = 5
+    best), 9 to 11 with 20 Objectworld tasks (k = 4 or 5 best), the flat rewards' noise being
+    neither isotropic nor Gaussian. ``rank = 0`` (no direction shared) gives none: the flat model
+    is chosen without a held-out score.
 
     Parameters
     ----------
@@ -242,4 +246,28 @@ def evidence_primitives(rank: int, k_max: int) -> list[int]:
     k_max = check_int(k_max, "k_max", minimum=1)
     if rank == 0:
         return []
-    return sorted({min(k_max, (rank + 1) // 2), min(k_max, rank)})
+    return sorted({min(k_max, k) for k in ((rank + 1) // 2, rank, 2 * rank)})
+
+
+def evidence_penalties(lam_grid: Sequence[float]) -> list[float]:
+    """The residual penalties the ``"evidence"`` route scores, from a search's grid.
+
+    The factorial model (inf), the residual model nearest it (the grid's largest finite
+    positive penalty, 1 by default) and the flat model (0), those of them in the grid, in the
+    grid's order: the held-out transfers of the residual candidates are the costly part of a
+    search (``results/which-learner/diagnostics/routes/``), and no search of the which-learner
+    benchmark chose the smaller penalty 0.01.
+
+    Parameters
+    ----------
+    lam_grid : sequence of float
+        Non-negative, inf allowed.
+
+    Returns
+    -------
+    list of float
+    """
+    lams = [float(lam) for lam in lam_grid]
+    finite = [lam for lam in lams if 0.0 < lam < math.inf]
+    keep = {math.inf, 0.0} | ({max(finite)} if finite else set())
+    return [lam for lam in lams if lam in keep]

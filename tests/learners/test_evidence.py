@@ -9,7 +9,7 @@ import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.learners import adaptive, evidence
 from factirl_opt.learners.evidence import (
-    evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
+    evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
 )
 from factirl_opt.learners.selection import ROUTES, SharingSearch
 
@@ -91,12 +91,16 @@ def test_bad_inputs_are_refused(call, message):
         call()
 
 
-def test_the_candidates_are_the_evidences_k_and_half_of_it():
+def test_the_candidates_are_the_evidences_k_half_and_twice_it_at_three_penalties():
     assert evidence_primitives(0, 8) == []
-    assert evidence_primitives(1, 8) == [1]
-    assert evidence_primitives(5, 8) == [3, 5]
+    assert evidence_primitives(1, 8) == [1, 2]
+    assert evidence_primitives(3, 8) == [2, 3, 6]
+    assert evidence_primitives(5, 8) == [3, 5, 8]
     assert evidence_primitives(14, 8) == [7, 8]
     assert evidence_primitives(14, 3) == [3]
+    assert evidence_penalties((np.inf, 1.0, 0.01, 0.0)) == [np.inf, 1.0, 0.0]
+    assert evidence_penalties((0.0, 0.1, 10.0)) == [0.0, 10.0]
+    assert evidence_penalties((0.01,)) == [0.01]
 
 
 @pytest.fixture(scope="module")
@@ -150,18 +154,18 @@ def _forced_rank(monkeypatch, rank):
     return fits
 
 
-def test_the_evidence_route_scores_its_k_and_half_of_it_from_pca_starts(data, monkeypatch):
+def test_the_evidence_route_scores_its_k_half_and_twice_it_from_pca_starts(data, monkeypatch):
     mdp, F, _, demos = data
     assert ROUTES["evidence"][0] == "evidence"
     fits = _forced_rank(monkeypatch, 4)
-    model = _fit(_auto(F, residual_penalty_grid=(np.inf, 1.0, 0.0)), mdp, demos)
+    model = _fit(_auto(F), mdp, demos)  # lambda = 0.01 is not scored
     res = model.cv_results_
-    assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(2, 0.0), (2, 1.0), (2, np.inf), (4, 1.0),
+    assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(1, 0.0), (2, 1.0), (2, np.inf), (4, 1.0),
                                                                        (4, np.inf)]
     assert np.all(res["n_splits_scored"] == 3) and np.all(np.isfinite(res["mean_test_score"]))
     candidates = fits[1:-1]  # the auto fit itself first, the final fit last
     assert candidates and all(max_iter == 0 for _, _, max_iter in candidates)  # PCA starts only, no bisection
-    assert {k for k, _, _ in candidates} <= {2, 4}
+    assert {k for k, _, _ in candidates} <= {2, 4}  # twice 4 beyond k_max, the p = 4 features
     assert (model.n_primitives_, model.residual_penalty_) in {tuple(p.values()) for p in res["params"]}
 
 
@@ -185,13 +189,14 @@ def test_no_shared_direction_chooses_the_flat_model_without_a_fit(data, monkeypa
 
 def test_the_evidence_route_reads_k_from_the_data(data):
     """Unforced, from the true rewards as the flat start: two primitives exactly, so the evidence's k
-    is 2 and the candidates' k are 1 and 2 (the flat model with the smallest)."""
+    is 2 and the candidates' k are 1, 2 and 4, and the flat model."""
     mdp, F, R, demos = data
     assert flat_start_evidence(fo.FactIRL(features=F), mdp, demos, R)[1] == 2
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         model = _auto(F, residual_penalty_grid=(np.inf, 0.0)).fit(mdp, demos, flat_rewards=R)
-    assert sorted(map(tuple, (p.values() for p in model.cv_results_["params"]))) == [(1, 0.0), (1, np.inf), (2, np.inf)]
+    assert sorted(map(tuple, (p.values() for p in model.cv_results_["params"]))) == [(1, 0.0), (1, np.inf), (2, np.inf),
+                                                                                      (4, np.inf)]
 
 
 def test_the_evidence_search_needs_the_flat_rewards(data):
