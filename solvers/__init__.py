@@ -60,9 +60,11 @@ Armijo descent with a proximal map ``prox(v, t)`` and its penalty (:mod:`solvers
 optionally nonnegative and/or L1-penalised (FactIRL's constrained dictionary).
 
 Every solver's run stops early by the rules of :mod:`solvers.stopping`: the relative decrease
-of the total objective (:func:`has_converged`, ``tol``) and the norm of its gradient relative to
-the start (:func:`gradient_converged`, ``gtol``; projected or minimum-norm subgradient for the
-constrained and penalised solvers, :meth:`StepSolver.optimality`); the result says why it
+of the total objective (:func:`has_converged`, ``tol``), its decrease over a step relative to
+its decrease since the start (:func:`has_saturated`, ``stol``; off by default) and
+the norm of its gradient relative to the start (:func:`gradient_converged`, ``gtol``; projected
+or minimum-norm subgradient for the constrained and penalised solvers,
+:meth:`StepSolver.optimality`); the result says why it
 stopped (``SolverResult.reason``). A separable run (``run(..., separable=True)``,
 :mod:`solvers.separable`) applies the rules to every row on its own and drops the rows that
 stopped, so each row's result is the one of a run on that row alone (the steps are
@@ -103,7 +105,7 @@ from .lbfgs import LBFGSSolver
 from .newton import NewtonSolver
 from .observe import observe_runs
 from .proximal import ProximalArmijoSolver, unit_columns_prox
-from .stopping import gradient_converged, has_converged, relative_decrease
+from .stopping import gradient_converged, has_converged, has_saturated, relative_decrease
 
 __all__ = [
     "StepProblem",
@@ -123,6 +125,7 @@ __all__ = [
     "relative_decrease",
     "has_converged",
     "gradient_converged",
+    "has_saturated",
     "SolversError",
     "SolverError",
     "UnknownSolverError",

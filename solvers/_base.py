@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from .exceptions import SolverError, SolverOptionError
 from .observe import notify, observing
 from ._validation import check_number
-from .stopping import gradient_converged, has_converged, relative_decrease
+from .stopping import gradient_converged, has_converged, has_saturated, relative_decrease
 
 __all__ = ["StepProblem", "Linearization", "SolverResult", "StepSolver", "limit_step", "row_norms"]
 
@@ -342,6 +342,7 @@ class StepSolver:
         callback: Callable[[int, float], Any] | None = None,
         gtol: float = 0.0,
         separable: bool = False,
+        stol: float = 0.0,
     ) -> SolverResult:
         """Take up to ``max_iter`` steps from ``x0``, stopping early by the rules of :mod:`solvers.stopping`.
 
@@ -365,6 +366,11 @@ class StepSolver:
             and drop the rows that stopped from the later steps, so each row's result is the
             one of a run on that row alone (:mod:`solvers.separable`). False: the rules apply
             to the total objective, and every row steps until the run stops.
+        stol : float, default=0.0
+            Stop when the decrease of the total objective over a step is at most ``stol`` times
+            its decrease since ``x0`` (:func:`~solvers.stopping.has_saturated`: the objective
+            has saturated, e.g. falling geometrically toward a minimum at infinity); 0 turns
+            the rule off.
 
         Returns
         -------
@@ -378,23 +384,25 @@ class StepSolver:
             When the objective is not finite at ``x0`` or the solver fails.
         """
         if not observing():
-            return self._run(problem, x0, max_iter, state, tol, callback, gtol, separable)
+            return self._run(problem, x0, max_iter, state, tol, callback, gtol, separable, stol)
         c0 = time.thread_time()
-        result = self._run(problem, x0, max_iter, state, tol, callback, gtol, separable)
+        result = self._run(problem, x0, max_iter, state, tol, callback, gtol, separable, stol)
         notify(self, problem, result, separable=bool(separable), cpu_seconds=time.thread_time() - c0)
         return result
 
     def _run(self, problem: StepProblem, x0: ArrayLike, max_iter: int, state: Any, tol: float,
-             callback: Callable[[int, float], Any] | None, gtol: float, separable: bool) -> SolverResult:
+             callback: Callable[[int, float], Any] | None, gtol: float, separable: bool,
+             stol: float = 0.0) -> SolverResult:
         """:meth:`run` without its observers (:func:`solvers.observe_runs`)."""
         x = self._check_run(problem, x0, max_iter, tol, callback)
         check_number(gtol, "gtol", self.name, low=0.0)
+        check_number(stol, "stol", self.name, low=0.0)
         if separable is not False:
             if separable is not True:
                 raise SolverOptionError(f"{self.name}: separable must be True or False; got {separable!r}")
             from .separable import run_separable
 
-            return SolverResult(**run_separable(self, problem, x, max_iter, state, tol, callback, gtol))
+            return SolverResult(**run_separable(self, problem, x, max_iter, state, tol, callback, gtol, stol))
         t0 = time.perf_counter()
         ev0 = problem.n_evaluations()
         state = self.init_state(problem, x, previous=state)
@@ -407,7 +415,7 @@ class StepSolver:
             gnorm = self._gradient_norm(x, state)
             if callback is not None:
                 callback(it, history[-1])
-            stopped = _stop_reason(progressed, history, gnorm, g0, tol, gtol)
+            stopped = _stop_reason(progressed, history, gnorm, g0, tol, gtol, stol)
             if stopped is not None:
                 status, reason = stopped
                 break
@@ -477,13 +485,16 @@ def _per_row(value: Any, n: int) -> bool:
 
 
 def _stop_reason(
-    progressed: bool, history: list[float], gnorm: float, g0: float, tol: float, gtol: float
+    progressed: bool, history: list[float], gnorm: float, g0: float, tol: float, gtol: float, stol: float = 0.0
 ) -> tuple[str, str] | None:
     """``(status, reason)`` of a run after a step, or None to go on."""
     if not progressed:
         return "stalled", "stalled: no row could decrease its objective"
     if has_converged(history[-2], history[-1], tol):
         return "converged", f"relative decrease {relative_decrease(history[-2], history[-1]):.3g} <= tol={tol:g}"
+    if has_saturated(history[0], history[-2], history[-1], stol):
+        return "converged", (f"saturated: decrease {history[-2] - history[-1]:.3g} <= stol={stol:g} x decrease "
+                             f"{history[0] - history[-1]:.3g} since the start")
     if not (np.isnan(gnorm) or np.isnan(g0)) and gradient_converged(gnorm, g0, gtol):
         return "converged", f"gradient norm {gnorm:.3g} <= gtol={gtol:g} x initial {g0:.3g}"
     return None

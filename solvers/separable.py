@@ -5,9 +5,10 @@ of :meth:`solvers.StepSolver.run` stops when the rules of :mod:`solvers.stopping
 *total* objective, so a row's result depends on which other rows share the run (a row whose
 own objective stopped decreasing long ago keeps stepping while another row still moves, and a
 row still moving is stopped with the others). A separable run (``run(..., separable=True)``)
-applies the same two rules, relative decrease (``tol``) and gradient norm relative to the
-start (``gtol``), to every row's own objective and optimality measure, and a row that could
-make no progress is stalled on its own. A row that stopped leaves the batch: the later steps
+applies the same three rules, relative decrease (``tol``), gradient norm relative to the
+start (``gtol``) and saturation (``stol``: the decrease over a step relative to the decrease
+since the start), to every row's own objective and optimality measure, and a row that
+could make no progress is stalled on its own. A row that stopped leaves the batch: the later steps
 evaluate only the rows still running (:meth:`StepSolver.take_rows`), so the evaluations it
 would have used are saved, and every row's iterate is the one of a run on that row alone
 (up to the rounding of batched arithmetic).
@@ -22,8 +23,8 @@ iterations are the steps it finished; the run's history has one entry per iterat
 most steps a row has finished, updated while the other rows catch up.
 
 A row whose objective tends to 0 (a reward that matches its demonstrations exactly, the
-Boltzmann policy saturating) is stopped by the gradient rule, not by the relative decrease
-(:mod:`solvers.stopping`): give ``gtol > 0``.
+Boltzmann policy saturating) is stopped by the saturation or the gradient rule, not by the
+relative decrease (:mod:`solvers.stopping`): give ``stol > 0`` or ``gtol > 0``.
 """
 
 from __future__ import annotations
@@ -80,12 +81,13 @@ def restrict_rows(problem: StepProblem, rows: NDArray[np.intp], counts: NDArray[
 
 def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: NDArray[np.float64],
               g0: NDArray[np.float64], progressed: NDArray[np.bool_], tol: float,
-              gtol: float) -> NDArray[np.str_]:
-    """The rule that stops each row after a step: ``"stalled"``, ``"decrease"``, ``"gradient"`` or ``""``.
+              gtol: float, start: NDArray[np.float64] | None = None, stol: float = 0.0) -> NDArray[np.str_]:
+    """The rule that stops each row after a step: ``"stalled"``, ``"decrease"``, ``"saturation"``,
+    ``"gradient"`` or ``""``.
 
-    The rules of :func:`solvers.stopping.has_converged` and
-    :func:`solvers.stopping.gradient_converged`, row by row, in the order of a run's own test
-    (a row that made no progress is stalled first); the arithmetic is theirs, so a one-row
+    The rules of :func:`solvers.stopping.has_converged`, :func:`solvers.stopping.has_saturated`
+    and :func:`solvers.stopping.gradient_converged`, row by row, in the order of a run's own
+    test (a row that made no progress is stalled first); the arithmetic is theirs, so a one-row
     problem stops where :meth:`StepSolver.run` stops.
 
     Parameters
@@ -97,13 +99,19 @@ def row_rules(prev: NDArray[np.float64], current: NDArray[np.float64], gnorm: ND
         the solver's state holds no gradient: the gradient rule is then not applied).
     progressed : ndarray of bool, shape (r,)
     tol, gtol : float
+    start : ndarray, shape (r,), optional
+        Each row's objective at the start of the run; None: the saturation rule is not applied.
+    stol : float, default=0.0
     """
     with np.errstate(over="ignore", invalid="ignore"):
         drop = prev - current
         decrease = (0.0 <= drop) & (drop <= tol * np.maximum(np.abs(prev), _TINY))
         gradient = np.isfinite(gnorm) & np.isfinite(g0) & (gnorm <= gtol * g0)
+        saturation = (np.zeros(prev.shape, dtype=bool) if start is None
+                      else (0.0 <= drop) & (drop <= stol * (start - current)))
     out = np.full(prev.shape, "", dtype=object)
     out[gradient] = "gradient"
+    out[saturation] = "saturation"
     out[decrease] = "decrease"
     out[~np.asarray(progressed, dtype=bool)] = "stalled"
     return out
@@ -126,13 +134,16 @@ def _total(name: str, loss: NDArray[np.float64]) -> float:
     return total
 
 
-def _summary(status: NDArray[np.str_], rule: NDArray[np.str_], max_iter: int, tol: float, gtol: float) -> tuple[str, str]:
+def _summary(status: NDArray[np.str_], rule: NDArray[np.str_], max_iter: int, tol: float, gtol: float,
+             stol: float) -> tuple[str, str]:
     """The run's status and reason from the rows'."""
     n = status.size
     counts = Counter(rule[status == "converged"])
     parts = []
     if counts["decrease"]:
         parts.append(f"{counts['decrease']} by relative decrease <= tol={tol:g}")
+    if counts["saturation"]:
+        parts.append(f"{counts['saturation']} by saturation (decrease <= stol={stol:g} x decrease since the start)")
     if counts["gradient"]:
         parts.append(f"{counts['gradient']} by gradient norm <= gtol={gtol:g} x initial")
     stalled = np.flatnonzero(status == "stalled")
@@ -182,7 +193,7 @@ def _trial(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], sta
 
 
 def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float64], max_iter: int, state: Any,
-                  tol: float, callback: Callable | None, gtol: float) -> dict[str, Any]:
+                  tol: float, callback: Callable | None, gtol: float, stol: float = 0.0) -> dict[str, Any]:
     """:meth:`StepSolver.run` with ``separable=True`` (arguments already validated; ``x`` projected).
 
     Returns
@@ -203,6 +214,7 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
     full = solver.init_state(restrict_rows(problem, everyone, counts), x, previous=state)
     loss = np.array(full.loss, dtype=np.float64)
     history = [_total(solver.name, loss)]
+    start = loss.copy()
     g0 = _row_optimality(solver, x, full)
     status = np.full(n, "max_iter", dtype=object)
     rule = np.full(n, "", dtype=object)
@@ -214,7 +226,8 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
     while active.size and max_iter > 0:
         xa, part, progressed, pending = _trial(solver, sub, x[active], part, tries[active])
         new = np.array(part.loss, dtype=np.float64)
-        rules = row_rules(loss[active], new, _row_optimality(solver, xa, part), g0[active], progressed, tol, gtol)
+        rules = row_rules(loss[active], new, _row_optimality(solver, xa, part), g0[active], progressed, tol, gtol,
+                          start[active], stol)
         rules[pending] = ""  # a row retrying a rejected step has not finished its step
         x[active], loss[active] = xa, new
         tries[active] = np.where(pending, tries[active] + 1, 0)
@@ -241,7 +254,7 @@ def run_separable(solver: StepSolver, problem: StepProblem, x: NDArray[np.float6
         sub = restrict_rows(problem, active, counts)
     if active.size:
         full = solver.put_rows(full, active, part)
-    run_status, reason = _summary(status, rule, max_iter, tol, gtol)
+    run_status, reason = _summary(status, rule, max_iter, tol, gtol, stol)
     g = _row_optimality(solver, x, full)
     return dict(
         coefficients=x,

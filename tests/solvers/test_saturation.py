@@ -1,4 +1,4 @@
-"""Rows whose objective tends to 0 (saturation) stop by the gradient rule, per row; a separable
+"""Rows whose objective tends to 0 (saturation) stop by the gradient or the saturation rule, per row; a separable
 Levenberg-Marquardt run retries a rejected row in the next round (solvers.separable)."""
 
 import numpy as np
@@ -42,6 +42,40 @@ def test_rows_tending_to_zero_stop_by_the_gradient_rule(rng, name):
         alone = solver.run(restrict_rows(problem, np.array([i])), x0[i:i + 1], 60, tol=1e-5, gtol=1e-4)
         assert alone.iterations == res.row_iterations[i]
         np.testing.assert_allclose(res.coefficients[i], alone.coefficients[0], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["lbfgs", "gn-cg", *GN[:1]])
+def test_rows_tending_to_zero_stop_by_the_saturation_rule(rng, name):
+    """With the gradient rule off, each row stops once its decrease over a step is a fraction stol
+    of its decrease since the start, at the step a run on that row alone stops (the
+    Levenberg-Marquardt rows' retried trials included)."""
+    problem = saturating_problem(rng)
+    solver = solvers.get_solver(name)
+    x0 = np.zeros((N, K))
+    res = solver.run(problem, x0, 200, tol=1e-5, stol=1e-4, separable=True)
+    assert res.status == "converged" and res.reason == (
+        f"per row, of {N}: {N} by saturation (decrease <= stol=0.0001 x decrease since the start)")
+    start = problem.loss_and_grad(x0, np.arange(N))[0]
+    assert np.all(res.loss <= 1e-2 * start) and np.all(res.loss > 0) and np.all(res.row_iterations < 200)
+    for i in range(N):  # each row stops where it stops alone, by the rule of a one-row run
+        alone = solver.run(restrict_rows(problem, np.array([i])), x0[i:i + 1], 200, tol=1e-5, stol=1e-4)
+        assert alone.reason.startswith("saturated: decrease") and alone.iterations == res.row_iterations[i]
+        np.testing.assert_allclose(res.coefficients[i], alone.coefficients[0], rtol=0, atol=1e-10)
+    loose = solver.run(problem, x0, 200, tol=1e-5, stol=1e-2, separable=True)
+    assert np.all(loose.row_iterations <= res.row_iterations) and loose.n_evaluations < res.n_evaluations
+
+
+def test_row_rules_saturation():
+    """The rule of solvers.stopping.has_saturated per row, after the decrease and before the gradient."""
+    from solvers.separable import row_rules
+
+    start = np.array([1.0, 1.0, 1.0, 1.0])
+    prev, cur = np.array([1.5e-5, 3e-5, 1e-5, 1e-5]), np.array([1e-5, 1e-5, 1e-5 * (1 - 1e-7), 0.0])
+    gnorm, g0, progressed = np.array([1e-9, 1.0, 1.0, 1.0]), np.ones(4), np.ones(4, dtype=bool)
+    rules = row_rules(prev, cur, gnorm, g0, progressed, 1e-6, 1e-6, start, 1e-5)
+    assert [solvers.has_saturated(1.0, p, c, 1e-5) for p, c in zip(prev, cur)] == [True, False, True, True]
+    assert list(rules) == ["saturation", "", "decrease", "saturation"]
+    assert list(row_rules(prev, cur, gnorm, g0, progressed, 1e-6, 1e-6)) == ["gradient", "", "decrease", ""]
 
 
 @pytest.mark.parametrize("name", [*GN, "gn-cg"])

@@ -155,3 +155,50 @@ def test_gradient_rule_is_scale_invariant_and_skipped_without_a_gradient():
 
     res = NoGradient(initial_step=0.1, grow=1.0).run(_quadratic(), np.ones((2, 1)), 10, gtol=0.99)
     assert res.status == "max_iter" and np.isnan(res.gradient_norm)
+
+
+
+def test_saturation_rule():
+    """0 <= f_{k-1} - f_k <= stol (f_0 - f_k): a step's decrease against the progress made."""
+    assert solvers.has_saturated(1.0, 1e-5, 0.0, 1e-5)  # boundary: <= stol x progress
+    assert not solvers.has_saturated(1.0, 1.1e-5, 0.0, 1e-5)
+    # a geometric fall toward 0 saturates although its relative decrease stays 0.5 per step
+    f = 0.5 ** np.arange(40)
+    first = next(k for k in range(1, 40) if solvers.has_saturated(f[0], f[k - 1], f[k], 1e-4))
+    assert f[first - 1] - f[first] <= 1e-4 * (f[0] - f[first]) < f[first - 2] - f[first - 1]
+    assert f[first] <= 1e-4 * f[0] and not any(solvers.has_converged(f[k - 1], f[k], 1e-4) for k in range(1, 40))
+    # invariant to a constant added to the objective and to its scale
+    assert solvers.has_saturated(7.0 + 3 * f[0], 7.0 + 3 * f[first - 1], 7.0 + 3 * f[first], 1e-4)
+    assert not solvers.has_saturated(7.0 + 3 * f[0], 7.0 + 3 * f[first - 2], 7.0 + 3 * f[first - 1], 1e-4)
+    # stol = 0: only an objective that stayed equal; a rise never stops
+    assert solvers.has_saturated(1.0, 0.5, 0.5, 0.0) and not solvers.has_saturated(1.0, 0.5, 0.5 - 1e-12, 0.0)
+    assert not solvers.has_saturated(1.0, 0.5, 0.6, 1.0)
+    # negative objectives
+    assert solvers.has_saturated(-1.0, -3.0, -3.0 - 1e-6, 1e-5) and not solvers.has_saturated(-1.0, -3.0, -3.1, 1e-3)
+
+
+@pytest.mark.parametrize("args, fragment", [((np.nan, 1.0, 0.5, 0.1), "start must be a finite number"),
+                                            ((1.0, np.inf, 0.5, 0.1), "prev must be a finite number"),
+                                            ((1.0, 1.0, "0.5", 0.1), "current must be a finite number"),
+                                            ((1.0, 1.0, 0.5, -0.1), "stol must be a finite number >= 0"),
+                                            ((1.0, 1.0, 0.5, np.nan), "stol must be a finite number >= 0")])
+def test_saturation_rule_rejects_bad_values(args, fragment):
+    with pytest.raises(SolverOptionError, match=f"saturation rule: {fragment}"):
+        solvers.has_saturated(*args)
+
+
+def test_run_stops_by_the_saturation_rule():
+    """Fixed step 0.1 on x^2: f_k = 0.64^k f_0, a relative decrease of 0.36 per step; the step's
+    decrease 0.36 f_{k-1} is at most stol (f_0 - f_k) from the first k with
+    0.36 x 0.64^(k-1) <= stol (1 - 0.64^k)."""
+    solver = solvers.ArmijoSolver(initial_step=0.1, grow=1.0)
+    stol = 1e-3
+    k = next(k for k in range(1, 100) if 0.36 * 0.64 ** (k - 1) <= stol * (1 - 0.64**k))
+    res = solver.run(_quadratic(), np.ones((2, 1)), 100, tol=0.3, stol=stol)
+    assert res.status == "converged" and res.iterations == k
+    h = res.loss_history
+    assert res.reason == (f"saturated: decrease {h[-2] - h[-1]:.3g} <= stol=0.001 x decrease {h[0] - h[-1]:.3g} "
+                          f"since the start")
+    assert solver.run(_quadratic(), np.ones((2, 1)), 100, tol=0.3).status == "max_iter"  # stol=0: off
+    with pytest.raises(SolverOptionError, match="armijo: stol must be a finite number >= 0"):
+        solver.run(_quadratic(), np.ones((2, 1)), 10, stol=-1.0)
