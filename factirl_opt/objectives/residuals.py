@@ -120,10 +120,12 @@ def residual_weights_problem(objective: Any, features: Any, dictionary: NDArray[
 
     def residual_jacobian(x, rows):
         loss, r, J = flat.residual_jacobian(weights(x), rows)  # J (r, m, p) with respect to w
-        n = x.shape[0]
-        top = np.concatenate([np.matmul(J, D), J], axis=2)
-        bottom = np.concatenate([np.zeros((n, p, k)), np.broadcast_to(root * np.eye(p), (n, p, p))], axis=2)
-        return loss + ridge(x), np.concatenate([r, root * split(x)[1]], axis=1), np.concatenate([top, bottom], axis=1)
+        n, m = J.shape[:2]
+        full = np.zeros((n, m + p, k + p))  # [[J D, J], [0, sqrt(lambda) I]], written in place
+        np.matmul(J, D, out=full[:, :m, :k])
+        full[:, :m, k:] = J
+        full[:, m + np.arange(p), k + np.arange(p)] = root
+        return loss + ridge(x), np.concatenate([r, root * split(x)[1]], axis=1), full
 
     def linearize(x, rows):
         lin = flat.linearize(weights(x), rows)
