@@ -165,20 +165,45 @@ def matched():
 @pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-clarabel"])
 def test_flat_tasks_that_match_their_demonstrations_converge(matched, solver):
     """The relative decrease of a loss that tends to 0 stays large; the gradient rule, per task,
-    stops each task, with no MaxIterWarning; without it (gtol=0) every task runs to max_iter."""
+    stops each task (the saturation rule off), with no MaxIterWarning; without both rules
+    (gtol=stol=0) every task runs to max_iter."""
     mdp, demos, _, _ = matched
     start = fo.GradIRL(max_iter=0).fit(mdp, demos).loss_
     with warnings.catch_warnings():
         warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
-        model = fo.GradIRL(solver=solver).fit(mdp, demos)
+        model = fo.GradIRL(solver=solver, stol=0.0).fit(mdp, demos)
     assert model.status_ == "converged" and model.n_iter_ < 100
     assert model.stop_reason_ == f"per row, of {len(demos)}: {len(demos)} by gradient norm <= gtol=0.0001 x initial"
     assert np.all(model.loss_ <= 1e-3 * start)
     with pytest.warns(fo.exceptions.MaxIterWarning, match=rf"max_iter=100 before its tolerance for {len(demos)} of"):
-        fixed = fo.GradIRL(solver=solver, gtol=0.0).fit(mdp, demos)
+        fixed = fo.GradIRL(solver=solver, gtol=0.0, stol=0.0).fit(mdp, demos)
     assert fixed.status_ == "max_iter" and fixed.n_evaluations_ > model.n_evaluations_
     for i in (0, 3):  # each task stops where it stops alone
-        _assert_alone(model, fo.GradIRL(solver=solver).fit(mdp, demos[i:i + 1]), i)
+        _assert_alone(model, fo.GradIRL(solver=solver, stol=0.0).fit(mdp, demos[i:i + 1]), i)
+
+
+@pytest.mark.parametrize("solver", ["lbfgs", "gn-qp-clarabel", "gn-cg"])
+def test_flat_tasks_that_match_their_demonstrations_stop_when_their_loss_saturates(matched, solver):
+    """Without the gradient rule (gtol=0, the harness's presets), the saturation rule stops each
+    task once an iteration decreases its loss by at most stol of its decrease since the start:
+    every task by that rule, at the iteration it stops alone, its loss a small fraction of its
+    start; a larger stol stops every task no later."""
+    mdp, demos, _, _ = matched
+    start = fo.GradIRL(max_iter=0).fit(mdp, demos).loss_
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
+        model = fo.GradIRL(solver=solver, gtol=0.0).fit(mdp, demos)
+    assert model.status_ == "converged" and model.n_iter_ < 100
+    assert model.stop_reason_ == (f"per row, of {len(demos)}: {len(demos)} by saturation (decrease <= stol=1e-05 x "
+                                  f"decrease since the start)")
+    assert np.all(model.loss_ <= 1e-3 * start) and np.all(model.loss_ > 0)
+    for i in range(len(demos)):
+        alone = fo.GradIRL(solver=solver, gtol=0.0).fit(mdp, demos[i:i + 1])
+        assert alone.stop_reason_.startswith("per row, of 1: 1 by saturation")
+        _assert_alone(model, alone, i)
+    loose = fo.GradIRL(solver=solver, gtol=0.0, stol=1e-3).fit(mdp, demos)
+    assert loose.status_ == "converged" and loose.n_evaluations_ < model.n_evaluations_
+    assert np.all(loose.loss_ >= model.loss_)
 
 
 @pytest.mark.parametrize("solver", ["gn-qp-clarabel", "gn-qp-osqp", "gn-cg"])
@@ -206,5 +231,7 @@ def test_gtol_is_checked(matched, bad):
     mdp, demos, D, new = matched
     with pytest.raises(ValidationError, match="gtol"):
         fo.GradIRL(gtol=bad).fit(mdp, demos)
+    with pytest.raises(ValidationError, match="stol"):
+        fo.GradIRL(stol=bad).fit(mdp, demos)
     with pytest.raises(ValidationError, match="gtol"):
         fo.transfer_coefficients(mdp, new, D, gtol=bad)

@@ -810,11 +810,12 @@ def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
 
 
 def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``, without the gradient rule,
-    as FactIRL's own flat start) on every task at once (separable: each task's rewards are those
-    of its own fit)."""
+    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``, without the gradient and
+    saturation rules, as FactIRL's own flat start) on every task at once (separable: each task's
+    rewards are those of its own fit)."""
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
-                   solver=solver, objective=learner.objective, reward=learner.reward, **Execution.of(learner).params())
+                   stol=0.0, solver=solver, objective=learner.objective, reward=learner.reward,
+                   **Execution.of(learner).params())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
         return flat.fit(mdp, demos_per_task).rewards_

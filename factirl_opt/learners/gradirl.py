@@ -35,15 +35,20 @@ if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with b
 
 __all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
+#: GradIRL's default saturation rule (:func:`solvers.stopping.has_saturated`): a task whose loss
+#: falls toward 0 stops once its last iterations add at most this fraction of its progress
+STOL = 1e-5
+
 
 def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_iter: int, tol: float,
                 callback: Callable | None = None, verbose: bool = False, what: str = "GradIRL", *,
-                gtol: float = 0.0) -> solvers.SolverResult:
+                gtol: float = 0.0, stol: float = 0.0) -> solvers.SolverResult:
     """The flat fit on pieces already built: ``solver`` from zero weights on every task at once.
 
     A separable run (:mod:`solvers.separable`): each task stops by its own rules (``tol`` on the
-    relative decrease of its own loss, ``gtol`` on its own gradient norm relative to its start)
-    and leaves the batch, so its weights are those of a fit of that task alone.
+    relative decrease of its own loss, ``stol`` on its decrease over an iteration relative to
+    its decrease since the start, ``gtol`` on its own gradient norm relative to its
+    start) and leaves the batch, so its weights are those of a fit of that task alone.
 
     Parameters
     ----------
@@ -64,6 +69,9 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     gtol : float, default=0.0
         The gradient rule's tolerance (:func:`solvers.gradient_converged`); 0 applies only the
         relative decrease (FactIRL's flat start).
+    stol : float, default=0.0
+        The saturation rule's tolerance (:func:`solvers.stopping.has_saturated`); 0 turns it off
+        (FactIRL's flat start).
 
     Returns
     -------
@@ -81,7 +89,7 @@ def fit_weights(objective: Any, features: Any, solver: solvers.StepSolver, max_i
     problem = weights_problem(objective, features)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "GradIRL") as report:
         res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, what,
-                               callback=report, tol=tol, gtol=gtol, separable=True)
+                               callback=report, tol=tol, gtol=gtol, stol=stol, separable=True)
     stall = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res))
     if stall is not None:
         res.status, res.reason = stall
@@ -125,6 +133,14 @@ class GradIRL(Estimator):
         loss then falls toward 0 as the reward grows without bound (the Boltzmann policy
         saturates), and the relative decrease of a loss that tends to 0 never becomes small
         (docs/maths.md §5). 0 turns the rule off (a fixed budget for such tasks).
+    stol : float, default=1e-5
+        A task also stops when its loss has saturated: when the decrease of its loss over an
+        iteration is at most ``stol`` times its decrease since the start
+        (:func:`solvers.stopping.has_saturated`). Measured against the progress made, not
+        against the current loss, it stops a task whose loss falls geometrically toward 0 (the
+        Boltzmann policy saturating on its demonstrations) once the loss is about ``stol`` of
+        its start, whatever its gradient does; a task whose loss stays above half its start
+        meets the relative decrease (``tol``, the same default) first. 0 turns the rule off.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         Step solver (see ``solvers.available_solvers()``), or a
         :class:`~factirl_opt.SolverSettings` (its H-step solver and options; it must not name
@@ -223,7 +239,7 @@ class GradIRL(Estimator):
 
     def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, *,
                  reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5, gtol: float = GTOL,
-                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
+                 stol: float = STOL, solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
                  objective: str | type[Objective] = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
                  backend: str = "processes", client: Client | None = None, planner_options: dict | None = None,
                  verbose: bool = False, callback: Callable | None = None) -> None:
@@ -233,6 +249,7 @@ class GradIRL(Estimator):
         self.max_iter = max_iter
         self.tol = tol
         self.gtol = gtol
+        self.stol = stol
         self.solver = solver
         self.solver_options = solver_options
         self.objective = objective
@@ -261,17 +278,18 @@ class GradIRL(Estimator):
         self
         """
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
-        loop = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol")
+        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol"),
+                check_tol(self.stol, "stol"))
         objective = task_objective(tasks, self.beta, self.objective, self.planner)
         return self._run(objective, tasks.basis, loop, lambda res, obj: self._store(tasks, res, obj))
 
     def _run(self, objective, basis, loop, store):
-        max_iter, tol, gtol = loop
+        max_iter, tol, gtol, stol = loop
         solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
         try:
             with Execution.of(self).evaluate(objective) as objective:  # n_jobs=1: the objective itself
                 res = fit_weights(objective, basis, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit",
-                                  gtol=gtol)
+                                  gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             store(exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "

@@ -317,12 +317,33 @@ def test_flat_solver_validation(field, value, error, match):
 
 
 @pytest.mark.parametrize("field, value", [("flat_solver", "lbfgs"), ("flat_features_solver", "lbfgs"), ("fact_tol", 1e-4),
-                                          ("pca_shrink", True)])
+                                          ("pca_shrink", True), ("flat_stol", 1e-5)])
 def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(field, value):
     assert dataclasses.replace(TINY, **{field: LATER_FIELDS[field]}).fingerprint() == TINY.fingerprint()
     lbfgs = dataclasses.replace(TINY, **{field: value})
     assert lbfgs.fingerprint() != TINY.fingerprint()
     assert {s.key(lbfgs) for s in plan_runs(lbfgs, [0])}.isdisjoint(s.key(TINY) for s in plan_runs(TINY, [0]))
+
+
+def test_flat_stopping_rules_reach_every_gradirl(monkeypatch):
+    """The presets pin GradIRL's gradient and saturation rules (0: the committed protocol, where
+    the library's defaults are on); a preset's values reach every flat fit of a run."""
+    from factirl_opt import GradIRL
+
+    seen = []
+
+    class SpyGradIRL(GradIRL):
+        def __init__(self, **kw):
+            seen.append((kw["gtol"], kw["stol"]))
+            super().__init__(**kw)
+
+    monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
+    assert all(p.flat_gtol == p.flat_stol == 0.0 for p in PRESETS.values())
+    preset = dataclasses.replace(TINY, flat_gtol=1e-4, flat_stol=1e-5)
+    run_one(preset, RunSpec(preset.default_tasks, preset.default_demos, 0))
+    assert len(seen) >= 2 and set(seen) == {(1e-4, 1e-5)}
+    with pytest.raises(ValidationError, match="preset 'x': flat_stol must be"):
+        Preset(name="x", flat_stol=-1.0)
 
 
 def test_pca_shrink_reaches_every_factirl_and_is_validated():

@@ -127,7 +127,7 @@ def _runs(s):
         for seed in s["seeds"]:
             D_true, train, test = _problem(s, mdp, kind, seed)
             # gtol=0: flat fits stop by their loss tolerance, as in the committed runs
-            flat = GradIRL(s["beta"], max_iter=s["flat_max_iter"], gtol=0.0).fit(mdp, train.demos)
+            flat = GradIRL(s["beta"], max_iter=s["flat_max_iter"], gtol=0.0, stol=0.0).fit(mdp, train.demos)
             pca_match = dictionary_match(np.linalg.svd(flat.rewards_.reshape(len(train.demos), -1),
                                                        full_matrices=False)[2][:s["n_primitives"]].T, D_true)[0]
             row = {"truth": kind, "seed": seed, "flat_train_deviation": float(np.mean(deviation(mdp, train.rewards, flat.rewards_))),

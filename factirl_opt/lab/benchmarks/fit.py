@@ -140,7 +140,7 @@ def _fit_all(s, pairs):
     tasks, t_data = _timed(lambda: synthetic_tasks(mdp, s["n_tasks"], s["n_demos"], s["length"],
                                                    n_primitives=s["n_primitives"], rng=np.random.default_rng(s["seed"])))
     planner = CountingPlanner(get_planner(mdp))
-    flat, t_flat = _timed(lambda: GradIRL(beta=s["beta"], max_iter=s["flat_max_iter"], tol=s["tol"], gtol=0.0,  # as in the committed runs
+    flat, t_flat = _timed(lambda: GradIRL(beta=s["beta"], max_iter=s["flat_max_iter"], tol=s["tol"], gtol=0.0, stol=0.0,  # as in the committed runs
                                           planner=planner).fit(mdp, tasks.demos))
     flat_entry = _entry(flat, planner, t_flat, mdp, tasks.rewards)
     combos = {f"{h}|{d}": _fit_factorial(s, mdp, tasks, flat, SolverSettings(h, d_solver=d)) for h, d in pairs}

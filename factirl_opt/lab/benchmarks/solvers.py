@@ -187,7 +187,7 @@ def _part_fit(mdp, s, rng, D):
     R, demos = tasks.rewards, tasks.demos
     t0 = time.perf_counter()
     # gtol=0: the flat fit stops by its loss tolerance, as in the committed runs
-    flat = GradIRL(beta=s["beta"], max_iter=s["flat_iter"], gtol=0.0).fit(mdp, demos)
+    flat = GradIRL(beta=s["beta"], max_iter=s["flat_iter"], gtol=0.0, stol=0.0).fit(mdp, demos)
     flat_time = time.perf_counter() - t0
     rows = {}
     for name in ["armijo"] + _gn_names():

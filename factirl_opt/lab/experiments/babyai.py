@@ -54,7 +54,7 @@ __all__ = ["flat_tabular", "flat_features", "factorial_features", "factorial_fea
 def _gradirl(preset: Any, ctx: Any, features: Any = None) -> GradIRL:
     solver, _ = flat_solver(ctx.learner, preset)
     return GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
-                   solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                   stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
 
 
 def flat_tabular(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:

@@ -89,7 +89,7 @@ __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "f
 def _gradirl(gt, preset, ctx, features=None):
     solver, _ = flat_solver(ctx.learner, preset)
     model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
-                    solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                    stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
     model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 

@@ -67,7 +67,7 @@ def _flat(gt: Any, preset: Any, ctx: Any, on: str) -> WeightsFit:
     split = ctx.split
     solver, _ = flat_solver(ctx.learner, preset)
     model = GradIRL(beta=preset.beta, features=_map_columns(gt.task_maps[split], on), max_iter=preset.flat_max_iter,
-                    gtol=preset.flat_gtol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                    gtol=preset.flat_gtol, stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
     model.fit(gt.mdps(split), gt.demos(split))
     return WeightsFit(model.rewards_, model.loss_, model.n_evaluations_, model.weights_, on)
 

@@ -100,7 +100,7 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "SHARING_
 #: fields added after the paper's preset, with their defaults: they enter a preset's fingerprint
 #: (and so its runs' keys) only when they differ from these
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05,
-                "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_gtol": 0.0, "flat_solver": "armijo", "flat_features_solver": "armijo",
+                "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_gtol": 0.0, "flat_stol": 0.0, "flat_solver": "armijo", "flat_features_solver": "armijo",
                 "pca_shrink": False, "sharing_route": "race"}
 #: the fields of :class:`~factirl_opt.SolverSettings`, flattened into :meth:`Preset.to_dict`: part of
 #: each run's key, not of the fingerprint
@@ -150,6 +150,10 @@ class Preset:
         GradIRL's gradient stopping rule (``GradIRL(gtol=...)``) in every flat fit of the runs:
         0, the committed protocol (each flat fit stops by its tolerance on the loss's decrease or
         at ``flat_max_iter``), where the library's default stops a saturating task by its gradient.
+    flat_stol : float
+        GradIRL's saturation rule (``GradIRL(stol=...)``) in every flat fit of the runs: 0, the
+        committed protocol, where the library's default (1e-5) stops a task once an iteration
+        decreases its loss by at most that fraction of its decrease since the start.
     fact_max_iter : int
         Outer iterations of FactIRL.
     fact_gtol : float
@@ -227,6 +231,7 @@ class Preset:
     fact_gtol: float = 0.0
     fact_tol: float = 1e-5
     flat_gtol: float = 0.0
+    flat_stol: float = 0.0
     flat_solver: str = "armijo"
     flat_features_solver: str = "armijo"
     pca_shrink: bool = False
@@ -251,6 +256,7 @@ class Preset:
         object.__setattr__(self, "fact_gtol", check_real(self.fact_gtol, where + "fact_gtol", low=0.0))
         object.__setattr__(self, "fact_tol", check_real(self.fact_tol, where + "fact_tol", low=0.0))
         object.__setattr__(self, "flat_gtol", check_real(self.flat_gtol, where + "flat_gtol", low=0.0))
+        object.__setattr__(self, "flat_stol", check_real(self.flat_stol, where + "flat_stol", low=0.0))
         object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
         object.__setattr__(self, "pca_shrink", check_bool(self.pca_shrink, where + "pca_shrink"))
         from .learners import LINEUPS
