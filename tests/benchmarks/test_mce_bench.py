@@ -60,6 +60,38 @@ def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
     assert "mean_transfer_deviation" not in none["fits"]["mce"]
 
 
+def test_mce_benchmark_compares_schemes_and_scores_the_training_tasks_on_fresh_maps(capsys):
+    out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--flat-solvers", "lbfgs", "--schemes", "default",
+                             "joint", "--n-test-tasks", "0"])
+    fits = out["fits"]
+    assert list(fits) == ["mce, flat lbfgs", "mce, flat lbfgs, joint"]
+    assert [e["scheme"] for e in fits.values()] == ["default", "joint"] and out["settings"]["schemes"] == ["default", "joint"]
+    assert fits["mce, flat lbfgs"]["final_loss"] != fits["mce, flat lbfgs, joint"]["final_loss"]
+    for e in fits.values():
+        assert np.isfinite(e["mean_new_maps_deviation"]) and e["mean_new_maps_deviation"] >= 0
+
+
+def test_new_maps_deviation_scores_the_learnt_weights_on_the_fresh_maps(capsys):
+    """mean_new_maps_deviation is the deviation of the weights D h_i on the fresh maps' features,
+    against the same tasks' true rewards there (not on the training maps)."""
+    from factirl_opt.datasets.objectworld import state_action_rewards
+    from factirl_opt.lab.experiments.worlds import objectworld_per_task
+    from factirl_opt.tasks.features import feature_rewards
+
+    args = bench.build_parser().parse_args(["mce", "--quick"])
+    s = mce_bench.resolve_settings(args, mce_bench.DEFAULTS, mce_bench.QUICK)
+    preset = mce_bench.benchmark_preset(s)
+    gt = objectworld_per_task(preset, s["n_tasks"], s["n_demos"], s["seed"])
+    model = mce_bench.fit_once(preset, gt, "mce", 1)[0]
+    fresh = gt.fresh("train")
+    mdps = list(fresh.mdps)
+    learnt = feature_rewards(list(fresh.features), model.coefficients_ @ model.dictionary_.T, mdps)
+    expected = fo.deviation(mdps, state_action_rewards(fresh.rewards, mdps[0].n_actions), learnt, planner=preset.planner)
+    assert mce_bench.new_maps_deviation(model, gt, preset) == pytest.approx(float(np.mean(expected)), rel=1e-12)
+    on_training_maps = fo.deviation(gt.mdps("train"), gt.train_rewards, np.asarray(model.rewards_), planner=preset.planner)
+    assert mce_bench.new_maps_deviation(model, gt, preset) != pytest.approx(float(np.mean(on_training_maps)))
+
+
 def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
     with pytest.raises(SystemExit):
         bench.build_parser().parse_args(["mce", "--quick", "--preset", "objectworld-quick"])
@@ -73,6 +105,7 @@ def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
 @pytest.mark.parametrize("argv, fragment", [(["--n-tasks", "0"], "argument --n-tasks: must be an integer >= 1; got '0'"),
                                             (["--repeats", "0"], "argument --repeats: must be an integer >= 1; got '0'"),
                                             (["--flat-solvers", "bfgs"], "argument --flat-solvers: invalid choice: 'bfgs'"),
+                                            (["--schemes", "both"], "argument --schemes: invalid choice: 'both'"),
                                             (["--n-test-tasks", "-1"], "argument --n-test-tasks"),
                                             (["--blas-threads", "-3"], "argument --blas-threads")])
 def test_mce_benchmark_options_are_checked_by_the_parser(capsys, argv, fragment):
