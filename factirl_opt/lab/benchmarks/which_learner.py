@@ -12,8 +12,8 @@ factorial learner: *no worse* within 10% of the deviation, or 0.05 of the succes
 BabyAI (:data:`factirl_opt.lab.experiments.claims.SHARING_MARGINS`); *beats both* when it is
 better than both. Prints the comparison as JSON, with the (k, lambda) each adaptive fit chose and
 the cost of ``"auto"`` (``auto_cost_ratio``: the median over runs of the adaptive training fit's
-wall time over the factorial one's, both from the same flat start; wall time, so compare it on a
-quiet machine), and writes it as a markdown table to ``OUT/which-learner.md``.
+CPU time over the factorial one's, both from the same flat start; ``auto_cost_clock`` says
+``"wall"`` where older run records hold wall time only), and writes it as a markdown table to ``OUT/which-learner.md``.
 
 ``--route NAME`` runs the adaptive learner with another search route
 (:data:`factirl_opt.learners.selection.ROUTES`; the presets' ``sharing_route``): its runs have
@@ -32,7 +32,6 @@ from ..experiments.claims import SHARING_MARGINS, sharing_verdicts, write_claims
 from ..experiments.presets import PRESETS, SHARING_PRESETS
 from ..experiments.runner import run_sweep
 from ...learners.selection import DEFAULT_ROUTE, ROUTES
-from ..experiments.tables import read_csv
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "benchmark_verdicts", "run", "sharing_table"]
@@ -98,18 +97,23 @@ def _lam(value):
     return "inf" if value == float("inf") else f"{value:g}"
 
 
-def _cost(out, rows):
+def _cost(timings, rows):
     """Median over the runs of the adaptive training fit's time over the factorial one's (both from the
-    same flat start, which neither includes): the cost of ``"auto"`` against one fixed fit, in wall time."""
+    same flat start, which neither includes): the cost of ``"auto"`` against one fixed fit, in CPU time
+    (``fit_cpu_time``) where every run record has it, in wall time otherwise. Returns
+    ``(ratio, "cpu" | "wall")``, ``(None, None)`` without a pair."""
+    train = [t for t in timings if t["split"] == "train"]
+    clock = "fit_cpu_time" if train and all("fit_cpu_time" in t for t in train) else "fit_time"
     times: dict = {}
-    for r in read_csv(os.path.join(out, "timings.csv")):
-        if r["split"] == "train":
-            times.setdefault((r["n_tasks"], r["demos_per_task"], r["seed"]), {})[r["learner"]] = r["fit_time"]
+    for t in train:
+        times.setdefault((t["n_tasks"], t["demos_per_task"], t["seed"]), {})[t["learner"]] = t[clock]
     names = {r["learner"] for r in rows if "n_primitives" in r}
     fixed = {r["learner"] for r in rows if r["split"] == "train"} - names
     ratios = sorted(t[a] / t[f] for t in times.values() for a in names for f in fixed
-                    if a in t and f in t and f.startswith("factorial"))
-    return float(statistics.median(ratios)) if ratios else None
+                    if a in t and f in t and f.startswith("factorial") and t[f] > 0)
+    if not ratios:
+        return None, None
+    return float(statistics.median(ratios)), ("cpu" if clock == "fit_cpu_time" else "wall")
 
 
 def sharing_table(results: dict) -> str:
@@ -142,7 +146,7 @@ def run(args):
         results[name] = {"column": column, "margin": SHARING_MARGINS[column], "verdicts": verdicts,
                          "no_worse": f"{sum(v['no_worse'] for v in verdicts)}/{len(verdicts)}",
                          "beats_both": f"{sum(v['beats_both'] for v in verdicts)}/{len(verdicts)}",
-                         "auto_cost_ratio": _cost(res["out"], rows),
+                         **dict(zip(("auto_cost_ratio", "auto_cost_clock"), _cost(res["timings"], rows))),
                          "wall_time_s": res["wall_time"], "n_computed": res["n_computed"]}
     write_text_atomic(os.path.join(out, TABLE_FILE),
                       "# Which learner when: the adaptive learner against the better of flat and factorial\n\n"

@@ -228,13 +228,17 @@ def _run_in_worker(preset, spec):
 
 
 def _build(learner, gt, preset, ctx, reuse):
-    """``(fit, seconds)`` of one row: built, or a per-seed fit from ``reuse``."""
+    """``(fit, seconds, cpu_seconds)`` of one row: built, or a per-seed fit from ``reuse``.
+
+    ``seconds`` is wall time; ``cpu_seconds`` the CPU time of this process (``time.process_time``:
+    every thread of it, no child process), which other load on the machine changes less.
+    """
     key = (preset.fingerprint(), ctx.spec.seed, learner.split, learner.name, learner.version)
     if reuse is not None and learner.per_seed and key in reuse:
         return reuse[key]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     fit = learner.build(gt, preset, ctx)
-    built = (fit, time.perf_counter() - t0)
+    built = (fit, time.perf_counter() - t0, time.process_time() - c0)
     if reuse is not None and learner.per_seed:
         reuse[key] = built
     return built
@@ -249,7 +253,7 @@ def _run_one(preset, spec, progress, reuse):
     for learner in lineup.learners:
         progress(f"{learner.split}: {learner.name}")
         ctx.learner = learner
-        fit, elapsed = _build(learner, gt, preset, ctx, reuse)
+        fit, elapsed, cpu = _build(learner, gt, preset, ctx, reuse)
         dev, extra = (gt.scores(learner.split, fit.rewards, preset.planner) if hasattr(gt, "scores")  # BabyAI: in the env
                       else (deviation(gt.mdps(learner.split), gt.rewards(learner.split), fit.rewards, planner=preset.planner), {}))
         head = dict(split=learner.split, learner=learner.name, **common)
@@ -258,7 +262,7 @@ def _run_one(preset, spec, progress, reuse):
             extra = dict(extra, n_primitives=int(model.n_primitives_), residual_penalty=float(model.residual_penalty_))
         rows.append(dict(head, n_scored_tasks=len(dev), deviation=float(np.mean(dev)), deviation_std=float(np.std(dev)),
                          loss=float(np.mean(fit.loss)), n_evaluations=int(fit.n_evaluations), **extra))
-        timings.append(dict(head, fit_time=elapsed))
+        timings.append(dict(head, fit_time=elapsed, fit_cpu_time=cpu))
         ctx.rewards[learner.split, learner.name], fits[learner.split, learner.name] = fit.rewards, fit
     if gt.task_maps:  # a map per task: the learnt weights are scored on fresh maps too
         add_new_map_scores(gt, preset, fits, rows)
@@ -413,7 +417,9 @@ def run_plan(plan: SweepPlan, out: str | os.PathLike, execution: Execution = Exe
     Returns
     -------
     dict
-        ``rows`` (result rows), ``n_runs``, ``n_computed`` (runs computed by this call),
+        ``rows`` (result rows), ``timings`` (the records' timing rows: ``fit_time`` in wall
+        seconds and, in records written since it was added, ``fit_cpu_time``, the CPU seconds of
+        the process that built the fit), ``n_runs``, ``n_computed`` (runs computed by this call),
         ``rejected`` (``{file: reason}`` of the cached records rejected), ``wall_time``,
         ``out``, ``substitutions`` (the plan's) and ``removed`` (stale outputs removed).
 
@@ -440,7 +446,8 @@ def run_plan(plan: SweepPlan, out: str | os.PathLike, execution: Execution = Exe
                           n_rejected=len(rejected), wall_time_seconds=round(wall, 1),
                           finished_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
         store.write_manifest(out, plan.preset, plan.lineup, ordered, invocation, rejected)
-    return dict(rows=rows, n_runs=len(plan.runs), n_computed=n_computed, rejected=rejected, wall_time=wall, out=out,
+    return dict(rows=rows, timings=[t for rec in ordered for t in rec["timings"]], n_runs=len(plan.runs),
+                n_computed=n_computed, rejected=rejected, wall_time=wall, out=out,
                 substitutions=list(plan.substitutions), removed=removed)
 
 
