@@ -222,6 +222,8 @@ def eliminate_ridge(
     q, k = int(size), kq - int(size)
     m = mq - q
     top, r_top = jacobian[:, :m], residual[:, :m]
+    if m == 0:  # residuals of the ridge only: one zero row stands for the rest
+        top, r_top = np.zeros((n, 1, kq)), np.zeros((n, 1))
     live = np.any(top != 0.0, axis=2)  # (n, m): the rows some parameter moves
     m1 = max(int(live.sum(axis=1).max(initial=0)), 1)
     order = np.argsort(~live, axis=1, kind="stable")[:, :m1]  # each row's live rows first

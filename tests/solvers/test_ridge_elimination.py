@@ -23,13 +23,14 @@ def stacked(A, B, r, x, penalty):
 def random_rows(rng, n, m, k, q, dead):
     """Jacobian blocks whose first ``dead`` rows are zero in some rows of the batch (unvisited states)."""
     A, B, r = rng.normal(size=(n, m, k)), rng.normal(size=(n, m, q)), rng.normal(size=(n, m))
+    dead = min(dead, m)
     A[0, :dead] = B[0, :dead] = 0.0  # r stays nonzero there: a constant the step cannot change
     A[-1, m - dead:] = B[-1, m - dead:] = 0.0
     return A, B, r, rng.normal(size=(n, k + q))
 
 
-# (m, q): fewer live rows than ridge parameters (W's side) and more (G's side)
-SHAPES = [(14, 25), (40, 6), (9, 9)]
+# (m, q): fewer live rows than ridge parameters (W's side) and more (G's side), and no rows but the ridge's
+SHAPES = [(14, 25), (40, 6), (9, 9), (0, 4)]
 
 
 @pytest.mark.parametrize("m, q", SHAPES)
