@@ -7,10 +7,10 @@ import factirl_opt as fo
 from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
-    demonstrator_policy, information_gains, model_policy, policy_entropy_starts, request_starts, start_occupancy, state_information,
-    value_variance_reductions,
+    demonstrated_states, demonstrator_policy, information_gains, linearised_regret, model_policy, policy_entropy_starts,
+    regret_reductions, regret_terms, request_starts, start_occupancy, state_information, value_variance_reductions,
 )
-from factirl_opt.planning import get_planner
+from factirl_opt.planning import get_planner, plan
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,7 @@ def test_candidates_restrict_and_are_checked(fitted):
         model.request_starts(mdp, test.demos, candidates=np.array([0.5]))
     with pytest.raises(ValidationError, match="n_requests"):
         model.request_starts(mdp, test.demos, n_requests=0)
-    with pytest.raises(ValidationError, match="criterion must be one of information, value"):
+    with pytest.raises(ValidationError, match="criterion must be one of information, value, regret"):
         request_starts(model, mdp, test.demos, criterion="entropy")
 
 
@@ -149,3 +149,107 @@ def test_greedy_policy_ranks_by_the_greedy_episodes_gain(fitted, objective):
         model.request_starts(mdp, test.demos, policy="soft")
     with pytest.raises(ValidationError, match="policy must be one of"):
         request_starts(model, mdp, test.demos, criterion="value", policy=None)
+
+
+def test_demonstrated_states_are_the_visited_ones(fitted):
+    mdp, test, _ = fitted
+    known = demonstrated_states(mdp, test.demos[0])
+    assert known.shape == (mdp.n_states,) and known.dtype == bool
+    np.testing.assert_array_equal(np.flatnonzero(known), np.unique(np.asarray(test.demos[0])[..., 0]))
+
+
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+@pytest.mark.parametrize("criterion", ["information", "value"])
+def test_skipping_demonstrated_states_removes_their_information(fitted, objective, criterion):
+    mdp, test, models = fitted
+    model = models[objective]
+    post = model.transfer_posterior_[2]
+    score = information_gains if criterion == "information" else value_variance_reductions
+    cands = np.arange(mdp.n_states)
+    known = demonstrated_states(mdp, test.demos[2])
+    skipped = score(post, objective, model.beta, cands, 8, known=known)
+    # against the definition: the expected curvature over the states not yet demonstrated
+    pl, info, pi = state_information(post, objective, model.beta)
+    H = np.einsum("cy,yde->cde", start_occupancy(pl, pi, cands, 8), np.where(known[:, None, None], 0.0, info))
+    Lam = np.linalg.inv(post.covariance)
+    if criterion == "information":
+        want = np.linalg.slogdet(Lam + H)[1] - np.linalg.slogdet(Lam)[1]
+    else:
+        _, _, dQ = model_policy(post, objective, model.beta)
+        dV = np.einsum("sa,sad->sd", pi, dQ)
+        M = dV.T @ dV / mdp.n_states
+        want = np.trace(M @ post.covariance) - np.einsum("de,ced->c", M, np.linalg.inv(Lam + H))
+    np.testing.assert_allclose(skipped, want, rtol=1e-6, atol=1e-10)
+    # every state known: no demonstration adds anything; none known: the counted criterion
+    np.testing.assert_allclose(score(post, objective, model.beta, cands, 8, known=np.ones(mdp.n_states, bool)), 0.0,
+                               atol=1e-10)
+    np.testing.assert_allclose(score(post, objective, model.beta, cands, 8, known=np.zeros(mdp.n_states, bool)),
+                               score(post, objective, model.beta, cands, 8), rtol=1e-12)
+    starts = request_starts(model, mdp, test.demos, mdp.n_states, criterion=criterion, demonstrated="skip")
+    L = len(test.demos[2][0])
+    np.testing.assert_array_equal(starts[2], np.argsort(-score(post, objective, model.beta, cands, L, known=known),
+                                                        kind="stable"))
+
+
+def test_demonstrated_is_checked(fitted):
+    mdp, test, models = fitted
+    with pytest.raises(ValidationError, match="demonstrated must be one of count, skip; got 'once'"):
+        request_starts(models["policy-matching"], mdp, test.demos, demonstrated="once")
+
+
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_regret_terms_against_planning(fitted, objective):
+    mdp, test, models = fitted
+    post = models[objective].transfer_posterior_[0]
+    gaps, E, rho = regret_terms(post)
+    S, A = mdp.n_states, mdp.n_actions
+    d = post.mean.shape[0]
+    assert gaps.shape == (S, A) and E.shape == (S, A, d) and rho.shape == (S,)
+    assert np.all(gaps >= 0) and np.all(gaps.min(axis=1) == 0)
+    # the discounted visits from a uniform start sum to 1 / (1 - gamma)
+    assert rho.sum() == pytest.approx(1.0 / (1.0 - mdp.gamma), rel=1e-10)
+    # the gaps' tangents against central differences of the planned Q* (the greedy policy unchanged)
+    pl = get_planner(mdp)
+    v = np.random.default_rng(0).standard_normal(d)
+    eps = 1e-6
+    Qp, Qm = (plan(pl, post.rewards(post.mean + t * v)).Q[0] for t in (eps, -eps))
+    pol = plan(pl, post.mean_rewards()[None]).policy[0]
+    fd = ((Qp - Qp[np.arange(S), pol][:, None]) - (Qm - Qm[np.arange(S), pol][:, None])) / (2 * eps)
+    np.testing.assert_allclose(np.einsum("sad,d->sa", E, v), fd, rtol=1e-5, atol=1e-7)
+    # the performance difference: the regret of pi_m under another reward is the rho-weighted loss of its actions
+    other = post.rewards(post.mean + v)[0]
+    res = plan(pl, other[None])
+    loss = res.V[0] - res.Q[0][np.arange(S), pol]
+    assert float(rho @ loss) == pytest.approx(float(fo.deviation(mdp, other, post.mean_rewards())), rel=1e-8)
+
+
+def test_linearised_regret_is_the_expected_loss_of_the_linear_model():
+    rng = np.random.default_rng(1)
+    gaps = np.array([[0.0, 0.3, 1.2], [0.5, 0.0, 0.0]])
+    E = rng.standard_normal((2, 3, 2))
+    E[0, 0] = E[1, 1] = 0.0  # the greedy actions' own gaps have no tangent
+    E[1, 2] = 0.0  # a tie known for sure: no loss
+    rho = np.array([0.7, 1.9])
+    C = np.array([[0.5, 0.1], [0.1, 0.3]])
+    z = rng.multivariate_normal(np.zeros(2), C, size=400_000)
+    mc = sum(rho[y] * np.maximum(-gaps[y, a] + z @ E[y, a], 0.0).mean() for y in range(2) for a in range(3))
+    assert linearised_regret(gaps, E, rho, C) == pytest.approx(mc, rel=1e-2)
+    np.testing.assert_allclose(linearised_regret(gaps, E, rho, np.stack([C, 0 * C])), [linearised_regret(gaps, E, rho, C), 0.0])
+
+
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_regret_criterion_is_the_expected_reduction_of_the_linearised_regret(fitted, objective):
+    mdp, test, models = fitted
+    model = models[objective]
+    post = model.transfer_posterior_[1]
+    cands = np.arange(mdp.n_states)
+    red = regret_reductions(post, objective, model.beta, cands, 8)
+    assert red.shape == (mdp.n_states,) and np.all(red >= -1e-12)
+    pl, info, pi = state_information(post, objective, model.beta)
+    H = np.einsum("y,yde->de", start_occupancy(pl, pi, np.array([5]), 8)[0], info)
+    after = np.linalg.inv(np.linalg.inv(post.covariance) + H)
+    terms = regret_terms(post)
+    assert red[5] == pytest.approx(linearised_regret(*terms, post.covariance) - linearised_regret(*terms, after), rel=1e-6)
+    starts = request_starts(model, mdp, test.demos, 3, criterion="regret")
+    L = len(test.demos[1][0])
+    assert starts[1].tolist() == np.argsort(-regret_reductions(post, objective, model.beta, cands, L), kind="stable")[:3].tolist()

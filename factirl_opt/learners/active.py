@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtr
 
 from .._validation import check_int
 from ..exceptions import ValidationError
@@ -33,7 +34,8 @@ from ..planning import boltzmann_policy, get_planner, plan, tangent
 from .posterior import LaplacePosterior, coefficient_prior, laplace_posteriors, transfer_inputs, transfer_problem
 
 __all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
-           "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy"]
+           "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",
+           "demonstrated_states", "regret_terms", "linearised_regret", "regret_reductions"]
 
 
 def model_policy(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
@@ -102,10 +104,13 @@ def demonstrator_policy(pi: NDArray[np.float64], policy: str = "boltzmann") -> N
 
 
 def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
-                      length: int, policy: str = "boltzmann") -> NDArray[np.float64]:
+                      length: int, policy: str = "boltzmann", known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start,
-    the episode's expected visits under :func:`demonstrator_policy` (``policy``)."""
+    the episode's expected visits under :func:`demonstrator_policy` (``policy``); states where ``known`` (S,) is
+    true add no information (:func:`demonstrated_states`)."""
     pl, info, pi = state_information(post, objective, beta)
+    if known is not None:
+        info = np.where(known[:, None, None], 0.0, info)
     occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
     Lam = np.linalg.inv(post.covariance)
     Lam = 0.5 * (Lam + Lam.T)
@@ -115,7 +120,8 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
 
 
 def value_variance_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
-                              length: int, policy: str = "boltzmann") -> NDArray[np.float64]:
+                              length: int, policy: str = "boltzmann",
+                              known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """``trace(M (Sigma - (Lambda + H_s)^-1))`` (c,): the expected reduction of the posterior variance of
     the state values, linearised, ``M = mean_s dV(s)/dx dV(s)/dx^T`` with ``dV = sum_a pi dQ/dx``; the
     episode's expected visits under :func:`demonstrator_policy` (``policy``)."""
@@ -124,6 +130,8 @@ def value_variance_reductions(post: LaplacePosterior, objective: str, beta: floa
     weight = pi if objective == "mce" else pi * pi
     per_pair = post.scaling / post.n_pairs * (1.0 if objective == "mce" else 2.0)
     info = per_pair * beta * beta * np.einsum("sa,sad,sae->sde", weight, E, E)
+    if known is not None:
+        info = np.where(known[:, None, None], 0.0, info)
     dV = np.einsum("sa,sad->sd", pi, dQ)
     M = dV.T @ dV / dV.shape[0]
     occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
@@ -132,6 +140,60 @@ def value_variance_reductions(post: LaplacePosterior, objective: str, beta: floa
     H = np.einsum("cy,yde->cde", occ, info)
     after = np.linalg.inv(Lam[None] + H)
     return np.einsum("de,ed->", M, post.covariance) - np.einsum("de,ced->c", M, after)
+
+
+def regret_terms(post: LaplacePosterior) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """What the regret of acting on the posterior mean depends on, to first order (docs/maths.md §10).
+
+    With ``pi_m`` greedy on the ``Q*`` of the mean reward: the gaps ``g(y, a) = Q(y, pi_m(y)) -
+    Q(y, a)`` (S, A), ``>= 0``; their tangents ``e(y, a) = dQ(y, a)/dx - dQ(y, pi_m(y))/dx`` (S, A, d),
+    ``pi_m`` held fixed (exact for ``Q^{pi_m}``); and ``rho`` (S,), the discounted visits of the
+    states by ``pi_m`` from a uniform start, ``(I - gamma P_{pi_m})^-T 1 / S``.
+    """
+    mdp = post.mdp
+    S, A = mdp.n_states, mdp.n_actions
+    pl = get_planner(mdp)
+    res = plan(pl, post.mean_rewards()[None])
+    pol = res.policy[0]
+    dQ = tangent(pl, res.system, res.policy, post.basis().reshape(1, S, A, -1))[0]
+    rows = np.arange(S)
+    Q = res.Q[0]
+    gaps = np.maximum(Q[rows, pol][:, None] - Q, 0.0)
+    E = dQ - dQ[rows, pol][:, None, :]
+    rho = res.system.solve_transpose(np.full((1, S), 1.0 / S))[0]
+    return gaps, E, rho
+
+
+def linearised_regret(gaps: NDArray[np.float64], E: NDArray[np.float64], rho: NDArray[np.float64],
+                      covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``sum_y rho(y) sum_a EI(g(y, a), sd(y, a))`` for covariances (..., d, d): the expected regret, linearised.
+
+    ``sd(y, a)^2 = e(y, a)^T Sigma e(y, a)``, ``EI(g, sd) = E[max(0, -g + sd z)] = sd phi(g/sd) - g Phi(-g/sd)``
+    (0 where ``sd = 0``): each action's expected loss when it overtakes the mean's greedy one, summed
+    over the actions (a bound of the state's loss) and weighted by the visits (:func:`regret_terms`).
+    """
+    var = np.einsum("yad,...de,yae->...ya", E, covariance, E)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(sd > 0, gaps / np.where(sd > 0, sd, 1.0), np.inf)
+    ei = np.where(sd > 0, sd * np.exp(-0.5 * u * u) / np.sqrt(2.0 * np.pi) - gaps * ndtr(-u), 0.0)
+    return np.einsum("y,...ya->...", rho, np.maximum(ei, 0.0))
+
+
+def regret_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                      length: int, policy: str = "boltzmann", known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
+    """The expected reduction (c,) of the linearised regret (:func:`linearised_regret`) by a ``length``-step
+    demonstration from each candidate start: its value at ``Sigma`` minus its value at ``(Lambda + H_s)^-1``,
+    ``H_s`` the expected curvature of :func:`information_gains` (the same ``policy`` and ``known``)."""
+    pl, info, pi = state_information(post, objective, beta)
+    if known is not None:
+        info = np.where(known[:, None, None], 0.0, info)
+    occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
+    Lam = np.linalg.inv(post.covariance)
+    Lam = 0.5 * (Lam + Lam.T)
+    after = np.linalg.inv(Lam[None] + np.einsum("cy,yde->cde", occ, info))
+    gaps, E, rho = regret_terms(post)
+    return linearised_regret(gaps, E, rho, post.covariance) - linearised_regret(gaps, E, rho, 0.5 * (after + np.swapaxes(after, 1, 2)))
 
 
 def _candidates(candidates: Any, n: int, mdps: list) -> list[NDArray[np.intp]]:
@@ -175,12 +237,24 @@ def _has_prior(model: Any) -> bool:
     return H is not None and np.shape(H)[0] >= 2 and float(getattr(model, "residual_penalty_", np.inf)) != 0.0
 
 
-CRITERIA = {"information": information_gains, "value": value_variance_reductions}
+CRITERIA = {"information": information_gains, "value": value_variance_reductions, "regret": regret_reductions}
+
+#: How a requested demonstration's pairs in states already demonstrated count (``request_starts(demonstrated=...)``).
+DEMONSTRATED = ("count", "skip")
+
+
+def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.bool_]:
+    """Which states (S,) one task's demonstrations visit (a greedy expert's action there is already known)."""
+    from ..tasks.trajectories import task_steps
+
+    known = np.zeros(mdp.n_states, dtype=bool)
+    known[task_steps(mdp, task_demos, task)[:, 0]] = True
+    return known
 
 
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                    features: Any = None, criterion: str = "information",
-                   policy: str = "boltzmann") -> list[NDArray[np.intp]]:
+                   policy: str = "boltzmann", demonstrated: str = "count") -> list[NDArray[np.intp]]:
     """Candidate start states per new task, best first, by expected information gain (module docstring).
 
     Parameters
@@ -201,6 +275,10 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     policy : {"boltzmann", "greedy"}, default="boltzmann"
         The policy a demonstration from a start is assumed to follow (:func:`demonstrator_policy`):
         the model's stochastic policy at the posterior mean, or its greedy policy.
+    demonstrated : {"count", "skip"}, default="count"
+        How the pairs of a requested demonstration in states the task's demonstrations already
+        visit count: as the model's likelihood counts them (``"count"``), or not at all
+        (``"skip"``: a deterministic expert repeats its known action there, docs/maths.md §10).
 
     Returns
     -------
@@ -209,7 +287,8 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     Raises
     ------
     ValidationError
-        For ``n_requests`` < 1, candidates out of range, an unknown ``criterion`` or ``policy``, or a
+        For ``n_requests`` < 1, candidates out of range, an unknown ``criterion``, ``policy`` or
+        ``demonstrated``, or a
         model whose posterior is undefined.
     """
     n_requests = check_int(n_requests, "n_requests", minimum=1)
@@ -217,14 +296,17 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         raise ValidationError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     if policy not in POLICIES:
         raise ValidationError(f"policy must be one of {', '.join(POLICIES)}; got {policy!r}")
+    if demonstrated not in DEMONSTRATED:
+        raise ValidationError(f"demonstrated must be one of {', '.join(DEMONSTRATED)}; got {demonstrated!r}")
     posts, _ = _posteriors(model, mdp, demos_per_task, features)
     n = len(posts)
     cands = _candidates(candidates, n, [p.mdp for p in posts])
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
+        known = demonstrated_states(post.mdp, demos_per_task[i], i) if demonstrated == "skip" else None
         gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]),
-                                     policy)
+                                     policy, known)
         order = np.argsort(-gains, kind="stable")
         out.append(cands[i][order[:n_requests]])
     return out

@@ -16,7 +16,8 @@ def run_bench(capsys, argv):
 def test_active_benchmark_quick_records_every_strategy_and_the_calibration(capsys):
     out = run_bench(capsys, ["active", "--quick", "--calibration", "--max-demos", "3"])
     row = out["worlds"]["grid"]["0"]
-    assert set(row["strategies"]) == {"requested", "requested-value", "random", "entropy"}
+    assert set(row["strategies"]) == {"requested", "requested-value", "random", "entropy", "requested-regret",
+                                      "requested-value-skip"}
     for st in row["strategies"].values():
         assert len(st["deviation"]) == len(st["map_deviation"]) == 3
         assert np.all(np.isfinite(st["deviation"])) and min(st["deviation"]) >= 0
@@ -40,3 +41,37 @@ def test_active_benchmark_options_are_checked_by_the_parser(capsys, argv, fragme
     with pytest.raises(SystemExit):
         bench.build_parser().parse_args(["active", "--quick", *argv])
     assert fragment in capsys.readouterr().err
+
+
+def test_active_benchmark_requested_strategies_pass_their_options(monkeypatch):
+    from factirl_opt.lab.benchmarks import active
+
+    seen = []
+
+    def fake(model, mdp, demos, n_requests, **kw):
+        seen.append(kw)
+        return [np.array([0]) for _ in demos]
+
+    monkeypatch.setattr(active, "request_starts", fake)
+    monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
+
+    class Model:
+        transfer_posterior_ = None
+
+        def transfer(self, *a, **k):
+            return self
+
+    class GT:
+        test_demos = [np.zeros((1, 3, 2), dtype=int)]
+        test_rewards = np.zeros((1, 4, 4))
+
+    import factirl_opt as fo
+    mdp = fo.GridWorld(size=2)
+    s = {"max_demos": 2}
+    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested-value-skip", s, 0)
+    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested-regret", s, 0, policy="greedy")
+    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested", s, 0, criterion="value")
+    assert [{k: v for k, v in kw.items() if k != "features"} for kw in seen] == [
+        {"policy": "boltzmann", "criterion": "value", "demonstrated": "skip"},
+        {"policy": "greedy", "criterion": "regret"},
+        {"policy": "boltzmann", "criterion": "value"}]

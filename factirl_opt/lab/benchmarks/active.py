@@ -3,12 +3,16 @@
 For each world and seed, one process learns the dictionary on the training tasks (FactIRL with
 the preset's solvers and budgets, policy matching), then gives each test task its one
 demonstration and adds demonstrations one at a time, each from the start chosen by one of
-three strategies, and after each transfer records the test tasks' mean deviation (of the
+the strategies below, and after each transfer records the test tasks' mean deviation (of the
 transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP):
 
-- ``requested``: ``FactIRL.request_starts`` (expected information gain, docs/maths.md §10);
+- ``requested``: ``FactIRL.request_starts`` with its defaults (expected information gain, docs/maths.md §10);
 - ``requested-value``: the same posterior and expected curvature, ranked by the expected
   reduction of the posterior variance of the state values (``criterion="value"``);
+- ``requested-regret``: ranked by the expected reduction of the linearised regret of acting on
+  the posterior mean (``criterion="regret"``);
+- ``requested-value-skip``: ``requested-value`` with the states already demonstrated adding no
+  information (``demonstrated="skip"``: a greedy expert repeats its action there);
 - ``random``: a uniformly random state;
 - ``entropy``: the state where the model's policy at the posterior mean has the highest
   entropy (Lopes, Melo & Montesano 2009).
@@ -46,9 +50,12 @@ from ..experiments.presets import PRESETS
 from ..experiments.worlds import make_ground_truth
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "world", "strategy_run", "STRATEGIES", "WORLDS", "DEFAULTS"]
+__all__ = ["add_arguments", "run", "world", "strategy_run", "STRATEGIES", "REQUESTS", "WORLDS", "DEFAULTS"]
 
-STRATEGIES = ("requested", "requested-value", "random", "entropy")
+STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-regret", "requested-value-skip")
+#: the requested strategies' options of ``request_starts`` (``"requested"``: its defaults)
+REQUESTS = {"requested": {}, "requested-value": {"criterion": "value"}, "requested-regret": {"criterion": "regret"},
+            "requested-value-skip": {"criterion": "value", "demonstrated": "skip"}}
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
             "max_demos": 8, "strategies": list(STRATEGIES), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
@@ -109,19 +116,21 @@ def _deviations(model, gt, mdps, n, posts):
     return np.asarray(dev), (None if dev_map is None else np.asarray(dev_map))
 
 
-def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy="boltzmann"):
+def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy="boltzmann", **request_options):
     """Mean deviations after 1..max_demos demonstrations with starts chosen by ``strategy``.
 
     ``model`` is fitted on the training tasks; the first ``n`` test tasks of ``gt`` (on ``mdps``,
     ``feats`` as :func:`world` returns them) start from one demonstration each, and each step adds one
     from the start ``strategy`` (one of :data:`STRATEGIES`) picks; ``policy`` is passed to
-    :func:`~factirl_opt.learners.active.request_starts` by the requested strategies. Returns a dict of
+    :func:`~factirl_opt.learners.active.request_starts` by the requested strategies, with any other
+    ``request_options`` (they replace the strategy's own, :data:`REQUESTS`). Returns a dict of
     lists: ``deviation``, ``map_deviation`` (posterior mean), ``starts``."""
     rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
     demos = [np.asarray(d) for d in gt.test_demos[:n]]
     L = demos[0].shape[1]
     m_list, f_list = (mdps[:n] if isinstance(mdps, list) else mdps), _take(feats, n)
     out: dict[str, list] = {"deviation": [], "map_deviation": [], "starts": []}
+    options = {**REQUESTS.get(strategy, {}), **request_options}
     for step in range(1, s["max_demos"] + 1):
         model.transfer(m_list, demos, features=f_list)
         posts = model.transfer_posterior_
@@ -131,9 +140,7 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
         if step == s["max_demos"]:
             break
         if strategy.startswith("requested"):
-            criterion = "value" if strategy == "requested-value" else "information"
-            starts = [int(r[0]) for r in request_starts(model, m_list, demos, 1, features=f_list, criterion=criterion,
-                                                           policy=policy)]
+            starts = [int(r[0]) for r in request_starts(model, m_list, demos, 1, features=f_list, policy=policy, **options)]
         elif strategy == "entropy":
             starts = [int(r[0]) for r in policy_entropy_starts(posts, "policy-matching", model.beta)]
         else:
