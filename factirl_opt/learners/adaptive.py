@@ -342,8 +342,9 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         the candidates are that k, half and twice it
         (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at inf, the largest finite
         lambda and 0 (:func:`~factirl_opt.learners.evidence.evidence_penalties`), scored on
-        every fold, without the bisection; when the evidence finds no shared direction the flat
-        model is chosen unscored (its row has NaN scores and no fold). Needs ``flat_rewards``.
+        every fold, without the bisection; when the evidence finds no shared direction, or more
+        than half the training tasks of a fold, the flat model is chosen unscored (its row has
+        NaN scores and no fold). Needs ``flat_rewards``.
     score : {"likelihood", "fixed-beta", "objective", "occupancy"}
         The held-out score (:data:`SCORES`; module docstring).
     **options
@@ -545,7 +546,8 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
             warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
             candidates = sharing_candidates(learner, k_max, k_grid, lam_grid)
             if search == "evidence":
-                candidates = _evidence_candidates(learner, mdp, demos_per_task, flat_rewards, k_max, lam_grid)
+                candidates = _evidence_candidates(learner, mdp, demos_per_task, flat_rewards, k_max, lam_grid,
+                                                  n - max(len(f) for f in folds))
             first = folds[:1] if search not in ("full", "evidence") and len(folds) > 1 else folds
             warm, reuse = search == "race-warm", search != "full"
             if search == "evidence" and len(candidates) == 1:  # nothing to compare it with: chosen unscored
@@ -652,17 +654,18 @@ def _rows(scores: dict) -> list[dict]:
 
 
 def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
-                         lam_grid: Sequence[float]) -> list[tuple[int, float]]:
+                         lam_grid: Sequence[float], n_train: int) -> list[tuple[int, float]]:
     """The candidates of the ``"evidence"`` search: k from the evidence of the flat start's PCA
     (:func:`~factirl_opt.learners.evidence.flat_start_evidence`,
     :func:`~factirl_opt.learners.evidence.evidence_primitives`) at the penalties of
     :func:`~factirl_opt.learners.evidence.evidence_penalties`, then the flat model (k = 1); when
-    no direction is shared (the evidence's k is 0), the flat model alone (or k = 1 at a fixed lambda)."""
+    the tasks share little (the evidence's k is 0, or more than half the ``n_train`` training
+    tasks of a fold), the flat model alone (or k = 1 at a fixed lambda)."""
     if flat_rewards is None:
         raise ValidationError("search='evidence' chooses k from the flat start's rewards: give flat_rewards "
                               "(FactIRL.fit computes them with init='pca')")
     _, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
-    ks, lams = evidence_primitives(rank, k_max), evidence_penalties(lam_grid)
+    ks, lams = evidence_primitives(rank, k_max, n_train), evidence_penalties(lam_grid)
     shared = [c for c in sharing_candidates(learner, k_max, ks, lams) if c[1] != 0.0] if ks else []
     flat = [c for c in sharing_candidates(learner, k_max, (1,), lams) if c[1] == 0.0]
     return shared + flat or sharing_candidates(learner, k_max, (1,), lams)[:1]

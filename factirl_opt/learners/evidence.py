@@ -26,7 +26,7 @@ from .._validation import check_array, check_int
 from ..exceptions import ValidationError
 from ..tasks.task_set import task_set
 
-__all__ = ["laplace_rank_evidence", "pca_rank_evidence", "flat_start_points", "flat_start_evidence", "evidence_primitives",
+__all__ = ["MIN_TASKS_PER_PRIMITIVE", "laplace_rank_evidence", "pca_rank_evidence", "flat_start_points", "flat_start_evidence", "evidence_primitives",
            "evidence_penalties"]
 
 #: eigenvalues below this fraction of the largest are zero (the noise variance never falls below it)
@@ -219,7 +219,12 @@ def flat_start_evidence(learner: Any, mdp: Any, demos_per_task: Any, flat_reward
     return pca_rank_evidence(flat_start_points(learner, mdp, demos_per_task, flat_rewards), max_rank=max_rank)
 
 
-def evidence_primitives(rank: int, k_max: int) -> list[int]:
+#: the ``"evidence"`` route keeps the flat model, unscored, when the evidence's k exceeds the
+#: training tasks of a fold divided by this (:func:`evidence_primitives`)
+MIN_TASKS_PER_PRIMITIVE = 2
+
+
+def evidence_primitives(rank: int, k_max: int, n_train: int | None = None) -> list[int]:
     """The numbers of primitives the ``"evidence"`` route scores for the evidence's best ``rank``.
 
     ``ceil(rank / 2)``, ``rank`` and ``2 rank``, each at most ``k_max``: on the which-learner
@@ -227,8 +232,17 @@ def evidence_primitives(rank: int, k_max: int) -> list[int]:
     factor of 2 either way (``results/which-learner/diagnostics/evidence/``): 3 or 4 on the grid
     with 20 tasks (true k 5; (4, 1) to (8, 1) transfer best), 14 or 15 with 100 tasks (k = 5
     best), 9 to 11 with 20 Objectworld tasks (k = 4 or 5 best), the flat rewards' noise being
-    neither isotropic nor Gaussian. ``rank = 0`` (no direction shared) gives none: the flat model
-    is chosen without a held-out score.
+    neither isotropic nor Gaussian.
+
+    None (the flat model is chosen without a held-out score) when the tasks share little:
+    ``rank = 0`` (no direction shared), or, given ``n_train``, more directions than
+    ``n_train / MIN_TASKS_PER_PRIMITIVE`` (each primitive of the flat rewards would rest on fewer
+    than two of the tasks a candidate is fitted on). On the which-learner benchmark the latter
+    holds at every BabyAI GoToLocal point, on every seed of one Objectworld map with 5 tasks and
+    on two of three with a map per task and 5 tasks, where flat transfers best, and on one
+    Objectworld map with 20 tasks, where the factorial model does (and where no route's held-out
+    score finds it; ``results/which-learner/diagnostics/evidence/README.md``). A rule read off
+    that benchmark, not derived.
 
     Parameters
     ----------
@@ -236,14 +250,18 @@ def evidence_primitives(rank: int, k_max: int) -> list[int]:
         >= 0 (:func:`flat_start_evidence`).
     k_max : int
         >= 1, the largest k a candidate may have.
+    n_train : int or None
+        >= 1, the fewest training tasks of a fold; None: no such limit.
 
     Returns
     -------
     list of int
-        Sorted, distinct, in ``[1, k_max]``; empty for ``rank = 0``.
+        Sorted, distinct, in ``[1, k_max]``; empty when the tasks share little.
     """
     rank = check_int(rank, "rank", minimum=0)
     k_max = check_int(k_max, "k_max", minimum=1)
+    if n_train is not None and rank * MIN_TASKS_PER_PRIMITIVE > check_int(n_train, "n_train", minimum=1):
+        return []
     if rank == 0:
         return []
     return sorted({min(k_max, k) for k in ((rank + 1) // 2, rank, 2 * rank)})

@@ -85,6 +85,7 @@ def test_the_centred_evidence_chooses_as_scikit_learns_pca_mle(seed, n, d, k):
     (lambda: pca_rank_evidence(np.ones((5, 3)), max_rank=-1), r"max_rank must be an integer >= 0"),
     (lambda: evidence_primitives(-1, 4), r"rank must be an integer >= 0"),
     (lambda: evidence_primitives(2, 0), r"k_max must be an integer >= 1"),
+    (lambda: evidence_primitives(2, 4, n_train=0), r"n_train must be an integer >= 1"),
 ])
 def test_bad_inputs_are_refused(call, message):
     with pytest.raises(ValidationError, match=message):
@@ -98,13 +99,15 @@ def test_the_candidates_are_the_evidences_k_half_and_twice_it_at_three_penalties
     assert evidence_primitives(5, 8) == [3, 5, 8]
     assert evidence_primitives(14, 8) == [7, 8]
     assert evidence_primitives(14, 3) == [3]
+    # more primitives than half the training tasks of a fold: the tasks share little, flat
+    assert evidence_primitives(4, 8, n_train=8) == [2, 4, 8] and evidence_primitives(5, 8, n_train=9) == []
     assert evidence_penalties((np.inf, 1.0, 0.01, 0.0)) == [np.inf, 1.0, 0.0]
     assert evidence_penalties((0.0, 0.1, 10.0)) == [0.0, 10.0]
     assert evidence_penalties((0.01,)) == [0.01]
 
 
 @pytest.fixture(scope="module")
-def data():
+def data():  # 3 folds: 5 training tasks at least
     """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
     mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
     rng = np.random.default_rng(5)
@@ -157,21 +160,22 @@ def _forced_rank(monkeypatch, rank):
 def test_the_evidence_route_scores_its_k_half_and_twice_it_from_pca_starts(data, monkeypatch):
     mdp, F, _, demos = data
     assert ROUTES["evidence"][0] == "evidence"
-    fits = _forced_rank(monkeypatch, 4)
+    fits = _forced_rank(monkeypatch, 2)
     model = _fit(_auto(F), mdp, demos)  # lambda = 0.01 is not scored
     res = model.cv_results_
-    assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(1, 0.0), (2, 1.0), (2, np.inf), (4, 1.0),
-                                                                       (4, np.inf)]
+    assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0),
+                                                                       (2, np.inf), (4, 1.0), (4, np.inf)]
     assert np.all(res["n_splits_scored"] == 3) and np.all(np.isfinite(res["mean_test_score"]))
     candidates = fits[1:-1]  # the auto fit itself first, the final fit last
     assert candidates and all(max_iter == 0 for _, _, max_iter in candidates)  # PCA starts only, no bisection
-    assert {k for k, _, _ in candidates} <= {2, 4}  # twice 4 beyond k_max, the p = 4 features
+    assert {k for k, _, _ in candidates} <= {1, 2, 4}
     assert (model.n_primitives_, model.residual_penalty_) in {tuple(p.values()) for p in res["params"]}
 
 
-def test_no_shared_direction_chooses_the_flat_model_without_a_fit(data, monkeypatch, tmp_path):
+@pytest.mark.parametrize("rank", [0, 3])  # none shared; more than half the 5 training tasks of a fold
+def test_little_shared_chooses_the_flat_model_without_a_fit(data, monkeypatch, tmp_path, rank):
     mdp, F, _, demos = data
-    fits = _forced_rank(monkeypatch, 0)
+    fits = _forced_rank(monkeypatch, rank)
     model = _fit(_auto(F), mdp, demos)
     assert (model.n_primitives_, model.residual_penalty_) == (1, 0.0)
     assert len(fits) == 2  # the auto fit and the final fit: no candidate
@@ -181,7 +185,7 @@ def test_no_shared_direction_chooses_the_flat_model_without_a_fit(data, monkeypa
     assert np.isnan(res["mean_test_score"][0]) and res["chosen"].tolist() == [True]
     loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
     assert loaded.cv_results_["params"] == res["params"] and np.isnan(loaded.cv_results_["mean_test_score"][0])
-    # at a fixed lambda the evidence's k = 0 gives k = 1 at that lambda, unscored
+    # at a fixed lambda it gives k = 1 at that lambda, unscored
     fixed = _fit(fo.FactIRL(n_primitives="auto", residual_penalty=np.inf, features=F, max_iter=3, rng=0,
                             sharing_search=SharingSearch(route="evidence")), mdp, demos)
     assert (fixed.n_primitives_, fixed.residual_penalty_) == (1, np.inf)
