@@ -49,10 +49,14 @@ SCREEN_TRANSFER_MAX_ITER = 20
 #: transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"evidence"``: k from Minka's evidence of the
 #: flat rewards' PCA (:mod:`~factirl_opt.learners.evidence`, no fit), then the ``"pca"`` route's cheap
 #: scores for that k, half and twice it only (at lambda inf, 1 and 0), the flat model chosen unscored
-#: when no direction is shared or more than half the training tasks of a fold.
+#: when no direction is shared or more than half the training tasks of a fold; ``"approx-loo"``: every
+#: candidate fitted once on every task, each task scored as held out with the dictionary of one
+#: Gauss-Newton step from that fit (:mod:`~factirl_opt.learners.approximate_cv`; ``cv`` unused; the
+#: policy-matching objective on one MDP only).
 ROUTES: dict[str, tuple[str, int | None, int | None]] = {
     "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
     "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
+    "approx-loo": ("approx-loo", None, None),
     "evidence": ("evidence", 0, SCREEN_TRANSFER_MAX_ITER),
 }
 #: the route ``SharingSearch()`` takes
