@@ -83,7 +83,7 @@ from .fitting import resolve_step_solver, task_objective
 from .solver_settings import estimator_solvers
 
 __all__ = ["leave_task_out_dictionaries", "leave_task_out_scores", "check_approximate_cv", "task_curvature_factors",
-           "DAMPING", "CG_TOL", "CG_MAX_ITER"]
+           "DAMPING", "CG_TOL", "CG_MAX_ITER", "CURVATURES"]
 
 #: Levenberg-Marquardt damping of the Newton systems, relative to the mean curvature ``trace(K) / (p k)``
 DAMPING = 1e-3
@@ -91,6 +91,9 @@ DAMPING = 1e-3
 CG_TOL = 1e-6
 #: most conjugate-gradient iterations of the Newton systems
 CG_MAX_ITER = 500
+#: the curvature of the step: the other tasks' (``"leave-out"``, the Newton step of Beirami et al.) or
+#: every task's (``"full"``, the infinitesimal jackknife of Giordano et al.)
+CURVATURES = ("leave-out", "full")
 
 
 def check_approximate_cv(learner: Any, tasks: Any) -> None:
@@ -199,7 +202,7 @@ def _batched_cg(apply: Callable[[NDArray[np.float64]], NDArray[np.float64]], B: 
 def leave_task_out_dictionaries(objective: Any, basis: Any, dictionary: Any, coefficients: Any, residuals: Any = None,
                                 residual_penalty: float = np.inf, *, tasks: Sequence[int] | None = None,
                                 damping: float = DAMPING, tol: float = CG_TOL, max_iter: int = CG_MAX_ITER,
-                                inexact: bool = True) -> NDArray[np.float64]:
+                                inexact: bool = True, curvature: str = "leave-out") -> NDArray[np.float64]:
     """The dictionaries the fit would give without each task, by one Gauss-Newton step from the full fit.
 
     ``D_(-t) = D^ - (K_(-t) + mu I)^(-1) Pi(sum_(i != t) g_i h_i^T)`` (module docstring): ``K_(-t)``
@@ -228,6 +231,14 @@ def leave_task_out_dictionaries(objective: Any, basis: Any, dictionary: Any, coe
         Relative residual at which each task's conjugate gradients stop.
     max_iter : int, default=CG_MAX_ITER
         Most conjugate-gradient iterations.
+    inexact : bool, default=True
+        The gradient of the other tasks at the fit, ``sum_(i != t) g_i h_i^T`` (the step also
+        finishes an inexact fit, Ghosh et al. 2020); False: ``-g_t h_t^T`` alone, as at an exact
+        optimum (``sum_i g_i h_i^T = 0``), so that every task's step is its own influence.
+    curvature : {"leave-out", "full"}, default="leave-out"
+        :data:`CURVATURES`: ``K_(-t)``, the other tasks' curvature (the Newton step), or ``K``,
+        every task's (the infinitesimal jackknife: one system matrix for every task, never
+        singular in a direction only task t constrains).
 
     Returns
     -------
@@ -282,8 +293,11 @@ def leave_task_out_dictionaries(objective: Any, basis: Any, dictionary: Any, coe
     def off_gauge(X):  # X - D D^+ X: no component along {D M}
         return X - D @ (pinv_D @ X)
 
+    if curvature not in CURVATURES:
+        raise ValidationError(f"curvature must be one of {CURVATURES}; got {curvature!r}")
     mask = np.ones((left.size, n))
-    mask[np.arange(left.size), left] = 0.0
+    if curvature == "leave-out":
+        mask[np.arange(left.size), left] = 0.0
 
     def apply(X):  # (K_(-t) + mu I) X_t for every t: sum_(i != t) M_i M_i^T X_t h_i h_i^T
         A = np.einsum("tpk,ik->itp", X, H)  # X_t h_i

@@ -103,12 +103,16 @@ def test_the_curvature_factors_are_the_profiled_gauss_newton_hessian_of_each_tas
             np.testing.assert_allclose(M[i].T @ D, 0.0, atol=1e-9 * np.abs(M[i]).max())  # P_i D = 0: the gauge
 
 
-def test_the_step_is_the_damped_newton_step_off_the_gauge(rng):
+@pytest.mark.parametrize("curvature", ["leave-out", "full"])
+def test_the_step_is_the_damped_newton_step_off_the_gauge(rng, curvature):
     A, b, _ = _linear_problem(seed=1, n=5, p=6, m=4)
     n, p, k = A.shape[0], A.shape[2], 2
     D, H = rng.standard_normal((p, k)), rng.standard_normal((n, k))  # any point: the step of an inexact fit
     objective, damping = LinearObjective(A, b), 1e-2
-    steps = leave_task_out_dictionaries(objective, TabularBasis(2, p // 2), D, H, damping=damping, tol=1e-13)
+    steps = leave_task_out_dictionaries(objective, TabularBasis(2, p // 2), D, H, damping=damping, tol=1e-13,
+                                        curvature=curvature)
+    optimum = leave_task_out_dictionaries(objective, TabularBasis(2, p // 2), D, H, damping=damping, tol=1e-13,
+                                          curvature=curvature, inexact=False)
     r = np.einsum("imp,ip->im", A, H @ D.T) - b
     g = 2.0 * np.einsum("imp,im->ip", A, r)
     M = task_curvature_factors(A, D, np.inf)
@@ -116,10 +120,13 @@ def test_the_step_is_the_damped_newton_step_off_the_gauge(rng):
     mu = damping * np.trace(sum(blocks)) / (p * k)
     off = np.kron(np.eye(k), np.eye(p) - D @ np.linalg.pinv(D))
     for t in range(n):
-        K = sum(blocks[i] for i in range(n) if i != t) + mu * np.eye(p * k)
+        K = sum(blocks[i] for i in range(n) if i != t or curvature == "full") + mu * np.eye(p * k)
         grad = sum(np.outer(g[i], H[i]) for i in range(n) if i != t)
         expected = D - np.linalg.solve(K, off @ grad.T.ravel()).reshape(k, p).T
         np.testing.assert_allclose(steps[t], expected, atol=1e-8 * np.abs(expected).max())
+        # at an exact optimum sum_i g_i h_i^T = 0: the step is task t's own gradient, with the sign it has there
+        expected = D + np.linalg.solve(K, off @ np.outer(g[t], H[t]).T.ravel()).reshape(k, p).T
+        np.testing.assert_allclose(optimum[t], expected, atol=1e-8 * np.abs(expected).max())
         np.testing.assert_allclose(np.linalg.pinv(D) @ (steps[t] - D), 0.0, atol=1e-9)
 
 
@@ -146,6 +153,8 @@ def test_leave_task_out_dictionaries_refuses_bad_inputs(rng):
         leave_task_out_dictionaries(objective, basis, D, H, None, -1.0)
     with pytest.raises(ValidationError, match="damping must be > 0"):
         leave_task_out_dictionaries(objective, basis, D, H, damping=0.0)
+    with pytest.raises(ValidationError, match="curvature must be one of"):
+        leave_task_out_dictionaries(objective, basis, D, H, curvature="diagonal")
     with pytest.raises(ValidationError, match="tasks must be indices"):
         leave_task_out_dictionaries(objective, basis, D, H, tasks=[4])
     objective.least_squares = False
