@@ -11,7 +11,8 @@ residual_penalty="auto")`` transfers its held-out tasks) or ``readme`` (the READ
 :func:`factirl_opt.lab.benchmarks.auto_cost.readme_grid` seed 0: tabular rewards, p = S*A =
 500; ``FactIRL(n_primitives=5, residual_penalty=1.0)`` with its defaults fitted on the 30
 tasks, its 10 new tasks transferred from one demonstration with ``solver="gn-qp-clarabel"`` as
-the README transfers).
+the README transfers), or ``objectworld-32`` (the ``objectworld`` preset: one 32x32 map with
+Levine's p = 217 features, 9 tasks of which 6 train and 3 are transferred, as ``objectworld``).
 
 Each route transfers the same tasks with the same fitted model, ``REPEATS`` times in turn
 (default 3; the median CPU time, ``time.process_time``, is reported):
@@ -44,17 +45,16 @@ ROUTES = {"before": ("stack", "forward"), "eliminate": ("eliminate", "forward"),
           "eliminate + auto Jacobian": ("eliminate", "auto")}
 
 
-def objectworld_point():
+def objectworld_point(preset_name="sharing-objectworld-quick", n=20):
     """(model, mdp, new demonstrations, transfer kwargs, description) of the Objectworld point."""
-    preset = PRESETS["sharing-objectworld-quick"]
-    n = 20
+    preset = PRESETS[preset_name]
     gt = make_ground_truth(preset, n, preset.default_demos, 0)
     held = np.sort(np.random.default_rng(0).permutation(n)[: n // 3])
     train = np.setdiff1d(np.arange(n), held)
     kw = factorial_options(preset, preset.solvers, features=True)
     model = fo.FactIRL(init="pca", rng=0, features=gt.features, **{**kw, "residual_penalty": 1.0})
     model.fit(gt.mdps("train"), [gt.train_demos[i] for i in train])
-    about = {"point": "sharing-objectworld-quick, 20 tasks, seed 0", "train_tasks": train.tolist(),
+    about = {"point": f"{preset_name}, {n} tasks, seed 0", "train_tasks": train.tolist(),
              "held_out_tasks": held.tolist(), "p": int(np.shape(gt.features)[1]), "solver": model.solver}
     return model, gt.mdps("train"), [gt.train_demos[i][:1] for i in held], {"solver": model.solver}, about
 
@@ -73,7 +73,9 @@ def main(argv):
     which = argv[0]
     repeats = int(argv[1]) if len(argv) > 1 else 3
     out_path = argv[2] if len(argv) > 2 else None
-    model, mdp, new_demos, kw, about = {"objectworld": objectworld_point, "readme": readme_point}[which]()
+    points = {"objectworld": objectworld_point, "readme": readme_point,
+              "objectworld-32": lambda: objectworld_point("objectworld", 9)}
+    model, mdp, new_demos, kw, about = points[which]()
     out = {**about, "k": int(model.n_primitives_), "residual_penalty": float(model.residual_penalty_), "repeats": repeats,
            "new_tasks": len(new_demos), "routes": {}}
     times = {name: [] for name in ROUTES}
