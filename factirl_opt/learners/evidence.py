@@ -26,8 +26,8 @@ from .._validation import check_array, check_int
 from ..exceptions import ValidationError
 from ..tasks.task_set import task_set
 
-__all__ = ["MIN_TASKS_PER_PRIMITIVE", "laplace_rank_evidence", "pca_rank_evidence", "flat_start_points", "flat_start_evidence", "evidence_primitives",
-           "evidence_penalties"]
+__all__ = ["MIN_TASKS_PER_PRIMITIVE", "laplace_rank_evidence", "pca_rank_evidence", "flat_start_points",
+           "flat_start_evidence", "evidence_primitives", "evidence_penalties"]
 
 #: eigenvalues below this fraction of the largest are zero (the noise variance never falls below it)
 _RELATIVE_FLOOR = 1e-12
@@ -37,7 +37,8 @@ def laplace_rank_evidence(spectrum: ArrayLike, n_samples: int, max_rank: int | N
     """Minka's Laplace approximation of the log evidence of probabilistic PCA for every rank k.
 
     For the eigenvalues ``l_1 >= ... >= l_d`` of the sample covariance of N points in d
-    dimensions (Minka 2000, eq. 30 with the uniform prior on the subspace, eq. 56):
+    dimensions (Minka 2000: Laplace's method around the maximum-likelihood PPCA, the uniform
+    prior on the subspace U):
 
     .. math::
 
