@@ -42,7 +42,7 @@ def test_the_evidence_does_not_depend_on_the_scale_and_takes_an_exact_rank():
 
 
 def test_the_evidence_of_a_spectrum_is_minkas_formula():
-    """k = 0 is the isotropic model; for k = 1 of a two-value spectrum every term written out (Minka 2000, eq. 30)."""
+    """k = 0 is the isotropic model; for k = 1 of a two-value spectrum every term written out (Minka 2000)."""
     from scipy.special import gammaln
 
     n = 10
