@@ -1,4 +1,4 @@
-"""The ``objectworld`` preset's flat learner on features, test split, under stopping rules side by side.
+"""The ``objectworld`` presets' flat learner on features, test split, under stopping rules side by side.
 
 GradIRL as the harness builds it for ``flat, features`` on the test tasks (the preset's beta,
 flat_max_iter, base features, flat_features_solver, planner, and its pinned ``flat_gtol`` and
@@ -10,6 +10,9 @@ the summed loss, the mean deviation (eq. 13), the fit's status and stop reason, 
 iterations and status (a histogram, from ``solvers.observe_runs``).
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python results/fit-speed/flat_stopping_rules.py preset stol=1e-5
+
+``--preset objectworld-per-task``: every test task on its own map (the features and the
+deviation of each task on its map, as ``flat, features`` of that line-up).
 
 The test split does not depend on the training tasks, so the ground truth is drawn with one
 training task. Run with ``PYTHONPATH`` on a checkout of older code (before the harness moved
@@ -45,16 +48,30 @@ parser.add_argument("--n-test", type=int, default=None, help="test tasks (defaul
 parser.add_argument("--repeats", type=int, default=1)
 parser.add_argument("--seed", type=int, default=0)
 parser.add_argument("--out", default=None, help="write the JSON here")
+parser.add_argument("--preset", default="objectworld", choices=["objectworld", "objectworld-per-task"])
 args = parser.parse_args()
-preset = get_preset("objectworld")
+preset = get_preset(args.preset)
 gt = make_ground_truth(preset, 1, 1, args.seed)
 demos = gt.test_demos if args.n_test is None else gt.test_demos[: args.n_test]
 R_true = gt.test_rewards[: len(demos)]
+if args.preset == "objectworld":
+    mdp, features = gt.mdp, gt.features
+else:  # a map per task: its own features
+    maps = gt.task_maps["test"]
+    mdp, features = list(maps.mdps)[: len(demos)], list(maps.features)[: len(demos)]
+
+
+def mean_deviation(rewards):
+    if args.preset == "objectworld":
+        return float(np.mean(deviation(mdp, R_true, np.asarray(rewards), planner=preset.planner)))
+    return float(np.mean([deviation(mdp[i], R_true[i:i + 1], np.asarray(rewards[i])[None], planner=preset.planner)[0]
+                          for i in range(len(demos))]))
+
 pinned = {f: getattr(preset, "flat_" + f) for f in ("gtol", "stol") if hasattr(preset, "flat_" + f)}
 
 
 def options(variant):
-    kw = dict(beta=preset.beta, features=gt.features, max_iter=preset.flat_max_iter, solver=preset.flat_features_solver,
+    kw = dict(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, solver=preset.flat_features_solver,
               objective="policy-matching", planner=preset.planner, **pinned)
     if variant != "preset":
         kw.update({k: float(v) for k, v in (part.split("=") for part in variant.split(","))})
@@ -70,17 +87,16 @@ for _ in range(args.repeats):
             warnings.simplefilter("ignore")
             c0 = time.process_time()
             if observe_runs is None:
-                model.fit(gt.mdp, demos)
+                model.fit(mdp, demos)
             else:
                 with observe_runs(lambda solver, problem, result, **info: runs.append(result)):
-                    model.fit(gt.mdp, demos)
+                    model.fit(mdp, demos)
             cpu = time.process_time() - c0
-        dev = deviation(gt.mdp, R_true, np.asarray(model.rewards_), planner=preset.planner)
         entry = out.setdefault(variant, dict(cpus_s=[]))
         entry["cpus_s"].append(round(cpu, 2))
         entry.update(options={k: v for k, v in options(variant).items() if k in ("gtol", "stol", "tol")},
                      cpu_s=min(entry["cpus_s"]), n_evaluations=int(model.n_evaluations_), n_iter=int(model.n_iter_),
-                     loss=float(np.sum(model.loss_)), mean_deviation=float(np.mean(dev)), status=model.status_,
+                     loss=float(np.sum(model.loss_)), mean_deviation=mean_deviation(model.rewards_), status=model.status_,
                      reason=model.stop_reason_)
         if runs and getattr(runs[-1], "row_iterations", None) is not None:
             it = runs[-1].row_iterations
@@ -88,7 +104,7 @@ for _ in range(args.repeats):
                          task_iterations_by_ten=dict(sorted(collections.Counter((it // 10 * 10).tolist()).items())),
                          task_status=dict(collections.Counter(runs[-1].row_status.tolist())))
         print(variant, json.dumps(entry), flush=True)
-report = json.dumps(dict(preset="objectworld", split="test", n_tasks=len(demos), seed=args.seed, fits=out), indent=1)
+report = json.dumps(dict(preset=args.preset, split="test", n_tasks=len(demos), seed=args.seed, fits=out), indent=1)
 print(report)
 if args.out:
     with open(args.out + ".tmp", "w") as f:
