@@ -17,6 +17,9 @@ information gain about the coefficients, the D-optimal criterion
 
 the entropy reduction of the Gaussian posterior. It needs one plan, ``d`` right-hand sides and
 ``L`` propagations of the candidates' state distributions per task: no sampling, no MCMC.
+``criterion="value"`` ranks by the expected reduction of the values' posterior variance and
+``criterion="regret"`` by that of the linearised expected regret (:func:`linearised_regret`);
+``demonstrated="skip"`` drops the information of the states already demonstrated.
 """
 
 from __future__ import annotations
@@ -268,10 +271,11 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     n_requests : int, default=1
     candidates : array_like of int (c,), or sequence of n_new such arrays, optional
         Default: every state of each task's MDP.
-    criterion : {"information", "value"}, default="information"
+    criterion : {"information", "value", "regret"}, default="information"
         The expected information gain about the coefficients (:func:`information_gains`,
-        D-optimal), or the expected reduction of the posterior variance of the state values
-        (:func:`value_variance_reductions`).
+        D-optimal), the expected reduction of the posterior variance of the state values
+        (:func:`value_variance_reductions`), or the expected reduction of the linearised regret
+        of acting on the posterior mean (:func:`regret_reductions`).
     policy : {"boltzmann", "greedy"}, default="boltzmann"
         The policy a demonstration from a start is assumed to follow (:func:`demonstrator_policy`):
         the model's stochastic policy at the posterior mean, or its greedy policy.
