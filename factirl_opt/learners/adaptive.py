@@ -343,7 +343,8 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         the candidates are that k, half and twice it
         (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at inf, the largest finite
         lambda and 0 (:func:`~factirl_opt.learners.evidence.evidence_penalties`), scored on
-        every fold, without the bisection; when the evidence finds no shared direction, or more
+        every fold; a shared choice at the smallest (largest) k tried is followed, at its lambda,
+        by half (twice) that k while the choice moves there, then by the bisection below; when the evidence finds no shared direction, or more
         than half the training tasks of a fold, the flat model is chosen unscored (its row has
         NaN scores and no fold). Needs ``flat_rewards``.
         ``"approx-loo"``: no folds (``cv`` unused); each candidate is fitted once on every task and
@@ -571,7 +572,17 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                     run(folds[1:], contenders, warm=warm, reuse=reuse)
             rows = _rows(scores)
             best = choice(rows)
-            while search != "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+            while search == "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+                k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
+                beyond = _beyond(k, [c[0] for c in scores if c[1] == lam], k_max)
+                if not beyond:  # the chosen k is inside the tried ones: the bisection below refines it
+                    break
+                run(folds, [(beyond, lam)], warm=False, reuse=False)
+                rows = _rows(scores)
+                best = choice(rows)
+                if rows[best]["n_primitives"] == k:
+                    break
+            while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
                 between = _between(k, [c[0] for c in scores if c[1] == lam], k_max)
                 if not between:
@@ -678,6 +689,14 @@ def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewar
     shared = [c for c in sharing_candidates(learner, k_max, ks, lams) if c[1] != 0.0] if ks else []
     flat = [c for c in sharing_candidates(learner, k_max, (1,), lams) if c[1] == 0.0]
     return shared + flat or sharing_candidates(learner, k_max, (1,), lams)[:1]
+
+
+def _beyond(k: int, tried: Sequence[int], k_max: int) -> int | None:
+    """The next k of the ``"evidence"`` search past the tried ones: half of ``k`` (rounded up) when it
+    is the smallest tried, twice it when it is the largest, if within ``[1, k_max]`` and not tried;
+    else None."""
+    step = (k + 1) // 2 if k == min(tried) else 2 * k if k == max(tried) else None
+    return step if step is not None and step not in tried and 1 <= step <= k_max else None
 
 
 def _between(k: int, tried: Sequence[int], k_max: int) -> list[int]:

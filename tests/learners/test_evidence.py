@@ -208,3 +208,28 @@ def test_the_evidence_search_needs_the_flat_rewards(data):
     with pytest.raises(ValidationError, match=r"search='evidence' chooses k from the flat start's rewards: give flat_rewards"):
         adaptive.search_sharing(_auto(F), mdp, demos, None, search="evidence")
     assert "evidence" in adaptive.SEARCHES and evidence.__all__
+
+
+def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data, monkeypatch):
+    """The held-out score (scripted) is best at k = 5.4 without residuals; the evidence says 16, so
+    the candidates are 8, 16 and 32: the choice of 8 walks down to 4 (2 is worse), then the
+    bisection finds 5."""
+    mdp, _, _, demos = data
+    noise = np.random.default_rng(0).normal(scale=0.001, size=60)
+
+    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+        for k, lam in candidates:
+            base = 3.0 if lam == 0.0 else 1.0 + (k - 5.4) ** 2 / 100 + (0.0 if lam == np.inf else 0.5)
+            progress.scores.setdefault((k, lam), []).extend(base + noise[held] for held in folds)
+
+    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
+    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(17), 16))
+    learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
+    many = [demos[i % 8] for i in range(60)]  # 40 training tasks a fold, p = 36 rewards
+    found = adaptive.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
+    assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
+    tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
+    assert tried[:3] == [8, 16, 32] and tried[3:5] == [4, 2] and 5 in tried[5:]
+    assert all(len(r["fold_scores"]) == 3 for r in found.rows)
+    assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None
+    assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
