@@ -122,3 +122,27 @@ def test_check_scheme_and_fit_factorial_refuse_the_residual_model(data):
         fo.fit_factorial(mdp, demos, D0, H0, scheme="both")
     with pytest.raises(ValidationError, match="H-solver 'armijo-nonneg'"):
         fo.fit_factorial(mdp, demos, D0, H0, h_solver="armijo-nonneg", scheme="joint")
+
+
+def test_an_interrupted_joint_fit_keeps_its_best_point_in_the_band(data):
+    """Ctrl-C after the second outer iteration: the model keeps the best point seen (the last,
+    the loss never rises), its primitives rescaled into the band as at the end of a fit."""
+    from factirl_opt.exceptions import InterruptedFitWarning
+
+    mdp, _, demos = data
+    D0, H0 = _pca_start(mdp, demos)
+
+    def stop(iteration, total):
+        if iteration == 2:
+            raise KeyboardInterrupt
+
+    model = fo.FactIRL(n_primitives=K, init=(D0, H0), d_solver="lbfgs", max_iter=10, inner_steps=2, tol=0.0, gtol=0.0,
+                       scheme="joint", callback=stop)
+    with pytest.warns(InterruptedFitWarning), pytest.raises(KeyboardInterrupt):
+        model.fit(mdp, demos)
+    assert model.status_ == "interrupted" and model.n_iter_ == 2 and len(model.loss_history_) == 3
+    assert model.loss_.sum() == pytest.approx(min(model.loss_history_), rel=1e-12)
+    norms = np.linalg.norm(model.dictionary_, axis=0)
+    assert np.all((norms >= 0.5 - 1e-9) & (norms <= 2.0 + 1e-9))
+    R = fo.task_rewards(model.dictionary_, model.coefficients_, 9, 4)
+    np.testing.assert_allclose(make_objective(mdp, demos, 5.0).loss_and_grad(R)[0], model.loss_, rtol=1e-10)
