@@ -48,8 +48,8 @@ SCREEN_TRANSFER_MAX_ITER = 20
 #: fold, each its PCA start from the training tasks' flat rewards (no alternating fit), held-out
 #: transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"evidence"``: k from Minka's evidence of the
 #: flat rewards' PCA (:mod:`~factirl_opt.learners.evidence`, no fit), then the ``"pca"`` route's cheap
-#: scores for that k, half and twice it (at lambda inf, 1 and 0), then k halved or doubled past an
-#: edge and bisected around a shared choice, the flat model chosen unscored when no direction is
+#: scores for that k, half and twice it (at lambda inf, 1 and 0), then k halved below the smallest
+#: and bisected around a shared choice, the flat model chosen unscored when no direction is
 #: shared or more than half the training tasks of a fold; ``"approx-loo"``: every
 #: candidate fitted once on every task, each task scored as held out with the dictionary of one
 #: Gauss-Newton step from that fit (:mod:`~factirl_opt.learners.approximate_cv`; ``cv`` unused; the

@@ -231,5 +231,5 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
     assert tried[:3] == [8, 16, 32] and tried[3:5] == [4, 2] and 5 in tried[5:]
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
-    assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None
+    assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None  # only down
     assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
