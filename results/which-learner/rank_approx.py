@@ -37,11 +37,11 @@ from _point import setup  # noqa: E402
 #: from the inexact fit (the library's default), the same assuming an exact optimum (the step is task t's own
 #: gradient only), and the infinitesimal jackknife (every task's curvature, the step task t's gradient); "-damped":
 #: with a larger Levenberg-Marquardt damping (relative to the mean curvature)
-VARIANTS = {"ns-inexact": dict(curvature="leave-out", inexact=True),
-            "ns": dict(curvature="leave-out", inexact=False),
+VARIANTS = {"ns-inexact": dict(curvature="leave-out", inexact=True, damping=1e-3),
+            "ns": dict(curvature="leave-out", inexact=False, damping=1e-3),
             "ns-damped": dict(curvature="leave-out", inexact=False, damping=1.0),
-            "ij": dict(curvature="full", inexact=False),
-            "ij-damped": dict(curvature="full", inexact=False, damping=0.1)}
+            "ij": dict(curvature="full", inexact=False, damping=1e-3),
+            "ij-damped": dict(curvature="full", inexact=False, damping=0.1)}  # the library's default
 
 
 def score(tasks, model, idx):
@@ -104,7 +104,8 @@ def rank(out, exact_path):
     out["spearman"] = {f"{which}/test_deviation": spearman([out["candidates"][c][which] for c in keys], dev)
                        for which in (*VARIANTS, "naive")}
     if exact_path:
-        route, table = next(iter(json.load(open(exact_path))["routes"].items()))
+        route, record = next(iter(json.load(open(exact_path))["routes"].items()))
+        table = record["table"]
         exact = {f"{r['n_primitives']},{float(r['residual_penalty'])}": r["score"] for r in table}
         common = [c for c in keys if c in exact]
         out["exact_route"] = route
