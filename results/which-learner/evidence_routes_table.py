@@ -14,7 +14,7 @@ import sys
 HERE = os.path.dirname(os.path.abspath(__file__))
 print("| point | seed | route | chosen (k, lambda) | test | factorial (k = 5) | ratio | search s | final fit s |")
 print("|---|---|---|---|---|---|---|---|---|")
-for path in sorted(glob.glob(os.path.join(HERE, "diagnostics", "evidence", (sys.argv[1:] or ["routes"])[0], "*.json"))):
+for path in sorted(glob.glob(os.path.join(HERE, "diagnostics", "evidence", (sys.argv[1:] or ["routes"])[0], "routes_*.json"))):
     d = json.load(open(path))
     point = f"{d['preset'].replace('sharing-', '')} {d['n_tasks']}"
     for route, r in d["routes"].items():
