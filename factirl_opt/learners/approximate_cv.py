@@ -54,6 +54,17 @@ al. 2019; ``inexact=False``: task t's gradient ``-g_t h_t^T`` alone; ``damping=0
 ``K`` vanishes on ``{D M}`` (``P_i D = 0``). Those directions change no reward; the right-hand
 sides are projected off them (``X - D D^+ X``), and the step stays off them.
 
+**Measured: it does not rank the candidates well.** On the paper's grid at 20 tasks (seed 2, 13
+candidates; ``results/which-learner/rank_approx.py``) the Spearman correlation of the approximate
+scores with the candidates' test deviations is -0.60 for the default step and 0.16-0.43 for the
+undamped Newton steps and jackknife, against 0.46 for the exact 3-fold scores and 0.61 for the naive
+in-sample scores (the full fit's dictionary, no step); with the exact 3-fold scores at most 0.35. One
+task moves the dictionary far: refits without it from the PCA start land 36-50% (gauge-invariant
+distance) from the full fit, and its held-out score is 1.3 against 0.6-0.8 in sample, a change no
+local step reproduces; the step's error also grows with k (the damped step moves a k = 8 dictionary
+by 44%), which biases the ranking toward small k. The route costs about one fit per candidate
+(26.1x the factorial fit at seed 0, ``results/which-learner/routes.py``).
+
 What is supported: the policy-matching objective (any least-squares objective), tasks on one
 MDP with tabular, state or shared feature rewards, an unconstrained H-solver and a free
 dictionary; anything else raises :class:`~factirl_opt.exceptions.ValidationError`

@@ -53,7 +53,7 @@ SCREEN_TRANSFER_MAX_ITER = 20
 #: shared or more than half the training tasks of a fold; ``"approx-loo"``: every
 #: candidate fitted once on every task, each task scored as held out with the dictionary of one
 #: Gauss-Newton step from that fit (:mod:`~factirl_opt.learners.approximate_cv`; ``cv`` unused; the
-#: policy-matching objective on one MDP only).
+#: policy-matching objective on one MDP only; measured to rank the candidates poorly, see there).
 ROUTES: dict[str, tuple[str, int | None, int | None]] = {
     "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
     "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
