@@ -75,3 +75,57 @@ def test_active_benchmark_requested_strategies_pass_their_options(monkeypatch):
         {"policy": "boltzmann", "criterion": "value", "demonstrated": "skip"},
         {"policy": "greedy", "criterion": "regret"},
         {"policy": "boltzmann", "criterion": "value"}]
+
+
+def _recording_run(monkeypatch, strategy, start, n_tasks=2, max_demos=4):
+    """strategy_run with every strategy's choice replaced by ``start``; the demonstrations each transfer sees."""
+    import factirl_opt as fo
+    from factirl_opt.lab.benchmarks import active
+
+    monkeypatch.setattr(active, "request_starts", lambda model, mdp, demos, n, **kw: [np.array([start]) for _ in demos])
+    monkeypatch.setattr(active, "policy_entropy_starts", lambda posts, *a, **kw: [np.array([start]) for _ in range(n_tasks)])
+    monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
+    mdp = fo.GridWorld(size=4, p_success=0.5)
+    rewards = np.random.default_rng(3).normal(size=(n_tasks, mdp.n_states, mdp.n_actions))
+
+    class Model:
+        transfer_posterior_ = None
+        beta = 1.0
+
+        def __init__(self):
+            self.seen = []
+
+        def transfer(self, mdp, demos, **kw):
+            self.seen.append([d.copy() for d in demos])
+            return self
+
+    class GT:
+        test_demos = fo.sample_demonstrations(mdp, rewards, 1, 6, rng=0)
+        test_rewards = rewards
+
+    model = Model()
+    active.strategy_run(model, GT(), None, mdp, None, n_tasks, strategy, {"max_demos": max_demos}, 0)
+    return model.seen
+
+
+def test_active_benchmark_strategies_requesting_the_same_start_get_the_same_demonstrations(monkeypatch):
+    # common random numbers: the transitions depend on (seed, task, step) only, not on the strategy
+    seen = {st: _recording_run(monkeypatch, st, 5) for st in ("requested", "requested-regret", "entropy")}
+    for st in ("requested-regret", "entropy"):
+        assert len(seen[st]) == len(seen["requested"]) == 4
+        for a, b in zip(seen["requested"], seen[st]):
+            assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    last = seen["requested"][-1]
+    assert all(d.shape[0] == 4 and np.all(d[1:, 0, 0] == 5) for d in last)
+    # the draws differ between steps and tasks (p_success 0.5: a repeated stream would repeat the walk)
+    walks = {tuple(d[j, :, 0]) for d in last for j in range(1, 4)}
+    assert len(walks) > 1
+
+
+def test_active_benchmark_demonstration_generator_depends_on_seed_task_and_step():
+    from factirl_opt.lab.benchmarks.active import demonstration_rng
+
+    draw = lambda *key: demonstration_rng(*key).random(4)  # noqa: E731
+    assert np.array_equal(draw(0, 1, 2), draw(0, 1, 2))
+    keys = [(0, 1, 2), (1, 1, 2), (0, 0, 2), (0, 1, 3)]
+    assert len({tuple(draw(*k)) for k in keys}) == len(keys)

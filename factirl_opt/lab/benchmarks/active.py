@@ -18,7 +18,10 @@ transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP
   entropy (Lopes, Melo & Montesano 2009).
 
 Every demonstration is the greedy expert's of the task's true reward, ``demo_length`` steps from
-the chosen start. Worlds: ``grid`` (the paper's 10x10 grid with ``--grid-preset``'s solvers,
+the chosen start, its random transitions drawn from common random numbers: a generator seeded by
+(seed, task, step) alone (:func:`demonstration_rng`), the same whatever the strategy, so two
+strategies requesting the same start get the same demonstration and the comparison measures the
+strategy, not the draw. Worlds: ``grid`` (the paper's 10x10 grid with ``--grid-preset``'s solvers,
 dictionary learnt from ``--n-train`` training tasks x 10 demonstrations) and
 ``objectworld-per-task-quick`` (a map per task, 8x8, the preset's training tasks). It also
 measures the CPU time (``time.process_time``) of one request for one task (building its
@@ -50,7 +53,7 @@ from ..experiments.presets import PRESETS
 from ..experiments.worlds import make_ground_truth
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "world", "strategy_run", "STRATEGIES", "REQUESTS", "WORLDS", "DEFAULTS"]
+__all__ = ["add_arguments", "run", "world", "strategy_run", "demonstration_rng", "STRATEGIES", "REQUESTS", "WORLDS", "DEFAULTS"]
 
 STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-regret", "requested-value-skip")
 #: the requested strategies' options of ``request_starts`` (``"requested"``: its defaults)
@@ -108,6 +111,19 @@ def _take(x, n):
     return None if x is None else x[:n]
 
 
+#: the first word of the demonstrations' seeds, apart from every other stream of the benchmark
+_DEMO_STREAM = 0x64656D6F
+
+
+def demonstration_rng(seed, task, step):
+    """The generator of the random transitions of test task ``task``'s demonstration added at ``step``.
+
+    Common random numbers: it depends on (``seed``, ``task``, ``step``) only, not on the strategy,
+    so strategies that request the same start at the same step get the same demonstration.
+    ``step`` counts from 1 (the demonstration added after the step-th transfer)."""
+    return np.random.default_rng([_DEMO_STREAM, seed, task, step])
+
+
 def _deviations(model, gt, mdps, n, posts):
     true = gt.test_rewards[:n]
     m = mdps[:n] if isinstance(mdps, list) else mdps
@@ -124,7 +140,9 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
     from the start ``strategy`` (one of :data:`STRATEGIES`) picks; ``policy`` is passed to
     :func:`~factirl_opt.learners.active.request_starts` by the requested strategies, with any other
     ``request_options`` (they replace the strategy's own, :data:`REQUESTS`). Returns a dict of
-    lists: ``deviation``, ``map_deviation`` (posterior mean), ``starts``."""
+    lists: ``deviation``, ``map_deviation`` (posterior mean), ``starts``. The random starts are drawn
+    from the strategy's own generator, the demonstrations' transitions from :func:`demonstration_rng`
+    (common to every strategy)."""
     rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
     demos = [np.asarray(d) for d in gt.test_demos[:n]]
     L = demos[0].shape[1]
@@ -147,7 +165,8 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
             starts = [int(rng.integers(_task_mdp(mdps, i).n_states)) for i in range(n)]
         out["starts"].append(starts)
         for i in range(n):
-            new = sample_demonstrations(_task_mdp(mdps, i), gt.test_rewards[i][None], 1, L, rng=rng, start=starts[i])[0]
+            new = sample_demonstrations(_task_mdp(mdps, i), gt.test_rewards[i][None], 1, L,
+                                        rng=demonstration_rng(seed, i, step), start=starts[i])[0]
             demos[i] = np.concatenate([demos[i], np.asarray(new)], axis=0)
     return out
 
