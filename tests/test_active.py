@@ -253,3 +253,26 @@ def test_regret_criterion_is_the_expected_reduction_of_the_linearised_regret(fit
     starts = request_starts(model, mdp, test.demos, 3, criterion="regret")
     L = len(test.demos[1][0])
     assert starts[1].tolist() == np.argsort(-regret_reductions(post, objective, model.beta, cands, L), kind="stable")[:3].tolist()
+
+
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+def test_factirl_request_starts_passes_criterion_and_demonstrated_through(fitted, objective):
+    mdp, test, models = fitted
+    model = models[objective]
+    S = mdp.n_states
+    for options in ({"criterion": "value"}, {"criterion": "regret", "demonstrated": "skip"},
+                    {"criterion": "information", "demonstrated": "skip", "policy": "greedy"}):
+        got = model.request_starts(mdp, test.demos, S, **options)
+        want = request_starts(model, mdp, test.demos, S, **options)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+    # the options change the ranking (else passing them through would be untested)
+    default = model.request_starts(mdp, test.demos, S)
+    value = model.request_starts(mdp, test.demos, S, criterion="value")
+    skip = model.request_starts(mdp, test.demos, S, demonstrated="skip")
+    assert any(not np.array_equal(d, v) for d, v in zip(default, value))
+    assert any(not np.array_equal(d, k) for d, k in zip(default, skip))
+    with pytest.raises(ValidationError, match="criterion must be one of"):
+        model.request_starts(mdp, test.demos, criterion="entropy")
+    with pytest.raises(ValidationError, match="demonstrated must be one of count, skip; got 'once'"):
+        model.request_starts(mdp, test.demos, demonstrated="once")

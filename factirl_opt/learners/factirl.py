@@ -682,13 +682,14 @@ class FactIRL(Estimator):
         return cached_transfer_posterior(self)
 
     def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
-                       features: Any = None, policy: str = "boltzmann") -> list[NDArray[np.intp]]:
+                       features: Any = None, criterion: str = "information", policy: str = "boltzmann",
+                       demonstrated: str = "count") -> list[NDArray[np.intp]]:
         """Start states to ask a demonstration from, per new task, most informative first.
 
         :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
         tasks of the last ``transfer`` when it was given the same objects, else built here):
-        candidates ranked by the expected information gain about the coefficients of a
-        demonstration from each (D-optimal on the Laplace covariance).
+        candidates ranked by what a demonstration from each is expected to bring, by default the
+        information gain about the coefficients (D-optimal on the Laplace covariance).
 
         Parameters
         ----------
@@ -698,9 +699,17 @@ class FactIRL(Estimator):
             States returned per task.
         candidates : array_like of int, or sequence of n_new of them, optional
             Start states to rank (default: every state).
+        criterion : {"information", "value", "regret"}, default="information"
+            The expected information gain about the coefficients, the expected reduction of the
+            posterior variance of the state values, or the expected reduction of the linearised
+            regret of acting on the posterior mean (docs/maths.md §10).
         policy : {"boltzmann", "greedy"}, default="boltzmann"
             The policy a requested demonstration is assumed to follow: the model's Boltzmann
             (or soft-optimal) policy at the posterior mean, or its greedy policy.
+        demonstrated : {"count", "skip"}, default="count"
+            How a requested demonstration's pairs in states the task's demonstrations already
+            visit count: as the model's likelihood counts them, or not at all (``"skip"``: a
+            deterministic expert repeats its known action there).
 
         Returns
         -------
@@ -709,6 +718,8 @@ class FactIRL(Estimator):
         Raises
         ------
         ValidationError
-            For an unknown ``policy`` (and as :func:`~factirl_opt.learners.active.request_starts`).
+            For an unknown ``criterion``, ``policy`` or ``demonstrated`` (and as
+            :func:`~factirl_opt.learners.active.request_starts`).
         """
-        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features, policy=policy)
+        return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
+                              criterion=criterion, policy=policy, demonstrated=demonstrated)
