@@ -277,3 +277,27 @@ def test_transfer_eliminating_the_residuals_is_the_stacked_transfer(shared):
         model.set_params(solver_options={"ridge": "eliminate"})
         for i in (0, 4):
             np.testing.assert_allclose(eliminated[i], model.transfer(mdp, demos[i:i + 1], max_iter=50)[0], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("given", [True, False])
+def test_no_penalty_starts_at_the_flat_start(shared, given):
+    """residual_penalty=0 is the flat model: with the PCA start, the fit begins at the flat start's own
+    rewards (delta_i = w_i - D h_i), given as flat_rewards or fitted by the model, and never ends above it."""
+    mdp, F, demos = shared
+    flat = fo.GradIRL(features=F, gtol=0.0, stol=0.0, max_iter=200).fit(mdp, demos)
+    model = fo.FactIRL(n_primitives=2, features=F, residual_penalty=0.0, max_iter=5, flat_max_iter=200, rng=0)
+    model.fit(mdp, demos, flat_rewards=flat.rewards_ if given else None)
+    start = model.loss_history_[0]
+    np.testing.assert_allclose(start, flat.loss_.sum(), rtol=1e-6)
+    assert model.loss_.sum() <= start * (1 + 1e-12)
+
+
+def test_weights_from_rewards_inverts_the_basis(shared):
+    """The least-squares weights of rewards built from known weights are those weights; a wrong count is refused."""
+    mdp, F, demos = shared
+    tasks = task_set(mdp, demos, F, "state-action")
+    W = np.random.default_rng(1).standard_normal((len(demos), tasks.basis.n_params))
+    R = tasks.basis.rewards(W)
+    np.testing.assert_allclose(tasks.basis.weights_from_rewards(R, len(demos)), W, atol=1e-10)
+    with pytest.raises(ValidationError, match="one \\(S_i, A\\) array per task"):
+        tasks.basis.weights_from_rewards(R[:2], len(demos))

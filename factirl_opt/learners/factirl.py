@@ -365,7 +365,7 @@ class FactIRL(Estimator):
             raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
-        return basis.start_points(res.coefficients), obj.n_evaluations - ev0
+        return basis.start_points(res.coefficients), obj.n_evaluations - ev0, res.coefficients
 
     def _pca(self, X, basis, rng):
         """The PCA start (D, H) of the flat points X in the basis' metric
@@ -374,11 +374,16 @@ class FactIRL(Estimator):
         :func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`)."""
         return basis.start_dictionary(X, self.n_primitives, rng, pca_dictionary)
 
-    def _pca_init(self, n, basis, flat_rewards, rng, obj):
+    def _pca_init(self, n, basis, flat_rewards, rng, obj, lam):
+        """The PCA start ``(D, H, evaluations, W)``: ``W`` None, or with ``lam = 0`` (the flat model,
+        module :mod:`factirl_opt.learners.factorial`) the flat start's own weights (n, p), from which
+        :meth:`fit` starts the residuals ``delta_i = w_i - D h_i``: the fit begins at the flat model's
+        optimum instead of refitting it from ``delta = 0``."""
         if flat_rewards is None:
-            X, evals = self._flat_start(n, basis, obj, rng)
+            X, evals, W = self._flat_start(n, basis, obj, rng)
         else:
             X, evals = basis.start_points_from_rewards(flat_rewards, n), 0
+            W = basis.weights_from_rewards(flat_rewards, n) if lam == 0 else None
         try:
             D, H = self._pca(X, basis, rng)
         except KeyboardInterrupt as exc:
@@ -399,9 +404,11 @@ class FactIRL(Estimator):
                 raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
             evals += calls
             obj.reset()
-        return D, H, evals
+        return D, H, evals, W if lam == 0 else None
 
-    def _initial(self, n, basis, flat_rewards, rng, obj):
+    def _initial(self, n, basis, flat_rewards, rng, obj, lam=np.inf):
+        """``(D0, H0, evaluations, W)``: the start of the fit (``W``, the flat start's weights, None but
+        for a PCA start at ``lam = 0``: :meth:`_pca_init`)."""
         k, p = self.n_primitives, basis.n_params
         if isinstance(self.init, tuple):
             if len(self.init) != 2:
@@ -410,13 +417,13 @@ class FactIRL(Estimator):
             if D0.shape != (p, k) or H0.shape != (n, k):
                 raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
             check_dictionary_norms(D0, "init D0")
-            return D0.copy(), H0.copy(), 0
+            return D0.copy(), H0.copy(), 0, None
         if isinstance(self.init, str) and self.init == "random":
             D0 = rng.standard_normal((p, k))
             D0 /= np.linalg.norm(D0, axis=0)
-            return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0
+            return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0, None
         if isinstance(self.init, str) and self.init == "pca":
-            return self._pca_init(n, basis, flat_rewards, rng, obj)
+            return self._pca_init(n, basis, flat_rewards, rng, obj, lam)
         raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
 
     def _check_params(self, tasks):
@@ -474,14 +481,15 @@ class FactIRL(Estimator):
         obj = task_objective(tasks, self.beta, self.objective, self.planner)
         try:
             with Execution.of(self).evaluate(obj) as obj:
-                D, H, init_evals = self._initial(obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj)
+                D, H, init_evals, W = self._initial(obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj, lam)
                 if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
                     D, H = orient_nonneg(D, H, self.init == "random")
                 if constraint is not None:
                     D, H = constrained_start(d_solver, D, H, constraint.startswith("nonneg"))
+                Delta = None if W is None else W - residual_weights(D, H, None)  # lam = 0: start at the flat start
                 fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=basis, max_iter=max_iter, inner_steps=inner_steps,
                                     tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
-                                    residual_penalty=lam, scheme=scheme)
+                                    residual_penalty=lam, residuals=Delta, scheme=scheme)
         except FitInterrupted as exc:
             self._store(tasks, exc.result, int(obj.n_evaluations), lam)
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"

@@ -21,7 +21,9 @@ blocks differ (docs/maths.md §8, §8a):
   ``lambda ||delta_i||^2``. The H-step moves ``[h_i, delta_i]`` together with ``solver``
   (unconstrained only), task by task; the D-step as above.
 - ``0``: the residual model without penalty, i.e. the flat model reparametrised: ``fit`` runs
-  the loop above with ``lambda = 0``, but the dictionary plays no part in the rewards, so
+  the loop above with ``lambda = 0`` from the flat start itself (with ``init="pca"``, the
+  residuals start at ``delta_i = w_i - D h_i`` of the flat weights ``w_i``, the flat model's
+  optimum, so the loop stops as soon as it no longer gains), but the dictionary plays no part in the rewards, so
   ``FactIRL.transfer`` fits each new task as the flat learner does, with ``flat_solver``
   (and ``flat_max_iter``, from zero weights) instead of ``solver``
   (:func:`factirl_opt.learners.transfer.run_transfer`). Why another solver there: with

@@ -194,6 +194,12 @@ class RewardBasis(abc.ABC):
     def start_points_from_rewards(self, rewards: Any, n_tasks: int) -> NDArray[np.float64]:
         """:meth:`start_points` of flat rewards given by the user ((n, S, A), or a list of (S_i, A)),
         through their least-squares weights; a ValidationError names a wrong shape."""
+        return self.start_points(self.weights_from_rewards(rewards, n_tasks))
+
+    def weights_from_rewards(self, rewards: Any, n_tasks: int) -> NDArray[np.float64]:
+        """The least-squares weights (n, p) of flat rewards ((n, S, A), or a list of (S_i, A)):
+        ``argmin_w ||Phi_i w - R_i||`` per task (exact where ``R_i`` is in the basis' span, as the
+        rewards of a flat fit on this basis are); a ValidationError names a wrong shape."""
         if len(rewards) != n_tasks:
             raise ValidationError(f"flat_rewards must hold one (S_i, A) array per task ({n_tasks}); got {len(rewards)}")
         out = np.empty((n_tasks, self.n_params))
