@@ -14,8 +14,6 @@ import numpy as np  # noqa: E402
 
 HERE = pathlib.Path(__file__).parent
 FILES = {"grid": "grid.json", "objectworld-per-task-quick": "objectworld-per-task-quick.json"}
-#: later runs of more strategies on the same seeds (their strategies are added to each seed's row)
-MORE = {"grid": "grid-criteria.json", "objectworld-per-task-quick": "objectworld-per-task-quick-criteria.json"}
 COLOURS = {"requested": "C3", "requested-value": "C1", "random": "C0", "entropy": "C2", "requested-regret": "C4",
            "requested-value-skip": "C5"}
 
@@ -26,11 +24,6 @@ def load():
         path = HERE / file
         if path.exists() and path.stat().st_size:
             worlds[name] = json.loads(path.read_text())["worlds"][name]
-            more = HERE / MORE[name]
-            if more.exists() and more.stat().st_size:
-                for seed, row in json.loads(more.read_text())["worlds"][name].items():
-                    for st, curve in row["strategies"].items():
-                        worlds[name][seed]["strategies"].setdefault(st, curve)
     return worlds
 
 
