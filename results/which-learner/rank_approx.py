@@ -2,6 +2,7 @@
 the exact K-fold scores and the candidates' test deviations:
 python rank_approx.py PRESET N SEED OUT.json [EXACT_ROUTES.json]
 python rank_approx.py --rank OUT.json EXACT_ROUTES.json   (the correlations again, of a record already made)
+python rank_approx.py --refits PRESET N SEED OUT.json K TASKS   (e.g. ``2 0,5,10``: exact refits without each task)
 
 For the point's adaptive learner (``_point.setup``) and each of its candidates ``(k, lambda)`` (the search's grid,
 before any bisection): the candidate is fitted once on all the training tasks from the flat start; its test
@@ -122,6 +123,48 @@ def rank(out, exact_path):
     return out
 
 
+def refits(P, k, left):
+    """For the candidate ``(k, inf)`` and each task t of ``left``: the exact refit without t from the others' flat
+    start (as K-fold refits), the refit without t started from the full fit (the local leave-one-out that a step
+    approximates), the full fit (naive) and the default step; the gauge-invariant distance of each dictionary from
+    the full fit's (``min_M ||D' - D M|| / ||D'||``) and task t's held-out score with it."""
+    tasks = task_set(P.mdp, P.demos, P.learner.features, P.learner.reward)
+    n = tasks.n_tasks
+
+    def distance(D, other):
+        M = np.linalg.lstsq(D, other, rcond=None)[0]
+        return float(np.linalg.norm(other - D @ M) / np.linalg.norm(other))
+
+    model = adaptive.fixed_learner(P.learner, k, np.inf)
+    model.fit(P.mdp, P.demos, flat_rewards=P.flat.rewards_)
+    D = model.dictionary_
+    steps = leave_task_out_dictionaries(task_objective(tasks, model.beta, model.objective, model.planner), tasks.basis,
+                                        D, model.coefficients_, tasks=left)
+    out = {"preset": P.preset.name, "n_tasks": n, "seed": int(sys.argv[4]), "n_primitives": k, "tasks": {}}
+    for j, t in enumerate(left):
+        keep = np.setdiff1d(np.arange(n), [t])
+        cold = adaptive.fixed_learner(P.learner, k, np.inf)
+        cold.fit(P.mdp, adaptive.take_tasks(P.demos, keep), flat_rewards=adaptive.take_tasks(P.flat.rewards_, keep))
+        warm = adaptive.fixed_learner(P.learner, k, np.inf, init=(D, model.coefficients_[keep]))
+        warm.fit(P.mdp, adaptive.take_tasks(P.demos, keep))
+        one = copy.copy(model)
+        one.dictionary_ = steps[j]
+        row = {name: {"distance": distance(D, m.dictionary_), "score": float(score(tasks, m, np.array([t]))[0])}
+               for name, m in (("cold_refit", cold), ("warm_refit", warm), ("naive", model), ("step", one))}
+        row["warm_refit"]["status"] = warm.status_
+        row["step"]["distance_to_warm"] = distance(steps[j], warm.dictionary_)
+        out["tasks"][str(t)] = row
+        print(t, row, flush=True)
+    return out
+
+
+if sys.argv[1] == "--refits":
+    P = setup(sys.argv[2:6])
+    path = P.out_path
+    out = refits(P, int(sys.argv[6]), [int(t) for t in sys.argv[7].split(",")])
+    with open(path, "w") as f:
+        json.dump(out, f, indent=1)
+    sys.exit(0)
 if sys.argv[1] == "--rank":
     path, exact_path = sys.argv[2], sys.argv[3]
     out = rank(json.load(open(path)), exact_path)
