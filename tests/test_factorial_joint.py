@@ -146,3 +146,18 @@ def test_an_interrupted_joint_fit_keeps_its_best_point_in_the_band(data):
     assert np.all((norms >= 0.5 - 1e-9) & (norms <= 2.0 + 1e-9))
     R = fo.task_rewards(model.dictionary_, model.coefficients_, 9, 4)
     np.testing.assert_allclose(make_objective(mdp, demos, 5.0).loss_and_grad(R)[0], model.loss_, rtol=1e-10)
+
+
+def test_flat_tol_stops_the_pca_start_earlier_and_is_checked(data):
+    """flat_tol is the start's per-task relative-decrease rule: a loose one ends the flat fit
+    sooner (fewer evaluations, another start); the default is the flat learner's 1e-5."""
+    mdp, _, demos = data
+    kw = dict(n_primitives=K, max_iter=0, flat_max_iter=50, flat_solver="lbfgs", pca_shrink=False, rng=0)
+    tight = fo.FactIRL(**kw).fit(mdp, demos)
+    loose = fo.FactIRL(flat_tol=0.5, **kw).fit(mdp, demos)
+    assert fo.FactIRL().flat_tol == 1e-5 and loose.get_params()["flat_tol"] == 0.5
+    assert loose.n_evaluations_ < tight.n_evaluations_
+    assert loose.loss_history_[0] != tight.loss_history_[0]
+    for bad in (-1.0, np.nan):
+        with pytest.raises(ValidationError, match="flat_tol"):
+            fo.FactIRL(flat_tol=bad, **kw).fit(mdp, demos)

@@ -62,7 +62,8 @@ def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
 
 def test_mce_benchmark_compares_schemes_and_scores_the_training_tasks_on_fresh_maps(capsys):
     out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--flat-solvers", "lbfgs", "--schemes", "default",
-                             "joint", "--n-test-tasks", "0"])
+                             "joint", "--n-test-tasks", "0", "--flat-tol", "1e-3"])
+    assert out["settings"]["flat_tol"] == 1e-3
     fits = out["fits"]
     assert list(fits) == ["mce, flat lbfgs", "mce, flat lbfgs, joint"]
     assert [e["scheme"] for e in fits.values()] == ["default", "joint"] and out["settings"]["schemes"] == ["default", "joint"]
@@ -106,6 +107,7 @@ def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
                                             (["--repeats", "0"], "argument --repeats: must be an integer >= 1; got '0'"),
                                             (["--flat-solvers", "bfgs"], "argument --flat-solvers: invalid choice: 'bfgs'"),
                                             (["--schemes", "both"], "argument --schemes: invalid choice: 'both'"),
+                                            (["--flat-tol", "-1"], "argument --flat-tol"),
                                             (["--n-test-tasks", "-1"], "argument --n-test-tasks"),
                                             (["--blas-threads", "-3"], "argument --blas-threads")])
 def test_mce_benchmark_options_are_checked_by_the_parser(capsys, argv, fragment):

@@ -33,7 +33,8 @@ preset's, the alternation; ``joint``: quasi-Newton steps of the D-step solver on
 coefficients together, :func:`~factirl_opt.learners.factorial.fit_factorial`), keyed
 ``", <scheme>"``. Every entry also scores the training tasks' learnt weights on fresh maps of
 their tasks (``mean_new_maps_deviation``, the experiments' ``new_maps_deviation`` of the train
-split). With ``--n-test-tasks`` (default 10), every fitted
+split). ``--flat-tol`` sets every fit's ``FactIRL(flat_tol=...)``, the tolerance of its flat
+start. With ``--n-test-tasks`` (default 10), every fitted
 model is also transferred (``FactIRL.transfer``, its H-step solver) to that many test tasks, each
 on a new map of its own with one demonstration, and the entry gets their mean deviation
 (``mean_transfer_deviation``) and the transfer's CPU time and evaluations (the planning counts are
@@ -59,7 +60,7 @@ from ...learners.factorial import SCHEMES
 from ...datasets.objectworld import state_action_rewards
 from ...tasks.features import feature_rewards
 from ...planning import CountingPlanner, get_planner
-from ..arguments import integer
+from ..arguments import integer, real
 from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry", "new_maps_deviation"]
@@ -69,7 +70,7 @@ OBJECTIVES = ("policy-matching", "mce")
 DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demos": 32, "length": 16, "n_primitives": 5,
             "max_iter": None, "flat_max_iter": None, "objectives": list(OBJECTIVES), "repeats": 1, "seed": 0,
             "blas_threads": 1, "flat_solvers": ["default"], "h_solvers": ["default"], "schemes": ["default"],
-            "n_test_tasks": 10}
+            "flat_tol": None, "n_test_tasks": 10}
 QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10,
          "n_test_tasks": 2}
 #: the flat solver entry meaning FactIRL's own default
@@ -96,6 +97,7 @@ def add_arguments(parser):
         help="FactIRL H-step solvers compared, a fit per objective, flat solver and H solver ('default': the preset's)")
     opt("--schemes", nargs="+", choices=[DEFAULT_FLAT, *SCHEMES], metavar="NAME",
         help="FactIRL outer schemes compared, a fit per objective, flat solver, H solver and scheme ('default': the preset's)")
+    opt("--flat-tol", type=real(low=0.0), help="tolerance of FactIRL's flat start (None: FactIRL's own, 1e-5)")
     opt("--n-test-tasks", type=integer(0), help="test tasks on new maps (one demonstration each) transferred to; 0: none")
     opt("--seed", type=integer(0), help="seed of the maps and demonstrations")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
@@ -123,9 +125,10 @@ def benchmark_preset(s):
     return dataclasses.replace(preset, **changes)
 
 
-def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT, scheme=DEFAULT_FLAT):
+def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT, scheme=DEFAULT_FLAT,
+             flat_tol=None):
     """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver``, ``scheme``
-    unless ``"default"``): its model, wall time, CPU time and counting planner (the benchmark's unit of
+    unless ``"default"``, ``flat_tol`` unless None): its model, wall time, CPU time and counting planner (the benchmark's unit of
     work; ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
@@ -137,6 +140,8 @@ def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEF
         kw["solver"] = h_solver
     if scheme != DEFAULT_FLAT:
         kw["scheme"] = scheme
+    if flat_tol is not None:
+        kw["flat_tol"] = flat_tol
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -205,7 +210,8 @@ def run(args):
         for _ in range(s["repeats"]):
             for run in runs:
                 name = keys[run]
-                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2], run[3])
+                model, elapsed, cpu, planner = fit_once(preset, gt, run[0], s["seed"] + 1, run[1], run[2], run[3],
+                                                        s["flat_tol"])
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
                 entries[name] = fit_entry(model, elapsed, planner, gt, preset)
