@@ -129,3 +129,26 @@ def test_active_benchmark_demonstration_generator_depends_on_seed_task_and_step(
     assert np.array_equal(draw(0, 1, 2), draw(0, 1, 2))
     keys = [(0, 1, 2), (1, 1, 2), (0, 0, 2), (0, 1, 3)]
     assert len({tuple(draw(*k)) for k in keys}) == len(keys)
+
+
+def test_active_benchmark_random_starts_come_from_start_rng(monkeypatch):
+    from factirl_opt.lab.benchmarks import active
+
+    monkeypatch.setattr(active, "sample_demonstrations", lambda mdp, r, m, L, rng, start: [np.zeros((1, L, 2), int)])
+    monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
+    import factirl_opt as fo
+
+    class Model:
+        transfer_posterior_ = None
+
+        def transfer(self, *a, **k):
+            return self
+
+    class GT:
+        test_demos = [np.zeros((1, 3, 2), dtype=int)] * 3
+        test_rewards = np.zeros((3, 16, 4))
+
+    mdp, s = fo.GridWorld(size=4), {"max_demos": 6}
+    run = lambda **kw: active.strategy_run(Model(), GT(), None, mdp, None, 3, "random", s, 0, **kw)["starts"]  # noqa: E731
+    assert run() == run()
+    assert run(start_rng=np.random.default_rng(7)) == run(start_rng=np.random.default_rng(7)) != run()

@@ -132,7 +132,8 @@ def _deviations(model, gt, mdps, n, posts):
     return np.asarray(dev), (None if dev_map is None else np.asarray(dev_map))
 
 
-def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy="boltzmann", **request_options):
+def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy="boltzmann", start_rng=None,
+                 **request_options):
     """Mean deviations after 1..max_demos demonstrations with starts chosen by ``strategy``.
 
     ``model`` is fitted on the training tasks; the first ``n`` test tasks of ``gt`` (on ``mdps``,
@@ -141,9 +142,9 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
     :func:`~factirl_opt.learners.active.request_starts` by the requested strategies, with any other
     ``request_options`` (they replace the strategy's own, :data:`REQUESTS`). Returns a dict of
     lists: ``deviation``, ``map_deviation`` (posterior mean), ``starts``. The random starts are drawn
-    from the strategy's own generator, the demonstrations' transitions from :func:`demonstration_rng`
-    (common to every strategy)."""
-    rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
+    from ``start_rng`` (default: a generator seeded by ``seed`` and the strategy), the demonstrations'
+    transitions from :func:`demonstration_rng` (common to every strategy)."""
+    rng = np.random.default_rng([seed, STRATEGIES.index(strategy)]) if start_rng is None else start_rng
     demos = [np.asarray(d) for d in gt.test_demos[:n]]
     L = demos[0].shape[1]
     m_list, f_list = (mdps[:n] if isinstance(mdps, list) else mdps), _take(feats, n)
