@@ -57,12 +57,14 @@ sides are projected off them (``X - D D^+ X``), and the step stays off them.
 **Measured: it does not rank the candidates well.** On the paper's grid at 20 tasks (seed 2, 13
 candidates; ``results/which-learner/rank_approx.py``) the Spearman correlation of the approximate
 scores with the candidates' test deviations is -0.60 for the default step and 0.16-0.43 for the
-undamped Newton steps and jackknife, against 0.46 for the exact 3-fold scores and 0.61 for the naive
-in-sample scores (the full fit's dictionary, no step); with the exact 3-fold scores at most 0.35. One
+undamped Newton steps and jackknife, against 0.69 for the exact 3-fold scores and 0.61 for the naive
+in-sample scores (the full fit's dictionary, no step); with the exact 3-fold scores -0.32 to 0.01. One
 task moves the dictionary far: refits without it from the PCA start land 36-50% (gauge-invariant
 distance) from the full fit, and its held-out score is 1.3 against 0.6-0.8 in sample, a change no
-local step reproduces; the step's error also grows with k (the damped step moves a k = 8 dictionary
-by 44%), which biases the ranking toward small k. The route costs about one fit per candidate
+local step reproduces (a refit started from the full fit moves it 3%, and the default step
+predicts that refit's score: 0.84, 1.15, 0.62 against 0.82, 1.15, 0.61 at k = 2). At k = 8 every
+task is fitted exactly (in-sample score 0) and the step moves the dictionary by 33-50%: its error
+grows with k, which biases the ranking toward small k. The route costs about one fit per candidate
 (26.1x the factorial fit at seed 0, ``results/which-learner/routes.py``).
 
 What is supported: the policy-matching objective (any least-squares objective), tasks on one
