@@ -10,8 +10,8 @@ deviation is measured with that fit (``_point.test_deviation``'s protocol: the t
 demonstration); each training task t is transferred from its first demonstration with (a) the one-step
 leave-task-out dictionary ``D_(-t)`` of each of ``VARIANTS`` and (b) the full fit's dictionary (``naive``: no
 correction, the in-sample baseline),
-and scored on its other demonstrations by the search's held-out score (``adaptive._score``, the tempered
-likelihood). Records per candidate the mean scores, the per-task scores, the test deviation and the CPU time of
+and scored on its other demonstrations by the search's held-out score (the tempered likelihood,
+``adaptive.held_out_nll``). Records per candidate the mean scores, the per-task scores, the test deviation and the CPU time of
 the fit, of the step (Jacobians and Newton systems) and of the transfers (``time.process_time``). Spearman
 correlations over the candidates: each score against the test deviations, and against the exact K-fold scores of
 ``EXACT_ROUTES.json`` (a ``routes.py`` record, its first route's table) where given.
@@ -46,7 +46,12 @@ VARIANTS = {"ns-inexact": dict(curvature="leave-out", inexact=True, damping=1e-3
 
 
 def score(tasks, model, idx):
-    return adaptive._score(model, tasks, idx, 1, adaptive.DEFAULT_SCORE, None)
+    """The search's held-out score of tasks ``idx`` (one MDP): transferred from their first demonstration, the
+    tempered likelihood of the others (``adaptive.held_out_nll``, as the search's default score)."""
+    demos = tasks.demos_per_task
+    model.transfer(tasks.mdp, [demos[i][:1] for i in idx])
+    return np.array([adaptive.held_out_nll(tasks.mdp, demos[i][1:], model.transfer_rewards_[j], model)
+                     for j, i in enumerate(idx)])
 
 
 def spearman(a, b):
