@@ -515,6 +515,21 @@ def update_damping(solver: Any, state: Any, acc: NDArray[np.intp], rej: NDArray[
     return retry
 
 
+def trial_every_row(solver: Any, problem: StepProblem, x: NDArray[np.float64], state: Any,
+                    tries: NDArray[np.intp]) -> tuple[NDArray[np.float64], Any, NDArray[np.bool_], NDArray[np.bool_]]:
+    """The ``trial_rows`` of both Gauss-Newton solvers: one ``solver._trial`` of every row on a copy
+    of ``x``, then :func:`update_damping`; a rejected row whose damping may grow and whose ``tries``
+    are below ``solver.max_retries`` is ``pending``. Returns ``(x, state, progressed, pending)``."""
+    n = x.shape[0]
+    x = x.copy()
+    progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    tried = solver._trial(problem, x, state, np.arange(n), progressed)
+    if tried is not None:
+        acc, rej = tried
+        pending[:] = update_damping(solver, state, acc, rej, n) & (np.asarray(tries) < int(solver.max_retries))
+    return x, state, progressed, pending
+
+
 def limit_step(
     x: NDArray[np.float64], z: NDArray[np.float64], max_step_norm: float | None
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

@@ -63,7 +63,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._base import StepProblem, StepSolver, limit_step, row_norms, update_damping
+from ._base import StepProblem, StepSolver, limit_step, row_norms, trial_every_row, update_damping
 from ._blockqp import CONSTRAINTS, DATA_LIMIT, QP_SOLVERS, check_constraint, check_qp_solver, refine_active_set
 from ._validation import (
     check_evaluation,
@@ -590,13 +590,7 @@ class GaussNewtonSolver(StepSolver):
         in this step: ``tries``) is ``pending`` and retries in the next round, so each row's
         trials are those of :meth:`step_rows` while rows at different retries share one batched
         evaluation (:func:`solvers.separable.run_separable`)."""
-        n = x.shape[0]
-        x = x.copy()
-        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        tried = self._trial(problem, x, state, np.arange(n), progressed)
-        if tried is not None:
-            pending[:] = update_damping(self, state, *tried, n) & (np.asarray(tries) < int(self.max_retries))
-        return x, state, progressed, pending
+        return trial_every_row(self, problem, x, state, tries)
 
 
 def _check_tolerance(value: Any, owner: str) -> dict[str, float]:

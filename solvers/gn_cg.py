@@ -36,7 +36,7 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from ._base import StepProblem, StepSolver, limit_step, update_damping
+from ._base import StepProblem, StepSolver, limit_step, trial_every_row, update_damping
 from ._validation import check_evaluation, integer, number, option, optional, validate_fields
 from .exceptions import SolverError, SolverOptionError
 
@@ -419,13 +419,7 @@ class GaussNewtonCGSolver(StepSolver):
     ) -> tuple[NDArray[np.float64], GaussNewtonCGState, NDArray[np.bool_], NDArray[np.bool_]]:
         """One trial of every row, the rounds of :meth:`step_rows` taken one at a time (a
         rejected row that may retry is ``pending``; as :meth:`GaussNewtonSolver.trial_rows`)."""
-        n = x.shape[0]
-        x = x.copy()
-        progressed, pending = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        tried = self._trial(problem, x, state, np.arange(n), progressed)
-        if tried is not None:
-            pending[:] = update_damping(self, state, *tried, n) & (np.asarray(tries) < int(self.max_retries))
-        return x, state, progressed, pending
+        return trial_every_row(self, problem, x, state, tries)
 
     def take_rows(self, state: GaussNewtonCGState, rows: NDArray[np.intp]) -> GaussNewtonCGState:
         """The per-row arrays sliced, and the linearisations of the rows kept."""

@@ -106,18 +106,26 @@ def demonstrator_policy(pi: NDArray[np.float64], policy: str = "boltzmann") -> N
     return greedy
 
 
-def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
-                      length: int, policy: str = "boltzmann", known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
-    """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start,
-    the episode's expected visits under :func:`demonstrator_policy` (``policy``); states where ``known`` (S,) is
-    true add no information (:func:`demonstrated_states`)."""
+def _demonstration_curvature(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                             length: int, policy: str, known: NDArray[np.bool_] | None
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(Lambda, H)``: the posterior precision (d, d), symmetrised, and the expected curvature
+    (c, d, d) a ``length``-step demonstration from each candidate start adds (the episode's expected
+    visits under :func:`demonstrator_policy` times each state's information; none where ``known``)."""
     pl, info, pi = state_information(post, objective, beta)
     if known is not None:
         info = np.where(known[:, None, None], 0.0, info)
     occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
     Lam = np.linalg.inv(post.covariance)
-    Lam = 0.5 * (Lam + Lam.T)
-    H = np.einsum("cy,yde->cde", occ, info)
+    return 0.5 * (Lam + Lam.T), np.einsum("cy,yde->cde", occ, info)
+
+
+def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
+                      length: int, policy: str = "boltzmann", known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
+    """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start,
+    the episode's expected visits under :func:`demonstrator_policy` (``policy``); states where ``known`` (S,) is
+    true add no information (:func:`demonstrated_states`)."""
+    Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
     base = np.linalg.slogdet(Lam)[1]
     return np.linalg.slogdet(Lam[None] + H)[1] - base
 
@@ -188,13 +196,8 @@ def regret_reductions(post: LaplacePosterior, objective: str, beta: float, candi
     """The expected reduction (c,) of the linearised regret (:func:`linearised_regret`) by a ``length``-step
     demonstration from each candidate start: its value at ``Sigma`` minus its value at ``(Lambda + H_s)^-1``,
     ``H_s`` the expected curvature of :func:`information_gains` (the same ``policy`` and ``known``)."""
-    pl, info, pi = state_information(post, objective, beta)
-    if known is not None:
-        info = np.where(known[:, None, None], 0.0, info)
-    occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
-    Lam = np.linalg.inv(post.covariance)
-    Lam = 0.5 * (Lam + Lam.T)
-    after = np.linalg.inv(Lam[None] + np.einsum("cy,yde->cde", occ, info))
+    Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
+    after = np.linalg.inv(Lam[None] + H).astype(np.float64, copy=False)
     gaps, E, rho = regret_terms(post)
     return linearised_regret(gaps, E, rho, post.covariance) - linearised_regret(gaps, E, rho, 0.5 * (after + np.swapaxes(after, 1, 2)))
 
