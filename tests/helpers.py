@@ -97,3 +97,12 @@ def quiet_fit(model, *args):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         return model.fit(*args)
+
+
+def five_dictionary_tasks(rng, grid3, k):
+    """Five tasks on a 3x3 grid whose state-action rewards mix ``k`` random primitives:
+    ``(mdp, rewards (5, 9, 4), demos)`` (4 demonstrations of 6 steps each)."""
+    D = fo.random_dictionary(36, k, rng)
+    H = fo.random_coefficients(5, k, rng=rng)
+    R = fo.task_rewards(D, H, 9, 4)
+    return grid3, R, fo.sample_demonstrations(grid3, R, 4, 6, rng)

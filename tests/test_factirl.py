@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
+from helpers import five_dictionary_tasks
 from factirl_opt.exceptions import NotFittedError, UnknownSolverError, ValidationError
 
 K = 2
@@ -13,10 +14,7 @@ K = 2
 
 @pytest.fixture
 def data(rng, grid3):
-    D = fo.random_dictionary(36, K, rng)
-    H = fo.random_coefficients(5, K, rng=rng)
-    R = fo.task_rewards(D, H, 9, 4)
-    return grid3, R, fo.sample_demonstrations(grid3, R, 4, 6, rng)
+    return five_dictionary_tasks(rng, grid3, K)
 
 
 def assert_non_increasing(history):

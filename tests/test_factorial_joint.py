@@ -6,6 +6,7 @@ import pytest
 import solvers
 
 import factirl_opt as fo
+from helpers import five_dictionary_tasks
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.factorial import _joint_problem, _pack, _unpack, check_scheme
 from factirl_opt.learners.gradirl import make_objective
@@ -16,10 +17,7 @@ K = 2
 
 @pytest.fixture
 def data(rng, grid3):
-    D = fo.random_dictionary(36, K, rng)
-    H = fo.random_coefficients(5, K, rng=rng)
-    R = fo.task_rewards(D, H, 9, 4)
-    return grid3, R, fo.sample_demonstrations(grid3, R, 4, 6, rng)
+    return five_dictionary_tasks(rng, grid3, K)
 
 
 def _pca_start(mdp, demos):
