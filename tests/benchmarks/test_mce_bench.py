@@ -46,10 +46,11 @@ def test_mce_benchmark_one_objective_has_no_ratio(capsys):
 
 
 def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
-    out = run_bench(capsys, ["mce", "--quick", "--flat-solvers", "default", "newton", "--n-test-tasks", "2"])
+    out = run_bench(capsys, ["mce", "--quick", "--flat-solvers", "default", "newton", "--n-test-tasks", "2",
+                             "--repeats", "2"])
     fits = out["fits"]
     assert list(fits) == ["policy-matching", "policy-matching, flat newton", "mce", "mce, flat newton"]
-    assert [e["flat_solver"] for e in fits.values()] == ["default", "newton", "default", "newton"]
+    assert [e["flat_solver"] for e in fits.values()] == ["lbfgs", "newton", "lbfgs", "newton"]
     for e in fits.values():
         assert e["mean_transfer_deviation"] >= 0 and e["transfer_n_evaluations"] > 0 and e["transfer_cpu_s"] >= 0
     assert out["settings"]["flat_solvers"] == ["default", "newton"] and out["settings"]["n_test_tasks"] == 2
@@ -61,15 +62,45 @@ def test_mce_benchmark_compares_flat_solvers_and_transfers_to_new_maps(capsys):
 
 
 def test_mce_benchmark_compares_schemes_and_scores_the_training_tasks_on_fresh_maps(capsys):
-    out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--flat-solvers", "lbfgs", "--schemes", "default",
-                             "joint", "--n-test-tasks", "0", "--flat-tol", "1e-3"])
+    out = run_bench(capsys, ["mce", "--quick", "--objectives", "mce", "--flat-solvers", "armijo", "default", "lbfgs",
+                             "--schemes", "alternating", "default", "joint", "--n-test-tasks", "0", "--flat-tol", "1e-3"])
     assert out["settings"]["flat_tol"] == 1e-3
     fits = out["fits"]
-    assert list(fits) == ["mce, flat lbfgs", "mce, flat lbfgs, joint"]
-    assert [e["scheme"] for e in fits.values()] == ["default", "joint"] and out["settings"]["schemes"] == ["default", "joint"]
-    assert fits["mce, flat lbfgs"]["final_loss"] != fits["mce, flat lbfgs, joint"]["final_loss"]
+    # the preset's fit (an L-BFGS flat start, the joint scheme) is fitted once, under the objective's name
+    assert list(fits) == ["mce, flat armijo, alternating", "mce, flat armijo", "mce, alternating", "mce"]
+    assert [(e["flat_solver"], e["scheme"]) for e in fits.values()] == [("armijo", "alternating"), ("armijo", "joint"),
+                                                                         ("lbfgs", "alternating"), ("lbfgs", "joint")]
+    assert out["settings"]["schemes"] == ["alternating", "default", "joint"]
+    assert out["settings"]["preset_fits"] == {"mce": {"flat_solver": "lbfgs", "scheme": "joint"}}
+    assert fits["mce, alternating"]["final_loss"] != fits["mce"]["final_loss"]
     for e in fits.values():
         assert np.isfinite(e["mean_new_maps_deviation"]) and e["mean_new_maps_deviation"] >= 0
+
+
+def test_mce_benchmark_default_fit_is_the_presets_factirl(monkeypatch):
+    """The default entry fits FactIRL as the preset's line-up does (its flat solver on features, its
+    scheme); an H-step solver the joint scheme refuses alternates instead of failing."""
+    from factirl_opt.lab.experiments.presets import PRESETS
+
+    seen = []
+
+    class SpyFactIRL(fo.FactIRL):
+        def fit(self, *args, **kw):
+            seen.append((self.flat_solver, self.scheme, self.solver))
+            raise RuntimeError("stop")
+
+    monkeypatch.setattr(mce_bench, "FactIRL", SpyFactIRL)
+    preset = PRESETS["objectworld-per-task"]
+    gt = type("GT", (), {"mdps": lambda self, split: [fo.GridWorld(2)], "task_maps": {"train": type("M", (), {"features": []})},
+                         "train_demos": []})()
+    for objective in mce_bench.OBJECTIVES:
+        with pytest.raises(RuntimeError, match="stop"):
+            mce_bench.fit_once(preset, gt, objective, 0)
+    with pytest.raises(RuntimeError, match="stop"):
+        mce_bench.fit_once(preset, gt, "policy-matching", 0, h_solver="gn-qp-clarabel-nonneg")
+    assert seen == [("lbfgs", "joint", "gn-qp-clarabel"), ("lbfgs", "joint", "lbfgs"),
+                    ("lbfgs", "alternating", "gn-qp-clarabel-nonneg")]
+    assert mce_bench.resolved_run(PRESETS["objectworld-per-task-quick"], "mce") == ("lbfgs", "alternating")
 
 
 def test_new_maps_deviation_scores_the_learnt_weights_on_the_fresh_maps(capsys):
@@ -107,6 +138,7 @@ def test_mce_benchmark_refuses_a_preset_without_a_map_per_task(capsys):
                                             (["--repeats", "0"], "argument --repeats: must be an integer >= 1; got '0'"),
                                             (["--flat-solvers", "bfgs"], "argument --flat-solvers: invalid choice: 'bfgs'"),
                                             (["--schemes", "both"], "argument --schemes: invalid choice: 'both'"),
+                                            (["--schemes", "default", "alternate"], "invalid choice: 'alternate'"),
                                             (["--flat-tol", "-1"], "argument --flat-tol"),
                                             (["--n-test-tasks", "-1"], "argument --n-test-tasks"),
                                             (["--blas-threads", "-3"], "argument --blas-threads")])

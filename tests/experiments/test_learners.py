@@ -317,7 +317,7 @@ def test_flat_solver_validation(field, value, error, match):
 
 
 @pytest.mark.parametrize("field, value", [("flat_solver", "lbfgs"), ("flat_features_solver", "lbfgs"), ("fact_tol", 1e-4),
-                                          ("pca_shrink", True), ("flat_stol", 1e-5)])
+                                          ("pca_shrink", True), ("flat_stol", 1e-5), ("fact_scheme", "joint")])
 def test_later_solver_fields_enter_the_fingerprint_only_when_not_the_default(field, value):
     assert dataclasses.replace(TINY, **{field: LATER_FIELDS[field]}).fingerprint() == TINY.fingerprint()
     lbfgs = dataclasses.replace(TINY, **{field: value})
@@ -338,12 +338,48 @@ def test_flat_stopping_rules_reach_every_gradirl(monkeypatch):
             super().__init__(**kw)
 
     monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
-    assert all(p.flat_gtol == p.flat_stol == 0.0 for p in PRESETS.values())
+    pinned = {name: p.flat_stol for name, p in PRESETS.items() if p.flat_gtol or p.flat_stol}
+    assert pinned == {"objectworld": 1e-5, "objectworld-per-task": 1e-5}  # the full-size ELIRL protocol's
     preset = dataclasses.replace(TINY, flat_gtol=1e-4, flat_stol=1e-5)
     run_one(preset, RunSpec(preset.default_tasks, preset.default_demos, 0))
     assert len(seen) >= 2 and set(seen) == {(1e-4, 1e-5)}
     with pytest.raises(ValidationError, match="preset 'x': flat_stol must be"):
         Preset(name="x", flat_stol=-1.0)
+
+
+def test_fact_scheme_reaches_the_factirl_fits_it_applies_to(monkeypatch):
+    """The preset's outer scheme reaches every FactIRL fit whose solvers it applies to; the others
+    alternate, and the substitution is announced (the train rows only: a transfer has no scheme)."""
+    from factirl_opt.lab.experiments import plan_sweep
+    from factirl_opt.lab.experiments.learner_solvers import factorial_scheme
+
+    assert [name for name, p in PRESETS.items() if p.fact_scheme != "alternating"] == ["objectworld", "objectworld-per-task"]
+    seen = []
+
+    class SpyFactIRL(FactIRL):
+        def __init__(self, **kw):
+            seen.append(kw.get("scheme"))
+            super().__init__(**kw)
+
+    monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
+    preset = dataclasses.replace(PRESETS["objectworld-tiny"], fact_scheme="joint", fact_max_iter=2)
+    rec = run_one(preset, plan_runs(preset, [0])[-1])
+    assert len(seen) == 3 and set(seen) == {"joint"}  # factorial, on features, random init: the preset's L-BFGS D-steps
+    assert all(np.isfinite(r["deviation"]) for r in rec["rows"])
+    # a constrained H-step solver, or a D-step solver needing residuals: the alternation
+    for settings in (SolverSettings("gn-qp-clarabel-nonneg", d_solver="lbfgs"), SolverSettings("armijo", d_solver="gn-cg")):
+        assert "scheme" not in factorial_options(preset, settings)
+        assert factorial_scheme(preset, settings)[0] == "alternating"
+    # ... except where the objective replaces it (MCE: gn-cg becomes L-BFGS)
+    assert factorial_options(preset, SolverSettings("armijo", d_solver="gn-cg"), "mce")["scheme"] == "joint"
+    plan = plan_sweep(preset, [0], SolverSettings("gn-qp-clarabel-nonneg", d_solver="lbfgs"))
+    why = "scheme='joint' does not apply to the H-solver 'gn-qp-clarabel-nonneg' with constraint 'nonneg'"
+    assert [s.split(": scheme")[0] for s in plan.substitutions] == [
+        f"train: {n}" for n in ("factorial", "factorial, features", "factorial, features, random init")]
+    assert all(f"scheme 'joint' replaced by 'alternating' ({why}" in s for s in plan.substitutions)
+    assert "scheme" not in factorial_options(TINY, SolverSettings())  # the alternation: FactIRL as it always was
+    with pytest.raises(ValidationError, match="preset 'x': fact_scheme must be one of alternating, joint; got 'both'"):
+        Preset(name="x", fact_scheme="both")
 
 
 def test_pca_shrink_reaches_every_factirl_and_is_validated():

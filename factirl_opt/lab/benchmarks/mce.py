@@ -4,10 +4,14 @@ ELIRL's protocol (Mendez et al. 2018; preset ``objectworld-per-task``): a 32x32 
 every training task on its own map, 32 demonstrations of 16 steps per task, k = 5, the
 learners on each map's feature weights (:mod:`factirl_opt.lab.experiments.per_task`). For each
 ``--objectives`` entry, in one process and on the same draw, one ``FactIRL.fit`` from scratch
-(``init="pca"``: its own flat fit on features, then the alternating fit), with the preset's
-budgets and solvers as the experiment runner builds them
+(``init="pca"``: its own flat fit on features, then the factorial fit), with the preset's
+budgets, solvers and outer scheme as the experiment runner builds them
 (:func:`~factirl_opt.lab.experiments.learner_solvers.factorial_options`: an objective without
-residuals, MCE, takes L-BFGS where the preset names a Gauss-Newton solver).
+residuals, MCE, takes L-BFGS where the preset names a Gauss-Newton solver), and the flat
+start with the solver of the preset's flat fits on features
+(:func:`~factirl_opt.lab.experiments.learner_solvers.flat_features_solver`), as the line-up's
+FactIRL rows start from the ``flat, features`` row's weights. For ``objectworld-per-task``:
+an L-BFGS flat start and the joint scheme.
 
 Prints, per objective: wall time of the fit and the process's CPU time (with one BLAS thread,
 the fit's own work: on a shared machine it does not grow with the other processes' load, the
@@ -21,17 +25,24 @@ matching) and transposed (adjoint) solves, in task systems and in batched calls 
 ``ratio_mce_over_pm`` divides MCE's wall time by policy matching's, ``cpu_ratio_mce_over_pm``
 their CPU times, ``deviation_ratio_mce_over_pm`` their deviations. ``--repeats`` fits each
 objective that many times, alternating, and keeps each one's fastest times (the counts do not
-change between repeats).
+change between repeats; the model of the first is transferred).
 
 ``--flat-solvers`` fits FactIRL once per objective and flat-start solver (FactIRL's
-``flat_solver``: ``default`` is FactIRL's own; e.g. ``lbfgs`` or ``newton``, the second-order
-solver), side by side in the same process on the same draw; entries other than ``default``
-are keyed ``"<objective>, flat <solver>"``; ``--h-solvers`` likewise compares H-step solvers
-(``default``: the preset's, or L-BFGS where it names a Gauss-Newton solver for MCE), keyed
-``", H <solver>"``; ``--schemes`` likewise compares FactIRL's outer schemes (``default``: the
-preset's, the alternation; ``joint``: quasi-Newton steps of the D-step solver on the dictionary and
-coefficients together, :func:`~factirl_opt.learners.factorial.fit_factorial`), keyed
-``", <scheme>"``. Every entry also scores the training tasks' learnt weights on fresh maps of
+``flat_solver``: ``default`` is the preset's, as above; e.g. ``armijo``, FactIRL's own, or
+``newton``, the second-order solver), side by side in the same process on the same draw;
+``--h-solvers`` likewise compares H-step solvers (``default``: the preset's, or L-BFGS where it
+names a Gauss-Newton solver for MCE); ``--schemes`` likewise compares FactIRL's outer schemes
+(``default``: the preset's; ``alternating``, the paper's; ``joint``: quasi-Newton steps of the
+D-step solver on the dictionary and coefficients together,
+:func:`~factirl_opt.learners.factorial.fit_factorial`). An entry is keyed by its objective, then
+by what differs from the preset's fit: ``", flat <solver>"``, ``", H <solver>"``,
+``", <scheme>"``; ``"policy-matching"`` and ``"mce"`` are the preset's fits, and the entries
+naming the same fit twice (``default`` and the preset's solver) are fitted once. The fit
+before the full-size Objectworld presets took L-BFGS flat starts and the joint scheme,
+FactIRL's own Armijo start and the alternation, is ``--flat-solvers armijo default --schemes
+alternating default``'s ``"<objective>, flat armijo, alternating"``. Each entry records its
+flat-start solver and scheme by name (``flat_solver``, ``scheme``) and the H-step solver as
+asked (``h_solver``). Every entry also scores the training tasks' learnt weights on fresh maps of
 their tasks (``mean_new_maps_deviation``, the experiments' ``new_maps_deviation`` of the train
 split). ``--flat-tol`` sets every fit's ``FactIRL(flat_tol=...)``, the tolerance of its flat
 start. With ``--n-test-tasks`` (default 10), every fitted
@@ -52,7 +63,7 @@ import solvers
 from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
-from ..experiments.learner_solvers import factorial_options
+from ..experiments.learner_solvers import factorial_options, factorial_scheme, flat_features_solver
 from ..experiments.presets import PRESETS, get_preset
 from ..experiments.worlds import objectworld_per_task
 from ...learners.factirl import FactIRL
@@ -73,7 +84,7 @@ DEFAULTS = {"preset": "objectworld-per-task", "size": 32, "n_tasks": 10, "n_demo
             "flat_tol": None, "n_test_tasks": 10}
 QUICK = {"size": 8, "n_tasks": 4, "n_demos": 4, "length": 8, "n_primitives": 2, "max_iter": 3, "flat_max_iter": 10,
          "n_test_tasks": 2}
-#: the flat solver entry meaning FactIRL's own default
+#: the entry of ``--flat-solvers``, ``--h-solvers`` and ``--schemes`` meaning the preset's
 DEFAULT_FLAT = "default"
 
 
@@ -92,7 +103,8 @@ def add_arguments(parser):
     opt("--objectives", nargs="+", choices=OBJECTIVES, metavar="NAME", help="objectives fitted, in this order")
     opt("--repeats", type=integer(1), help="fits per objective, alternating; the fastest is kept")
     opt("--flat-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
-        help="FactIRL flat-start solvers compared, a fit per objective and solver ('default': FactIRL's own)")
+        help="FactIRL flat-start solvers compared, a fit per objective and solver ('default': the preset's flat solver "
+             "on features)")
     opt("--h-solvers", nargs="+", choices=[DEFAULT_FLAT, *solvers.available_solvers()], metavar="NAME",
         help="FactIRL H-step solvers compared, a fit per objective, flat solver and H solver ('default': the preset's)")
     opt("--schemes", nargs="+", choices=[DEFAULT_FLAT, *SCHEMES], metavar="NAME",
@@ -125,21 +137,32 @@ def benchmark_preset(s):
     return dataclasses.replace(preset, **changes)
 
 
+def resolved_run(preset, objective, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT, scheme=DEFAULT_FLAT):
+    """The flat-start solver and the scheme of a fit, by name: ``"default"`` is the preset's
+    (:func:`~factirl_opt.lab.experiments.learner_solvers.flat_features_solver`,
+    :func:`~factirl_opt.lab.experiments.learner_solvers.factorial_scheme` with the H-step solver
+    ``h_solver`` unless ``"default"``)."""
+    if flat_solver == DEFAULT_FLAT:
+        flat_solver = flat_features_solver(preset, objective)
+    if scheme == DEFAULT_FLAT:
+        settings = preset.solvers if h_solver == DEFAULT_FLAT else preset.solvers.with_overrides(h_solver=h_solver)
+        scheme = factorial_scheme(preset, settings, objective)[0]
+    return flat_solver, scheme
+
+
 def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEFAULT_FLAT, scheme=DEFAULT_FLAT,
              flat_tol=None):
-    """One FactIRL fit from scratch with ``objective`` (and ``flat_solver``, ``h_solver``, ``scheme``
-    unless ``"default"``, ``flat_tol`` unless None): its model, wall time, CPU time and counting planner (the benchmark's unit of
-    work; ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
+    """One FactIRL fit from scratch with ``objective`` (``flat_solver``, ``h_solver`` and ``scheme``:
+    the preset's where ``"default"``, :func:`resolved_run`; ``flat_tol`` FactIRL's where None): its
+    model, wall time, CPU time and counting planner (the benchmark's unit of work;
+    ``results/mce-speed/profile_fit.py`` and ``results/fit-speed/profile_fit.py`` profile it)."""
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
     kw["planner"] = planner
-    if flat_solver != DEFAULT_FLAT:
-        kw["flat_solver"] = flat_solver
+    kw["flat_solver"], kw["scheme"] = resolved_run(preset, objective, flat_solver, h_solver, scheme)
     if h_solver != DEFAULT_FLAT:
         kw["solver"] = h_solver
-    if scheme != DEFAULT_FLAT:
-        kw["scheme"] = scheme
     if flat_tol is not None:
         kw["flat_tol"] = flat_tol
     model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
@@ -199,10 +222,20 @@ def run(args):
     flats = list(dict.fromkeys(s["flat_solvers"]))
     hs = list(dict.fromkeys(s["h_solvers"]))
     schemes = list(dict.fromkeys(s["schemes"]))
-    runs = [(obj, flat, h, scheme) for obj in objectives for flat in flats for h in hs for scheme in schemes]
-    keys = {run: run[0] + ("" if run[1] == DEFAULT_FLAT else f", flat {run[1]}") + ("" if run[2] == DEFAULT_FLAT else f", H {run[2]}")
-            + ("" if run[3] == DEFAULT_FLAT else f", {run[3]}") for run in runs}
-    entries, times, cpus = {}, {keys[r]: [] for r in runs}, {keys[r]: [] for r in runs}
+    runs, keys = [], {}
+    for obj in objectives:
+        preset_flat, preset_scheme = resolved_run(preset, obj)
+        for flat in flats:
+            for h in hs:
+                for scheme in schemes:
+                    flat_name, scheme_name = resolved_run(preset, obj, flat, h, scheme)
+                    run = (obj, flat_name, h, scheme_name)
+                    if run not in keys:  # "default" and the preset's solver or scheme name one fit
+                        runs.append(run)
+                        keys[run] = (obj + ("" if flat_name == preset_flat else f", flat {flat_name}")
+                                     + ("" if h == DEFAULT_FLAT else f", H {h}")
+                                     + ("" if scheme_name == preset_scheme else f", {scheme_name}"))
+    entries, transfers, times, cpus = {}, {}, {keys[r]: [] for r in runs}, {keys[r]: [] for r in runs}
     with limit_blas_threads(s["blas_threads"]) as threads:
         t0 = time.perf_counter()
         gt = objectworld_per_task(preset, s["n_tasks"], s["n_demos"], s["seed"])
@@ -215,8 +248,9 @@ def run(args):
                 times[name].append(elapsed)
                 cpus[name].append(cpu)
                 entries[name] = fit_entry(model, elapsed, planner, gt, preset)
-                entries[name].update(flat_solver=run[1], h_solver=run[2], scheme=run[3],
-                                     **_transfer(model, gt, preset, s["n_test_tasks"]))
+                if name not in transfers:  # the repeats fit the same model: it is transferred once
+                    transfers[name] = _transfer(model, gt, preset, s["n_test_tasks"])
+                entries[name].update(flat_solver=run[1], h_solver=run[2], scheme=run[3], **transfers[name])
     for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
         entries[name]["cpu_s"], entries[name]["cpus_s"] = min(cpus[name]), cpus[name]
@@ -229,7 +263,8 @@ def run(args):
         out["deviation_ratio_mce_over_pm"] = other["mean_train_deviation"] / d if d > 0 else float("nan")
     settings = {key: s[key] for key in DEFAULTS}
     settings.update(quick=bool(s["quick"]), blas_threads=threads, objectives=objectives, flat_solvers=flats, h_solvers=hs,
-                    schemes=schemes,
+                    schemes=schemes, preset_fits={obj: dict(zip(("flat_solver", "scheme"), resolved_run(preset, obj)))
+                                                  for obj in objectives},
                     fact_max_iter=preset.fact_max_iter, flat_max_iter=preset.flat_max_iter)
     out["settings"] = settings
     return out

@@ -1,10 +1,11 @@
 """Which solvers a learner row of the experiments takes (:mod:`.learners`).
 
 A GradIRL row takes the preset's ``flat_solver`` (tabular rewards) or ``flat_features_solver``
-(rewards on features); a FactIRL row the run's :class:`~factirl_opt.SolverSettings`. A
-Gauss-Newton solver needs residuals: a row on an objective without them (``"mce"``) takes
-:data:`GRADIENT_FALLBACK` instead, and :func:`substitutions` names every such replacement
-before the runs start.
+(rewards on features); a FactIRL row the run's :class:`~factirl_opt.SolverSettings` and the
+preset's ``fact_scheme``. A Gauss-Newton solver needs residuals: a row on an objective without
+them (``"mce"``) takes :data:`GRADIENT_FALLBACK` instead; a FactIRL whose solvers the joint
+scheme does not apply to alternates (:func:`factorial_scheme`). :func:`substitutions` names
+every such replacement before the runs start.
 """
 
 from __future__ import annotations
@@ -14,12 +15,13 @@ from typing import Any
 import solvers
 
 from ...exceptions import ValidationError
+from ...learners.factorial import check_scheme
 from ...learners.gradirl import check_solver_applies
 from ...learners.selection import DEFAULT_ROUTE, SharingSearch
 from ...learners.solver_settings import SolverSettings
 
-__all__ = ["DEFAULT_OBJECTIVE", "GRADIENT_FALLBACK", "SOLVER_ROLES", "flat_solver", "factorial_solvers", "substitutions",
-           "factorial_options"]
+__all__ = ["DEFAULT_OBJECTIVE", "GRADIENT_FALLBACK", "SOLVER_ROLES", "ALTERNATING", "flat_solver", "flat_features_solver",
+           "factorial_solvers", "factorial_scheme", "substitutions", "factorial_options"]
 
 #: the objective of the paper's learners (eq. 5)
 DEFAULT_OBJECTIVE = "policy-matching"
@@ -31,6 +33,12 @@ GRADIENT_FALLBACK = "lbfgs"
 #: which solvers a learner row takes: the preset's ``flat_solver`` (GradIRL, tabular), its
 #: ``flat_features_solver`` (GradIRL on features), or the run's :class:`SolverSettings` (FactIRL)
 SOLVER_ROLES = ("flat", "flat features", "factorial")
+
+#: FactIRL's default outer scheme (the paper's), which every FactIRL takes where the preset's does not apply
+ALTERNATING = "alternating"
+
+#: FactIRL's D-step solver when the settings name none (its ``d_solver`` default)
+_FACTIRL_D_SOLVER = "armijo"
 
 
 def _applies(name: str, options: dict, objective: str) -> bool:
@@ -61,6 +69,13 @@ def flat_solver(learner: Any, preset: Any) -> tuple[str, str | None]:
     return _flat_solver(preset, learner.solvers != "flat", learner.objective)
 
 
+def flat_features_solver(preset: Any, objective: str = DEFAULT_OBJECTIVE) -> str:
+    """The solver of the preset's flat fits on features for ``objective`` (its ``flat_features_solver``,
+    or :data:`GRADIENT_FALLBACK` where that is a Gauss-Newton solver and ``objective`` has no residuals):
+    what a FactIRL's own flat start on features takes to start as the line-up's FactIRL rows do."""
+    return _flat_solver(preset, True, objective)[0]
+
+
 def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[SolverSettings, list[str]]:
     """The solver settings a FactIRL on ``objective`` takes, and notes naming the substitutions.
 
@@ -79,6 +94,28 @@ def factorial_solvers(settings: SolverSettings, objective: str = DEFAULT_OBJECTI
     return (SolverSettings(h, h_opts, d, d_opts) if notes else settings), notes
 
 
+def factorial_scheme(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE) -> tuple[str, str | None]:
+    """The outer scheme a FactIRL on ``objective`` takes (``FactIRL(scheme=...)``), and a note if it is not the preset's.
+
+    The preset's ``fact_scheme``, unless it is ``"joint"`` and the solvers the FactIRL takes
+    (:func:`factorial_solvers`) are ones the joint scheme refuses
+    (:func:`~factirl_opt.learners.factorial.check_scheme`: a constrained H-step solver, or a
+    D-step solver that needs residuals or a Hessian): that FactIRL alternates. Fits of the
+    residual model (the adaptive learner's candidates with a finite penalty) alternate inside
+    FactIRL whatever its scheme.
+    """
+    scheme = preset.fact_scheme
+    if scheme == ALTERNATING:
+        return scheme, None
+    used = factorial_solvers(settings, objective)[0]
+    try:
+        check_scheme(scheme, solvers.get_solver(used.h_solver, **used.h_options),
+                     solvers.get_solver(used.d_solver or _FACTIRL_D_SOLVER, **used.d_options))
+    except ValidationError as exc:
+        return ALTERNATING, f"scheme {scheme!r} replaced by {ALTERNATING!r} ({exc})"
+    return scheme, None
+
+
 def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[str]:
     """Every solver a row of the line-up takes instead of the one the preset or run names.
 
@@ -91,6 +128,8 @@ def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[st
     for lr in lineup.learners:
         if lr.solvers == "factorial":
             notes = factorial_solvers(settings, lr.objective)[1]
+            if lr.split == "train":  # the scheme is the fit's; a transfer has none
+                notes += [note for note in factorial_scheme(preset, settings, lr.objective)[1:] if note]
         else:
             notes = [note for note in flat_solver(lr, preset)[1:] if note]
         out += [f"{lr.split}: {lr.name}: {note}" for note in notes]
@@ -99,10 +138,11 @@ def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[st
 
 def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE,
                       adaptive: bool = False, features: bool = False) -> dict[str, Any]:
-    """Keyword arguments of every FactIRL of a run: the preset's budgets, the run's solver settings.
+    """Keyword arguments of every FactIRL of a run: the preset's budgets and scheme, the run's solver settings.
 
     Solver options and the D-step solver are passed only when the run names them
-    (:meth:`SolverSettings.learner_kwargs`), so a run with the defaults builds exactly the
+    (:meth:`SolverSettings.learner_kwargs`), and the scheme only when it is not the
+    alternation (:func:`factorial_scheme`), so a run with the defaults builds exactly the
     FactIRL it always did; solvers that do not apply to ``objective`` are replaced
     (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
     penalty by validation (``n_primitives="auto", residual_penalty="auto"``,
@@ -121,4 +161,7 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
         if preset.sharing_route != DEFAULT_ROUTE:  # the default search: FactIRL's own, as before the routes existed
             kw["sharing_search"] = SharingSearch(route=preset.sharing_route)
     kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
+    scheme = factorial_scheme(preset, settings, objective)[0]
+    if scheme != ALTERNATING:
+        kw["scheme"] = scheme
     return kw
