@@ -1,4 +1,7 @@
-"""FactIRL(n_primitives="auto", residual_penalty="auto"): k and lambda chosen by validation over tasks."""
+"""FactIRL(n_primitives="auto", residual_penalty="auto"): k and lambda chosen by validation over tasks.
+
+The fits here search by the race (``SharingSearch(route="race")``), which scores the whole grid of
+candidates; the default route, ``"evidence"``, is tested in tests/learners/test_evidence.py."""
 
 import warnings
 
@@ -28,10 +31,14 @@ def _table(model):
     return adaptive.validation_rows(model.cv_results_)
 
 
+#: the search of these tests' "auto" fits
+RACE = fo.SharingSearch(route="race")
+
+
 def _fit(mdp, demos, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        return fo.FactIRL(rng=0, max_iter=4, **kw).fit(mdp, demos)
+        return fo.FactIRL(rng=0, max_iter=4, **{"sharing_search": RACE, **kw}).fit(mdp, demos)
 
 
 @pytest.fixture(scope="module")
@@ -419,7 +426,7 @@ def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monk
         return score(*args, **kw)
 
     monkeypatch.setattr(adaptive, "_score", interrupted)
-    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
+    model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto", sharing_search=RACE)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with pytest.raises(KeyboardInterrupt):
@@ -436,7 +443,7 @@ def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monk
 
     calls.clear()
     monkeypatch.setattr(adaptive, "_score", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
-    model = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto")
+    model = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto", sharing_search=RACE)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with pytest.raises(KeyboardInterrupt):

@@ -105,8 +105,44 @@ def test_share_within_noise_takes_the_candidate_that_shares_most_within_noise():
     # the flat model within noise of the best: kept under either rule
     rows[3] = row(1, 0.0, base + [-0.2, 0.2, -0.1, 0.1, 0.1])
     assert adaptive.choose_row(rows) == adaptive.choose_row(rows, "share-within-noise") == 3
-    with pytest.raises(ValidationError, match=r"rule must be one of \('significant-gain', 'share-within-noise'\); got 'x'"):
+    with pytest.raises(ValidationError, match=r"rule must be one of \('significant-gain', 'share-within-noise', "
+                                              r"'fewest-within-se'\); got 'x'"):
         adaptive.choose_row(rows, "x")
+
+
+def test_fewest_within_se_takes_the_fewest_primitives_within_one_standard_error_at_the_leaders_penalty():
+    def row(k, lam, scores):
+        return {"n_primitives": k, "residual_penalty": lam, "score": float(np.mean(scores)), "score_std": 0.0,
+                "fold_scores": [float(np.mean(scores))], "task_scores": list(scores), "chosen": False}
+
+    base = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    noise = np.array([0.1, -0.1, 0.2, -0.2, 0.1, -0.05])  # mean 0.0083, standard error 0.057
+    rows = [row(6, np.inf, base - 0.05),          # the leader
+            row(8, np.inf, base + noise),         # more primitives within noise: never taken
+            row(5, np.inf, base + noise),         # within one standard error
+            row(3, np.inf, base + 0.1 + noise),   # 0.158 behind, 2.8 standard errors
+            row(2, 1.0, base + noise - 0.02),     # within noise, at another penalty: not compared
+            row(1, 0.0, base + 1.0)]              # the flat model, far behind
+    assert adaptive.choose_row(rows) == 0
+    assert adaptive.choose_row(rows, "fewest-within-se") == 2
+    assert adaptive.choose_row(rows, "share-within-noise") == 2
+    rows[2] = row(5, np.inf, base + 0.06 + noise)  # 1.2 standard errors behind: the leader stays
+    assert adaptive.choose_row(rows, "fewest-within-se") == 0
+    rows[5] = row(1, 0.0, base + noise)  # the flat model within noise of the leader: kept
+    assert adaptive.choose_row(rows, "fewest-within-se") == 5
+
+
+def test_each_route_takes_its_own_rule_unless_one_is_given():
+    from factirl_opt.learners.selection import ROUTE_RULES, route_rule
+
+    assert SharingSearch().route == "evidence" and SharingSearch().rule is None
+    assert route_rule("evidence") == ROUTE_RULES["evidence"] == "fewest-within-se"
+    assert route_rule("race") == route_rule("pca") == adaptive.DEFAULT_RULE == "significant-gain"
+    assert route_rule("evidence", "share-within-noise") == "share-within-noise"
+    with pytest.raises(ValidationError, match=r"route must be one of .*; got 'x'"):
+        route_rule("x")
+    with pytest.raises(ValidationError, match=r"rule must be one of .* or None; got 'y'"):
+        route_rule("race", "y")
 
 
 @pytest.mark.parametrize("params, message", [
@@ -159,8 +195,10 @@ def test_a_preset_runs_its_adaptive_learner_with_its_route():
     from factirl_opt.lab.experiments.presets import PRESETS
 
     grid = PRESETS["sharing-grid"]
-    assert grid.sharing_route == "race"
-    assert "sharing_search" not in factorial_options(grid, fo.SolverSettings(), adaptive=True)
+    assert grid.sharing_route == "evidence" and PRESETS["quick"].sharing_route == "race"
+    assert "sharing_search" not in factorial_options(grid, fo.SolverSettings(), adaptive=True)  # FactIRL's own
+    race = dataclasses.replace(grid, sharing_route="race")
+    assert factorial_options(race, fo.SolverSettings(), adaptive=True)["sharing_search"].route == "race"
     pca = dataclasses.replace(grid, sharing_route="pca")
     assert pca.fingerprint() != grid.fingerprint()  # its runs have keys of their own
     options = factorial_options(pca, fo.SolverSettings(), adaptive=True)

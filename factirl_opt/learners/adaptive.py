@@ -63,7 +63,7 @@ from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
 from .approximate_cv import leave_task_out_scores
-from .evidence import evidence_penalties, evidence_primitives, flat_start_evidence
+from .evidence import evidence_penalties, evidence_primitives, flat_start_evidence, plausible_ranks
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, optimal_q
 from ..tasks.trajectories import parse_demonstrations
@@ -409,8 +409,10 @@ class SearchResult:
 #: choice rules of :func:`search_sharing`: the candidate of best mean score, kept over the flat model only
 #: when its paired gain is significant (``"significant-gain"``); the same, then, among the sharing
 #: candidates whose paired difference with that leader is not significant, the one that shares most
-#: (the largest lambda, then the smallest k; ``"share-within-noise"``)
-RULES = ("significant-gain", "share-within-noise")
+#: (the largest lambda, then the smallest k; ``"share-within-noise"``); or, after the first test, the
+#: fewest primitives at the leader's lambda within one standard error of its paired difference
+#: with the leader (``"fewest-within-se"``, Breiman et al.'s one-standard-error rule on k)
+RULES = ("significant-gain", "share-within-noise", "fewest-within-se")
 #: the rule ``FactIRL.fit`` uses
 DEFAULT_RULE = "significant-gain"
 
@@ -679,13 +681,14 @@ def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewar
     (:func:`~factirl_opt.learners.evidence.flat_start_evidence`,
     :func:`~factirl_opt.learners.evidence.evidence_primitives`) at the penalties of
     :func:`~factirl_opt.learners.evidence.evidence_penalties`, then the flat model (k = 1); when
-    the tasks share little (the evidence's k is 0, or more than half the ``n_train`` training
-    tasks of a fold), the flat model alone (or k = 1 at a fixed lambda)."""
+    the tasks share little (the evidence's k is 0, or a plausible k more than half the ``n_train``
+    training tasks of a fold), the flat model alone (or k = 1 at a fixed lambda)."""
     if flat_rewards is None:
         raise ValidationError("search='evidence' chooses k from the flat start's rewards: give flat_rewards "
                               "(FactIRL.fit computes them with init='pca')")
-    _, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
-    ks, lams = evidence_primitives(rank, k_max, n_train), evidence_penalties(lam_grid)
+    log_evidence, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
+    ks = evidence_primitives(rank, k_max, n_train, largest_plausible=int(plausible_ranks(log_evidence)[-1]))
+    lams = evidence_penalties(lam_grid)
     shared = [c for c in sharing_candidates(learner, k_max, ks, lams) if c[1] != 0.0] if ks else []
     flat = [c for c in sharing_candidates(learner, k_max, (1,), lams) if c[1] == 0.0]
     return shared + flat or sharing_candidates(learner, k_max, (1,), lams)[:1]
@@ -734,7 +737,9 @@ def _choice(rows: list[dict], share_level: float = SHARE_LEVEL, rule: str = DEFA
     (:func:`~factirl_opt.learners.intention_count.one_standard_error_choice`). With
     ``rule="share-within-noise"``, a sharing leader then gives way to the sharing row that shares
     most (largest lambda, then smallest k) among those whose paired difference with it is within
-    the same number of standard errors."""
+    the same number of standard errors; with ``rule="fewest-within-se"``, to the row of fewest
+    primitives at the leader's lambda whose paired difference with it is within one standard
+    error."""
     most = max(len(r["fold_scores"]) for r in rows)
     complete = [r for r in range(len(rows)) if len(rows[r]["fold_scores"]) == most]
     best = min(complete, key=lambda r: rows[r]["score"])
@@ -750,6 +755,10 @@ def _choice(rows: list[dict], share_level: float = SHARE_LEVEL, rule: str = DEFA
     if rule == "share-within-noise" and rows[best]["residual_penalty"] != 0.0:
         near = [r for r in complete if rows[r]["residual_penalty"] != 0.0 and (r == best or within(r, best))]
         return min(near, key=lambda r: (-rows[r]["residual_penalty"], rows[r]["n_primitives"]))
+    if rule == "fewest-within-se" and rows[best]["residual_penalty"] != 0.0:
+        same = sorted((r for r in complete if rows[r]["residual_penalty"] == rows[best]["residual_penalty"]),
+                      key=lambda r: rows[r]["n_primitives"])
+        return same[one_standard_error_choice(-np.array([rows[r]["task_scores"] for r in same]), 1.0)]
     return best
 
 

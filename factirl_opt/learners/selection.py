@@ -29,7 +29,7 @@ from .adaptive import (
 )
 from .estimator import Estimator
 
-__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "SHORT_MAX_ITER", "SCREEN_TRANSFER_MAX_ITER", "cv_results", "validation_rows"]
+__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "ROUTE_RULES", "route_rule", "SHORT_MAX_ITER", "SCREEN_TRANSFER_MAX_ITER", "cv_results", "validation_rows"]
 
 #: outer iterations of each candidate fit on the ``"short"`` route
 SHORT_MAX_ITER = 10
@@ -60,8 +60,29 @@ ROUTES: dict[str, tuple[str, int | None, int | None]] = {
     "approx-loo": ("approx-loo", None, None),
     "evidence": ("evidence", 0, SCREEN_TRANSFER_MAX_ITER),
 }
-#: the route ``SharingSearch()`` takes
-DEFAULT_ROUTE = "race"
+#: the route ``SharingSearch()`` takes: the cheapest that meets the which-learner benchmark's quality
+#: (``results/which-learner/README.md``)
+DEFAULT_ROUTE = "evidence"
+#: the choice rule each route takes when ``SharingSearch(rule=None)`` (the rule it was benchmarked
+#: with); a route not listed takes ``adaptive.DEFAULT_RULE``
+ROUTE_RULES: dict[str, str] = {"evidence": "fewest-within-se"}
+
+
+def route_rule(route: str, rule: str | None = None) -> str:
+    """The choice rule a search on ``route`` takes: ``rule`` if given, else the route's own
+    (:data:`ROUTE_RULES`, else :data:`~factirl_opt.learners.adaptive.DEFAULT_RULE`).
+
+    Raises
+    ------
+    ValidationError
+        An unknown ``route`` or ``rule``.
+    """
+    if route not in ROUTES:
+        raise ValidationError(f"route must be one of {tuple(ROUTES)}; got {route!r}")
+    chosen = ROUTE_RULES.get(route, DEFAULT_RULE) if rule is None else rule
+    if chosen not in RULES:
+        raise ValidationError(f"rule must be one of {RULES} or None; got {rule!r}")
+    return chosen
 
 
 class SharingSearch(Estimator):
@@ -84,12 +105,14 @@ class SharingSearch(Estimator):
         k is bisected around a chosen shared candidate.
     residual_penalty_grid : tuple of float, default=(inf, 1.0, 0.01, 0.0)
         Candidate lambda, from the factorial model (inf) to the flat one (0).
-    route : str, default="race"
+    route : str, default="evidence"
         :data:`ROUTES`: how candidates are fitted and on which folds they are scored.
     score : str, default="likelihood"
         The held-out score (:data:`~factirl_opt.learners.adaptive.SCORES`).
-    rule : str, default="significant-gain"
-        The choice rule (:data:`~factirl_opt.learners.adaptive.RULES`).
+    rule : str or None, default=None
+        The choice rule (:data:`~factirl_opt.learners.adaptive.RULES`); None: the route's own
+        (:func:`route_rule`: ``"fewest-within-se"`` on the ``"evidence"`` route,
+        ``"significant-gain"`` on the others), the one its benchmark figures were measured with.
     n_transfer_demos : int, default=1
         Demonstrations a held-out task is transferred from.
     race_margin : float, default=0.1
@@ -100,7 +123,7 @@ class SharingSearch(Estimator):
 
     def __init__(self, cv: Any = N_FOLDS, *, n_primitives_grid: tuple = K_CANDIDATES,
                  residual_penalty_grid: tuple = LAMBDA_CANDIDATES, route: str = DEFAULT_ROUTE,
-                 score: str = DEFAULT_SCORE, rule: str = DEFAULT_RULE, n_transfer_demos: int = N_TRANSFER_DEMOS,
+                 score: str = DEFAULT_SCORE, rule: str | None = None, n_transfer_demos: int = N_TRANSFER_DEMOS,
                  race_margin: float = RACE_MARGIN, share_level: float = SHARE_LEVEL) -> None:
         self.cv = cv
         self.n_primitives_grid = n_primitives_grid
@@ -118,8 +141,8 @@ class SharingSearch(Estimator):
             raise ValidationError(f"route must be one of {tuple(ROUTES)}; got {self.route!r}")
         if self.score not in SCORES:
             raise ValidationError(f"score must be one of {SCORES}; got {self.score!r}")
-        if self.rule not in RULES:
-            raise ValidationError(f"rule must be one of {RULES}; got {self.rule!r}")
+        if self.rule is not None and self.rule not in RULES:
+            raise ValidationError(f"rule must be one of {RULES} or None; got {self.rule!r}")
         ks = list(self.n_primitives_grid) if isinstance(self.n_primitives_grid, (list, tuple)) else None
         if not ks or any(isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1 for k in ks):
             raise ValidationError(f"n_primitives_grid must be a non-empty tuple of integers >= 1; got {self.n_primitives_grid!r}")
@@ -154,5 +177,5 @@ class SharingSearch(Estimator):
         return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=self.score, cv=self.cv,
                               k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
                               n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
-                              share_level=self.share_level, rule=self.rule, candidate_max_iter=budget,
+                              share_level=self.share_level, rule=route_rule(self.route, self.rule), candidate_max_iter=budget,
                               transfer_max_iter=transfer_budget)

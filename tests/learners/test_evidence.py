@@ -10,6 +10,7 @@ from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.learners import adaptive, evidence
 from factirl_opt.learners.evidence import (
     evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
+    plausible_ranks,
 )
 from factirl_opt.learners.selection import ROUTES, SharingSearch
 
@@ -86,6 +87,12 @@ def test_the_centred_evidence_chooses_as_scikit_learns_pca_mle(seed, n, d, k):
     (lambda: evidence_primitives(-1, 4), r"rank must be an integer >= 0"),
     (lambda: evidence_primitives(2, 0), r"k_max must be an integer >= 1"),
     (lambda: evidence_primitives(2, 4, n_train=0), r"n_train must be an integer >= 1"),
+    (lambda: evidence_primitives(3, 4, n_train=8, largest_plausible=2), r"largest_plausible must be an integer >= 3"),
+    (lambda: plausible_ranks([[0.0, 1.0]]), r"log_evidence must be a 1-d array"),
+    (lambda: plausible_ranks([0.0, np.nan]), r"log_evidence must be a 1-d array .* no NaN"),
+    (lambda: plausible_ranks([-np.inf, -np.inf]), r"with a finite one"),
+    (lambda: plausible_ranks([0.0, 1.0], -1.0), r"log_bayes_factor must be a finite number >= 0; got -1.0"),
+    (lambda: plausible_ranks([0.0, 1.0], np.inf), r"log_bayes_factor must be a finite number >= 0; got inf"),
 ])
 def test_bad_inputs_are_refused(call, message):
     with pytest.raises(ValidationError, match=message):
@@ -101,9 +108,21 @@ def test_the_candidates_are_the_evidences_k_half_and_twice_it_at_three_penalties
     assert evidence_primitives(14, 3) == [3]
     # more primitives than half the training tasks of a fold: the tasks share little, flat
     assert evidence_primitives(4, 8, n_train=8) == [2, 4, 8] and evidence_primitives(5, 8, n_train=9) == []
+    # a plausible rank above half the training tasks: flat too
+    assert evidence_primitives(1, 8, n_train=3) == [1, 2] and evidence_primitives(1, 8, n_train=3, largest_plausible=2) == []
+    assert evidence_primitives(3, 8, n_train=6, largest_plausible=3) == [2, 3, 6]
     assert evidence_penalties((np.inf, 1.0, 0.01, 0.0)) == [np.inf, 1.0, 0.0]
     assert evidence_penalties((0.0, 0.1, 10.0)) == [0.0, 10.0]
     assert evidence_penalties((0.01,)) == [0.01]
+
+
+def test_plausible_ranks_are_within_the_bayes_factor_of_the_best():
+    ev = np.array([0.0, 142.8, 140.0, 128.7, -np.inf])  # best rank 1, rank 2 within e^3
+    assert plausible_ranks(ev).tolist() == [1, 2]
+    assert plausible_ranks(ev, 0.0).tolist() == [1]
+    assert plausible_ranks(ev, 14.1).tolist() == [1, 2] and plausible_ranks(ev, 14.2).tolist() == [1, 2, 3]
+    assert plausible_ranks(ev, evidence.PLAUSIBLE_LOG_BAYES_FACTOR).tolist() == [1, 2]
+    assert plausible_ranks([5.0]).tolist() == [0]
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ demonstrations of 10 steps from a 5-primitive dictionary, ``FactIRL``'s defaults
 against ``"auto"``; 10 new tasks transferred from one demonstration), one process fits, in turn
 and ``--repeats`` times: the fixed learner (k of the preset or 5, ``residual_penalty=inf``, its
 own flat start), and the ``auto`` learner with each search route ``--routes``
-(:data:`factirl_opt.learners.selection.ROUTES`, with the choice rule ``--rule``; the flat start,
+(:data:`factirl_opt.learners.selection.ROUTES`, with the choice rule ``--rule``, by default each route's own; the flat start,
 the search and the final fit). Prints per seed the median CPU time (``time.process_time``:
 this process only, so other load on the machine counts less) of each, their ratio, the ratio
 of the batched linear-solve calls (machine independent; counted by a
@@ -47,8 +47,8 @@ from . import add_option, resolve_settings
 __all__ = ["add_arguments", "run", "fit_auto", "readme_grid"]
 
 GRID_PRESETS = sorted(name for name, p in PRESETS.items() if p.world == "grid")
-DEFAULTS = {"preset": "tiny", "seeds": [0, 1], "repeats": 5, "routes": [DEFAULT_ROUTE, "short", "pca"],
-            "rule": adaptive.DEFAULT_RULE, "blas_threads": 1}
+DEFAULTS = {"preset": "tiny", "seeds": [0, 1], "repeats": 5, "routes": [DEFAULT_ROUTE, "race", "pca"],
+            "rule": None, "blas_threads": 1}
 QUICK = {"seeds": [0], "repeats": 1}
 
 
@@ -61,7 +61,7 @@ def add_arguments(parser):
     opt("--repeats", type=integer(1), help="fits of each learner per seed (the median is reported)")
     opt("--routes", "--searches", dest="routes", choices=list(ROUTES), nargs="+", metavar="NAME",
         help=f"search routes of the auto learner, of {', '.join(ROUTES)}")
-    opt("--rule", choices=adaptive.RULES, help="the choice rule of the auto learner")
+    opt("--rule", choices=adaptive.RULES, help="the choice rule of the auto learner (default: each route's own)")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--readme", action="store_true",
                         help="the README's grid (30 tasks x 10 demonstrations, FactIRL's defaults, k = 5) instead of a preset's")
@@ -69,8 +69,9 @@ def add_arguments(parser):
                         help="tiny configuration for tests; options given explicitly keep their value")
 
 
-def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=adaptive.DEFAULT_RULE):
-    """What ``FactIRL.fit`` does for ``"auto"`` values, with the search ``route`` and ``rule``: the
+def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
+    """What ``FactIRL.fit`` does for ``"auto"`` values, with the search ``route`` and ``rule`` (None:
+    the route's own, :func:`~factirl_opt.learners.selection.route_rule`): the
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
     and its table (the rows of :func:`~factirl_opt.learners.adaptive.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))

@@ -96,6 +96,7 @@ from ...validation import check_bool, check_int, check_probability, check_real
 from ...exceptions import FactIRLError, ValidationError, translate_solver_errors
 from ...planning import available_planners
 from ...learners.factorial import SCHEMES
+from ...learners.selection import DEFAULT_ROUTE
 from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import COEFFICIENT_KINDS
 
@@ -196,8 +197,10 @@ class Preset:
         factorial ones' (:data:`.learners.GRADIENT_FALLBACK`).
     sharing_route : str
         The route of the adaptive learner's search (``FactIRL(sharing_search=SharingSearch(route=...))``,
-        :data:`factirl_opt.learners.selection.ROUTES`): ``"race"``, the default of ``"auto"``,
-        everywhere unless ``bench which-learner --route`` asks for another.
+        :data:`factirl_opt.learners.selection.ROUTES`): ``"race"`` (the route the committed tables
+        of the presets other than ``sharing-*`` were made with), except on the ``sharing-*``
+        presets, which take FactIRL's default route, ``"evidence"``; ``bench which-learner
+        --route`` asks for another.
     fact_scheme : {"alternating", "joint"}
         FactIRL's outer scheme (``FactIRL(scheme=...)``, :func:`factirl_opt.learners.factorial.check_scheme`):
         the paper's alternation, except in the full-size Objectworld presets (``objectworld``,
@@ -490,23 +493,29 @@ PRESETS = {
     ),
 }
 
+#: the search route of the sharing presets' adaptive learner: FactIRL's default (the other presets
+#: keep the race their committed tables were made with)
+_SHARING_ROUTE = DEFAULT_ROUTE
 #: "which learner when": flat, factorial (the preset's k) and the adaptive learner
 #: (k and the residual penalty chosen by validation), 3 seeds, on the paper's grid at 5, 20 and
 #: 100 training tasks, on both quick Objectworld presets, on BabyAI GoToLocal and GoToOpen
 SHARING_PRESETS = ("sharing-grid", "sharing-objectworld-quick", "sharing-objectworld-per-task-quick", "sharing-babyai",
                    "sharing-babyai-large")
 PRESETS.update({
-    "sharing-grid": Preset(name="sharing-grid", lineup="sharing", demos_sweep=(10,), tasks_sweep=(5, 20, 100)),
+    "sharing-grid": Preset(name="sharing-grid", lineup="sharing", demos_sweep=(10,), tasks_sweep=(5, 20, 100),
+                           sharing_route=_SHARING_ROUTE),
     "sharing-objectworld-quick": dataclasses.replace(PRESETS["objectworld-quick"], name="sharing-objectworld-quick",
-                                                     lineup="objectworld-sharing"),
+                                                     lineup="objectworld-sharing", sharing_route=_SHARING_ROUTE),
     "sharing-objectworld-per-task-quick": dataclasses.replace(PRESETS["objectworld-per-task-quick"],
                                                               name="sharing-objectworld-per-task-quick",
-                                                              lineup="objectworld-per-task-sharing"),
+                                                              lineup="objectworld-per-task-sharing",
+                                                              sharing_route=_SHARING_ROUTE),
     "sharing-babyai": dataclasses.replace(PRESETS["babyai"], name="sharing-babyai", lineup="babyai-sharing",
-                                          tasks_sweep=(10, 30), default_tasks=30),
+                                          tasks_sweep=(10, 30), default_tasks=30, sharing_route=_SHARING_ROUTE),
     "sharing-babyai-large": dataclasses.replace(PRESETS["babyai-large"], name="sharing-babyai-large",
-                                                lineup="babyai-sharing", tasks_sweep=(10,), default_tasks=10, n_seeds=3),
-    "sharing-tiny": dataclasses.replace(PRESETS["tiny"], name="sharing-tiny", lineup="sharing"),
+                                                lineup="babyai-sharing", tasks_sweep=(10,), default_tasks=10, n_seeds=3,
+                                                sharing_route=_SHARING_ROUTE),
+    "sharing-tiny": dataclasses.replace(PRESETS["tiny"], name="sharing-tiny", lineup="sharing", sharing_route=_SHARING_ROUTE),
 })
 
 
