@@ -252,3 +252,18 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
     assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None  # only down
     assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
+
+
+def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatch):
+    """FactIRL's "auto" without a search of its own: the evidence route's candidates, chosen by the
+    fewest-within-se rule."""
+    mdp, F, _, demos = data
+    _forced_rank(monkeypatch, 2)
+    default = fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=F, max_iter=3, rng=0)
+    model = _fit(default, mdp, demos)
+    rows = adaptive.validation_rows(model.cv_results_)
+    assert sorted((r["n_primitives"], r["residual_penalty"]) for r in rows) == [
+        (1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0), (2, np.inf), (4, 1.0), (4, np.inf)]
+    chosen = next(r for r in rows if r["chosen"])
+    assert rows.index(chosen) == adaptive.choose_row(rows, "fewest-within-se")
+    assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
