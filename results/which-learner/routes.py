@@ -1,4 +1,4 @@
-"""Search routes side by side on one which-learner point: python routes.py PRESET N SEED OUT.json [ROUTE ...]
+"""Search routes side by side on one which-learner point: python routes.py PRESET N SEED OUT.json [--same-folds] [ROUTE ...]
 
 For the point's adaptive learner (``_point.setup``: the runner's line-up, its flat start and rng), each
 route of ``SharingSearch`` (default: every route of ``selection.ROUTES``) chooses ``(k, lambda)``; the
@@ -8,7 +8,12 @@ from one demonstration (``_point.test_deviation``). Records per route the CPU ti
 factorial fit with the preset's k from the same flat start (the benchmark's ``auto_cost_ratio``
 compares the adaptive fit with that one: ratio = (search + final fit) / factorial fit, flat start
 excluded on both sides).
+
+Each search draws its folds from the learner's rng, so without ``--same-folds`` the second route's
+folds are another permutation than the first's; with it, every route starts from the rng's state
+before the first route (the same folds and candidate starts as a route run first or alone).
 """
+import copy
 import json
 import os
 import sys
@@ -23,8 +28,10 @@ import numpy as np  # noqa: E402
 import factirl_opt as fo  # noqa: E402
 
 P = setup(sys.argv[1:5])
-routes = sys.argv[5:] or list(ROUTES)
-out = {"preset": P.preset.name, "n_tasks": P.n, "seed": int(sys.argv[3]), "routes": {}}
+same_folds = "--same-folds" in sys.argv[5:]
+routes = [a for a in sys.argv[5:] if a != "--same-folds"] or list(ROUTES)
+rng0 = copy.deepcopy(P.learner.rng)
+out = {"preset": P.preset.name, "n_tasks": P.n, "seed": int(sys.argv[3]), "same_folds": same_folds, "routes": {}}
 
 
 def fit_and_transfer(k, lam):
@@ -42,6 +49,8 @@ t_fact, dev_fact = fit_and_transfer(P.preset.n_primitives, np.inf)
 out["factorial"] = {"n_primitives": P.preset.n_primitives, "cpu_s": t_fact, "test_deviation": dev_fact}
 print("factorial", out["factorial"], flush=True)
 for route in routes:
+    if same_folds:
+        P.learner.set_params(rng=copy.deepcopy(rng0))
     learner = P.learner.set_params(sharing_search=SharingSearch(route=route))
     t0 = time.process_time()
     found = learner.sharing_search.search(learner, P.mdp, P.demos, P.flat.rewards_)
