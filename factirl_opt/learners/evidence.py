@@ -273,7 +273,8 @@ def evidence_primitives(rank: int, k_max: int, n_train: int | None = None, *,
                         largest_plausible: int | None = None) -> list[int]:
     """The numbers of primitives the ``"evidence"`` route scores for the evidence's best ``rank``.
 
-    ``ceil(rank / 2)``, ``rank`` and ``2 rank``, each at most ``k_max``: on the which-learner
+    ``ceil(rank / 2)``, ``rank`` and ``2 rank``, each at most ``k_max`` and, given ``n_train``, at
+    most ``n_train / MIN_TASKS_PER_PRIMITIVE`` (two training tasks a primitive): on the which-learner
     benchmark the evidence of the flat rewards misses the k that transfers best by up to a
     factor of 2 either way (``results/which-learner/diagnostics/evidence/``): 3 or 4 on the grid
     with 20 tasks (true k 5; (4, 1) to (8, 1) transfer best), 14 or 15 with 100 tasks (k = 5
@@ -317,7 +318,8 @@ def evidence_primitives(rank: int, k_max: int, n_train: int | None = None, *,
         return []
     if rank == 0:
         return []
-    return sorted({min(k_max, k) for k in ((rank + 1) // 2, rank, 2 * rank)})
+    top = k_max if n_train is None else min(k_max, n_train // MIN_TASKS_PER_PRIMITIVE)
+    return sorted({min(top, k) for k in ((rank + 1) // 2, rank, 2 * rank)})
 
 
 def evidence_penalties(lam_grid: Sequence[float]) -> list[float]:

@@ -107,10 +107,12 @@ def test_the_candidates_are_the_evidences_k_half_and_twice_it_at_three_penalties
     assert evidence_primitives(14, 8) == [7, 8]
     assert evidence_primitives(14, 3) == [3]
     # more primitives than half the training tasks of a fold: the tasks share little, flat
-    assert evidence_primitives(4, 8, n_train=8) == [2, 4, 8] and evidence_primitives(5, 8, n_train=9) == []
+    assert evidence_primitives(4, 8, n_train=16) == [2, 4, 8] and evidence_primitives(5, 8, n_train=9) == []
+    assert evidence_primitives(4, 8, n_train=8) == [2, 4]  # 2k capped at two training tasks a primitive
     # a plausible rank above half the training tasks: flat too
-    assert evidence_primitives(1, 8, n_train=3) == [1, 2] and evidence_primitives(1, 8, n_train=3, largest_plausible=2) == []
-    assert evidence_primitives(3, 8, n_train=6, largest_plausible=3) == [2, 3, 6]
+    assert evidence_primitives(1, 8, n_train=3) == [1] and evidence_primitives(1, 8, n_train=3, largest_plausible=2) == []
+    assert evidence_primitives(1, 8, n_train=4) == [1, 2]  # at most two training tasks a primitive
+    assert evidence_primitives(3, 8, n_train=12, largest_plausible=3) == [2, 3, 6]
     assert evidence_penalties((np.inf, 1.0, 0.01, 0.0)) == [np.inf, 1.0, 0.0]
     assert evidence_penalties((0.0, 0.1, 10.0)) == [0.0, 10.0]
     assert evidence_penalties((0.01,)) == [0.01]
@@ -182,12 +184,13 @@ def test_the_evidence_route_scores_its_k_half_and_twice_it_from_pca_starts(data,
     fits = _forced_rank(monkeypatch, 2)
     model = _fit(_auto(F), mdp, demos)  # lambda = 0.01 is not scored
     res = model.cv_results_
+    # 2k = 4 capped at 2: two of the 5 training tasks of a fold a primitive
     assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0),
-                                                                       (2, np.inf), (4, 1.0), (4, np.inf)]
+                                                                       (2, np.inf)]
     assert np.all(res["n_splits_scored"] == 3) and np.all(np.isfinite(res["mean_test_score"]))
     candidates = fits[1:-1]  # the auto fit itself first, the final fit last
     assert candidates and all(max_iter == 0 for _, _, max_iter in candidates)  # PCA starts only, no bisection
-    assert {k for k, _, _ in candidates} <= {1, 2, 4}
+    assert {k for k, _, _ in candidates} <= {1, 2}
     assert (model.n_primitives_, model.residual_penalty_) in {tuple(p.values()) for p in res["params"]}
 
 
@@ -212,14 +215,14 @@ def test_little_shared_chooses_the_flat_model_without_a_fit(data, monkeypatch, t
 
 def test_the_evidence_route_reads_k_from_the_data(data):
     """Unforced, from the true rewards as the flat start: two primitives exactly, so the evidence's k
-    is 2 and the candidates' k are 1, 2 and 4, and the flat model."""
+    is 2 and the candidates' k are 1 and 2 (4 is more than half the 5 training tasks of a fold), and
+    the flat model."""
     mdp, F, R, demos = data
     assert flat_start_evidence(fo.FactIRL(features=F), mdp, demos, R)[1] == 2
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         model = _auto(F, residual_penalty_grid=(np.inf, 0.0)).fit(mdp, demos, flat_rewards=R)
-    assert sorted(map(tuple, (p.values() for p in model.cv_results_["params"]))) == [(1, 0.0), (1, np.inf), (2, np.inf),
-                                                                                      (4, np.inf)]
+    assert sorted(map(tuple, (p.values() for p in model.cv_results_["params"]))) == [(1, 0.0), (1, np.inf), (2, np.inf)]
 
 
 def test_the_evidence_search_needs_the_flat_rewards(data):
@@ -231,8 +234,8 @@ def test_the_evidence_search_needs_the_flat_rewards(data):
 
 def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data, monkeypatch):
     """The held-out score (scripted) is best at k = 5.4 without residuals; the evidence says 16, so
-    the candidates are 8, 16 and 32: the choice of 8 walks down to 4 (2 is worse), then the
-    bisection finds 5."""
+    the candidates are 8, 16 and 20 (32 capped at half the 40 training tasks of a fold): the choice
+    of 8 walks down to 4 (2 is worse), then the bisection finds 5."""
     mdp, _, _, demos = data
     noise = np.random.default_rng(0).normal(scale=0.001, size=60)
 
@@ -248,7 +251,7 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     found = adaptive.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
     assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
     tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
-    assert tried[:3] == [8, 16, 32] and tried[3:5] == [4, 2] and 5 in tried[5:]
+    assert tried[:3] == [8, 16, 20] and tried[3:5] == [4, 2] and 5 in tried[5:]
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
     assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None  # only down
     assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
@@ -263,7 +266,7 @@ def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatc
     model = _fit(default, mdp, demos)
     rows = adaptive.validation_rows(model.cv_results_)
     assert sorted((r["n_primitives"], r["residual_penalty"]) for r in rows) == [
-        (1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0), (2, np.inf), (4, 1.0), (4, np.inf)]
+        (1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0), (2, np.inf)]
     chosen = next(r for r in rows if r["chosen"])
     assert rows.index(chosen) == adaptive.choose_row(rows, "fewest-within-se")
     assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
