@@ -163,6 +163,7 @@ for name, v in routes.items():
                            "rho_route": rho([r["score"] for r in rc], d), "rho_exact": rho(ex, d),
                            "rho_route_exact": rho([r["score"] for r in rc], ex)}
     print(name, {x: y for x, y in out["routes"][name].items() if x != "candidates"}, flush=True)
+out["exact_score"] = {c: r["score"] for c, r in exact.items()}  # with those scored for the routes above
 with open(P.out_path + ".tmp", "w") as f:
     json.dump(out, f, indent=1, default=float)
 os.replace(P.out_path + ".tmp", P.out_path)
