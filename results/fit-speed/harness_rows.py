@@ -28,7 +28,7 @@ import warnings
 import numpy as np
 
 import factirl_opt as fo
-from factirl_opt.lab.benchmarks.mce import _transfer, new_maps_deviation
+from factirl_opt.lab.benchmarks.mce import new_maps_deviation, transfer_entry
 from factirl_opt.lab.experiments.learner_solvers import factorial_options, flat_features_solver
 from factirl_opt.lab.experiments.presets import get_preset
 from factirl_opt.lab.experiments.worlds import objectworld_per_task
@@ -65,7 +65,7 @@ def record(name, model, cpu, transfer):
                  mean_new_maps_deviation=new_maps_deviation(Weights(np.asarray(weights)) if weights is not None else model,
                                                             gt, preset))
     if transfer:
-        entry.update(_transfer(model, gt, preset, args.n_test))
+        entry.update(transfer_entry(model, gt, preset, args.n_test))
     else:
         entry["reason"] = model.stop_reason_
     out[name] = entry

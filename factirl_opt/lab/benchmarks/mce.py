@@ -74,7 +74,8 @@ from ...planning import CountingPlanner, get_planner
 from ..arguments import integer, real
 from . import add_option, resolve_settings
 
-__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "fit_once", "fit_entry", "new_maps_deviation"]
+__all__ = ["add_arguments", "run", "OBJECTIVES", "benchmark_preset", "resolved_run", "fit_once", "fit_entry",
+           "transfer_entry", "new_maps_deviation"]
 
 #: the objectives compared (policy matching the reference of the ratios)
 OBJECTIVES = ("policy-matching", "mce")
@@ -172,7 +173,7 @@ def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEF
     return model, time.perf_counter() - t0, time.process_time() - c0, planner
 
 
-def _transfer(model, gt, preset, n_test):
+def transfer_entry(model, gt, preset, n_test):
     """Mean deviation of the model's transfer to the first ``n_test`` test tasks (each on its own
     map), the transfer's CPU time and evaluations; an empty dict without test tasks."""
     if n_test == 0:
@@ -249,7 +250,7 @@ def run(args):
                 cpus[name].append(cpu)
                 entries[name] = fit_entry(model, elapsed, planner, gt, preset)
                 if name not in transfers:  # the repeats fit the same model: it is transferred once
-                    transfers[name] = _transfer(model, gt, preset, s["n_test_tasks"])
+                    transfers[name] = transfer_entry(model, gt, preset, s["n_test_tasks"])
                 entries[name].update(flat_solver=run[1], h_solver=run[2], scheme=run[3], **transfers[name])
     for name in entries:
         entries[name]["time_s"], entries[name]["times_s"] = min(times[name]), times[name]
