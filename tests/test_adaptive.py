@@ -61,7 +61,7 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
     # others; the flat model always is (unless it is the only contender left: then it is the choice)
     assert [r["chosen"] for r in rows].count(True) == 1
     chosen = next(r for r in rows if r["chosen"])
-    assert rows.index(chosen) == adaptive._choice(rows)
+    assert rows.index(chosen) == adaptive.choose_row(rows)
     assert (auto.n_primitives_, auto.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
     lead = min(r["fold_scores"][0] for r in rows)
     contenders = [r for r in rows if r["fold_scores"][0] <= lead + adaptive.RACE_MARGIN * abs(lead)
@@ -102,7 +102,7 @@ def test_sharing_must_beat_the_flat_model_significantly():
     # a row scored on fewer folds (pruned in a race) is never chosen
     rows = _rows(flat, flat - 5.0)
     rows[1]["fold_scores"] = rows[1]["fold_scores"] * 2
-    assert adaptive._choice(rows) == 1
+    assert adaptive.choose_row(rows) == 1
 
 
 def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkeypatch):
@@ -131,12 +131,12 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
 
 
 def test_the_bisection_steps_between_tried_numbers_of_primitives():
-    assert adaptive._between(8, [1, 2, 4, 8, 16], 67) == [6, 12]
-    assert adaptive._between(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]
-    assert adaptive._between(4, [1, 2, 4, 8], 5) == [3]          # 6 is beyond k_max
-    assert adaptive._between(16, [1, 2, 4, 8, 16], 20) == [12]   # never beyond the tried range
-    assert adaptive._between(1, [1, 2], 5) == []
-    assert adaptive._between(5, [4, 5, 6], 9) == []
+    assert adaptive.bisection_midpoints(8, [1, 2, 4, 8, 16], 67) == [6, 12]
+    assert adaptive.bisection_midpoints(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]
+    assert adaptive.bisection_midpoints(4, [1, 2, 4, 8], 5) == [3]          # 6 is beyond k_max
+    assert adaptive.bisection_midpoints(16, [1, 2, 4, 8, 16], 20) == [12]   # never beyond the tried range
+    assert adaptive.bisection_midpoints(1, [1, 2], 5) == []
+    assert adaptive.bisection_midpoints(5, [4, 5, 6], 9) == []
 
 
 def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):

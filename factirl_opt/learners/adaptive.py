@@ -71,7 +71,7 @@ from ..tasks.trajectories import parse_demonstrations
 __all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "N_FOLDS", "N_TRANSFER_DEMOS", "SEARCHES", "DEFAULT_SEARCH",
            "SCORES", "DEFAULT_SCORE", "SHARE_LEVEL", "RULES", "DEFAULT_RULE", "held_out_occupancy_gap",
            "RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "choose_row", "search_sharing", "SearchResult", "SearchProgress",
-           "score_candidates", "sharing_candidates", "max_primitives", "task_folds", "take_tasks", "task_subset",
+           "score_candidates", "score_rows", "bisection_midpoints", "sharing_candidates", "max_primitives", "task_folds", "take_tasks", "task_subset",
            "task_mdp", "fixed_learner", "flat_start_rewards", "held_out_nll", "cv_results", "validation_rows",
            "rows_cv_results", "check_cv_results", "CV_RESULTS_KEYS", "plot_validation"]
 
@@ -572,7 +572,7 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                               if np.mean(scores[c][0]) <= lead + race_margin * abs(lead) or c[1] == 0.0]
                 if len(contenders) > 1:  # else the flat model alone is left: it is the choice, scored on one fold
                     run(folds[1:], contenders, warm=warm, reuse=reuse)
-            rows = _rows(scores)
+            rows = score_rows(scores)
             best = choice(rows)
             while search == "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
@@ -580,17 +580,17 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                 if not beyond:  # the chosen k is inside the tried ones: the bisection below refines it
                     break
                 run(folds, [(beyond, lam)], warm=False, reuse=False)
-                rows = _rows(scores)
+                rows = score_rows(scores)
                 best = choice(rows)
                 if rows[best]["n_primitives"] == k:
                     break
             while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-                between = _between(k, [c[0] for c in scores if c[1] == lam], k_max)
+                between = bisection_midpoints(k, [c[0] for c in scores if c[1] == lam], k_max)
                 if not between:
                     break
                 run(folds, [(m, lam) for m in between], warm=False, reuse=False)
-                rows = _rows(scores)
+                rows = score_rows(scores)
                 best = choice(rows)
                 if rows[best]["n_primitives"] == k:
                     break
@@ -651,11 +651,11 @@ class SearchProgress:
         """Fill ``rows`` and ``kept`` from what was done; returns self."""
         fitted = {c: v for c, v in self.scores.items() if c in self.fits}
         if fitted:
-            rows = _rows(fitted)
+            rows = score_rows(fitted)
             best = rows[_choice(rows)]
             pair = (best["n_primitives"], best["residual_penalty"])
             self.kept = (pair, self.fits[pair], self.train_tasks[pair])
-            self.rows = _rows(self.scores)
+            self.rows = score_rows(self.scores)
             for row in self.rows:
                 row["chosen"] = (row["n_primitives"], row["residual_penalty"]) == pair
         elif self.last is not None and hasattr(self.last[1], "dictionary_"):
@@ -664,9 +664,10 @@ class SearchProgress:
         return self
 
 
-def _rows(scores: dict) -> list[dict]:
-    """The validation table of ``{(k, lambda): [per-task scores of each fold]}`` (a candidate chosen
-    unscored, with no fold: NaN scores)."""
+def score_rows(scores: dict) -> list[dict]:
+    """The validation table of ``{(k, lambda): [per-task scores of each fold]}`` (as
+    :func:`score_candidates` returns them), one row per candidate in the dict's order, as
+    :func:`choose_row` takes it (a candidate chosen unscored, with no fold: NaN scores)."""
     return [{"n_primitives": k, "residual_penalty": lam,
              "score": float(np.mean(np.concatenate(per_fold))) if per_fold else np.nan,
              "score_std": float(np.std([np.mean(f) for f in per_fold])) if per_fold else np.nan,
@@ -705,7 +706,7 @@ def _beyond(k: int, tried: Sequence[int], k_max: int) -> int | None:
     return step if step is not None and step not in tried and 1 <= step <= k_max else None
 
 
-def _between(k: int, tried: Sequence[int], k_max: int) -> list[int]:
+def bisection_midpoints(k: int, tried: Sequence[int], k_max: int) -> list[int]:
     """The midpoints between ``k`` and its nearest tried neighbours, rounded down, not tried yet and
     at most ``k_max``: the next step of a bisection of the number of primitives around the chosen
     one (never beyond the tried range)."""

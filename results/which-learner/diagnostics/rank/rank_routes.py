@@ -20,7 +20,7 @@ For each route, over the candidates it scored on every fold (``n``):
 The race (``route="race"``) is derived, not run: its candidates are fitted and scored as the full route's (no
 warm start, no budget), so its table is the full route's restricted to the grid candidates within
 ``RACE_MARGIN`` of the best on the first fold (and the flat model), which are scored on every fold, the others on
-the first fold only; then the choice rule (``adaptive._choice``) and the bisection of k (``adaptive._between``),
+the first fold only; then the choice rule (``adaptive.choose_row``) and the bisection of k (``adaptive.bisection_midpoints``),
 the bisected candidates' exact scores taken from the full table or scored here. Its scores are the exact ones,
 so its ``rho_route`` is ``rho_exact`` over its candidates. (The race's flat model takes another candidate's fit
 instead of its own; its transfer does not use the dictionary, so its score is the full route's flat fit's.)
@@ -92,7 +92,7 @@ def score_exactly(cands):
     todo = [c for c in cands if key(*c) not in exact]
     if todo:
         scores = adaptive.score_candidates(S, P.mdp, P.demos, P.flat.rewards_, folds, todo)
-        for row in adaptive._rows(scores):
+        for row in adaptive.score_rows(scores):
             exact[key(row["n_primitives"], row["residual_penalty"])] = row
             scored_here.append(key(row["n_primitives"], row["residual_penalty"]))
             print("exact", row["n_primitives"], row["residual_penalty"], row["score"], flush=True)
@@ -102,7 +102,7 @@ def score_exactly(cands):
 # check: the cheapest grid candidate of the full table scored again
 grid = adaptive.sharing_candidates(S, k_max)
 probe = grid[0]
-again = adaptive._rows(adaptive.score_candidates(S, P.mdp, P.demos, P.flat.rewards_, folds, [probe]))[0]
+again = adaptive.score_rows(adaptive.score_candidates(S, P.mdp, P.demos, P.flat.rewards_, folds, [probe]))[0]
 check = {"candidate": list(probe), "max_abs_diff": float(np.max(np.abs(np.subtract(again["task_scores"],
                                                                                  exact[key(*probe)]["task_scores"]))))}
 print("check", check, flush=True)
@@ -116,18 +116,18 @@ race_scores = {}
 for c in grid:
     per_task = np.split(np.asarray(first[key(*c)]["task_scores"]), np.cumsum(sizes)[:-1])
     race_scores[c] = list(per_task) if len(contenders) > 1 and c in contenders else per_task[:1]
-rows = adaptive._rows(race_scores)
-best = adaptive._choice(rows)
+rows = adaptive.score_rows(race_scores)
+best = adaptive.choose_row(rows)
 while P.learner.n_primitives == adaptive.AUTO and rows[best]["residual_penalty"] != 0.0:
     k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-    between = adaptive._between(k, [c[0] for c in race_scores if c[1] == lam], k_max)
+    between = adaptive.bisection_midpoints(k, [c[0] for c in race_scores if c[1] == lam], k_max)
     if not between:
         break
     for row in score_exactly([(m, lam) for m in between]):
         race_scores[row["n_primitives"], row["residual_penalty"]] = np.split(np.asarray(row["task_scores"]),
                                                                              np.cumsum(sizes)[:-1])
-    rows = adaptive._rows(race_scores)
-    best = adaptive._choice(rows)
+    rows = adaptive.score_rows(race_scores)
+    best = adaptive.choose_row(rows)
     if rows[best]["n_primitives"] == k:
         break
 rows[best]["chosen"] = True
