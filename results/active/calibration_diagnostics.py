@@ -33,12 +33,19 @@ def regrets(post, R):
     return np.maximum(best - pl.system(pols).solve(R_pi).mean(axis=1), 0.0)
 
 
-def main(seed, n_samples=200):
+def transferred_model(seed):
+    """``bench active``'s model for ``seed``: FactIRL on the ``fast`` preset's 100 training tasks x 10
+    demonstrations, each of its test tasks transferred from its one demonstration; and the ground truth."""
     preset = PRESETS["fast"]
     gt = make_ground_truth(preset, 100, 10, seed)
     model = fo.FactIRL(init="pca", rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
     model.fit(gt.mdp, gt.train_demos)
     model.transfer(gt.mdp, gt.test_demos)
+    return gt, model
+
+
+def main(seed, n_samples=200):
+    gt, model = transferred_model(seed)
     posts = model.transfer_posterior_
     dev = np.asarray(fo.deviation(gt.mdp, gt.test_rewards, np.stack([p.mean_rewards() for p in posts])))
     norm = np.linalg.norm(np.asarray(gt.test_rewards).reshape(len(posts), -1), axis=1)

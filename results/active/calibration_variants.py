@@ -27,11 +27,9 @@ import numpy as np
 from scipy.stats import spearmanr
 
 import factirl_opt as fo
-from factirl_opt.lab.experiments.learner_solvers import factorial_options
-from factirl_opt.lab.experiments.presets import PRESETS
-from factirl_opt.lab.experiments.worlds import make_ground_truth
 from factirl_opt.learners.posterior import (LaplacePosterior, coefficient_prior, demonstration_curvature,
                                             laplace_posteriors, transfer_problem)
+from calibration_diagnostics import transferred_model  # this directory is on sys.path when run as a script
 
 
 def distinct_pairs(demos_per_task):
@@ -55,11 +53,7 @@ def noise_level(problem, x, n_distinct, n_actions):
 
 
 def main(seed, n_samples=200):
-    preset = PRESETS["fast"]
-    gt = make_ground_truth(preset, 100, 10, seed)
-    model = fo.FactIRL(init="pca", rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
-    model.fit(gt.mdp, gt.train_demos)
-    model.transfer(gt.mdp, gt.test_demos)
+    gt, model = transferred_model(seed)
     out = {"seed": seed, "n_samples": n_samples, "count": scores(gt, model.transfer_posterior_, n_samples, seed)}
     prior = coefficient_prior(model.coefficients_)
     once = distinct_pairs(gt.test_demos)
