@@ -43,6 +43,22 @@ def test_active_benchmark_options_are_checked_by_the_parser(capsys, argv, fragme
     assert fragment in capsys.readouterr().err
 
 
+class _StubModel:
+    """A fitted model for ``strategy_run`` whose transfers do nothing."""
+    transfer_posterior_ = None
+
+    def transfer(self, *a, **k):
+        return self
+
+
+class _StubTruth:
+    """A ground truth for ``strategy_run``: ``n_tasks`` test tasks of one 3-step demonstration from state 0, zero rewards."""
+
+    def __init__(self, n_tasks, mdp):
+        self.test_demos = [np.zeros((1, 3, 2), dtype=int)] * n_tasks
+        self.test_rewards = np.zeros((n_tasks, mdp.n_states, mdp.n_actions))
+
+
 def test_active_benchmark_requested_strategies_pass_their_options(monkeypatch):
     from factirl_opt.lab.benchmarks import active
 
@@ -55,22 +71,12 @@ def test_active_benchmark_requested_strategies_pass_their_options(monkeypatch):
     monkeypatch.setattr(active, "request_starts", fake)
     monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
 
-    class Model:
-        transfer_posterior_ = None
-
-        def transfer(self, *a, **k):
-            return self
-
-    class GT:
-        test_demos = [np.zeros((1, 3, 2), dtype=int)]
-        test_rewards = np.zeros((1, 4, 4))
-
     import factirl_opt as fo
     mdp = fo.GridWorld(size=2)
-    s = {"max_demos": 2}
-    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested-value-skip", s, 0)
-    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested-regret", s, 0, policy="greedy")
-    active.strategy_run(Model(), GT(), None, mdp, None, 1, "requested", s, 0, criterion="value")
+    s, gt = {"max_demos": 2}, _StubTruth(1, mdp)
+    active.strategy_run(_StubModel(), gt, None, mdp, None, 1, "requested-value-skip", s, 0)
+    active.strategy_run(_StubModel(), gt, None, mdp, None, 1, "requested-regret", s, 0, policy="greedy")
+    active.strategy_run(_StubModel(), gt, None, mdp, None, 1, "requested", s, 0, criterion="value")
     assert [{k: v for k, v in kw.items() if k != "features"} for kw in seen] == [
         {"policy": "boltzmann", "criterion": "value", "demonstrated": "skip"},
         {"policy": "greedy", "criterion": "regret"},
@@ -138,17 +144,8 @@ def test_active_benchmark_random_starts_come_from_start_rng(monkeypatch):
     monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
     import factirl_opt as fo
 
-    class Model:
-        transfer_posterior_ = None
-
-        def transfer(self, *a, **k):
-            return self
-
-    class GT:
-        test_demos = [np.zeros((1, 3, 2), dtype=int)] * 3
-        test_rewards = np.zeros((3, 16, 4))
-
     mdp, s = fo.GridWorld(size=4), {"max_demos": 6}
-    run = lambda **kw: active.strategy_run(Model(), GT(), None, mdp, None, 3, "random", s, 0, **kw)["starts"]  # noqa: E731
+    run = lambda **kw: active.strategy_run(_StubModel(), _StubTruth(3, mdp), None, mdp, None, 3, "random", s, 0,  # noqa: E731
+                                           **kw)["starts"]
     assert run() == run()
     assert run(start_rng=np.random.default_rng(7)) == run(start_rng=np.random.default_rng(7)) != run()
