@@ -7,24 +7,12 @@ import sys
 import time
 
 sys.path.insert(0, "results/which-learner")
-import numpy as np  # noqa: E402
-
-import factirl_opt as fo  # noqa: E402
 from factirl_opt.learners import adaptive  # noqa: E402
 from factirl_opt.learners.selection import SharingSearch  # noqa: E402
-from _point import setup  # noqa: E402
+from _point import setup, test_deviation  # noqa: E402
 
 P = setup(sys.argv[1:5])
 budget = int(sys.argv[5])
-
-
-def test_deviation(k, lam):
-    m = adaptive.fixed_learner(P.learner, k, lam)
-    m.fit(P.mdp, P.demos, flat_rewards=P.flat.rewards_)
-    m.transfer(P.gt.mdps("test"), P.test_demos, features=P.Fte)
-    return float(np.mean(fo.deviation(P.gt.mdps("test"), P.gt.rewards("test"), m.transfer_rewards_,
-                                      planner=P.preset.planner)))
-
 
 t0 = time.process_time()
 found = SharingSearch().search(P.learner, P.mdp, P.demos, P.flat.rewards_)
@@ -41,6 +29,6 @@ if lam != 0.0:
     out["confirm"] = {"chosen": [rows[best]["n_primitives"], rows[best]["residual_penalty"]],
                       "cpu_s": time.process_time() - t0,
                       "rows": [(r["n_primitives"], r["residual_penalty"], r["score"]) for r in rows]}
-    out["test_deviation"] = {f"{m},{lam}": test_deviation(m, lam) for m, _ in trio}
+    out["test_deviation"] = {f"{m},{lam}": test_deviation(P, m, lam) for m, _ in trio}
 print(json.dumps(out, default=float), flush=True)
 json.dump(out, open(sys.argv[4], "w"), indent=1, default=float)
