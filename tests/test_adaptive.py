@@ -139,6 +139,18 @@ def test_the_bisection_steps_between_tried_numbers_of_primitives():
     assert adaptive.bisection_midpoints(5, [4, 5, 6], 9) == []
 
 
+def test_the_search_flat_start_takes_the_learner_saturation_rule(data):
+    """The auto search's flat start is GradIRL with FactIRL's flat_tol and flat_stol, the gradient
+    rule off: a saturation rule stops it earlier, with the weights GradIRL gives."""
+    mdp, F, demos = data
+    learner = fo.FactIRL(features=F, flat_max_iter=60)
+    plain = adaptive.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5)
+    saturated = adaptive.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5, 1e-2)
+    flat = fo.GradIRL(features=F, max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
+    np.testing.assert_array_equal(saturated, flat.rewards_)
+    assert not np.allclose(saturated, plain)
+
+
 def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     """The full search scores every candidate on every fold; the cold race's rows are the same
     numbers (each fold's fit is independent of the others), so it chooses the same pair whenever

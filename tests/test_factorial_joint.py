@@ -159,3 +159,21 @@ def test_flat_tol_stops_the_pca_start_earlier_and_is_checked(data):
     for bad in (-1.0, np.nan):
         with pytest.raises(ValidationError, match="flat_tol"):
             fo.FactIRL(flat_tol=bad, **kw).fit(mdp, demos)
+
+
+def test_flat_stol_stops_the_pca_start_by_saturation_as_gradirl_does_and_is_checked(data):
+    """flat_stol is the start's saturation rule, off by default: with it, the start's weights
+    are those of GradIRL with the same tolerances and rules (gradient rule off), and the fit
+    takes no more evaluations than without it."""
+    mdp, _, demos = data
+    kw = dict(n_primitives=K, max_iter=0, flat_max_iter=60, flat_solver="lbfgs", pca_shrink=False, rng=0)
+    plain = fo.FactIRL(**kw).fit(mdp, demos)
+    saturating = fo.FactIRL(flat_stol=1e-2, **kw).fit(mdp, demos)
+    assert fo.FactIRL().flat_stol == 0.0 and saturating.get_params()["flat_stol"] == 1e-2
+    assert saturating.n_evaluations_ < plain.n_evaluations_
+    flat = fo.GradIRL(max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
+    start = fo.FactIRL(flat_stol=1e-2, **kw).fit(mdp, demos, flat_rewards=flat.rewards_)
+    np.testing.assert_allclose(start.dictionary_, saturating.dictionary_, rtol=1e-10, atol=1e-12)
+    for bad in (-1.0, np.inf, "x"):
+        with pytest.raises((ValidationError, TypeError), match="flat_stol"):
+            fo.FactIRL(flat_stol=bad, **kw).fit(mdp, demos)

@@ -865,12 +865,13 @@ def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
     return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
 
 
-def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver`` and ``tol``, without the gradient and
-    saturation rules, as FactIRL's own flat start) on every task at once (separable: each task's
-    rewards are those of its own fit)."""
+def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float,
+                       stol: float = 0.0) -> Any:
+    """The flat learner of FactIRL's PCA start (its ``solver``, ``tol`` and saturation rule ``stol``,
+    without the gradient rule, as FactIRL's own flat start) on every task at once (separable: each
+    task's rewards are those of its own fit)."""
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
-                   stol=0.0, solver=solver, objective=learner.objective, reward=learner.reward,
+                   stol=stol, solver=solver, objective=learner.objective, reward=learner.reward,
                    **Execution.of(learner).params())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either

@@ -132,6 +132,12 @@ class FactIRL(Estimator):
         for the start and ended at a lower loss and train deviation
         (``results/fit-speed/README.md``). The flat model's ``transfer`` keeps 1e-5, the flat
         learner's own.
+    flat_stol : float, default=0.0
+        The ``init="pca"`` start's saturation rule: each task also stops when the decrease of its
+        loss over an iteration is at most ``flat_stol`` times its decrease since the start
+        (:func:`solvers.stopping.has_saturated`, GradIRL's ``stol``). 0 turns it off (the start
+        as before the rule); ``1e-5``, GradIRL's default, makes the start the flat learner's
+        own fit with its default rules, as the Objectworld presets fit it.
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -309,7 +315,8 @@ class FactIRL(Estimator):
     def __init__(self, n_primitives: int | Literal["auto"] = 5, beta: float = 5.0, *,
                  features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, reward: str = "state-action",
                  init: Literal["pca", "random"] | tuple[ArrayLike, ArrayLike] = "pca", pca_shrink: bool = True,
-                 flat_max_iter: int = 100, flat_tol: float = FLAT_TOL, max_iter: int = 100, inner_steps: int = 5,
+                 flat_max_iter: int = 100, flat_tol: float = FLAT_TOL, flat_stol: float = 0.0, max_iter: int = 100,
+                 inner_steps: int = 5,
                  tol: float = 1e-5,
                  gtol: float = GTOL, transfer_max_iter: int = 100,
                  solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
@@ -329,6 +336,7 @@ class FactIRL(Estimator):
         self.pca_shrink = pca_shrink
         self.flat_max_iter = flat_max_iter
         self.flat_tol = flat_tol
+        self.flat_stol = flat_stol
         self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
         self.transfer_max_iter = transfer_max_iter
         self.solver = solver
@@ -368,7 +376,8 @@ class FactIRL(Estimator):
         flat_solver = resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver")
         ev0 = obj.n_evaluations
         try:
-            res = fit_weights(obj, basis, flat_solver, self.flat_max_iter, self.flat_tol, what="FactIRL.fit (flat start)")
+            res = fit_weights(obj, basis, flat_solver, self.flat_max_iter, self.flat_tol, what="FactIRL.fit (flat start)",
+                              stol=self.flat_stol)
         except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
             D, H = self._pca(basis.start_points(exc.result.coefficients), basis, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
@@ -443,6 +452,7 @@ class FactIRL(Estimator):
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={tasks.n_params}")
         check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
         check_tol(self.flat_tol, "flat_tol")
+        check_tol(self.flat_stol, "flat_stol")
         check_bool(self.pca_shrink, "pca_shrink")
         check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
         return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
@@ -527,7 +537,8 @@ class FactIRL(Estimator):
         if flat_rewards is None and self.init == "pca":
             try:
                 flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver,
-                                                  check_tol(self.flat_tol, "flat_tol"))
+                                                  check_tol(self.flat_tol, "flat_tol"),
+                                                  check_tol(self.flat_stol, "flat_stol"))
             except FitInterrupted as exc:
                 warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
                                  "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)

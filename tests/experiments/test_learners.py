@@ -378,6 +378,9 @@ def test_fact_scheme_reaches_the_factirl_fits_it_applies_to(monkeypatch):
         f"train: {n}" for n in ("factorial", "factorial, features", "factorial, features, random init")]
     assert all(f"scheme 'joint' replaced by 'alternating' ({why}" in s for s in plan.substitutions)
     assert "scheme" not in factorial_options(TINY, SolverSettings())  # the alternation: FactIRL as it always was
+    # FactIRL's own flat start takes the preset's saturation rule where the preset sets one
+    assert factorial_options(dataclasses.replace(preset, flat_stol=1e-5), SolverSettings())["flat_stol"] == 1e-5
+    assert "flat_stol" not in factorial_options(TINY, SolverSettings())
     with pytest.raises(ValidationError, match="preset 'x': fact_scheme must be one of alternating, joint; got 'both'"):
         Preset(name="x", fact_scheme="both")
 

@@ -155,6 +155,8 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
               tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
               inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
+    if preset.flat_stol:  # FactIRL's own flat start (fits without the flat row's rewards) as the preset's flat fits
+        kw["flat_stol"] = preset.flat_stol
     if adaptive:
         kw["residual_penalty"] = "auto"
         kw["flat_solver"] = _flat_solver(preset, features, objective)[0]

@@ -158,7 +158,9 @@ class Preset:
     flat_stol : float
         GradIRL's saturation rule (``GradIRL(stol=...)``) in every flat fit of the runs: 0, the
         committed protocol, where the library's default (1e-5) stops a task once an iteration
-        decreases its loss by at most that fraction of its decrease since the start.
+        decreases its loss by at most that fraction of its decrease since the start. Also
+        FactIRL's own flat start where a fit computes one (``FactIRL(flat_stol=...)``, as in
+        ``bench mce``; the line-ups' factorial rows start from the flat row's rewards).
     fact_max_iter : int
         Outer iterations of FactIRL.
     fact_gtol : float
