@@ -251,15 +251,22 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
     refusals = np.zeros(n, dtype=np.intp)
     stalled = np.zeros(n, dtype=bool)  # polishing with chord steps no longer shrinks the residual
     refactor = np.zeros(n, dtype=bool)  # the last chord step contracted slowly: next, a Newton step
+    has_kept = np.zeros(n, dtype=bool) if kept is None else np.array([k is not None for k in kept], dtype=bool)
 
-    def chord_ok(i):
-        return kept is not None and kept[i] is not None and refusals[i] < CHORD_MAX_REFUSALS and not refactor[i]
+    # The tasks of a step are an increasing subset of range(n): every task (size n) is taken
+    # whole, without copies (a single task always is); the arithmetic is the same either way.
+    def rows(x, a):
+        return x if a.size == n else x[a]
+
+    def chord_ok(a):
+        return has_kept[a] & (refusals[a] < CHORD_MAX_REFUSALS) & ~refactor[a]
 
     def unfinished(a):
-        within = res[a] <= tol * _scale(V[a])  # False for a NaN residual: stays active
+        res_a, scale = rows(res, a), _scale(rows(V, a))
+        within = res_a <= tol * scale  # False for a NaN residual: stays active
         if kept is None:
             return a[~within]
-        polished = (res[a] <= POLISH_TOL * _scale(V[a])) | stalled[a] | ~np.array([chord_ok(i) for i in a], dtype=bool)
+        polished = (res_a <= POLISH_TOL * scale) | rows(stalled, a) | ~chord_ok(a)
         return a[~(within & polished)]
 
     active = unfinished(np.arange(n))
@@ -267,24 +274,41 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
         if active.size == 0:
             break
         a = active
-        c = np.array([i for i in a if chord_ok(i)], dtype=np.intp)
+        c = a[chord_ok(a)]
         if c.size:
-            ok, *step = _chord_step(planner, R[c], V[c], TV[c], res[c], [kept[i] for i in c], beta)
+            ok, *step = _chord_step(planner, rows(R, c), rows(V, c), rows(TV, c), rows(res, c), [kept[i] for i in c], beta)
             done = c[ok]
             slow = done[step[-1][ok] > CHORD_REFACTOR_RATIO * res[done]]
-            V[done], Q[done], TV[done], log_pi[done], res[done] = (x[ok] for x in step)
+            if done.size == n:
+                V, Q, TV, log_pi, res = step
+            elif done.size:
+                V[done], Q[done], TV[done], log_pi[done], res[done] = (x[ok] for x in step)
             refused = c[~ok]
-            refusals[refused] += 1
+            if refused.size:
+                refusals[refused] += 1
+                stalled[refused] = res[refused] <= tol * _scale(V[refused])  # converged: no Newton step
             refactor[slow] = True  # contracts slowly: the next step factorises anew
-            stalled[refused] = res[refused] <= tol * _scale(V[refused])  # converged: no Newton step
-            a = a[~np.isin(a, done) & ~stalled[a]]
+            if done.size == a.size:
+                a = done[:0]
+            else:
+                left = ~stalled[a]
+                if done.size:
+                    left[np.searchsorted(a, done)] = False  # done is a subset of a, both increasing
+                a = a[left]
         if a.size:
-            V[a], Q[a], TV[a], log_pi[a], solvers = _newton_step(planner, R[a], V[a], TV[a], log_pi[a], beta)
-            res[a] = np.abs(TV[a] - V[a]).max(axis=1)
+            step = _newton_step(planner, rows(R, a), rows(V, a), rows(TV, a), rows(log_pi, a), beta)
+            res_a = np.abs(step[2] - step[0]).max(axis=1)
+            if a.size == n:
+                V, Q, TV, log_pi, solvers = step
+                res = res_a
+            else:
+                V[a], Q[a], TV[a], log_pi[a], solvers = step
+                res[a] = res_a
             refactor[a] = False
             if kept is not None and solvers is not None:
                 for i, solver in zip(a, solvers):
                     kept[i] = solver
+                    has_kept[i] = solver is not None
         active = unfinished(active)
     if active.size:
         i = int(active[np.argmax(res[active])])
@@ -339,22 +363,32 @@ def refined_adjoint_solve(planner, solvers, pi, B, z0=None):
     sweeps : int
         Refinement sweeps taken (0: the start was exact enough for every task).
     """
+    n = len(B)
     z = planner.solver_system(solvers).solve_transpose(B) if z0 is None else np.array(z0, dtype=np.float64)
     scale_b = np.abs(B).max(axis=1)
-    todo, prev = np.arange(len(B)), np.full(len(B), np.inf)
-    converged = np.zeros(len(B), dtype=bool)
+    todo, prev = np.arange(n), np.full(n, np.inf)
+    converged = np.zeros(n, dtype=bool)
+
+    def rows(x, t):  # every task (always for one) without copies; the same arithmetic
+        return x if t.size == n else x[t]
+
     for sweep in range(ADJOINT_MAX_REFINE + 1):
         t = todo
-        r = B[t] - (z[t] - planner.gamma * planner.pullback(pi[t] * z[t][:, :, None]))
+        z_t = rows(z, t)
+        r = rows(B, t) - (z_t - planner.gamma * planner.pullback(rows(pi, t) * z_t[:, :, None]))
         norm = np.abs(r).max(axis=1)
-        done = norm <= ADJOINT_TOL * (scale_b[t] + np.abs(z[t]).max(axis=1))
+        done = norm <= ADJOINT_TOL * (rows(scale_b, t) + np.abs(z_t).max(axis=1))
         converged[t[done]] = True
-        going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * prev[t])  # False for NaN: stalled
+        going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * rows(prev, t))  # False for NaN: stalled
         prev[t] = norm
         todo = t[going]
         if todo.size == 0 or sweep == ADJOINT_MAX_REFINE:
             break
-        z[todo] += planner.solver_system([solvers[i] for i in todo]).solve_transpose(r[going])
+        correction = planner.solver_system([solvers[i] for i in todo]).solve_transpose(r if todo.size == n else r[going])
+        if todo.size == n:
+            z += correction
+        else:
+            z[todo] += correction
     return z, converged, sweep
 
 

@@ -209,7 +209,7 @@ class SparseLUPlanner(Planner):
         """``M^T = (I - gamma P_pi)^T`` (S, S) as CSC (the CSR arrays of ``M``), in the planner's
         state order, of one deterministic (S,) or stochastic (S, A) policy (given in the MDP's order)."""
         S, A, q = self.S, self.A, self.order
-        if policy_i.ndim == 2 and self._union_nnz is not None and policy_i.min() > 0.0:
+        if policy_i.ndim == 2 and self._union_nnz is not None:
             return self._stochastic_matrix_transpose(policy_i)
         if policy_i.ndim == 2:
             Pi = sp.csr_matrix((policy_i[q].ravel(), (np.repeat(np.arange(S), A), (q[:, None] * A + np.arange(A)).ravel())),
@@ -241,15 +241,24 @@ class SparseLUPlanner(Planner):
         return indices, indptr, diag, W
 
     def _stochastic_matrix_transpose(self, policy_i):
-        """:meth:`matrix_transpose` of a stochastic policy with no zero entry, in the fixed order:
-        ``M``'s entries on the union pattern by one sparse product (``M = I - gamma W pi``), no
-        sparse-matrix algebra (5x faster at S = 1024). The same matrix, bit for bit, as the sparse
-        product it replaces (same pattern: no product vanishes; same sums, in the same order);
-        a policy with zeros takes that product, which drops the vanishing entries."""
+        """:meth:`matrix_transpose` of a stochastic policy in the fixed order: ``M``'s entries on
+        the union pattern by one sparse product (``M = I - gamma W pi``), no sparse-matrix algebra
+        (5x faster at S = 1024; 15x at S = 576 for a policy with zeros). The same matrix, bit for
+        bit, as the sparse product ``I - gamma Pi P`` it replaces: the same sums, in the same
+        order, and the same pattern: with no zero in the policy no product vanishes, and for a
+        policy with zeros (a soft policy whose probabilities underflow) the entries that vanish
+        exactly are dropped, as that product drops them."""
         indices, indptr, diag, W = self._pattern
-        data = W @ np.ascontiguousarray(policy_i, dtype=np.float64).reshape(-1)
+        pi = np.ascontiguousarray(policy_i, dtype=np.float64).reshape(-1)
+        data = W @ pi
         data *= -self.gamma
         data[diag] += 1.0
+        if not pi.min() > 0.0:  # the product's pattern: without the entries that vanish (never a diagonal one)
+            keep = data != 0.0
+            if not keep.all():
+                before = np.zeros(keep.size + 1, dtype=indptr.dtype)  # entries kept before each position
+                np.cumsum(keep, out=before[1:])
+                data, indices, indptr = data[keep], indices[keep], before[indptr]
         MT = sp.csc_matrix((self.S, self.S))
         MT.data, MT.indices, MT.indptr = data, indices, indptr
         return MT

@@ -88,7 +88,7 @@ def test_each_thread_has_its_own_factorisations():
 
 def test_stochastic_system_assembly_is_the_sparse_product_bit_for_bit():
     """The union-pattern assembly of a stochastic policy's M^T equals the sparse product it
-    replaces (values and pattern), and a policy with zeros takes that product."""
+    replaces (values and pattern), also for a policy with zeros (without the vanishing entries)."""
     from factirl_opt.datasets.objectworld import make_objectworld
 
     rng = np.random.default_rng(3)
@@ -103,8 +103,34 @@ def test_stochastic_system_assembly_is_the_sparse_product_bit_for_bit():
         np.testing.assert_array_equal(fast.indices, slow.indices)
         np.testing.assert_array_equal(fast.data, slow.data)
         planner._union_nnz = 1
-        pi[0] = np.eye(mdp.n_actions)[0]  # a zero: the product, without the vanishing entries
-        with_zeros = planner.matrix_transpose(pi)
-        planner._union_nnz = None
-        np.testing.assert_array_equal(with_zeros.toarray(), planner.matrix_transpose(pi).toarray())
-        assert with_zeros.nnz == planner.matrix_transpose(pi).nnz
+        # zeros: one deterministic row, and a soft policy whose probabilities mostly underflow
+        pi[0] = np.eye(mdp.n_actions)[0]
+        logits = rng.normal(scale=400.0, size=pi.shape)
+        soft = np.exp(logits - logits.max(axis=1, keepdims=True))
+        for policy in (pi, soft / soft.sum(axis=1, keepdims=True)):
+            assert policy.min() == 0.0
+            _assert_assembly_is_the_product(planner, policy)
+    # actions with distinct successors (deterministic moves): entries vanish with the policy's zeros
+    mdp = fo.GridWorld(6, p_success=1.0)
+    planner = planning.SparseLUPlanner(mdp)
+    assert planner._union_nnz is None  # too dense a union for a fixed order: the pattern forced here
+    planner._union_nnz, planner._pattern = 1, planner._stochastic_pattern()
+    pi = rng.dirichlet(np.ones(mdp.n_actions), size=mdp.n_states)
+    pi[::2] = np.eye(mdp.n_actions)[rng.integers(mdp.n_actions, size=len(pi[::2]))]
+    full = planner.matrix_transpose(np.full_like(pi, 1.0 / mdp.n_actions))
+    assert _assert_assembly_is_the_product(planner, pi).nnz < full.nnz
+
+
+def _assert_assembly_is_the_product(planner, policy):
+    """The planner's M^T of ``policy`` equals the sparse product's bit for bit; returns it."""
+    union_nnz = planner._union_nnz
+    fast = planner.matrix_transpose(policy)
+    planner._union_nnz = None
+    try:
+        slow = planner.matrix_transpose(policy)
+    finally:
+        planner._union_nnz = union_nnz
+    np.testing.assert_array_equal(fast.indptr, slow.indptr)
+    np.testing.assert_array_equal(fast.indices, slow.indices)
+    np.testing.assert_array_equal(fast.data, slow.data)
+    return fast
