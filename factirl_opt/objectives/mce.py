@@ -264,6 +264,8 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
     def unfinished(a):
         res_a, scale = rows(res, a), _scale(rows(V, a))
         within = res_a <= tol * scale  # False for a NaN residual: stays active
+        if not within.any():
+            return a
         if kept is None:
             return a[~within]
         polished = (res_a <= POLISH_TOL * scale) | rows(stalled, a) | ~chord_ok(a)

@@ -89,8 +89,10 @@ class FactorSystem(PolicySystem):
 
     def _solve(self, B: NDArray[np.float64], transpose: bool) -> NDArray[np.float64]:
         q, qinv = self.planner.order, self.planner.inverse_order
-        Bq = B[:, q]
-        X = np.stack([s.solve(np.ascontiguousarray(b), transpose) for s, b in zip(self.solvers, Bq)])
+        Bq = B[:, q]  # a new C-contiguous array: each task's rows are contiguous
+        X = np.empty(Bq.shape)
+        for j, solver in enumerate(self.solvers):
+            X[j] = solver.solve(Bq[j], transpose)
         return X[:, qinv]
 
     def solve(self, B: NDArray[np.float64]) -> NDArray[np.float64]:
