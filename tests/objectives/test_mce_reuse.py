@@ -65,6 +65,57 @@ def test_warm_start_with_kept_factorisations_takes_fewer_factorisations_same_val
     assert sum(calls) < 4  # most tasks converge on chord steps alone
 
 
+def test_soft_values_of_a_batch_are_each_task_alone_bit_for_bit(rng, grid6, monkeypatch):
+    """Tasks of one batch that take different steps (chord steps accepted for some, refused for
+    others, Newton steps for a task without a kept factorisation) get the values each task gets
+    alone: the steps over part of a batch and over all of it do the same arithmetic."""
+    pl = get_planner(grid6, "sparse-lu")
+    scales = np.array([0.1, 1.0, 3.0, 10.0])[:, None, None]
+    R0 = scales * rng.standard_normal((4, grid6.n_states, grid6.n_actions))
+    _, V0, _, kept = mce_module._soft_values(pl, R0, BETA, kept=[None] * 4)
+    kept[1] = None
+    R = R0 + np.array([1e-3, 0.3, 1.0, 3.0])[:, None, None] * rng.standard_normal(R0.shape)
+    steps = []
+    chord, newton = mce_module._chord_step, mce_module._newton_step
+
+    def counted_chord(*args):
+        ok, *step = chord(*args)
+        steps.append(("chord", len(ok), int(ok.sum())))
+        return (ok, *step)
+
+    def counted_newton(*args):
+        steps.append(("newton", len(args[2]), len(args[2])))
+        return newton(*args)
+
+    monkeypatch.setattr(mce_module, "_chord_step", counted_chord)
+    monkeypatch.setattr(mce_module, "_newton_step", counted_newton)
+    batch = mce_module._soft_values(pl, R, BETA, V0, kept=list(kept))
+    assert ("newton", 4, 4) not in steps and any(kind == "newton" for kind, _, _ in steps)
+    assert any(kind == "chord" and 0 < accepted < n for kind, n, accepted in steps)  # part of a batch
+    assert any(kind == "chord" and accepted == n == 4 for kind, n, accepted in steps)  # all of it
+    for i in range(4):
+        alone = mce_module._soft_values(pl, R[i:i + 1], BETA, V0[i:i + 1], kept=[kept[i]])
+        for x, y in zip(alone[:3], batch[:3]):
+            np.testing.assert_array_equal(x, y[i:i + 1])
+
+
+def test_refined_adjoint_of_a_batch_is_each_task_alone_bit_for_bit(rng, grid6):
+    """Tasks of one batch refined for different numbers of sweeps get each task's solution alone."""
+    pl = get_planner(grid6, "sparse-lu")
+    R0 = 2.0 * rng.standard_normal((3, grid6.n_states, grid6.n_actions))
+    _, _, _, kept = mce_module._soft_values(pl, R0, BETA, kept=[None] * 3)
+    R = R0 + np.array([1e-6, 1e-4, 1e-2])[:, None, None] * rng.standard_normal(R0.shape)
+    pi = np.exp(mce_module.soft_values(pl, R, BETA)[2])
+    B = rng.standard_normal((3, grid6.n_states))
+    z, converged, sweeps = mce_module.refined_adjoint_solve(pl, kept, pi, B)
+    assert converged.all()
+    alone = [mce_module.refined_adjoint_solve(pl, [kept[i]], pi[i:i + 1], B[i:i + 1]) for i in range(3)]
+    assert len({s for _, _, s in alone}) > 1 and sweeps == max(s for _, _, s in alone)
+    for i, (z_i, converged_i, _) in enumerate(alone):
+        assert converged_i.all()
+        np.testing.assert_array_equal(z_i, z[i:i + 1])
+
+
 def test_refined_adjoint_equals_the_fresh_one(rng, grid6):
     """The adjoint refined on a factorisation of a nearby policy equals the fresh solve."""
     pl = get_planner(grid6, "sparse-lu")
