@@ -89,10 +89,12 @@ class FactorSystem(PolicySystem):
 
     def _solve(self, B: NDArray[np.float64], transpose: bool) -> NDArray[np.float64]:
         q, qinv = self.planner.order, self.planner.inverse_order
-        Bq = B[:, q]  # a new C-contiguous array: each task's rows are contiguous
+        Bq = B[:, q]
         X = np.empty(Bq.shape)
         for j, solver in enumerate(self.solvers):
-            X[j] = solver.solve(Bq[j], transpose)
+            # C-contiguous blocks: B[:, q] of (n, S, k) is not, and a low-rank update's products
+            # (BLAS) round differently with the layout
+            X[j] = solver.solve(np.ascontiguousarray(Bq[j]), transpose)
         return X[:, qinv]
 
     def solve(self, B: NDArray[np.float64]) -> NDArray[np.float64]:
