@@ -259,7 +259,7 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
         return x if a.size == n else x[a]
 
     def chord_ok(a):
-        return has_kept[a] & (refusals[a] < CHORD_MAX_REFUSALS) & ~refactor[a]
+        return rows(has_kept, a) & (rows(refusals, a) < CHORD_MAX_REFUSALS) & ~rows(refactor, a)
 
     def unfinished(a):
         res_a, scale = rows(res, a), _scale(rows(V, a))
@@ -279,17 +279,21 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
         c = a[chord_ok(a)]
         if c.size:
             ok, *step = _chord_step(planner, rows(R, c), rows(V, c), rows(TV, c), rows(res, c), [kept[i] for i in c], beta)
-            done = c[ok]
-            slow = done[step[-1][ok] > CHORD_REFACTOR_RATIO * res[done]]
+            if ok.all():
+                done, refused = c, c[:0]
+                slow = c[step[-1] > CHORD_REFACTOR_RATIO * rows(res, c)]
+            else:
+                done, refused = c[ok], c[~ok]
+                slow = done[step[-1][ok] > CHORD_REFACTOR_RATIO * res[done]]
             if done.size == n:
                 V, Q, TV, log_pi, res = step
             elif done.size:
                 V[done], Q[done], TV[done], log_pi[done], res[done] = (x[ok] for x in step)
-            refused = c[~ok]
             if refused.size:
                 refusals[refused] += 1
                 stalled[refused] = res[refused] <= tol * _scale(V[refused])  # converged: no Newton step
-            refactor[slow] = True  # contracts slowly: the next step factorises anew
+            if slow.size:
+                refactor[slow] = True  # contracts slowly: the next step factorises anew
             if done.size == a.size:
                 a = done[:0]
             else:
@@ -382,7 +386,10 @@ def refined_adjoint_solve(planner, solvers, pi, B, z0=None):
         done = norm <= ADJOINT_TOL * (rows(scale_b, t) + np.abs(z_t).max(axis=1))
         converged[t[done]] = True
         going = ~done & (norm <= ADJOINT_MIN_CONTRACTION * rows(prev, t))  # False for NaN: stalled
-        prev[t] = norm
+        if t.size == n:
+            prev = norm
+        else:
+            prev[t] = norm
         todo = t[going]
         if todo.size == 0 or sweep == ADJOINT_MAX_REFINE:
             break
