@@ -63,7 +63,8 @@ from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
 from .approximate_cv import leave_task_out_scores
-from .evidence import evidence_penalties, evidence_primitives, flat_start_evidence, plausible_ranks
+from .evidence import (confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence,
+                       plausible_ranks)
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, optimal_q
 from ..tasks.trajectories import parse_demonstrations
@@ -346,7 +347,12 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         every fold; a shared choice at the smallest k tried is followed, at its lambda, by half
         that k while the choice moves there, then by the bisection below; when the evidence finds no shared direction, or more
         than half the training tasks of a fold, the flat model is chosen unscored (its row has
-        NaN scores and no fold). Needs ``flat_rewards``.
+        NaN scores and no fold). A shared choice of k with at least
+        :data:`~factirl_opt.learners.evidence.CONFIRM_TASKS_PER_PRIMITIVE` training tasks of a fold
+        per primitive is then confirmed: k - 1, k and k + 1 at its lambda are refitted with the
+        learner's ``max_iter`` on every fold, their screen scores replaced, and the rule chooses
+        among them (:func:`~factirl_opt.learners.evidence.confirmation_primitives`). Needs
+        ``flat_rewards``.
         ``"approx-loo"``: no folds (``cv`` unused); each candidate is fitted once on every task and
         every task scored as held out, with the dictionary of one Gauss-Newton step from that fit
         toward the fit without it (:mod:`~factirl_opt.learners.approximate_cv`; the table has one
@@ -594,6 +600,18 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                 best = choice(rows)
                 if rows[best]["n_primitives"] == k:
                     break
+            if search == "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+                k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
+                trio = [(m, lam) for m in confirmation_primitives(k, k_max, n - max(len(f) for f in folds))]
+                if trio:  # the screen's scores of k - 1, k and k + 1 replaced by those of full fits
+                    for pair in trio:
+                        scores.pop(pair, None)
+                    run(folds, trio, warm=False, reuse=False, candidate_max_iter=None)
+                    rows = score_rows(scores)
+                    confirmed = [r for r in range(len(rows)) if (rows[r]["n_primitives"], rows[r]["residual_penalty"]) in trio]
+                    for r in confirmed:
+                        rows[r]["confirmed"] = True
+                    best = confirmed[choice([rows[r] for r in confirmed])]
     except KeyboardInterrupt as exc:
         cause: BaseException = exc
         while isinstance(cause, FitInterrupted) and cause.__cause__ is not None:
@@ -885,9 +903,12 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
     dicts), ``mean_test_score`` and ``std_test_score`` (the mean over the held-out tasks scored
     and the spread of the folds' means; lower scores are better), ``rank_test_score`` (1 the
     lowest mean among the candidates scored on the most folds, which alone are chosen from;
-    the others after them), ``split<f>_test_score`` (fold f's mean, NaN where the candidate was
+    the others after them; the ``"evidence"`` route's confirmed candidates, chosen from when
+    there are any, first), ``split<f>_test_score`` (fold f's mean, NaN where the candidate was
     not scored on it: a race prunes), ``task<j>_test_score`` (task j's held-out score, NaN where
-    not scored), ``n_splits_scored`` and ``chosen`` (bool, exactly one True).
+    not scored), ``n_splits_scored``, ``chosen`` (bool, exactly one True) and ``confirmed`` (bool: the
+    candidate's scores are those of full fits, the ``"evidence"`` route's confirmation of k; the
+    others' are the screen's).
     """
     rows, folds, n = result.rows, result.folds, result.n_tasks
     m = len(rows)
@@ -906,7 +927,8 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
             splits[i, f] = float(np.mean(values))
             tasks[i, folds[f]] = values
     n_scored = np.array([len(r["fold_scores"]) for r in rows], dtype=np.int64)
-    order = np.lexsort((out["mean_test_score"], -n_scored))
+    confirmed = np.array([bool(r.get("confirmed", False)) for r in rows])
+    order = np.lexsort((out["mean_test_score"], -n_scored, ~confirmed))
     rank = np.empty(m, dtype=np.int64)
     rank[order] = np.arange(1, m + 1)
     out["rank_test_score"] = rank
@@ -914,6 +936,7 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
     out.update({f"task{j}_test_score": tasks[:, j] for j in range(n)})
     out["n_splits_scored"] = n_scored
     out["chosen"] = np.array([bool(r["chosen"]) for r in rows])
+    out["confirmed"] = confirmed
     return out
 
 

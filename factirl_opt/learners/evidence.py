@@ -26,7 +26,7 @@ from .._validation import check_array, check_int
 from ..exceptions import ValidationError
 from ..tasks.task_set import task_set
 
-__all__ = ["MIN_TASKS_PER_PRIMITIVE", "PLAUSIBLE_LOG_BAYES_FACTOR", "laplace_rank_evidence", "plausible_ranks", "pca_rank_evidence", "flat_start_points",
+__all__ = ["CONFIRM_TASKS_PER_PRIMITIVE", "MIN_TASKS_PER_PRIMITIVE", "confirmation_primitives", "PLAUSIBLE_LOG_BAYES_FACTOR", "laplace_rank_evidence", "plausible_ranks", "pca_rank_evidence", "flat_start_points",
            "flat_start_evidence", "evidence_primitives", "evidence_penalties"]
 
 #: eigenvalues below this fraction of the largest are zero (the noise variance never falls below it)
@@ -320,6 +320,48 @@ def evidence_primitives(rank: int, k_max: int, n_train: int | None = None, *,
         return []
     top = k_max if n_train is None else min(k_max, n_train // MIN_TASKS_PER_PRIMITIVE)
     return sorted({min(top, k) for k in ((rank + 1) // 2, rank, 2 * rank)})
+
+
+#: the training tasks of a fold per primitive from which the ``"evidence"`` route confirms its
+#: choice of k by fully fitted candidates (:func:`confirmation_primitives`)
+CONFIRM_TASKS_PER_PRIMITIVE = 8
+
+
+def confirmation_primitives(k: int, k_max: int, n_train: int) -> list[int]:
+    """The numbers of primitives the ``"evidence"`` route rescores by fully fitted candidates
+    around its choice ``k``: ``k - 1``, ``k`` and ``k + 1`` within ``[1, k_max]``, when a fold
+    has at least ``CONFIRM_TASKS_PER_PRIMITIVE`` training tasks per primitive; else none.
+
+    With many tasks per primitive the scores of PCA starts (and of candidates fitted for a few
+    outer iterations) rank one primitive too many first, while the fitted models transfer the
+    other way round: on the paper's grid at 100 tasks (66 training tasks a fold) the route's
+    screen chose (6, inf) on every seed; on seed 1 it transfers at 4.71 against k = 5's 4.04, and
+    there the held-out scores of fully fitted candidates tie 5 and 6 (0.7895 and 0.7890, 7 at
+    0.832), so the fewest within one standard error is 5
+    (``results/which-learner/diagnostics/evidence-budget/``). With few tasks per primitive (the
+    grid at 20 or 30 tasks, 13 or 20 training tasks a fold) the screen's choices transfer well
+    and full fits would cost more than the whole search (about 6 fits). A threshold read off
+    that benchmark, not derived.
+
+    Parameters
+    ----------
+    k : int
+        >= 1, the screen's choice.
+    k_max : int
+        >= 1, the largest k a candidate may have.
+    n_train : int
+        >= 1, the fewest training tasks of a fold.
+
+    Returns
+    -------
+    list of int
+        Sorted; empty when the fold's tasks are too few per primitive.
+    """
+    k = check_int(k, "k", minimum=1)
+    k_max = check_int(k_max, "k_max", minimum=1)
+    if check_int(n_train, "n_train", minimum=1) < CONFIRM_TASKS_PER_PRIMITIVE * k:
+        return []
+    return [m for m in (k - 1, k, k + 1) if 1 <= m <= k_max]
 
 
 def evidence_penalties(lam_grid: Sequence[float]) -> list[float]:

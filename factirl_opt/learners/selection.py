@@ -50,7 +50,9 @@ SCREEN_TRANSFER_MAX_ITER = 20
 #: flat rewards' PCA (:mod:`~factirl_opt.learners.evidence`, no fit), then the ``"pca"`` route's cheap
 #: scores for that k, half and twice it (at lambda inf, 1 and 0), then k halved below the smallest
 #: and bisected around a shared choice, the flat model chosen unscored when no direction is
-#: shared or more than half the training tasks of a fold; ``"approx-loo"``: every
+#: shared or more than half the training tasks of a fold, a shared k confirmed by full fits of
+#: k - 1, k and k + 1 when a fold has many training tasks per primitive
+#: (:func:`~factirl_opt.learners.evidence.confirmation_primitives`); ``"approx-loo"``: every
 #: candidate fitted once on every task, each task scored as held out with the dictionary of one
 #: Gauss-Newton step from that fit (:mod:`~factirl_opt.learners.approximate_cv`; ``cv`` unused; the
 #: policy-matching objective on one MDP only; measured to rank the candidates poorly, see there).
