@@ -9,7 +9,7 @@ import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.learners import adaptive, evidence
 from factirl_opt.learners.evidence import (
-    evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
+    confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
     plausible_ranks,
 )
 from factirl_opt.learners.selection import ROUTES, SharingSearch
@@ -88,6 +88,9 @@ def test_the_centred_evidence_chooses_as_scikit_learns_pca_mle(seed, n, d, k):
     (lambda: evidence_primitives(2, 0), r"k_max must be an integer >= 1"),
     (lambda: evidence_primitives(2, 4, n_train=0), r"n_train must be an integer >= 1"),
     (lambda: evidence_primitives(3, 4, n_train=8, largest_plausible=2), r"largest_plausible must be an integer >= 3"),
+    (lambda: confirmation_primitives(0, 4, 40), r"k must be an integer >= 1"),
+    (lambda: confirmation_primitives(2, 0, 40), r"k_max must be an integer >= 1"),
+    (lambda: confirmation_primitives(2, 4, 0), r"n_train must be an integer >= 1"),
     (lambda: plausible_ranks([[0.0, 1.0]]), r"log_evidence must be a 1-d array"),
     (lambda: plausible_ranks([0.0, np.nan]), r"log_evidence must be a 1-d array .* no NaN"),
     (lambda: plausible_ranks([-np.inf, -np.inf]), r"with a finite one"),
@@ -113,6 +116,10 @@ def test_the_candidates_are_the_evidences_k_half_and_twice_it_at_three_penalties
     assert evidence_primitives(1, 8, n_train=3) == [1] and evidence_primitives(1, 8, n_train=3, largest_plausible=2) == []
     assert evidence_primitives(1, 8, n_train=4) == [1, 2]  # at most two training tasks a primitive
     assert evidence_primitives(3, 8, n_train=12, largest_plausible=3) == [2, 3, 6]
+    # the confirmation: k - 1, k and k + 1 from 8 training tasks a primitive
+    assert confirmation_primitives(6, 67, 66) == [5, 6, 7] and confirmation_primitives(9, 67, 66) == []
+    assert confirmation_primitives(1, 9, 8) == [1, 2] and confirmation_primitives(4, 4, 40) == [3, 4]
+    assert confirmation_primitives(5, 30, 39) == [] and evidence.CONFIRM_TASKS_PER_PRIMITIVE == 8
     assert evidence_penalties((np.inf, 1.0, 0.01, 0.0)) == [np.inf, 1.0, 0.0]
     assert evidence_penalties((0.0, 0.1, 10.0)) == [0.0, 10.0]
     assert evidence_penalties((0.01,)) == [0.01]
@@ -251,7 +258,9 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     found = adaptive.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
     assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
     tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
-    assert tried[:3] == [8, 16, 20] and tried[3:5] == [4, 2] and 5 in tried[5:]
+    # 40 training tasks a fold, 8 a primitive: 4, 5 and 6 confirmed last (their screen rows replaced)
+    assert tried[:3] == [8, 16, 20] and 2 in tried[3:-3] and tried[-3:] == [4, 5, 6]
+    assert [r.get("confirmed", False) for r in found.rows[-3:]] == [True] * 3
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
     assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None  # only down
     assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
@@ -270,3 +279,54 @@ def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatc
     chosen = next(r for r in rows if r["chosen"])
     assert rows.index(chosen) == adaptive.choose_row(rows, "fewest-within-se")
     assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
+
+
+def _scripted_scores(full_best):
+    """Held-out scores by (k, lambda), best at k = 5.4 without residuals for the screen's
+    candidates (``candidate_max_iter=0``) and at ``full_best`` for fully fitted ones (None); the
+    fitted candidates recorded."""
+    noise = np.random.default_rng(0).normal(scale=0.001, size=60)
+    full = []
+
+    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+        for k, lam in candidates:
+            best = 5.4 if kw["candidate_max_iter"] == 0 else full_best
+            if kw["candidate_max_iter"] is None:
+                full.append((k, lam))
+            base = 3.0 if lam == 0.0 else 1.0 + (k - best) ** 2 / 100 + (0.0 if lam == np.inf else 0.5)
+            progress.scores.setdefault((k, lam), []).extend(base + noise[held] for held in folds)
+
+    return score_candidates, full
+
+
+@pytest.mark.parametrize("n_tasks, confirmed", [(60, True), (45, False)])  # 40 or 30 training tasks a fold
+def test_a_shared_k_with_many_tasks_per_primitive_is_confirmed_by_full_fits(data, monkeypatch, n_tasks, confirmed):
+    """The screen chooses (5, inf); with 40 training tasks a fold (8 a primitive) k = 4, 5 and 6
+    are refitted fully on every fold, their screen scores replaced, and the choice is among them
+    (scripted: best at 4 when fitted); with 30 (6 a primitive) the screen's choice stands."""
+    mdp, _, _, demos = data
+    scores, full = _scripted_scores(4.0)
+    monkeypatch.setattr(adaptive, "score_candidates", scores)
+    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(9), 8))
+    learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
+    found = adaptive.search_sharing(learner, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+                                    search="evidence", candidate_max_iter=0, rule="fewest-within-se")
+    table = adaptive.cv_results(found)
+    adaptive.check_cv_results(table)
+    pairs = [(int(k), float(lam)) for k, lam in zip(table["param_n_primitives"], table["param_residual_penalty"])]
+    assert len(set(pairs)) == len(pairs)  # a confirmed candidate's screen row is replaced, not repeated
+    if confirmed:
+        assert full == [(4, np.inf), (5, np.inf), (6, np.inf)]
+        assert (found.n_primitives, found.residual_penalty) == (4, np.inf)
+        assert sorted(p for p, c in zip(pairs, table["confirmed"]) if c) == full
+        assert table["rank_test_score"][pairs.index((4, np.inf))] == 1 and table["chosen"][pairs.index((4, np.inf))]
+        assert np.all(table["rank_test_score"][table["confirmed"]] <= 3)  # the confirmed candidates rank first
+    else:
+        assert full == [] and not table["confirmed"].any()
+        assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
+    # a fixed k is not confirmed (nothing to choose), nor a flat choice
+    fixed = fo.FactIRL(rng=0, n_primitives=5, residual_penalty="auto")
+    full.clear()
+    adaptive.search_sharing(fixed, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+                            search="evidence", candidate_max_iter=0)
+    assert full == []
