@@ -247,11 +247,11 @@ class SparseLUPlanner(Planner):
     def _stochastic_matrix_transpose(self, policy_i):
         """:meth:`matrix_transpose` of a stochastic policy in the fixed order: ``M``'s entries on
         the union pattern by one sparse product (``M = I - gamma W pi``), no sparse-matrix algebra
-        (5x faster at S = 1024; 15x at S = 576 for a policy with zeros). The same matrix, bit for
-        bit, as the sparse product ``I - gamma Pi P`` it replaces: the same sums, in the same
-        order, and the same pattern: with no zero in the policy no product vanishes, and for a
-        policy with zeros (a soft policy whose probabilities underflow) the entries that vanish
-        exactly are dropped, as that product drops them."""
+        (5x faster at S = 1024; 8x at S = 576 for a soft policy with 2,107 zeros of 2,880). The
+        same matrix, bit for bit, as the sparse product ``I - gamma Pi P`` it replaces: the same
+        sums, in the same order, and the same pattern: with no zero in the policy no product
+        vanishes, and for a policy with zeros (a soft policy whose probabilities underflow) the
+        entries that vanish exactly are dropped, as that product drops them."""
         indices, indptr, diag, W = self._pattern
         pi = np.ascontiguousarray(policy_i, dtype=np.float64).reshape(-1)
         data = W @ pi
