@@ -133,35 +133,6 @@ def test_transfer_with_a_hand_set_dictionary_recovers_the_task(rng, grid3):
     assert model.transfer_loss_history_[-1] < 0.5 * model.transfer_loss_history_[0]
 
 
-def test_transfer_stol_stops_saturating_tasks_as_the_flat_learner_does(rng, grid3):
-    """One demonstration each, the true dictionary: the tasks' losses fall toward 0 as the
-    coefficients grow; transfer_stol stops them by saturation, earlier and at smaller
-    coefficients, as transfer_coefficients(stol=...) does; off (0) by default."""
-    D = fo.random_dictionary(36, K, rng)
-    R = fo.task_rewards(D, fo.random_coefficients(4, K, rng=rng), 9, 4)
-    demos = fo.sample_demonstrations(grid3, R, 1, 10, rng)
-    model = fo.FactIRL(n_primitives=K, gtol=0.0)
-    model.dictionary_ = D
-    assert model.transfer_stol == 0.0
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        plain = model.transfer(grid3, demos, max_iter=200)
-        n_plain = model.transfer_n_evaluations_
-        model.set_params(transfer_stol=1e-2)
-        saturated = model.transfer(grid3, demos, max_iter=200)
-        direct = fo.transfer_coefficients(grid3, demos, D, max_iter=200, gtol=0.0, stol=1e-2)
-    assert model.transfer_n_evaluations_ < n_plain
-    assert "saturation" in model.transfer_stop_reason_
-    assert np.linalg.norm(saturated) < np.linalg.norm(plain)
-    np.testing.assert_array_equal(saturated, direct.coefficients)
-    for bad in (-1.0, np.nan):
-        model.set_params(transfer_stol=bad)
-        with pytest.raises(ValidationError, match="transfer_stol"):
-            model.transfer(grid3, demos)
-    with pytest.raises(ValidationError, match="stol"):
-        fo.transfer_coefficients(grid3, demos, D, stol=-1.0)
-
-
 def test_transfer_before_fit_raises(data):
     mdp, _, demos = data
     with pytest.raises(NotFittedError, match="no dictionary_: call fit first"):
