@@ -155,13 +155,6 @@ class FactIRL(Estimator):
         as they grow without bound; docs/maths.md §5).
     transfer_max_iter : int, default=100
         Maximum solver steps in ``transfer``.
-    transfer_stol : float, default=0.0
-        In ``transfer``, each new task also stops when its loss has saturated: when the decrease
-        of its loss over a step is at most ``transfer_stol`` times its decrease since ``h = 0``
-        (:func:`solvers.stopping.has_saturated`, the flat learner's ``stol``). 0 turns the rule
-        off (the transfer as before it). With one demonstration a task's loss falls toward 0 as
-        its coefficients grow; the rule stops it once the loss is about ``transfer_stol`` of its
-        start, as ``GradIRL(stol=...)`` stops the flat learner's fit of such a task.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
         ``transfer`` uses it too. A :class:`~factirl_opt.SolverSettings` gives the four solver
@@ -325,7 +318,7 @@ class FactIRL(Estimator):
                  flat_max_iter: int = 100, flat_tol: float = FLAT_TOL, flat_stol: float = 0.0, max_iter: int = 100,
                  inner_steps: int = 5,
                  tol: float = 1e-5,
-                 gtol: float = GTOL, transfer_max_iter: int = 100, transfer_stol: float = 0.0,
+                 gtol: float = GTOL, transfer_max_iter: int = 100,
                  solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
                  d_solver: str | solvers.StepSolver = "armijo", d_solver_options: dict | None = None,
                  objective: str | type[Objective] = "policy-matching", planner: str = "auto",
@@ -346,7 +339,6 @@ class FactIRL(Estimator):
         self.flat_stol = flat_stol
         self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
         self.transfer_max_iter = transfer_max_iter
-        self.transfer_stol = transfer_stol
         self.solver = solver
         self.solver_options = solver_options
         self.d_solver = d_solver
@@ -677,7 +669,7 @@ class FactIRL(Estimator):
                                       "in the SolverSettings")
             solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
-        tol, gtol, stol = check_tol(self.tol), check_tol(self.gtol, "gtol"), check_tol(self.transfer_stol, "transfer_stol")
+        tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
         obj = task_objective(tasks, self.beta, self.objective, self.planner)
         step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
         lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
@@ -688,8 +680,7 @@ class FactIRL(Estimator):
         try:
             with Execution.of(self).evaluate(obj) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol,
-                                   stol=stol)
+                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             keep_transfer_inputs(self, mdp, demos_per_task, features)

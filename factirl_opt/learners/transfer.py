@@ -73,8 +73,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
                           base_features: ArrayLike | None = None, h_solver: Any = "armijo",
                           h_solver_options: dict | None = None, max_iter: int = 100, tol: float = 1e-5,
                           objective: Any = "policy-matching", planner: str = "auto", callback: Callable | None = None,
-                          verbose: bool = False, reward: str = "state-action", gtol: float = GTOL,
-                          stol: float = 0.0) -> TransferFit:
+                          verbose: bool = False, reward: str = "state-action", gtol: float = GTOL) -> TransferFit:
     """Coefficients of new tasks with the dictionary fixed (section 4.2).
 
     Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
@@ -87,9 +86,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     stops when the relative decrease of its loss is at most ``tol``, or when its gradient norm
     is at most ``gtol`` times its value at ``h = 0``: the rule that stops a task whose one
     demonstration its coefficients match exactly, where the loss falls toward 0 as they grow
-    without bound (docs/maths.md §5); ``gtol=0`` turns it off. ``stol`` > 0 also stops a task
-    when its loss has saturated, as the flat learner's ``stol`` does
-    (:func:`solvers.stopping.has_saturated`); 0 (the default) turns that rule off.
+    without bound (docs/maths.md §5); ``gtol=0`` turns it off.
 
     Returns
     -------
@@ -104,17 +101,16 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     tasks = task_set(mdp, demos_per_task, base_features, reward)
     D = check_features(dictionary, tasks.n_params, name="dictionary")
     max_iter, tol, gtol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol), check_tol(gtol, "gtol")
-    stol = check_tol(stol, "stol")
     obj = task_objective(tasks, beta, objective, planner)
     solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
     return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=callback,
-                        verbose=verbose, gtol=gtol, stol=stol)
+                        verbose=verbose, gtol=gtol)
 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
                  verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None,
-                 gtol: float = 0.0, stol: float = 0.0) -> TransferFit:
+                 gtol: float = 0.0) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -144,9 +140,6 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     gtol : float, default=0.0
         The gradient rule's tolerance, per task (:func:`solvers.gradient_converged`); 0 turns
         it off. With ``flat``, the flat learner's ``gtol``.
-    stol : float, default=0.0
-        The saturation rule's tolerance, per task (:func:`solvers.stopping.has_saturated`); 0
-        turns it off.
 
     Returns
     -------
@@ -156,10 +149,10 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
         return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
-                                  gtol, stol)
+                                  gtol)
     if np.isfinite(residual_penalty):
         return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
-                                      float(residual_penalty), gtol, stol)
+                                      float(residual_penalty), gtol)
     F = basis.compose(dictionary)
     problem = weights_problem(objective, F)
     ev0 = objective.n_evaluations
@@ -167,7 +160,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, gtol=gtol,
-                                   stol=stol, separable=True)
+                                   separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_transfer_fit(F, solver, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
@@ -175,7 +168,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     return _transfer_fit(F, solver, res, objective.n_evaluations - ev0)
 
 
-def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam, gtol, stol):
+def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam, gtol):
     """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
     problem = residual_weights_problem(objective, basis, D, lam, DICTIONARY_NAMES)
     ev0 = objective.n_evaluations
@@ -183,7 +176,7 @@ def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback,
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
-                                   callback=report, tol=tol, gtol=gtol, stol=stol, separable=True)
+                                   callback=report, tol=tol, gtol=gtol, separable=True)
         except FitInterrupted as exc:
             raise FitInterrupted(_residual_fit(objective, basis, D, k, lam, exc.result, objective.n_evaluations - ev0),
                                  "transfer") from exc.__cause__
@@ -191,7 +184,7 @@ def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback,
     return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0)
 
 
-def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol, stol):
+def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol):
     """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
     task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
     ev0 = objective.n_evaluations
@@ -205,7 +198,7 @@ def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback
     with translate_solver_errors():
         try:
             res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)",
-                              gtol=gtol, stol=stol)
+                              gtol=gtol)
         except FitInterrupted as exc:
             raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
