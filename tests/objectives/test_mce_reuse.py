@@ -237,3 +237,84 @@ def test_soft_backup_reduces_over_actions_as_numpy_does_bit_for_bit(rng, n_actio
         _, TV, log_pi = mce_module.soft_backup(Identity(), Q, None, beta)
         np.testing.assert_array_equal(TV, (m + lse / beta)[:, :, 0])
         np.testing.assert_array_equal(log_pi, z - lse)
+
+
+def _single_task_cases(rng, grid6):
+    """One task's rewards, start and kept factorisation in the situations the steps branch on:
+    no kept factorisation, a kept one whose chord steps are accepted (nearby rewards), refused
+    (far rewards), and without reuse at all."""
+    pl = get_planner(grid6, "sparse-lu")
+    R0 = 2.0 * rng.standard_normal((1, grid6.n_states, grid6.n_actions))
+    _, V0, _, kept = mce_module._soft_values_batch(pl, R0, BETA, kept=[None])
+    cases = [(R0, None, [None]), (R0, None, None)]
+    for step in (1e-3, 0.3, 3.0, 30.0):
+        cases.append((R0 + step * rng.standard_normal(R0.shape), V0, list(kept)))
+    return pl, cases
+
+
+def test_single_task_soft_values_are_the_batched_path_bit_for_bit(rng, grid6, monkeypatch):
+    """The single-task path takes the steps of the batched one (the same chord and Newton steps,
+    the same kept factorisation) and returns the same values, bit for bit."""
+    pl, cases = _single_task_cases(rng, grid6)
+    chord, newton = mce_module._chord_step, mce_module._newton_step
+    steps = []
+
+    def counted_chord(*args):
+        ok, *step = chord(*args)
+        steps.append(("chord", bool(ok[0])))
+        return (ok, *step)
+
+    def counted_newton(*args):
+        steps.append(("newton", True))
+        return newton(*args)
+
+    monkeypatch.setattr(mce_module, "_chord_step", counted_chord)
+    monkeypatch.setattr(mce_module, "_newton_step", counted_newton)
+    seen = set()
+    for R, V0, kept in cases:
+        kept_batch = None if kept is None else list(kept)
+        steps.clear()
+        batch = mce_module._soft_values_batch(pl, R, BETA, V0, kept=kept_batch)
+        batch_steps = list(steps)
+        steps.clear()
+        one = mce_module._soft_values(pl, R, BETA, V0, kept=None if kept is None else list(kept))
+        assert steps == batch_steps
+        seen.update(steps)
+        for x, y in zip(one[:3], batch[:3]):
+            np.testing.assert_array_equal(x, y)
+        assert (one[3] is None) == (kept is None)
+        if kept is not None:  # the given factorisation kept, or replaced by a Newton step's, on both paths
+            assert (one[3][0] is kept[0]) == (kept_batch[0] is kept[0])
+            assert one[3][0] is not None and kept_batch[0] is not None
+    assert seen == {("chord", True), ("chord", False), ("newton", True)}
+
+
+def test_single_task_soft_values_raise_as_the_batched_path(rng, grid6):
+    pl = get_planner(grid6, "sparse-lu")
+    R = 3.0 * rng.standard_normal((1, grid6.n_states, grid6.n_actions))
+    for solve in (mce_module._soft_values_batch, mce_module._soft_values_one):
+        with pytest.raises(fo.FactIRLError, match="did not converge in 1 iterations: task 0 has residual"):
+            solve(pl, R, BETA, max_iter=1, kept=[None])
+
+
+def test_single_task_refined_adjoint_is_the_batched_path_bit_for_bit(rng, grid6):
+    """Converging from ``K^-T b`` or a nearby start, and not converging (a far factorisation):
+    the same solution, flag and sweeps as the batched path."""
+    pl = get_planner(grid6, "sparse-lu")
+    pi = rng.dirichlet(np.ones(grid6.n_actions), size=(1, grid6.n_states))
+    near = pi + 1e-2 * rng.dirichlet(np.ones(grid6.n_actions), size=pi.shape[:2])
+    near /= near.sum(axis=2, keepdims=True)
+    far = np.zeros_like(pi)
+    far[:, :, 0] = 1.0
+    B = rng.standard_normal((1, grid6.n_states))
+    z_ref = pl.system(pi).solve_transpose(B)
+    flags = set()
+    for policy, z0 in ((near, None), (near, z_ref * (1 + 1e-8)), (far, None)):
+        solvers = pl.system(policy).solvers
+        z, converged, sweeps = mce_module.refined_adjoint_solve(pl, solvers, pi, B, z0)
+        z_b, converged_b, sweeps_b = mce_module._refined_adjoint_solve_batch(pl, solvers, pi, B, z0)
+        np.testing.assert_array_equal(z, z_b)
+        np.testing.assert_array_equal(converged, converged_b)
+        assert converged.shape == (1,) and sweeps == sweeps_b
+        flags.add(bool(converged[0]))
+    assert flags == {True, False}
