@@ -214,6 +214,7 @@ def test_little_shared_chooses_the_flat_model_without_a_fit(data, monkeypatch, t
     assert np.isnan(res["mean_test_score"][0]) and res["chosen"].tolist() == [True]
     loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
     assert loaded.cv_results_["params"] == res["params"] and np.isnan(loaded.cv_results_["mean_test_score"][0])
+    assert loaded.cv_results_["confirmed"].dtype == bool and loaded.cv_results_["confirmed"].tolist() == [False]
     # at a fixed lambda it gives k = 1 at that lambda, unscored
     fixed = _fit(fo.FactIRL(n_primitives="auto", residual_penalty=np.inf, features=F, max_iter=3, rng=0,
                             sharing_search=SharingSearch(route="evidence")), mdp, demos)
