@@ -19,11 +19,9 @@ loss (hex of the float64 values), and ``cpu_per_evaluation_ratio_mce_over_pm``.
 """
 
 import argparse
-import dataclasses
 import hashlib
 import json
 import time
-import warnings
 
 import numpy as np
 from scipy.optimize import minimize
@@ -31,36 +29,16 @@ from scipy.optimize import minimize
 import factirl_opt as fo
 from factirl_opt.objectives import get_objective
 
-try:
-    from factirl_opt.lab.experiments.presets import get_preset
-except ImportError:  # older code: the harness in factirl_opt.experiments
-    from factirl_opt.experiments.presets import get_preset
-
-with warnings.catch_warnings():  # the top-level aliases are deprecated on newer code
-    warnings.simplefilter("ignore")
-    objectworld_maps, state_action_rewards = fo.objectworld_maps, fo.state_action_rewards
+from walled_maps import add_arguments, draw
 
 parser = argparse.ArgumentParser()
-parser.add_argument("--size", type=int, default=24)
-parser.add_argument("--n-tasks", type=int, default=16)
-parser.add_argument("--n-demos", type=int, default=24)
-parser.add_argument("--length", type=int, default=16)
-parser.add_argument("--n-blocked", type=int, default=30, help="blocked cells (walls) per map")
+add_arguments(parser)
 parser.add_argument("--max-iter", type=int, default=60, help="L-BFGS-B iterations per task")
 parser.add_argument("--objectives", nargs="+", default=["policy-matching", "mce"])
 parser.add_argument("--repeats", type=int, default=1, help="each objective's paths this many times, alternating; fastest kept")
-parser.add_argument("--seed", type=int, default=0)
-parser.add_argument("--label", default="")
 args = parser.parse_args()
 
-preset = dataclasses.replace(get_preset("objectworld-per-task"), grid_size=args.size, demo_length=args.length)
-maps = objectworld_maps(args.n_tasks, size=args.size, n_inner=preset.n_primitives, n_outer=preset.n_outer_colours,
-                        object_density=preset.object_density, determinism=preset.p_success, gamma=preset.gamma,
-                        n_blocked=args.n_blocked, rng=np.random.default_rng(args.seed))
-mdps = list(maps.mdps)
-R_true = state_action_rewards(maps.rewards, mdps[0].n_actions)
-demos = fo.sample_demonstrations(mdps, R_true, args.n_demos, args.length, rng=np.random.default_rng(args.seed + 100),
-                                 planner=preset.planner)
+preset, maps, mdps, R_true, demos = draw(args)
 
 
 def features(i):

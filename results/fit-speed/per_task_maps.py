@@ -24,7 +24,6 @@ per configuration.
 """
 
 import argparse
-import dataclasses
 import hashlib
 import json
 import time
@@ -34,43 +33,26 @@ import numpy as np
 
 import factirl_opt as fo
 
+from walled_maps import add_arguments, draw
+
 try:
-    from factirl_opt.lab.experiments.presets import get_preset
     from factirl_opt.lab.experiments.learner_solvers import factorial_options
 except ImportError:  # older code: the harness in factirl_opt.experiments
-    from factirl_opt.experiments.presets import get_preset
     from factirl_opt.experiments.learner_solvers import factorial_options
 try:
     from factirl_opt.lab.benchmarks.mce import resolved_run
 except ImportError:  # older code: FactIRL's own flat start, the alternation
     resolved_run = None
 
-with warnings.catch_warnings():  # the top-level aliases are deprecated on newer code
-    warnings.simplefilter("ignore")
-    objectworld_maps, state_action_rewards = fo.objectworld_maps, fo.state_action_rewards
-
 parser = argparse.ArgumentParser()
-parser.add_argument("--size", type=int, default=24)
-parser.add_argument("--n-tasks", type=int, default=16)
-parser.add_argument("--n-demos", type=int, default=24)
-parser.add_argument("--length", type=int, default=16)
-parser.add_argument("--n-blocked", type=int, default=30, help="blocked cells (walls) per map")
+add_arguments(parser)
 parser.add_argument("--objectives", nargs="+", default=["policy-matching", "mce"])
 parser.add_argument("--configs", nargs="+", default=["preset"], choices=["preset", "armijo-alternating"],
                     help="on code with bench mce's resolved_run; older code runs its own FactIRL")
 parser.add_argument("--repeats", type=int, default=1)
-parser.add_argument("--seed", type=int, default=0)
-parser.add_argument("--label", default="")
 args = parser.parse_args()
 
-preset = dataclasses.replace(get_preset("objectworld-per-task"), grid_size=args.size, demo_length=args.length)
-maps = objectworld_maps(args.n_tasks, size=args.size, n_inner=preset.n_primitives, n_outer=preset.n_outer_colours,
-                        object_density=preset.object_density, determinism=preset.p_success, gamma=preset.gamma,
-                        n_blocked=args.n_blocked, rng=np.random.default_rng(args.seed))
-mdps = list(maps.mdps)
-R = state_action_rewards(maps.rewards, mdps[0].n_actions)
-demos = fo.sample_demonstrations(mdps, R, args.n_demos, args.length, rng=np.random.default_rng(args.seed + 100),
-                                 planner=preset.planner)
+preset, maps, mdps, R, demos = draw(args)
 digest = hashlib.sha256(np.ascontiguousarray(np.stack(demos)).tobytes()).hexdigest()[:12]
 configs = args.configs if resolved_run is not None else ["own"]
 
