@@ -245,14 +245,6 @@ def _soft_values(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER
         without ``kept``.
     """
     n, S, _ = R.shape
-    if n == 1:
-        return _soft_values_one(planner, R, beta, V0, tol, max_iter, kept)
-    return _soft_values_batch(planner, R, beta, V0, tol, max_iter, kept)
-
-
-def _soft_values_batch(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER, kept=None):
-    """:func:`_soft_values` for any number of tasks, with per-task masks."""
-    n, S, _ = R.shape
     V = np.zeros((n, S)) if V0 is None else np.array(V0, dtype=np.float64)
     Q, TV, log_pi = soft_backup(planner, R, V, beta)
     res = np.abs(TV - V).max(axis=1)
@@ -325,72 +317,14 @@ def _soft_values_batch(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MA
                     has_kept[i] = solver is not None
         active = unfinished(active)
     if active.size:
-        _raise_not_converged(int(active[np.argmax(res[active])]), res, tol, max_iter)
-    _check_finite(TV, log_pi)
-    return Q, TV, log_pi, kept
-
-
-def _soft_values_one(planner, R, beta, V0=None, tol=SOFT_TOL, max_iter=SOFT_MAX_ITER, kept=None):
-    """:func:`_soft_values` for a single task (n = 1): the same steps and arithmetic as
-    :func:`_soft_values_batch`, bit for bit, with the task's state in Python scalars instead of
-    per-task masks (a map-per-task fit plans one task per evaluation)."""
-    S = R.shape[1]
-    V = np.zeros((1, S)) if V0 is None else np.array(V0, dtype=np.float64)
-    Q, TV, log_pi = soft_backup(planner, R, V, beta)
-    res = np.abs(TV - V).max(axis=1)  # (1,): what the steps compare against
-    refusals, stalled, refactor = 0, False, False
-    solver = None if kept is None else kept[0]
-
-    def chord_ok():
-        return solver is not None and refusals < CHORD_MAX_REFUSALS and not refactor
-
-    def unfinished():
-        r, scale = res[0], _scale(V)[0]
-        if not r <= tol * scale:  # a NaN residual stays active
-            return True
-        if kept is None:
-            return False
-        return not (r <= POLISH_TOL * scale or stalled or not chord_ok())
-
-    active = unfinished()
-    for _ in range(max_iter):
-        if not active:
-            break
-        newton = True
-        if chord_ok():
-            ok, *step = _chord_step(planner, R, V, TV, res, [solver], beta)
-            if ok[0]:
-                if step[-1][0] > CHORD_REFACTOR_RATIO * res[0]:
-                    refactor = True  # contracts slowly: the next step factorises anew
-                V, Q, TV, log_pi, res = step
-                newton = False
-            else:
-                refusals += 1
-                stalled = bool(res[0] <= tol * _scale(V)[0])  # converged: no Newton step
-                newton = not stalled
-        if newton:
-            V, Q, TV, log_pi, solvers = _newton_step(planner, R, V, TV, log_pi, beta)
-            res = np.abs(TV - V).max(axis=1)
-            refactor = False
-            if kept is not None and solvers is not None:
-                solver = kept[0] = solvers[0]
-        active = unfinished()
-    if active:
-        _raise_not_converged(0, res, tol, max_iter)
-    _check_finite(TV, log_pi)
-    return Q, TV, log_pi, kept
-
-
-def _raise_not_converged(i, res, tol, max_iter):
-    raise FactIRLError(
-        f"the soft Bellman equation did not converge in {max_iter} iterations: task {i} has residual "
-        f"{res[i]:.3g} (tolerance {tol:g} x max(1, |V|)); beta * rewards may be too large to represent"
-    )
-
-
-def _check_finite(TV, log_pi):
+        i = int(active[np.argmax(res[active])])
+        raise FactIRLError(
+            f"the soft Bellman equation did not converge in {max_iter} iterations: task {i} has residual "
+            f"{res[i]:.3g} (tolerance {tol:g} x max(1, |V|)); beta * rewards may be too large to represent"
+        )
     if not (np.all(np.isfinite(TV)) and np.all(np.isfinite(log_pi))):
         raise FactIRLError("the soft values are not finite: beta * rewards overflow float64; rescale the rewards")
+    return Q, TV, log_pi, kept
 
 
 class _Point:
@@ -435,13 +369,6 @@ def refined_adjoint_solve(planner, solvers, pi, B, z0=None):
     sweeps : int
         Refinement sweeps taken (0: the start was exact enough for every task).
     """
-    if len(B) == 1:
-        return _refined_adjoint_solve_one(planner, solvers, pi, B, z0)
-    return _refined_adjoint_solve_batch(planner, solvers, pi, B, z0)
-
-
-def _refined_adjoint_solve_batch(planner, solvers, pi, B, z0=None):
-    """:func:`refined_adjoint_solve` for any number of tasks, with per-task masks."""
     n = len(B)
     z = planner.solver_system(solvers).solve_transpose(B) if z0 is None else np.array(z0, dtype=np.float64)
     scale_b = np.abs(B).max(axis=1)
@@ -472,24 +399,6 @@ def _refined_adjoint_solve_batch(planner, solvers, pi, B, z0=None):
         else:
             z[todo] += correction
     return z, converged, sweep
-
-
-def _refined_adjoint_solve_one(planner, solvers, pi, B, z0=None):
-    """:func:`refined_adjoint_solve` for a single task (n = 1): the same sweeps and arithmetic,
-    bit for bit, with the stopping tests on scalars."""
-    system = planner.solver_system(solvers)
-    z = system.solve_transpose(B) if z0 is None else np.array(z0, dtype=np.float64)
-    scale_b, prev, converged = np.abs(B).max(), np.inf, False
-    for sweep in range(ADJOINT_MAX_REFINE + 1):
-        r = B - (z - planner.gamma * planner.pullback(pi * z[:, :, None]))
-        norm = np.abs(r).max()
-        converged = bool(norm <= ADJOINT_TOL * (scale_b + np.abs(z).max()))
-        going = not converged and norm <= ADJOINT_MIN_CONTRACTION * prev  # False for NaN: stalled
-        prev = norm
-        if not going or sweep == ADJOINT_MAX_REFINE:
-            break
-        z += system.solve_transpose(r)
-    return z, np.array([converged]), sweep
 
 
 def _gradient(planner, point):
