@@ -549,6 +549,7 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     approx = search == "approx-loo"  # every task held out, by one Newton step from one fit (approximate_cv; no cv)
     folds = [np.arange(n)] if approx else task_folds(n, cv, learner.rng)
     k_max = min(_reward_dimension(learner, mdp, n), n - 1) if approx else max_primitives(learner, mdp, n, folds)
+    n_train = n - max(len(f) for f in folds)  # the fewest training tasks of a fold
     progress = SearchProgress()
     progress.folds, progress.n_tasks = folds, n
     scores = progress.scores
@@ -564,8 +565,7 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
             warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
             candidates = sharing_candidates(learner, k_max, k_grid, lam_grid)
             if search == "evidence":
-                candidates = _evidence_candidates(learner, mdp, demos_per_task, flat_rewards, k_max, lam_grid,
-                                                  n - max(len(f) for f in folds))
+                candidates = _evidence_candidates(learner, mdp, demos_per_task, flat_rewards, k_max, lam_grid, n_train)
             first = folds[:1] if search not in ("full", "evidence") and len(folds) > 1 else folds
             warm, reuse = search == "race-warm", search != "full"
             if search == "evidence" and len(candidates) == 1:  # nothing to compare it with: chosen unscored
@@ -602,7 +602,7 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                     break
             if search == "evidence" and learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-                trio = [(m, lam) for m in confirmation_primitives(k, k_max, n - max(len(f) for f in folds))]
+                trio = [(m, lam) for m in confirmation_primitives(k, k_max, n_train)]
                 if trio:  # the screen's scores of k - 1, k and k + 1 replaced by those of full fits
                     for pair in trio:
                         scores.pop(pair, None)
