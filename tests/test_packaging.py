@@ -84,3 +84,121 @@ def test_wheel_installs_in_a_fresh_virtualenv_and_runs_the_quick_reproduction(tm
          cwd=tmp_path, env=clean, timeout=1800)
     assert (runs / "manifest.json").is_file()
     assert any(runs.glob("*.csv")) and any(runs.rglob("*.png"))
+
+
+# Modules the tests import only behind ``pytest.importorskip`` or ``except ImportError``, and that
+# the test extra leaves out on purpose, with the reason. Every other third-party import of the
+# tests (and of the docs code they load) must come with ``pip install -e ".[test]"``.
+OPTIONAL_TEST_IMPORTS = {
+    "minari": "needs Python >= 3.11 and, to record datasets, jax (minari's 'create' extra): the minari extra",
+    "jax": "minari.DataCollector's own need, several hundred MB; the Minari recording tests skip without it",
+    "pandas": "only shows cv_results_ as a table in one test; the table itself is plain arrays",
+}
+
+
+def _imports_of(path):
+    """(top-level module, guarded) for each import in ``path``: ``guarded`` when the import is a
+    ``pytest.importorskip``, sits in a ``try`` that catches ImportError, or is of a module that
+    its function already took through ``importorskip``."""
+    import ast
+
+    tree = ast.parse(path.read_text())
+    guarded_nodes = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            skipped = {call.args[0].value.split(".")[0] for call in ast.walk(node)
+                       if isinstance(call, ast.Call) and getattr(call.func, "attr", None) == "importorskip"
+                       and call.args and isinstance(call.args[0], ast.Constant)}
+            guarded_nodes.update(id(n) for n in ast.walk(node) if isinstance(n, (ast.Import, ast.ImportFrom))
+                                 and any((a.name if isinstance(n, ast.Import) else n.module or "").split(".")[0]
+                                         in skipped for a in n.names))
+        if isinstance(node, ast.Try) and any(
+                "ImportError" in ast.dump(h.type) or "ModuleNotFoundError" in ast.dump(h.type)
+                for h in node.handlers if h.type is not None):
+            for inner in node.body:
+                guarded_nodes.update(id(n) for n in ast.walk(inner))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        elif (isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "importorskip"
+              and node.args and isinstance(node.args[0], ast.Constant)):
+            found.append((node.args[0].value.split(".")[0], True))
+            continue
+        else:
+            continue
+        found.extend((name.split(".")[0], id(node) in guarded_nodes) for name in names)
+    return found
+
+
+def _installed_closure(requirements, extras_of=()):
+    """Canonical names of the distributions that installing ``requirements`` brings, following the
+    installed metadata's own requirements (with their extras' markers)."""
+    from importlib import metadata
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    closure, missing = set(), []
+    todo = [Requirement(r) for r in requirements]
+    while todo:
+        req = todo.pop()
+        name = canonicalize_name(req.name)
+        key = (name, frozenset(req.extras))
+        if key in closure:
+            continue
+        closure.add(key)
+        try:
+            dist_requires = metadata.requires(req.name) or []
+        except metadata.PackageNotFoundError:
+            missing.append(req.name)
+            continue
+        for text in dist_requires:
+            sub = Requirement(text)
+            if sub.marker is None or any(sub.marker.evaluate({"extra": e}) for e in ("", *req.extras)):
+                todo.append(sub)
+    return {name for name, _ in closure}, missing
+
+
+def test_every_third_party_import_of_the_tests_comes_with_the_test_extra():
+    """``pip install -e ".[test]" && python -m pytest`` (the README's test command, run by .ci/run
+    on a fresh machine) must not need a module that only another extra or a hand install brings:
+    each import of tests/ and of the docs code the tests load or run is the standard library, this
+    project's own, or a distribution the core dependencies and the test extra install."""
+    tomllib = pytest.importorskip("tomllib", reason="Python < 3.11 has no tomllib")
+    from importlib import metadata
+
+    from packaging.utils import canonicalize_name
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    closure, missing = _installed_closure([*project["dependencies"], *project["optional-dependencies"]["test"]])
+    assert not missing, f"the test extra is not installed here (run pip install -e '.[test]'): {missing}"
+    module_dists = metadata.packages_distributions()
+    own = {"factirl_opt", "solvers", "conftest"}
+    files = [*(ROOT / "tests").rglob("*.py"), *(ROOT / "docs").rglob("*.py")]
+    local = {p.stem for p in files} | {p.parent.name for p in files}
+    wrong = []
+    for path in files:
+        if "_build" in path.parts:
+            continue
+        for module, guarded in _imports_of(path):
+            if module in sys.stdlib_module_names or module in own or module in local:
+                continue
+            dists = {canonicalize_name(d) for d in module_dists.get(module, [])}
+            if dists & closure or (guarded and module in OPTIONAL_TEST_IMPORTS):
+                continue
+            wrong.append(f"{path.relative_to(ROOT)} imports {module} ({', '.join(sorted(dists)) or 'not installed'})")
+    assert not wrong, "not brought by the core dependencies + test extra:\n" + "\n".join(sorted(set(wrong)))
+
+
+def test_the_check_of_the_test_imports_sees_a_missing_extra(tmp_path):
+    """The check above finds a guarded and an unguarded import, and a requirement not installed."""
+    sample = tmp_path / "sample.py"
+    sample.write_text("import os\nimport sphinx\ntry:\n    import pandas\nexcept ImportError:\n    pass\n"
+                      "def f(pytest):\n    pytest.importorskip('jax')\n    from jax import numpy\n    import minari\n")
+    assert sorted(_imports_of(sample)) == [("jax", True), ("jax", True), ("minari", False), ("os", False),
+                                           ("pandas", True), ("sphinx", False)]
+    closure, missing = _installed_closure(["numpy", "no-such-distribution-here"])
+    assert "numpy" in closure and missing == ["no-such-distribution-here"]
