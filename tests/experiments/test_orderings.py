@@ -66,6 +66,11 @@ def test_objectworld_quick_preset_orderings(tmp_path):
     on features 8.32, flat tabular 9.69, true primitives 4.45; train 1.01, 1.05, 1.38, 0.17 (on
     training tasks the factorial learner only ties flat on features at this size). The floor's
     margin is 0.7 since the flat fits stop task by task (4.45 / 6.99 = 0.64 on test).
+
+    The factorial fits are sensitive to the BLAS kernels' rounding (the flat ones are not): the same
+    run gives 6.99 on the machine of the committed results, 7.47 with OpenBLAS's SkylakeX kernels
+    and 7.83 with its Haswell kernels on an AMD EPYC, against flat tabular 9.69 everywhere. The
+    margin against flat tabular is 0.85 so that the ordering, not one machine's rounding, is tested.
     """
     from factirl_opt.lab.experiments import PRESETS
 
@@ -74,7 +79,7 @@ def test_objectworld_quick_preset_orderings(tmp_path):
     at = {(r["split"], r["learner"]): r["deviation_mean"] for r in read_csv(tmp_path / "summary.csv")
           if (r["n_tasks"], r["demos_per_task"]) == (p.default_tasks, p.default_demos)}
     assert at["test", "factorial, features"] < 0.95 * at["test", "flat, features"]
-    assert at["test", "factorial, features"] < 0.8 * at["test", "flat"]
+    assert at["test", "factorial, features"] < 0.85 * at["test", "flat"]
     assert at["train", "factorial, features"] < 0.9 * at["train", "flat"]
     for split in ("train", "test"):
         assert at[split, "flat, ground truth"] < 0.7 * at[split, "factorial, features"]

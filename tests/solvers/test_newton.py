@@ -131,7 +131,11 @@ def test_separable_run_equals_each_row_alone(rng, age):
     problem, _ = hessian_problem(lgh)
     solver = solvers.get_solver("newton", hessian_age=age)
     together = solver.run(problem, np.zeros((N, P)), 30, tol=1e-9, separable=True)
-    assert len(set(together.row_iterations.tolist())) >= 1 and set(together.row_status) == {"converged"}
+    # every row reaches its minimiser; with a Hessian kept 4 steps a row may end "stalled" there
+    # (no decrease left at round-off: seen on one of 5 rows with OpenBLAS's Haswell kernels)
+    assert set(together.row_status) <= {"converged", "stalled"}
+    _, grad, _ = lgh(together.coefficients, np.arange(N))
+    assert np.abs(grad).max() < 1e-6
     for i in range(N):
         def one(x, rows, i=i):
             return lgh(x, np.full(len(rows), i))
@@ -140,6 +144,7 @@ def test_separable_run_equals_each_row_alone(rng, age):
         res = solver.run(alone, np.zeros((1, P)), 30, tol=1e-9, separable=True)
         np.testing.assert_allclose(together.coefficients[i], res.coefficients[0], rtol=0, atol=1e-13)
         assert together.row_iterations[i] == res.row_iterations[0]
+        assert together.row_status[i] == res.row_status[0]
 
 
 def test_lazy_curvature_computes_fewer_hessians(rng):
