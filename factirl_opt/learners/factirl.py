@@ -48,7 +48,7 @@ from ..objectives import Objective
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
     from distributed import Client
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
-from .posterior import cached_transfer_posterior, keep_transfer_inputs
+from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
 from .selection import SharingSearch
@@ -483,6 +483,7 @@ class FactIRL(Estimator):
         -------
         self
         """
+        self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
@@ -683,11 +684,11 @@ class FactIRL(Estimator):
                                    verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
-            keep_transfer_inputs(self, mdp, demos_per_task, features)
+            keep_transfer(self, (mdp, demos_per_task, features), tasks, D)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
             raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
-        keep_transfer_inputs(self, mdp, demos_per_task, features)  # transfer_posterior_ is built from them when first read
+        keep_transfer(self, (mdp, demos_per_task, features), tasks, D)  # transfer_posterior_ is built from them when first read
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 
@@ -706,9 +707,9 @@ class FactIRL(Estimator):
         A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
         ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
         the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model; ``save_model`` stores it. None when undefined (fewer than 2 training tasks'
-        coefficients to fit the prior to, or the flat model); AttributeError before any transfer
-        (and on a pickled copy of a model whose posterior was never read or saved).
+        the model (it pickles with it; ``save_model`` stores it). None when undefined (fewer than 2
+        training tasks' coefficients to fit the prior to, or the flat model); AttributeError
+        before any transfer, and after a refit (the transfer's tasks belong to the former fit).
         """
         return cached_transfer_posterior(self)
 
