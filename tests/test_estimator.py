@@ -16,8 +16,10 @@ from factirl_opt.exceptions import DeprecatedNameWarning, SolverOptionError, Val
 
 ESTIMATORS = [(fo.GradIRL, {}), (fo.FactIRL, {"n_primitives": 2}), (fo.MultiIntentIRL, {"n_intentions": 2})]
 IDS = [cls.__name__ for cls, _ in ESTIMATORS]
-SHARED = {"features", "reward", "objective", "planner", "max_iter", "tol", "solver", "solver_options"}
-EXECUTION = {"n_jobs", "backend", "client", "planner_options", "verbose", "callback"}
+SHARED = {"features", "reward", "objective", "max_iter", "tol", "solver", "execution"}
+EXECUTION = {"n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback"}
+#: the constructor parameters at most (scikit-learn's largest estimators take 18 to 23)
+MOST_PARAMS = {"GradIRL": 12, "FactIRL": 20, "MultiIntentIRL": 18}
 
 
 @pytest.fixture(autouse=True)
@@ -77,9 +79,33 @@ def test_set_params_refuses_unknown_names_and_sets_nothing(cls, kw):
 @pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)
 def test_the_same_names_and_execution_settings_on_every_estimator(cls, kw):
     names = set(cls.param_names())
-    assert SHARED | EXECUTION <= names, (SHARED | EXECUTION) - names
-    assert ("d_solver" in names) == ("d_solver_options" in names) == (cls is not fo.GradIRL)
-    assert not {"h_solver", "h_solver_options"} & names
+    assert SHARED <= names, SHARED - names
+    assert set(fo.Execution().get_params()) == EXECUTION and not EXECUTION & names
+    assert not {"h_solver", "h_solver_options", "solver_options", "d_solver", "d_solver_options"} & names
+    assert len(names) <= MOST_PARAMS[cls.__name__]
+
+
+@pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)
+def test_the_former_flat_names_set_the_groups_with_one_warning(cls, kw):
+    from factirl_opt import _deprecation
+    from factirl_opt.exceptions import DeprecatedNameWarning
+
+    _deprecation._warned.clear()
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est = cls(**kw, n_jobs=2, planner="dense")
+    assert len(record) == 2  # one per former name
+    assert est.execution == fo.Execution(n_jobs=2, planner="dense")
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est.callback = print
+    assert len(record) == 1 and est.execution.callback is print
+    with pytest.warns(DeprecatedNameWarning) as record:
+        assert est.verbose is False
+    assert len(record) == 1
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est.set_params(backend="dask")
+    assert len(record) == 1 and est.execution.backend == "dask" and est.execution.n_jobs == 2
+    twin = clone(est)
+    assert twin.get_params(deep=True) == est.get_params(deep=True) and twin.execution is not est.execution
 
 
 @pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)

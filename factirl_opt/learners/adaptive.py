@@ -55,9 +55,8 @@ from scipy.stats import t as t_dist
 from .._validation import as_rng, check_int, check_rewards
 from ..exceptions import ConvergenceWarning, FitInterrupted, ValidationError
 from .fitting import resolve_step_solver, task_objective
-from ..objectives.sharding import Execution
 from ..tasks.task_set import TaskSet, per_task_features, task_set
-from .solver_settings import estimator_solvers
+from .solver_settings import SolverSettings, estimator_solvers
 from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
@@ -195,7 +194,7 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
     R = _one_reward(mdp, rewards)
     mu, pi_hat = task_set(mdp, [demos]).statistics()
     weights = mu[0][:, None] * pi_hat[0]
-    log_pi = log_policies(get_planner(mdp, model.planner), R[None], model.beta, model.objective)[0]
+    log_pi = log_policies(get_planner(mdp, model._group("execution").planner), R[None], model.beta, model.objective)[0]
     if not temper:
         return float(-np.sum(weights * log_pi))
     seen = weights.sum(axis=1) > 0
@@ -285,9 +284,9 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
     for j, i in enumerate(idx):
         one, rest = held.mdp if held.mdps is None else held.mdps[j], demos[i][t:]
         if score == "occupancy":
-            out[j] = held_out_occupancy_gap(one, rest, rewards[j], model.planner)
+            out[j] = held_out_occupancy_gap(one, rest, rewards[j], model._group("execution").planner)
         elif score == "objective":
-            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model.planner)
+            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model._group("execution").planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
             out[j] = held_out_nll(one, rest, rewards[j], model, temper=score == "likelihood")
@@ -842,7 +841,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                 model = fixed_learner(learner, k, lam, max_iter=budget)
                 model.features = sub_features
                 if start is not None:
-                    model.init = (start.dictionary_, start.coefficients_)
+                    model.start = model._group("start").set_params(init=(start.dictionary_, start.coefficients_))
                     model.max_iter = max(1, int(round(WARM_BUDGET * budget)))
                 progress.last = ((k, lam), model, train)
                 model.fit(sub_mdp, take_tasks(demos_per_task, train),
@@ -870,11 +869,12 @@ def _approximate_run(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
 def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     """An unfitted, quiet clone of ``learner`` with fixed ``k`` and ``lambda`` (and ``params`` set).
 
-    ``clone(learner).set_params(n_primitives=k, residual_penalty=lam, verbose=False,
-    callback=None, **params)`` (:func:`~factirl_opt.learners.estimator.clone`).
+    ``clone(learner).set_params(n_primitives=k, residual_penalty=lam, execution=quiet, **params)``
+    (:func:`~factirl_opt.learners.estimator.clone`), ``quiet`` the learner's execution without
+    progress bars or callback.
     """
-    return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "verbose": False, "callback": None,
-                                        **params})
+    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+    return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
 def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
@@ -883,14 +883,15 @@ def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
     return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
 
 
-def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float,
+def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: tuple, tol: float,
                        stol: float = 0.0) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver``, ``tol`` and saturation rule ``stol``,
-    without the gradient rule, as FactIRL's own flat start) on every task at once (separable: each
-    task's rewards are those of its own fit)."""
-    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
-                   stol=stol, solver=solver, objective=learner.objective, reward=learner.reward,
-                   **Execution.of(learner).params())
+    """The flat learner of FactIRL's PCA start (its ``solver``, ``(name, options)``, ``tol`` and
+    saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every task
+    at once (separable: each task's rewards are those of its own fit)."""
+    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner._group("start").flat_max_iter, tol=tol,
+                   gtol=0.0, stol=stol, solver=SolverSettings(solver[0], solver[1]), objective=learner.objective,
+                   reward=learner.reward, execution=quiet)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
         return flat.fit(mdp, demos_per_task).rewards_

@@ -98,7 +98,6 @@ from ..exceptions import ValidationError
 from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights
 from ..tasks.task_set import task_set
-from .estimator import clone
 from .fitting import resolve_step_solver, task_objective
 from .solver_settings import estimator_solvers
 
@@ -388,8 +387,9 @@ def leave_task_out_scores(learner: Any, mdp: Any, demos_per_task: Any, flat_rewa
             model.residual_penalty = model.residual_penalty_ = 0.0
             values = np.asarray(score_tasks(model, every), dtype=np.float64)
         else:
-            model = clone(learner).set_params(n_primitives=k, residual_penalty=lam, verbose=False, callback=None,
-                                              max_iter=budget)
+            from .adaptive import fixed_learner  # the search's quiet clone (adaptive imports this module)
+
+            model = fixed_learner(learner, k, lam, max_iter=budget)
             if progress is not None:
                 progress.last = ((k, lam), model, every)
             model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
@@ -399,7 +399,7 @@ def leave_task_out_scores(learner: Any, mdp: Any, demos_per_task: Any, flat_rewa
             if lam == 0.0:
                 values = np.asarray(score_tasks(model, every), dtype=np.float64)
             else:
-                objective = task_objective(tasks, model.beta, model.objective, model.planner)
+                objective = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
                 dictionaries = leave_task_out_dictionaries(
                     objective, tasks.basis, model.dictionary_, model.coefficients_,
                     None if np.isinf(model.residual_penalty_) else model.residuals_, model.residual_penalty_,

@@ -474,7 +474,7 @@ def tasks_problem(model: Any, tasks: Any, D: Any) -> TransferProblem:
     from ..tasks.trajectories import task_steps
     from .fitting import task_objective
 
-    obj = task_objective(tasks, model.beta, model.objective, model.planner)
+    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
     lam = float(getattr(model, "residual_penalty_", np.inf))
     rows = np.arange(tasks.n_tasks)
     one = tasks.mdp

@@ -10,7 +10,8 @@ import factirl_opt as fo
 
 CONFIGURATIONS = ["gradirl-tabular", "gradirl-features", "factirl-tabular", "factirl-features", "factirl-transfer",
                   "factirl-features-transfer", "multi-intent-flat", "multi-intent-shared", "multi-intent-auto"]
-PLAIN = (np.ndarray, int, float, str, bool, list, tuple, dict, type(None), np.random.Generator)
+PLAIN = (np.ndarray, int, float, str, bool, list, tuple, dict, type(None), np.random.Generator, fo.SolverSettings,
+         fo.Execution, fo.Start, fo.IntentionStart)
 
 
 def record_loss(iteration, loss):

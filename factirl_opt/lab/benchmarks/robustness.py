@@ -143,7 +143,7 @@ def fit_and_score(gt: Any, mdp: TabularMDP, preset: Any, rng: np.random.SeedSequ
                          stol=preset.flat_stol, planner=preset.planner).fit(mdp, gt.train_demos)
     flat_test = GradIRL(beta=preset.beta, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol, solver=preset.flat_solver,
                         stol=preset.flat_stol, planner=preset.planner).fit(mdp, gt.test_demos)
-    fact = FactIRL(init="pca", rng=np.random.default_rng(rng), **factorial_options(preset, preset.solvers))
+    fact = FactIRL(rng=np.random.default_rng(rng), **factorial_options(preset, preset.solvers))
     fact.fit(mdp, gt.train_demos, flat_rewards=flat_train.rewards_)
     fact.transfer(mdp, gt.test_demos)
     learnt = {("flat", "train"): flat_train.rewards_, ("factorial", "train"): fact.rewards_,

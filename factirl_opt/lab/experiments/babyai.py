@@ -23,6 +23,7 @@ Every learner fits feature weights ``R_i(s, a) = Phi_i(s) w_i`` with the layout'
 features ``Phi_i`` (docs/maths.md §7), except ``flat`` (tabular). Train: ``flat, features``
 and ``flat MCE, features`` (GradIRL, policy matching and maximum causal entropy, docs/maths.md
 §5-6), ``factorial, features`` and ``factorial MCE, features`` (FactIRL ``R_i = Phi_i D h_i``
+from ...objectives.sharding import Execution
 from the PCA of the flat weights, docs/maths.md §8). Test, from the ONE demonstration of
 each new layout: ``flat`` (GradIRL on tabular rewards of that layout: a tabular reward is
 tied to one layout's states, so nothing learnt in training carries over; it is fitted from
@@ -54,7 +55,8 @@ __all__ = ["flat_tabular", "flat_features", "factorial_features", "factorial_fea
 def _gradirl(preset: Any, ctx: Any, features: Any = None) -> GradIRL:
     solver, _ = flat_solver(ctx.learner, preset)
     return GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
-                   stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                   stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective,
+                    execution=Execution(planner=preset.planner))
 
 
 def flat_tabular(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
@@ -81,7 +83,7 @@ def factorial_features(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
     """FactIRL on the training layouts' features, from the PCA of the flat weights of the same objective."""
     objective = ctx.learner.objective
     flat = FLAT_MCE_FEATURES if objective == "mce" else FLAT_FEATURES
-    model = FactIRL(init="pca", rng=ctx.rngs["pca"], features=gt.features("train"),
+    model = FactIRL(rng=ctx.rngs["pca"], features=gt.features("train"),
                     **factorial_options(preset, ctx.spec.solvers, objective, ctx.learner.adaptive, features=True))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
