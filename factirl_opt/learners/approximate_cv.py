@@ -87,6 +87,7 @@ AISTATS (accuracy degrades in high dimension unless the solution is sparse).
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -98,6 +99,7 @@ from ..exceptions import ValidationError
 from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights
 from ..tasks.task_set import task_set
+from .estimator import clone
 from .fitting import resolve_step_solver, task_objective
 from .solver_settings import estimator_solvers
 
@@ -387,9 +389,8 @@ def leave_task_out_scores(learner: Any, mdp: Any, demos_per_task: Any, flat_rewa
             model.residual_penalty = model.residual_penalty_ = 0.0
             values = np.asarray(score_tasks(model, every), dtype=np.float64)
         else:
-            from .adaptive import fixed_learner  # the search's quiet clone (adaptive imports this module)
-
-            model = fixed_learner(learner, k, lam, max_iter=budget)
+            quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+            model = clone(learner).set_params(n_primitives=k, residual_penalty=lam, execution=quiet, max_iter=budget)
             if progress is not None:
                 progress.last = ((k, lam), model, every)
             model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)

@@ -23,7 +23,6 @@ Every learner fits feature weights ``R_i(s, a) = Phi_i(s) w_i`` with the layout'
 features ``Phi_i`` (docs/maths.md §7), except ``flat`` (tabular). Train: ``flat, features``
 and ``flat MCE, features`` (GradIRL, policy matching and maximum causal entropy, docs/maths.md
 §5-6), ``factorial, features`` and ``factorial MCE, features`` (FactIRL ``R_i = Phi_i D h_i``
-from ...objectives.sharding import Execution
 from the PCA of the flat weights, docs/maths.md §8). Test, from the ONE demonstration of
 each new layout: ``flat`` (GradIRL on tabular rewards of that layout: a tabular reward is
 tied to one layout's states, so nothing learnt in training carries over; it is fitted from
@@ -35,6 +34,7 @@ features`` (``FactIRL.transfer(new_mdps, demos, features=new_features)``: the co
 
 from __future__ import annotations
 
+from ...objectives.sharding import Execution
 from typing import Any
 
 import numpy as np

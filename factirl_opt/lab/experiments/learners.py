@@ -63,11 +63,11 @@ Line-up ``"babyai"`` (the BabyAI worlds: a layout per task, its own features) is
 Figure 3 shows the value functions of the line-up's ``value_maps`` test learners.
 """
 
-from ...objectives.sharding import Execution
 from __future__ import annotations
 
 import numpy as np
 
+from ...objectives.sharding import Execution
 from ...exceptions import ValidationError
 from ...learners.factirl import FactIRL, pca_dictionary
 from ...learners.gradirl import GradIRL
