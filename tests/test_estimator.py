@@ -194,16 +194,19 @@ def test_old_solver_names_of_factirl_warn_once_and_set_the_new_ones(tasks):
 def test_a_pickle_with_the_old_names_or_without_new_parameters_loads():
     model = fo.MultiIntentIRL(2)
     state = dict(vars(model))
-    del state["verbose"], state["n_jobs"]  # pickled before these parameters existed
-    old = fo.FactIRL(3, solver_options={"memory": 2})
-    old_state = dict(vars(old))
-    old_state["h_solver"], old_state["h_solver_options"] = old_state.pop("solver"), old_state.pop("solver_options")
+    del state["execution"]  # pickled before this parameter existed
+    # a FactIRL pickled before the groups, with the names of before the renames
+    old_state = {k: v for k, v in vars(fo.FactIRL(3)).items() if k not in ("solver", "start", "execution")}
+    old_state.update(h_solver="lbfgs", h_solver_options={"memory": 2}, d_solver="armijo", n_jobs=None, verbose=False,
+                     init="random", flat_max_iter=7, planner="dense")
     back, old_back = fo.MultiIntentIRL.__new__(fo.MultiIntentIRL), fo.FactIRL.__new__(fo.FactIRL)
     back.__setstate__(state)
     old_back.__setstate__(old_state)
-    assert back.verbose is False and back.n_jobs is None
-    assert old_back.solver == "armijo" and old_back.solver_options == {"memory": 2}
-    assert pickle.loads(pickle.dumps(old_back)).get_params() == old.get_params()
+    assert back.execution is None
+    assert old_back.solver == fo.SolverSettings("lbfgs", {"memory": 2}, d_solver="armijo")
+    assert old_back.start == fo.Start(init="random", flat_max_iter=7)
+    assert old_back.execution == fo.Execution(planner="dense")
+    assert pickle.loads(pickle.dumps(old_back)).get_params() == old_back.get_params()
 
 
 def test_saved_files_with_the_old_names_load_without_a_warning(tmp_path):

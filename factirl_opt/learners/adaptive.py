@@ -883,11 +883,12 @@ def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
     return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
 
 
-def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: tuple, tol: float,
+def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: Any, tol: float,
                        stol: float = 0.0) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver``, ``(name, options)``, ``tol`` and
-    saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every task
-    at once (separable: each task's rewards are those of its own fit)."""
+    """The flat learner of FactIRL's PCA start (its ``solver``, a name or ``(name, options)``, ``tol``
+    and saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every
+    task at once (separable: each task's rewards are those of its own fit)."""
+    solver = solver if isinstance(solver, tuple) else (solver, None)
     quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner._group("start").flat_max_iter, tol=tol,
                    gtol=0.0, stol=stol, solver=SolverSettings(solver[0], solver[1]), objective=learner.objective,
