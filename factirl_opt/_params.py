@@ -45,6 +45,10 @@ class ParameterGroup:
         """
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
 
+    def former(self, field: str) -> Any:
+        """The field as the deprecated flat parameter of its name held it (the field itself here)."""
+        return getattr(self, field)
+
     def set_params(self: G, **params: Any) -> G:
         """A new value with some fields replaced (``self`` is unchanged: the value is frozen).
 

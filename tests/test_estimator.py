@@ -12,6 +12,7 @@ import pytest
 import factirl_opt as fo
 from factirl_opt import _deprecation
 from factirl_opt.learners.estimator import Estimator, clone
+from factirl_opt.learners.solver_settings import estimator_solvers
 from factirl_opt.exceptions import DeprecatedNameWarning, SolverOptionError, ValidationError
 
 ESTIMATORS = [(fo.GradIRL, {}), (fo.FactIRL, {"n_primitives": 2}), (fo.MultiIntentIRL, {"n_intentions": 2})]
@@ -135,15 +136,19 @@ def test_clone_copies_data_shares_objects_and_drops_the_fit(tasks):
     mdp, demos, _ = tasks
     F, calls = np.random.default_rng(2).random((mdp.n_states, 2)), []
     rng = np.random.default_rng(3)
-    model = fo.FactIRL(2, features=F, rng=rng, solver_options={"initial_step": 0.5}, max_iter=2, flat_max_iter=3,
-                       callback=lambda it, loss: calls.append(it)).fit(mdp, demos)
+    model = fo.FactIRL(2, features=F, rng=rng, solver=fo.SolverSettings("armijo", {"initial_step": 0.5}), max_iter=2,
+                       start=fo.Start(flat_max_iter=3),
+                       execution=fo.Execution(callback=lambda it, loss: calls.append(it))).fit(mdp, demos)
     twin = clone(model)
     assert type(twin) is fo.FactIRL and not hasattr(twin, "dictionary_") and not hasattr(twin, "loss_")
     assert twin.features is not F and np.array_equal(twin.features, F)
-    assert twin.solver_options == model.solver_options and twin.solver_options is not model.solver_options
+    assert twin.solver == model.solver and twin.start == model.start and twin.execution == model.execution
     assert twin.rng is not rng and twin.rng.bit_generator.state == rng.bit_generator.state
-    assert twin.callback is model.callback
+    assert twin.execution.callback is model.execution.callback
     assert twin.get_params().keys() == model.get_params().keys()
+    labels = np.arange(4) % 2
+    em = fo.MultiIntentIRL(2, start=fo.IntentionStart(init=labels))
+    assert clone(em).start.init is not labels and np.array_equal(clone(em).start.init, labels)  # data in a group copied
     for est in (fo.GradIRL(beta=2.0), fo.MultiIntentIRL("auto", n_intentions_range=(1, 3))):
         assert repr(clone(est)) == repr(est)
     with pytest.raises(ValidationError, match="clone takes an estimator .*; got dict"):
@@ -162,8 +167,9 @@ def test_repr_shows_the_parameters_that_differ_from_their_defaults():
     assert repr(fo.GradIRL(beta=2, reward="state")) == "GradIRL(beta=2, reward='state')"
     assert repr(fo.FactIRL(3, features=np.ones((9, 4)), solver="lbfgs", rng=np.random.default_rng(0))) == (
         "FactIRL(n_primitives=3, features=<array (9, 4)>, solver='lbfgs', rng=Generator(PCG64))")
-    assert repr(fo.MultiIntentIRL(2, features=[np.ones((9, 2))] * 3, callback=print)) == (
-        "MultiIntentIRL(n_intentions=2, features=<list of 3 arrays>, callback=print)")
+    assert repr(fo.MultiIntentIRL(2, features=[np.ones((9, 2))] * 3, execution=fo.Execution(callback=print))) == (
+        "MultiIntentIRL(n_intentions=2, features=<list of 3 arrays>, execution=Execution(callback=<built-in function "
+        "print>))")
     settings = fo.SolverSettings("armijo", d_solver="lbfgs")
     assert repr(fo.FactIRL(solver=settings)) == f"FactIRL(solver={settings!r})"
 
@@ -179,7 +185,8 @@ def test_old_solver_names_of_factirl_warn_once_and_set_the_new_ones(tasks):
         warnings.simplefilter("error")  # once per process: no second warning
         again = fo.FactIRL(2, h_solver="armijo")
         assert again.h_solver == "armijo"  # the old attribute name reads the new one (already warned)
-    with pytest.warns(DeprecatedNameWarning, match="'h_solver_options' is now called 'solver_options'"):
+    with pytest.warns(DeprecatedNameWarning, match=r"'h_solver_options' is now the field 'h_solver_options' of "
+                                                   r"solver=SolverSettings\(...\) \(set_params\(solver__h_solver_options"):
         model.set_params(h_solver_options={"memory": 3})
     assert model.solver_options == {"memory": 3}
     model.h_solver = "lbfgs"
@@ -212,17 +219,22 @@ def test_a_pickle_with_the_old_names_or_without_new_parameters_loads():
 def test_saved_files_with_the_old_names_load_without_a_warning(tmp_path):
     import json
 
-    path = fo.save_model(fo.FactIRL(3, solver="lbfgs", solver_options={"memory": 2}), tmp_path / "m.npz")
+    path = fo.save_model(fo.FactIRL(3, solver="lbfgs", start=fo.Start(flat_max_iter=7)), tmp_path / "m.npz")
     with np.load(path, allow_pickle=False) as npz:
         header = json.loads(str(npz["__header__"][()]))
         arrays = {k: npz[k] for k in npz.files if k != "__header__"}
-    header["params"]["h_solver"] = header["params"].pop("solver")
-    header["params"]["h_solver_options"] = header["params"].pop("solver_options")
+    params = header["params"]
+    params["h_solver"] = params.pop("solver")  # the names of before the renames, and of before the groups
+    params.update(h_solver_options={"memory": 2}, d_solver="armijo", d_solver_options=None, flat_solver="armijo")
+    params.update({key.partition("__")[2]: params.pop(key) for key in list(params) if "__" in key})
+    del params["execution"]
+    params.update(planner="auto", verbose=False)
     np.savez(tmp_path / "old.npz", __header__=np.array(json.dumps(header)), **arrays)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         loaded = fo.load_model(tmp_path / "old.npz")
-    assert loaded.solver == "lbfgs" and loaded.solver_options == {"memory": 2}
+    assert loaded.solver == fo.SolverSettings("lbfgs", {"memory": 2}, d_solver="armijo", flat_solver="armijo")
+    assert loaded.start == fo.Start(flat_max_iter=7) and loaded.execution == fo.Execution()
 
 
 # --- solver settings as one value -------------------------------------------------------------
@@ -252,6 +264,8 @@ def test_solver_settings_and_names_together_are_refused(tasks):
     settings = fo.SolverSettings("armijo", d_solver="lbfgs")
     with pytest.raises(ValidationError, match="either as one SolverSettings in solver or per name.*d_solver='gn-cg'"):
         fo.FactIRL(2, solver=settings, d_solver="gn-cg").fit(mdp, demos)
+    with pytest.raises(ValidationError, match="either as one Execution in execution or per name.*n_jobs=2"):
+        fo.FactIRL(2, execution=fo.Execution(), n_jobs=2)
     with pytest.raises(ValidationError, match="solver_options="):
         fo.MultiIntentIRL(2, solver=settings, solver_options={"c": 0.1}).fit(mdp, episodes)
     with pytest.raises(ValidationError, match="GradIRL has no D-step: .* got 'armijo | d: lbfgs'"):
@@ -279,8 +293,8 @@ def test_multi_intent_solvers_reach_its_m_steps(tasks):
     with pytest.raises(ValidationError, match="d_solver_options given without d_solver"):
         fo.MultiIntentIRL(2, 2, d_solver_options={"memory": 3}, **kw).fit(mdp, episodes)
     fact = other.to_factirl()
-    assert (fact.solver, fact.d_solver) == ("armijo", "lbfgs")
-    assert base.to_factirl().d_solver == "armijo"
+    assert fact.solver == fo.SolverSettings("armijo", d_solver="lbfgs")
+    assert estimator_solvers(base.to_factirl())[2] == "armijo"  # FactIRL's default D-step
 
 
 def test_multi_intent_execution_settings(tasks, capsys):

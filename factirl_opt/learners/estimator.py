@@ -67,7 +67,19 @@ EXECUTION_PARAM_KINDS: dict[str, str] = {"execution": "group", "execution__n_job
 EXECUTION_RENAMED: dict[str, str] = {name: f"execution__{name}" for name in
                                      ("n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback")}
 
-def _warn_renamed(cls: type, old: str, new: str, stacklevel: int = 4) -> None:
+class _Deprecated:
+    """The default shown for a deprecated parameter name in an estimator's call signature."""
+
+    def __repr__(self) -> str:
+        return "<deprecated>"
+
+
+#: The default of the deprecated names in ``inspect.signature(FactIRL)``: given, they set the
+#: parameter now (``deprecated_params``); the API pages leave them out (docs/conf.py).
+DEPRECATED = _Deprecated()
+
+
+def _warn_renamed(cls: type[Estimator], old: str, new: str, stacklevel: int = 4) -> None:
     """One :class:`DeprecatedNameWarning` per class and old name in a process (:func:`factirl_opt._deprecation.warn_once`)."""
     top, _, sub = new.partition("__")
     now = (f"is now the field {sub!r} of {top}={cls.param_groups[top].__name__}(...) (set_params({new}=...))" if sub
@@ -76,7 +88,7 @@ def _warn_renamed(cls: type, old: str, new: str, stacklevel: int = 4) -> None:
                                               "deprecated and will be removed in a future release", stacklevel=stacklevel + 1)
 
 
-def _renamed(cls: type, params: dict[str, Any], what: str, groups: bool = True) -> dict[str, Any]:
+def _renamed(cls: type[Estimator], params: dict[str, Any], what: str, groups: bool = True) -> dict[str, Any]:
     """``params`` with the class's deprecated names replaced by the names now (warned once); with
     ``groups``, a name moved into a group sets that field of the group's value (given, or the default)."""
     renamed: dict[str, str] = {old: new for old, new in getattr(cls, "deprecated_params", {}).items()
@@ -91,6 +103,10 @@ def _renamed(cls: type, params: dict[str, Any], what: str, groups: bool = True) 
             if new in out or sub in fields.get(top, {}):
                 raise TypeError(f"{what} got both {old!r} and {new!r} ({old!r} is the deprecated name of {new!r})")
             _warn_renamed(cls, old, new)
+            if sub and isinstance(out.get(top), cls.param_groups[top]):
+                raise ValidationError(f"{what}: give the settings either as one {cls.param_groups[top].__name__} in "
+                                      f"{top} or per name (deprecated), not both; got {top}={out[top]!r:.80} and "
+                                      f"{old}={out[old]!r:.80}")
             if sub:
                 fields.setdefault(top, {})[sub] = out.pop(old)
             else:
@@ -100,7 +116,7 @@ def _renamed(cls: type, params: dict[str, Any], what: str, groups: bool = True) 
     return out
 
 
-def _as_group(cls: type, name: str, value: Any) -> Any:
+def _as_group(cls: type[Estimator], name: str, value: Any) -> Any:
     """The value of group parameter ``name``: None is the group's default, a solver name the H-step's settings."""
     group = cls.param_groups[name]
     if value is None:
@@ -135,7 +151,7 @@ def renamed_attribute(old: str, new: str) -> property:
 
     def get(self: Any) -> Any:
         _warn_renamed(type(self), old, new, stacklevel=3)
-        return getattr(self._group(top), sub) if sub else getattr(self, new)
+        return self._group(top).former(sub) if sub else getattr(self, new)
 
     def set_(self: Any, value: Any) -> None:
         _warn_renamed(type(self), old, new, stacklevel=3)
@@ -206,16 +222,24 @@ class Estimator:
     """
 
     deprecated_params: ClassVar[dict[str, str]] = {}
+    __signature__: ClassVar[inspect.Signature | None] = None
     param_groups: ClassVar[dict[str, type]] = {}
     param_kinds: ClassVar[dict[str, str]] = {}
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {}
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
-        """The attribute of each deprecated parameter name (:func:`renamed_attribute`)."""
+        """The attribute of each deprecated parameter name (:func:`renamed_attribute`), and the
+        class's call signature: ``__init__``'s, then the deprecated names it still accepts,
+        keyword-only with the default :data:`DEPRECATED` (``get_params`` reads ``__init__``'s)."""
         super().__init_subclass__(**kwargs)
         for old, new in cls.deprecated_params.items():
             if old not in cls.__dict__:
                 setattr(cls, old, renamed_attribute(old, new))
+        if "__init__" in cls.__dict__:
+            params = [p for p in inspect.signature(cls.__init__).parameters.values() if p.name != "self"]
+            params += [inspect.Parameter(old, inspect.Parameter.KEYWORD_ONLY, default=DEPRECATED)
+                       for old in cls.deprecated_params if old not in {p.name for p in params}]
+            cls.__signature__ = inspect.Signature(params) if cls.deprecated_params else None
 
     def _group(self, name: str) -> Any:
         """The value of the group parameter ``name`` (its default for None; :data:`param_groups`)."""

@@ -331,7 +331,7 @@ class FactIRL(Estimator):
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
         return basis.start_points(res.coefficients), obj.n_evaluations - ev0, res.coefficients
 
-    def _flat_solver(self):
+    def _flat_solver(self) -> tuple[Any, dict | None]:
         """The flat learner's ``(solver, options)``: the solver settings' ``flat_solver``, else ``"armijo"``."""
         return step_solver(SolverSettings.of(self.solver), "flat", (FLAT_SOLVER, None))
 

@@ -145,6 +145,11 @@ class SolverSettings(ParameterGroup):
         """The D-step solver's options, a dict."""
         return decode_options(self.d_solver_options)
 
+    def former(self, field: str) -> Any:
+        """The field as the deprecated flat parameter held it: options a dict, a step not named None."""
+        value = getattr(self, field)
+        return (decode_options(value) if field.endswith("_options") else value) or None
+
     def learner_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of an estimator for these settings: ``{"solver": self}``, or the
         H-step solver's name alone when nothing else is set (``FactIRL(solver="armijo")``)."""

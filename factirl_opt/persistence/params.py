@@ -162,8 +162,8 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     cls = type(model)
     for top, group in model.get_params(deep=False).items():
         pairs = [(top, group)]
-        if param_kind(cls, top) == "group":  # its fields, each as its own kind; None: the default's
-            pairs = [(f"{top}__{k}", v) for k, v in model._group(top).get_params().items()]
+        if param_kind(cls, top) == "group" and group is not None:  # its fields, each as its own kind
+            pairs = [(f"{top}__{k}", v) for k, v in group.get_params().items()]
         for key, value in pairs:
             kind = param_kind(cls, key)
             if kind == "runtime":
@@ -277,7 +277,8 @@ def _grouped(cls: type, params: dict[str, Any], label: str) -> dict[str, Any]:
         if param_kind(cls, top) == "group" or top == "solver":
             group = params.get(top)
             try:
-                group = cls.param_groups[top]() if group is None else cls.param_groups[top].of(group)
+                kind = getattr(cls, "param_groups")[top]
+                group = kind() if group is None else kind.of(group)
                 params[top] = group.set_params(**sub_params)
             except (TypeError, AttributeError, FactIRLError) as exc:
                 raise PersistenceError(f"{label}: the stored fields of parameter {top} are not valid: {exc}") from None
