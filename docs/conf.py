@@ -84,13 +84,9 @@ autodoc_type_aliases = {"ArrayLike": "numpy.typing.ArrayLike", "NDArray": "numpy
 _FORWARD_ALIAS = re.compile(r"TypeAliasForwardRef\('numpy\.typing\.(\w+)'\)")
 
 
-_DEPRECATED_PARAM = re.compile(r",\s*\w+=<deprecated>")
-
-
 def _alias_names(app, what, name, obj, options, signature, return_annotation):
-    """``autodoc-process-signature``: ``TypeAliasForwardRef('numpy.typing.ArrayLike')`` -> ``ArrayLike``;
-    the estimators' deprecated parameter names (default ``<deprecated>``) left out: the pages list the names now."""
-    return tuple(text and _DEPRECATED_PARAM.sub("", _FORWARD_ALIAS.sub(r"\1", text)) for text in (signature, return_annotation))
+    """``autodoc-process-signature``: ``TypeAliasForwardRef('numpy.typing.ArrayLike')`` -> ``ArrayLike``."""
+    return tuple(text and _FORWARD_ALIAS.sub(r"\1", text) for text in (signature, return_annotation))
 
 
 def setup(app):

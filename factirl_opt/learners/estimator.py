@@ -67,18 +67,6 @@ EXECUTION_PARAM_KINDS: dict[str, str] = {"execution": "group", "execution__n_job
 EXECUTION_RENAMED: dict[str, str] = {name: f"execution__{name}" for name in
                                      ("n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback")}
 
-class _Deprecated:
-    """The default shown for a deprecated parameter name in an estimator's call signature."""
-
-    def __repr__(self) -> str:
-        return "<deprecated>"
-
-
-#: The default of the deprecated names in ``inspect.signature(FactIRL)``: given, they set the
-#: parameter now (``deprecated_params``); the API pages leave them out (docs/conf.py).
-DEPRECATED = _Deprecated()
-
-
 def _warn_renamed(cls: type[Estimator], old: str, new: str, stacklevel: int = 4) -> None:
     """One :class:`DeprecatedNameWarning` per class and old name in a process (:func:`factirl_opt._deprecation.warn_once`)."""
     top, _, sub = new.partition("__")
@@ -222,24 +210,16 @@ class Estimator:
     """
 
     deprecated_params: ClassVar[dict[str, str]] = {}
-    __signature__: ClassVar[inspect.Signature | None] = None
     param_groups: ClassVar[dict[str, type]] = {}
     param_kinds: ClassVar[dict[str, str]] = {}
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {}
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
-        """The attribute of each deprecated parameter name (:func:`renamed_attribute`), and the
-        class's call signature: ``__init__``'s, then the deprecated names it still accepts,
-        keyword-only with the default :data:`DEPRECATED` (``get_params`` reads ``__init__``'s)."""
+        """The attribute of each deprecated parameter name (:func:`renamed_attribute`)."""
         super().__init_subclass__(**kwargs)
         for old, new in cls.deprecated_params.items():
             if old not in cls.__dict__:
                 setattr(cls, old, renamed_attribute(old, new))
-        if "__init__" in cls.__dict__:
-            params = [p for p in inspect.signature(cls.__init__).parameters.values() if p.name != "self"]
-            params += [inspect.Parameter(old, inspect.Parameter.KEYWORD_ONLY, default=DEPRECATED)
-                       for old in cls.deprecated_params if old not in {p.name for p in params}]
-            cls.__signature__ = inspect.Signature(params) if cls.deprecated_params else None
 
     def _group(self, name: str) -> Any:
         """The value of the group parameter ``name`` (its default for None; :data:`param_groups`)."""
