@@ -2,7 +2,6 @@
 the step problems and learners ask no objective what it can do."""
 
 import ast
-import inspect
 import pathlib
 
 import numpy as np
