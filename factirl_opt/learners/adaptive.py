@@ -61,7 +61,6 @@ from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
-from .approximate_cv import leave_task_out_scores
 from .evidence import (confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence,
                        plausible_ranks)
 from ..mdp.tabular import TabularMDP
@@ -88,7 +87,7 @@ N_TRANSFER_DEMOS = 1
 #: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there);
 #: ``"evidence"``: k from Minka's evidence of the flat start (:mod:`~factirl_opt.learners.evidence`), its
 #: candidates on every fold (:func:`search_sharing`)
-SEARCHES = ("full", "race", "race-warm", "evidence", "approx-loo")
+SEARCHES = ("full", "race", "race-warm", "evidence")
 #: the search ``FactIRL.fit`` uses
 DEFAULT_SEARCH = "race"
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
@@ -337,7 +336,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     flat_rewards : optional
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
-    search : {"full", "race", "race-warm", "evidence", "approx-loo"}
+    search : {"full", "race", "race-warm", "evidence"}
         ``"evidence"``: k is not searched but read from Minka's evidence of the PCA of the flat
         rewards (:func:`~factirl_opt.learners.evidence.flat_start_evidence`; one SVD, no fit):
         the candidates are that k, half and twice it
@@ -352,10 +351,6 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         learner's ``max_iter`` on every fold, their screen scores replaced, and the rule chooses
         among them (:func:`~factirl_opt.learners.evidence.confirmation_primitives`). Needs
         ``flat_rewards``.
-        ``"approx-loo"``: no folds (``cv`` unused); each candidate is fitted once on every task and
-        every task scored as held out, with the dictionary of one Gauss-Newton step from that fit
-        toward the fit without it (:mod:`~factirl_opt.learners.approximate_cv`; the table has one
-        fold of all n tasks, k up to n - 1). The policy-matching objective on one MDP only.
     score : {"likelihood", "fixed-beta", "objective", "occupancy"}
         The held-out score (:data:`SCORES`; module docstring).
     **options
@@ -545,9 +540,8 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         raise ValidationError(f"choosing n_primitives or residual_penalty by validation transfers each held-out task from {t} "
                               f"demonstration(s) and scores it on the others: task {short[0]} has "
                               f"{_count(demos_per_task[short[0]])}; give every task at least {t + 1}")
-    approx = search == "approx-loo"  # every task held out, by one Newton step from one fit (approximate_cv; no cv)
-    folds = [np.arange(n)] if approx else task_folds(n, cv, learner.rng)
-    k_max = min(_reward_dimension(learner, mdp, n), n - 1) if approx else max_primitives(learner, mdp, n, folds)
+    folds = task_folds(n, cv, learner.rng)
+    k_max = max_primitives(learner, mdp, n, folds)
     n_train = n - max(len(f) for f in folds)  # the fewest training tasks of a fold
     progress = SearchProgress()
     progress.folds, progress.n_tasks = folds, n
@@ -555,9 +549,6 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     run = functools.partial(score_candidates, learner, mdp, demos_per_task, flat_rewards, n_transfer_demos=t,
                             score=score, candidate_max_iter=candidate_max_iter,
                             transfer_max_iter=transfer_max_iter, progress=progress)
-    if approx:
-        run = functools.partial(_approximate_run, learner, mdp, demos_per_task, flat_rewards, t, score,
-                                candidate_max_iter, transfer_max_iter, progress)
     choice = functools.partial(_choice, share_level=share_level, rule=rule)
     try:
         with warnings.catch_warnings():
@@ -852,18 +843,6 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
             scores.setdefault((k, lam), []).append(value)
             progress.scores.setdefault((k, lam), []).append(value)
     return scores
-
-
-def _approximate_run(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, t: int, score: str,
-                     candidate_max_iter: int | None, transfer_max_iter: int | None, progress: SearchProgress,
-                     folds: Any, candidates: Sequence[tuple[int, float]], **_: Any) -> dict:
-    """:func:`score_candidates` of ``search="approx-loo"``: every task scored as held out, with the dictionary
-    of one Newton step from one fit of each candidate on every task
-    (:func:`~factirl_opt.learners.approximate_cv.leave_task_out_scores`; ``folds`` is the one fold of every task)."""
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
-    return leave_task_out_scores(learner, mdp, demos_per_task, flat_rewards, candidates,
-                                 lambda model, idx: _score(model, tasks, idx, t, score, transfer_max_iter),
-                                 candidate_max_iter=candidate_max_iter, progress=progress)
 
 
 def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
