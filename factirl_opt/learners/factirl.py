@@ -224,7 +224,7 @@ class FactIRL(Estimator):
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
-        :func:`~factirl_opt.learners.adaptive.choose_sharing`, one row per candidate
+        :func:`~factirl_opt.learners.adaptive.search_sharing`, one row per candidate
         ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
         ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
         :func:`~factirl_opt.learners.adaptive.plot_validation` draws it.
@@ -475,7 +475,7 @@ class FactIRL(Estimator):
 
     def _fit_auto(self, mdp, demos_per_task, flat_rewards):
         """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
-        (:func:`factirl_opt.learners.adaptive.choose_sharing`), then the fit of the chosen pair on every task."""
+        (:func:`factirl_opt.learners.adaptive.search_sharing`), then the fit of the chosen pair on every task."""
         if not _is_auto(self.n_primitives):
             check_int(self.n_primitives, "n_primitives", minimum=1)
         check_residual_penalty(self.residual_penalty)
