@@ -37,7 +37,10 @@ from .datasets.synthetic import SyntheticTasks, random_coefficients, random_dict
 from .evaluation import deviation, optimal_score, score, soft_deviation
 from .exceptions import FactIRLError
 from .learners import (
+    Execution,
     FactIRL,
+    IntentionStart,
+    Start,
     GradIRL,
     MultiIntentIRL,
     SharingSearch,
@@ -86,6 +89,9 @@ __all__ = [
     "FactIRL",
     "MultiIntentIRL",
     "SolverSettings",
+    "Execution",
+    "Start",
+    "IntentionStart",
     "SharingSearch",
     "pca_dictionary",
     "fit_factorial",

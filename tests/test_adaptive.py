@@ -130,6 +130,28 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
     assert adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])[:2] == (4, 1.0)
 
 
+def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch):
+    from factirl_opt import _deprecation
+    from factirl_opt.exceptions import DeprecatedNameWarning
+    from factirl_opt.learners.selection import SharingSearch
+
+    mdp, _, demos = data
+
+    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+        for k, lam in candidates:
+            progress.scores.setdefault((k, lam), []).extend(
+                (1.0 + (k - 6) ** 2 / 100 + (2.0 if lam == 0.0 else 0.0)) + 0.01 * held for held in folds)
+
+    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
+    monkeypatch.setattr(_deprecation, "_warned", set())
+    learner, tasks = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto"), [demos[i % 6] for i in range(30)]
+    with pytest.warns(DeprecatedNameWarning, match="choose_sharing is deprecated: search_sharing"):
+        got = adaptive.choose_sharing(learner, mdp, tasks, search="full")
+    want = adaptive.search_sharing(learner, mdp, tasks, search="full").as_tuple()
+    assert got == want and got[:2] == (6, np.inf)
+    assert SharingSearch(route="full").search(learner, mdp, tasks).as_tuple() == want  # the same search as a component
+
+
 def test_the_bisection_steps_between_tried_numbers_of_primitives():
     assert adaptive.bisection_midpoints(8, [1, 2, 4, 8, 16], 67) == [6, 12]
     assert adaptive.bisection_midpoints(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]

@@ -12,12 +12,15 @@ import pytest
 import factirl_opt as fo
 from factirl_opt import _deprecation
 from factirl_opt.learners.estimator import Estimator, clone
+from factirl_opt.learners.solver_settings import estimator_solvers
 from factirl_opt.exceptions import DeprecatedNameWarning, SolverOptionError, ValidationError
 
 ESTIMATORS = [(fo.GradIRL, {}), (fo.FactIRL, {"n_primitives": 2}), (fo.MultiIntentIRL, {"n_intentions": 2})]
 IDS = [cls.__name__ for cls, _ in ESTIMATORS]
-SHARED = {"features", "reward", "objective", "planner", "max_iter", "tol", "solver", "solver_options"}
-EXECUTION = {"n_jobs", "backend", "client", "planner_options", "verbose", "callback"}
+SHARED = {"features", "reward", "objective", "max_iter", "tol", "solver", "execution"}
+EXECUTION = {"n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback"}
+#: the constructor parameters at most (scikit-learn's largest estimators take 18 to 23)
+MOST_PARAMS = {"GradIRL": 12, "FactIRL": 20, "MultiIntentIRL": 18}
 
 
 @pytest.fixture(autouse=True)
@@ -77,9 +80,33 @@ def test_set_params_refuses_unknown_names_and_sets_nothing(cls, kw):
 @pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)
 def test_the_same_names_and_execution_settings_on_every_estimator(cls, kw):
     names = set(cls.param_names())
-    assert SHARED | EXECUTION <= names, (SHARED | EXECUTION) - names
-    assert ("d_solver" in names) == ("d_solver_options" in names) == (cls is not fo.GradIRL)
-    assert not {"h_solver", "h_solver_options"} & names
+    assert SHARED <= names, SHARED - names
+    assert set(fo.Execution().get_params()) == EXECUTION and not EXECUTION & names
+    assert not {"h_solver", "h_solver_options", "solver_options", "d_solver", "d_solver_options"} & names
+    assert len(names) <= MOST_PARAMS[cls.__name__]
+
+
+@pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)
+def test_the_former_flat_names_set_the_groups_with_one_warning(cls, kw):
+    from factirl_opt import _deprecation
+    from factirl_opt.exceptions import DeprecatedNameWarning
+
+    _deprecation._warned.clear()
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est = cls(**kw, n_jobs=2, planner="dense")
+    assert len(record) == 2  # one per former name
+    assert est.execution == fo.Execution(n_jobs=2, planner="dense")
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est.callback = print
+    assert len(record) == 1 and est.execution.callback is print
+    with pytest.warns(DeprecatedNameWarning) as record:
+        assert est.verbose is False
+    assert len(record) == 1
+    with pytest.warns(DeprecatedNameWarning) as record:
+        est.set_params(backend="dask")
+    assert len(record) == 1 and est.execution.backend == "dask" and est.execution.n_jobs == 2
+    twin = clone(est)
+    assert twin.get_params(deep=True) == est.get_params(deep=True) and twin.execution is not est.execution
 
 
 @pytest.mark.parametrize("cls, kw", ESTIMATORS, ids=IDS)
@@ -109,15 +136,19 @@ def test_clone_copies_data_shares_objects_and_drops_the_fit(tasks):
     mdp, demos, _ = tasks
     F, calls = np.random.default_rng(2).random((mdp.n_states, 2)), []
     rng = np.random.default_rng(3)
-    model = fo.FactIRL(2, features=F, rng=rng, solver_options={"initial_step": 0.5}, max_iter=2, flat_max_iter=3,
-                       callback=lambda it, loss: calls.append(it)).fit(mdp, demos)
+    model = fo.FactIRL(2, features=F, rng=rng, solver=fo.SolverSettings("armijo", {"initial_step": 0.5}), max_iter=2,
+                       start=fo.Start(flat_max_iter=3),
+                       execution=fo.Execution(callback=lambda it, loss: calls.append(it))).fit(mdp, demos)
     twin = clone(model)
     assert type(twin) is fo.FactIRL and not hasattr(twin, "dictionary_") and not hasattr(twin, "loss_")
     assert twin.features is not F and np.array_equal(twin.features, F)
-    assert twin.solver_options == model.solver_options and twin.solver_options is not model.solver_options
+    assert twin.solver == model.solver and twin.start == model.start and twin.execution == model.execution
     assert twin.rng is not rng and twin.rng.bit_generator.state == rng.bit_generator.state
-    assert twin.callback is model.callback
+    assert twin.execution.callback is model.execution.callback
     assert twin.get_params().keys() == model.get_params().keys()
+    labels = np.arange(4) % 2
+    em = fo.MultiIntentIRL(2, start=fo.IntentionStart(init=labels))
+    assert clone(em).start.init is not labels and np.array_equal(clone(em).start.init, labels)  # data in a group copied
     for est in (fo.GradIRL(beta=2.0), fo.MultiIntentIRL("auto", n_intentions_range=(1, 3))):
         assert repr(clone(est)) == repr(est)
     with pytest.raises(ValidationError, match="clone takes an estimator .*; got dict"):
@@ -136,8 +167,9 @@ def test_repr_shows_the_parameters_that_differ_from_their_defaults():
     assert repr(fo.GradIRL(beta=2, reward="state")) == "GradIRL(beta=2, reward='state')"
     assert repr(fo.FactIRL(3, features=np.ones((9, 4)), solver="lbfgs", rng=np.random.default_rng(0))) == (
         "FactIRL(n_primitives=3, features=<array (9, 4)>, solver='lbfgs', rng=Generator(PCG64))")
-    assert repr(fo.MultiIntentIRL(2, features=[np.ones((9, 2))] * 3, callback=print)) == (
-        "MultiIntentIRL(n_intentions=2, features=<list of 3 arrays>, callback=print)")
+    assert repr(fo.MultiIntentIRL(2, features=[np.ones((9, 2))] * 3, execution=fo.Execution(callback=print))) == (
+        "MultiIntentIRL(n_intentions=2, features=<list of 3 arrays>, execution=Execution(callback=<built-in function "
+        "print>))")
     settings = fo.SolverSettings("armijo", d_solver="lbfgs")
     assert repr(fo.FactIRL(solver=settings)) == f"FactIRL(solver={settings!r})"
 
@@ -153,7 +185,8 @@ def test_old_solver_names_of_factirl_warn_once_and_set_the_new_ones(tasks):
         warnings.simplefilter("error")  # once per process: no second warning
         again = fo.FactIRL(2, h_solver="armijo")
         assert again.h_solver == "armijo"  # the old attribute name reads the new one (already warned)
-    with pytest.warns(DeprecatedNameWarning, match="'h_solver_options' is now called 'solver_options'"):
+    with pytest.warns(DeprecatedNameWarning, match=r"'h_solver_options' is now the field 'h_solver_options' of "
+                                                   r"solver=SolverSettings\(...\) \(set_params\(solver__h_solver_options"):
         model.set_params(h_solver_options={"memory": 3})
     assert model.solver_options == {"memory": 3}
     model.h_solver = "lbfgs"
@@ -168,32 +201,40 @@ def test_old_solver_names_of_factirl_warn_once_and_set_the_new_ones(tasks):
 def test_a_pickle_with_the_old_names_or_without_new_parameters_loads():
     model = fo.MultiIntentIRL(2)
     state = dict(vars(model))
-    del state["verbose"], state["n_jobs"]  # pickled before these parameters existed
-    old = fo.FactIRL(3, solver_options={"memory": 2})
-    old_state = dict(vars(old))
-    old_state["h_solver"], old_state["h_solver_options"] = old_state.pop("solver"), old_state.pop("solver_options")
+    del state["execution"]  # pickled before this parameter existed
+    # a FactIRL pickled before the groups, with the names of before the renames
+    old_state = {k: v for k, v in vars(fo.FactIRL(3)).items() if k not in ("solver", "start", "execution")}
+    old_state.update(h_solver="lbfgs", h_solver_options={"memory": 2}, d_solver="armijo", n_jobs=None, verbose=False,
+                     init="random", flat_max_iter=7, planner="dense")
     back, old_back = fo.MultiIntentIRL.__new__(fo.MultiIntentIRL), fo.FactIRL.__new__(fo.FactIRL)
     back.__setstate__(state)
     old_back.__setstate__(old_state)
-    assert back.verbose is False and back.n_jobs is None
-    assert old_back.solver == "armijo" and old_back.solver_options == {"memory": 2}
-    assert pickle.loads(pickle.dumps(old_back)).get_params() == old.get_params()
+    assert back.execution is None
+    assert old_back.solver == fo.SolverSettings("lbfgs", {"memory": 2}, d_solver="armijo")
+    assert old_back.start == fo.Start(init="random", flat_max_iter=7)
+    assert old_back.execution == fo.Execution(planner="dense")
+    assert pickle.loads(pickle.dumps(old_back)).get_params() == old_back.get_params()
 
 
 def test_saved_files_with_the_old_names_load_without_a_warning(tmp_path):
     import json
 
-    path = fo.save_model(fo.FactIRL(3, solver="lbfgs", solver_options={"memory": 2}), tmp_path / "m.npz")
+    path = fo.save_model(fo.FactIRL(3, solver="lbfgs", start=fo.Start(flat_max_iter=7)), tmp_path / "m.npz")
     with np.load(path, allow_pickle=False) as npz:
         header = json.loads(str(npz["__header__"][()]))
         arrays = {k: npz[k] for k in npz.files if k != "__header__"}
-    header["params"]["h_solver"] = header["params"].pop("solver")
-    header["params"]["h_solver_options"] = header["params"].pop("solver_options")
+    params = header["params"]
+    params["h_solver"] = params.pop("solver")  # the names of before the renames, and of before the groups
+    params.update(h_solver_options={"memory": 2}, d_solver="armijo", d_solver_options=None, flat_solver="armijo")
+    params.update({key.partition("__")[2]: params.pop(key) for key in list(params) if "__" in key})
+    del params["execution"]
+    params.update(planner="auto", verbose=False)
     np.savez(tmp_path / "old.npz", __header__=np.array(json.dumps(header)), **arrays)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         loaded = fo.load_model(tmp_path / "old.npz")
-    assert loaded.solver == "lbfgs" and loaded.solver_options == {"memory": 2}
+    assert loaded.solver == fo.SolverSettings("lbfgs", {"memory": 2}, d_solver="armijo", flat_solver="armijo")
+    assert loaded.start == fo.Start(flat_max_iter=7) and loaded.execution == fo.Execution()
 
 
 # --- solver settings as one value -------------------------------------------------------------
@@ -223,6 +264,8 @@ def test_solver_settings_and_names_together_are_refused(tasks):
     settings = fo.SolverSettings("armijo", d_solver="lbfgs")
     with pytest.raises(ValidationError, match="either as one SolverSettings in solver or per name.*d_solver='gn-cg'"):
         fo.FactIRL(2, solver=settings, d_solver="gn-cg").fit(mdp, demos)
+    with pytest.raises(ValidationError, match="either as one Execution in execution or per name.*n_jobs=2"):
+        fo.FactIRL(2, execution=fo.Execution(), n_jobs=2)
     with pytest.raises(ValidationError, match="solver_options="):
         fo.MultiIntentIRL(2, solver=settings, solver_options={"c": 0.1}).fit(mdp, episodes)
     with pytest.raises(ValidationError, match="GradIRL has no D-step: .* got 'armijo | d: lbfgs'"):
@@ -250,8 +293,8 @@ def test_multi_intent_solvers_reach_its_m_steps(tasks):
     with pytest.raises(ValidationError, match="d_solver_options given without d_solver"):
         fo.MultiIntentIRL(2, 2, d_solver_options={"memory": 3}, **kw).fit(mdp, episodes)
     fact = other.to_factirl()
-    assert (fact.solver, fact.d_solver) == ("armijo", "lbfgs")
-    assert base.to_factirl().d_solver == "armijo"
+    assert fact.solver == fo.SolverSettings("armijo", d_solver="lbfgs")
+    assert estimator_solvers(base.to_factirl())[2] == "armijo"  # FactIRL's default D-step
 
 
 def test_multi_intent_execution_settings(tasks, capsys):

@@ -150,15 +150,16 @@ def test_flat_tol_stops_the_pca_start_earlier_and_is_checked(data):
     """flat_tol is the start's per-task relative-decrease rule: a loose one ends the flat fit
     sooner (fewer evaluations, another start); the default is the flat learner's 1e-5."""
     mdp, _, demos = data
-    kw = dict(n_primitives=K, max_iter=0, flat_max_iter=50, flat_solver="lbfgs", pca_shrink=False, rng=0)
-    tight = fo.FactIRL(**kw).fit(mdp, demos)
-    loose = fo.FactIRL(flat_tol=0.5, **kw).fit(mdp, demos)
-    assert fo.FactIRL().flat_tol == 1e-5 and loose.get_params()["flat_tol"] == 0.5
+    kw = dict(n_primitives=K, max_iter=0, solver=fo.SolverSettings(flat_solver="lbfgs"), rng=0)
+    start = dict(flat_max_iter=50, pca_shrink=False)
+    tight = fo.FactIRL(start=fo.Start(**start), **kw).fit(mdp, demos)
+    loose = fo.FactIRL(start=fo.Start(flat_tol=0.5, **start), **kw).fit(mdp, demos)
+    assert fo.Start().flat_tol == 1e-5 and loose.get_params()["start__flat_tol"] == 0.5
     assert loose.n_evaluations_ < tight.n_evaluations_
     assert loose.loss_history_[0] != tight.loss_history_[0]
     for bad in (-1.0, np.nan):
         with pytest.raises(ValidationError, match="flat_tol"):
-            fo.FactIRL(flat_tol=bad, **kw).fit(mdp, demos)
+            fo.FactIRL(start=fo.Start(flat_tol=bad, **start), **kw).fit(mdp, demos)
 
 
 def test_flat_stol_stops_the_pca_start_by_saturation_as_gradirl_does_and_is_checked(data):
@@ -166,14 +167,15 @@ def test_flat_stol_stops_the_pca_start_by_saturation_as_gradirl_does_and_is_chec
     are those of GradIRL with the same tolerances and rules (gradient rule off), and the fit
     takes no more evaluations than without it."""
     mdp, _, demos = data
-    kw = dict(n_primitives=K, max_iter=0, flat_max_iter=60, flat_solver="lbfgs", pca_shrink=False, rng=0)
-    plain = fo.FactIRL(**kw).fit(mdp, demos)
-    saturating = fo.FactIRL(flat_stol=1e-2, **kw).fit(mdp, demos)
-    assert fo.FactIRL().flat_stol == 0.0 and saturating.get_params()["flat_stol"] == 1e-2
+    kw = dict(n_primitives=K, max_iter=0, solver=fo.SolverSettings(flat_solver="lbfgs"), rng=0)
+    start = dict(flat_max_iter=60, pca_shrink=False)
+    plain = fo.FactIRL(start=fo.Start(**start), **kw).fit(mdp, demos)
+    saturating = fo.FactIRL(start=fo.Start(flat_stol=1e-2, **start), **kw).fit(mdp, demos)
+    assert fo.Start().flat_stol == 0.0 and saturating.get_params()["start__flat_stol"] == 1e-2
     assert saturating.n_evaluations_ < plain.n_evaluations_
     flat = fo.GradIRL(max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
-    start = fo.FactIRL(flat_stol=1e-2, **kw).fit(mdp, demos, flat_rewards=flat.rewards_)
-    np.testing.assert_allclose(start.dictionary_, saturating.dictionary_, rtol=1e-10, atol=1e-12)
+    given = fo.FactIRL(start=fo.Start(flat_stol=1e-2, **start), **kw).fit(mdp, demos, flat_rewards=flat.rewards_)
+    np.testing.assert_allclose(given.dictionary_, saturating.dictionary_, rtol=1e-10, atol=1e-12)
     for bad in (-1.0, np.inf, "x"):
         with pytest.raises((ValidationError, TypeError), match="flat_stol"):
-            fo.FactIRL(flat_stol=bad, **kw).fit(mdp, demos)
+            fo.FactIRL(start=fo.Start(flat_stol=bad, **start), **kw).fit(mdp, demos)

@@ -99,7 +99,7 @@ def test_solver_given_as_object_and_options(data):
         (dict(features=np.ones((36, 0))), ValidationError, r"got \(36, 0\)"),
         (dict(features=np.full((36, 2), np.nan)), ValidationError, r"features must be finite"),
         (dict(solver="newton-raphson"), UnknownSolverError, r"unknown solver 'newton-raphson'; available: .*armijo"),
-        (dict(solver=3), ValidationError, r"solver must be a registered name or a StepSolver; got int"),
+        (dict(solver=3), ValidationError, r"h_solver must be a registered solver name or a solvers.StepSolver; got 3"),
     ],
 )
 def test_validation(data, kwargs, error, fragment):

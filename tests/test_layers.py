@@ -15,7 +15,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 #: layer -> rank; a module may import its own layer and the layers of lower rank only
 LAYERS = {
-    "base": 0,  # exceptions, interruption, _validation, validation, _threads, _progress, _deprecation, files
+    "base": 0,  # exceptions, interruption, _validation, _params, validation, _threads, _progress, _deprecation, files
     "mdp": 1,
     "planning": 2,
     "parallel": 3,
@@ -29,7 +29,7 @@ LAYERS = {
     "factirl_opt": 11,  # the package root: the public surface
     "lab": 12,  # the experiment harness and the command line
 }
-BASE = {"exceptions", "interruption", "_validation", "validation", "_threads", "_progress", "_deprecation", "_version", "_batched",
+BASE = {"exceptions", "interruption", "_validation", "_params", "validation", "_threads", "_progress", "_deprecation", "_version", "_batched",
         "files"}
 
 

@@ -108,12 +108,12 @@ def test_rng_generator_state_is_restored(setting, tmp_path):
 def test_gradirl_with_features_and_options_round_trip(setting, tmp_path):
     mdp, rewards, demos, _, _ = setting
     F = np.random.default_rng(0).standard_normal((mdp.n_params, 3))
-    model = fo.GradIRL(beta=np.float64(4.0), features=F, max_iter=np.int64(10), solver="armijo",
-                       solver_options={"initial_step": 0.5}).fit(mdp, demos)
+    model = fo.GradIRL(beta=np.float64(4.0), features=F, max_iter=np.int64(10),
+                       solver=fo.SolverSettings("armijo", {"initial_step": 0.5})).fit(mdp, demos)
     loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
     assert type(loaded) is fo.GradIRL
     np.testing.assert_array_equal(loaded.features, F)
-    assert loaded.solver_options == {"initial_step": 0.5} and loaded.max_iter == 10 and loaded.beta == 4.0
+    assert loaded.solver.h_options == {"initial_step": 0.5} and loaded.max_iter == 10 and loaded.beta == 4.0
     np.testing.assert_array_equal(loaded.weights_, model.weights_)
     np.testing.assert_array_equal(fo.score(mdp, rewards, loaded.rewards_), fo.score(mdp, rewards, model.rewards_))
     assert loaded.status_ == model.status_
@@ -186,15 +186,16 @@ def test_factirl_with_state_features_round_trip(setting, tmp_path):
 def test_callback_is_not_saved(setting, tmp_path):
     mdp, _, demos, _, _ = setting
     seen = []
-    model = fo.GradIRL(max_iter=3, callback=lambda *args: seen.append(args)).fit(mdp, demos)
+    model = fo.GradIRL(max_iter=3, execution=fo.Execution(callback=lambda *args: seen.append(args))).fit(mdp, demos)
     assert seen
     header, _ = _header(fo.save_model(model, tmp_path / "cb.npz"))
-    assert "callback" not in header["params"]
+    assert not any("callback" in key for key in header["params"])
     loaded = fo.load_model(tmp_path / "cb.npz")
-    assert loaded.callback is None
+    assert loaded.execution.callback is None
     np.testing.assert_array_equal(loaded.weights_, model.weights_)
-    with pytest.raises(PersistenceError, match="'callback' is never saved"):
-        fo.load_model(_rewrite(tmp_path / "cb.npz", tmp_path / "bad.npz", lambda h: h["params"].update(callback="print")))
+    with pytest.raises(PersistenceError, match="'execution__callback' is never saved"):
+        fo.load_model(_rewrite(tmp_path / "cb.npz", tmp_path / "bad.npz",
+                               lambda h: h["params"].update(execution__callback="print")))
 
 
 # ----------------------------------------------------------------------------- errors on save
@@ -208,15 +209,15 @@ def test_save_model_refuses_what_it_cannot_store(fitted, tmp_path):
     with pytest.raises(PersistenceError, match="solver given as a ArmijoSolver object"):
         fo.save_model(fo.GradIRL(solver=solvers.get_solver("armijo")), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="d_solver given as a ArmijoSolver object"):
-        fo.save_model(fo.FactIRL(d_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
+        fo.save_model(fo.FactIRL(solver=fo.SolverSettings(d_solver=solvers.ArmijoSolver())), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="objective given as a PolicyMatchingObjective object.*register_objective"):
         fo.save_model(fo.GradIRL(objective=PolicyMatchingObjective), tmp_path / "x.npz")
-    with pytest.raises(PersistenceError, match="parameter solver_options"):
-        fo.save_model(fo.GradIRL(solver_options={"callback": print}), tmp_path / "x.npz")
+    with pytest.raises(ValidationError, match="h_solver_options must hold plain values"):  # nothing to save: refused at once
+        fo.GradIRL(solver=fo.SolverSettings("armijo", {"callback": print}))
     with pytest.raises(PersistenceError, match="cannot save rng of type RandomState"):
         fo.save_model(fo.FactIRL(rng=np.random.RandomState(0)), tmp_path / "x.npz")
     with pytest.raises(PersistenceError, match="init a tuple of length 3"):
-        fo.save_model(fo.FactIRL(init=(1, 2, 3)), tmp_path / "x.npz")
+        fo.save_model(fo.FactIRL(start=fo.Start(init=(1, 2, 3))), tmp_path / "x.npz")
     odd = fo.load_model(fo.save_model(fitted, tmp_path / "ok.npz"))
     odd.extra_ = object()
     with pytest.raises(PersistenceError, match="attribute extra_"):
@@ -345,9 +346,9 @@ def test_missing_array_parameter(tmp_path):
     path = fo.save_model(fo.GradIRL(features=np.eye(64, 2)), tmp_path / "f.npz")
     with pytest.raises(PersistenceError, match="lacks 'param/features'"):
         fo.load_model(_rewrite(path, tmp_path / "bad.npz", drop=("param/features",)))
-    path = fo.save_model(fo.FactIRL(init=(np.eye(64, 2), np.ones((3, 2)))), tmp_path / "t.npz")
-    with pytest.raises(PersistenceError, match="lacks 'param/init/1'"):
-        fo.load_model(_rewrite(path, tmp_path / "bad.npz", drop=("param/init/1",)))
+    path = fo.save_model(fo.FactIRL(start=fo.Start(init=(np.eye(64, 2), np.ones((3, 2))))), tmp_path / "t.npz")
+    with pytest.raises(PersistenceError, match="lacks 'param/start__init/1'"):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", drop=("param/start__init/1",)))
 
 
 @pytest.mark.parametrize(
@@ -463,9 +464,9 @@ def test_crafted_array_parameters(tmp_path, value, match):
     path = fo.save_model(fo.GradIRL(features=np.eye(64, 2)), tmp_path / "f.npz")
     with pytest.raises(PersistenceError, match=match):
         fo.load_model(_rewrite(path, tmp_path / "bad.npz", extra={"param/features": value}))
-    path = fo.save_model(fo.FactIRL(init=(np.eye(64, 2), np.ones((3, 2)))), tmp_path / "t.npz")
-    with pytest.raises(PersistenceError, match=r"parameter init\[1\] must be"):
-        fo.load_model(_rewrite(path, tmp_path / "bad.npz", extra={"param/init/1": np.array([np.nan])}))
+    path = fo.save_model(fo.FactIRL(start=fo.Start(init=(np.eye(64, 2), np.ones((3, 2))))), tmp_path / "t.npz")
+    with pytest.raises(PersistenceError, match=r"parameter start__init\[1\] must be"):
+        fo.load_model(_rewrite(path, tmp_path / "bad.npz", extra={"param/start__init/1": np.array([np.nan])}))
 
 
 def test_crafted_rng_cannot_call_other_numpy_functions(model_file, tmp_path):

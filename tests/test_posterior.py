@@ -169,6 +169,24 @@ def test_transfer_posterior_shapes_and_sampling(fitted, objective):
         assert np.all(reg >= 0)
 
 
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
+def test_transfer_posterior_travels_with_the_estimator_and_a_refit_drops_it(fitted):
+    import pickle
+
+    mdp, train, test = fitted
+    model = fo.FactIRL(n_primitives=2, max_iter=3, rng=0).fit(mdp, train.demos)
+    model.transfer(mdp, test.demos)
+    copy = pickle.loads(pickle.dumps(model))  # the transfer's tasks pickle with it, the posterior not yet built
+    for a, b in zip(copy.transfer_posterior_, model.transfer_posterior_):
+        np.testing.assert_array_equal(a.mean, b.mean)
+        np.testing.assert_array_equal(a.covariance, b.covariance)
+    model.set_params(n_primitives=3).fit(mdp, train.demos)
+    with pytest.raises(AttributeError, match="transferred no tasks"):  # not the new dictionary with the old transfer
+        model.transfer_posterior_
+    model.transfer(mdp, test.demos[:2])
+    assert [p.mean.shape for p in model.transfer_posterior_] == [(3,), (3,)]
+
+
 def test_transfer_posterior_in_per_task_environments(rng):
     mdps = [fo.GridWorld(size=3, p_success=0.8, gamma=0.9), fo.GridWorld(size=4, p_success=0.9, gamma=0.9)]
     p = 4

@@ -79,7 +79,8 @@ def test_get_params_deep_gives_the_solver_settings_fields(cls, kw):
     assert not any("__" in key for key in shallow) and shallow.items() <= deep.items()
     assert {key: deep[key] for key in deep.keys() - shallow.keys()} == {
         "solver__h_solver": "lbfgs", "solver__h_solver_options": '{"initial_step":0.5}', "solver__d_solver": "",
-        "solver__d_solver_options": ""}
+        "solver__d_solver_options": "", "solver__flat_solver": "", "solver__flat_solver_options": "",
+        "solver__transfer_solver": "", "solver__transfer_solver_options": ""}
     assert cls(**kw).get_params(deep=True) == cls(**kw).get_params(deep=False)  # a solver name has no parameters
 
 
@@ -94,6 +95,8 @@ def test_set_params_sets_the_solver_settings_fields(cls, kw):
     est.set_params(solver=fo.SolverSettings("gn-qp-osqp"), solver__h_solver_options={"alpha": 0.1})
     assert est.solver == fo.SolverSettings("gn-qp-osqp", {"alpha": 0.1})  # nested keys apply to the new value
     assert est.get_params()["solver__h_solver_options"] == '{"alpha":0.1}'
+    est.set_params(solver="armijo", solver__d_solver="lbfgs")  # a solver name is the H-step's settings
+    assert est.solver == fo.SolverSettings("armijo", d_solver="lbfgs")
 
 
 def test_set_params_refuses_bad_nested_keys_and_sets_nothing():
@@ -104,9 +107,9 @@ def test_set_params_refuses_bad_nested_keys_and_sets_nothing():
     with pytest.raises(ValidationError, match=r"'max_iter__x' is not a parameter of FactIRL: its parameter "
                                               r"max_iter=100 has no parameters of its own"):
         est.set_params(beta=1.0, max_iter__x=3)
-    with pytest.raises(ValidationError, match=r"'solver__h_solver' is not a parameter of FactIRL: its parameter "
-                                              r"solver='armijo' has no parameters of its own"):
-        est.set_params(solver="armijo", solver__h_solver="lbfgs")
+    with pytest.raises(ValidationError, match=r"'objective__x' is not a parameter of FactIRL: its parameter "
+                                              r"objective='mce' has no parameters of its own"):
+        est.set_params(objective="mce", objective__x=1)
     with pytest.raises(ValidationError, match=r"'bogus__x' is not a parameter of FactIRL; its parameters are "):
         est.set_params(bogus__x=1)
     with pytest.raises(UnknownSolverError, match="no-such-solver"):
@@ -176,14 +179,18 @@ def test_clone_refuses_a_constructor_that_changes_a_parameter(cls, param):
 
 def test_solver_settings_follow_the_parameter_protocol():
     params = SETTINGS.get_params()
-    assert params == SETTINGS.fields() == SETTINGS.get_params(deep=False)
+    assert params == SETTINGS.get_params(deep=False)
+    first_four = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
+    assert SETTINGS.fields() == {k: params[k] for k in first_four}  # the flat and transfer steps' only when set
+    assert not any(params[k] for k in params if k not in first_four)
     rebuilt = fo.SolverSettings(**params)
     assert rebuilt == SETTINGS and all(rebuilt.get_params()[k] is v for k, v in params.items())
     assert sklearn.base.clone(SETTINGS) == SETTINGS
     changed = SETTINGS.set_params(d_solver=None, d_solver_options=None)
     assert changed == fo.SolverSettings("gn-qp-osqp", {"alpha": 0.03}) and SETTINGS.d_solver == "lbfgs"
     with pytest.raises(ValidationError, match="'solver' is not a parameter of SolverSettings; its parameters are "
-                                              "h_solver, h_solver_options, d_solver, d_solver_options"):
+                                              "h_solver, h_solver_options, d_solver, d_solver_options, flat_solver, "
+                                              "flat_solver_options, transfer_solver, transfer_solver_options$"):
         SETTINGS.set_params(solver="lbfgs")
     with pytest.raises(ValidationError, match="d_solver_options given without d_solver"):
         fo.SolverSettings(d_solver="lbfgs", d_solver_options={"memory": 3}).set_params(d_solver=None)

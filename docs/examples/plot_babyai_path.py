@@ -19,7 +19,7 @@ import factirl_opt as fo
 env = gym.make("BabyAI-GoToLocal-v0")
 episodes = [fo.minigrid.bot_demonstration(env, seed=s) for s in range(12)]  # 12 layouts, one bot episode each
 model = fo.FactIRL(n_primitives=4, features=[ep.model.features for ep in episodes],
-                   max_iter=10, flat_max_iter=50, rng=0)
+                   max_iter=10, start=fo.Start(flat_max_iter=50), rng=0)
 model.fit([ep.model.mdp for ep in episodes], [ep.demonstrations for ep in episodes])
 
 # new layouts with new missions, one bot demonstration each

@@ -20,7 +20,7 @@ features = fo.objectworld.objectworld_features(world)            # (S, p) state 
 R, _, _ = fo.objectworld.multitask_rewards(world, n_tasks=12, rng=1)
 demos = fo.sample_demonstrations(mdp, R, n_demos=16, length=12, rng=2)
 
-model = fo.FactIRL(n_primitives=3, features=features, max_iter=15, flat_max_iter=40, rng=0)
+model = fo.FactIRL(n_primitives=3, features=features, max_iter=15, start=fo.Start(flat_max_iter=40), rng=0)
 model.fit(mdp, demos)
 print("train deviation, mean over tasks:", fo.deviation(mdp, R, model.rewards_).mean())
 

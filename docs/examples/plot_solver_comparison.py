@@ -23,8 +23,8 @@ flat = fo.GradIRL(max_iter=30).fit(mdp, demos)
 fig, ax = plt.subplots(figsize=(6, 4))
 for h_solver, d_solver in [("armijo", "armijo"), ("armijo", "lbfgs"), ("armijo", "gn-cg"), ("lbfgs", "lbfgs")]:
     losses = []
-    model = fo.FactIRL(n_primitives=3, max_iter=15, solver=h_solver, d_solver=d_solver,
-                       callback=lambda iteration, loss: losses.append(loss))
+    model = fo.FactIRL(n_primitives=3, max_iter=15, solver=fo.SolverSettings(h_solver, d_solver=d_solver),
+                       execution=fo.Execution(callback=lambda iteration, loss: losses.append(loss)))
     model.fit(mdp, demos, flat_rewards=flat.rewards_)
     dev = fo.deviation(mdp, R, model.rewards_).mean()
     ax.plot(range(1, len(losses) + 1), losses, marker=".", label=f"H {h_solver} | D {d_solver} (deviation {dev:.2f})")

@@ -7,7 +7,9 @@
 - :class:`MultiIntentIRL` (:mod:`~factirl_opt.learners.multi_intent`): EM over unlabeled
   episodes (:mod:`~factirl_opt.learners.em`, :mod:`~factirl_opt.learners.multi_intent_fit`)
   and the choice of the number of intentions (:mod:`~factirl_opt.learners.intention_count`).
-- :class:`SolverSettings`: the step solvers a learner runs, as one value.
+- The grouped parameters: :class:`SolverSettings` (the step solvers a learner runs),
+  :class:`Execution` (where and how a fit runs and is watched), :class:`Start` and
+  :class:`IntentionStart` (where a FactIRL or MultiIntentIRL fit starts; :mod:`~factirl_opt.learners.start`).
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
@@ -24,12 +26,17 @@ from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .posterior import LaplacePosterior
 from .selection import SharingSearch
 from .solver_settings import SolverSettings
+from .start import IntentionStart, Start
+from ..objectives.sharding import Execution
 
 __all__ = [
     "GradIRL",
     "FactIRL",
     "MultiIntentIRL",
     "SolverSettings",
+    "Execution",
+    "Start",
+    "IntentionStart",
     "SharingSearch",
     "clone",
     "plot_validation",

@@ -34,7 +34,7 @@ from .._validation import check_int
 from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
-from .posterior import LaplacePosterior, coefficient_prior, laplace_posteriors, transfer_inputs, transfer_problem
+from .posterior import LaplacePosterior, coefficient_prior, has_prior, laplace_posteriors, transfer_inputs, transfer_problem
 
 __all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
            "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",
@@ -231,16 +231,11 @@ def _posteriors(model: Any, mdp: Any, demos_per_task: Any, features: Any) -> tup
         posts = model.transfer_posterior_
     else:
         problem = transfer_problem(model, mdp, demos_per_task, features)
-        posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_)) if _has_prior(model) else None
+        posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_)) if has_prior(model) else None
     if posts is None:
         raise ValidationError("request_starts needs the tasks' posterior, which is undefined for this model: it needs "
                               "at least 2 training tasks' coefficients_ and a residual_penalty_ other than 0")
     return posts, problem
-
-
-def _has_prior(model: Any) -> bool:
-    H = getattr(model, "coefficients_", None)
-    return H is not None and np.shape(H)[0] >= 2 and float(getattr(model, "residual_penalty_", np.inf)) != 0.0
 
 
 CRITERIA = {"information": information_gains, "value": value_variance_reductions, "regret": regret_reductions}

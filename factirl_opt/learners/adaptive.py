@@ -5,7 +5,7 @@ chosen by a validation that imitates the use of the learner: learn a dictionary 
 transfer it to a new task from a few demonstrations, and judge the transferred reward on what
 that task's expert does elsewhere.
 
-K-fold over tasks (:func:`choose_sharing`): the tasks are split into ``n_folds`` folds; for each
+K-fold over tasks (:func:`search_sharing`): the tasks are split into ``n_folds`` folds; for each
 fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' tasks, each
 held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
 its remaining demonstrations by their negative log-likelihood per step under the learner's
@@ -16,7 +16,7 @@ keeps the learner's ``beta``, ``score="objective"`` scores by the learner's obje
 policy matching is the squared policy difference; ``score="occupancy"`` compares where the
 transferred reward's optimal policy goes with where the expert went, :func:`held_out_occupancy_gap`).
 
-The choice (:func:`choose_sharing`). The candidate of lowest mean score leads (ties: the earlier
+The choice (:func:`search_sharing`). The candidate of lowest mean score leads (ties: the earlier
 candidate, i.e. more sharing); it replaces the flat model (``lambda = 0``, each task learnt
 alone) only if its gain over it, paired over the held-out tasks, is significant: more than
 ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of the gains (a one-sided paired t-test; the
@@ -26,7 +26,7 @@ held-out scores are within their noise, the learner keeps what each task's own d
 say. By default the folds are a race: every candidate is scored on the first fold, only those
 within ``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``). When a
 shared candidate is chosen and k is ``"auto"``, k is then bisected around it at its lambda
-(:func:`choose_sharing`): ``K_CANDIDATES`` doubles, and the true number of primitives rarely
+(:func:`search_sharing`): ``K_CANDIDATES`` doubles, and the true number of primitives rarely
 is a power of two.
 
 Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
@@ -52,17 +52,16 @@ from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
 from scipy.stats import t as t_dist
 
+from .._deprecation import warn_once
 from .._validation import as_rng, check_int, check_rewards
 from ..exceptions import ConvergenceWarning, FitInterrupted, ValidationError
 from .fitting import resolve_step_solver, task_objective
-from ..objectives.sharding import Execution
 from ..tasks.task_set import TaskSet, per_task_features, task_set
-from .solver_settings import estimator_solvers
+from .solver_settings import SolverSettings, estimator_solvers
 from .em import log_policies
 from .intention_count import one_standard_error_choice
 from .gradirl import GradIRL
 from .estimator import clone
-from .approximate_cv import leave_task_out_scores
 from .evidence import (confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence,
                        plausible_ranks)
 from ..mdp.tabular import TabularMDP
@@ -86,17 +85,17 @@ LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
 N_FOLDS = 3
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
-#: the searches of :func:`choose_sharing`: every candidate on every fold, a race, a race with warm starts (see there);
+#: the searches of :func:`search_sharing`: every candidate on every fold, a race, a race with warm starts (see there);
 #: ``"evidence"``: k from Minka's evidence of the flat start (:mod:`~factirl_opt.learners.evidence`), its
 #: candidates on every fold (:func:`search_sharing`)
-SEARCHES = ("full", "race", "race-warm", "evidence", "approx-loo")
+SEARCHES = ("full", "race", "race-warm", "evidence")
 #: the search ``FactIRL.fit`` uses
 DEFAULT_SEARCH = "race"
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
 RACE_MARGIN = 0.1
 #: a warm-started candidate's outer iterations, as a fraction of ``max_iter`` (at least one)
 WARM_BUDGET = 0.5
-#: held-out scores of :func:`choose_sharing`: the negative log-likelihood under the learner's
+#: held-out scores of :func:`search_sharing`: the negative log-likelihood under the learner's
 #: policy model with its inverse temperature fitted per task (:func:`held_out_nll`), the same
 #: with the learner's ``beta``, the learner's own objective, or the distance between the
 #: occupancies of the transferred reward's optimal policy and of the demonstrations
@@ -195,7 +194,7 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
     R = _one_reward(mdp, rewards)
     mu, pi_hat = task_set(mdp, [demos]).statistics()
     weights = mu[0][:, None] * pi_hat[0]
-    log_pi = log_policies(get_planner(mdp, model.planner), R[None], model.beta, model.objective)[0]
+    log_pi = log_policies(get_planner(mdp, model._group("execution").planner), R[None], model.beta, model.objective)[0]
     if not temper:
         return float(-np.sum(weights * log_pi))
     seen = weights.sum(axis=1) > 0
@@ -285,9 +284,9 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
     for j, i in enumerate(idx):
         one, rest = held.mdp if held.mdps is None else held.mdps[j], demos[i][t:]
         if score == "occupancy":
-            out[j] = held_out_occupancy_gap(one, rest, rewards[j], model.planner)
+            out[j] = held_out_occupancy_gap(one, rest, rewards[j], model._group("execution").planner)
         elif score == "objective":
-            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model.planner)
+            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model._group("execution").planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
             out[j] = held_out_nll(one, rest, rewards[j], model, temper=score == "likelihood")
@@ -296,89 +295,12 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
 
 def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None,
                    search: str = DEFAULT_SEARCH, score: str = DEFAULT_SCORE, **options: Any) -> tuple[int, float, list[dict]]:
-    """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over tasks.
-
-    ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
-    every candidate on the first fold, keeps those whose score there is at most
-    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and the flat
-    model, and scores only these on the other folds: a candidate far behind on one fold has no
-    chance of the best mean, and the folds after the first cost only the contenders (a race, as
-    in F-race or successive halving). The pruned candidates keep their first fold's scores (one
-    entry in ``fold_scores``); the choice is among the candidates scored on every fold (the flat
-    model alone, if it is the only contender left). In a race ``lambda = 0`` is not fitted when
-    another candidate was fitted on the fold: its transfer, the flat learner's, takes that
-    candidate's model (whose dictionary plays no part there). ``"race-warm"`` also warm-starts
-    along lambda: on each fold, a candidate whose predecessor (the candidate before it with the
-    same k: the next larger lambda) was fitted on that fold starts from the predecessor's
-    dictionary and coefficients, with ``WARM_BUDGET * max_iter`` outer iterations (at least one;
-    the predecessor already spent ``max_iter``). Measured (results/README.md): on the ``tiny`` grid the race
-    cost 19-21x one fixed fit against 26-30x for the full search, with the same choice, on the
-    ``quick`` grid 11.9x against 30.3x; the warm race 16-18x on ``tiny``, but its shortened fits
-    moved the scores enough to change the choice on both seeds, to pairs that transferred worse.
-
-    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
-    candidate and the leader's mean gain over it, paired over the n held-out tasks, is at most
-    ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of that gain (not significant): then the flat
-    model.
-
-    Then, if k is ``"auto"`` and the choice shares (``lambda > 0``), a bisection of k at the
-    chosen lambda: the midpoints between the chosen k and its nearest tried neighbours
-    (:func:`_between`; 8 between 4 and 16 gives 6 and 12) are scored on every fold and the choice
-    is made again over the whole table; while it moves to a midpoint, the step repeats around it.
-    On the paper's grid with 100 tasks (seed 0) the race chose (8, 1) and transferred at 5.89,
-    where k = 6 and k = 5 without residuals transfer at 5.06 and 4.87
-    (``results/which-learner/README.md``).
-
-    Parameters
-    ----------
-    learner : FactIRL
-        Its other hyper-parameters are used by every candidate fit.
-    mdp, demos_per_task
-        As in ``FactIRL.fit``.
-    flat_rewards : optional
-        The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
-        every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
-    search : {"full", "race", "race-warm", "evidence", "approx-loo"}
-        ``"evidence"``: k is not searched but read from Minka's evidence of the PCA of the flat
-        rewards (:func:`~factirl_opt.learners.evidence.flat_start_evidence`; one SVD, no fit):
-        the candidates are that k, half and twice it
-        (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at inf, the largest finite
-        lambda and 0 (:func:`~factirl_opt.learners.evidence.evidence_penalties`), scored on
-        every fold; a shared choice at the smallest k tried is followed, at its lambda, by half
-        that k while the choice moves there, then by the bisection below; when the evidence finds no shared direction, or more
-        than half the training tasks of a fold, the flat model is chosen unscored (its row has
-        NaN scores and no fold). A shared choice of k with at least
-        :data:`~factirl_opt.learners.evidence.CONFIRM_TASKS_PER_PRIMITIVE` training tasks of a fold
-        per primitive is then confirmed: k - 1, k and k + 1 at its lambda are refitted with the
-        learner's ``max_iter`` on every fold, their screen scores replaced, and the rule chooses
-        among them (:func:`~factirl_opt.learners.evidence.confirmation_primitives`). Needs
-        ``flat_rewards``.
-        ``"approx-loo"``: no folds (``cv`` unused); each candidate is fitted once on every task and
-        every task scored as held out, with the dictionary of one Gauss-Newton step from that fit
-        toward the fit without it (:mod:`~factirl_opt.learners.approximate_cv`; the table has one
-        fold of all n tasks, k up to n - 1). The policy-matching objective on one MDP only.
-    score : {"likelihood", "fixed-beta", "objective", "occupancy"}
-        The held-out score (:data:`SCORES`; module docstring).
-    **options
-        The other settings of :func:`search_sharing` (``cv``, the grids, the rule, ...).
-
-    Returns
-    -------
-    k : int
-    lambda : float
-    validation : list of dict
-        One row per candidate, the grid's then the bisection's in the order they were scored:
-        ``n_primitives``, ``residual_penalty``, ``score`` (mean held-out
-        score over the held-out tasks of the folds it was scored on), ``score_std`` (of the
-        folds' means), ``fold_scores`` (each fold's mean), ``task_scores`` (each held-out task's
-        score, fold after fold), ``chosen``.
-
-    Raises
-    ------
-    ValidationError
-        Fewer than 2 tasks, or a task with at most ``N_TRANSFER_DEMOS`` demonstrations (no
-        demonstration left to score it on), or an unknown ``search`` or ``score``.
-    """
+    """Deprecated: ``search_sharing(...).as_tuple()``, the search's ``(k, lambda, rows)``
+    (:func:`search_sharing`, with the same arguments); the search as a component is
+    :class:`~factirl_opt.learners.selection.SharingSearch`."""
+    warn_once("adaptive.choose_sharing", "factirl_opt.learners.adaptive.choose_sharing is deprecated: "
+                                         "search_sharing(...).as_tuple() gives its (k, lambda, rows); "
+                                         "SharingSearch(route=..., score=...).search(...) is the search as a component")
     return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=score, **options).as_tuple()
 
 
@@ -393,7 +315,7 @@ class SearchResult:
     residual_penalty : float
         The chosen lambda.
     rows : list of dict
-        The validation table (``choose_sharing``'s third value), the chosen row marked.
+        The validation table (``as_tuple()``'s third value), the chosen row marked.
     folds : list of ndarray of int
         The held-out tasks of each fold, in the order scored.
     scores : dict
@@ -498,13 +420,66 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                    n_transfer_demos: int = N_TRANSFER_DEMOS, race_margin: float = RACE_MARGIN,
                    share_level: float = SHARE_LEVEL, rule: str = DEFAULT_RULE,
                    candidate_max_iter: int | None = None, transfer_max_iter: int | None = None) -> SearchResult:
-    """:func:`choose_sharing` with every setting of the search given (the defaults are today's
-    ``FactIRL.fit``), and the folds and scores returned too.
+    """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values) by K-fold over
+    tasks, every setting of the search given, with the folds and scores.
+
+    ``search="full"`` scores every candidate on every fold. ``"race"`` (the default) scores
+    every candidate on the first fold, keeps those whose score there is at most
+    ``(1 + RACE_MARGIN)`` times the best one (within ``RACE_MARGIN |best|`` of it), and the flat
+    model, and scores only these on the other folds: a candidate far behind on one fold has no
+    chance of the best mean, and the folds after the first cost only the contenders (a race, as
+    in F-race or successive halving). The pruned candidates keep their first fold's scores (one
+    entry in ``fold_scores``); the choice is among the candidates scored on every fold (the flat
+    model alone, if it is the only contender left). In a race ``lambda = 0`` is not fitted when
+    another candidate was fitted on the fold: its transfer, the flat learner's, takes that
+    candidate's model (whose dictionary plays no part there). ``"race-warm"`` also warm-starts
+    along lambda: on each fold, a candidate whose predecessor (the candidate before it with the
+    same k: the next larger lambda) was fitted on that fold starts from the predecessor's
+    dictionary and coefficients, with ``WARM_BUDGET * max_iter`` outer iterations (at least one;
+    the predecessor already spent ``max_iter``). Measured (results/README.md): on the ``tiny`` grid the race
+    cost 19-21x one fixed fit against 26-30x for the full search, with the same choice, on the
+    ``quick`` grid 11.9x against 30.3x; the warm race 16-18x on ``tiny``, but its shortened fits
+    moved the scores enough to change the choice on both seeds, to pairs that transferred worse.
+
+    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
+    candidate and the leader's mean gain over it, paired over the n held-out tasks, is at most
+    ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of that gain (not significant): then the flat
+    model.
+
+    Then, if k is ``"auto"`` and the choice shares (``lambda > 0``), a bisection of k at the
+    chosen lambda: the midpoints between the chosen k and its nearest tried neighbours
+    (:func:`_between`; 8 between 4 and 16 gives 6 and 12) are scored on every fold and the choice
+    is made again over the whole table; while it moves to a midpoint, the step repeats around it.
+    On the paper's grid with 100 tasks (seed 0) the race chose (8, 1) and transferred at 5.89,
+    where k = 6 and k = 5 without residuals transfer at 5.06 and 4.87
+    (``results/which-learner/README.md``).
 
     Parameters
     ----------
-    learner, mdp, demos_per_task, flat_rewards, search, score
-        As in :func:`choose_sharing`.
+    learner : FactIRL
+        Its other hyper-parameters are used by every candidate fit.
+    mdp, demos_per_task
+        As in ``FactIRL.fit``.
+    flat_rewards : optional
+        The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
+        every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
+    search : {"full", "race", "race-warm", "evidence"}
+        ``"evidence"``: k is not searched but read from Minka's evidence of the PCA of the flat
+        rewards (:func:`~factirl_opt.learners.evidence.flat_start_evidence`; one SVD, no fit):
+        the candidates are that k, half and twice it
+        (:func:`~factirl_opt.learners.evidence.evidence_primitives`) at inf, the largest finite
+        lambda and 0 (:func:`~factirl_opt.learners.evidence.evidence_penalties`), scored on
+        every fold; a shared choice at the smallest k tried is followed, at its lambda, by half
+        that k while the choice moves there, then by the bisection below; when the evidence finds no shared direction, or more
+        than half the training tasks of a fold, the flat model is chosen unscored (its row has
+        NaN scores and no fold). A shared choice of k with at least
+        :data:`~factirl_opt.learners.evidence.CONFIRM_TASKS_PER_PRIMITIVE` training tasks of a fold
+        per primitive is then confirmed: k - 1, k and k + 1 at its lambda are refitted with the
+        learner's ``max_iter`` on every fold, their screen scores replaced, and the rule chooses
+        among them (:func:`~factirl_opt.learners.evidence.confirmation_primitives`). Needs
+        ``flat_rewards``.
+    score : {"likelihood", "fixed-beta", "objective", "occupancy"}
+        The held-out score (:data:`SCORES`; module docstring).
     cv : int, splitter or iterable, default=N_FOLDS
         The folds over tasks (:func:`task_folds`; an int's permutation drawn from ``learner.rng``).
     k_grid, lam_grid : sequences
@@ -526,6 +501,12 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     Returns
     -------
     SearchResult
+
+    Raises
+    ------
+    ValidationError
+        Fewer than 2 tasks, or a task with at most ``n_transfer_demos`` demonstrations (no
+        demonstration left to score it on), or an unknown ``search``, ``score`` or ``rule``.
     """
     if search not in SEARCHES:
         raise ValidationError(f"search must be one of {SEARCHES}; got {search!r}")
@@ -546,9 +527,8 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         raise ValidationError(f"choosing n_primitives or residual_penalty by validation transfers each held-out task from {t} "
                               f"demonstration(s) and scores it on the others: task {short[0]} has "
                               f"{_count(demos_per_task[short[0]])}; give every task at least {t + 1}")
-    approx = search == "approx-loo"  # every task held out, by one Newton step from one fit (approximate_cv; no cv)
-    folds = [np.arange(n)] if approx else task_folds(n, cv, learner.rng)
-    k_max = min(_reward_dimension(learner, mdp, n), n - 1) if approx else max_primitives(learner, mdp, n, folds)
+    folds = task_folds(n, cv, learner.rng)
+    k_max = max_primitives(learner, mdp, n, folds)
     n_train = n - max(len(f) for f in folds)  # the fewest training tasks of a fold
     progress = SearchProgress()
     progress.folds, progress.n_tasks = folds, n
@@ -556,9 +536,6 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     run = functools.partial(score_candidates, learner, mdp, demos_per_task, flat_rewards, n_transfer_demos=t,
                             score=score, candidate_max_iter=candidate_max_iter,
                             transfer_max_iter=transfer_max_iter, progress=progress)
-    if approx:
-        run = functools.partial(_approximate_run, learner, mdp, demos_per_task, flat_rewards, t, score,
-                                candidate_max_iter, transfer_max_iter, progress)
     choice = functools.partial(_choice, share_level=share_level, rule=rule)
     try:
         with warnings.catch_warnings():
@@ -616,13 +593,13 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         cause: BaseException = exc
         while isinstance(cause, FitInterrupted) and cause.__cause__ is not None:
             cause = cause.__cause__
-        raise FitInterrupted(progress.interrupted(), "the search of choose_sharing") from cause
+        raise FitInterrupted(progress.interrupted(), "the sharing search") from cause
     rows[best]["chosen"] = True
     return SearchResult(rows[best]["n_primitives"], rows[best]["residual_penalty"], rows, folds, scores, n)
 
 
 class SearchProgress:
-    """What a search of :func:`choose_sharing` has done so far: the ``result`` of the
+    """What a search of :func:`search_sharing` has done so far: the ``result`` of the
     :class:`~factirl_opt.exceptions.FitInterrupted` it raises when interrupted.
 
     Attributes
@@ -640,11 +617,11 @@ class SearchProgress:
         lambda), FactIRL, tasks)``; None before the first fit.
     rows : list of dict
         After an interrupt: the validation table of the candidates scored so far (as
-        :func:`choose_sharing` returns it), the kept candidate's row ``chosen``.
+        :func:`search_sharing` returns it), the kept candidate's row ``chosen``.
     kept : tuple or None
         After an interrupt: ``((k, lambda), FactIRL, tasks)``, the fit kept: the fitted
         candidate of lowest mean score among those scored on the most folds (flat model aside,
-        the rule of :func:`choose_sharing`); when none was scored, the last candidate's fit
+        the rule of :func:`search_sharing`); when none was scored, the last candidate's fit
         (complete, or as far as it got if it was interrupted); None when nothing was fitted.
     """
 
@@ -736,7 +713,7 @@ def bisection_midpoints(k: int, tried: Sequence[int], k_max: int) -> list[int]:
 
 def choose_row(rows: list[dict], rule: str = DEFAULT_RULE, share_level: float = SHARE_LEVEL) -> int:
     """The index of the row a choice ``rule`` (:data:`RULES`) takes in a validation table (rows of
-    :func:`choose_sharing`; ``task_scores`` paired over the same held-out tasks): the rule of
+    :func:`search_sharing`; ``task_scores`` paired over the same held-out tasks): the rule of
     :func:`search_sharing`, for a table already scored (e.g. to compare the rules on one search).
 
     Raises
@@ -795,7 +772,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     learner : FactIRL
         Its other hyper-parameters are used by every candidate fit.
     mdp, demos_per_task, flat_rewards
-        As in :func:`choose_sharing` (every task's).
+        As in :func:`search_sharing` (every task's).
     folds : sequence of arrays of int
         The held-out tasks of each fold (:func:`task_folds`).
     candidates : sequence of (k, lambda)
@@ -842,7 +819,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                 model = fixed_learner(learner, k, lam, max_iter=budget)
                 model.features = sub_features
                 if start is not None:
-                    model.init = (start.dictionary_, start.coefficients_)
+                    model.start = model._group("start").set_params(init=(start.dictionary_, start.coefficients_))
                     model.max_iter = max(1, int(round(WARM_BUDGET * budget)))
                 progress.last = ((k, lam), model, train)
                 model.fit(sub_mdp, take_tasks(demos_per_task, train),
@@ -855,26 +832,15 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     return scores
 
 
-def _approximate_run(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, t: int, score: str,
-                     candidate_max_iter: int | None, transfer_max_iter: int | None, progress: SearchProgress,
-                     folds: Any, candidates: Sequence[tuple[int, float]], **_: Any) -> dict:
-    """:func:`score_candidates` of ``search="approx-loo"``: every task scored as held out, with the dictionary
-    of one Newton step from one fit of each candidate on every task
-    (:func:`~factirl_opt.learners.approximate_cv.leave_task_out_scores`; ``folds`` is the one fold of every task)."""
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
-    return leave_task_out_scores(learner, mdp, demos_per_task, flat_rewards, candidates,
-                                 lambda model, idx: _score(model, tasks, idx, t, score, transfer_max_iter),
-                                 candidate_max_iter=candidate_max_iter, progress=progress)
-
-
 def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     """An unfitted, quiet clone of ``learner`` with fixed ``k`` and ``lambda`` (and ``params`` set).
 
-    ``clone(learner).set_params(n_primitives=k, residual_penalty=lam, verbose=False,
-    callback=None, **params)`` (:func:`~factirl_opt.learners.estimator.clone`).
+    ``clone(learner).set_params(n_primitives=k, residual_penalty=lam, execution=quiet, **params)``
+    (:func:`~factirl_opt.learners.estimator.clone`), ``quiet`` the learner's execution without
+    progress bars or callback.
     """
-    return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "verbose": False, "callback": None,
-                                        **params})
+    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+    return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
 def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
@@ -883,14 +849,16 @@ def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
     return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
 
 
-def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: str, tol: float,
+def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: Any, tol: float,
                        stol: float = 0.0) -> Any:
-    """The flat learner of FactIRL's PCA start (its ``solver``, ``tol`` and saturation rule ``stol``,
-    without the gradient rule, as FactIRL's own flat start) on every task at once (separable: each
-    task's rewards are those of its own fit)."""
-    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner.flat_max_iter, tol=tol, gtol=0.0,
-                   stol=stol, solver=solver, objective=learner.objective, reward=learner.reward,
-                   **Execution.of(learner).params())
+    """The flat learner of FactIRL's PCA start (its ``solver``, a name or ``(name, options)``, ``tol``
+    and saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every
+    task at once (separable: each task's rewards are those of its own fit)."""
+    solver = solver if isinstance(solver, tuple) else (solver, None)
+    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+    flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner._group("start").flat_max_iter, tol=tol,
+                   gtol=0.0, stol=stol, solver=SolverSettings(solver[0], solver[1]), objective=learner.objective,
+                   reward=learner.reward, execution=quiet)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
         return flat.fit(mdp, demos_per_task).rewards_

@@ -13,15 +13,24 @@ name (no validation, no conversion: that happens in ``fit``), so that
   class declares its kind in ``param_kinds``, and the fitted attributes the class declares in
   ``learnt_attributes``.
 
-Renamed parameters. A class lists its old parameter names in ``deprecated_params`` (old name
--> name now); ``__init__`` (decorated with :func:`renamed_params`), :meth:`set_params` and
-unpickling accept the old name, store the value under the new one and issue a
-:class:`~factirl_opt.exceptions.DeprecatedNameWarning` once per class and name in a process.
+Parameter groups. Settings that belong together are one parameter whose value is a small
+frozen dataclass (:class:`factirl_opt._params.ParameterGroup`): ``solver`` a
+:class:`~factirl_opt.SolverSettings`, ``execution`` an :class:`~factirl_opt.Execution`,
+``start`` a :class:`~factirl_opt.Start`. A class lists them in ``param_groups`` (name -> class);
+None (the default, as scikit-learn's defaults are plain values) is the class's default value,
+and the ``solver`` may be a solver name, the H-step solver (:meth:`SolverSettings.of`).
 
-Nested parameters. A parameter whose value has parameters of its own (another estimator, or a
-:class:`~factirl_opt.SolverSettings`: any object with ``get_params``) shows them in
-``get_params(deep=True)`` under ``<parameter>__<name>`` (``solver__h_solver``), and
-:meth:`Estimator.set_params` sets them by the same keys, as scikit-learn does.
+Nested parameters. A parameter whose value has parameters of its own (a group, another
+estimator: any object with ``get_params``) shows them in ``get_params(deep=True)`` under
+``<parameter>__<name>`` (``execution__n_jobs``; a group left at None has none to show, so
+``type(est)(**est.get_params())`` rebuilds a default estimator), and :meth:`Estimator.set_params`
+sets them by the same keys, a group at None from its default value, as scikit-learn does.
+
+Renamed parameters. A class lists its old parameter names in ``deprecated_params`` (old name
+-> name now, or ``<group>__<field>`` for a parameter moved into a group); ``__init__``
+(decorated with :func:`renamed_params`), :meth:`set_params`, the attribute of the old name and
+unpickling accept it, and issue one :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (once
+per class and name in a process).
 
 scikit-learn itself is not a dependency: its ``BaseEstimator`` would bring scikit-learn (and
 its own checks of fitted state and tags) for the 100 lines here. The protocol is scikit-learn's
@@ -41,36 +50,70 @@ from typing import Any, Callable, ClassVar, TypeVar
 import numpy as np
 
 from .._deprecation import warn_once
+from .._params import ParameterGroup
 from ..exceptions import ValidationError
 
-__all__ = ["Estimator", "clone", "renamed_params", "renamed_attribute", "EXECUTION_PARAM_KINDS"]
+__all__ = ["Estimator", "clone", "renamed_params", "renamed_attribute", "EXECUTION_PARAM_KINDS", "EXECUTION_RENAMED"]
 
 E = TypeVar("E", bound="Estimator")
 
 #: The kinds (:mod:`factirl_opt.persistence.params`) of the execution settings every estimator
 #: takes: how a fit is watched and where its evaluations run, none of them part of the model.
-EXECUTION_PARAM_KINDS: dict[str, str] = {"n_jobs": "runtime", "backend": "runtime", "client": "runtime",
-                                         "planner_options": "runtime", "callback": "runtime"}
+EXECUTION_PARAM_KINDS: dict[str, str] = {"execution": "group", "execution__n_jobs": "runtime",
+                                         "execution__backend": "runtime", "execution__client": "runtime",
+                                         "execution__planner": "planner", "execution__planner_options": "runtime",
+                                         "execution__callback": "runtime"}
+#: The deprecated flat names of the execution settings, now fields of ``execution`` (:class:`~factirl_opt.Execution`).
+EXECUTION_RENAMED: dict[str, str] = {name: f"execution__{name}" for name in
+                                     ("n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback")}
 
-def _warn_renamed(cls: type, old: str, new: str, stacklevel: int = 4) -> None:
+def _warn_renamed(cls: type[Estimator], old: str, new: str, stacklevel: int = 4) -> None:
     """One :class:`DeprecatedNameWarning` per class and old name in a process (:func:`factirl_opt._deprecation.warn_once`)."""
-    warn_once(f"param:{cls.__name__}.{old}", f"{cls.__name__}: the parameter {old!r} is now called {new!r}; {old!r} is "
+    top, _, sub = new.partition("__")
+    now = (f"is now the field {sub!r} of {top}={cls.param_groups[top].__name__}(...) (set_params({new}=...))" if sub
+           else f"is now called {new!r}")
+    warn_once(f"param:{cls.__name__}.{old}", f"{cls.__name__}: the parameter {old!r} {now}; {old!r} is "
                                               "deprecated and will be removed in a future release", stacklevel=stacklevel + 1)
 
 
-def _renamed(cls: type, params: dict[str, Any], what: str) -> dict[str, Any]:
-    """``params`` with the class's deprecated names replaced by the names now (warned once)."""
-    renamed: dict[str, str] = getattr(cls, "deprecated_params", {})
+def _renamed(cls: type[Estimator], params: dict[str, Any], what: str, groups: bool = True) -> dict[str, Any]:
+    """``params`` with the class's deprecated names replaced by the names now (warned once); with
+    ``groups``, a name moved into a group sets that field of the group's value (given, or the default)."""
+    renamed: dict[str, str] = {old: new for old, new in getattr(cls, "deprecated_params", {}).items()
+                               if groups or "__" not in new}
     if not renamed or not renamed.keys() & params.keys():
         return params
     out = dict(params)
+    fields: dict[str, dict[str, Any]] = {}
     for old, new in renamed.items():
         if old in out:
-            if new in out:
+            top, _, sub = new.partition("__")
+            if new in out or sub in fields.get(top, {}):
                 raise TypeError(f"{what} got both {old!r} and {new!r} ({old!r} is the deprecated name of {new!r})")
             _warn_renamed(cls, old, new)
-            out[new] = out.pop(old)
+            if sub and isinstance(out.get(top), cls.param_groups[top]):
+                raise ValidationError(f"{what}: give the settings either as one {cls.param_groups[top].__name__} in "
+                                      f"{top} or per name (deprecated), not both; got {top}={out[top]!r:.80} and "
+                                      f"{old}={out[old]!r:.80}")
+            if sub:
+                fields.setdefault(top, {})[sub] = out.pop(old)
+            else:
+                out[new] = out.pop(old)
+    for top, sub_params in fields.items():
+        out[top] = _as_group(cls, top, out.get(top, cls.param_defaults()[top])).set_params(**sub_params)
     return out
+
+
+def _as_group(cls: type[Estimator], name: str, value: Any) -> Any:
+    """The value of group parameter ``name``: None is the group's default, a solver name the H-step's settings."""
+    group = cls.param_groups[name]
+    if value is None:
+        return group()
+    if isinstance(value, group):
+        return value
+    if hasattr(group, "of"):
+        return group.of(value)
+    raise ValidationError(f"{cls.__name__}: {name} must be a {group.__name__} or None; got {_short(value):.80}")
 
 
 def renamed_params(method: Callable[..., Any]) -> Callable[..., Any]:
@@ -83,21 +126,27 @@ def renamed_params(method: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(method)
     def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
-        return method(self, *args, **_renamed(type(self), kwargs, f"{type(self).__name__}.{method.__name__}()"))
+        return method(self, *args, **_renamed(type(self), kwargs, f"{type(self).__name__}.{method.__name__}()",
+                                              groups=method.__name__ == "__init__"))
 
     return wrapper
 
 
 def renamed_attribute(old: str, new: str) -> property:
-    """A property reading and writing the attribute ``new`` under its deprecated name ``old`` (warned once)."""
+    """A property reading and writing the attribute ``new`` (or the group field ``<group>__<field>``)
+    under its deprecated name ``old`` (warned once)."""
+    top, _, sub = new.partition("__")
 
     def get(self: Any) -> Any:
         _warn_renamed(type(self), old, new, stacklevel=3)
-        return getattr(self, new)
+        return self._group(top).former(sub) if sub else getattr(self, new)
 
     def set_(self: Any, value: Any) -> None:
         _warn_renamed(type(self), old, new, stacklevel=3)
-        setattr(self, new, value)
+        if sub:
+            setattr(self, top, self._group(top).set_params(**{sub: value}))
+        else:
+            setattr(self, new, value)
 
     return property(get, set_, doc=f"Deprecated name of ``{new}``.")
 
@@ -161,8 +210,20 @@ class Estimator:
     """
 
     deprecated_params: ClassVar[dict[str, str]] = {}
+    param_groups: ClassVar[dict[str, type]] = {}
     param_kinds: ClassVar[dict[str, str]] = {}
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {}
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """The attribute of each deprecated parameter name (:func:`renamed_attribute`)."""
+        super().__init_subclass__(**kwargs)
+        for old, new in cls.deprecated_params.items():
+            if old not in cls.__dict__:
+                setattr(cls, old, renamed_attribute(old, new))
+
+    def _group(self, name: str) -> Any:
+        """The value of the group parameter ``name`` (its default for None; :data:`param_groups`)."""
+        return _as_group(type(self), name, getattr(self, name))
 
     @classmethod
     def _signature(cls) -> list[inspect.Parameter]:
@@ -238,19 +299,23 @@ class Estimator:
         nested: dict[str, dict[str, Any]] = {}
         for key, value in params.items():
             top, delim, sub = key.partition("__")
-            if top not in names and top not in self.deprecated_params:
+            if top in self.deprecated_params:
+                _warn_renamed(cls, top, self.deprecated_params[top], stacklevel=3)
+                key = self.deprecated_params[top] + delim + sub
+                top, delim, sub = key.partition("__")
+            if top not in names:
                 raise ValidationError(f"{key!r} is not a parameter of {cls.__name__}; its parameters are "
                                       f"{', '.join(names)}")
+            if key in plain or sub in nested.get(top, {}):
+                raise TypeError(f"{cls.__name__}.set_params() got {key!r} twice (under its name and a deprecated one)")
             if delim:
-                if top in self.deprecated_params:
-                    _warn_renamed(cls, top, self.deprecated_params[top], stacklevel=3)
-                    top = self.deprecated_params[top]
                 nested.setdefault(top, {})[sub] = value
             else:
                 plain[key] = value
-        plain = _renamed(cls, plain, f"{cls.__name__}.set_params()")
         for top in nested:
             base = plain.get(top, getattr(self, top))
+            if top in self.param_groups:
+                base = _as_group(cls, top, base)
             if not (_has_params(base) and callable(getattr(base, "set_params", None))):
                 raise ValidationError(f"{top + '__' + next(iter(nested[top]))!r} is not a parameter of "
                                       f"{cls.__name__}: its parameter {top}={_short(base)} has no parameters "
@@ -262,6 +327,7 @@ class Estimator:
                                       f"parameter {top} ({type(base).__name__}) has the parameters {', '.join(inner)}")
         for top, sub_params in nested.items():
             base = plain.get(top, getattr(self, top))
+            base = _as_group(cls, top, base) if top in self.param_groups else base
             changed = base.set_params(**sub_params)  # an estimator changes in place; a settings value gives a new one
             plain[top] = base if changed is None else changed
         for key, value in plain.items():
@@ -271,9 +337,15 @@ class Estimator:
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Unpickling: a parameter saved under a deprecated name gets the name now; one added since gets its default."""
         state = dict(state)
+        fields: dict[str, dict[str, Any]] = {}
         for old, new in self.deprecated_params.items():
-            if old in state and new not in state:
+            top, _, sub = new.partition("__")
+            if old in state and sub:
+                fields.setdefault(top, {})[sub] = state.pop(old)
+            elif old in state and new not in state:
                 state[new] = state.pop(old)
+        for top, sub_params in fields.items():  # a pickle of before the groups: its values, grouped
+            state[top] = _as_group(type(self), top, state.get(top)).set_params(**sub_params)
         for name, default in self.param_defaults().items():
             if name not in state and default is not inspect.Parameter.empty:
                 state[name] = default
@@ -320,6 +392,8 @@ def clone(estimator: E) -> E:
         raise ValidationError(f"clone takes an estimator (GradIRL, FactIRL, MultiIntentIRL); got {type(estimator).__name__}")
     params = {name: clone(value) if isinstance(value, Estimator) else _copied(value)
               for name, value in estimator.get_params(deep=False).items()}
+    params = {name: type(value)(**{k: _copied(v) for k, v in value.get_params().items()})
+              if isinstance(value, ParameterGroup) else value for name, value in params.items()}
     new = type(estimator)(**params)
     stored = new.get_params(deep=False)
     for name, value in params.items():

@@ -14,7 +14,7 @@ The plain functions stay importable from here.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 import solvers
 
 from .._validation import as_rng, check_array, check_bool, check_int, check_tol
-from .estimator import EXECUTION_PARAM_KINDS, Estimator, renamed_attribute, renamed_params
+from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
     check_dictionary_constraint,
@@ -42,13 +42,12 @@ from ..tasks.task_set import task_set
 from .gradirl import fit_weights
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
 from ..objectives.sharding import Execution
-from .solver_settings import SolverSettings, estimator_solvers
+from .solver_settings import SolverSettings, estimator_solvers, step_solver
+from .start import FLAT_TOL, Start
 from ..objectives import Objective
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
-from .posterior import cached_transfer_posterior, keep_transfer_inputs
+from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
 from .selection import SharingSearch
@@ -63,8 +62,8 @@ INITS = ("pca", "random")
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
 
-#: the flat learner of the PCA start: GradIRL's default solver and tolerance
-FLAT_SOLVER, FLAT_TOL = "armijo", 1e-5
+#: the flat learner of the PCA start: GradIRL's default solver
+FLAT_SOLVER = "armijo"
 
 
 def _is_auto(value: Any) -> bool:
@@ -99,45 +98,12 @@ class FactIRL(Estimator):
         (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
         matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
         docs/maths.md §7). Refused together with ``features``.
-    init : {"pca", "random"} or tuple (D0, H0), default="pca"
-        ``"pca"``: learn every task with the flat learner first (``flat_max_iter`` iterations,
-        or use ``flat_rewards`` given to ``fit``) and take the uncentred PCA of the learnt
-        parameters (:func:`pca_dictionary`), as the paper recommends. With ``features``, of the
-        flat learner's feature weights measured by the rewards they give: the PCA of the
-        rewards ``Phi w_i`` (the weights' PCA in the metric ``Phi^T Phi``; nested or constant
-        features such as Objectworld's leave the weights themselves ill-determined), mapped
-        back to feature space by minimum-norm least squares. With one feature matrix per
-        task, the PCA of the flat weights in the metric ``mean_i Phi_i^T Phi_i``
-        (:func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`; the same start, up to the signs
-        of the primitives, when every task has the same features). ``"random"``: Gaussian
-        primitives normalised to unit norm and ``H ~ N(0, 0.3^2)``, so the initial rewards are small (RMS ~0.03 on the 10x10
-        grid) and the Boltzmann policies start far from saturation, where the gradients are
-        informative (a unit-scale random start saturates them and the descent stalls). A tuple
-        gives the initial arrays D0 (p, k) and H0 (n, k).
-    pca_shrink : bool, default=True
-        With ``init="pca"``, halve the start's coefficients while the total loss decreases
-        (:func:`shrink_coefficients`; one planning evaluation per trial): the flat learner's
-        rewards can be so large that their truncation starts the fit in a saturated region.
-        On the paper's grid the policy-matching start is usually kept (two evaluations; halved
-        once in 1 of the paper preset's 27 runs), the MCE one halved once; on 32x32
-        Objectworld the start shrinks 32-fold. False: the PCA start as it is.
-    flat_max_iter : int, default=100
-        Iterations of the flat learner used by ``init="pca"``, and by ``transfer`` of the flat
-        model (``residual_penalty=0``).
-    flat_tol : float, default=1e-5
-        Tolerance of the ``init="pca"`` start's flat fit: each task stops when the relative
-        decrease of its loss over an iteration is at most ``flat_tol`` (>= 0). The start need
-        only be as accurate as the factorial fit needs: on Objectworld with a map per task
-        (30 tasks, L-BFGS start, ``scheme="joint"``, one draw), 1e-3 took 30% fewer evaluations
-        for the start and ended at a lower loss and train deviation
-        (``results/fit-speed/README.md``). The flat model's ``transfer`` keeps 1e-5, the flat
-        learner's own.
-    flat_stol : float, default=0.0
-        The ``init="pca"`` start's saturation rule: each task also stops when the decrease of its
-        loss over an iteration is at most ``flat_stol`` times its decrease since the start
-        (:func:`solvers.stopping.has_saturated`, GradIRL's ``stol``). 0 turns it off (the start
-        as before the rule); ``1e-5``, GradIRL's default, makes the start the flat learner's
-        own fit with its default rules, as the Objectworld presets fit it.
+    start : Start, optional
+        Where the fit starts (:class:`~factirl_opt.Start`: ``init``, ``pca_shrink``,
+        ``flat_max_iter``, ``flat_tol``, ``flat_stol``); None: ``Start()``, the PCA of the
+        flat learner's rewards, as the paper recommends, shrunk while the loss decreases.
+        ``flat_max_iter`` is also the budget of the flat model's ``transfer``
+        (``residual_penalty=0``).
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=5
@@ -156,32 +122,24 @@ class FactIRL(Estimator):
     transfer_max_iter : int, default=100
         Maximum solver steps in ``transfer``.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
-        H-step solver (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``);
-        ``transfer`` uses it too. A :class:`~factirl_opt.SolverSettings` gives the four solver
-        settings as one value (then ``solver_options``, ``d_solver`` and ``d_solver_options``
-        stay at their defaults). Formerly ``h_solver`` (deprecated alias). A constrained
-        solver keeps its constraint in the initialisation and in transfer: for a nonnegative
-        one the primitives of a "pca" initialisation are sign-flipped so their coefficients
-        sum to >= 0 (a "random" one uses ``|H|``), then H0 is projected; a sparse one's L1
-        penalty is part of the H objective and of ``loss_history_``, and its fits keep
-        unit-norm primitives.
-    solver_options : dict, optional
-        Options for a ``solver`` given by name. Formerly ``h_solver_options`` (deprecated alias).
-    d_solver : str or solvers.StepSolver, default="armijo"
-        D-step solver (same registry; ``"armijo"`` is the paper's).
-    d_solver_options : dict, optional
+        The step solvers (:class:`~factirl_opt.SolverSettings`: H-step, D-step, the flat
+        learner's and the transfer's, with their options), or a solver name, the H-step solver
+        (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``) with the others at
+        their defaults: the D-step and the flat learner ``"armijo"`` (the paper's), the
+        transfer the H-step's. A constrained H-step solver keeps its constraint in the
+        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
+        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one uses
+        ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H objective and
+        of ``loss_history_``, and its fits keep unit-norm primitives.
     objective : str, default="policy-matching"
         Per-task loss (``factirl_opt.available_objectives()``).
-    planner : str, default="auto"
-        Planning engine (``factirl_opt.available_planners()``).
     rng : numpy.random.Generator or int or None
         Randomness of the "random" initialisation (and of completing a rank-deficient PCA).
-    n_jobs, backend, client, planner_options : shards and planning budget of fit/transfer, as in :class:`~factirl_opt.GradIRL`
-    verbose : bool, default=False
-        Progress bars on stderr.
-    callback : callable, optional
-        ``callback(iteration, total_loss)`` after each outer iteration of ``fit`` and each step
-        of ``transfer``.
+    execution : Execution, optional
+        Where and how ``fit`` and ``transfer`` run and are watched (:class:`~factirl_opt.Execution`:
+        ``n_jobs``, ``backend``, ``client``, ``planner``, ``planner_options``, ``verbose``,
+        ``callback``, the last called as ``callback(iteration, total_loss)`` after each outer
+        iteration of ``fit`` and each step of ``transfer``); None: ``Execution()``.
     residual_penalty : float or "auto", default=np.inf
         ``lambda`` of the residual model ``R_i = Phi_i (D h_i + delta_i)`` with the penalty
         ``lambda ||delta_i||^2`` on each task's residual (docs/maths.md §8a,
@@ -206,9 +164,6 @@ class FactIRL(Estimator):
         and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
     dictionary_alpha : float, default=0.01
         The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
-    flat_solver : str or solvers.StepSolver, default="armijo"
-        Step solver of the flat learner: the ``init="pca"`` start's flat fit and the transfer of
-        the flat model (``residual_penalty=0``), with its default options and tolerance 1e-5.
     scheme : {"alternating", "joint"}, default="alternating"
         The outer scheme of ``fit`` (:func:`~factirl_opt.learners.factorial.fit_factorial`):
         the paper's alternation of H- and D-steps, or ``inner_steps`` steps of ``d_solver``
@@ -269,7 +224,7 @@ class FactIRL(Estimator):
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
-        :func:`~factirl_opt.learners.adaptive.choose_sharing`, one row per candidate
+        :func:`~factirl_opt.learners.adaptive.search_sharing`, one row per candidate
         ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
         ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
         :func:`~factirl_opt.learners.adaptive.plot_validation` draws it.
@@ -301,58 +256,47 @@ class FactIRL(Estimator):
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
-    deprecated_params: ClassVar[dict[str, str]] = {"h_solver": "solver", "h_solver_options": "solver_options"}
-    h_solver = renamed_attribute("h_solver", "solver")
-    h_solver_options = renamed_attribute("h_solver_options", "solver_options")
+    #: The former names of grouped settings: the start's, the solvers' and the execution's.
+    deprecated_params: ClassVar[dict[str, str]] = {
+        "h_solver": "solver", "h_solver_options": "solver__h_solver_options",
+        "solver_options": "solver__h_solver_options", "d_solver": "solver__d_solver",
+        "d_solver_options": "solver__d_solver_options", "flat_solver": "solver__flat_solver",
+        **{name: f"start__{name}" for name in ("init", "pca_shrink", "flat_max_iter", "flat_tol", "flat_stol")},
+        **EXECUTION_RENAMED,
+    }
+    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution}
+    #: The D-step solver when the solver settings name none.
+    default_d_solver: ClassVar[str] = "armijo"
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
-        "features": "features", "init": "dictionary-start", "solver": "solver", "d_solver": "solver",
-        "objective": "objective", "planner": "planner", "rng": "rng", "sharing_search": "sharing-search",
-        **EXECUTION_PARAM_KINDS,
+        "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver",
+        "objective": "objective", "rng": "rng", "sharing_search": "sharing-search", **EXECUTION_PARAM_KINDS,
     }
 
     @renamed_params
     def __init__(self, n_primitives: int | Literal["auto"] = 5, beta: float = 5.0, *,
                  features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, reward: str = "state-action",
-                 init: Literal["pca", "random"] | tuple[ArrayLike, ArrayLike] = "pca", pca_shrink: bool = True,
-                 flat_max_iter: int = 100, flat_tol: float = FLAT_TOL, flat_stol: float = 0.0, max_iter: int = 100,
-                 inner_steps: int = 5,
-                 tol: float = 1e-5,
+                 start: Start | None = None, max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5,
                  gtol: float = GTOL, transfer_max_iter: int = 100,
-                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
-                 d_solver: str | solvers.StepSolver = "armijo", d_solver_options: dict | None = None,
-                 objective: str | type[Objective] = "policy-matching", planner: str = "auto",
-                 rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
-                 client: Client | None = None, planner_options: dict | None = None, verbose: bool = False,
-                 callback: Callable | None = None, residual_penalty: float | Literal["auto"] = np.inf,
+                 solver: str | solvers.StepSolver | SolverSettings = "armijo",
+                 objective: str | type[Objective] = "policy-matching", rng: np.random.Generator | int | None = None,
+                 execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 flat_solver: str | solvers.StepSolver = FLAT_SOLVER, sharing_search: SharingSearch | None = None,
-                 scheme: str = "alternating") -> None:
+                 sharing_search: SharingSearch | None = None, scheme: str = "alternating") -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
         self.reward = reward
-        self.init = init
-        self.pca_shrink = pca_shrink
-        self.flat_max_iter = flat_max_iter
-        self.flat_tol = flat_tol
-        self.flat_stol = flat_stol
+        self.start = start
         self.max_iter, self.inner_steps, self.tol, self.gtol = max_iter, inner_steps, tol, gtol
         self.transfer_max_iter = transfer_max_iter
         self.solver = solver
-        self.solver_options = solver_options
-        self.d_solver = d_solver
-        self.d_solver_options = d_solver_options
         self.objective = objective
-        self.planner = planner
         self.rng = rng
-        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
-        self.verbose = verbose
-        self.callback = callback
+        self.execution = execution
         self.residual_penalty = residual_penalty
         self.dictionary_constraint = dictionary_constraint
         self.dictionary_alpha = dictionary_alpha
-        self.flat_solver = flat_solver
         self.sharing_search = sharing_search
         self.scheme = scheme
 
@@ -373,11 +317,12 @@ class FactIRL(Estimator):
     def _flat_start(self, n, basis, obj, rng):
         """What the PCA start decomposes (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_points` of
         the flat learner's weights on ``obj``) and its evaluations; the objective is reset after."""
-        flat_solver = resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver")
+        flat_solver = resolve_step_solver(*self._flat_solver(), self.objective, "flat_solver")
+        start = self._group("start")
         ev0 = obj.n_evaluations
         try:
-            res = fit_weights(obj, basis, flat_solver, self.flat_max_iter, self.flat_tol, what="FactIRL.fit (flat start)",
-                              stol=self.flat_stol)
+            res = fit_weights(obj, basis, flat_solver, start.flat_max_iter, start.flat_tol, what="FactIRL.fit (flat start)",
+                              stol=start.flat_stol)
         except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
             D, H = self._pca(basis.start_points(exc.result.coefficients), basis, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
@@ -385,6 +330,10 @@ class FactIRL(Estimator):
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
         return basis.start_points(res.coefficients), obj.n_evaluations - ev0, res.coefficients
+
+    def _flat_solver(self) -> tuple[Any, dict | None]:
+        """The flat learner's ``(solver, options)``: the solver settings' ``flat_solver``, else ``"armijo"``."""
+        return step_solver(SolverSettings.of(self.solver), "flat", (FLAT_SOLVER, None))
 
     def _pca(self, X, basis, rng):
         """The PCA start (D, H) of the flat points X in the basis' metric
@@ -412,7 +361,7 @@ class FactIRL(Estimator):
             D, H = self._pca(X, basis, rng)
             start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
             raise FitInterrupted(start, "FactIRL.fit") from exc
-        if self.pca_shrink:
+        if self._group("start").pca_shrink:
             try:
                 H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(basis.factorial_rewards(D, Hs))[0], H)
             except FitInterrupted as exc:
@@ -429,31 +378,33 @@ class FactIRL(Estimator):
         """``(D0, H0, evaluations, W)``: the start of the fit (``W``, the flat start's weights, None but
         for a PCA start at ``lam = 0``: :meth:`_pca_init`)."""
         k, p = self.n_primitives, basis.n_params
-        if isinstance(self.init, tuple):
-            if len(self.init) != 2:
+        init = self._group("start").init
+        if isinstance(init, tuple):
+            if len(init) != 2:
                 raise ValidationError("init given as a tuple must be (D0, H0)")
-            D0, H0 = check_array(self.init[0], "init D0"), check_array(self.init[1], "init H0")
+            D0, H0 = check_array(init[0], "init D0"), check_array(init[1], "init H0")
             if D0.shape != (p, k) or H0.shape != (n, k):
                 raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
             check_dictionary_norms(D0, "init D0")
             return D0.copy(), H0.copy(), 0, None
-        if isinstance(self.init, str) and self.init == "random":
+        if isinstance(init, str) and init == "random":
             D0 = rng.standard_normal((p, k))
             D0 /= np.linalg.norm(D0, axis=0)
             return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0, None
-        if isinstance(self.init, str) and self.init == "pca":
+        if isinstance(init, str) and init == "pca":
             return self._pca_init(n, basis, flat_rewards, rng, obj, lam)
-        raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {self.init!r}")
+        raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {init!r}")
 
     def _check_params(self, tasks):
         """Validate the hyper-parameters against the task set; the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
         k = check_int(self.n_primitives, "n_primitives", minimum=1)
         if k > tasks.n_params:
             raise ValidationError(f"n_primitives={k} exceeds the reward dimension p={tasks.n_params}")
-        check_int(self.flat_max_iter, "flat_max_iter", minimum=0)
-        check_tol(self.flat_tol, "flat_tol")
-        check_tol(self.flat_stol, "flat_stol")
-        check_bool(self.pca_shrink, "pca_shrink")
+        start = self._group("start")
+        check_int(start.flat_max_iter, "flat_max_iter", minimum=0)
+        check_tol(start.flat_tol, "flat_tol")
+        check_tol(start.flat_stol, "flat_stol")
+        check_bool(start.pca_shrink, "pca_shrink")
         check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
         return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
@@ -483,6 +434,7 @@ class FactIRL(Estimator):
         -------
         self
         """
+        self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
@@ -499,17 +451,18 @@ class FactIRL(Estimator):
                                                      len(tasks.demos_per_task))
         lam = self._residual_penalty(h_solver, self.residual_penalty)
         scheme = check_scheme(self.scheme, h_solver, d_solver) if np.isinf(lam) else "alternating"
-        obj = task_objective(tasks, self.beta, self.objective, self.planner)
+        execution, init = self._group("execution"), self._group("start").init
+        obj = task_objective(tasks, self.beta, self.objective, execution.planner)
         try:
-            with Execution.of(self).evaluate(obj) as obj:
+            with execution.evaluate(obj) as obj:
                 D, H, init_evals, W = self._initial(obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj, lam)
-                if h_solver.constraint == "nonneg" and not isinstance(self.init, tuple):
-                    D, H = orient_nonneg(D, H, self.init == "random")
+                if h_solver.constraint == "nonneg" and not isinstance(init, tuple):
+                    D, H = orient_nonneg(D, H, init == "random")
                 if constraint is not None:
                     D, H = constrained_start(d_solver, D, H, constraint.startswith("nonneg"))
                 Delta = None if W is None else W - residual_weights(D, H, None)  # lam = 0: start at the flat start
                 fit = run_factorial(obj, D, H, h_solver, d_solver, base_features=basis, max_iter=max_iter, inner_steps=inner_steps,
-                                    tol=tol, gtol=gtol, callback=self.callback, verbose=self.verbose,
+                                    tol=tol, gtol=gtol, callback=execution.callback, verbose=execution.verbose,
                                     residual_penalty=lam, residuals=Delta, scheme=scheme)
         except FitInterrupted as exc:
             self._store(tasks, exc.result, int(obj.n_evaluations), lam)
@@ -522,11 +475,12 @@ class FactIRL(Estimator):
 
     def _fit_auto(self, mdp, demos_per_task, flat_rewards):
         """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
-        (:func:`factirl_opt.learners.adaptive.choose_sharing`), then the fit of the chosen pair on every task."""
+        (:func:`factirl_opt.learners.adaptive.search_sharing`), then the fit of the chosen pair on every task."""
         if not _is_auto(self.n_primitives):
             check_int(self.n_primitives, "n_primitives", minimum=1)
         check_residual_penalty(self.residual_penalty)
-        if isinstance(self.init, tuple):
+        start = self._group("start")
+        if isinstance(start.init, tuple):
             raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                                   "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
@@ -534,11 +488,11 @@ class FactIRL(Estimator):
             _check_flat_rewards(tasks, flat_rewards)
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
-        if flat_rewards is None and self.init == "pca":
+        if flat_rewards is None and start.init == "pca":
             try:
-                flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self.flat_solver,
-                                                  check_tol(self.flat_tol, "flat_tol"),
-                                                  check_tol(self.flat_stol, "flat_stol"))
+                flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self._flat_solver(),
+                                                  check_tol(start.flat_tol, "flat_tol"),
+                                                  check_tol(start.flat_stol, "flat_stol"))
             except FitInterrupted as exc:
                 warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
                                  "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
@@ -552,8 +506,8 @@ class FactIRL(Estimator):
             self._keep_search(exc.result, len(tasks.demos_per_task), exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
         table = cv_results(found)
-        model = fixed_learner(self, found.n_primitives, found.residual_penalty, verbose=self.verbose,
-                              callback=self.callback)
+        execution = self._group("execution")
+        model = fixed_learner(self, found.n_primitives, found.residual_penalty, execution=execution)
         try:
             model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
         except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
@@ -662,7 +616,7 @@ class FactIRL(Estimator):
         if solver is None:
             if solver_options is not None:
                 raise ValidationError("solver_options given without solver")
-            solver, solver_options = estimator_solvers(self)[:2]
+            solver, solver_options = step_solver(SolverSettings.of(self.solver), "transfer", estimator_solvers(self)[:2])
         elif isinstance(solver, SolverSettings):
             if solver_options is not None:
                 raise ValidationError(f"solver_options given with solver settings {solver.label()!r}: give the options "
@@ -670,24 +624,26 @@ class FactIRL(Estimator):
             solver, solver_options = solver.h_solver, solver.h_options or None
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
-        obj = task_objective(tasks, self.beta, self.objective, self.planner)
-        step_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
-        lam = self._residual_penalty(step_solver, getattr(self, "residual_penalty_", self.residual_penalty))
+        execution = self._group("execution")
+        obj = task_objective(tasks, self.beta, self.objective, execution.planner)
+        h_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
+        lam = self._residual_penalty(h_solver, getattr(self, "residual_penalty_", self.residual_penalty))
         flat = None
         if lam == 0.0:  # the flat model: fitted as the flat learner fits
-            flat = (resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver"),
-                    check_int(self.flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
+            flat = (resolve_step_solver(*self._flat_solver(), self.objective, "flat_solver"),
+                    check_int(self._group("start").flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
         try:
-            with Execution.of(self).evaluate(obj) as obj:
-                res = run_transfer(obj, D, step_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol)
+            with execution.evaluate(obj) as obj:
+                res = run_transfer(obj, D, h_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol,
+                                   callback=execution.callback, verbose=execution.verbose, residual_penalty=lam, flat=flat,
+                                   gtol=gtol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
-            keep_transfer_inputs(self, mdp, demos_per_task, features)
+            keep_transfer(self, (mdp, demos_per_task, features), tasks, D)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
             raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
-        keep_transfer_inputs(self, mdp, demos_per_task, features)  # transfer_posterior_ is built from them when first read
+        keep_transfer(self, (mdp, demos_per_task, features), tasks, D)  # transfer_posterior_ is built from them when first read
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 
@@ -706,9 +662,9 @@ class FactIRL(Estimator):
         A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
         ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
         the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model; ``save_model`` stores it. None when undefined (fewer than 2 training tasks'
-        coefficients to fit the prior to, or the flat model); AttributeError before any transfer
-        (and on a pickled copy of a model whose posterior was never read or saved).
+        the model (it pickles with it; ``save_model`` stores it). None when undefined (fewer than 2
+        training tasks' coefficients to fit the prior to, or the flat model); AttributeError
+        before any transfer, and after a refit (the transfer's tasks belong to the former fit).
         """
         return cached_transfer_posterior(self)
 

@@ -7,7 +7,7 @@ already built, which ``FactIRL`` also runs for its PCA start on the same objecti
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -16,7 +16,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import check_int, check_tol
-from .estimator import EXECUTION_PARAM_KINDS, Estimator
+from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
     GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
@@ -30,8 +30,6 @@ from ..objectives.problems import weights_problem
 from .solver_settings import SolverSettings, estimator_solvers
 from ..objectives import Objective
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
 
 __all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check_solver_applies"]
 
@@ -145,40 +143,17 @@ class GradIRL(Estimator):
         Step solver (see ``solvers.available_solvers()``), or a
         :class:`~factirl_opt.SolverSettings` (its H-step solver and options; it must not name
         a D-step solver, which GradIRL does not have).
-    solver_options : dict, optional
-        Options for a solver given by name.
     objective : str, default="policy-matching"
         Per-task loss (see ``factirl_opt.available_objectives()``).
-    planner : str, default="auto"
-        Planning engine (see ``factirl_opt.available_planners()``).
-    n_jobs : int or None, default=None
-        Task shards evaluated in parallel during ``fit`` (:mod:`factirl_opt.parallel.shards`,
-        :mod:`factirl_opt.objectives.distributed`): None means 1 (one process, the serial code
-        path), -1 every core, -2 all but one, as in scikit-learn. Each shard's worker keeps
-        its tasks' statistics, warm starts and factorisations between evaluations, so only
-        rewards go in and losses and gradients come out; the result equals ``n_jobs=1``'s to
-        rounding, with the same number of evaluations. Inside a worker process (a shard's,
-        a ``reproduce --jobs`` or Dask sweep worker) it is 1: pools never nest. Tasks in
-        several environments are sharded by whole environments.
-    backend : {"processes", "dask"}, default="processes"
-        Where the shards run: shard 0 in this process and the others in processes of this
-        machine, started at the beginning of ``fit`` and stopped at its end (also on an error
-        or Ctrl-C); or Dask actors on the workers of ``client`` (with ``n_jobs`` None or -1,
-        one shard per worker), a shard whose worker is lost being rebuilt and its evaluation
-        retried.
-    client : dask.distributed.Client, optional
-        The cluster of ``backend="dask"``.
-    planner_options : dict, optional
-        ``{"max_bytes": B}``: the planning memory budget of ``fit`` (and of FactIRL's
-        ``transfer``), per process (:mod:`factirl_opt.planning.budget`): above it the tasks are
-        planned, solved and released chunk by chunk, with the same result to rounding and more
-        factorisations. Shards in other processes or on Dask workers each get this budget.
-        None: no budget of the estimator's own (one set around the call with
-        ``factirl_opt.planning.planning_budget`` applies).
-    verbose : bool, default=False
-        Show a progress bar (iterations, loss) on stderr.
-    callback : callable, optional
-        Called as ``callback(iteration, total_loss)`` after each iteration.
+    execution : Execution, optional
+        Where and how the fit runs and is watched (:class:`~factirl_opt.Execution`: ``n_jobs``,
+        ``backend``, ``client``, ``planner``, ``planner_options``, ``verbose``, ``callback``);
+        None: ``Execution()``, one process, the automatic planner. With ``n_jobs``, each
+        shard's worker keeps its tasks' statistics, warm starts and factorisations between
+        evaluations; the result equals ``n_jobs=1``'s to rounding, with the same number of
+        evaluations, and tasks in several environments are sharded by whole environments.
+        ``planner_options={"max_bytes": B}`` is the planning memory budget per process
+        (:mod:`factirl_opt.planning.budget`), also of FactIRL's ``transfer``.
 
     Only ``beta`` and ``features`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -235,14 +210,16 @@ class GradIRL(Estimator):
 
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {"features": "features", "solver": "solver", "objective": "objective",
-                                             "planner": "planner", **EXECUTION_PARAM_KINDS}
+                                             **EXECUTION_PARAM_KINDS}
+    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "execution": Execution}
+    #: The former flat names of grouped settings (warned once; :mod:`factirl_opt.learners.estimator`).
+    deprecated_params: ClassVar[dict[str, str]] = {"solver_options": "solver__h_solver_options", **EXECUTION_RENAMED}
 
+    @renamed_params
     def __init__(self, beta: float = 5.0, features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, *,
                  reward: str = "state-action", max_iter: int = 100, tol: float = 1e-5, gtol: float = GTOL,
-                 stol: float = STOL, solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
-                 objective: str | type[Objective] = "policy-matching", planner: str = "auto", n_jobs: int | None = None,
-                 backend: str = "processes", client: Client | None = None, planner_options: dict | None = None,
-                 verbose: bool = False, callback: Callable | None = None) -> None:
+                 stol: float = STOL, solver: str | solvers.StepSolver | SolverSettings = "armijo",
+                 objective: str | type[Objective] = "policy-matching", execution: Execution | None = None) -> None:
         self.beta = beta
         self.features = features
         self.reward = reward
@@ -251,13 +228,8 @@ class GradIRL(Estimator):
         self.gtol = gtol
         self.stol = stol
         self.solver = solver
-        self.solver_options = solver_options
         self.objective = objective
-        self.planner = planner
-        self.n_jobs, self.backend, self.client = n_jobs, backend, client
-        self.planner_options = planner_options
-        self.verbose = verbose
-        self.callback = callback
+        self.execution = execution
 
     @learner_entry
     def fit(self, mdp: Any, demos_per_task: Any) -> GradIRL:
@@ -280,16 +252,17 @@ class GradIRL(Estimator):
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         loop = (check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol"),
                 check_tol(self.stol, "stol"))
-        objective = task_objective(tasks, self.beta, self.objective, self.planner)
+        objective = task_objective(tasks, self.beta, self.objective, self._group("execution").planner)
         return self._run(objective, tasks.basis, loop, lambda res, obj: self._store(tasks, res, obj))
 
     def _run(self, objective, basis, loop, store):
         max_iter, tol, gtol, stol = loop
         solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
+        execution = self._group("execution")
         try:
-            with Execution.of(self).evaluate(objective) as objective:  # n_jobs=1: the objective itself
-                res = fit_weights(objective, basis, solver, max_iter, tol, self.callback, self.verbose, "GradIRL.fit",
-                                  gtol=gtol, stol=stol)
+            with execution.evaluate(objective) as objective:  # n_jobs=1: the objective itself
+                res = fit_weights(objective, basis, solver, max_iter, tol, execution.callback, execution.verbose,
+                                  "GradIRL.fit", gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             store(exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "

@@ -20,7 +20,7 @@ labels and pair recovered intentions with true tasks.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,7 +30,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import as_rng, check_array, check_bool, check_int
-from .estimator import EXECUTION_PARAM_KINDS, Estimator
+from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
 from .fitting import learner_entry
@@ -39,9 +39,8 @@ from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_cand
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
 from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
+from .start import IntentionStart
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
 from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
 from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
@@ -107,18 +106,11 @@ class MultiIntentIRL(Estimator):
         a few reward features.
     n_folds : int, default=3
         Folds of ``selection="held-out"``, at least 2.
-    init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
-        Hard starting responsibilities from ``"agreement"``: greedy agglomeration of the
-        episodes by the actions they take in the states they share (same action: together;
-        different actions: apart; :func:`factirl_opt.learners.em.agreement_clustering`), or
-        ``"frequencies"``: k-means (k-means++ seeding, 10 seedings) of the episodes' normalised
-        state-action counts next to their action frequencies. ``"random"``: responsibilities
-        drawn from a flat Dirichlet. An array gives the starting labels (n_episodes,) or
-        responsibilities (n_episodes, K). On the paper's grid (8 tasks x 10 episodes of 10
-        steps) the agreement start is the closest to the true tasks (adjusted Rand index about
-        0.25-0.4, against 0.1-0.2 for the frequencies).
-    n_init : int, default=1
-        EM runs from independent starts; the run of highest best log-likelihood is kept.
+    start : IntentionStart, optional
+        Where EM starts (:class:`~factirl_opt.IntentionStart`: ``init``, the starting
+        responsibilities, and ``n_init``, the runs from independent starts); None:
+        ``IntentionStart()``, one run from the agreement start (the closest to the true tasks on
+        the paper's grid).
     max_iter : int, default=20
         EM iterations (each one M-step and one E-step).
     tol : float, default=1e-6
@@ -131,33 +123,19 @@ class MultiIntentIRL(Estimator):
         Solver steps per block of the factorial M-step.
     solver : str, solvers.StepSolver or SolverSettings, default="armijo"
         Step solver of a flat M-step and of the H-step of a factorial one
-        (``solvers.available_solvers()``), or a :class:`~factirl_opt.SolverSettings` giving the
-        solver settings as one value (then ``solver_options``, ``d_solver`` and
-        ``d_solver_options`` stay at their defaults).
-    solver_options : dict, optional
-        Options for a ``solver`` given by name.
-    d_solver : str or solvers.StepSolver, optional
-        D-step solver of a factorial M-step; None: ``solver`` (with ``solver_options``).
-    d_solver_options : dict, optional
-        Options for a ``d_solver`` given by name.
-    planner : str, default="auto"
+        (``solvers.available_solvers()``), or a :class:`~factirl_opt.SolverSettings` (its
+        ``d_solver``: the D-step of a factorial M-step; not named, the H-step's solver).
     rng : numpy.random.Generator or int or None
         Randomness of the starts (and of completing a rank-deficient PCA).
-    n_jobs, backend, client : int or None, str, dask.distributed.Client
-        Shards of each M-step's objective over the K intentions, as in
-        :class:`~factirl_opt.GradIRL` (:func:`factirl_opt.objectives.sharding.sharded`): the
-        shards' workers are started for each M-step (the intentions' statistics change with
-        the responsibilities) and stopped after it, so they pay off when an M-step plans large
-        MDPs; the E-step plans in this process. The result equals ``n_jobs=1``'s to rounding.
-    planner_options : dict, optional
-        ``{"max_bytes": B}``: the planning memory budget of ``fit`` (as in :class:`GradIRL`).
-    verbose : bool, default=False
-        Show a progress bar of the EM iterations (and the log-likelihood) on stderr, over the
-        ``n_init`` runs of the final fit.
-    callback : callable, optional
-        ``callback(iteration, log_likelihood)`` after each EM iteration (of the final fit only:
-        not of the fits that choose K with ``n_intentions="auto"``; with ``selection="bic"``
-        the kept fit is one of those).
+    execution : Execution, optional
+        :class:`~factirl_opt.Execution` (None: ``Execution()``). ``n_jobs``, ``backend`` and
+        ``client`` shard each M-step's objective over the K intentions (started for each M-step
+        and stopped after it, so they pay off when an M-step plans large MDPs; the E-step plans
+        in this process; the result equals ``n_jobs=1``'s to rounding); ``planner_options`` is
+        the planning budget of ``fit``; ``verbose`` shows the EM iterations of the final fit's
+        ``n_init`` runs; ``callback(iteration, log_likelihood)`` is called after each EM
+        iteration of the final fit only (not of the fits that choose K with
+        ``n_intentions="auto"``; with ``selection="bic"`` the kept fit is one of those).
 
     Only ``n_intentions`` and ``n_primitives`` may be given by position; the others are
     keyword-only. ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the
@@ -207,8 +185,14 @@ class MultiIntentIRL(Estimator):
 
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
-        "features": "features", "init": "responsibility-start", "solver": "solver", "d_solver": "solver",
-        "objective": "objective", "planner": "planner", "rng": "rng", **EXECUTION_PARAM_KINDS,
+        "features": "features", "start": "group", "start__init": "responsibility-start", "solver": "solver",
+        "objective": "objective", "rng": "rng", **EXECUTION_PARAM_KINDS,
+    }
+    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": IntentionStart, "execution": Execution}
+    #: The former names of grouped settings: the start's, the solvers' and the execution's.
+    deprecated_params: ClassVar[dict[str, str]] = {
+        "init": "start__init", "n_init": "start__n_init", "solver_options": "solver__h_solver_options",
+        "d_solver": "solver__d_solver", "d_solver_options": "solver__d_solver_options", **EXECUTION_RENAMED,
     }
     #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
     #: ``load_model`` what to check (factirl_opt.persistence.learnt): m episodes, K intentions,
@@ -221,19 +205,15 @@ class MultiIntentIRL(Estimator):
         "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
     }
 
+    @renamed_params
     def __init__(self, n_intentions: int | Literal["auto"], n_primitives: int | None = None, *,
                  features: ArrayLike | RewardBasis | None = None,
                  reward: str = "state-action", objective: str = "policy-matching", beta: float = 5.0,
                  n_intentions_range: tuple[int, int] | None = None, selection: str = "held-out", n_folds: int = 3,
-                 init: Literal["agreement", "frequencies", "random"] | ArrayLike = "agreement", n_init: int = 1,
-                 max_iter: int = 20, tol: float = 1e-6,
+                 start: IntentionStart | None = None, max_iter: int = 20, tol: float = 1e-6,
                  m_step_max_iter: int = 20, m_step_tol: float = 1e-5, inner_steps: int = 5,
-                 solver: str | solvers.StepSolver | SolverSettings = "armijo", solver_options: dict | None = None,
-                 d_solver: str | solvers.StepSolver | None = None,
-                 d_solver_options: dict | None = None, planner: str = "auto",
-                 rng: np.random.Generator | int | None = None, n_jobs: int | None = None, backend: str = "processes",
-                 client: Client | None = None, planner_options: dict | None = None, verbose: bool = False,
-                 callback: Callable | None = None) -> None:
+                 solver: str | solvers.StepSolver | SolverSettings = "armijo",
+                 rng: np.random.Generator | int | None = None, execution: Execution | None = None) -> None:
         self.n_intentions = n_intentions
         self.n_primitives = n_primitives
         self.features = features
@@ -243,26 +223,19 @@ class MultiIntentIRL(Estimator):
         self.n_intentions_range = n_intentions_range
         self.selection = selection
         self.n_folds = n_folds
-        self.init = init
-        self.n_init = n_init
+        self.start = start
         self.max_iter = max_iter
         self.tol = tol
         self.m_step_max_iter = m_step_max_iter
         self.m_step_tol = m_step_tol
         self.inner_steps = inner_steps
         self.solver = solver
-        self.solver_options = solver_options
-        self.d_solver = d_solver
-        self.d_solver_options = d_solver_options
-        self.planner = planner
         self.rng = rng
-        self.n_jobs, self.backend, self.client, self.planner_options = n_jobs, backend, client, planner_options
-        self.verbose = verbose
-        self.callback = callback
+        self.execution = execution
 
     def _given_start(self, n, K):
         """Starting responsibilities (n, K) from ``init`` given as labels or responsibilities."""
-        start = check_array(self.init, "init")
+        start = check_array(self._group("start").init, "init")
         if start.ndim == 1:
             labels = start.astype(np.int64)
             if start.shape != (n,) or np.any(labels != start) or np.any((labels < 0) | (labels >= K)):
@@ -274,10 +247,11 @@ class MultiIntentIRL(Estimator):
         return start
 
     def _check_init(self):
-        if isinstance(self.init, str):
-            if self.init not in INITS:
-                raise ValidationError(f"init must be one of {', '.join(map(repr, INITS))} or an array; got {self.init!r}")
-            return self.init
+        init = self._group("start").init
+        if isinstance(init, str):
+            if init not in INITS:
+                raise ValidationError(f"init must be one of {', '.join(map(repr, INITS))} or an array; got {init!r}")
+            return init
         return "given"
 
     @learner_entry
@@ -308,13 +282,14 @@ class MultiIntentIRL(Estimator):
         mdp = tasks.mdp
         steps, lengths = parse_episodes(mdp, episodes)
         init = self._check_init()
-        n_init = check_int(self.n_init, "n_init", minimum=1)
-        check_bool(self.verbose, "verbose")
-        if self.callback is not None and not callable(self.callback):
+        execution = self._group("execution")
+        n_init = check_int(self._group("start").n_init, "n_init", minimum=1)
+        check_bool(execution.verbose, "verbose")
+        if execution.callback is not None and not callable(execution.callback):
             raise ValidationError(f"callback must be callable as callback(iteration, log_likelihood); "
-                                  f"got {type(self.callback).__name__}")
+                                  f"got {type(execution.callback).__name__}")
         rng = as_rng(self.rng)
-        with Execution.of(self).budget():
+        with execution.budget():
             if isinstance(self.n_intentions, str):
                 K, run = self._select(tasks, steps, lengths, init, n_init, rng)
             else:
@@ -327,7 +302,7 @@ class MultiIntentIRL(Estimator):
             settings = EMSettings.build(self, tasks, K)
             if run is None:
                 given = self._given_start(len(lengths), K) if init == "given" else None
-                with fit_progress(None, self.verbose, n_init * settings.max_iter, "MultiIntentIRL.fit",
+                with fit_progress(None, execution.verbose, n_init * settings.max_iter, "MultiIntentIRL.fit",
                                   "log-likelihood") as bar:
                     run = best_of_runs(mdp, steps, lengths, settings, init, given, rng, n_init,
                                        self._watch(bar))
@@ -336,7 +311,8 @@ class MultiIntentIRL(Estimator):
 
     def _watch(self, bar: Callable) -> Callable | None:
         """The EM loop's callback: the progress bar over every run's iterations, and the user's ``callback``."""
-        if not self.verbose and self.callback is None:
+        execution = self._group("execution")
+        if not execution.verbose and execution.callback is None:
             return None
         done = 0
 
@@ -344,8 +320,8 @@ class MultiIntentIRL(Estimator):
             nonlocal done
             done += 1
             bar(done, log_likelihood)
-            if self.callback is not None:
-                self.callback(iteration, log_likelihood)
+            if execution.callback is not None:
+                execution.callback(iteration, log_likelihood)
 
         return watch
 
@@ -422,11 +398,9 @@ class MultiIntentIRL(Estimator):
         if d_solver is None:  # the M-step's D-step solver: the H-step's
             d_solver, d_options = solver, options
         model = FactIRL(n_primitives=self.dictionary_.shape[1], beta=self.beta, tol=self.m_step_tol,
-                        inner_steps=self.inner_steps, solver=solver, solver_options=options, d_solver=d_solver,
-                        d_solver_options=d_options, features=self.features, reward=self.reward,
-                        objective=self.objective, planner=self.planner, rng=self.rng, n_jobs=self.n_jobs,
-                        backend=self.backend, client=self.client, planner_options=self.planner_options,
-                        verbose=self.verbose, callback=self.callback)
+                        inner_steps=self.inner_steps, solver=SolverSettings(solver, options, d_solver, d_options),
+                        features=self.features, reward=self.reward, objective=self.objective, rng=self.rng,
+                        execution=self.execution)
         model.dictionary_, model.coefficients_ = self.dictionary_.copy(), self.coefficients_.copy()
         model.rewards_ = self.rewards_.copy()
         model.mdp_signature_, model.features_sha256_ = self.mdp_signature_, self.features_sha256_

@@ -139,13 +139,13 @@ class EMSettings:
         solver, options, d_solver, d_options = estimator_solvers(est)
         if d_solver is None and d_options is not None:
             raise ValidationError("d_solver_options given without d_solver")
-        return cls(K, k, objective, check_beta(est.beta), get_planner(mdp, est.planner),
+        return cls(K, k, objective, check_beta(est.beta), get_planner(mdp, est._group("execution").planner),
                    tasks.basis, resolve_step_solver(solver, options, objective.name, "solver"),
                    check_int(est.max_iter, "max_iter", minimum=1), check_tol(est.tol),
                    check_int(est.m_step_max_iter, "m_step_max_iter", minimum=0), check_tol(est.m_step_tol, "m_step_tol"),
                    check_int(est.inner_steps, "inner_steps", minimum=1),
                    None if d_solver is None else resolve_step_solver(d_solver, d_options, objective.name, "d_solver"),
-                   Execution.of(est))
+                   est._group("execution"))
 
 
 @dataclasses.dataclass

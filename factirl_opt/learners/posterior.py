@@ -26,7 +26,6 @@ away from the saturated region where one demonstration is matched by unbounded c
 from __future__ import annotations
 
 import dataclasses
-import weakref
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,8 @@ from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
 
 __all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
-           "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer_inputs",
+           "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer",
+           "TransferState", "tasks_problem", "has_prior",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior"]
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
@@ -462,20 +462,26 @@ def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = 
     ValidationError
         As ``FactIRL.transfer`` does for these arguments.
     """
-    from ..tasks.trajectories import task_steps
-    from .fitting import task_objective
     from .transfer import transfer_tasks
 
     if not hasattr(model, "dictionary_"):
         raise NotFittedError("this FactIRL has no dictionary_: call fit first")
-    tasks, D = transfer_tasks(mdp, demos_per_task, features, model)
-    obj = task_objective(tasks, model.beta, model.objective, model.planner)
+    return tasks_problem(model, *transfer_tasks(mdp, demos_per_task, features, model))
+
+
+def tasks_problem(model: Any, tasks: Any, D: Any) -> TransferProblem:
+    """The :class:`TransferProblem` of a transfer's task set ``tasks`` and dictionary ``D`` (p, k)."""
+    from ..tasks.trajectories import task_steps
+    from .fitting import task_objective
+
+    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
     lam = float(getattr(model, "residual_penalty_", np.inf))
     rows = np.arange(tasks.n_tasks)
     one = tasks.mdp
     mdps = list(tasks.mdps or []) if one is None else [one] * tasks.n_tasks
     feats = tasks.basis.recorded_features(rows)
-    n_pairs = np.array([task_steps(mdps[i], demos_per_task[i], i).shape[0] for i in range(len(mdps))], dtype=np.float64)
+    demos = tasks.demos_per_task
+    n_pairs = np.array([task_steps(mdps[i], demos[i], i).shape[0] for i in range(len(mdps))], dtype=np.float64)
     return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, n_pairs)
 
 
@@ -487,55 +493,82 @@ def transfer_posterior(model: Any, mdp: Any, demos_per_task: Any, features: Any 
     ``coefficients_`` (no prior to fit) or the flat model (``residual_penalty_ = 0``, whose
     coefficients the demonstrations do not determine).
     """
-    H = getattr(model, "coefficients_", None)
-    if H is None or np.shape(H)[0] < 2 or float(getattr(model, "residual_penalty_", np.inf)) == 0.0:
+    if not has_prior(model):
         return None
-    problem = transfer_problem(model, mdp, demos_per_task, features)
+    return _posterior_of(model, transfer_problem(model, mdp, demos_per_task, features))
+
+
+def has_prior(model: Any) -> bool:
+    """Whether the model's coefficient prior is defined: 2 or more training tasks, and not the flat model."""
+    H = getattr(model, "coefficients_", None)
+    return H is not None and np.shape(H)[0] >= 2 and float(getattr(model, "residual_penalty_", np.inf)) != 0.0
+
+
+def _posterior_of(model: Any, problem: TransferProblem) -> list[LaplacePosterior]:
     start = np.asarray(model.transfer_coefficients_, dtype=np.float64)
     if problem.residual:
         start = np.concatenate([start, np.asarray(model.transfer_residuals_, dtype=np.float64)], axis=1)
-    return laplace_posteriors(problem, coefficient_prior(H), start)
+    return laplace_posteriors(problem, coefficient_prior(model.coefficients_), start)
 
 
-#: per model (weakly held): the last transfer's tasks and, once built, their posteriors. Kept beside
-#: the estimator rather than on it: an estimator holds plain values only (no MDP), and the
-#: posterior, built when first read, costs about one transfer, which a transfer that nobody
-#: asks the posterior of does not pay.
-_TRANSFERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+@dataclasses.dataclass(eq=False)
+class TransferState:
+    """What an estimator keeps of its last ``transfer`` (its private ``_transfer``): it pickles with
+    the estimator and a refit drops it.
+
+    Attributes
+    ----------
+    inputs : tuple (mdp, demos_per_task, features) or None
+        The arguments of the transfer (:func:`factirl_opt.learners.active.request_starts` reuses
+        the posterior when it is given the same objects); None for a loaded posterior.
+    tasks : TaskSet or None
+        The transfer's tasks, from which the posterior is built when first read (it costs about
+        one transfer, which a transfer that nobody asks the posterior of does not pay).
+    dictionary : ndarray, shape (p, k), or None
+    posterior : list of LaplacePosterior or None
+        Once built or loaded (``built`` tells which None it is).
+    """
+
+    inputs: tuple | None = None
+    tasks: Any = None
+    dictionary: Any = None
+    posterior: list[LaplacePosterior] | None = None
+    built: bool = False
 
 
-def keep_transfer_inputs(model: Any, mdp: Any, demos_per_task: Any, features: Any) -> None:
-    """Record the tasks of ``model``'s last transfer (its posterior is built from them when first read)."""
-    _TRANSFERS[model] = {"inputs": (mdp, demos_per_task, features)}
+def keep_transfer(model: Any, inputs: tuple, tasks: Any, D: Any) -> None:
+    """Record on ``model`` the task set of its last transfer (its posterior is built from it when first read)."""
+    model._transfer = TransferState(inputs, tasks, D)
 
 
 def transfer_inputs(model: Any) -> tuple | None:
-    """The ``(mdp, demos_per_task, features)`` of ``model``'s last transfer in this process, or None."""
-    entry = _TRANSFERS.get(model)
-    return None if entry is None else entry.get("inputs")
+    """The ``(mdp, demos_per_task, features)`` of ``model``'s last transfer, or None."""
+    state = vars(model).get("_transfer")
+    return None if state is None else state.inputs
 
 
 def has_transfer_posterior(model: Any) -> bool:
     """Whether ``model.transfer_posterior_`` is defined (built, loaded, or buildable from a transfer)."""
-    return model in _TRANSFERS
+    return vars(model).get("_transfer") is not None
 
 
 def cached_transfer_posterior(model: Any) -> list[LaplacePosterior] | None:
-    """``model.transfer_posterior_``: built from the last transfer's tasks on first use, then kept.
+    """``model.transfer_posterior_``: built from the last transfer's task set on first use, then kept.
 
     Raises
     ------
     AttributeError
-        The model has transferred no tasks in this process (and loaded no posterior).
+        The model has transferred no tasks since its last fit (and loaded no posterior).
     """
-    entry = _TRANSFERS.get(model)
-    if entry is None:
-        raise AttributeError("transfer_posterior_: this FactIRL has transferred no tasks; call transfer first")
-    if "posterior" not in entry:
-        entry["posterior"] = transfer_posterior(model, *entry["inputs"])
-    return entry["posterior"]
+    state = vars(model).get("_transfer")
+    if state is None:
+        raise AttributeError("transfer_posterior_: this FactIRL has transferred no tasks since its fit; call transfer first")
+    if not state.built:
+        state.posterior = _posterior_of(model, tasks_problem(model, state.tasks, state.dictionary)) if has_prior(model) else None
+        state.built = True
+    return state.posterior
 
 
 def set_transfer_posterior(model: Any, posteriors: list[LaplacePosterior] | None) -> None:
     """Give ``model`` these posteriors as its ``transfer_posterior_`` (``load_model``)."""
-    _TRANSFERS[model] = {"posterior": posteriors}
+    model._transfer = TransferState(posterior=posteriors, built=True)

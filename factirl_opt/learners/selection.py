@@ -52,14 +52,10 @@ SCREEN_TRANSFER_MAX_ITER = 20
 #: and bisected around a shared choice, the flat model chosen unscored when no direction is
 #: shared or more than half the training tasks of a fold, a shared k confirmed by full fits of
 #: k - 1, k and k + 1 when a fold has many training tasks per primitive
-#: (:func:`~factirl_opt.learners.evidence.confirmation_primitives`); ``"approx-loo"``: every
-#: candidate fitted once on every task, each task scored as held out with the dictionary of one
-#: Gauss-Newton step from that fit (:mod:`~factirl_opt.learners.approximate_cv`; ``cv`` unused; the
-#: policy-matching objective on one MDP only; measured to rank the candidates poorly, see there).
+#: (:func:`~factirl_opt.learners.evidence.confirmation_primitives`).
 ROUTES: dict[str, tuple[str, int | None, int | None]] = {
     "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
     "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
-    "approx-loo": ("approx-loo", None, None),
     "evidence": ("evidence", 0, SCREEN_TRANSFER_MAX_ITER),
 }
 #: the route ``SharingSearch()`` takes: the cheapest that meets the which-learner benchmark's quality

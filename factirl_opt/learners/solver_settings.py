@@ -1,13 +1,12 @@
-"""The factorial learner's solver settings as one value.
+"""The estimators' solver settings as one value, their one home.
 
-:class:`SolverSettings` holds the four settings of a :class:`~factirl_opt.FactIRL` fit that
-choose its step solvers: the H-step solver (per-task coefficients) and the D-step solver (the
-shared dictionary), each with its options (docs/maths.md §8). It is validated once, at
-construction, and then travels as one value through the experiment presets, the planned runs,
-the learner line-ups, the command line and the benchmarks. The estimators take it as one value,
-``solver=SolverSettings(...)``, or per name: :meth:`SolverSettings.learner_kwargs` gives their
-keyword arguments ``solver`` (the H-step's), ``solver_options``, ``d_solver`` and
-``d_solver_options``; :func:`estimator_solvers` reads either form back from an estimator.
+:class:`SolverSettings` holds every setting that chooses a fit's step solvers: the H-step
+solver (per-task coefficients; GradIRL's weights), the D-step solver (the shared dictionary),
+the flat learner's (FactIRL's PCA start and the flat model's transfer) and the transfer's, each
+with its options (docs/maths.md §8). It is validated once, at construction, and then travels
+as one value through the estimators (``solver=SolverSettings(...)``, or a solver name for the
+H-step alone), the experiment presets, the planned runs, the learner line-ups, the command line
+and the benchmarks; :func:`estimator_solvers` reads it back from an estimator.
 
 Options are stored as canonical JSON (sorted keys, no spaces; ``""``: none), so settings are
 hashable, ordered, and compare equal exactly when they configure the same solvers.
@@ -23,9 +22,10 @@ from typing import Any
 
 import solvers
 
+from .._params import ParameterGroup
 from ..exceptions import ValidationError, translate_solver_errors
 
-__all__ = ["SolverSettings", "decode_options", "estimator_solvers"]
+__all__ = ["SolverSettings", "decode_options", "estimator_solvers", "step_solver"]
 
 
 def decode_options(text: str) -> dict[str, Any]:
@@ -55,21 +55,39 @@ def _canonical_options(options: Mapping[str, Any] | str | None, field: str) -> s
     return original if canonical == original else canonical
 
 
-@dataclasses.dataclass(frozen=True, order=True)
-class SolverSettings:
-    """The H-step and D-step solvers of a factorial fit, with their options.
+#: the fields added after the first four, shown by :meth:`SolverSettings.fields` only when set
+LATER_FIELDS = ("flat_solver", "flat_solver_options", "transfer_solver", "transfer_solver_options")
+
+
+@dataclasses.dataclass(frozen=True, order=True, repr=False)
+class SolverSettings(ParameterGroup):
+    """The step solvers of a fit, with their options: H-step, D-step, flat learner and transfer.
+
+    Each solver is a name in ``solvers.available_solvers()`` (or a ``solvers.StepSolver``
+    object, which cannot be saved); ``""`` or None leaves the estimator's default for that step.
 
     Parameters
     ----------
-    h_solver : str
-        H-step solver: a name in ``solvers.available_solvers()`` (default ``"armijo"``).
+    h_solver : str or solvers.StepSolver
+        H-step solver (default ``"armijo"``): the coefficients of FactIRL and MultiIntentIRL,
+        GradIRL's weights.
     h_solver_options : dict, str or None
         Its options: a dict, or its JSON (None or ``""``: none).
-    d_solver : str or None
-        D-step solver, a registered name; None or ``""``: FactIRL's default D-step (then no
-        ``d_solver`` keyword is passed to the learner at all).
+    d_solver : str, solvers.StepSolver or None
+        D-step solver; None or ``""``: the estimator's default D-step (FactIRL's ``"armijo"``,
+        MultiIntentIRL's H-step solver). GradIRL has no D-step.
     d_solver_options : dict, str or None
         Its options; only with a named ``d_solver``.
+    flat_solver : str, solvers.StepSolver or None
+        FactIRL's flat learner (the ``"pca"`` start's flat fit and the flat model's transfer,
+        ``residual_penalty=0``); None or ``""``: ``"armijo"``, GradIRL's default.
+    flat_solver_options : dict, str or None
+        Its options; only with a named ``flat_solver``.
+    transfer_solver : str, solvers.StepSolver or None
+        FactIRL's ``transfer`` (the coefficients of new tasks); None or ``""``: the H-step
+        solver with its options.
+    transfer_solver_options : dict, str or None
+        Its options; only with a named ``transfer_solver``.
 
     Raises
     ------
@@ -89,25 +107,33 @@ class SolverSettings:
     >>> FactIRL(n_primitives=5, **s.learner_kwargs())  # the same, per name  # doctest: +SKIP
     """
 
-    h_solver: str = "armijo"
+    h_solver: Any = "armijo"
     h_solver_options: Any = ""  # canonical JSON once constructed, as are the others
     d_solver: Any = ""
     d_solver_options: Any = ""
+    flat_solver: Any = ""
+    flat_solver_options: Any = ""
+    transfer_solver: Any = ""
+    transfer_solver_options: Any = ""
 
     def __post_init__(self) -> None:
-        d_solver = "" if self.d_solver is None else self.d_solver
-        for field, name in (("h_solver", self.h_solver), ("d_solver", d_solver)):
-            if not isinstance(name, str) or (field == "h_solver" and not name):
-                raise ValidationError(f"{field} must be a registered solver name; got {name!r}")
-        for field in ("h_solver_options", "d_solver_options"):
-            object.__setattr__(self, field, _canonical_options(getattr(self, field), field))
-        object.__setattr__(self, "d_solver", d_solver)
-        if not d_solver and self.d_solver_options:
-            raise ValidationError("d_solver_options given without d_solver")
-        for name, options in ((self.h_solver, self.h_options), (d_solver, self.d_options)):
-            if name:
+        for step in ("h", "d", "flat", "transfer"):
+            field = f"{step}_solver"
+            name = "" if getattr(self, field) is None else getattr(self, field)
+            if not (isinstance(name, solvers.StepSolver) or isinstance(name, str) and (name or step != "h")):
+                raise ValidationError(f"{field} must be a registered solver name or a solvers.StepSolver; got {name!r}")
+            object.__setattr__(self, field, name)
+            object.__setattr__(self, field + "_options", _canonical_options(getattr(self, field + "_options"), field + "_options"))
+            if not name and getattr(self, field + "_options"):
+                raise ValidationError(f"{field}_options given without {field}")
+            if isinstance(name, str) and name:
                 with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
-                    solvers.get_solver(name, **options)
+                    solvers.get_solver(name, **decode_options(getattr(self, field + "_options")))
+
+    @classmethod
+    def of(cls, value: Any) -> SolverSettings:
+        """An estimator's ``solver`` parameter as settings: a name or StepSolver is the H-step solver."""
+        return value if isinstance(value, SolverSettings) else cls(h_solver=value)
 
     @property
     def h_options(self) -> dict[str, Any]:
@@ -119,66 +145,15 @@ class SolverSettings:
         """The D-step solver's options, a dict."""
         return decode_options(self.d_solver_options)
 
-    def get_params(self, deep: bool = True) -> dict[str, Any]:
-        """The four settings as stored (names, options as canonical JSON), by field name.
-
-        With :meth:`set_params`, the settings follow scikit-learn's parameter protocol, so an
-        estimator whose ``solver`` is a SolverSettings shows them in its
-        ``get_params(deep=True)`` as ``solver__h_solver``, ``solver__h_solver_options``,
-        ``solver__d_solver`` and ``solver__d_solver_options``, and ``SolverSettings(**s.get_params())``
-        equals ``s``.
-
-        Parameters
-        ----------
-        deep : bool, default=True
-            Accepted for scikit-learn's protocol; the settings hold no nested parameters.
-        """
-        return self.fields()
-
-    def set_params(self, **params: Any) -> SolverSettings:
-        """New settings with some fields replaced (the settings are frozen: ``self`` is unchanged).
-
-        An estimator's ``set_params(solver__h_solver="lbfgs")`` calls this and keeps the new
-        settings as its ``solver``.
-
-        Parameters
-        ----------
-        **params
-            Fields (``h_solver``, ``h_solver_options``, ``d_solver``, ``d_solver_options``) and
-            their new values, validated as by the constructor.
-
-        Returns
-        -------
-        SolverSettings
-
-        Raises
-        ------
-        ValidationError
-            Naming a key that is not a field, with the fields there are; the constructor's
-            errors for a bad value.
-        """
-        names = [f.name for f in dataclasses.fields(self)]
-        unknown = [key for key in params if key not in names]
-        if unknown:
-            raise ValidationError(f"{unknown[0]!r} is not a parameter of SolverSettings; its parameters are "
-                                  f"{', '.join(names)}")
-        return dataclasses.replace(self, **params)
+    def former(self, field: str) -> Any:
+        """The field as the deprecated flat parameter held it: options a dict, a step not named None."""
+        value = getattr(self, field)
+        return (decode_options(value) if field.endswith("_options") else value) or None
 
     def learner_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`~factirl_opt.FactIRL` for these settings, per name.
-
-        ``solver`` (the H-step solver) always; ``solver_options`` when there are options;
-        ``d_solver`` (and ``d_solver_options``, when there are options) only when a D-step
-        solver is named, so the default settings build exactly ``FactIRL(solver="armijo")``.
-        """
-        kw: dict[str, Any] = {"solver": self.h_solver}
-        if self.h_solver_options:
-            kw["solver_options"] = self.h_options
-        if self.d_solver:
-            kw["d_solver"] = self.d_solver
-            if self.d_solver_options:
-                kw["d_solver_options"] = self.d_options
-        return kw
+        """Keyword arguments of an estimator for these settings: ``{"solver": self}``, or the
+        H-step solver's name alone when nothing else is set (``FactIRL(solver="armijo")``)."""
+        return {"solver": self if any(self.fields()[f] for f in self.fields() if f != "h_solver") else self.h_solver}
 
     def with_overrides(self, h_solver: str | None = None, h_solver_options: Mapping[str, Any] | str | None = None,
                        d_solver: str | None = None,
@@ -194,71 +169,68 @@ class SolverSettings:
         if d_solver is None and self.d_solver:
             d_solver = self.d_solver
             d_solver_options = self.d_solver_options if d_solver_options is None else d_solver_options
-        return SolverSettings(h_solver, h_solver_options, d_solver, d_solver_options)
+        return dataclasses.replace(self, h_solver=h_solver, h_solver_options=h_solver_options, d_solver=d_solver or "",
+                                   d_solver_options=d_solver_options or "")
 
     def label(self) -> str:
         """A readable label: the H-step solver, then its options and the D-step solver when they
         are not the defaults (e.g. ``gn-qp-osqp-sparse {"alpha":0.03} | d: lbfgs``)."""
-        label = " ".join(x for x in (self.h_solver, self.h_solver_options) if x)
-        if self.d_solver:
-            label += " | d: " + " ".join(x for x in (self.d_solver, self.d_solver_options) if x)
+        label = " ".join(str(x) for x in (self.h_solver, self.h_solver_options) if x)
+        for step in ("d", "flat", "transfer"):
+            name, options = getattr(self, f"{step}_solver"), getattr(self, f"{step}_solver_options")
+            if name:
+                label += f" | {step}: " + " ".join(str(x) for x in (name, options) if x)
         return label
 
     def key_part(self) -> str:
         """A stable file-name part: the H-step solver's name, and a short hash of the rest when
         it is not the default (e.g. ``armijo`` or ``gn-qp-clarabel-1a2b3c4d``)."""
-        extra = (self.h_solver_options, self.d_solver, self.d_solver_options)
+        extra = (self.h_solver_options, self.d_solver, self.d_solver_options, *(getattr(self, f) for f in LATER_FIELDS))
+        extra = tuple(x for i, x in enumerate(extra) if i < 3 or x)  # the keys of the first four's settings unchanged
         if not any(extra):
             return self.h_solver
         return f"{self.h_solver}-{hashlib.sha256(repr(extra).encode()).hexdigest()[:8]}"
 
     def fields(self) -> dict[str, str]:
-        """The four settings as stored (names, options as canonical JSON)."""
-        return dataclasses.asdict(self)
+        """The settings as stored (names, options as canonical JSON): the first four always, the
+        flat and transfer steps' when set (the run records of the settings before them unchanged)."""
+        return {k: v for k, v in self.get_params().items() if v or k not in LATER_FIELDS}
 
     def to_dict(self) -> dict[str, Any]:
         """The four settings as plain values: options as dicts, ``d_solver`` None for the default."""
         return dict(h_solver=self.h_solver, h_solver_options=self.h_options, d_solver=self.d_solver or None,
-                    d_solver_options=self.d_options)
+                    d_solver_options=self.d_options, **{f: v for f, v in self.fields().items() if f in LATER_FIELDS})
 
 
 def estimator_solvers(estimator: Any, d_step: bool = True) -> tuple[Any, dict | None, Any, dict | None]:
-    """An estimator's solvers as ``(solver, solver_options, d_solver, d_solver_options)``.
+    """An estimator's H- and D-step solvers as ``(solver, solver_options, d_solver, d_solver_options)``.
 
-    The estimator gives them as one :class:`SolverSettings` in its ``solver`` parameter, or per
-    name (``solver``, ``solver_options`` and, with a D-step, ``d_solver``, ``d_solver_options``).
-    A :class:`SolverSettings` whose D-step solver is not named leaves the estimator's default
-    D-step (``d_solver``'s default: ``"armijo"`` for FactIRL, None for MultiIntentIRL, whose
-    None means the H-step solver).
+    From its ``solver`` parameter (:meth:`SolverSettings.of`); a D-step solver not named is the
+    estimator's default (its class's ``default_d_solver``: ``"armijo"`` for FactIRL, None for
+    MultiIntentIRL, whose None means the H-step solver).
 
     Parameters
     ----------
     estimator : GradIRL, FactIRL or MultiIntentIRL
     d_step : bool
-        Whether the estimator has a D-step (GradIRL has none: its ``d_solver`` is None).
+        Whether the estimator has a D-step (GradIRL has none).
 
     Raises
     ------
     ValidationError
-        ``solver`` is a SolverSettings and another solver parameter is given too (not its
-        default), or, without a D-step, the settings name a D-step solver.
+        Without a D-step, the settings name a D-step solver.
     """
-    solver = estimator.solver
-    d_solver = getattr(estimator, "d_solver", None) if d_step else None
-    d_options = getattr(estimator, "d_solver_options", None) if d_step else None
-    if not isinstance(solver, SolverSettings):
-        return solver, estimator.solver_options, d_solver, d_options
-    defaults = type(estimator).param_defaults()
-    name = type(estimator).__name__
-    given = [key for key, value in (("solver_options", estimator.solver_options), ("d_solver", d_solver),
-                                    ("d_solver_options", d_options))
-             if key in defaults and value is not defaults[key] and value != defaults[key]]
-    if given:
-        raise ValidationError(f"{name}: give the solvers either as one SolverSettings in solver or per name, not both; "
-                              f"got solver={solver.label()!r} and {given[0]}={getattr(estimator, given[0])!r}")
-    if not d_step and solver.d_solver:
-        raise ValidationError(f"{name} has no D-step: its solver settings cannot name a d_solver; "
-                              f"got {solver.label()!r}")
-    if not solver.d_solver:
-        return solver.h_solver, solver.h_options or None, d_solver, d_options
-    return solver.h_solver, solver.h_options or None, solver.d_solver, solver.d_options or None
+    settings = SolverSettings.of(estimator.solver)
+    if not d_step and settings.d_solver:
+        raise ValidationError(f"{type(estimator).__name__} has no D-step: its solver settings cannot name a d_solver; "
+                              f"got {settings.label()!r}")
+    h = (settings.h_solver, settings.h_options or None)
+    if not settings.d_solver:
+        return (*h, getattr(estimator, "default_d_solver", None) if d_step else None, None)
+    return (*h, settings.d_solver, settings.d_options or None)
+
+
+def step_solver(settings: SolverSettings, step: str, default: Any) -> tuple[Any, dict | None]:
+    """The ``(solver, options)`` of the ``"flat"`` or ``"transfer"`` step; ``default`` when not named."""
+    name = getattr(settings, f"{step}_solver")
+    return (name, decode_options(getattr(settings, f"{step}_solver_options")) or None) if name else default

@@ -17,6 +17,7 @@ from typing import Any
 
 from ..parallel.shards import check_backend, dask_workers, effective_n_jobs, in_worker
 from ..planning.budget import options_budget
+from .._params import ParameterGroup
 from ._base import Objective
 from .distributed import ShardedObjective
 from .environments import MultiEnvironmentObjective
@@ -25,41 +26,41 @@ from .sharded_environments import ShardedEnvironments
 __all__ = ["sharded", "Execution"]
 
 
-@dataclasses.dataclass(frozen=True)
-class Execution:
-    """Where and how a fit's objective is evaluated: the estimators' execution parameters as one value.
+@dataclasses.dataclass(frozen=True, repr=False)
+class Execution(ParameterGroup):
+    """Where and how a fit runs and is watched: the estimators' ``execution`` parameter.
 
-    Attributes
+    None of these settings is part of the model: same seed, same result for every ``n_jobs``
+    and backend. An estimator's ``execution=None`` is ``Execution()``; its fields are nested
+    parameters (``set_params(execution__n_jobs=4)``).
+
+    Parameters
     ----------
-    n_jobs : int or None
-        Shards (:func:`sharded`; None or 1: this process).
-    backend : {"processes", "dask"}
+    n_jobs : int or None, default=None
+        Task shards evaluated in parallel (:func:`sharded`; None or 1: this process, -1: every
+        core); results do not depend on it.
+    backend : {"processes", "dask"}, default="processes"
         How the shards run (:mod:`factirl_opt.parallel.shards`).
     client : dask.distributed.Client, optional
-    planner : str or Planner, optional
-        The planner the objectives were built with; its name is what the shards use.
+        The cluster of ``backend="dask"``.
+    planner : str, default="auto"
+        Planning engine (``factirl_opt.available_planners()``); the shards use its name.
     planner_options : dict, optional
         ``{"max_bytes": ...}``: the planning budget in force during the fit
         (:func:`~factirl_opt.planning.budget.options_budget`).
+    verbose : bool, default=False
+        Progress bars on stderr.
+    callback : callable, optional
+        ``callback(iteration, total_loss)`` after each iteration of a fit (and each step of a transfer).
     """
 
     n_jobs: int | None = None
     backend: str = "processes"
     client: Any = None
-    planner: Any = None
+    planner: Any = "auto"
     planner_options: dict | None = None
-
-    @classmethod
-    def of(cls, estimator: Any) -> Execution:
-        """The execution settings of an estimator (its ``n_jobs``, ``backend``, ``client``,
-        ``planner`` and ``planner_options`` parameters)."""
-        return cls(estimator.n_jobs, estimator.backend, estimator.client, estimator.planner, estimator.planner_options)
-
-    def params(self) -> dict[str, Any]:
-        """These settings as keyword arguments of an estimator (e.g. the flat learner a FactIRL
-        fits for its start: ``GradIRL(beta=..., **Execution.of(model).params())``)."""
-        return {"n_jobs": self.n_jobs, "backend": self.backend, "client": self.client, "planner": self.planner,
-                "planner_options": self.planner_options}
+    verbose: bool = False
+    callback: Any = None
 
     def budget(self) -> contextlib.AbstractContextManager:
         """The planning budget of ``planner_options`` in force while the block is open."""

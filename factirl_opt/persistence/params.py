@@ -35,6 +35,7 @@ PARAM_KINDS = {
     "responsibility-start": "a name, or an array of labels or responsibilities (member param/<name>)",
     "runtime": "not saved: how a fit is watched and where it runs (the loaded model has the default)",
     "sharing-search": "None or a SharingSearch with an int cv (its parameters as JSON)",
+    "group": "a parameter group (Start, Execution, ...): each field as its own kind, under <group>__<field>",
 }
 #: The kinds that may be stored as archive members (listed in the header's ``"array_params"``).
 ARRAY_KINDS = ("features", "dictionary-start", "responsibility-start")
@@ -117,6 +118,9 @@ def _encode_one(name: str, key: str, kind: str, value: Any, arrays: dict[str, np
     """Parameter ``key`` of kind ``kind``: its JSON value, and whether it went to ``arrays`` as members."""
     if kind in _NAMED and not (value is None or isinstance(value, str)):
         if kind == "solver" and isinstance(value, SolverSettings):
+            objects = [(f, v) for f, v in value.fields().items() if not isinstance(v, str)]
+            if objects:
+                raise _named_param_error(name, f"{key}.{objects[0][0]}", kind, objects[0][1])
             return {"solver_settings": value.fields()}, False
         raise _named_param_error(name, key, kind, value)
     if kind == "rng":
@@ -156,15 +160,19 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     arrays: dict[str, np.ndarray] = {}
     array_params: list[str] = []
     cls = type(model)
-    for key, value in model.get_params(deep=False).items():
-        kind = param_kind(cls, key)
-        if kind == "runtime":
-            continue
-        encoded, as_array = _encode_one(name, key, kind, value, arrays)
-        if as_array:
-            array_params.append(key)
-        if not as_array or encoded is not None:
-            params[key] = encoded
+    for top, group in model.get_params(deep=False).items():
+        pairs = [(top, group)]
+        if param_kind(cls, top) == "group" and group is not None:  # its fields, each as its own kind
+            pairs = [(f"{top}__{k}", v) for k, v in group.get_params().items()]
+        for key, value in pairs:
+            kind = param_kind(cls, key)
+            if kind == "runtime":
+                continue
+            encoded, as_array = _encode_one(name, key, kind, value, arrays)
+            if as_array:
+                array_params.append(key)
+            if not as_array or encoded is not None:
+                params[key] = encoded
     return params, arrays, array_params
 
 
@@ -230,7 +238,7 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
     params = dict(require(header, "params", label, "the header", dict))
     context = f"{label} is malformed"
     renamed: dict[str, str] = dict(getattr(cls, "deprecated_params", {}))
-    for old, new in renamed.items():
+    for old, new in renamed.items():  # a file of before a rename, or before the groups (a field's former name)
         if old in params and new not in params:
             params[new] = params.pop(old)
     for key in params:
@@ -244,7 +252,7 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
         kind = param_kind(cls, key)
         if kind not in ARRAY_KINDS:
             raise PersistenceError(f"{context}: {key!r:.40} is not an array parameter (known: {', '.join(array_names)})")
-        params[key] = _decode_array(key, kind, params.get(key), contents, label)
+        params[key] = _decode_array(stored, kind, params.get(key), contents, label)
     for key, value in params.items():
         kind = param_kind(cls, key)
         if kind == "solver":
@@ -256,4 +264,24 @@ def decode_params(cls: type, header: dict, contents: dict[str, np.ndarray], labe
                 params[key] = decode_rng(value)
             except PersistenceError as exc:
                 raise PersistenceError(f"{label}: {exc}") from None
+    return _grouped(cls, params, label)
+
+
+def _grouped(cls: type, params: dict[str, Any], label: str) -> dict[str, Any]:
+    """``params`` with the fields ``<group>__<field>`` of each group as the group's value."""
+    fields: dict[str, dict[str, Any]] = {}
+    for key in [k for k in params if "__" in k]:
+        top, _, sub = key.partition("__")
+        fields.setdefault(top, {})[sub] = params.pop(key)
+    for top, sub_params in fields.items():
+        if param_kind(cls, top) == "group" or top == "solver":
+            group = params.get(top)
+            try:
+                kind = getattr(cls, "param_groups")[top]
+                group = kind() if group is None else kind.of(group)
+                params[top] = group.set_params(**sub_params)
+            except (TypeError, AttributeError, FactIRLError) as exc:
+                raise PersistenceError(f"{label}: the stored fields of parameter {top} are not valid: {exc}") from None
+        else:
+            raise PersistenceError(f"{label} is malformed: {top!r:.40} holds no fields ({', '.join(sub_params)})")
     return params

@@ -86,7 +86,8 @@ def test_mce_benchmark_default_fit_is_the_presets_factirl(monkeypatch):
 
     class SpyFactIRL(fo.FactIRL):
         def fit(self, *args, **kw):
-            seen.append((self.flat_solver, self.scheme, self.solver))
+            settings = fo.SolverSettings.of(self.solver)
+            seen.append((settings.flat_solver, self.scheme, settings.h_solver))
             raise RuntimeError("stop")
 
     monkeypatch.setattr(mce_bench, "FactIRL", SpyFactIRL)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from factirl_opt import FactIRL, SolverSettings
+from factirl_opt import Execution, FactIRL, SolverSettings, Start
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
 from factirl_opt.lab.experiments import (
     LINEUPS, Learner, Lineup, PRESETS, Preset, RunSpec, WORLDS, learners as learners_mod, plan_runs, run_one,
@@ -81,15 +81,22 @@ def test_preset_names_its_world_and_lineup(monkeypatch):
 # --- solver settings ---------------------------------------------------------------------
 
 
+def _named(kw):
+    """The solver settings a FactIRL's or GradIRL's keyword arguments name (``solver``: a name or settings)."""
+    return SolverSettings.of(kw["solver"])
+
+
 class RecordingFactIRL(FactIRL):
-    """A FactIRL that takes a D-step solver (as the D-step issue will add) and records its arguments."""
+    """A FactIRL that records its arguments, its solver settings as the flat names of before the groups
+    (a D-step solver not named: ``""``)."""
 
     seen = []
 
-    def __init__(self, d_solver="armijo", d_solver_options=None, **kw):
+    def __init__(self, **kw):
         super().__init__(**kw)
-        self.d_solver, self.d_solver_options = d_solver, d_solver_options
-        RecordingFactIRL.seen.append(dict(kw, d_solver=d_solver, d_solver_options=d_solver_options))
+        s = _named(kw)
+        RecordingFactIRL.seen.append(dict(kw, solver_options=s.h_options or None, d_solver=s.d_solver,
+                                          d_solver_options=s.d_options or None))
 
 
 def test_default_settings_build_the_same_factirl():
@@ -98,8 +105,9 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solvers.fields() == dict(h_solver="armijo", h_solver_options="", d_solver="", d_solver_options="")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
     assert factorial_options(TINY, spec.solvers) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, solver="armijo",
-                                                 flat_max_iter=10, transfer_max_iter=10, objective="policy-matching",
-                                                 planner="auto", gtol=0.0, tol=1e-5, pca_shrink=False)
+                                                 start=Start(flat_max_iter=10, pca_shrink=False), transfer_max_iter=10,
+                                                 objective="policy-matching", execution=Execution(planner="auto"),
+                                                 gtol=0.0, tol=1e-5)
     import inspect
 
     assert inspect.signature(FactIRL).parameters["tol"].default == TINY.fact_tol  # FactIRL's own default
@@ -113,12 +121,12 @@ def test_h_solver_options_reach_factirl(monkeypatch):
     monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
     rec = run_one(TINY, spec)
     assert [s["solver_options"] for s in RecordingFactIRL.seen] == [{"initial_step": 0.5}] * 2
-    assert all(s["d_solver"] == "armijo" for s in RecordingFactIRL.seen)  # not passed: FactIRL's default
+    assert all(s["d_solver"] == "" for s in RecordingFactIRL.seen)  # not named: FactIRL's default
     assert {r["h_solver"] for r in rec["rows"]} == {'armijo {"initial_step":0.5}'}
 
 
 def test_the_default_d_solver_is_never_passed():
-    assert "d_solver" not in factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)
+    assert factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)["solver"] == "armijo"  # a name: no D-step solver
     assert SolverSettings().learner_kwargs() == {"solver": "armijo"}
 
 
@@ -141,13 +149,13 @@ def test_naming_the_default_d_solver_changes_only_the_label():
 
 @pytest.mark.parametrize("kw, error, match", [
     (dict(h_solver="nope"), UnknownSolverError, "unknown solver 'nope'"),
-    (dict(h_solver=""), ValidationError, "h_solver must be a registered solver name; got ''"),
+    (dict(h_solver=""), ValidationError, "h_solver must be a registered solver name or a solvers.StepSolver; got ''"),
     (dict(h_solver_options={"bogus": 1}), ValidationError, "does not accept option"),
     (dict(h_solver_options=[("alpha", 1)]), ValidationError, "h_solver_options must be a dict"),
     (dict(h_solver_options="{oops"), ValidationError, "h_solver_options must be a dict or its JSON"),
     (dict(h_solver_options={"alpha": np.float32}), ValidationError, "plain values"),
     (dict(d_solver_options={"a": 1}), ValidationError, "d_solver_options given without d_solver"),
-    (dict(d_solver=3), ValidationError, "d_solver must be a registered solver name; got 3"),
+    (dict(d_solver=3), ValidationError, "d_solver must be a registered solver name or a solvers.StepSolver; got 3"),
     (dict(d_solver="nope"), UnknownSolverError, "unknown solver 'nope'"),
     (dict(d_solver="lbfgs", d_solver_options={"bogus": 1}), ValidationError, "does not accept option"),
 ])
@@ -160,8 +168,7 @@ def test_solver_settings_are_one_canonical_value():
     a = SolverSettings("armijo", {"initial_step": 0.5, "c": 1e-4}, "lbfgs")
     b = SolverSettings("armijo", '{"c": 0.0001, "initial_step": 0.5}', "lbfgs", "")
     assert a == b and hash(a) == hash(b) and a.h_solver_options == '{"c":0.0001,"initial_step":0.5}'
-    assert a.learner_kwargs() == dict(solver="armijo", solver_options={"c": 1e-4, "initial_step": 0.5},
-                                      d_solver="lbfgs")
+    assert a.learner_kwargs() == dict(solver=a) and SolverSettings("lbfgs").learner_kwargs() == dict(solver="lbfgs")
     assert a.label() == 'armijo {"c":0.0001,"initial_step":0.5} | d: lbfgs'
     assert a.key_part().startswith("armijo-") and len(a.key_part()) == len("armijo-") + 8
     assert SolverSettings().key_part() == "armijo" and SolverSettings(d_solver="armijo").key_part() != "armijo"
@@ -212,13 +219,13 @@ def test_planner_reaches_every_learner_and_score(monkeypatch):
 
     class SpyGradIRL(GradIRL):
         def __init__(self, **kw):
-            seen.append(("GradIRL", kw["planner"]))
+            seen.append(("GradIRL", kw["execution"].planner))
             super().__init__(**kw)
 
     class SpyFactIRL(FactIRL):
-        def __init__(self, d_solver="armijo", **kw):
-            seen.append(("FactIRL", kw["planner"]))
-            super().__init__(d_solver=d_solver, **kw)
+        def __init__(self, **kw):
+            seen.append(("FactIRL", kw["execution"].planner))
+            super().__init__(**kw)
 
     original = runner_mod.deviation
 
@@ -379,8 +386,8 @@ def test_fact_scheme_reaches_the_factirl_fits_it_applies_to(monkeypatch):
     assert all(f"scheme 'joint' replaced by 'alternating' ({why}" in s for s in plan.substitutions)
     assert "scheme" not in factorial_options(TINY, SolverSettings())  # the alternation: FactIRL as it always was
     # FactIRL's own flat start takes the preset's saturation rule where the preset sets one
-    assert factorial_options(dataclasses.replace(preset, flat_stol=1e-5), SolverSettings())["flat_stol"] == 1e-5
-    assert "flat_stol" not in factorial_options(TINY, SolverSettings())
+    assert factorial_options(dataclasses.replace(preset, flat_stol=1e-5), SolverSettings())["start"].flat_stol == 1e-5
+    assert factorial_options(TINY, SolverSettings())["start"].flat_stol == Start().flat_stol == 0.0
     with pytest.raises(ValidationError, match="preset 'x': fact_scheme must be one of alternating, joint; got 'both'"):
         Preset(name="x", fact_scheme="both")
 
@@ -392,7 +399,7 @@ def test_pca_shrink_reaches_every_factirl_and_is_validated():
                                                                       "sharing-objectworld-quick",
                                                                       "sharing-objectworld-per-task-quick"]
     for preset in (TINY, PRESETS["fast"]):
-        assert factorial_options(preset, plan_runs(preset, [0])[0].solvers)["pca_shrink"] is preset.pca_shrink
+        assert factorial_options(preset, plan_runs(preset, [0])[0].solvers)["start"].pca_shrink is preset.pca_shrink
     with pytest.raises(ValidationError, match="preset 'x': pca_shrink must be True or False; got 1"):
         Preset(name="x", pca_shrink=1)
 
@@ -447,9 +454,9 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
     seen = []
 
     class SpyFactIRL(FactIRL):
-        def __init__(self, d_solver="armijo", **kw):
-            seen.append((kw["objective"], kw["solver"], d_solver))
-            super().__init__(d_solver=d_solver, **kw)
+        def __init__(self, **kw):
+            seen.append((kw["objective"], _named(kw).h_solver, _named(kw).d_solver or "armijo"))
+            super().__init__(**kw)
 
     monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)
     preset = dataclasses.replace(TINY, lineup="paper+mce")
@@ -470,8 +477,8 @@ def test_mce_learners_fit_the_mce_objective_with_solvers_that_apply(monkeypatch)
 def test_factorial_options_use_solvers_that_apply_to_the_objective(objective, h, d, expected):
     spec = plan_runs(TINY, [0], SolverSettings(h, {"lam_max": 1e6} if h.startswith("gn") else None, d))[0]
     kw = factorial_options(TINY, spec.solvers, objective)
-    assert (kw["solver"], kw["d_solver"], kw["objective"]) == (*expected, objective)
-    assert ("solver_options" in kw) == (expected[0] == h and h.startswith("gn"))
+    assert (_named(kw).h_solver, _named(kw).d_solver, kw["objective"]) == (*expected, objective)
+    assert bool(_named(kw).h_solver_options) == (expected[0] == h and h.startswith("gn"))
 
 
 def test_the_papers_rows_do_not_depend_on_the_extra_learners():
@@ -535,13 +542,13 @@ def test_substitutions_name_what_the_mce_learners_take_instead(monkeypatch):
 
     class SpyGradIRL(learners_mod.GradIRL):
         def __init__(self, **kw):
-            seen.append(("GradIRL", kw["objective"], kw["solver"]))
+            seen.append(("GradIRL", kw["objective"], _named(kw).h_solver))
             super().__init__(**kw)
 
     class SpyFactIRL(FactIRL):
-        def __init__(self, d_solver="armijo", **kw):
-            seen.append(("FactIRL", kw["objective"], kw["solver"], d_solver))
-            super().__init__(d_solver=d_solver, **kw)
+        def __init__(self, **kw):
+            seen.append(("FactIRL", kw["objective"], _named(kw).h_solver, _named(kw).d_solver or "armijo"))
+            super().__init__(**kw)
 
     monkeypatch.setattr(learners_mod, "GradIRL", SpyGradIRL)
     monkeypatch.setattr(learners_mod, "FactIRL", SpyFactIRL)

@@ -51,12 +51,12 @@ def test_adaptive_options_ask_for_validation_and_keep_the_rest():
     auto = factorial_options(preset, SolverSettings(), adaptive=True)
     assert fixed["n_primitives"] == preset.n_primitives and "residual_penalty" not in fixed
     assert auto["n_primitives"] == "auto" and auto["residual_penalty"] == "auto"
-    assert {k: v for k, v in auto.items() if k not in ("n_primitives", "residual_penalty", "flat_solver")} == \
-        {k: v for k, v in fixed.items() if k != "n_primitives"}
+    assert {k: v for k, v in auto.items() if k not in ("n_primitives", "residual_penalty", "solver")} == \
+        {k: v for k, v in fixed.items() if k not in ("n_primitives", "solver")}
     # its flat model transfers as the line-up's flat learner does
-    assert auto["flat_solver"] == preset.flat_solver and "flat_solver" not in fixed
+    assert auto["solver"] == SolverSettings(flat_solver=preset.flat_solver) and fixed["solver"] == "armijo"
     ow = PRESETS["sharing-objectworld-quick"]
-    assert factorial_options(ow, SolverSettings(), adaptive=True, features=True)["flat_solver"] == ow.flat_features_solver
+    assert factorial_options(ow, SolverSettings(), adaptive=True, features=True)["solver"].flat_solver == ow.flat_features_solver
 
 
 def _rows(values, column="deviation"):

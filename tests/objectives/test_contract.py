@@ -2,7 +2,6 @@
 the step problems and learners ask no objective what it can do."""
 
 import ast
-import inspect
 import pathlib
 
 import numpy as np
@@ -60,12 +59,15 @@ def test_the_factorial_point_of_an_objective_is_its_gradient(grid3):
 
 
 def test_execution_settings_are_one_value():
-    model = fo.FactIRL(n_jobs=2, backend="processes", planner="dense", planner_options={"max_bytes": 10**9})
-    ex = Execution.of(model)
-    assert ex == Execution(2, "processes", None, "dense", {"max_bytes": 10**9})
-    flat = fo.GradIRL(beta=1.0, **ex.params())
-    assert {k: flat.get_params()[k] for k in ex.params()} == ex.params()
-    assert set(ex.params()) <= set(inspect.signature(fo.MultiIntentIRL).parameters)
+    ex = Execution(2, "processes", None, "dense", {"max_bytes": 10**9})
+    model = fo.FactIRL(execution=ex)
+    assert model.execution is ex and model._group("execution") is ex
+    nested = {f"execution__{k}": v for k, v in ex.get_params().items()}
+    for cls in (fo.GradIRL, fo.FactIRL, fo.MultiIntentIRL):
+        est = cls(execution=ex) if cls is not fo.MultiIntentIRL else cls(2, execution=ex)
+        assert {k: v for k, v in est.get_params().items() if k.startswith("execution__")} == nested
+    # the former flat names build the same value
+    assert fo.FactIRL(n_jobs=2, planner="dense", planner_options={"max_bytes": 10**9}).execution == ex
 
 
 def test_the_former_per_task_builders_warn_and_build_the_same_problem(grid3):

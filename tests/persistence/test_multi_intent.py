@@ -10,7 +10,7 @@ import solvers
 from factirl_opt.exceptions import PersistenceError
 
 EM_MODELS = ["multi-intent-flat", "multi-intent-shared", "multi-intent-auto"]
-RUNTIME = ("n_jobs", "backend", "client", "planner_options", "callback")
+RUNTIME = tuple(f"execution__{name}" for name in ("n_jobs", "backend", "client", "planner_options", "callback"))
 
 
 def _learnt(model):
@@ -82,24 +82,25 @@ def test_given_starts_solver_settings_and_execution_settings(grid_tasks, tmp_pat
     labels = np.arange(len(episodes)) % 2
     settings = fo.SolverSettings("armijo", {"initial_step": 0.5}, d_solver="lbfgs")
     for init in (labels, np.eye(2)[labels]):
-        model = fo.MultiIntentIRL(2, 2, init=init, solver=settings, n_jobs=1, planner_options={"max_bytes": 10**9},
-                                  callback=print, max_iter=2, m_step_max_iter=2).fit(mdp, episodes)
+        execution = fo.Execution(n_jobs=1, planner_options={"max_bytes": 10**9}, callback=print)
+        model = fo.MultiIntentIRL(2, 2, start=fo.IntentionStart(init=init), solver=settings, execution=execution,
+                                  max_iter=2, m_step_max_iter=2).fit(mdp, episodes)
         path = fo.save_model(model, tmp_path / "given.npz")
         with np.load(path, allow_pickle=False) as npz:
             header = json.loads(str(npz["__header__"][()]))
-        assert header["class"] == "MultiIntentIRL" and header["array_params"] == ["init"]
+        assert header["class"] == "MultiIntentIRL" and header["array_params"] == ["start__init"]
         assert not set(RUNTIME) & set(header["params"])
         loaded = fo.load_model(path)
-        np.testing.assert_array_equal(loaded.init, init)
-        assert loaded.solver == settings and (loaded.n_jobs, loaded.planner_options, loaded.callback) == (None, None, None)
+        np.testing.assert_array_equal(loaded.start.init, init)
+        assert loaded.solver == settings and loaded.execution == fo.Execution()  # runtime fields left out
         np.testing.assert_array_equal(loaded.labels_, model.labels_)
 
 
 def test_objects_are_refused_by_name(tmp_path):
     with pytest.raises(PersistenceError, match="d_solver given as a ArmijoSolver object.*registry name"):
-        fo.save_model(fo.MultiIntentIRL(2, d_solver=solvers.ArmijoSolver()), tmp_path / "x.npz")
-    with pytest.raises(PersistenceError, match="parameter init: it is not a numeric array"):
-        fo.save_model(fo.MultiIntentIRL(2, init=[None, 1]), tmp_path / "x.npz")
+        fo.save_model(fo.MultiIntentIRL(2, solver=fo.SolverSettings(d_solver=solvers.ArmijoSolver())), tmp_path / "x.npz")
+    with pytest.raises(PersistenceError, match="parameter start__init: it is not a numeric array"):
+        fo.save_model(fo.MultiIntentIRL(2, start=fo.IntentionStart(init=[None, 1])), tmp_path / "x.npz")
 
 
 @pytest.mark.parametrize(
@@ -114,13 +115,13 @@ def test_objects_are_refused_by_name(tmp_path):
         (lambda h, a: h["attributes"].update(converged_="yes"), "attribute converged_ must be True or False; got 'yes'"),
         (lambda h, a: h["attributes"].update(best_log_likelihood_=None), "attribute best_log_likelihood_ must be a finite number"),
         (lambda h, a: h["attributes"].update(transfer_loss_=[1.0]), "'transfer_loss_' is not a learnt attribute of MultiIntentIRL"),
-        (lambda h, a: h["params"].update(n_jobs=2), "'n_jobs' is never saved"),
+        (lambda h, a: h["params"].update(execution__n_jobs=2), "'execution__n_jobs' is never saved"),
         (lambda h, a: h["params"].update(solver={"solver_settings": {"h_solver": "nope"}}),
          "the solver settings of parameter solver are not valid here"),
         (lambda h, a: h["params"].update(solver={"name": "armijo"}), "parameter solver must be a name or"),
-        (lambda h, a: (h["array_params"].append("init"), a.update({"param/init": np.zeros((2, 2, 2))})),
-         r"parameter init must be a 1-d \(labels\) or 2-d \(responsibilities\) array"),
-        (lambda h, a: h["array_params"].append("beta"), r"'beta' is not an array parameter \(known: features, init\)"),
+        (lambda h, a: (h["array_params"].append("start__init"), a.update({"param/start__init": np.zeros((2, 2, 2))})),
+         r"parameter start__init must be a 1-d \(labels\) or 2-d \(responsibilities\) array"),
+        (lambda h, a: h["array_params"].append("beta"), r"'beta' is not an array parameter \(known: features, start__init\)"),
     ],
 )
 def test_crafted_em_files_are_refused(fitted_models, tmp_path, edit, match):

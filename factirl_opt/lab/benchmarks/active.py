@@ -230,7 +230,7 @@ def run(args):
                 preset, gt, train_mdps, train_feats, test_mdps, test_feats = world(name, s, seed)
                 n = min(s["n_test"], len(gt.test_demos))
                 t = time.process_time()
-                model = FactIRL(init="pca", rng=seed, features=train_feats,
+                model = FactIRL(rng=seed, features=train_feats,
                                 **factorial_options(preset, preset.solvers, "policy-matching",
                                                     features=train_feats is not None))
                 model.fit(train_mdps, gt.train_demos)

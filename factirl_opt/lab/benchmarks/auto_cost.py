@@ -124,13 +124,14 @@ def run(args):
             calls, chosen = {}, {}
             for _ in range(s["repeats"]):
                 planner = CountingPlanner(get_planner(gt.mdp))
-                fixed = FactIRL(rng=seed, **{**kw, "planner": planner})
+                fixed = FactIRL(rng=seed, **{**kw, "execution": kw["execution"].set_params(planner=planner)})
                 _, t = _timed(lambda: fixed.fit(gt.mdp, gt.train_demos))
                 times["fixed"].append(t)
                 calls["fixed"] = _calls(planner)
                 for name in s["routes"]:
                     planner = CountingPlanner(get_planner(gt.mdp))
-                    auto = FactIRL(rng=seed, **{**kw, "planner": planner, "n_primitives": "auto", "residual_penalty": "auto"})
+                    auto = FactIRL(rng=seed, **{**kw, "execution": kw["execution"].set_params(planner=planner),
+                                                "n_primitives": "auto", "residual_penalty": "auto"})
                     (model, table), t = _timed(lambda: fit_auto(auto, gt.mdp, gt.train_demos, name, s["rule"]))
                     times[name].append(t)
                     calls[name] = _calls(planner)

@@ -35,6 +35,8 @@ import numpy as np
 
 from ...parallel import limit_blas_threads
 from ...tasks.demonstrations import sample_demonstrations
+from ...learners.solver_settings import SolverSettings
+from ...learners.start import Start
 from ...learners.factirl import FactIRL
 from ...datasets.objectworld.maps import objectworld_maps
 from ..arguments import integer, real, solver_name
@@ -87,10 +89,10 @@ def _route(name, s):
         demos = [sample_demonstrations(m, R[i:i + 1], s["n_demos"], s["length"], rng=s["seed"] + 1 + i)[0]
                  for i, m in enumerate(maps.mdps)]
         features = list(maps.features) if name == "per_task_maps" else maps.features[0]
-        model = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], features=features, pca_shrink=False,
-                        max_iter=s["max_iter"], inner_steps=s["inner_steps"], tol=0.0, gtol=0.0,
-                        flat_max_iter=s["flat_max_iter"], solver=s["h_solver"], d_solver=s["d_solver"],
-                        objective=s["objective"])
+        model = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], features=features,
+                        start=Start(pca_shrink=False, flat_max_iter=s["flat_max_iter"]), max_iter=s["max_iter"],
+                        inner_steps=s["inner_steps"], tol=0.0, gtol=0.0,
+                        solver=SolverSettings(s["h_solver"], d_solver=s["d_solver"]), objective=s["objective"])
         rss = _rss_mb()
         t0, c0 = time.perf_counter(), time.process_time()
         model.fit(maps.mdps if name == "per_task_maps" else mdp, demos)

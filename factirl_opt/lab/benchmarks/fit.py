@@ -35,6 +35,8 @@ import solvers
 from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...exceptions import ValidationError
+from ...learners.start import Start
+from ...objectives.sharding import Execution
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import GridWorld
@@ -102,8 +104,9 @@ def _fit_factorial(s, mdp, tasks, flat, settings):
     """One factorial fit with the solver ``settings`` from the PCA of the flat rewards (the paper's
     start, unshrunk: every combination starts from the same point), with its own counting planner."""
     planner = CountingPlanner(get_planner(mdp))
-    fact = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], init="pca", pca_shrink=False, max_iter=s["max_iter"],
-                   inner_steps=s["inner_steps"], tol=s["tol"], planner=planner, rng=np.random.default_rng(s["seed"] + 1),
+    fact = FactIRL(n_primitives=s["n_primitives"], beta=s["beta"], start=Start(init="pca", pca_shrink=False),
+                   max_iter=s["max_iter"], inner_steps=s["inner_steps"], tol=s["tol"], execution=Execution(planner=planner),
+                   rng=np.random.default_rng(s["seed"] + 1),
                    **settings.learner_kwargs())
     _, elapsed = _timed(lambda: fact.fit(mdp, tasks.demos, flat_rewards=flat.rewards_))
     entry = _entry(fact, planner, elapsed, mdp, tasks.rewards)
@@ -141,7 +144,7 @@ def _fit_all(s, pairs):
                                                    n_primitives=s["n_primitives"], rng=np.random.default_rng(s["seed"])))
     planner = CountingPlanner(get_planner(mdp))
     flat, t_flat = _timed(lambda: GradIRL(beta=s["beta"], max_iter=s["flat_max_iter"], tol=s["tol"], gtol=0.0, stol=0.0,  # as in the committed runs
-                                          planner=planner).fit(mdp, tasks.demos))
+                                          execution=Execution(planner=planner)).fit(mdp, tasks.demos))
     flat_entry = _entry(flat, planner, t_flat, mdp, tasks.rewards)
     combos = {f"{h}|{d}": _fit_factorial(s, mdp, tasks, flat, SolverSettings(h, d_solver=d)) for h, d in pairs}
     return flat_entry, combos, t_data

@@ -67,6 +67,7 @@ from ..experiments.learner_solvers import factorial_options, factorial_scheme, f
 from ..experiments.presets import PRESETS, get_preset
 from ..experiments.worlds import objectworld_per_task
 from ...learners.factirl import FactIRL
+from ...learners.solver_settings import SolverSettings
 from ...learners.factorial import SCHEMES
 from ...datasets.objectworld import state_action_rewards
 from ...tasks.features import feature_rewards
@@ -160,13 +161,13 @@ def fit_once(preset, gt, objective, seed, flat_solver=DEFAULT_FLAT, h_solver=DEF
     mdps = gt.mdps("train")
     planner = CountingPlanner(get_planner(mdps[0], preset.planner))
     kw = factorial_options(preset, preset.solvers, objective)
-    kw["planner"] = planner
-    kw["flat_solver"], kw["scheme"] = resolved_run(preset, objective, flat_solver, h_solver, scheme)
-    if h_solver != DEFAULT_FLAT:
-        kw["solver"] = h_solver
+    kw["execution"] = kw["execution"].set_params(planner=planner)
+    flat, kw["scheme"] = resolved_run(preset, objective, flat_solver, h_solver, scheme)
+    settings = SolverSettings.of(kw["solver"]).set_params(flat_solver=flat)
+    kw["solver"] = settings.set_params(h_solver=h_solver) if h_solver != DEFAULT_FLAT else settings
     if flat_tol is not None:
-        kw["flat_tol"] = flat_tol
-    model = FactIRL(init="pca", rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
+        kw["start"] = kw["start"].set_params(flat_tol=flat_tol)
+    model = FactIRL(rng=np.random.default_rng(seed), features=list(gt.task_maps["train"].features), **kw)
     planner.clear_cache()
     t0, c0 = time.perf_counter(), time.process_time()
     model.fit(mdps, gt.train_demos)
@@ -179,7 +180,7 @@ def transfer_entry(model, gt, preset, n_test):
     if n_test == 0:
         return {}
     mdps = gt.mdps("test")[:n_test]
-    model.planner = preset.planner  # the counting planner is bound to the training maps' MDP
+    model.set_params(execution__planner=preset.planner)  # the counting planner is bound to the training maps' MDP
     c0 = time.process_time()
     model.transfer(mdps, gt.test_demos[:n_test], features=list(gt.task_maps["test"].features)[:n_test])
     cpu = time.process_time() - c0

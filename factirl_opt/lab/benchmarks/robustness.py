@@ -61,6 +61,7 @@ from ..arguments import count, integer, real, text
 from ..experiments.learners import factorial_options
 from ..experiments.presets import get_preset
 from ..experiments.worlds import make_ground_truth
+from ...objectives.sharding import Execution
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import TabularMDP
@@ -140,10 +141,10 @@ def fit_and_score(gt: Any, mdp: TabularMDP, preset: Any, rng: np.random.SeedSequ
         ``(learner, split) -> mean deviation over the split's tasks`` on the true model (eq. 13).
     """
     flat_train = GradIRL(beta=preset.beta, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol, solver=preset.flat_solver,
-                         stol=preset.flat_stol, planner=preset.planner).fit(mdp, gt.train_demos)
+                         stol=preset.flat_stol, execution=Execution(planner=preset.planner)).fit(mdp, gt.train_demos)
     flat_test = GradIRL(beta=preset.beta, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol, solver=preset.flat_solver,
-                        stol=preset.flat_stol, planner=preset.planner).fit(mdp, gt.test_demos)
-    fact = FactIRL(init="pca", rng=np.random.default_rng(rng), **factorial_options(preset, preset.solvers))
+                        stol=preset.flat_stol, execution=Execution(planner=preset.planner)).fit(mdp, gt.test_demos)
+    fact = FactIRL(rng=np.random.default_rng(rng), **factorial_options(preset, preset.solvers))
     fact.fit(mdp, gt.train_demos, flat_rewards=flat_train.rewards_)
     fact.transfer(mdp, gt.test_demos)
     learnt = {("flat", "train"): flat_train.rewards_, ("factorial", "train"): fact.rewards_,

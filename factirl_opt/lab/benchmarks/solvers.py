@@ -38,6 +38,7 @@ import solvers
 
 from ...tasks.demonstrations import empirical_statistics
 from ...evaluation import deviation
+from ...learners.start import Start
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import GridWorld
@@ -194,7 +195,7 @@ def _part_fit(mdp, s, rng, D):
         model = FactIRL(
             n_primitives=s["n_primitives"],
             beta=s["beta"],
-            init="pca",
+            start=Start(init="pca"),
             max_iter=s["fit_iter"],
             inner_steps=s["inner_steps"],
             tol=0.0,

@@ -76,6 +76,7 @@ from ...exceptions import ValidationError
 from ..arguments import integer, real
 from ..experiments.presets import get_preset
 from ..experiments.worlds import objectworld
+from ...learners.start import IntentionStart
 from ...learners.factirl import FactIRL
 from ...mdp.tabular import GridWorld, TabularMDP
 from ...objectives import available_objectives, get_objective
@@ -289,7 +290,7 @@ def _one(draw: Draw, seed: int, s: dict) -> dict[str, Any]:
         em = MultiIntentIRL(n, n_primitives=kk, beta=s["beta"], objective=s["objective"], max_iter=s["em_max_iter"],
                             m_step_max_iter=s["m_step_max_iter"],
                             features=features if fixed is None else _fixed_dictionary(draw, fixed, lab),
-                            init=truth if true_start else "agreement", rng=seed).fit(mdp, episodes)
+                            start=IntentionStart(init=truth if true_start else "agreement"), rng=seed).fit(mdp, episodes)
         out[name] = {"ari": adjusted_rand_index(truth, em.labels_),
                      "train_deviation": matched_deviation(mdp, draw.rewards, em.rewards_),
                      "transfer_deviation": None if kk is None else _transfer(draw, em.to_factirl()),

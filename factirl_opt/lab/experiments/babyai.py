@@ -34,6 +34,7 @@ features`` (``FactIRL.transfer(new_mdps, demos, features=new_features)``: the co
 
 from __future__ import annotations
 
+from ...objectives.sharding import Execution
 from typing import Any
 
 import numpy as np
@@ -54,7 +55,8 @@ __all__ = ["flat_tabular", "flat_features", "factorial_features", "factorial_fea
 def _gradirl(preset: Any, ctx: Any, features: Any = None) -> GradIRL:
     solver, _ = flat_solver(ctx.learner, preset)
     return GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
-                   stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                   stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective,
+                    execution=Execution(planner=preset.planner))
 
 
 def flat_tabular(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
@@ -81,7 +83,7 @@ def factorial_features(gt: BabyAITasks, preset: Any, ctx: Any) -> Any:
     """FactIRL on the training layouts' features, from the PCA of the flat weights of the same objective."""
     objective = ctx.learner.objective
     flat = FLAT_MCE_FEATURES if objective == "mce" else FLAT_FEATURES
-    model = FactIRL(init="pca", rng=ctx.rngs["pca"], features=gt.features("train"),
+    model = FactIRL(rng=ctx.rngs["pca"], features=gt.features("train"),
                     **factorial_options(preset, ctx.spec.solvers, objective, ctx.learner.adaptive, features=True))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model

@@ -21,6 +21,7 @@ import numpy as np
 
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
+from ...objectives.sharding import Execution
 from ...adapters.minigrid import COLOURS, OBJECT_TYPES, parse_goto_mission, run_policy
 from ...planning import optimal_q
 from .learner_names import FACTORIAL_FEATURES, FLAT_FEATURES
@@ -40,15 +41,15 @@ def _learnt_rewards(gt: Any, preset: Preset, task: int) -> dict:
     """Rewards on test layout ``task`` of flat and factorial learners on features (policy matching)."""
     mdps, F, demos = gt.mdps("train"), gt.features("train"), gt.train_demos
     flat = GradIRL(beta=preset.beta, features=F, max_iter=preset.flat_max_iter, solver=preset.flat_features_solver,
-                   gtol=preset.flat_gtol, stol=preset.flat_stol, planner=preset.planner).fit(mdps, demos)
-    fact = FactIRL(init="pca", rng=np.random.default_rng(0), features=F,
+                   gtol=preset.flat_gtol, stol=preset.flat_stol, execution=Execution(planner=preset.planner)).fit(mdps, demos)
+    fact = FactIRL(rng=np.random.default_rng(0), features=F,
                    **factorial_options(preset, preset.solvers))
     fact.fit(mdps, demos, flat_rewards=list(flat.rewards_))
     test_mdp, test_F, test_demo = gt.mdps("test")[task], gt.features("test")[task], gt.test_demos[task]
     fact.transfer([test_mdp], [test_demo], features=[test_F])
     one = GradIRL(beta=preset.beta, features=[test_F], max_iter=preset.flat_max_iter, solver=preset.flat_features_solver,
                   gtol=preset.flat_gtol, stol=preset.flat_stol,
-                  planner=preset.planner).fit([test_mdp], [test_demo])
+                  execution=Execution(planner=preset.planner)).fit([test_mdp], [test_demo])
     return {FLAT_FEATURES: one.rewards_[0], FACTORIAL_FEATURES: fact.transfer_rewards_[0]}
 
 

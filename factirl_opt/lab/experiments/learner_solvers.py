@@ -19,6 +19,8 @@ from ...learners.factorial import check_scheme
 from ...learners.gradirl import check_solver_applies
 from ...learners.selection import DEFAULT_ROUTE, SharingSearch
 from ...learners.solver_settings import SolverSettings
+from ...learners.start import Start
+from ...objectives.sharding import Execution
 
 __all__ = ["DEFAULT_OBJECTIVE", "GRADIENT_FALLBACK", "SOLVER_ROLES", "ALTERNATING", "flat_solver", "flat_features_solver",
            "factorial_solvers", "factorial_scheme", "substitutions", "factorial_options"]
@@ -137,7 +139,7 @@ def substitutions(lineup: Any, preset: Any, settings: SolverSettings) -> list[st
 
 
 def factorial_options(preset: Any, settings: SolverSettings, objective: str = DEFAULT_OBJECTIVE,
-                      adaptive: bool = False, features: bool = False) -> dict[str, Any]:
+                      adaptive: bool = False, features: bool = False, init: str = "pca") -> dict[str, Any]:
     """Keyword arguments of every FactIRL of a run: the preset's budgets and scheme, the run's solver settings.
 
     Solver options and the D-step solver are passed only when the run names them
@@ -150,19 +152,22 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
     flat model (``residual_penalty=0``) transfers as the line-up's flat learner does: with the
     preset's ``flat_features_solver`` (``features``: the row learns feature weights) or
     ``flat_solver`` (GradIRL's fallback for an objective a Gauss-Newton solver does not apply to).
+    ``init``: the start's (:class:`~factirl_opt.Start`).
     """
-    kw = dict(n_primitives="auto" if adaptive else preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter, gtol=preset.fact_gtol,
-              tol=preset.fact_tol, pca_shrink=preset.pca_shrink,
-              inner_steps=preset.inner_steps, flat_max_iter=preset.flat_max_iter,
-              transfer_max_iter=preset.transfer_max_iter, objective=objective, planner=preset.planner)
+    start = dict(init=init, pca_shrink=preset.pca_shrink, flat_max_iter=preset.flat_max_iter)
     if preset.flat_stol:  # FactIRL's own flat start (fits without the flat row's rewards) as the preset's flat fits
-        kw["flat_stol"] = preset.flat_stol
+        start["flat_stol"] = preset.flat_stol
+    kw = dict(n_primitives="auto" if adaptive else preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
+              gtol=preset.fact_gtol, tol=preset.fact_tol, inner_steps=preset.inner_steps,
+              transfer_max_iter=preset.transfer_max_iter, objective=objective, start=Start(**start),
+              execution=Execution(planner=preset.planner))
+    solver_settings = factorial_solvers(settings, objective)[0]
     if adaptive:
         kw["residual_penalty"] = "auto"
-        kw["flat_solver"] = _flat_solver(preset, features, objective)[0]
+        solver_settings = solver_settings.set_params(flat_solver=_flat_solver(preset, features, objective)[0])
         if preset.sharing_route != DEFAULT_ROUTE:  # the default search: FactIRL's own, as before the routes existed
             kw["sharing_search"] = SharingSearch(route=preset.sharing_route)
-    kw.update(factorial_solvers(settings, objective)[0].learner_kwargs())
+    kw.update(solver_settings.learner_kwargs())
     scheme = factorial_scheme(preset, settings, objective)[0]
     if scheme != ALTERNATING:
         kw["scheme"] = scheme

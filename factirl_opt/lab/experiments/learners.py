@@ -67,6 +67,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...objectives.sharding import Execution
 from ...exceptions import ValidationError
 from ...learners.factirl import FactIRL, pca_dictionary
 from ...learners.gradirl import GradIRL
@@ -89,7 +90,8 @@ __all__ = ["Fit", "Learner", "Lineup", "LINEUPS", "RunContext", "get_lineup", "f
 def _gradirl(gt, preset, ctx, features=None):
     solver, _ = flat_solver(ctx.learner, preset)
     model = GradIRL(beta=preset.beta, features=features, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
-                    stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                    stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective,
+                    execution=Execution(planner=preset.planner))
     model.fit(gt.mdp, gt.demos(ctx.split))
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)
 
@@ -144,9 +146,9 @@ def _fit_factorial(gt, preset, ctx, init, flat=None, features=None):
     ``"random_init"``). ``features``: the base features of ``R_i = Phi D h_i`` (None: tabular).
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
-    model = FactIRL(init=init, rng=rng, features=features,
+    model = FactIRL(rng=rng, features=features,
                     **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective, ctx.learner.adaptive,
-                                      features=features is not None))
+                                      features=features is not None, init=init))
     model.fit(gt.mdp, gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     return Fit(model.rewards_, model.loss_, model.n_evaluations_)

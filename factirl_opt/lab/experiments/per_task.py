@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ...evaluation import deviation
+from ...objectives.sharding import Execution
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...datasets.objectworld import state_action_rewards
@@ -67,7 +68,8 @@ def _flat(gt: Any, preset: Any, ctx: Any, on: str) -> WeightsFit:
     split = ctx.split
     solver, _ = flat_solver(ctx.learner, preset)
     model = GradIRL(beta=preset.beta, features=_map_columns(gt.task_maps[split], on), max_iter=preset.flat_max_iter,
-                    gtol=preset.flat_gtol, stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective, planner=preset.planner)
+                    gtol=preset.flat_gtol, stol=preset.flat_stol, solver=solver, objective=ctx.learner.objective,
+                    execution=Execution(planner=preset.planner))
     model.fit(gt.mdps(split), gt.demos(split))
     return WeightsFit(model.rewards_, model.loss_, model.n_evaluations_, model.weights_, on)
 
@@ -89,9 +91,9 @@ def _factorial(gt: Any, preset: Any, ctx: Any, init: str, flat: str | None = Non
     weights, docs/maths.md §8 PCA start); ``"random"`` from a random start.
     """
     rng = ctx.rngs["pca" if init == "pca" else "random_init"]
-    model = FactIRL(init=init, rng=rng, features=_map_columns(gt.task_maps["train"], FEATURES),
+    model = FactIRL(rng=rng, features=_map_columns(gt.task_maps["train"], FEATURES),
                     **factorial_options(preset, ctx.spec.solvers, ctx.learner.objective,
-                                      ctx.learner.adaptive, features=True))
+                                      ctx.learner.adaptive, features=True, init=init))
     model.fit(gt.mdps("train"), gt.train_demos, flat_rewards=None if flat is None else ctx.rewards["train", flat])
     ctx.models[ctx.learner.name] = model
     weights = model.coefficients_ @ model.dictionary_.T + model.residuals_  # w_i = D h_i + delta_i

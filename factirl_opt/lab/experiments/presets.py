@@ -322,7 +322,8 @@ class Preset:
         """Plain JSON-able dict of every field, the solver settings flattened (:data:`SOLVER_FIELDS`)."""
         d = dataclasses.asdict(self)
         d["demos_sweep"], d["tasks_sweep"] = list(self.demos_sweep), list(self.tasks_sweep)
-        d.update(d.pop("solvers"))
+        del d["solvers"]
+        d.update(self.solvers.fields())  # the four fields, and a later one only when set: the keys unchanged
         return d
 
     def fingerprint(self) -> str:
