@@ -205,3 +205,86 @@ def test_a_preset_runs_its_adaptive_learner_with_its_route():
     assert options["sharing_search"].route == "pca" and "sharing_search" not in factorial_options(pca, fo.SolverSettings())
     with pytest.raises(ValidationError, match=r"sharing_route must be one of race, full, race-warm, short, pca.*; got 'x'"):
         dataclasses.replace(grid, sharing_route="x")
+
+
+# ----------------------------------------------------------------------------- infeasible candidates, unread settings
+
+
+@pytest.fixture(scope="module")
+def low_rank_tasks():
+    """Eight tasks on a 3x3 grid with per-task features (9, 4): tasks 0-5 span the first two
+    columns' directions only, tasks 6-7 a third; together the features span 3 directions, not p = 4."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(7)
+    feats = []
+    for i in range(8):
+        F = np.zeros((9, 4))
+        F[:, :2] = rng.random((9, 2))
+        if i >= 6:
+            F[:, 2] = rng.random(9)
+        feats.append(F)
+    W = rng.normal(size=(8, 4))
+    R = np.stack([np.repeat(F @ w, 4).reshape(9, 4) for F, w in zip(feats, W)])
+    return mdp, feats, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+
+
+@pytest.mark.parametrize("route", ["pca", "race", "full"])
+def test_candidates_are_capped_at_the_directions_the_features_span(low_rank_tasks, route):
+    """k above the features' rank (3 < p = 4) is never proposed: the search no longer ends on the
+    PCA start's refusal ("n_components=4 exceeds the rank 3")."""
+    mdp, feats, demos = low_rank_tasks
+    model = _fit(fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=feats, max_iter=2, rng=0,
+                            sharing_search=SharingSearch(route=route, n_primitives_grid=(1, 2, 4))), mdp, demos)
+    assert max(model.cv_results_["param_n_primitives"]) <= 3
+    assert not any(model.cv_results_["unscored_reason"])
+
+
+def test_a_candidate_that_cannot_be_fitted_on_a_fold_is_recorded_unscored(low_rank_tasks):
+    """A fold whose training tasks span fewer directions than a candidate's k: that candidate is
+    scored no further and its row says why; the search chooses among the others."""
+    mdp, feats, demos = low_rank_tasks
+    folds = [np.array([0, 1]), np.array([6, 7]), np.array([2, 3])]  # fold 1 trains on tasks spanning 2 directions
+    model = _fit(fo.FactIRL(n_primitives="auto", residual_penalty=np.inf, features=feats, max_iter=2, rng=0,
+                            sharing_search=SharingSearch(cv=folds, route="full", n_primitives_grid=(1, 3))), mdp, demos)
+    res = model.cv_results_
+    row = {int(k): i for i, k in enumerate(res["param_n_primitives"])}
+    assert "exceeds the rank 2" in res["unscored_reason"][row[3]] and "fold 1" in res["unscored_reason"][row[3]]
+    assert res["unscored_reason"][row[1]] == "" and res["n_splits_scored"][row[3]] == 1
+    assert res["n_splits_scored"][row[1]] == 3 and model.n_primitives_ in (1, 2)  # 2: bisected between 1 and 3
+    assert res["chosen"][row[model.n_primitives_]] and res["n_splits_scored"][row[model.n_primitives_]] == 3
+
+
+def test_a_search_none_of_whose_candidates_can_be_fitted_says_why(low_rank_tasks):
+    mdp, feats, demos = low_rank_tasks
+    folds = [np.array([6, 7]), np.array([0, 1])]
+    search = SharingSearch(cv=folds, route="full", n_primitives_grid=(3,))
+    with pytest.raises(ValidationError, match=r"no candidate of the sharing search could be fitted: \(k=3, lambda=inf\): "
+                                              r"cannot be fitted on the training tasks of fold 0: .*exceeds the rank 2"):
+        _fit(fo.FactIRL(n_primitives="auto", residual_penalty=np.inf, features=feats, max_iter=2, rng=0,
+                        sharing_search=search), mdp, demos)
+
+
+@pytest.mark.parametrize("route, params, name", [
+    ("evidence", {"n_primitives_grid": (3,)}, "n_primitives_grid"),
+    ("evidence", {"race_margin": 0.2}, "race_margin"),
+    ("pca", {"race_margin": 0.2}, "race_margin"),
+    ("full", {"race_margin": 0.0}, "race_margin"),
+])
+def test_a_route_refuses_by_name_a_setting_it_does_not_read(data, route, params, name):
+    """SharingSearch(n_primitives_grid=(3,)) on the evidence route scored k = 1-4 and chose 4."""
+    mdp, F, demos = data
+    with pytest.raises(ValidationError, match=rf"{name}=.* is not read by the '{route}' route .*take a route that reads it"):
+        _auto(F, route=route, **params).fit(mdp, demos, flat_rewards=np.zeros((8, 9, 4)))
+    SharingSearch(route="race", **params).check()  # the race reads all three
+    SharingSearch(route=route, n_primitives_grid=[1, 2, 4, 8, 16]).check()  # the default, as a list
+
+
+def test_the_screen_routes_take_init_random(data):
+    """FactIRL("auto", residual_penalty="auto", init="random"): the evidence and pca routes' candidates
+    are PCA starts of the flat rewards, which fit computes for them (it asked for flat_rewards)."""
+    mdp, F, demos = data
+    for route in ("evidence", "pca"):
+        model = _fit(fo.FactIRL(n_primitives="auto", residual_penalty="auto", start=fo.Start(init="random"), features=F,
+                                max_iter=3, rng=0, sharing_search=SharingSearch(route=route)), mdp, demos)
+        assert model.start.init == "random" and np.all(np.isfinite(model.rewards_))
+        assert np.all(np.isfinite(model.cv_results_["mean_test_score"][model.cv_results_["n_splits_scored"] > 0]))

@@ -321,6 +321,8 @@ class SearchResult:
     scores : dict
         ``{(k, lambda): [per-task scores of each fold scored, in the order of folds]}``.
     n_tasks : int
+    unscored : dict
+        ``{(k, lambda): reason}``: the candidates that could not be fitted on a fold.
     """
 
     n_primitives: int
@@ -329,6 +331,7 @@ class SearchResult:
     folds: list
     scores: dict
     n_tasks: int
+    unscored: dict = dataclasses.field(default_factory=dict)
 
     def as_tuple(self) -> tuple[int, float, list[dict]]:
         return self.n_primitives, self.residual_penalty, self.rows
@@ -410,8 +413,9 @@ def sharing_candidates(learner: Any, k_max: int, k_grid: Sequence[int] = K_CANDI
 
 
 def max_primitives(learner: Any, mdp: Any, n_tasks: int, folds: Sequence[np.ndarray]) -> int:
-    """The largest k a candidate may have: the reward dimension p, and the training tasks of the smallest fold's fit."""
-    return min(_reward_dimension(learner, mdp, n_tasks), min(n_tasks - len(f) for f in folds))
+    """The largest k a candidate may have: the reward directions the basis spans (its rank, at most
+    the reward dimension p), and the training tasks of the smallest fold's fit."""
+    return min(_basis_rank(learner, mdp, n_tasks), min(n_tasks - len(f) for f in folds))
 
 
 def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None, *,
@@ -549,6 +553,8 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                 scores[candidates[0]] = []
             else:
                 run(first, candidates, warm=warm, reuse=reuse)
+            if not scores:
+                raise _unfittable(progress.unscored)
             if len(first) < len(folds):
                 lead = min(np.mean(v[0]) for v in scores.values())
                 contenders = [c for c in candidates
@@ -594,8 +600,19 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         while isinstance(cause, FitInterrupted) and cause.__cause__ is not None:
             cause = cause.__cause__
         raise FitInterrupted(progress.interrupted(), "the sharing search") from cause
+    rows = _with_reasons(rows, progress.unscored)
     rows[best]["chosen"] = True
-    return SearchResult(rows[best]["n_primitives"], rows[best]["residual_penalty"], rows, folds, scores, n)
+    return SearchResult(rows[best]["n_primitives"], rows[best]["residual_penalty"], rows, folds, scores, n,
+                        dict(progress.unscored))
+
+
+def _with_reasons(rows: list[dict], unscored: dict) -> list[dict]:
+    """``rows`` (chosen from) with each unscored candidate's reason, and a row after them for each
+    candidate never scored (:func:`score_rows`); the chosen row keeps its index."""
+    scored = {(r["n_primitives"], r["residual_penalty"]) for r in rows}
+    for row in rows:
+        row["unscored_reason"] = unscored.get((row["n_primitives"], row["residual_penalty"]), "")
+    return rows + score_rows({}, {c: why for c, why in unscored.items() if c not in scored})
 
 
 class SearchProgress:
@@ -606,6 +623,8 @@ class SearchProgress:
     ----------
     scores : dict
         ``{(k, lambda): [array of per-task held-out scores, one per fold scored]}``.
+    unscored : dict
+        ``{(k, lambda): reason}``: the candidates that could not be fitted on a fold (scored no further).
     fits : dict
         ``{(k, lambda): FactIRL}``: each candidate's last fit (on the training tasks of the last
         fold it was scored on, ``train_tasks[(k, lambda)]``); a race's flat model, which takes
@@ -627,6 +646,7 @@ class SearchProgress:
 
     def __init__(self) -> None:
         self.scores: dict = {}
+        self.unscored: dict = {}
         self.fits: dict = {}
         self.train_tasks: dict = {}
         self.last: tuple | None = None
@@ -640,7 +660,7 @@ class SearchProgress:
         if not self.rows or self.kept is None:
             return None
         (k, lam), _, _ = self.kept
-        return SearchResult(k, lam, self.rows, self.folds, self.scores, self.n_tasks)
+        return SearchResult(k, lam, self.rows, self.folds, self.scores, self.n_tasks, dict(self.unscored))
 
     def interrupted(self) -> "SearchProgress":
         """Fill ``rows`` and ``kept`` from what was done; returns self."""
@@ -650,7 +670,7 @@ class SearchProgress:
             best = rows[_choice(rows)]
             pair = (best["n_primitives"], best["residual_penalty"])
             self.kept = (pair, self.fits[pair], self.train_tasks[pair])
-            self.rows = score_rows(self.scores)
+            self.rows = score_rows(self.scores, self.unscored)
             for row in self.rows:
                 row["chosen"] = (row["n_primitives"], row["residual_penalty"]) == pair
         elif self.last is not None and hasattr(self.last[1], "dictionary_"):
@@ -659,16 +679,31 @@ class SearchProgress:
         return self
 
 
-def score_rows(scores: dict) -> list[dict]:
+def score_rows(scores: dict, unscored: dict | None = None) -> list[dict]:
     """The validation table of ``{(k, lambda): [per-task scores of each fold]}`` (as
     :func:`score_candidates` returns them), one row per candidate in the dict's order, as
-    :func:`choose_row` takes it (a candidate chosen unscored, with no fold: NaN scores)."""
-    return [{"n_primitives": k, "residual_penalty": lam,
-             "score": float(np.mean(np.concatenate(per_fold))) if per_fold else np.nan,
-             "score_std": float(np.std([np.mean(f) for f in per_fold])) if per_fold else np.nan,
-             "fold_scores": [float(np.mean(f)) for f in per_fold],
-             "task_scores": [float(v) for v in np.concatenate(per_fold)] if per_fold else [], "chosen": False}
-            for (k, lam), per_fold in scores.items()]
+    :func:`choose_row` takes it (a candidate chosen unscored, with no fold: NaN scores).
+
+    ``unscored`` (``{(k, lambda): reason}``, :attr:`SearchProgress.unscored`) adds each reason to
+    its candidate's row, and a row of NaN scores after the others for a candidate never scored."""
+    unscored = {} if unscored is None else unscored
+    pairs = [*scores, *(c for c in unscored if c not in scores)]
+    rows = []
+    for k, lam in pairs:
+        per_fold = scores.get((k, lam), [])
+        rows.append({"n_primitives": k, "residual_penalty": lam,
+                     "score": float(np.mean(np.concatenate(per_fold))) if per_fold else np.nan,
+                     "score_std": float(np.std([np.mean(f) for f in per_fold])) if per_fold else np.nan,
+                     "fold_scores": [float(np.mean(f)) for f in per_fold],
+                     "task_scores": [float(v) for v in np.concatenate(per_fold)] if per_fold else [], "chosen": False,
+                     "unscored_reason": unscored.get((k, lam), "")})
+    return rows
+
+
+def _unfittable(unscored: dict) -> ValidationError:
+    """The error of a search none of whose candidates could be fitted."""
+    reasons = "; ".join(f"(k={k}, lambda={lam}): {why}" for (k, lam), why in unscored.items())
+    return ValidationError(f"no candidate of the sharing search could be fitted: {reasons}")
 
 
 def _evidence_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
@@ -786,7 +821,8 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
         ``lambda = 0`` takes the fold's last fitted candidate instead of a fit of its own (its
         transfer, the flat learner's, does not use the dictionary).
     candidate_max_iter : int or None
-        Outer iterations of each candidate fit, at most the learner's ``max_iter`` (None: that).
+        Outer iterations of each candidate fit, at most the learner's ``max_iter`` (None: that);
+        0: each candidate is its PCA start, whatever the learner's ``init``.
     transfer_max_iter : int or None
         Steps of each held-out task's transfer (None: the learner's ``transfer_max_iter``).
     progress : SearchProgress, optional
@@ -796,7 +832,9 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     Returns
     -------
     dict
-        ``{(k, lambda): [array of per-task scores, one per fold]}``.
+        ``{(k, lambda): [array of per-task scores, one per fold]}``. A candidate whose fit on a
+        fold's training tasks raises a ValidationError (e.g. more primitives than that fold's
+        features span) is scored no further; ``progress.unscored`` holds its reason.
     """
     tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
     n = tasks.n_tasks
@@ -808,7 +846,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
         train = np.setdiff1d(np.arange(n), held)
         sub_mdp, sub_features = _fit_inputs(tasks.subset(train), learner.features)
         fitted: dict = {}
-        for k, lam in candidates:
+        for k, lam in [c for c in candidates if c not in progress.unscored]:
             before = [c for c in fitted if c[0] == k]
             start = fitted[before[-1]] if before else None
             if reuse and lam == 0.0 and fitted:  # the flat model: the dictionary plays no part, no fit
@@ -816,14 +854,18 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                 model.residual_penalty = model.residual_penalty_ = 0.0
             else:
                 start = start if warm else None
-                model = fixed_learner(learner, k, lam, max_iter=budget)
+                model = fixed_learner(learner, k, lam, max_iter=budget, **({"init": "pca"} if budget == 0 else {}))
                 model.features = sub_features
                 if start is not None:
                     model.start = model._group("start").set_params(init=(start.dictionary_, start.coefficients_))
                     model.max_iter = max(1, int(round(WARM_BUDGET * budget)))
                 progress.last = ((k, lam), model, train)
-                model.fit(sub_mdp, take_tasks(demos_per_task, train),
-                          flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, train))
+                try:
+                    model.fit(sub_mdp, take_tasks(demos_per_task, train),
+                              flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, train))
+                except ValidationError as exc:  # inputs were checked before the search: this candidate cannot be fitted here
+                    progress.unscored[k, lam] = f"cannot be fitted on the training tasks of fold {len(scores.get((k, lam), []))}: {exc}"
+                    continue
                 progress.fits[k, lam], progress.train_tasks[k, lam] = model, train
             fitted[k, lam] = model
             value = _score(model, tasks, held, t, score, transfer_max_iter)
@@ -843,10 +885,11 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
-def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:
-    """p, the reward parameters per task of ``learner``'s features on ``n_tasks`` tasks of ``mdp``
-    (:attr:`~factirl_opt.tasks.task_set.TaskSet.n_params`; the demonstrations play no part)."""
-    return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).n_params
+def _basis_rank(learner: Any, mdp: Any, n_tasks: int) -> int:
+    """The reward directions ``learner``'s features span on ``n_tasks`` tasks of ``mdp``
+    (:meth:`~factirl_opt.tasks.basis.RewardBasis.rank`, at most the reward dimension p; the
+    demonstrations play no part)."""
+    return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).basis.rank(n_tasks)
 
 
 def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: Any, tol: float,
@@ -874,9 +917,10 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
     the others after them; the ``"evidence"`` route's confirmed candidates, chosen from when
     there are any, first), ``split<f>_test_score`` (fold f's mean, NaN where the candidate was
     not scored on it: a race prunes), ``task<j>_test_score`` (task j's held-out score, NaN where
-    not scored), ``n_splits_scored``, ``chosen`` (bool, exactly one True) and ``confirmed`` (bool: the
+    not scored), ``n_splits_scored``, ``chosen`` (bool, exactly one True), ``confirmed`` (bool: the
     candidate's scores are those of full fits, the ``"evidence"`` route's confirmation of k; the
-    others' are the screen's).
+    others' are the screen's) and ``unscored_reason`` (str: why a candidate could not be fitted on
+    a fold, and was scored no further; empty for the others).
     """
     rows, folds, n = result.rows, result.folds, result.n_tasks
     m = len(rows)
@@ -890,7 +934,7 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
     splits = np.full((m, len(folds)), np.nan)
     tasks = np.full((m, n), np.nan)
     for i, r in enumerate(rows):
-        per_fold = result.scores[r["n_primitives"], r["residual_penalty"]]
+        per_fold = result.scores.get((r["n_primitives"], r["residual_penalty"]), [])
         for f, values in enumerate(per_fold):
             splits[i, f] = float(np.mean(values))
             tasks[i, folds[f]] = values
@@ -905,6 +949,7 @@ def cv_results(result: SearchResult) -> dict[str, Any]:
     out["n_splits_scored"] = n_scored
     out["chosen"] = np.array([bool(r["chosen"]) for r in rows])
     out["confirmed"] = confirmed
+    out["unscored_reason"] = np.array([str(r.get("unscored_reason", "")) for r in rows], dtype=np.str_)
     return out
 
 

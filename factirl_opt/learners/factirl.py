@@ -488,7 +488,10 @@ class FactIRL(Estimator):
             _check_flat_rewards(tasks, flat_rewards)
         for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
             delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
-        if flat_rewards is None and start.init == "pca":
+        search = SharingSearch() if self.sharing_search is None else self.sharing_search
+        if not isinstance(search, SharingSearch):
+            raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
+        if flat_rewards is None and (start.init == "pca" or search.needs_flat_start):
             try:
                 flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self._flat_solver(),
                                                   check_tol(start.flat_tol, "flat_tol"),
@@ -497,9 +500,6 @@ class FactIRL(Estimator):
                 warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
                                  "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
                 raise_interrupted(exc, "FactIRL.fit")
-        search = SharingSearch() if self.sharing_search is None else self.sharing_search
-        if not isinstance(search, SharingSearch):
-            raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
         try:
             found = search.search(self, mdp, demos_per_task, flat_rewards)
         except FitInterrupted as exc:

@@ -58,6 +58,15 @@ ROUTES: dict[str, tuple[str, int | None, int | None]] = {
     "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
     "evidence": ("evidence", 0, SCREEN_TRANSFER_MAX_ITER),
 }
+#: the parameters of :class:`SharingSearch` a route does not read, with why: on that route a value
+#: other than the default is refused by name (a search never ignores a setting silently)
+ROUTE_UNREAD: dict[str, dict[str, str]] = {
+    "evidence": {"n_primitives_grid": "it reads its candidate k off the evidence of the flat rewards' PCA",
+                 "race_margin": "it scores every candidate on every fold"},
+    "full": {"race_margin": "it scores every candidate on every fold"},
+    "pca": {"race_margin": "it scores every candidate on every fold"},
+}
+
 #: the route ``SharingSearch()`` takes: the cheapest that meets the which-learner benchmark's quality
 #: (``results/which-learner/README.md``)
 DEFAULT_ROUTE = "evidence"
@@ -83,6 +92,15 @@ def route_rule(route: str, rule: str | None = None) -> str:
     return chosen
 
 
+def _is_default(value: Any, default: Any) -> bool:
+    """Whether a search parameter's ``value`` is its (tuple or number) ``default``."""
+    if isinstance(value, (list, tuple)):
+        return tuple(value) == default
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return False
+    return bool(value == default)
+
+
 class SharingSearch(Estimator):
     """How ``FactIRL`` chooses k and the residual penalty lambda for its ``"auto"`` values.
 
@@ -99,8 +117,10 @@ class SharingSearch(Estimator):
         iterable of ``(train, test)`` pairs or of held-out index arrays
         (:func:`~factirl_opt.learners.adaptive.task_folds`). Only an int is saved by ``save_model``.
     n_primitives_grid : tuple of int, default=(1, 2, 4, 8, 16)
-        Candidate k (those up to the reward dimension and the training tasks of a fold); then
-        k is bisected around a chosen shared candidate.
+        Candidate k (those up to the reward directions the features span and the training tasks
+        of a fold); then k is bisected around a chosen shared candidate. The ``"evidence"`` route
+        reads its candidates off the flat rewards' evidence instead, and refuses another grid
+        (:data:`ROUTE_UNREAD`: every route refuses a setting it does not read).
     residual_penalty_grid : tuple of float, default=(inf, 1.0, 0.01, 0.0)
         Candidate lambda, from the factorial model (inf) to the flat one (0).
     route : str, default="evidence"
@@ -114,7 +134,8 @@ class SharingSearch(Estimator):
     n_transfer_demos : int, default=1
         Demonstrations a held-out task is transferred from.
     race_margin : float, default=0.1
-        A race keeps, after the first fold, the candidates within this fraction of the best.
+        A race keeps, after the first fold, the candidates within this fraction of the best
+        (the ``"race"``, ``"race-warm"`` and ``"short"`` routes).
     share_level : float, default=0.05
         Level of the one-sided paired t-tests of the rule.
     """
@@ -152,6 +173,19 @@ class SharingSearch(Estimator):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < (1 if name == "share_level" else math.inf):
                 raise ValidationError(f"{name} must be a number >= 0{' and < 1' if name == 'share_level' else ''}; got {value!r}")
+        defaults = {"n_primitives_grid": tuple(K_CANDIDATES), "race_margin": RACE_MARGIN, "cv": N_FOLDS}
+        for name, why in ROUTE_UNREAD.get(self.route, {}).items():
+            value = getattr(self, name)
+            if not _is_default(value, defaults[name]):
+                readers = [r for r in ROUTES if name not in ROUTE_UNREAD.get(r, {})]
+                raise ValidationError(f"{name}={value!r} is not read by the {self.route!r} route ({why}): leave it at "
+                                      f"its default {defaults[name]!r}, or take a route that reads it: {readers}")
+
+    @property
+    def needs_flat_start(self) -> bool:
+        """Whether the route's candidates are PCA starts of the flat rewards (no alternating fit),
+        so that ``FactIRL.fit`` computes the flat rewards whatever its ``init``."""
+        return ROUTES[self.route][1] == 0
 
     def search(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> SearchResult:
         """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values).

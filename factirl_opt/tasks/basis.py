@@ -218,6 +218,12 @@ class RewardBasis(abc.ABC):
             G += F.T @ F
         return G / n_tasks
 
+    def rank(self, n_tasks: int) -> int:
+        """The reward directions the basis spans over ``n_tasks`` tasks: the rank of :meth:`gram`
+        (at most :attr:`n_params`), the most primitives a PCA start (:meth:`start_dictionary`)
+        can have. A sharing search caps its candidate k at it."""
+        return int(_spanned(np.linalg.eigvalsh(self.gram(n_tasks))).sum())
+
     def start_dictionary(self, points: NDArray[np.float64], n_components: int, rng: Any,
                          pca: PCA) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The PCA start ``(D, H)`` ((p, k), (n, k)) of :meth:`start_points`, in the basis' metric.
@@ -230,11 +236,16 @@ class RewardBasis(abc.ABC):
         return _metric_pca(W, self.gram(W.shape[0]), n_components, rng, pca)
 
 
+def _spanned(eigenvalues: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which eigenvalues of a Gram matrix count as spanned directions (relative to the largest, 1e-12)."""
+    return eigenvalues > max(float(eigenvalues.max()), 0.0) * 1e-12
+
+
 def _metric_pca(W: NDArray[np.float64], G: NDArray[np.float64], n_components: int, rng: Any,
                 pca: PCA) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The uncentred PCA of weights W (n, p) in the metric G (p, p) (:meth:`RewardBasis.start_dictionary`)."""
     e, V = np.linalg.eigh(G)
-    keep = e > max(float(e.max()), 0.0) * 1e-12
+    keep = _spanned(e)
     if int(keep.sum()) < n_components:
         raise ValidationError(f"n_components={n_components} exceeds the rank {int(keep.sum())} of the features' mean "
                               "Gram matrix: the features span fewer reward directions than primitives")
@@ -297,6 +308,9 @@ class TabularBasis(RewardBasis):
 
     def jacobian_features(self, rows=None):
         return np.eye(self.n_params)
+
+    def rank(self, n_tasks):
+        return self.n_params
 
     def dense(self, rows=None):
         n = 1 if rows is None else np.asarray(rows).size
@@ -378,6 +392,11 @@ class SharedBasis(RewardBasis):
 
     def check_environments(self, n_states, n_actions):
         _check_one_environment(self, n_states, n_actions, "one shared feature matrix cannot fit every environment")
+
+    def rank(self, n_tasks):
+        if isinstance(self.features, StateBroadcast):
+            return self.n_params
+        return int(_spanned(np.linalg.eigvalsh(self.features.T @ self.features)).sum())
 
     def rewards(self, weights, rows=None, names=None):
         return linear_rewards(self.features, weights, self.n_states, self.n_actions, _names(names, self.names))

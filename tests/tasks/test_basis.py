@@ -203,3 +203,14 @@ def test_a_basis_defined_outside_the_library_serves_the_functions_and_multi_inte
         mixture = fo.MultiIntentIRL(n_intentions=2, n_primitives=2, features=basis, max_iter=3, rng=0).fit(mdp, episodes)
     np.testing.assert_allclose(mixture.rewards_, basis.rewards(mixture.coefficients_ @ mixture.dictionary_.T),
                                rtol=1e-10, atol=1e-12)
+
+
+def test_the_rank_of_a_basis_is_the_reward_directions_it_spans(low_rank_problem):
+    """A sharing search caps its candidate k at it: the rank of the mean Gram matrix, not p."""
+    mdp, basis, demos = low_rank_problem
+    assert basis.n_params == 5 and basis.rank(4) == 3
+    S, A = mdp.n_states, mdp.n_actions
+    assert TabularBasis(S, A).rank(4) == S * A
+    Phi = np.random.default_rng(6).normal(size=(S * A, 2)) @ np.random.default_rng(7).normal(size=(2, 4))  # rank 2
+    shared = task_set(mdp, demos, Phi).basis
+    assert shared.n_params == 4 and shared.rank(4) == 2
