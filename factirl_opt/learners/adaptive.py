@@ -854,7 +854,8 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                 model.residual_penalty = model.residual_penalty_ = 0.0
             else:
                 start = start if warm else None
-                model = fixed_learner(learner, k, lam, max_iter=budget, **({"init": "pca"} if budget == 0 else {}))
+                pca = {"start": dataclasses.replace(learner._group("start"), init="pca")} if budget == 0 else {}
+                model = fixed_learner(learner, k, lam, max_iter=budget, **pca)
                 model.features = sub_features
                 if start is not None:
                     model.start = model._group("start").set_params(init=(start.dictionary_, start.coefficients_))
