@@ -756,8 +756,8 @@ class FactIRL(Estimator):
         return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
                               criterion=criterion, policy=policy, demonstrated=demonstrated)
 
-    def gpi_policies(self, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0, library: Any = None,
-                     start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:
+    def gpi_policies(self, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0, features: Any = None,
+                     library: Any = None, start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:
         """Greedy policies of new tasks without planning: GPI over the successor features of a library.
 
         :func:`~factirl_opt.learners.gpi.generalised_policy_improvement`: for each task ``h``,
@@ -776,6 +776,9 @@ class FactIRL(Estimator):
             The new tasks' coefficients (e.g. from :meth:`transfer`).
         improvement_steps : int, default=0
             Exact policy-improvement steps after GPI (one policy evaluation per task each).
+        features : array_like or sequence of n array_like, optional
+            Fitted with one feature matrix per task: each new task's, the matrix of the fitted
+            task whose environment (map) it is on. Otherwise None.
         library : str or sequence of {"primitives", "negatives", "tasks"}, optional
             The library's parts; default all the model has (no ``"tasks"`` for a dictionary set by hand).
         start : None, int or array_like (S,) or (n, S), optional
@@ -795,7 +798,8 @@ class FactIRL(Estimator):
             Coefficients not (n, k); an environment the model was not fitted on; an unknown part.
         """
         policies, self._gpi_report = generalised_policy_improvement(
-            self, mdp, coefficients, improvement_steps=improvement_steps, library=library, start=start, evaluate=evaluate)
+            self, mdp, coefficients, features=features, improvement_steps=improvement_steps, library=library, start=start,
+            evaluate=evaluate)
         return policies
 
     @property

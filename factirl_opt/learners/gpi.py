@@ -151,7 +151,68 @@ def _basis_primitives(model: Any, mdp: Any, features: Any, D: NDArray[np.float64
     return np.asarray(basis.factorial_rewards(D, np.eye(k)), dtype=np.float64).reshape(k, mdp.n_states, mdp.n_actions)
 
 
-def _environments(model: Any, mdp: Any, n: int, D: NDArray[np.float64], fitted: bool) -> tuple[list[_Environment], NDArray[np.intp]]:
+def _same_matrix(a: Any, b: Any) -> bool:
+    return a is b or (np.shape(a) == np.shape(b) and np.array_equal(np.asarray(a), np.asarray(b)))
+
+
+def _new_features(features: Any, n: int) -> list[Any]:
+    if features is None:
+        return [None] * n
+    if per_task_features(features):
+        feats = list(features)
+        if len(feats) != n:
+            raise ValidationError(f"features must be one matrix or one per new task ({n}); got {len(feats)}")
+        return feats
+    return [features] * n
+
+
+def _environment(model: Any, m: Any, f: Any, i: int, D: NDArray[np.float64], fitted: bool) -> _Environment:
+    """The environment ``(m, f)`` of new task ``i``, checked to be one the model was fitted on."""
+    check_mdp(m)
+    signature = getattr(model, "mdp_signature_", None)
+    mine = model.features
+    if isinstance(mine, RewardBasis):
+        raise ValidationError("gpi_policies needs the model's features as arrays, not a RewardBasis")
+    if per_task_features(mine):  # one matrix per training task: an environment is an MDP and its features
+        if not isinstance(signature, list):
+            raise ValidationError("this model has one feature matrix per task but no mdp_signature_ (its environments "
+                                  "are unknown): fit it before asking for GPI policies")
+        if f is None:
+            raise ValidationError("this model was fitted with one feature matrix per task: gpi_policies needs each new "
+                                  "task's features (features=, the matrix of the fitted task whose map it is on)")
+        got = m.signature()
+        rows = [j for j, sig in enumerate(signature) if sig == got and _same_matrix(mine[j], f)]
+        if not rows:
+            raise ValidationError(
+                f"gpi_policies works only on the environments the model was fitted on (its library's policies live "
+                f"there): the environment of new task {i} (its MDP and features) is none of the {len(signature)} fitted "
+                "tasks' environments; plan that task with fo.optimal_q instead")
+        return _Environment(m, _basis_primitives(model, m, f, D), rows if fitted else [])
+    if f is not None and not (mine is not None and _same_matrix(mine, f)):
+        raise ValidationError("features given for new tasks of a model with shared features must be the model's own "
+                              "(its dictionary's environment); leave features=None")
+    if isinstance(signature, dict):
+        check_signature(signature, m, "this FactIRL model (gpi_policies works only on the environment it was fitted on)")
+        rows = list(range(len(model.rewards_))) if fitted else []
+    elif isinstance(signature, list):  # several MDPs with one shared feature matrix
+        got = m.signature()
+        rows = [j for j, sig in enumerate(signature) if sig == got]
+        if not rows:
+            raise ValidationError(
+                f"gpi_policies works only on the environments the model was fitted on: the MDP of new task {i} "
+                f"(S = {m.n_states}) is none of the {len(signature)} fitted tasks' MDPs; plan that task with fo.optimal_q")
+        rows = rows if fitted else []
+    else:
+        rows = []
+    env = _Environment(m, _basis_primitives(model, m, mine, D), rows)
+    digest = getattr(model, "features_sha256_", None)
+    if digest is not None and mine is not None and reward_basis(m, mine, model.reward, 1).digest() != digest:
+        raise ValidationError("this FactIRL model was fitted with other features than the ones set now: restore them or fit again")
+    return env
+
+
+def _environments(model: Any, mdp: Any, features: Any, n: int, D: NDArray[np.float64],
+                  fitted: bool) -> tuple[list[_Environment], NDArray[np.intp]]:
     """The distinct environments of the n new tasks and each task's index among them.
 
     Raises
@@ -162,39 +223,16 @@ def _environments(model: Any, mdp: Any, n: int, D: NDArray[np.float64], fitted: 
     mdps = list(mdp) if is_environment_sequence(mdp) else [mdp] * n
     if len(mdps) != n:
         raise ValidationError(f"mdp must be one MDP or one per new task ({n}); got {len(mdps)}")
-    signature = getattr(model, "mdp_signature_", None)
-    features = model.features
-    per_task = per_task_features(features) or (isinstance(features, RewardBasis) and not features.shared)
+    feats = _new_features(features, n)
     envs: list[_Environment] = []
     index = np.empty(n, dtype=np.intp)
-    seen: dict[int, int] = {}
-    for i, m in enumerate(mdps):
-        if id(m) in seen:
-            index[i] = seen[id(m)]
-            continue
-        check_mdp(m)
-        if isinstance(signature, list):  # fitted on several environments: match the new one among them
-            got = m.signature()
-            rows = [j for j, sig in enumerate(signature) if sig == got]
-            if not rows:
-                raise ValidationError(
-                    f"gpi_policies works only on the environments the model was fitted on (its library's policies "
-                    f"live there): the environment of new task {i} (S = {m.n_states}) is none of the "
-                    f"{len(signature)} fitted tasks' environments; plan that task with fo.optimal_q instead")
-            if isinstance(features, RewardBasis):
-                raise ValidationError("gpi_policies needs the model's features as arrays (one per task), not a RewardBasis")
-            feats = features[rows[0]] if per_task else features
-            env = _Environment(m, _basis_primitives(model, m, feats, D), rows if fitted else [])
-        else:
-            if isinstance(signature, dict):
-                check_signature(signature, m, "this FactIRL model (gpi_policies works only on the environment it was fitted on)")
-            elif per_task:
-                raise ValidationError("this model has one feature matrix per task but no mdp_signature_ (its environments are "
-                                      "unknown): fit it before asking for GPI policies")
-            env = _Environment(m, _basis_primitives(model, m, features, D), list(range(len(model.rewards_))) if fitted else [])
-        seen[id(m)] = len(envs)
-        index[i] = len(envs)
-        envs.append(env)
+    seen: dict[tuple[int, int], int] = {}
+    for i, (m, f) in enumerate(zip(mdps, feats)):
+        key = (id(m), id(f))
+        if key not in seen:
+            seen[key] = len(envs)
+            envs.append(_environment(model, m, f, i, D, fitted))
+        index[i] = seen[key]
     return envs, index
 
 
@@ -285,8 +323,8 @@ def _improve_and_evaluate(planner: Any, phi: NDArray[np.float64], H: NDArray[np.
 
 
 @blas_limited
-def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0,
-                                   library: Any = None, start: Any = None,
+def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike, *, features: Any = None,
+                                   improvement_steps: int = 0, library: Any = None, start: Any = None,
                                    evaluate: bool = True) -> tuple[NDArray[np.intp], GPIReport]:
     """Greedy policies of new tasks ``h`` by GPI over the model's library (module docstring).
 
@@ -299,6 +337,9 @@ def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike
         fitted on several, each one of them.
     coefficients : array_like, shape (n, k) or (k,)
         The new tasks ``h`` (e.g. from ``FactIRL.transfer``): rewards ``Phi D h``.
+    features : array_like or sequence of n array_like, optional
+        For a model fitted with one feature matrix per task: each new task's, which must be
+        (with its MDP) the environment of a fitted task. Otherwise None (the model's own).
     improvement_steps : int, default=0
         Exact policy-improvement steps after GPI (each one policy evaluation per task).
     library : str or sequence of str, optional
@@ -332,7 +373,7 @@ def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike
     fitted = hasattr(model, "rewards_") and getattr(model, "mdp_signature_", None) is not None
     parts = _check_parts(library, fitted)
     n = H.shape[0]
-    envs, index = _environments(model, mdp, n, D, fitted)
+    envs, index = _environments(model, mdp, features, n, D, fitted)
     same_size = len({e.mdp.n_states for e in envs}) == 1
     out_list: list[Any] = [None] * n
     labels_per_task: list[list[str]] = [[] for _ in range(n)]
