@@ -10,6 +10,8 @@
 - :class:`SolverSettings`: the step solvers a learner runs, as one value.
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
+- :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
+  policies of new tasks by generalised policy improvement over the successor features of a library.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
   values are chosen (:mod:`~factirl_opt.learners.adaptive`, the search's engine).
 
@@ -19,6 +21,7 @@ Learners never know which step solver, objective or planner runs: they take them
 from .adaptive import plot_validation
 from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
+from .gpi import GPIReport
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .posterior import LaplacePosterior
@@ -39,4 +42,5 @@ __all__ = [
     "adjusted_rand_index",
     "match_intentions",
     "LaplacePosterior",
+    "GPIReport",
 ]
