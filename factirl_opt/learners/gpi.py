@@ -24,7 +24,8 @@ the ordinary discounted returns ``rho^T V^pi_h`` (what :func:`~factirl_opt.devia
 
 The library's policies and successor features are cached on the model per environment (keyed by
 a digest of what they depend on: the environment, ``Phi D``, the training rewards, the kind of
-policy and the parts) and saved with it by :func:`~factirl_opt.save_model`.
+policy and the parts) and saved with it by :func:`~factirl_opt.save_model`; libraries of an
+earlier learnt state (a refit, a dictionary set anew) are dropped when a new one is cached.
 """
 
 from __future__ import annotations
@@ -97,7 +98,8 @@ class GPIReport:
 # -- the cache on the model ------------------------------------------------------------------------
 
 def successor_feature_cache(model: Any) -> dict[str, dict[str, Any]]:
-    """The model's cached libraries: digest -> ``{"labels", "policies", "psi"}`` (created empty)."""
+    """The model's cached libraries: digest -> ``{"labels", "policies", "psi", "state"}`` (created empty;
+    ``state``: the digest of the model's learnt state the library was built from)."""
     cache = model.__dict__.get("_successor_features")
     if cache is None:
         cache = model.__dict__["_successor_features"] = {}
@@ -246,6 +248,19 @@ def _digest(env: _Environment, train_R: NDArray[np.float64], kind: str, beta: fl
     return h.hexdigest()
 
 
+def _model_state(model: Any) -> str:
+    """Digest of the model's learnt state that libraries depend on (dictionary, coefficients, residuals,
+    objective and beta): a cached library of another state is stale and dropped when a new one is cached."""
+    h = hashlib.sha256(json.dumps([_policy_kind(model), float(model.beta)]).encode())
+    for name in ("dictionary_", "coefficients_", "residuals_"):
+        value = model.__dict__.get(name)
+        if value is not None:
+            arr = np.ascontiguousarray(value, dtype=np.float64)
+            h.update(repr(arr.shape).encode())
+            h.update(arr.tobytes())
+    return h.hexdigest()
+
+
 def gpi_library(model: Any, env: _Environment, parts: tuple[str, ...]) -> dict[str, Any]:
     """The library of ``env`` (cached on the model): ``labels``, ``policies`` (L, S) int or
     (L, S, A) float, and their successor features ``psi`` (L, S, A, k).
@@ -275,7 +290,10 @@ def gpi_library(model: Any, env: _Environment, parts: tuple[str, ...]) -> dict[s
     planner = get_planner(env.mdp, model.planner)
     policies = plan(planner, R).policy if kind == "greedy" else np.exp(soft_values(planner, R, beta)[2])
     psi = policy_successor_features(planner, np.ascontiguousarray(np.moveaxis(env.phi, 0, 2)), policies)
-    cache[key] = entry = {"labels": labels, "policies": policies, "psi": psi}
+    state = _model_state(model)
+    for stale in [old for old, e in cache.items() if e.get("state") != state]:
+        del cache[stale]
+    cache[key] = entry = {"labels": labels, "policies": policies, "psi": psi, "state": state}
     return entry
 
 

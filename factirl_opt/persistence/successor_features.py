@@ -1,7 +1,7 @@
 """A FactIRL model's cached GPI libraries in a model file: the header entry and the members ``sf/...``.
 
 The header's ``"successor_features"`` is a list, one entry per cached library
-(:func:`factirl_opt.learners.gpi.gpi_library`): ``{"key": digest, "labels": [...]}``; its arrays
+(:func:`factirl_opt.learners.gpi.gpi_library`): ``{"key": digest, "labels": [...], "state": digest}``; its arrays
 are the members ``sf/<i>/policies`` ((L, S) int or (L, S, A) float) and ``sf/<i>/psi``
 ((L, S, A, k)). A model that has built no library has neither. The key is the digest of what the
 library depends on, so a loaded model uses an entry exactly when it would have built the same one.
@@ -29,7 +29,7 @@ def save_successor_features(model: Any, header: dict, arrays: dict[str, np.ndarr
         return
     entries = []
     for i, (key, entry) in enumerate(cache.items()):
-        entries.append({"key": key, "labels": list(entry["labels"])})
+        entries.append({"key": key, "labels": list(entry["labels"]), "state": entry.get("state")})
         arrays[f"{PREFIX}{i}/policies"] = np.asarray(entry["policies"])
         arrays[f"{PREFIX}{i}/psi"] = np.asarray(entry["psi"])
     header[HEADER_KEY] = entries
@@ -64,7 +64,8 @@ def load_successor_features(model: Any, header: dict, contents: dict[str, np.nda
         if psi.ndim != 4 or psi.shape[0] != L or policies.shape[:2] != psi.shape[:2] or not np.all(np.isfinite(psi)):
             raise PersistenceError(f"{label} is malformed: successor features {i} do not describe {L} policies "
                                    f"(psi {psi.shape}, policies {policies.shape}) or are not finite")
-        entries[item["key"]] = {"labels": [str(x) for x in item["labels"]], "policies": policies, "psi": psi}
+        entries[item["key"]] = {"labels": [str(x) for x in item["labels"]], "policies": policies, "psi": psi,
+                                "state": item.get("state")}
         members.difference_update(names)
     if members:
         raise PersistenceError(f"{label} is malformed: the archive holds {sorted(members)[0]}, which the header does not describe")

@@ -96,9 +96,12 @@ def test_library_is_cached_and_follows_the_dictionary(grid, rng):
     psi = _library(model)["psi"]
     model.gpi_policies(grid, H, improvement_steps=1)
     assert _library(model)["psi"] is psi  # reused, not recomputed
+    model.gpi_policies(grid, H, library="primitives")
+    assert len(successor_feature_cache(model)) == 2  # another library of the same model
     model.dictionary_ = D[:, ::-1].copy()
     model.gpi_policies(grid, H)
-    assert len(successor_feature_cache(model)) == 2
+    assert len(successor_feature_cache(model)) == 1  # the earlier dictionary's libraries are dropped
+    assert _library(model)["psi"] is not psi
 
 
 def test_saved_model_keeps_its_libraries(grid, rng, tmp_path):
