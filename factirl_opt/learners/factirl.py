@@ -779,8 +779,11 @@ class FactIRL(Estimator):
         features : array_like or sequence of n array_like, optional
             Fitted with one feature matrix per task: each new task's, the matrix of the fitted
             task whose environment (map) it is on. Otherwise None.
-        library : str or sequence of {"primitives", "negatives", "tasks"}, optional
-            The library's parts; default all the model has (no ``"tasks"`` for a dictionary set by hand).
+        library : str or sequence of {"primitives", "negatives", "tasks", "other-tasks"}, optional
+            The library's parts (:mod:`factirl_opt.learners.gpi`); default ``("primitives",
+            "negatives", "tasks")``, without ``"tasks"`` for a dictionary set by hand.
+            ``"other-tasks"``: on a model fitted on a map per task, every other training task
+            carried to the new task's map.
         start : None, int or array_like (S,) or (n, S), optional
             Start distribution of the reported values (default uniform, as eq. 13).
         evaluate : bool, default=True

@@ -15,7 +15,11 @@ The library (:data:`LIBRARY_PARTS`), on each environment the model was fitted on
 - ``"primitives"``: the optimal policies of the k primitive rewards ``phi_j``;
 - ``"negatives"``: those of ``-phi_j``;
 - ``"tasks"``: those of the training tasks' learnt rewards ``rewards_`` on that environment
-  (a model whose ``dictionary_`` was set by hand has none).
+  (a model whose ``dictionary_`` was set by hand has none);
+- ``"other-tasks"`` (not in the default library): with one environment per training task (a
+  map per task), the other training tasks' learnt weights ``w_j = D h_j + delta_j`` carried to
+  this environment, ``Phi_m w_j``: the training tasks as they would be on this map (none on a
+  model fitted on one environment, where every training task is already under ``"tasks"``).
 
 "Optimal" follows the model's objective: greedy on ``Q*`` for policy matching (eq. 5 acts on
 ``Q*``), the soft-optimal (Boltzmann) policy of the soft Bellman equation at the model's
@@ -51,11 +55,14 @@ from ..planning.successor_features import gpi_actions, improve_policies, library
 from ..tasks.basis import RewardBasis
 from ..tasks.task_set import per_task_features, reward_basis
 
-__all__ = ["GPIReport", "generalised_policy_improvement", "gpi_library", "LIBRARY_PARTS", "successor_feature_cache",
+__all__ = ["GPIReport", "generalised_policy_improvement", "gpi_library", "LIBRARY_PARTS", "DEFAULT_PARTS",
+           "successor_feature_cache",
            "set_successor_feature_cache"]
 
 #: the parts a GPI library can be made of (module docstring)
-LIBRARY_PARTS = ("primitives", "negatives", "tasks")
+LIBRARY_PARTS = ("primitives", "negatives", "tasks", "other-tasks")
+#: the parts of the default library (those the model has)
+DEFAULT_PARTS = ("primitives", "negatives", "tasks")
 #: planning memory of one chunk of new tasks evaluated at once (improvement steps, reported values)
 EVALUATION_CHUNK_BYTES = 256 * 2**20
 
@@ -120,6 +127,8 @@ class _Environment:
     mdp: Any
     phi: NDArray[np.float64]
     train: list[int]
+    basis: Any = None  # the model's RewardBasis on this environment
+    others: list[int] = dataclasses.field(default_factory=list)  # training tasks of other environments
 
 
 def _policy_kind(model: Any) -> str:
@@ -128,12 +137,12 @@ def _policy_kind(model: Any) -> str:
 
 def _check_parts(library: Any, has_tasks: bool) -> tuple[str, ...]:
     if library is None:
-        return LIBRARY_PARTS if has_tasks else LIBRARY_PARTS[:2]
+        return DEFAULT_PARTS if has_tasks else DEFAULT_PARTS[:2]
     parts = (library,) if isinstance(library, str) else tuple(library)
     if not parts or any(not isinstance(p, str) or p not in LIBRARY_PARTS for p in parts) or len(set(parts)) != len(parts):
         raise ValidationError(f"library must be a non-empty selection of distinct parts among {LIBRARY_PARTS}; got {library!r}")
-    if "tasks" in parts and not has_tasks:
-        raise ValidationError("library includes 'tasks', but this model has no training tasks (its dictionary_ was set "
+    if ("tasks" in parts or "other-tasks" in parts) and not has_tasks:
+        raise ValidationError("library includes training tasks, but this model has no training tasks (its dictionary_ was set "
                               "by hand, or it was not fitted): use library=('primitives', 'negatives')")
     return tuple(p for p in LIBRARY_PARTS if p in parts)
 
@@ -143,14 +152,14 @@ def _train_rewards(model: Any, rows: list[int]) -> NDArray[np.float64]:
     return np.stack([np.asarray(R[j], dtype=np.float64) for j in rows]) if rows else np.empty((0,))
 
 
-def _basis_primitives(model: Any, mdp: Any, features: Any, D: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The primitive rewards ``Phi D`` (k, S, A) of the model's dictionary on ``mdp``."""
+def _basis_primitives(model: Any, mdp: Any, features: Any, D: NDArray[np.float64]) -> tuple[NDArray[np.float64], Any]:
+    """The primitive rewards ``Phi D`` (k, S, A) of the model's dictionary on ``mdp``, and the basis ``Phi``."""
     k = D.shape[1]
     basis = reward_basis(mdp, features, model.reward, min_columns=k)
     if D.shape[0] != basis.n_params:
         raise ValidationError(f"dictionary_ must have shape (p, k) with p = {basis.n_params} (the reward dimension on "
                               f"this environment); got {D.shape}")
-    return np.asarray(basis.factorial_rewards(D, np.eye(k)), dtype=np.float64).reshape(k, mdp.n_states, mdp.n_actions)
+    return np.asarray(basis.factorial_rewards(D, np.eye(k)), dtype=np.float64).reshape(k, mdp.n_states, mdp.n_actions), basis
 
 
 def _same_matrix(a: Any, b: Any) -> bool:
@@ -189,7 +198,9 @@ def _environment(model: Any, m: Any, f: Any, i: int, D: NDArray[np.float64], fit
                 f"gpi_policies works only on the environments the model was fitted on (its library's policies live "
                 f"there): the environment of new task {i} (its MDP and features) is none of the {len(signature)} fitted "
                 "tasks' environments; plan that task with fo.optimal_q instead")
-        return _Environment(m, _basis_primitives(model, m, f, D), rows if fitted else [])
+        phi, basis = _basis_primitives(model, m, f, D)
+        others = [j for j in range(len(signature)) if j not in rows] if fitted else []
+        return _Environment(m, phi, rows if fitted else [], basis, others)
     if f is not None and not (mine is not None and _same_matrix(mine, f)):
         raise ValidationError("features given for new tasks of a model with shared features must be the model's own "
                               "(its dictionary's environment); leave features=None")
@@ -206,7 +217,9 @@ def _environment(model: Any, m: Any, f: Any, i: int, D: NDArray[np.float64], fit
         rows = rows if fitted else []
     else:
         rows = []
-    env = _Environment(m, _basis_primitives(model, m, mine, D), rows)
+    phi, basis = _basis_primitives(model, m, mine, D)
+    others = [j for j in range(len(signature)) if j not in rows] if fitted and isinstance(signature, list) else []
+    env = _Environment(m, phi, rows, basis, others)
     digest = getattr(model, "features_sha256_", None)
     if digest is not None and mine is not None and reward_basis(m, mine, model.reward, 1).digest() != digest:
         raise ValidationError("this FactIRL model was fitted with other features than the ones set now: restore them or fit again")
@@ -271,7 +284,15 @@ def gpi_library(model: Any, env: _Environment, parts: tuple[str, ...]) -> dict[s
     """
     kind, beta = _policy_kind(model), float(model.beta)
     train_R = _train_rewards(model, env.train) if "tasks" in parts else np.empty((0,))
-    key = _digest(env, train_R, kind, beta, parts)
+    if "other-tasks" in parts and env.others:
+        W = np.asarray(model.coefficients_, dtype=np.float64)[env.others] @ np.asarray(model.dictionary_, dtype=np.float64).T
+        residuals = model.__dict__.get("residuals_")
+        if residuals is not None:
+            W = W + np.asarray(residuals, dtype=np.float64)[env.others]
+        other_R = np.asarray(env.basis.rewards(W), dtype=np.float64).reshape(len(env.others), *env.phi.shape[1:])
+    else:
+        other_R = np.empty((0,))
+    key = _digest(env, np.concatenate([train_R.ravel(), other_R.ravel()]), kind, beta, parts)
     cache = successor_feature_cache(model)
     if key in cache:
         return cache[key]
@@ -286,6 +307,9 @@ def gpi_library(model: Any, env: _Environment, parts: tuple[str, ...]) -> dict[s
     if "tasks" in parts and env.train:
         rewards.append(train_R)
         labels += [f"task {j}" for j in env.train]
+    if other_R.size:
+        rewards.append(other_R)
+        labels += [f"task {j} (carried)" for j in env.others]
     R = np.concatenate(rewards, axis=0)
     planner = get_planner(env.mdp, model.planner)
     policies = plan(planner, R).policy if kind == "greedy" else np.exp(soft_values(planner, R, beta)[2])

@@ -128,6 +128,15 @@ def test_per_task_maps_use_the_library_of_the_map(rng):
     assert pol.shape == (4, mdps[0].n_states)
     report = model.gpi_report_
     assert report.library[1][-1] == "task 1" and report.library[3][-1] == "task 2" and len(report.library[0]) == 5
+    carried = model.gpi_policies(mdps[1], H, features=feats[1], library=("primitives", "tasks", "other-tasks"))
+    report = model.gpi_report_
+    assert report.library == ["primitive 0", "primitive 1", "task 1", "task 0 (carried)", "task 2 (carried)"]
+    # a carried task's library policy is the optimal policy of its weights on this map
+    (entry,) = [e for e in successor_feature_cache(model).values() if len(e["labels"]) == 5 and "carried" in e["labels"][-1]]
+    w0 = model.dictionary_ @ model.coefficients_[0]
+    R0 = fo.feature_rewards(feats[1], w0[None], mdps[1])[0]
+    np.testing.assert_array_equal(entry["policies"][3], fo.optimal_q(mdps[1], R0)[1])
+    assert np.all(report.gpi_value >= report.best_library_value - 1e-10) and carried.shape == (4, mdps[1].n_states)
     with pytest.raises(ValidationError, match="needs each new task's features"):
         model.gpi_policies(mdps[0], H)
     other = fo.objectworld.objectworld_maps(1, size=6, rng=5)

@@ -23,7 +23,8 @@ Per world (:data:`WORLDS`, each a preset of the harness with a few changes) and 
    the best library policy's from ``gpi_report_``).
 
 The acceptance ratios are reported as ``cpu_gpi_over_plan``, ``true_loss_gpi_over_plan`` and
-``true_loss_gpi1_over_plan``. ``--library`` chooses the library's parts (default all).
+``true_loss_gpi1_over_plan``. ``--library`` chooses the library's parts (default ``FactIRL.gpi_policies``'s: primitives,
+negatives, tasks; add ``other-tasks`` on a map per task to carry every training task to every map).
 ``--quick``: the tiny worlds and 20 new tasks, for tests.
 """
 
@@ -38,7 +39,7 @@ import numpy as np
 from ...datasets.objectworld import make_objectworld, multitask_rewards, state_action_rewards
 from ...datasets.synthetic import random_coefficients
 from ...learners.factirl import FactIRL
-from ...learners.gpi import LIBRARY_PARTS
+from ...learners.gpi import DEFAULT_PARTS, LIBRARY_PARTS
 from ...parallel import limit_blas_threads
 from ...planning import clear_caches, optimal_q, policy_evaluation
 from ...tasks.task_set import reward_basis
@@ -60,7 +61,7 @@ WORLDS: dict[str, tuple[str, int, int, dict[str, Any]]] = {
     "objectworld-tiny": ("objectworld-tiny", 6, 4, {}),
 }
 DEFAULTS = {"worlds": ["grid", "objectworld-per-task", "objectworld-100"], "seeds": [0], "n_new": 1000,
-            "plan_chunk": 50, "library": list(LIBRARY_PARTS), "blas_threads": 1}
+            "plan_chunk": 50, "library": list(DEFAULT_PARTS), "blas_threads": 1}
 QUICK = {"worlds": ["grid-tiny", "objectworld-per-task-tiny", "objectworld-tiny"], "n_new": 20, "plan_chunk": 8}
 
 #: the first word of the new tasks' seeds, apart from the ground truth's streams
