@@ -345,7 +345,7 @@ def _improve_and_evaluate(planner: Any, phi: NDArray[np.float64], H: NDArray[np.
     if not steps and not evaluate:
         return pol, None, None
     chunk = max(1, EVALUATION_CHUNK_BYTES // max(planner.task_bytes(), 8 * S * A))
-    V_gpi, V_out = np.empty((n, S)), (np.empty((n, S)) if evaluate else None)
+    V_gpi, V_all = np.empty((n, S)), np.empty((n, S))
     pol = pol.copy()
     for lo in range(0, n, chunk):
         sl = slice(lo, lo + chunk)
@@ -357,11 +357,11 @@ def _improve_and_evaluate(planner: Any, phi: NDArray[np.float64], H: NDArray[np.
                 V_gpi[sl] = V
         if evaluate:
             V = greedy_values(planner, R, p)[0]
-            V_out[sl] = V
+            V_all[sl] = V
             if not steps:
                 V_gpi[sl] = V
         pol[sl] = p
-    return pol, V_gpi, V_out
+    return pol, V_gpi, (V_all if evaluate else None)
 
 
 @blas_limited
