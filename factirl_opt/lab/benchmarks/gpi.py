@@ -56,6 +56,8 @@ WORLDS: dict[str, tuple[str, int, int, dict[str, Any]]] = {
     "grid": ("fast", 100, 10, {}),
     "objectworld-per-task": ("objectworld-per-task", 20, 32, {}),
     "objectworld-100": ("objectworld", 20, 16, {"grid_size": 100, "fact_max_iter": 10, "flat_max_iter": 20}),
+    # the same map and tasks, fitted with the objectworld preset's own budgets (a closer learnt reward)
+    "objectworld-100-full-fit": ("objectworld", 20, 16, {"grid_size": 100}),
     "grid-tiny": ("tiny", 8, 5, {}),
     "objectworld-per-task-tiny": ("objectworld-per-task-quick", 4, 8, {"fact_max_iter": 3, "flat_max_iter": 5}),
     "objectworld-tiny": ("objectworld-tiny", 6, 4, {}),
