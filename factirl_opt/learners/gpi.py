@@ -385,7 +385,8 @@ def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike
     improvement_steps : int, default=0
         Exact policy-improvement steps after GPI (each one policy evaluation per task).
     library : str or sequence of str, optional
-        Parts among :data:`LIBRARY_PARTS`; default all of them the model has.
+        Parts among :data:`LIBRARY_PARTS`; default :data:`DEFAULT_PARTS` (without ``"tasks"``
+        for a model with no training tasks: a dictionary set by hand).
     start : None, int or array_like (S,) or (n, S), optional
         The start distribution of the reported values (default uniform).
     evaluate : bool, default=True
