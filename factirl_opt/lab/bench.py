@@ -1,4 +1,4 @@
-"""Benchmark entry point: ``python -m factirl_opt.lab.bench {gradient,fit,solvers,scale,environments,robustness,unlabeled,mce,dictionary,auto-cost,which-learner,active} [options]``.
+"""Benchmark entry point: ``python -m factirl_opt.lab.bench {gradient,fit,solvers,scale,environments,robustness,unlabeled,mce,dictionary,auto-cost,which-learner,active,gpi} [options]``.
 
 Every benchmark measures its routes side by side in one run and prints JSON on stdout. The
 same parser serves ``factirl-opt bench``.

@@ -12,6 +12,8 @@
   :class:`IntentionStart` (where a FactIRL or MultiIntentIRL fit starts; :mod:`~factirl_opt.learners.start`).
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
+- :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
+  policies of new tasks by generalised policy improvement over the successor features of a library.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
   values are chosen (:mod:`~factirl_opt.learners.adaptive`, the search's engine).
 
@@ -21,6 +23,7 @@ Learners never know which step solver, objective or planner runs: they take them
 from .adaptive import plot_validation
 from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
+from .gpi import GPIReport
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .posterior import LaplacePosterior
@@ -46,4 +49,5 @@ __all__ = [
     "adjusted_rand_index",
     "match_intentions",
     "LaplacePosterior",
+    "GPIReport",
 ]

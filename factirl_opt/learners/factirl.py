@@ -49,6 +49,7 @@ from ..objectives import Objective
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
+from .gpi import GPIReport, generalised_policy_improvement
 from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
 from .selection import SharingSearch
 from .._deprecation import warn_once
@@ -710,3 +711,60 @@ class FactIRL(Estimator):
         """
         return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
                               criterion=criterion, policy=policy, demonstrated=demonstrated)
+
+    def gpi_policies(self, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0, features: Any = None,
+                     library: Any = None, start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:
+        """Greedy policies of new tasks without planning: GPI over the successor features of a library.
+
+        :func:`~factirl_opt.learners.gpi.generalised_policy_improvement`: for each task ``h``,
+        ``pi(s) = argmax_a max_l psi_l(s, a) h`` over the library's policies (the optimal
+        policies of the primitives, of their negatives and of the training tasks; greedy, or
+        soft-optimal for ``objective="mce"``), whose successor features are computed once per
+        environment and cached on the model (``save_model`` keeps them). At least as good as
+        every library policy on each task (Barreto et al. 2017, Theorem 1); ``gpi_report_``
+        holds the values.
+
+        Parameters
+        ----------
+        mdp : TabularMDP or sequence of n TabularMDP
+            The environment of ``fit`` (fitted on several: each new task's must be one of them).
+        coefficients : array_like, shape (n, k) or (k,)
+            The new tasks' coefficients (e.g. from :meth:`transfer`).
+        improvement_steps : int, default=0
+            Exact policy-improvement steps after GPI (one policy evaluation per task each).
+        features : array_like or sequence of n array_like, optional
+            Fitted with one feature matrix per task: each new task's, the matrix of the fitted
+            task whose environment (map) it is on. Otherwise None.
+        library : str or sequence of {"primitives", "negatives", "tasks", "other-tasks"}, optional
+            The library's parts (:mod:`factirl_opt.learners.gpi`); default ``("primitives",
+            "negatives", "tasks")``, without ``"tasks"`` for a dictionary set by hand.
+            ``"other-tasks"``: on a model fitted on a map per task, every other training task
+            carried to the new task's map.
+        start : None, int or array_like (S,) or (n, S), optional
+            Start distribution of the reported values (default uniform, as eq. 13).
+        evaluate : bool, default=True
+            Evaluate the policies exactly for ``gpi_report_`` (one policy evaluation per task).
+
+        Returns
+        -------
+        policies : ndarray of intp, shape (n, S) (or (S,) for coefficients (k,))
+
+        Raises
+        ------
+        NotFittedError
+            No ``dictionary_``.
+        ValidationError
+            Coefficients not (n, k); an environment the model was not fitted on; an unknown part.
+        """
+        policies, self._gpi_report = generalised_policy_improvement(
+            self, mdp, coefficients, features=features, improvement_steps=improvement_steps, library=library, start=start,
+            evaluate=evaluate)
+        return policies
+
+    @property
+    def gpi_report_(self) -> GPIReport:
+        """The :class:`~factirl_opt.learners.gpi.GPIReport` of the last :meth:`gpi_policies` call (not saved)."""
+        report = self.__dict__.get("_gpi_report")
+        if report is None:
+            raise AttributeError("gpi_report_: call gpi_policies first")
+        return report

@@ -15,6 +15,7 @@ from .archive import Target, read_archive, require, to_json, write_archive
 from .learnt import check_features_digest, check_learnt, decode_learnt, check_task_features, fitted_features_sha256, learnt_attributes
 from .params import decode_params, encode_params, param_kind
 from .posterior import load_transfer_posterior, save_transfer_posterior
+from .successor_features import load_successor_features, save_successor_features
 
 __all__ = ["MODEL_CLASSES", "save_model", "load_model"]
 
@@ -127,6 +128,7 @@ def save_model(model: GradIRL | FactIRL | MultiIntentIRL, path: Target) -> str |
     if lists:
         header["array_list_attributes"] = lists
     save_transfer_posterior(model, header, arrays)
+    save_successor_features(model, header, arrays)
     return write_archive(path, header, arrays)
 
 
@@ -203,6 +205,7 @@ def load_model(path: Target) -> GradIRL | FactIRL | MultiIntentIRL:
     if attributes:
         _complete_old_file(model, cls, attributes, features, label)
     load_transfer_posterior(model, header, contents, label)
+    load_successor_features(model, header, contents, label)
     return model
 
 

@@ -26,7 +26,8 @@ Memory. A planning budget (an objective's ``planner_options={"max_bytes": ...}``
 chunk by chunk instead of keeping every task's factorisations (:mod:`~factirl_opt.planning.budget`).
 
 Modules: :mod:`~factirl_opt.planning.engine` (policy iteration, policy values, adjoint and
-tangent), :mod:`~factirl_opt.planning.base` (the planner interface),
+tangent), :mod:`~factirl_opt.planning.successor_features` (successor features of fixed policies
+and generalised policy improvement), :mod:`~factirl_opt.planning.base` (the planner interface),
 :mod:`~factirl_opt.planning.registry`, one module per planner, the low-rank updates, the caches
 (owner and lifetime documented there) and the glibc allocator tuning
 (:mod:`~factirl_opt.planning.allocator`, process-wide).
@@ -54,6 +55,7 @@ from .registry import (
     unregister_planner,
 )
 from .sparse_lu import SparseLUPlanner, TaskFactor
+from .successor_features import successor_features
 
 __all__ = [
     "CountingPlanner",
@@ -73,6 +75,7 @@ __all__ = [
     "plan",
     "adjoint",
     "tangent",
+    "successor_features",
     "Planner",
     "PolicySystem",
     "DensePlanner",

@@ -24,6 +24,7 @@ BENCHMARKS = {
     "auto-cost": "auto_cost",
     "which-learner": "which_learner",
     "active": "active",
+    "gpi": "gpi",
 }
 
 
