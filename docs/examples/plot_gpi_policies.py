@@ -21,7 +21,7 @@ mdp = world.mdp()
 features = fo.objectworld.objectworld_features(world)
 R, _, _ = fo.objectworld.multitask_rewards(world, n_tasks=12, rng=1)
 demos = fo.sample_demonstrations(mdp, R, n_demos=16, length=12, rng=2)
-model = fo.FactIRL(n_primitives=3, features=features, max_iter=15, flat_max_iter=40, rng=0).fit(mdp, demos)
+model = fo.FactIRL(n_primitives=3, features=features, max_iter=15, start=fo.Start(flat_max_iter=40), rng=0).fit(mdp, demos)
 
 # a new task: one demonstration, its coefficients by transfer
 R_new, _, _ = fo.objectworld.multitask_rewards(world, n_tasks=1, rng=3)

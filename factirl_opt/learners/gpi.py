@@ -311,7 +311,7 @@ def gpi_library(model: Any, env: _Environment, parts: tuple[str, ...]) -> dict[s
         rewards.append(other_R)
         labels += [f"task {j} (carried)" for j in env.others]
     R = np.concatenate(rewards, axis=0)
-    planner = get_planner(env.mdp, model.planner)
+    planner = get_planner(env.mdp, model._group("execution").planner)
     policies = plan(planner, R).policy if kind == "greedy" else np.exp(soft_values(planner, R, beta)[2])
     psi = policy_successor_features(planner, np.ascontiguousarray(np.moveaxis(env.phi, 0, 2)), policies)
     state = _model_state(model)
@@ -430,7 +430,7 @@ def generalised_policy_improvement(model: Any, mdp: Any, coefficients: ArrayLike
         entry = gpi_library(model, env, parts)
         values = library_values(entry["psi"], entry["policies"], Hg, rho)
         pol = gpi_actions(entry["psi"], Hg)
-        pol, V_gpi, V_out = _improve_and_evaluate(get_planner(env.mdp, model.planner), env.phi, Hg, pol, steps, evaluate)
+        pol, V_gpi, V_out = _improve_and_evaluate(get_planner(env.mdp, model._group("execution").planner), env.phi, Hg, pol, steps, evaluate)
         for j, i in enumerate(rows):
             out_list[i] = pol[j]
             labels_per_task[i] = entry["labels"]

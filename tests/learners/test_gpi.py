@@ -122,7 +122,7 @@ def test_per_task_maps_use_the_library_of_the_map(rng):
     mdps, feats = list(maps.mdps), list(maps.features)
     R = fo.objectworld.state_action_rewards(maps.rewards, mdps[0].n_actions)
     demos = fo.sample_demonstrations(mdps, R, 3, 6, rng=1)
-    model = fo.FactIRL(2, max_iter=1, init="random", rng=0, features=feats).fit(mdps, demos)
+    model = fo.FactIRL(2, max_iter=1, start=fo.Start(init="random"), rng=0, features=feats).fit(mdps, demos)
     H = rng.normal(size=(4, 2))
     pol = model.gpi_policies([mdps[0], mdps[1], mdps[1], mdps[2]], H, features=[feats[0], feats[1], feats[1], feats[2]])
     assert pol.shape == (4, mdps[0].n_states)

@@ -118,7 +118,7 @@ def problem(name, n_new, seed):
     train_mdps = gt.mdps("train")
     train_feats = list(gt.task_maps["train"].features) if per_task else gt.features
     t = time.process_time()
-    model = FactIRL(init="pca", rng=seed, features=train_feats,
+    model = FactIRL(rng=seed, features=train_feats,
                     **factorial_options(preset, preset.solvers, "policy-matching", features=train_feats is not None))
     model.fit(train_mdps, gt.train_demos)
     fit_cpu = time.process_time() - t
@@ -207,7 +207,7 @@ def world_run(name, s, seed):
             r = rows[lo:lo + s["plan_chunk"]]
             R = (p.H[r] @ p.phi[j].reshape(p.phi[j].shape[0], -1)).reshape(len(r), *p.phi[j].shape[1:])
             t = time.process_time()
-            pol_plan[r] = optimal_q(p.mdps[j], R, planner=model.planner)[1]
+            pol_plan[r] = optimal_q(p.mdps[j], R, planner=model._group("execution").planner)[1]
             plan_cpu += time.process_time() - t
     # exact values of the three policies under the learnt and the true rewards
     names = ("plan", "gpi", "gpi1")
@@ -221,11 +221,11 @@ def world_run(name, s, seed):
             r = rows[lo:lo + s["plan_chunk"]]
             R = (p.H[r] @ p.phi[j].reshape(p.phi[j].shape[0], -1)).reshape(len(r), *p.phi[j].shape[1:])
             Rt = p.true_rewards(j, r)
-            Q_true = optimal_q(m, Rt, planner=model.planner)[0]
+            Q_true = optimal_q(m, Rt, planner=model._group("execution").planner)[0]
             optimal_true[r] = Q_true.max(axis=2).mean(axis=1)
             for key in names:
-                learnt[key][r] = policy_evaluation(m, R, policies[key][r], planner=model.planner).mean(axis=1)
-                true[key][r] = policy_evaluation(m, Rt, policies[key][r], planner=model.planner).mean(axis=1)
+                learnt[key][r] = policy_evaluation(m, R, policies[key][r], planner=model._group("execution").planner).mean(axis=1)
+                true[key][r] = policy_evaluation(m, Rt, policies[key][r], planner=model._group("execution").planner).mean(axis=1)
             clear_caches(m)
     learnt_loss = {key: float(np.mean(learnt["plan"] - learnt[key])) for key in names}
     true_loss = {key: float(np.mean(optimal_true - true[key])) for key in names}
