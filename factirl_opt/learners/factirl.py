@@ -14,7 +14,7 @@ The plain functions stay importable from here.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,8 +45,7 @@ from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
 from ..objectives import Objective
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
+from ..parallel.shards import Client  # the type of ``client``: distributed.Client, resolvable without importing it
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer_inputs
 from .active import request_starts

@@ -7,7 +7,7 @@ already built, which ``FactIRL`` also runs for its PCA start on the same objecti
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Callable, ClassVar
+from typing import Any, Callable, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -30,8 +30,7 @@ from ..objectives.problems import weights_problem
 from .solver_settings import SolverSettings, estimator_solvers
 from ..objectives import Objective
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
+from ..parallel.shards import Client  # the type of ``client``: distributed.Client, resolvable without importing it
 
 __all__ = ["GradIRL", "fit_weights", "make_objective", "warn_if_stalled", "check_solver_applies"]
 

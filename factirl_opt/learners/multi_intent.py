@@ -20,7 +20,7 @@ labels and pair recovered intentions with true tasks.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Literal
+from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,8 +40,7 @@ from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods,
 from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
 
-if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
-    from distributed import Client
+from ..parallel.shards import Client  # the type of ``client``: distributed.Client, resolvable without importing it
 from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
 from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled

@@ -49,13 +49,13 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
-__all__ = ["WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
+__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -79,6 +79,29 @@ DASK_WAIT_SECONDS = 30.0
 #: caller's own, or a fallback start method's) would inherit the new shard's end of the pipe, and
 #: its death would then go unnoticed
 _START_LOCK = threading.Lock()
+
+
+if TYPE_CHECKING:
+    from distributed import Client
+else:
+    class _ClientType(type):
+        """``isinstance``/``issubclass`` against ``distributed.Client`` once ``distributed`` is imported
+        (False before: no object can be a Client then); importing it here would cost a second."""
+
+        def __instancecheck__(cls, obj: Any) -> bool:
+            module = sys.modules.get("distributed")
+            return module is not None and isinstance(obj, module.Client)
+
+        def __subclasscheck__(cls, sub: type) -> bool:
+            module = sys.modules.get("distributed")
+            return module is not None and issubclass(sub, module.Client)
+
+    class Client(metaclass=_ClientType):
+        """``dask.distributed.Client`` as an annotation that resolves at run time without importing
+        ``distributed`` (:func:`typing.get_type_hints` on the estimators' ``__init__``); type checkers
+        see the real class. ``isinstance(c, Client)`` is ``isinstance(c, distributed.Client)``."""
+
+    Client.__module__, Client.__qualname__ = "distributed", "Client"
 
 
 class ShardLost(FactIRLError):
