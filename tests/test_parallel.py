@@ -500,3 +500,33 @@ def test_a_script_without_a_main_guard_fits_with_n_jobs(tmp_path):
     out = subprocess.run([sys.executable, "-W", "ignore", str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["start", "done"]
+
+
+def _fit_in_pool_worker(data):
+    """In a multiprocessing.Pool worker (a daemonic process): a FactIRL fit with n_jobs=2, its warnings."""
+    import warnings
+
+    mdp, demos = data
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = fo.FactIRL(n_primitives=2, max_iter=2, rng=0, n_jobs=2).fit(mdp, demos)
+        fo.FactIRL(n_primitives=2, max_iter=1, rng=0, n_jobs=2).fit(mdp, demos)  # a second fit: no second warning
+    return model.coefficients_, [(w.category.__name__, str(w.message)) for w in caught
+                                 if not issubclass(w.category, fo.exceptions.ConvergenceWarning)]
+
+
+def test_a_fit_with_n_jobs_in_a_daemonic_process_runs_its_shards_here_with_one_warning(data):
+    """A Pool worker cannot have children ("daemonic processes are not allowed to have children" used to
+    end the fit): its shards run in the worker itself, with one warning naming daemonic processes, and the
+    result is that of n_jobs=1."""
+    import warnings
+
+    mdp, demos = data[0], data[1]
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        coefficients, caught = pool.apply(_fit_in_pool_worker, ((mdp, demos),))
+    assert len(caught) == 1, caught
+    assert caught[0][0] == "RuntimeWarning" and "daemonic process" in caught[0][1] and "n_jobs=2" in caught[0][1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        serial = fo.FactIRL(n_primitives=2, max_iter=2, rng=0, n_jobs=1).fit(mdp, demos)
+    np.testing.assert_allclose(coefficients, serial.coefficients_, rtol=1e-10, atol=1e-12)

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
-__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
+__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs", "daemonic",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -126,6 +126,12 @@ def in_worker() -> bool:
     except ValueError:
         return False
     return True
+
+
+def daemonic() -> bool:
+    """Whether this process is daemonic (a ``multiprocessing.Pool`` worker, a daemon ``Process``): it
+    cannot start processes of its own, so shards of the ``"processes"`` backend cannot run in it."""
+    return bool(multiprocessing.current_process().daemon)
 
 
 def effective_n_jobs(n_jobs: int | None) -> int:
