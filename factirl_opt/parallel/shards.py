@@ -55,7 +55,7 @@ import numpy as np
 
 from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
-__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs", "daemonic",
+__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs", "daemonic", "start_shard_server",
            "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
            "DaskShard", "Shards"]
 
@@ -422,6 +422,36 @@ def _context() -> Any:
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(FORKSERVER_PRELOAD)  # no effect once the server runs
     return ctx
+
+
+def start_shard_server() -> bool:
+    """Start the fork server of shard processes now, so that the first fit with ``n_jobs`` does not wait for it.
+
+    The server is a fresh process that imports the library once (:data:`FORKSERVER_PRELOAD`),
+    then forks every shard process of this process's fits (:func:`_context`). It starts on the
+    first sharded fit otherwise, and that fit waits for the import (about a second of the
+    server's CPU time, on another core). This call returns at once: the server imports in its own
+    process while the caller goes on (loads data, builds its problem). Call it early in a program
+    that will fit with ``n_jobs`` (the experiment runner and the benchmarks do, when given jobs).
+    Safe from any thread, and a no-op when already running, where ``forkserver`` is not
+    available (shards are spawned), in a worker process (fits there run with one job) or in a
+    daemonic process (it cannot have children).
+
+    Returns
+    -------
+    bool
+        Whether a fork server runs (or is starting) for this process.
+    """
+    if in_worker() or daemonic():
+        return False
+    ctx = _context()
+    if ctx.get_start_method() != "forkserver":
+        return False
+    from multiprocessing import forkserver
+
+    with _START_LOCK:  # no shard process starts meanwhile (its pipe end would leak into the server)
+        forkserver.ensure_running()
+    return True
 
 
 _MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
