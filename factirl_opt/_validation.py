@@ -376,3 +376,52 @@ def check_start(start: int | ArrayLike | None, n: int, n_states: int) -> int | N
         i = int(np.argmax(err))
         raise ValidationError(f"start probabilities must sum to 1 (within {START_SUM_TOL:g}); {label(i)} sums to {float(sums[i])!r}")
     return np.array(np.broadcast_to(rows, (n, n_states)), dtype=np.float64)
+
+
+#: the estimators' iteration budgets (an integer >= 0) and inner steps (>= 1), checked by :func:`check_fit_parameters`
+_BUDGET_PARAMETERS = {"max_iter": 0, "flat_max_iter": 0, "transfer_max_iter": 0, "inner_steps": 1}
+#: the estimators' step-solver parameters: a registered name or a ``solvers.StepSolver`` (``solver`` may also be a
+#: ``SolverSettings``, which the estimator's own code reads); their options a dict or None
+_SOLVER_PARAMETERS = ("solver", "flat_solver", "d_solver")
+_SOLVER_OPTION_PARAMETERS = ("solver_options", "d_solver_options")
+
+
+def check_fit_parameters(estimator: typing.Any) -> None:
+    """Check, when ``fit`` starts, the parameters of ``estimator`` that only some paths of the fit read.
+
+    Every iteration budget (``max_iter``, ``flat_max_iter``, ``transfer_max_iter``: integers >= 0;
+    ``inner_steps`` >= 1), every step solver (``solver``, ``flat_solver``, ``d_solver``: a registered
+    name or a ``solvers.StepSolver``; None where that is the default) and the solvers' options
+    (dicts or None) the estimator has, whether or not this fit's path reads it: a bad
+    ``transfer_max_iter`` is refused by ``fit``, not by a later ``transfer``; a bad ``flat_solver``
+    by a fit with ``init="random"``.
+
+    Raises
+    ------
+    ValidationError
+        Naming the parameter and the value.
+    """
+    import solvers
+
+    from .exceptions import SolverOptionError, UnknownSolverError
+
+    params = estimator.get_params(deep=False)
+    for name, minimum in _BUDGET_PARAMETERS.items():
+        if name in params:
+            check_int(params[name], name, minimum=minimum)
+    for name in _SOLVER_PARAMETERS:
+        value = params.get(name)
+        if value is None or isinstance(value, solvers.StepSolver):
+            continue
+        if isinstance(value, str):
+            if value not in solvers.registered_solvers():
+                raise UnknownSolverError(f"{name}: unknown solver {value!r}; available: "
+                                         f"{', '.join(solvers.available_solvers())}")
+        elif name != "solver":  # a SolverSettings is read by the estimator's own code
+            raise SolverOptionError(f"{name} must be a registered step-solver name or a solvers.StepSolver; got "
+                                    f"{type(value).__name__} {value!r:.60}")
+    for name in _SOLVER_OPTION_PARAMETERS:
+        value = params.get(name)
+        if value is not None and not isinstance(value, dict):
+            raise SolverOptionError(f"{name} must be a dict of the solver's options or None; got {type(value).__name__} "
+                                    f"{value!r:.60}")
