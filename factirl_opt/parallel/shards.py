@@ -56,7 +56,7 @@ import numpy as np
 from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
 __all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs", "daemonic", "start_shard_server",
-           "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
+           "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard", "StartingShard",
            "DaskShard", "Shards"]
 
 #: where shards run: worker processes of this machine, or a Dask cluster
@@ -485,6 +485,7 @@ def _forget_fork_server() -> None:
     ``ChildProcessError`` checking it), and its lock may have been held by another thread at the fork."""
     from multiprocessing import forkserver
 
+    _SERVER_READY[0] = False  # this child's first shards start its own server
     server = getattr(forkserver, "_forkserver", None)
     if server is None or getattr(server, "_forkserver_pid", None) is None:
         return
@@ -550,10 +551,15 @@ class ProcessShard:
         except (OSError, ValueError) as exc:
             raise ShardLost(f"shard process {self.proc.pid} cannot be reached") from exc
 
-    def result(self) -> Any:
+    def wait_built(self) -> None:
+        """Until the shard's state is built in its process (its first reply)."""
         if not self._ready:
             self._receive()  # the state was built
             self._ready = True
+            _SERVER_READY[0] = True
+
+    def result(self) -> Any:
+        self.wait_built()
         return self._receive()
 
     def close(self) -> None:
@@ -566,6 +572,79 @@ class ProcessShard:
             self.proc.kill()
             self.proc.join()
         self.conn.close()
+
+
+#: true once a shard process of this process was built: its fork server runs and has imported the library
+#: (a plain flag, not an Event: a child forked from this process clears it, see :func:`_forget_fork_server`)
+_SERVER_READY = [False]
+
+
+class StartingShard:
+    """A shard whose process starts in the background, served in this process until it is built.
+
+    Used for the shard processes of a process's first sharded fit (:class:`Shards`), which would
+    otherwise wait, idle, for the fork server to start and import the library (about a second of
+    its CPU time): a thread starts the process while the caller's calls to this shard run here, on
+    a copy of its state built from the same spec (:class:`InProcessShard`, built on the first
+    call). :meth:`Shards.call` hands the shard over to its process (:attr:`started`) at the start
+    of a call, as it does a rebuilt shard: ``on_restart(k)`` gives it what the calls need.
+    """
+
+    def __init__(self, spec: tuple) -> None:
+        self.spec = spec
+        self.local: InProcessShard | None = None
+        self.started: ProcessShard | None = None  # the process, once started and its state built
+        self.error: BaseException | None = None  # why the process could not be started or built
+        self._lock = threading.Lock()
+        self._closed = False
+        self._done = threading.Event()
+        threading.Thread(target=self._start, daemon=True, name="factirl-opt shard start").start()
+
+    def _start(self) -> None:
+        shard = None
+        try:
+            shard = ProcessShard(self.spec)
+            shard.wait_built()
+        except BaseException as exc:  # noqa: BLE001 - reported when the shard is handed over
+            self.error = exc
+        with self._lock:
+            keep = not self._closed and self.error is None
+            if keep:
+                self.started = shard
+        if shard is not None and not keep:
+            shard.close()
+        self._done.set()
+
+    def done(self) -> bool:
+        """Whether the background start has ended (:attr:`started` or :attr:`error` is set)."""
+        return self._done.is_set()
+
+    @property
+    def proc(self) -> Any:
+        """The shard's process, once started (waits for it)."""
+        self._done.wait()
+        if self.started is None:
+            raise ShardLost(f"the shard process could not be started: {self.error}")
+        return self.started.proc
+
+    def submit(self, method: str, args: tuple) -> None:
+        if self.local is None:
+            self.local = InProcessShard(self.spec)
+        self.local.submit(method, args)
+
+    def result(self) -> Any:
+        if self.local is None:
+            raise FactIRLError("internal: a shard's result was asked for before its call was sent")
+        return self.local.result()
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            started, self.started = self.started, None
+        if started is not None:
+            started.close()
+        if self.local is not None:
+            self.local.close()
 
 
 def _lost_dask_worker(exc: BaseException) -> bool:
@@ -683,18 +762,37 @@ class Shards:
         self.handles: list[Any] = [None] * len(self.specs)
         try:  # the driver's own shard last: it is built while the other shards' processes start
             for k in sorted(range(len(self.specs)), key=lambda k: backend == "processes" and k == 0):
-                self.handles[k] = self._start(k)
+                self.handles[k] = self._start(k, first=True)
         except BaseException:
             self.close()
             raise
 
-    def _start(self, k: int) -> Any:
+    def _start(self, k: int, first: bool = False) -> Any:
         if self.backend == "processes" and k == 0:
             return InProcessShard(self.specs[k])
         self.bytes_setup += array_bytes(list(self.specs[k][1]))
         if self.backend == "dask":
             return DaskShard(self.specs[k], self.client, k)
+        if first and not _SERVER_READY[0]:  # the process's first shards: not waiting for the fork server
+            return StartingShard(self.specs[k])
         return ProcessShard(self.specs[k])
+
+    def _hand_over(self, k: int, on_restart: Callable[[int], None] | None) -> None:
+        """Shard k served here while its process started (:class:`StartingShard`) goes to its process once
+        that is built, as a rebuilt shard (``on_restart(k)``; without one the shard stays here until a
+        call that has one). A start that failed is retried as a lost shard is."""
+        h = self.handles[k]
+        if not isinstance(h, StartingShard) or on_restart is None or not h.done():
+            return
+        if h.started is None:
+            if h.error is not None and not isinstance(h.error, (ShardLost, OSError, EOFError)):
+                raise h.error  # the spec does not build: the error it gives, as from a shard process
+            self._restart(k, on_restart)
+            self.n_restarts -= 1  # not a lost worker
+            return
+        self.handles[k], h.started = h.started, None
+        h.close()
+        on_restart(k)
 
     def _restart(self, k: int, on_restart: Callable[[int], None] | None) -> None:
         try:
@@ -731,6 +829,7 @@ class Shards:
         return results
 
     def _send(self, k: int, method: str, args: tuple, on_restart: Callable[[int], None] | None) -> None:
+        self._hand_over(k, on_restart)
         for attempt in range(MAX_RESTARTS + 1):
             try:
                 self.handles[k].submit(method, args)
