@@ -26,7 +26,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Mapping, Sequence
-from types import ModuleType
+from types import FrameType, ModuleType
 from typing import Any
 
 from .exceptions import DeprecatedNameWarning
@@ -74,7 +74,7 @@ def _internal(code: Any) -> bool:
 
 def _user_frame() -> Any:
     """The innermost frame outside the import system and the aliases' machinery (None if none)."""
-    frame = sys._getframe(1)
+    frame: FrameType | None = sys._getframe(1)
     while frame is not None and _internal(frame.f_code):
         frame = frame.f_back
     return frame
@@ -85,7 +85,7 @@ def _requested_module(name: str) -> str:
     package (``import a.b.c`` imports ``a.b`` first): the longest dotted path extending ``name``
     among the import system's frames that are loading it, else ``name``."""
     requested = name
-    frame = sys._getframe(1)
+    frame: FrameType | None = sys._getframe(1)
     while frame is not None:
         if frame.f_code.co_name == "_find_and_load" and "importlib" in frame.f_code.co_filename:
             outer = frame.f_locals.get("name")

@@ -336,11 +336,11 @@ def _check_rewards(basis: RewardBasis, out: Any, weights: Any, rows: Any = None,
                                   f"({r}); got {len(parts)}")
         shapes = [x.shape for x in parts]
     else:
-        shapes = [x.shape for x in parts[0]] if parts[0].ndim == 3 + len(trail) and len(parts[0]) == r else None
-        if shapes is None:
+        if parts[0].ndim != 3 + len(trail) or len(parts[0]) != r:
             raise ValidationError(f"{_where(basis, 'rewards')} must return rewards of shape (r, S, A{', ...' if trail else ''}) "
                                   f"= ({r}, S, {basis.n_actions}{''.join(f', {t}' for t in trail)}) for weights of shape "
                                   f"{W.shape}; got shape {parts[0].shape}")
+        shapes = [x.shape for x in parts[0]]
     states = _recorded_states(basis, rows, r)
     for i, shape in enumerate(shapes):
         expected = ((states[i] if states else shape[0]), basis.n_actions, *trail)
