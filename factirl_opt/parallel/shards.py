@@ -451,7 +451,26 @@ def start_shard_server() -> bool:
 
     with _START_LOCK:  # no shard process starts meanwhile (its pipe end would leak into the server)
         forkserver.ensure_running()
+    if not _SERVER_READY[0]:  # a first process from it, in the background: ready once the server has imported
+        threading.Thread(target=_first_child, args=(ctx,), daemon=True, name="factirl-opt shard server start").start()
     return True
+
+
+def _no_work() -> None:
+    """What the first process of a fork server started by :func:`start_shard_server` does."""
+
+
+def _first_child(ctx: Any) -> None:
+    """Start and join one process from the fork server: when it returns, the server has imported the
+    library, and the next shards start as processes at once (not :class:`StartingShard`)."""
+    try:
+        with _START_LOCK:
+            proc = ctx.Process(target=_no_work, daemon=True, name=SHARD_PROCESS_NAME)
+            proc.start()
+        proc.join()
+        _SERVER_READY[0] = True
+    except Exception:  # noqa: BLE001 - a fit starts its shards as it would have without it
+        pass
 
 
 _MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
