@@ -350,6 +350,7 @@ def test_a_deadlocked_shard_ends_in_a_clear_error(monkeypatch):
 def test_a_fit_whose_shards_keep_dying_keeps_its_best_point(data, monkeypatch):
     mdp, demos, F, _ = data
     monkeypatch.setattr(parallel, "MAX_RESTARTS", 0)
+    parallel.start_shard_server(wait=True)  # the shards are processes from the start (not served here meanwhile)
 
     def kill(iteration, total):
         if iteration == 2:
@@ -373,6 +374,7 @@ def test_workers_lost_is_an_ordinary_error_and_the_fit_keeps_its_best_point(data
     # lost in a solver's run (interruption.run_keeping_best: the per-task best point)
     mdp, demos, F, _ = data
     monkeypatch.setattr(parallel, "MAX_RESTARTS", 0)
+    parallel.start_shard_server(wait=True)  # the shards are processes from the start (not served here meanwhile)
 
     def kill(iteration, total):
         if iteration == 3:

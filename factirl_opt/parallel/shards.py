@@ -424,7 +424,7 @@ def _context() -> Any:
     return ctx
 
 
-def start_shard_server() -> bool:
+def start_shard_server(wait: bool = False) -> bool:
     """Start the fork server of shard processes now, so that the first fit with ``n_jobs`` does not wait for it.
 
     The server is a fresh process that imports the library once (:data:`FORKSERVER_PRELOAD`),
@@ -436,6 +436,12 @@ def start_shard_server() -> bool:
     Safe from any thread, and a no-op when already running, where ``forkserver`` is not
     available (shards are spawned), in a worker process (fits there run with one job) or in a
     daemonic process (it cannot have children).
+
+    Parameters
+    ----------
+    wait : bool, default=False
+        Return only once the server has imported the library and started a first process
+        (then the next fit's shards start as processes at once).
 
     Returns
     -------
@@ -452,7 +458,10 @@ def start_shard_server() -> bool:
     with _START_LOCK:  # no shard process starts meanwhile (its pipe end would leak into the server)
         forkserver.ensure_running()
     if not _SERVER_READY[0]:  # a first process from it, in the background: ready once the server has imported
-        threading.Thread(target=_first_child, args=(ctx,), daemon=True, name="factirl-opt shard server start").start()
+        first = threading.Thread(target=_first_child, args=(ctx,), daemon=True, name="factirl-opt shard server start")
+        first.start()
+        if wait:
+            first.join()
     return True
 
 
@@ -806,9 +815,7 @@ class Shards:
         if h.started is None:
             if h.error is not None and not isinstance(h.error, (ShardLost, OSError, EOFError)):
                 raise h.error  # the spec does not build: the error it gives, as from a shard process
-            self._restart(k, on_restart)
-            self.n_restarts -= 1  # not a lost worker
-            return
+            raise ShardLost(f"shard {k}'s process was lost while it started ({h.error})")  # rebuilt as a lost one
         self.handles[k], h.started = h.started, None
         h.close()
         on_restart(k)
@@ -848,9 +855,9 @@ class Shards:
         return results
 
     def _send(self, k: int, method: str, args: tuple, on_restart: Callable[[int], None] | None) -> None:
-        self._hand_over(k, on_restart)
         for attempt in range(MAX_RESTARTS + 1):
             try:
+                self._hand_over(k, on_restart)
                 self.handles[k].submit(method, args)
                 break
             except ShardLost as exc:
