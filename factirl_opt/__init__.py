@@ -146,6 +146,10 @@ _MOVED_NAMES = {
     "TaskFeatures": ("factirl_opt.tasks", "fo.tasks"),
 }
 
+#: former top-level names that were renamed too -> their name now (resolved directly, not through the
+#: namespace's own deprecated alias: one warning, naming the current name)
+_RENAMED_NAMES = {"MissingSolverBackendError": "MissingSolverDependencyError"}
+
 #: former module paths -> where the module is now
 _MOVED_MODULES = {
     "successors": "mdp.successors", "model_estimation": "mdp.estimation",
@@ -188,7 +192,7 @@ def __getattr__(name: str) -> object:
         globals()[name] = module
         return module
     if name in _MOVED_NAMES:
-        return moved_attribute(name, *_MOVED_NAMES[name])
+        return moved_attribute(name, *_MOVED_NAMES[name], _RENAMED_NAMES.get(name))
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -26,7 +26,7 @@ import sys
 import threading
 import warnings
 from collections.abc import Mapping, Sequence
-from types import ModuleType
+from types import FrameType, ModuleType
 from typing import Any
 
 from .exceptions import DeprecatedNameWarning
@@ -37,21 +37,78 @@ _warned: set[str] = set()
 _lock = threading.Lock()
 
 
-def warn_once(key: str, message: str, stacklevel: int = 3) -> None:
+def warn_once(key: str, message: str, stacklevel: int | None = 3) -> None:
     """Emit ``message`` as a :class:`~factirl_opt.exceptions.DeprecatedNameWarning` (a
-    :class:`FutureWarning`) the first time ``key`` is seen in this process."""
+    :class:`FutureWarning`) the first time ``key`` is seen in this process.
+
+    ``stacklevel=None``: the warning points at the user's line, the first frame outside the
+    import system and the aliases' machinery (:func:`_user_frame`), however deep the access went.
+    """
     with _lock:
         if key in _warned:
             return
         _warned.add(key)
-    warnings.warn(message, DeprecatedNameWarning, stacklevel=stacklevel)
+    if stacklevel is not None:
+        warnings.warn(message, DeprecatedNameWarning, stacklevel=stacklevel)
+        return
+    frame = _user_frame()
+    if frame is None:
+        warnings.warn(message, DeprecatedNameWarning, stacklevel=2)
+        return
+    module_globals = frame.f_globals
+    registry = module_globals.setdefault("__warningregistry__", {})
+    warnings.warn_explicit(message, DeprecatedNameWarning, frame.f_code.co_filename, frame.f_lineno,
+                           module=module_globals.get("__name__", "<string>"), registry=registry)
 
 
-def moved_attribute(name: str, module: str, namespace: str) -> Any:
-    """The object ``name`` of ``module``, with a one-time warning that it now lives in ``namespace``."""
-    value = getattr(importlib.import_module(module), name)
-    warn_once(f"name:{name}", f"factirl_opt.{name} moved to {namespace}.{name}; the top-level alias will be removed "
-                              "in the next release", stacklevel=4)
+_PACKAGE_DIR = __file__.rsplit("/", 1)[0] if "/" in __file__ else ""
+
+
+def _internal(code: Any) -> bool:
+    """Whether a frame running ``code`` belongs to the machinery between a user's access and its warning:
+    the import system, this module, or a module ``__getattr__`` of the package."""
+    name = code.co_filename
+    return (name == __file__ or "importlib" in name
+            or (code.co_name == "__getattr__" and name.startswith(_PACKAGE_DIR)))
+
+
+def _user_frame() -> Any:
+    """The innermost frame outside the import system and the aliases' machinery (None if none)."""
+    frame: FrameType | None = sys._getframe(1)
+    while frame is not None and _internal(frame.f_code):
+        frame = frame.f_back
+    return frame
+
+
+def _requested_module(name: str) -> str:
+    """The module an import in progress asked for, when ``name`` is being imported as its parent
+    package (``import a.b.c`` imports ``a.b`` first): the longest dotted path extending ``name``
+    among the import system's frames that are loading it, else ``name``."""
+    requested = name
+    frame: FrameType | None = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code.co_name == "_find_and_load" and "importlib" in frame.f_code.co_filename:
+            outer = frame.f_locals.get("name")
+            if isinstance(outer, str) and outer.startswith(requested + "."):
+                requested = outer
+            elif outer != requested:
+                break
+        frame = frame.f_back
+    return requested
+
+
+def moved_attribute(name: str, module: str, namespace: str, new_name: str | None = None) -> Any:
+    """The object ``name`` of ``module``, with a one-time warning that it now lives in ``namespace``
+    (as ``new_name`` when it was renamed too: the object of that name, not the module's own deprecated alias).
+
+    The warning points at the user's line, whether the name was read as an attribute or imported
+    (``from factirl_opt import name`` reads it twice: one warning).
+    """
+    new = new_name or name
+    value = getattr(importlib.import_module(module), new)
+    what = f"moved to {namespace}.{name}" if new == name else f"was renamed {namespace}.{new}"
+    warn_once(f"name:{name}", f"factirl_opt.{name} {what}; the top-level alias will be removed in the next release",
+              stacklevel=None)
     return value
 
 
@@ -69,7 +126,7 @@ class _FormerNames:
             former, home = self.names[name]
             value = getattr(importlib.import_module(home), name)
             warn_once(f"name:{former}.{name}", f"{former}.{name} moved to {home}.{name}; the old path will be removed "
-                                               "in the next release", stacklevel=3)
+                                               "in the next release", stacklevel=None)
             return value
         if self.fallback is not None:
             return self.fallback(name)
@@ -93,8 +150,9 @@ class _AliasLoader(importlib.abc.Loader):
         self.former_names = former_names or {}
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
-        warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}; the old path will be removed "
-                                         "in the next release", stacklevel=8)
+        if _requested_module(spec.name) == spec.name:  # a former package imported for its former child: the child warns
+            warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}; the old path will be "
+                                             "removed in the next release", stacklevel=None)
         module = importlib.import_module(self.target)
         if self.former_names:
             _add_former_names(module, spec.name, self.former_names)

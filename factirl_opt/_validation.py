@@ -376,3 +376,38 @@ def check_start(start: int | ArrayLike | None, n: int, n_states: int) -> int | N
         i = int(np.argmax(err))
         raise ValidationError(f"start probabilities must sum to 1 (within {START_SUM_TOL:g}); {label(i)} sums to {float(sums[i])!r}")
     return np.array(np.broadcast_to(rows, (n, n_states)), dtype=np.float64)
+
+
+#: the estimators' iteration budgets (an integer >= 0) and inner steps (>= 1), checked by
+#: :func:`check_fit_parameters`; ``start__flat_max_iter`` is the field of the start group
+_BUDGET_PARAMETERS = {"max_iter": 0, "start__flat_max_iter": 0, "transfer_max_iter": 0, "inner_steps": 1}
+
+
+def check_fit_parameters(estimator: typing.Any) -> None:
+    """Check, when ``fit`` starts, the parameters of ``estimator`` that only some paths of the fit read.
+
+    Every iteration budget (``max_iter``, ``start__flat_max_iter``, ``transfer_max_iter``:
+    integers >= 0; ``inner_steps`` >= 1) and the step solver ``solver`` (a registered name, a
+    ``solvers.StepSolver`` or a ``SolverSettings``, whose fields are checked when it is made) the
+    estimator has, whether or not this fit's path reads it: a bad ``transfer_max_iter`` is
+    refused by ``fit``, not by a later ``transfer``; a bad flat budget by a fit with
+    ``init="random"``.
+
+    Raises
+    ------
+    ValidationError
+        Naming the parameter and the value.
+    """
+    import solvers
+
+    from .exceptions import UnknownSolverError
+
+    params = dict(estimator.get_params(deep=False))
+    for group in getattr(type(estimator), "param_groups", {}):
+        params.update({f"{group}__{k}": v for k, v in estimator._group(group).get_params().items()})
+    for name, minimum in _BUDGET_PARAMETERS.items():
+        if name in params:
+            check_int(params[name], name, minimum=minimum)
+    value = params.get("solver")
+    if isinstance(value, str) and value not in solvers.registered_solvers():
+        raise UnknownSolverError(f"solver: unknown solver {value!r}; available: {', '.join(solvers.available_solvers())}")

@@ -35,10 +35,9 @@ from .mdp.environments import (
     check_task_rewards,
 )
 
-if typing.TYPE_CHECKING:
-    from collections.abc import Sequence
+from collections.abc import Sequence
 
-    from .mdp.tabular import TabularMDP
+from .mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
 __all__ = ["score", "optimal_score", "deviation", "soft_deviation", "dictionary_match"]
 

@@ -98,6 +98,24 @@ def test_candidates_restrict_and_are_checked(fitted):
         model.request_starts(mdp, test.demos, candidates=np.array([0.5]))
     with pytest.raises(ValidationError, match="n_requests"):
         model.request_starts(mdp, test.demos, n_requests=0)
+
+
+def test_per_task_candidates_of_different_lengths(fitted):
+    """The documented "sequence of n_new arrays" may hold arrays of different lengths (numpy's
+    "inhomogeneous shape" error before); each task's requests come from its own candidates."""
+    mdp, test, models = fitted
+    model = models["policy-matching"]
+    ragged = [np.array([1, 4, 9]), np.array([2]), [5, 6]]
+    got = model.request_starts(mdp, test.demos, n_requests=3, candidates=ragged)
+    assert [sorted(s.tolist()) for s in got] == [[1, 4, 9], [2], [5, 6]]
+    one = model.request_starts(mdp, test.demos, n_requests=1, candidates=ragged)
+    for task, (s, c) in enumerate(zip(one, ragged)):  # the best of the task's own candidates, as if given alone
+        alone = model.request_starts(mdp, test.demos, n_requests=1, candidates=np.asarray(c))[task]
+        assert s.tolist() == alone.tolist()
+    with pytest.raises(ValidationError, match=r"sequence of n_new = 3 arrays .* got 2"):
+        model.request_starts(mdp, test.demos, candidates=ragged[:2])
+    with pytest.raises(ValidationError, match=r"candidates of task 1 must be states in \[0, 16\)"):
+        model.request_starts(mdp, test.demos, candidates=[np.array([1]), np.array([2, 16]), np.array([5])])
     with pytest.raises(ValidationError, match="criterion must be one of information, value, regret"):
         request_starts(model, mdp, test.demos, criterion="entropy")
 

@@ -76,10 +76,12 @@ def test_every_former_top_level_name_resolves_with_a_warning():
     and its constructor, pointed at a namespace that does not hold them)."""
     assert len(fo._MOVED_NAMES) >= 45
     for name, (module, namespace) in fo._MOVED_NAMES.items():
-        with pytest.warns(FutureWarning, match=rf"factirl_opt\.{name} moved to {namespace}\.{name}; "):
+        new = fo._RENAMED_NAMES.get(name, name)  # renamed too: the warning names the current name
+        what = f"moved to {namespace}\\.{name}" if new == name else f"was renamed {namespace}\\.{new}"
+        with pytest.warns(FutureWarning, match=rf"factirl_opt\.{name} {what}; "):
             value = getattr(fo, name)
-        assert value is getattr(sys.modules[module], name), name
-        assert value is eval(namespace + "." + name, {"fo": fo}), name  # the namespace the warning names holds it
+        assert value is getattr(sys.modules[module], new), name
+        assert value is eval(namespace + "." + new, {"fo": fo}), name  # the namespace the warning names holds it
 
 
 #: the public names each former module path held at the commit before the move (3825363^), written
@@ -149,3 +151,31 @@ def test_to_successors_through_its_former_path_in_a_fresh_process():
         "factirl_opt.successors.to_successors moved to factirl_opt.mdp.tabular.to_successors; the old path will be "
         "removed in the next release",
         "(4, 4, 2) True"]
+
+
+@pytest.mark.parametrize("access", [
+    "fo.MissingSolverBackendError",  # renamed too: one warning naming the current name, not its deprecated alias
+    "from factirl_opt import MissingSolverBackendError",  # the import statement reads the name twice
+    "from factirl_opt import ObjectWorld",
+    "fo.ObjectWorld",
+    "import factirl_opt.objectworld.world",  # a former package's child: the package is imported first
+    "from factirl_opt.experiments.presets import PRESETS",
+    "importlib.import_module('factirl_opt.gradirl')",
+])
+def test_one_warning_per_deprecated_access_at_the_users_line(tmp_path, access):
+    """A fresh process: the access warns once, at the line of the user's script that made it, and the
+    warning names where the object is now (never another deprecated name)."""
+    script = tmp_path / "user_script.py"
+    script.write_text("import importlib, json, warnings\nimport factirl_opt as fo\n"
+                      "with warnings.catch_warnings(record=True) as caught:\n"
+                      "    warnings.simplefilter('always')\n"
+                      f"    {access}\n"
+                      "print(json.dumps([[w.category.__name__, w.filename, w.lineno, str(w.message)] for w in caught]))\n")
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=pathlib.Path(fo.__file__).parents[1])
+    assert res.returncode == 0, res.stderr
+    caught = json.loads(res.stdout)
+    assert len(caught) == 1, caught
+    category, filename, lineno, message = caught[0]
+    assert (category, filename, lineno) == ("DeprecatedNameWarning", str(script), 5), caught
+    if "MissingSolverBackendError" in access:
+        assert "renamed fo.exceptions.MissingSolverDependencyError" in message, message

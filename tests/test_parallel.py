@@ -350,6 +350,7 @@ def test_a_deadlocked_shard_ends_in_a_clear_error(monkeypatch):
 def test_a_fit_whose_shards_keep_dying_keeps_its_best_point(data, monkeypatch):
     mdp, demos, F, _ = data
     monkeypatch.setattr(parallel, "MAX_RESTARTS", 0)
+    parallel.start_shard_server(wait=True)  # the shards are processes from the start (not served here meanwhile)
 
     def kill(iteration, total):
         if iteration == 2:
@@ -373,6 +374,7 @@ def test_workers_lost_is_an_ordinary_error_and_the_fit_keeps_its_best_point(data
     # lost in a solver's run (interruption.run_keeping_best: the per-task best point)
     mdp, demos, F, _ = data
     monkeypatch.setattr(parallel, "MAX_RESTARTS", 0)
+    parallel.start_shard_server(wait=True)  # the shards are processes from the start (not served here meanwhile)
 
     def kill(iteration, total):
         if iteration == 3:
@@ -500,3 +502,96 @@ def test_a_script_without_a_main_guard_fits_with_n_jobs(tmp_path):
     out = subprocess.run([sys.executable, "-W", "ignore", str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["start", "done"]
+
+
+def _fit_in_pool_worker(data):
+    """In a multiprocessing.Pool worker (a daemonic process): a FactIRL fit with n_jobs=2, its warnings."""
+    import warnings
+
+    mdp, demos = data
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = fo.FactIRL(n_primitives=2, max_iter=2, rng=0, n_jobs=2).fit(mdp, demos)
+        fo.FactIRL(n_primitives=2, max_iter=1, rng=0, n_jobs=2).fit(mdp, demos)  # a second fit: no second warning
+    return model.coefficients_, [(w.category.__name__, str(w.message)) for w in caught
+                                 if not issubclass(w.category, fo.exceptions.ConvergenceWarning)]
+
+
+def test_a_fit_with_n_jobs_in_a_daemonic_process_runs_its_shards_here_with_one_warning(data):
+    """A Pool worker cannot have children ("daemonic processes are not allowed to have children" used to
+    end the fit): its shards run in the worker itself, with one warning naming daemonic processes, and the
+    result is that of n_jobs=1."""
+    import warnings
+
+    mdp, demos = data[0], data[1]
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        coefficients, caught = pool.apply(_fit_in_pool_worker, ((mdp, demos),))
+    assert len(caught) == 1, caught
+    assert caught[0][0] == "RuntimeWarning" and "daemonic process" in caught[0][1] and "n_jobs=2" in caught[0][1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        serial = fo.FactIRL(n_primitives=2, max_iter=2, rng=0, n_jobs=1).fit(mdp, demos)
+    np.testing.assert_allclose(coefficients, serial.coefficients_, rtol=1e-10, atol=1e-12)
+
+
+_WHERE = """
+import os
+
+
+class Where:  # a shard's state: which process serves it, and what it was given
+    def __init__(self):
+        self.given = []
+
+    def pid(self):
+        return os.getpid()
+
+    def give(self, x):
+        self.given.append(x)
+        return list(self.given)
+"""
+
+_FIRST_SHARDS = """
+import json, os, time
+from factirl_opt.parallel import shards as parallel
+from where_state import Where
+
+restored = []
+shards = parallel.Shards([(Where, ()), (Where, ())])
+kind = type(shards.handles[1]).__name__
+first = shards.call([(1, "pid", ())], on_restart=restored.append)[0]
+shards.call([(1, "give", (1,))], on_restart=restored.append)
+deadline = time.monotonic() + 60
+while not shards.handles[1].done() and time.monotonic() < deadline:
+    time.sleep(0.05)
+restore = lambda k: (restored.append(k), shards.handles[k].submit("give", (1,)), shards.handles[k].result())
+after = shards.call([(1, "pid", ())], on_restart=restore)[0]
+given = shards.call([(1, "give", (2,))], on_restart=restore)[0]
+later = parallel.Shards([(Where, ()), (Where, ())])
+print(json.dumps({"kind": kind, "first_here": first == os.getpid(), "after_here": after == os.getpid(),
+                  "restored": restored, "given": given, "n_restarts": shards.n_restarts,
+                  "later_kind": type(later.handles[1]).__name__}))
+shards.close()
+later.close()
+"""
+
+
+def test_the_first_shards_of_a_process_do_not_wait_for_the_fork_server(tmp_path):
+    """A fresh process's first shard processes start in the background (the fork server imports the
+    library meanwhile, about a second): their calls are served in the calling process until the process
+    is built, then handed over to it as a rebuilt shard is (``on_restart`` restores what the calls
+    need); later shards start as processes at once."""
+    import json
+    import subprocess
+    import sys
+
+    script = tmp_path / "first_shards.py"
+    script.write_text(_FIRST_SHARDS)
+    (tmp_path / "where_state.py").write_text(_WHERE)  # importable by the shard process (not the script itself)
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                         cwd=os.path.dirname(os.path.dirname(fo.__file__)))
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["kind"] == "StartingShard" and out["first_here"], out  # served here while the process starts
+    assert not out["after_here"] and out["restored"] == [1] and out["n_restarts"] == 0, out  # handed over once
+    assert out["given"] == [1, 2], out  # the state restored in the process, then the new call
+    assert out["later_kind"] == "ProcessShard", out

@@ -190,3 +190,30 @@ def test_policy_messages_name_the_entry(grid3):
     pi_hat[0, 4] = [1.25, -0.25, 0, 0]
     with pytest.raises(ValidationError, match=r"pi_hat must be nonnegative; found -0\.25 at index \(0, 4, 1\)"):
         check_statistics(grid3, np.full((1, 9), 1 / 9), pi_hat)
+
+
+@pytest.mark.parametrize("params, error, message", [
+    (lambda: dict(transfer_max_iter=-1), ValidationError, r"^transfer_max_iter must be an integer >= 0; got -1"),
+    (lambda: dict(transfer_max_iter="5"), ValidationError, r"^transfer_max_iter must be an integer >= 0; got '5'"),
+    (lambda: dict(start=fo.Start(init="random", flat_max_iter=-1)), ValidationError,
+     r"^start__flat_max_iter must be an integer >= 0; got -1"),
+    (lambda: dict(solver="nope"), fo.exceptions.UnknownSolverError, r"unknown solver 'nope'"),
+    (lambda: dict(solver=fo.SolverSettings(flat_solver="nope"), start=fo.Start(init="random")),
+     fo.exceptions.UnknownSolverError, r"^SolverSettings.flat_solver: unknown solver 'nope'"),
+    (lambda: dict(solver=fo.SolverSettings(flat_solver=3)), ValidationError,
+     r"^flat_solver must be a registered solver name or a solvers.StepSolver; got 3"),
+    (lambda: dict(solver=fo.SolverSettings(d_solver="nope")), fo.exceptions.UnknownSolverError,
+     r"^SolverSettings.d_solver: unknown solver 'nope'; available: .*armijo"),
+    (lambda: dict(solver=fo.SolverSettings(d_solver="armijo", d_solver_options=[1])), ValidationError,
+     r"^d_solver_options must be a dict"),
+])
+def test_fit_checks_every_parameter_naming_it(params, error, message):
+    """Parameters that only one path reads are checked by ``fit`` whatever its path (or when their
+    group is made), naming the parameter (a bad transfer_max_iter was accepted, and refused later by
+    transfer naming max_iter; a bad flat_solver or d_solver was refused as "solver must be a
+    registered name", or not at all)."""
+    mdp = fo.GridWorld(size=3)
+    rng = np.random.default_rng(0)
+    demos = fo.sample_demonstrations(mdp, rng.normal(size=(4, 9, 4)), 3, 5, rng=rng)
+    with pytest.raises(error, match=message):
+        fo.FactIRL(2, max_iter=1, **params()).fit(mdp, demos)

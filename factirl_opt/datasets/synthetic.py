@@ -27,8 +27,7 @@ from ..tasks.demonstrations import sample_demonstrations
 from ..tasks.features import task_rewards
 from ..exceptions import ValidationError
 
-if typing.TYPE_CHECKING:
-    from ..mdp.tabular import TabularMDP
+from ..mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
 __all__ = ["random_dictionary", "random_coefficients", "SyntheticTasks", "synthetic_tasks"]
 

@@ -205,8 +205,13 @@ def regret_reductions(post: LaplacePosterior, objective: str, beta: float, candi
 def _candidates(candidates: Any, n: int, mdps: list) -> list[NDArray[np.intp]]:
     if candidates is None:
         return [np.arange(m.n_states) for m in mdps]
-    per_task = not np.isscalar(candidates) and len(candidates) == n and all(np.ndim(c) == 1 for c in candidates) \
-        and not (np.ndim(candidates) == 1)
+    if isinstance(candidates, np.ndarray):  # (c,): shared; (n_new, c): one row per task
+        per_task = candidates.ndim == 2
+    else:  # a sequence of states (shared), or of per-task arrays, possibly of different lengths
+        per_task = isinstance(candidates, (list, tuple)) and any(not np.isscalar(c) for c in candidates)
+    if per_task and len(candidates) != n:
+        raise ValidationError(f"candidates per task must be a sequence of n_new = {n} arrays of state indices, one per "
+                              f"task; got {len(candidates)}")
     lists = list(candidates) if per_task else [candidates] * n
     out = []
     for i, (c, m) in enumerate(zip(lists, mdps)):

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 import solvers
 
-from .._validation import as_rng, check_array, check_bool, check_int, check_tol
+from .._validation import as_rng, check_array, check_bool, check_fit_parameters, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
@@ -436,6 +436,7 @@ class FactIRL(Estimator):
         self
         """
         self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
+        check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
         if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
             return self._fit_auto(mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike
 import solvers
 
 from .._progress import fit_progress
-from .._validation import check_int, check_tol
+from .._validation import check_fit_parameters, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
@@ -249,6 +249,7 @@ class GradIRL(Estimator):
         -------
         self
         """
+        check_fit_parameters(self)
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         loop = (check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol"),
                 check_tol(self.stol, "stol"))

@@ -29,7 +29,7 @@ from scipy.optimize import linear_sum_assignment
 import solvers
 
 from .._progress import fit_progress
-from .._validation import as_rng, check_array, check_bool, check_int
+from .._validation import as_rng, check_array, check_bool, check_fit_parameters, check_int
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
@@ -278,6 +278,7 @@ class MultiIntentIRL(Estimator):
             the episodes a fit sees, a bad ``selection`` or ``n_folds``, or an array ``init``;
             an objective without a policy to score episodes; a bad ``init`` or hyper-parameter.
         """
+        check_fit_parameters(self)
         tasks = task_set(mdp, [episodes], self.features, self.reward)  # the episodes of one MDP, as one task
         mdp = tasks.mdp
         steps, lengths = parse_episodes(mdp, episodes)

@@ -23,7 +23,7 @@ from typing import Any
 import solvers
 
 from .._params import ParameterGroup
-from ..exceptions import ValidationError, translate_solver_errors
+from ..exceptions import FactIRLError, ValidationError, translate_solver_errors
 
 __all__ = ["SolverSettings", "decode_options", "estimator_solvers", "step_solver"]
 
@@ -127,8 +127,11 @@ class SolverSettings(ParameterGroup):
             if not name and getattr(self, field + "_options"):
                 raise ValidationError(f"{field}_options given without {field}")
             if isinstance(name, str) and name:
-                with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
-                    solvers.get_solver(name, **decode_options(getattr(self, field + "_options")))
+                try:
+                    with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
+                        solvers.get_solver(name, **decode_options(getattr(self, field + "_options")))
+                except FactIRLError as exc:  # the same error, naming the field
+                    raise type(exc)(f"SolverSettings.{field}: {exc}") from exc
 
     @classmethod
     def of(cls, value: Any) -> SolverSettings:

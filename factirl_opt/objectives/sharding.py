@@ -15,7 +15,7 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
-from ..parallel.shards import check_backend, dask_workers, effective_n_jobs, in_worker
+from ..parallel.shards import Client, check_backend, daemonic, dask_workers, effective_n_jobs, in_worker
 from ..planning.budget import options_budget
 from .._params import ParameterGroup
 from ._base import Objective
@@ -24,6 +24,9 @@ from .environments import MultiEnvironmentObjective
 from .sharded_environments import ShardedEnvironments
 
 __all__ = ["sharded", "Execution"]
+
+#: set once this (daemonic) process has warned that its shards run in it (:func:`sharded`)
+_WARNED_DAEMONIC: list[bool] = []
 
 
 @dataclasses.dataclass(frozen=True, repr=False)
@@ -56,7 +59,7 @@ class Execution(ParameterGroup):
 
     n_jobs: int | None = None
     backend: str = "processes"
-    client: Any = None
+    client: Client | None = None  # distributed.Client, resolvable without importing distributed
     planner: Any = "auto"
     planner_options: dict | None = None
     verbose: bool = False
@@ -114,6 +117,14 @@ def sharded(objective: Any, n_jobs: int | None = None, backend: str = "processes
         n = len(workers)
     else:
         n = effective_n_jobs(n_jobs)
+        if n > 1 and backend == "processes" and daemonic():
+            if not _WARNED_DAEMONIC:  # once per process: a fit can open shards several times (start, fit, search)
+                _WARNED_DAEMONIC.append(True)
+                warnings.warn(f"this fit runs in a daemonic process (a multiprocessing.Pool worker, or a Process with "
+                              f"daemon=True), which cannot start the processes of its n_jobs={n_jobs} shards: they run "
+                              "in this process, one after another (same result; run the work in non-daemonic processes, "
+                              "e.g. concurrent.futures.ProcessPoolExecutor, to shard)", RuntimeWarning, stacklevel=3)
+            n = 1
     sharded_obj: Any
     if n > 1 and isinstance(objective, MultiEnvironmentObjective) and len(objective.group_mdps) > 1:
         sharded_obj = ShardedEnvironments(objective, n, backend, client, planner if isinstance(planner, str) else "auto")

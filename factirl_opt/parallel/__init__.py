@@ -10,6 +10,6 @@ experiment runner and the benchmarks open one around whole runs).
 """
 
 from .._threads import limit_blas_threads
-from .shards import BACKENDS, Shards, check_backend, contiguous_shards, effective_n_jobs, in_worker
+from .shards import BACKENDS, Shards, check_backend, contiguous_shards, effective_n_jobs, in_worker, start_shard_server
 
-__all__ = ["BACKENDS", "Shards", "check_backend", "contiguous_shards", "effective_n_jobs", "in_worker", "limit_blas_threads"]
+__all__ = ["BACKENDS", "Shards", "check_backend", "contiguous_shards", "effective_n_jobs", "in_worker", "limit_blas_threads", "start_shard_server"]

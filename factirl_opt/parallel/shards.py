@@ -49,14 +49,14 @@ import time
 import traceback
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..exceptions import FactIRLError, ValidationError, WorkersLost
 
-__all__ = ["WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs",
-           "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard",
+__all__ = ["Client", "WorkersLost", "dask_workers", "SILENCE_SECONDS", "DASK_WAIT_SECONDS", "become_worker", "serve_calls", "recording_warnings", "replay_warnings", "BACKENDS", "WORKER_ENV", "MAX_RESTARTS", "ShardLost", "in_worker", "mark_worker", "effective_n_jobs", "daemonic", "start_shard_server",
+           "check_backend", "contiguous_shards", "array_bytes", "ShardHost", "InProcessShard", "ProcessShard", "StartingShard",
            "DaskShard", "Shards"]
 
 #: where shards run: worker processes of this machine, or a Dask cluster
@@ -81,6 +81,29 @@ DASK_WAIT_SECONDS = 30.0
 _START_LOCK = threading.Lock()
 
 
+if TYPE_CHECKING:
+    from distributed import Client
+else:
+    class _ClientType(type):
+        """``isinstance``/``issubclass`` against ``distributed.Client`` once ``distributed`` is imported
+        (False before: no object can be a Client then); importing it here would cost a second."""
+
+        def __instancecheck__(cls, obj: Any) -> bool:
+            module = sys.modules.get("distributed")
+            return module is not None and isinstance(obj, module.Client)
+
+        def __subclasscheck__(cls, sub: type) -> bool:
+            module = sys.modules.get("distributed")
+            return module is not None and issubclass(sub, module.Client)
+
+    class Client(metaclass=_ClientType):
+        """``dask.distributed.Client`` as an annotation that resolves at run time without importing
+        ``distributed`` (:func:`typing.get_type_hints` on the estimators' ``__init__``); type checkers
+        see the real class. ``isinstance(c, Client)`` is ``isinstance(c, distributed.Client)``."""
+
+    Client.__module__, Client.__qualname__ = "distributed", "Client"
+
+
 class ShardLost(FactIRLError):
     """A shard's worker went away (its process died, or its Dask worker was lost)."""
 
@@ -103,6 +126,12 @@ def in_worker() -> bool:
     except ValueError:
         return False
     return True
+
+
+def daemonic() -> bool:
+    """Whether this process is daemonic (a ``multiprocessing.Pool`` worker, a daemon ``Process``): it
+    cannot start processes of its own, so shards of the ``"processes"`` backend cannot run in it."""
+    return bool(multiprocessing.current_process().daemon)
 
 
 def effective_n_jobs(n_jobs: int | None) -> int:
@@ -395,6 +424,64 @@ def _context() -> Any:
     return ctx
 
 
+def start_shard_server(wait: bool = False) -> bool:
+    """Start the fork server of shard processes now, so that the first fit with ``n_jobs`` does not wait for it.
+
+    The server is a fresh process that imports the library once (:data:`FORKSERVER_PRELOAD`),
+    then forks every shard process of this process's fits (:func:`_context`). It starts on the
+    first sharded fit otherwise, and that fit waits for the import (about a second of the
+    server's CPU time, on another core). This call returns at once: the server imports in its own
+    process while the caller goes on (loads data, builds its problem). Call it early in a program
+    that will fit with ``n_jobs`` (the experiment runner and the benchmarks do, when given jobs).
+    Safe from any thread, and a no-op when already running, where ``forkserver`` is not
+    available (shards are spawned), in a worker process (fits there run with one job) or in a
+    daemonic process (it cannot have children).
+
+    Parameters
+    ----------
+    wait : bool, default=False
+        Return only once the server has imported the library and started a first process
+        (then the next fit's shards start as processes at once).
+
+    Returns
+    -------
+    bool
+        Whether a fork server runs (or is starting) for this process.
+    """
+    if in_worker() or daemonic():
+        return False
+    ctx = _context()
+    if ctx.get_start_method() != "forkserver":
+        return False
+    from multiprocessing import forkserver
+
+    with _START_LOCK:  # no shard process starts meanwhile (its pipe end would leak into the server)
+        forkserver.ensure_running()
+    if not _SERVER_READY[0]:  # a first process from it, in the background: ready once the server has imported
+        first = threading.Thread(target=_first_child, args=(ctx,), daemon=True, name="factirl-opt shard server start")
+        first.start()
+        if wait:
+            first.join()
+    return True
+
+
+def _no_work() -> None:
+    """What the first process of a fork server started by :func:`start_shard_server` does."""
+
+
+def _first_child(ctx: Any) -> None:
+    """Start and join one process from the fork server: when it returns, the server has imported the
+    library, and the next shards start as processes at once (not :class:`StartingShard`)."""
+    try:
+        with _START_LOCK:
+            proc = ctx.Process(target=_no_work, daemon=True, name=SHARD_PROCESS_NAME)
+            proc.start()
+        proc.join()
+        _SERVER_READY[0] = True
+    except Exception:  # noqa: BLE001 - a fit starts its shards as it would have without it
+        pass
+
+
 _MAIN_KEYS = ("init_main_from_path", "init_main_from_name")
 _WRAP_LOCK = threading.Lock()
 
@@ -426,6 +513,7 @@ def _forget_fork_server() -> None:
     ``ChildProcessError`` checking it), and its lock may have been held by another thread at the fork."""
     from multiprocessing import forkserver
 
+    _SERVER_READY[0] = False  # this child's first shards start its own server
     server = getattr(forkserver, "_forkserver", None)
     if server is None or getattr(server, "_forkserver_pid", None) is None:
         return
@@ -491,10 +579,15 @@ class ProcessShard:
         except (OSError, ValueError) as exc:
             raise ShardLost(f"shard process {self.proc.pid} cannot be reached") from exc
 
-    def result(self) -> Any:
+    def wait_built(self) -> None:
+        """Until the shard's state is built in its process (its first reply)."""
         if not self._ready:
             self._receive()  # the state was built
             self._ready = True
+            _SERVER_READY[0] = True
+
+    def result(self) -> Any:
+        self.wait_built()
         return self._receive()
 
     def close(self) -> None:
@@ -507,6 +600,79 @@ class ProcessShard:
             self.proc.kill()
             self.proc.join()
         self.conn.close()
+
+
+#: true once a shard process of this process was built: its fork server runs and has imported the library
+#: (a plain flag, not an Event: a child forked from this process clears it, see :func:`_forget_fork_server`)
+_SERVER_READY = [False]
+
+
+class StartingShard:
+    """A shard whose process starts in the background, served in this process until it is built.
+
+    Used for the shard processes of a process's first sharded fit (:class:`Shards`), which would
+    otherwise wait, idle, for the fork server to start and import the library (about a second of
+    its CPU time): a thread starts the process while the caller's calls to this shard run here, on
+    a copy of its state built from the same spec (:class:`InProcessShard`, built on the first
+    call). :meth:`Shards.call` hands the shard over to its process (:attr:`started`) at the start
+    of a call, as it does a rebuilt shard: ``on_restart(k)`` gives it what the calls need.
+    """
+
+    def __init__(self, spec: tuple) -> None:
+        self.spec = spec
+        self.local: InProcessShard | None = None
+        self.started: ProcessShard | None = None  # the process, once started and its state built
+        self.error: BaseException | None = None  # why the process could not be started or built
+        self._lock = threading.Lock()
+        self._closed = False
+        self._done = threading.Event()
+        threading.Thread(target=self._start, daemon=True, name="factirl-opt shard start").start()
+
+    def _start(self) -> None:
+        shard = None
+        try:
+            shard = ProcessShard(self.spec)
+            shard.wait_built()
+        except BaseException as exc:  # noqa: BLE001 - reported when the shard is handed over
+            self.error = exc
+        with self._lock:
+            keep = not self._closed and self.error is None
+            if keep:
+                self.started = shard
+        if shard is not None and not keep:
+            shard.close()
+        self._done.set()
+
+    def done(self) -> bool:
+        """Whether the background start has ended (:attr:`started` or :attr:`error` is set)."""
+        return self._done.is_set()
+
+    @property
+    def proc(self) -> Any:
+        """The shard's process, once started (waits for it)."""
+        self._done.wait()
+        if self.started is None:
+            raise ShardLost(f"the shard process could not be started: {self.error}")
+        return self.started.proc
+
+    def submit(self, method: str, args: tuple) -> None:
+        if self.local is None:
+            self.local = InProcessShard(self.spec)
+        self.local.submit(method, args)
+
+    def result(self) -> Any:
+        if self.local is None:
+            raise FactIRLError("internal: a shard's result was asked for before its call was sent")
+        return self.local.result()
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            started, self.started = self.started, None
+        if started is not None:
+            started.close()
+        if self.local is not None:
+            self.local.close()
 
 
 def _lost_dask_worker(exc: BaseException) -> bool:
@@ -624,18 +790,35 @@ class Shards:
         self.handles: list[Any] = [None] * len(self.specs)
         try:  # the driver's own shard last: it is built while the other shards' processes start
             for k in sorted(range(len(self.specs)), key=lambda k: backend == "processes" and k == 0):
-                self.handles[k] = self._start(k)
+                self.handles[k] = self._start(k, first=True)
         except BaseException:
             self.close()
             raise
 
-    def _start(self, k: int) -> Any:
+    def _start(self, k: int, first: bool = False) -> Any:
         if self.backend == "processes" and k == 0:
             return InProcessShard(self.specs[k])
         self.bytes_setup += array_bytes(list(self.specs[k][1]))
         if self.backend == "dask":
             return DaskShard(self.specs[k], self.client, k)
+        if first and not _SERVER_READY[0]:  # the process's first shards: not waiting for the fork server
+            return StartingShard(self.specs[k])
         return ProcessShard(self.specs[k])
+
+    def _hand_over(self, k: int, on_restart: Callable[[int], None] | None) -> None:
+        """Shard k served here while its process started (:class:`StartingShard`) goes to its process once
+        that is built, as a rebuilt shard (``on_restart(k)``; without one the shard stays here until a
+        call that has one). A start that failed is retried as a lost shard is."""
+        h = self.handles[k]
+        if not isinstance(h, StartingShard) or on_restart is None or not h.done():
+            return
+        if h.started is None:
+            if h.error is not None and not isinstance(h.error, (ShardLost, OSError, EOFError)):
+                raise h.error  # the spec does not build: the error it gives, as from a shard process
+            raise ShardLost(f"shard {k}'s process was lost while it started ({h.error})")  # rebuilt as a lost one
+        self.handles[k], h.started = h.started, None
+        h.close()
+        on_restart(k)
 
     def _restart(self, k: int, on_restart: Callable[[int], None] | None) -> None:
         try:
@@ -674,6 +857,7 @@ class Shards:
     def _send(self, k: int, method: str, args: tuple, on_restart: Callable[[int], None] | None) -> None:
         for attempt in range(MAX_RESTARTS + 1):
             try:
+                self._hand_over(k, on_restart)
                 self.handles[k].submit(method, args)
                 break
             except ShardLost as exc:

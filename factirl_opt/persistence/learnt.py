@@ -157,11 +157,52 @@ def _check_value(key: str, kind: str, value: Any, context: str) -> None:
         elif kind == "validation":
             _check_validation(key, value)
         elif kind == "cv-results":
+            _check_cv_results_types(value, f"attribute {key}")
             check_cv_results(value, f"attribute {key}")
     except ValidationError as exc:
         raise PersistenceError(f"{context}: {exc}") from None
     if kind == "mdp-signature":
         _check_signature(value, context)
+
+
+#: the columns of a stored ``cv_results_`` whose entries are integers (>= 0), or true/false
+_CV_INTEGER_COLUMNS = ("param_n_primitives", "rank_test_score", "n_splits_scored")
+_CV_FLAG_COLUMNS = ("chosen", "confirmed")
+
+
+def _check_cv_results_types(results: dict[str, Any], name: str) -> None:
+    """The entries of a stored ``cv_results_`` (lists, as JSON holds them) are of their column's type.
+
+    Scores (``*_score`` columns other than the rank) are numbers, NaN for a candidate not scored
+    there; ``param_residual_penalty`` a number >= 0 or inf; the counts and the rank integers
+    >= 0; ``chosen`` and ``confirmed`` true or false; ``params`` dicts. Other columns a search
+    adds (descriptive text) are kept as they are.
+
+    Raises
+    ------
+    ValidationError
+        Naming the column, the candidate's index and the value.
+    """
+    if not isinstance(results, dict):
+        return  # check_cv_results says what the table must be
+    for key, column in results.items():
+        for i, v in enumerate(column if isinstance(column, list) else ()):
+            where = f"{name}[{key!r}][{i}]"
+            if key == "params":
+                if not isinstance(v, dict):
+                    raise ValidationError(f"{where} must be a dict of the candidate's parameters; got {v!r:.60}")
+            elif key in _CV_FLAG_COLUMNS:
+                if not isinstance(v, (bool, np.bool_)):
+                    raise ValidationError(f"{where} must be true or false; got {v!r:.60}")
+            elif key in _CV_INTEGER_COLUMNS:
+                if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 0:
+                    raise ValidationError(f"{where} must be an integer >= 0; got {v!r:.60}")
+            elif key == "param_residual_penalty":
+                _check_penalty(v, where)
+            elif key.endswith("_score"):
+                if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) or np.isinf(v):
+                    raise ValidationError(f"{where} must be a finite number, or NaN for a candidate not scored "
+                                          f"there; got {v!r:.60}")
 
 
 def _check_axes(declared: dict[str, Kind], attributes: dict[str, Any], axes: dict[str, tuple[int, str]], context: str) -> None:

@@ -35,6 +35,7 @@ unchanged.
 from __future__ import annotations
 
 import abc
+import functools
 import hashlib
 from collections.abc import Callable
 from typing import Any
@@ -47,7 +48,7 @@ from .._validation import check_array
 from ..exceptions import ValidationError
 from .features import StateBroadcast, TaskFeatures, check_reward_scale, linear_rewards
 
-__all__ = ["RewardBasis", "TabularBasis", "StateBasis", "SharedBasis", "TaskBasis", "ComposedBasis", "as_basis", "features_matrix", "matrix_digest", "least_squares_weights",
+__all__ = ["RewardBasis", "check_basis", "CHECKED_METHODS", "TabularBasis", "StateBasis", "SharedBasis", "TaskBasis", "ComposedBasis", "as_basis", "features_matrix", "matrix_digest", "least_squares_weights",
            "PCA", "WEIGHT_NAMES", "DICTIONARY_NAMES"]
 
 #: ``pca(X, k, rng) -> (D, H)``: the uncentred PCA the factorial start uses (``learners.dictionary.pca_dictionary``)
@@ -93,6 +94,19 @@ class RewardBasis(abc.ABC):
     n_actions: int
     shared: bool = True
     names: tuple[str, str] = WEIGHT_NAMES
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A kind defined outside the library has what its methods return checked where it enters
+        the library (:func:`check_basis`, :data:`CHECKED_METHODS`); the built-in kinds validate their
+        features once, when they are built, and are not wrapped (their products of checked inputs
+        can only overflow, which :func:`~factirl_opt.tasks.features.check_reward_scale` reports)."""
+        super().__init_subclass__(**kwargs)
+        if cls.__module__.split(".")[0] == __name__.split(".")[0] and cls.__module__ != "__main__":
+            return
+        for name, check in CHECKED_METHODS.items():
+            method = cls.__dict__.get(name)
+            if callable(method) and not getattr(method, "_checked_by_basis", False):
+                setattr(cls, name, _checked(method, check))
 
     # -- what every kind implements ----------------------------------------------------------------
     @abc.abstractmethod
@@ -236,7 +250,7 @@ class RewardBasis(abc.ABC):
         return _metric_pca(W, self.gram(W.shape[0]), n_components, rng, pca)
 
 
-def _spanned(eigenvalues: NDArray[np.float64]) -> NDArray[np.bool_]:
+def _spanned(eigenvalues: NDArray[np.floating]) -> NDArray[np.bool_]:
     """Which eigenvalues of a Gram matrix count as spanned directions (relative to the largest, 1e-12)."""
     return eigenvalues > max(float(eigenvalues.max()), 0.0) * 1e-12
 
@@ -252,6 +266,186 @@ def _metric_pca(W: NDArray[np.float64], G: NDArray[np.float64], n_components: in
     root = np.sqrt(e[keep])
     Dr, H = pca(W @ (V[:, keep] * root), n_components, rng)
     return V[:, keep] @ (Dr / root[:, None]), H
+
+
+# -- the boundary: what a basis defined outside the library returns ----------------------------------
+
+
+def check_basis(basis: RewardBasis) -> RewardBasis:
+    """``basis`` if its declared sizes are usable: ``n_params`` and ``n_actions`` integers >= 1.
+
+    Called where a basis given as ``features`` enters a fit (:func:`~factirl_opt.tasks.task_set.reward_basis`).
+    What its methods return is checked on every call (:data:`CHECKED_METHODS`) for a kind defined
+    outside the library.
+
+    Raises
+    ------
+    ValidationError
+        Naming the basis class and the attribute, e.g. ``n_params = '5'`` (a str).
+    """
+    for attr in ("n_params", "n_actions"):
+        value = getattr(basis, attr, None)
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValidationError(f"{type(basis).__name__}.{attr} must be an integer >= 1; got {value!r:.60} "
+                                  f"({type(value).__name__})")
+    return basis
+
+
+def _where(basis: RewardBasis, method: str) -> str:
+    return f"{type(basis).__name__}.{method}()"
+
+
+def _real_array(basis: RewardBasis, method: str, what: str, value: Any) -> NDArray[Any]:
+    """``value`` if it is a numpy array of real floating-point numbers, else a ValidationError."""
+    if not isinstance(value, np.ndarray):
+        raise ValidationError(f"{_where(basis, method)} must return {what} as numpy arrays; got {type(value).__name__} "
+                              f"{value!r:.60}")
+    if value.dtype.kind != "f":
+        raise ValidationError(f"{_where(basis, method)} must return {what} of real floating-point numbers; got dtype "
+                              f"{value.dtype}")
+    return value
+
+
+def _recorded_states(basis: RewardBasis, rows: Any, r: int) -> list[int] | None:
+    """The S_i of ``rows`` from the environments the basis last accepted (:meth:`RewardBasis.check_environments`)."""
+    S = basis.__dict__.get("_checked_states")
+    if S is None:
+        return None
+    if S.size == 1 or basis.shared:
+        return [int(S[0])] * r
+    idx = np.arange(S.size) if rows is None else np.asarray(rows).reshape(-1)
+    if idx.size != r or (idx.size and (idx.min() < -S.size or idx.max() >= S.size)):
+        return None
+    return [int(S[i]) for i in idx]
+
+
+def _not_finite(basis: RewardBasis, method: str, what: str, inputs: Any, out: Any, rows: Any) -> None:
+    """A non-finite output of finite inputs: a ValidationError, unless ``|inputs| x |features|`` could
+    overflow (then the caller's overflow check names the inputs, as for a built-in kind)."""
+    big_in = max((float(np.max(np.abs(x), initial=0.0)) for x in inputs), default=0.0)
+    if not np.isfinite(big_in):
+        return  # non-finite inputs: the caller's business
+    dense = basis.dense(rows) if method != "dense" else []  # checked: NaN rows are reported as such
+    big_f = max((float(np.max(np.abs(F), initial=0.0)) for F in dense), default=1.0)
+    width = max((F.shape[0] + F.shape[1] for F in dense), default=1)
+    if big_in * big_f * width < np.finfo(np.float64).max / 4:
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(out))[0])
+        raise ValidationError(f"{_where(basis, method)} returned {what} that are not finite ({float(out[bad])!r} at index "
+                              f"{bad}) for finite inputs whose products cannot overflow (largest |input| = "
+                              f"{big_in:.3g}, largest |feature| = {big_f:.3g})")
+
+
+def _check_rewards(basis: RewardBasis, out: Any, weights: Any, rows: Any = None, names: Any = None) -> Any:
+    """What ``rewards(weights, rows)`` returned: one (S_i, A, ...) array per row (stacked, or a list), real, finite."""
+    W = np.asarray(weights)
+    r, trail = (W.shape[0], W.shape[2:]) if W.ndim >= 2 else (1, ())
+    parts = list(out) if isinstance(out, (list, tuple)) else [_real_array(basis, "rewards", "rewards", out)]
+    if isinstance(out, (list, tuple)):
+        parts = [_real_array(basis, "rewards", "rewards", x) for x in parts]
+        if len(parts) != r:
+            raise ValidationError(f"{_where(basis, 'rewards')} must return one (S_i, A) array per row of the weights "
+                                  f"({r}); got {len(parts)}")
+        shapes = [x.shape for x in parts]
+    else:
+        if parts[0].ndim != 3 + len(trail) or len(parts[0]) != r:
+            raise ValidationError(f"{_where(basis, 'rewards')} must return rewards of shape (r, S, A{', ...' if trail else ''}) "
+                                  f"= ({r}, S, {basis.n_actions}{''.join(f', {t}' for t in trail)}) for weights of shape "
+                                  f"{W.shape}; got shape {parts[0].shape}")
+        shapes = [x.shape for x in parts[0]]
+    states = _recorded_states(basis, rows, r)
+    for i, shape in enumerate(shapes):
+        expected = ((states[i] if states else shape[0]), basis.n_actions, *trail)
+        if tuple(shape) != expected:
+            raise ValidationError(f"{_where(basis, 'rewards')} must return rewards of shape (S_i, A) = "
+                                  f"{expected[:2]} per row{' (the environments it was given)' if states else ''}; row "
+                                  f"{i} has shape {tuple(shape)}")
+    for x in parts:
+        if not np.all(np.isfinite(x)):
+            _not_finite(basis, "rewards", "rewards", [W], x, rows)
+    return out
+
+
+def _check_pull(basis: RewardBasis, out: Any, grads: Any, rows: Any = None) -> Any:
+    """What ``pull(grads, rows)`` returned: (r, p) real and finite."""
+    out = _real_array(basis, "pull", "weight gradients", out)
+    r = len(grads)
+    if out.shape != (r, basis.n_params):
+        raise ValidationError(f"{_where(basis, 'pull')} must return shape (r, p) = ({r}, {basis.n_params}) for {r} "
+                              f"rows of reward gradients; got {out.shape}")
+    if not np.all(np.isfinite(out)):
+        _not_finite(basis, "pull", "weight gradients", [np.asarray(g) for g in grads], out, rows)
+    return out
+
+
+def _check_dense(basis: RewardBasis, out: Any, rows: Any = None) -> Any:
+    """What ``dense(rows)`` returned: one (S_i*A, p) matrix per row (one for a shared basis and no rows), real, finite."""
+    if not isinstance(out, (list, tuple)):
+        raise ValidationError(f"{_where(basis, 'dense')} must return a list of (S_i*A, p) arrays; got "
+                              f"{type(out).__name__}")
+    if rows is not None and len(out) != np.asarray(rows).size:
+        raise ValidationError(f"{_where(basis, 'dense')} must return one matrix per row ({np.asarray(rows).size}); "
+                              f"got {len(out)}")
+    states = _recorded_states(basis, rows, len(out))
+    seen: set[int] = set()
+    for i, F in enumerate(out):
+        F = _real_array(basis, "dense", "dense rows", F)
+        rows_i = states[i] * basis.n_actions if states else (F.shape[0] if F.ndim == 2 and F.shape[0] % basis.n_actions == 0 else -1)
+        if F.ndim != 2 or F.shape != (rows_i, basis.n_params):
+            raise ValidationError(f"{_where(basis, 'dense')} must return (S_i*A, p) matrices with p = {basis.n_params}"
+                                  f"{f' and S_i*A = {rows_i}' if rows_i > 0 else f', S_i*A a multiple of A = {basis.n_actions}'}; "
+                                  f"matrix {i} has shape {F.shape}")
+        if id(F) in seen:  # one matrix repeated for every row (a shared basis): checked once
+            continue
+        seen.add(id(F))
+        if not np.all(np.isfinite(F)):
+            bad = tuple(int(j) for j in np.argwhere(~np.isfinite(F))[0])
+            raise ValidationError(f"{_where(basis, 'dense')} returned dense rows that are not finite ({float(F[bad])!r} at "
+                                  f"index {bad} of matrix {i})")
+    return out
+
+
+def _check_environments(basis: RewardBasis, out: Any, n_states: Any, n_actions: int) -> Any:
+    """After ``check_environments`` accepted them: the environments' S_i, against which rewards and dense
+    rows are checked."""
+    try:
+        basis.__dict__["_checked_states"] = np.asarray(n_states).reshape(-1).astype(np.int64)
+    except (AttributeError, TypeError, ValueError):  # no instance dictionary: the shapes are checked without S_i
+        pass
+    return out
+
+
+#: the methods of a basis defined outside the library whose results are checked on every call
+#: (:meth:`RewardBasis.__init_subclass__`): each maps to ``check(basis, result, *args)``
+CHECKED_METHODS: dict[str, Callable[..., Any]] = {"rewards": _check_rewards, "pull": _check_pull, "dense": _check_dense,
+                                                  "check_environments": _check_environments}
+
+
+def _checked(method: Callable[..., Any], check: Callable[..., Any]) -> Callable[..., Any]:
+    """``method`` followed by ``check(self, result, *args)`` (the arguments bound by name)."""
+    import inspect
+
+    signature = inspect.signature(method)
+    n_args = len(inspect.signature(check).parameters) - 2  # what the check reads after (basis, result)
+
+    @functools.wraps(method)
+    def checked(self: RewardBasis, *args: Any, **kwargs: Any) -> Any:
+        out = method(self, *args, **kwargs)
+        if not _CHECKS_ON:
+            return out
+        try:
+            bound = signature.bind(self, *args, **kwargs)
+        except TypeError:
+            return out
+        bound.apply_defaults()
+        values = list(bound.arguments.values())[1:]
+        return check(self, out, *values[:n_args])
+
+    checked._checked_by_basis = True  # type: ignore[attr-defined]
+    return checked
+
+
+#: whether the boundary checks run (always, outside the benchmark of their cost)
+_CHECKS_ON = True
 
 
 class ComposedBasis(RewardBasis):
@@ -320,7 +514,8 @@ class TabularBasis(RewardBasis):
         return [None] * np.asarray(rows).size
 
     def compose(self, dictionary):
-        return SharedBasis(dictionary, self.n_states, self.n_actions, names=("dictionary", "coefficients"))
+        return SharedBasis._product(np.asarray(dictionary, dtype=np.float64), self.n_states, self.n_actions,
+                                    ("dictionary", "coefficients"))
 
     def factorial_rewards(self, dictionary, coefficients):
         return linear_rewards(dictionary, coefficients, self.n_states, self.n_actions, ("dictionary", "coefficients"))
@@ -384,11 +579,28 @@ class SharedBasis(RewardBasis):
 
     def __init__(self, features: Any, n_states: int, n_actions: int, names: tuple[str, str] = WEIGHT_NAMES,
                  digest: str | None = None) -> None:
+        if not isinstance(features, StateBroadcast):
+            features = check_array(features, f"{type(self).__name__}: the {names[0]}", ndim=2)
+            if features.shape[0] != int(n_states) * int(n_actions) or features.shape[1] < 1:
+                raise ValidationError(f"{type(self).__name__}: the {names[0]} must have shape (S*A, p) = "
+                                      f"({int(n_states) * int(n_actions)}, p >= 1); got {features.shape}")
+        self._set(features, n_states, n_actions, names, digest)
+
+    def _set(self, features: Any, n_states: int, n_actions: int, names: tuple[str, str], digest: str | None) -> None:
         self.features = features if isinstance(features, StateBroadcast) else np.asarray(features, dtype=np.float64)
         self.n_states, self.n_actions = int(n_states), int(n_actions)
         self.n_params = int(self.features.shape[1])
         self.names = names
         self._digest = digest
+
+    @classmethod
+    def _product(cls, features: NDArray[np.float64], n_states: int, n_actions: int,
+                 names: tuple[str, str]) -> SharedBasis:
+        """The basis of a product the library formed from checked inputs (``features @ D``): not checked
+        again, so that an overflow in it is reported as one, where it is used."""
+        basis = cls.__new__(cls)
+        basis._set(features, n_states, n_actions, names, None)
+        return basis
 
     def check_environments(self, n_states, n_actions):
         _check_one_environment(self, n_states, n_actions, "one shared feature matrix cannot fit every environment")
@@ -422,7 +634,9 @@ class SharedBasis(RewardBasis):
         return self._digest
 
     def compose(self, dictionary):
-        return SharedBasis(self.features @ dictionary, self.n_states, self.n_actions, names=DICTIONARY_NAMES)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported where the rewards are formed
+            F = self.features @ dictionary
+        return SharedBasis._product(F, self.n_states, self.n_actions, DICTIONARY_NAMES)
 
     def factorial_rewards(self, dictionary, coefficients):
         with np.errstate(over="ignore", invalid="ignore"):
@@ -616,7 +830,7 @@ def as_basis(features: Any, n_states: int | None = None, n_actions: int | None =
     :class:`StateBroadcast`, a :class:`TaskFeatures` or one (S*A, p) matrix (``n_states`` and
     ``n_actions`` are then needed)."""
     if isinstance(features, RewardBasis):
-        return features
+        return check_basis(features)
     if isinstance(features, TaskFeatures):
         return TaskBasis(features)
     if n_states is None or n_actions is None:

@@ -27,10 +27,9 @@ from ..mdp.environments import (
 )
 from .trajectories import parse_demonstrations, task_steps
 
-if typing.TYPE_CHECKING:
-    from collections.abc import Sequence
+from collections.abc import Sequence
 
-    from ..mdp.tabular import TabularMDP
+from ..mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
 __all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
 

@@ -340,13 +340,42 @@ def overflow_error(features: Any, weights: Any, names: tuple[str, str] = ("featu
     )
 
 
+def _first_non_finite(a: Any) -> str | None:
+    """Where ``a`` (an array, a list of arrays, TaskFeatures) first holds NaN or inf, as text; None if nowhere."""
+    if isinstance(a, TaskFeatures):
+        a = [a.matrix(i) for i in range(a.n_tasks)]
+    if isinstance(a, StateBroadcast):
+        return None
+    parts = a if isinstance(a, list) else [a]
+    for k, x in enumerate(parts):
+        x = np.asarray(x)
+        if x.dtype.kind not in "fc":
+            continue
+        bad = np.argwhere(~np.isfinite(x))
+        if bad.size:
+            at = tuple(int(i) for i in bad[0])
+            return f"{x[at]!s} at index {at}" + (f" of matrix {k}" if len(parts) > 1 else "")
+    return None
+
+
+def non_finite_error(features: Any, weights: Any, names: tuple[str, str] = ("features", "weights")) -> ValidationError | None:
+    """The error of rewards ``features @ weights`` whose inputs hold NaN or inf (not an overflow), naming
+    the input and the entry; None when both are finite."""
+    for name, value in zip(names, (features, weights)):
+        where = _first_non_finite(value)
+        if where is not None:
+            return ValidationError(f"the rewards {names[0]} @ {names[1]} are not finite: the {name} hold {where}")
+    return None
+
+
 def check_reward_scale(rewards: Any, limit: float, features: Any, weights: Any, names: tuple[str, str]) -> Any:
-    """``rewards`` (an array, or a list of per-task arrays) formed as ``features @ weights``, or
-    :func:`overflow_error` when they are not finite or reach ``limit`` (:func:`reward_limit`):
-    the planner would overflow on them."""
+    """``rewards`` (an array, or a list of per-task arrays) formed as ``features @ weights``, or an
+    error when they are not finite or reach ``limit`` (:func:`reward_limit`): the planner would
+    overflow on them. The error names a non-finite input (:func:`non_finite_error`), else the
+    overflow and what to rescale (:func:`overflow_error`); the inputs are read only then."""
     big = _largest(rewards)
     if not big <= limit:
-        raise overflow_error(features, weights, names)
+        raise non_finite_error(features, weights, names) or overflow_error(features, weights, names)
     return rewards
 
 
@@ -371,10 +400,16 @@ def linear_rewards(features: Any, weights: NDArray[np.float64], n_states: int, n
     """
     if isinstance(features, StateBroadcast):
         return np.repeat(weights, n_actions, axis=1).reshape(-1, n_states, n_actions)
+    F_shape, W_shape = np.shape(features), np.shape(weights)
+    if len(F_shape) != 2 or F_shape[0] != n_states * n_actions:
+        raise ValidationError(f"the {names[0]} must have shape (S*A, p) = ({n_states * n_actions}, p); got {F_shape}")
+    if len(W_shape) != 2 or W_shape[1] != F_shape[1]:
+        raise ValidationError(f"the {names[1]} must have shape (n, p) = (n, {F_shape[1]}) (p: the {names[0]}' columns); "
+                              f"got {W_shape}")
     try:
         return task_rewards(features, weights, n_states, n_actions)
     except ValidationError:
-        raise overflow_error(features, weights, names) from None
+        raise non_finite_error(features, weights, names) or overflow_error(features, weights, names) from None
 
 
 def task_rewards(dictionary: ArrayLike, coefficients: ArrayLike, n_states: int, n_actions: int) -> NDArray[np.float64]:

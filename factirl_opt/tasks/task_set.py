@@ -36,7 +36,7 @@ from ..exceptions import ValidationError
 from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
 from .demonstrations import empirical_statistics
-from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, matrix_digest
+from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, check_basis, matrix_digest
 from .features import StateBroadcast, TaskFeatures
 
 __all__ = ["TaskSet", "task_set", "environment_tasks", "REWARDS", "reward_features", "reward_basis", "reward_dimension",
@@ -157,6 +157,7 @@ def _given_basis(basis: RewardBasis, n_states: list, n_actions: int, reward: str
     if reward != "state-action":
         raise ValidationError(f"reward={reward!r} learns one free reward per state and takes no features (got a "
                               f"{type(basis).__name__})")
+    check_basis(basis)
     basis.check_environments(n_states, n_actions)
     if basis.n_params < min_columns:
         raise ValidationError(f"features must have p >= {min_columns} columns; got p = {basis.n_params}")

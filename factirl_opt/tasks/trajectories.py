@@ -53,8 +53,7 @@ from numpy.typing import NDArray
 from .._validation import check_mdp
 from ..exceptions import PersistenceError, ValidationError
 
-if typing.TYPE_CHECKING:
-    from ..mdp.tabular import TabularMDP
+from ..mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
 __all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "parse_episodes", "task_steps", "TaskDemonstrations"]
 

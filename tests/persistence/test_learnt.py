@@ -233,3 +233,39 @@ def test_edited_per_task_arrays_contradicting_the_signatures_are_refused(mixed_s
 def test_a_header_counting_more_per_task_arrays_than_stored_is_refused(mixed_sizes, tmp_path):
     with pytest.raises(PersistenceError, match="is incomplete: the archive lacks 'attr/rewards_/3'"):
         fo.load_model(_rewrite(mixed_sizes, tmp_path / "edited.npz", _count(4)))
+
+
+@pytest.fixture(scope="module")
+def searched_model_file(grid_tasks, tmp_path_factory):
+    """A FactIRL whose k was searched (so it has a cv_results_), saved."""
+    import warnings
+
+    mdp, demos, _, state_features, _ = grid_tasks
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        model = fo.FactIRL(n_primitives="auto", features=state_features, max_iter=2, rng=0,
+                           sharing_search=fo.SharingSearch(route="race")).fit(mdp, demos)
+    return fo.save_model(model, tmp_path_factory.mktemp("searched") / "searched.npz")
+
+
+@pytest.mark.parametrize("column, entry, message", [
+    ("mean_test_score", "0.5", r"cv_results_\['mean_test_score'\]\[0\] must be a finite number, or NaN .*; got '0.5'"),
+    ("split0_test_score", None, r"cv_results_\['split0_test_score'\]\[0\] must be a finite number.*; got None"),
+    ("std_test_score", True, r"cv_results_\['std_test_score'\]\[0\] must be a finite number.*; got True"),
+    ("rank_test_score", 1.5, r"cv_results_\['rank_test_score'\]\[0\] must be an integer >= 0; got 1.5"),
+    ("param_n_primitives", "2", r"cv_results_\['param_n_primitives'\]\[0\] must be an integer >= 0; got '2'"),
+    ("param_residual_penalty", "inf", r"cv_results_\['param_residual_penalty'\]\[0\] must be a number >= 0"),
+    ("chosen", "False", r"cv_results_\['chosen'\]\[0\] must be true or false; got 'False'"),
+    ("params", "k=2", r"cv_results_\['params'\]\[0\] must be a dict"),
+])
+def test_a_stored_search_table_of_the_wrong_types_is_refused(searched_model_file, tmp_path, column, entry, message):
+    """``load_model`` checks the types of ``cv_results_``'s entries, not only its keys and lengths: a
+    string score used to load and fail later inside numpy (``plot_validation``)."""
+    def edit(header, arrays):
+        header["attributes"]["cv_results_"][column][0] = entry
+
+    bad = _rewrite(searched_model_file, tmp_path / "bad.npz", edit)
+    with pytest.raises(PersistenceError, match=message):
+        fo.load_model(bad)
+    loaded = fo.load_model(searched_model_file)  # the file as saved loads, its table of the saved types
+    assert loaded.cv_results_["mean_test_score"].dtype == np.float64 and loaded.cv_results_["chosen"].dtype == bool

@@ -17,7 +17,7 @@ from factirl_opt.tasks.basis import (
     TaskBasis,
     as_basis,
 )
-from factirl_opt.tasks.features import StateBroadcast, TaskFeatures
+from factirl_opt.tasks.features import StateBroadcast, TaskFeatures, linear_rewards
 from factirl_opt.tasks.task_set import task_set
 
 S, A = 6, 3
@@ -214,3 +214,79 @@ def test_the_rank_of_a_basis_is_the_reward_directions_it_spans(low_rank_problem)
     Phi = np.random.default_rng(6).normal(size=(S * A, 2)) @ np.random.default_rng(7).normal(size=(2, 4))  # rank 2
     shared = task_set(mdp, demos, Phi).basis
     assert shared.n_params == 4 and shared.rank(4) == 2
+
+
+# ----------------------------------------------------------------------------- the boundary of a basis' outputs
+
+
+class FaultyBasis(LowRankBasis):
+    """The low-rank basis with one fault: what a user's basis may return by mistake."""
+
+    def __init__(self, U, V, n_states, n_actions, fault):
+        super().__init__(U, V, n_states, n_actions)
+        self.fault = fault
+        if fault == "n_params":
+            self.n_params = "5"
+
+    def rewards(self, weights, rows=None, names=None):
+        R = super().rewards(weights, rows, names)
+        return {"shape": lambda: R[:, :-1], "nan": lambda: R * np.nan, "none": lambda: None,
+                "complex": lambda: R + 0j}.get(self.fault, lambda: R)()
+
+    def pull(self, grads, rows=None):
+        G = super().pull(grads, rows)
+        return {"pull-nan": lambda: np.full_like(G, np.nan), "pull-shape": lambda: G[:, :-1]}.get(self.fault, lambda: G)()
+
+    def dense(self, rows=None):
+        out = super().dense(rows)
+        return [np.full_like(F, np.nan) for F in out] if self.fault == "dense-nan" else out
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("shape", r"FaultyBasis\.rewards\(\) must return rewards of shape \(S_i, A\) = \(9, 4\) per row .*row 0 has shape \(8, 4\)"),
+    ("nan", r"FaultyBasis\.rewards\(\) returned rewards that are not finite \(nan at index \(0, 0, 0\)\) for finite inputs"),
+    ("none", r"FaultyBasis\.rewards\(\) must return rewards as numpy arrays; got NoneType"),
+    ("complex", r"FaultyBasis\.rewards\(\) must return rewards of real floating-point numbers; got dtype complex128"),
+    ("pull-nan", r"FaultyBasis\.pull\(\) returned weight gradients that are not finite"),
+    ("pull-shape", r"FaultyBasis\.pull\(\) must return shape \(r, p\) = \(4, 5\) .*; got \(4, 4\)"),
+    ("dense-nan", r"FaultyBasis\.dense\(\) returned dense rows that are not finite \(nan at index \(0, 0\) of matrix 0\)"),
+    ("n_params", r"FaultyBasis\.n_params must be an integer >= 1; got '5' \(str\)"),
+])
+@pytest.mark.parametrize("learner", ["GradIRL", "FactIRL"])
+def test_what_a_basis_defined_outside_the_library_returns_is_checked_where_it_enters(low_rank_problem, fault, message,
+                                                                                      learner):
+    """Each fault is a ValidationError naming the basis class, the method and what was wrong (before: numpy's
+    IndexError in the planner, an "overflow ... divide by" message for NaN or None rewards with zero weights,
+    complex rewards_ fitted silently, eigh failing on NaN dense rows, a str/int comparison)."""
+    mdp, basis, demos = low_rank_problem
+    faulty = FaultyBasis(basis.U, basis.V, basis.n_states, basis.n_actions, fault)
+    model = (fo.GradIRL(beta=2.0, features=faulty, max_iter=5) if learner == "GradIRL" else
+             fo.FactIRL(2, beta=2.0, features=faulty, rng=0, max_iter=3, flat_max_iter=5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
+        with pytest.raises(ValidationError, match=message):
+            model.fit(mdp, demos)
+
+
+def test_a_basis_that_really_overflows_keeps_the_overflow_message(low_rank_problem):
+    mdp, basis, _ = low_rank_problem
+    for scale in (1e200, 1e307):  # rewards beyond the planner's limit; rewards that are inf
+        with pytest.raises(ValidationError, match=r"features @ weights overflow float64"):
+            basis.point_rewards(np.full((1, 5), scale), None, 1e10)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda F: SharedBasis(np.where(np.arange(F.size).reshape(F.shape) == 5, np.nan, F), S, A),  # entry 5 = (1, 1)
+     r"SharedBasis: the features must be finite; found nan at index \(1, 1\)"),
+    (lambda F: SharedBasis(F[:-1], S, A), r"SharedBasis: the features must have shape \(S\*A, p\) = \(\d+, p >= 1\); got"),
+    (lambda F: linear_rewards(F[:-1], np.zeros((1, 4)), S, A), r"the features must have shape \(S\*A, p\)"),
+    (lambda F: linear_rewards(F, np.zeros((1, 3)), S, A), r"the weights must have shape \(n, p\) = \(n, 4\)"),
+    (lambda F: linear_rewards(F, np.full((1, 4), np.nan), S, A), r"not finite: the weights hold nan at index \(0, 0\)"),
+])
+def test_the_built_in_kinds_name_bad_features_not_an_overflow(make, message):
+    """Wrong-shape or NaN features given to the built-in kinds were reported as an overflow ("rescale them
+    (e.g. divide by nan)"); the overflow message is left for real overflow."""
+    F = np.random.default_rng(0).normal(size=(S * A, 4))
+    with pytest.raises(ValidationError, match=message) as info:
+        make(F)
+    assert "overflow" not in str(info.value)

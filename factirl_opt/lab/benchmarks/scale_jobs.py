@@ -38,7 +38,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ...parallel import limit_blas_threads
+from ...parallel import limit_blas_threads, start_shard_server
 from ...exceptions import MissingDependencyError, ValidationError
 from ...objectives import distributed
 from ...planning import planning_budget
@@ -199,6 +199,8 @@ def run_side_by_side(args: argparse.Namespace, fit_problem: Callable, fit_model:
         ``fit_model(args, features, **extra) -> FactIRL``.
     """
     configs = configurations(args.jobs, args.dask)
+    if any(extra.get("n_jobs", 1) != 1 for _, extra in configs):
+        start_shard_server()  # this process will shard: the server imports the library while the problem is built
     repeats = max(1, args.repeats)
     load_before = os.getloadavg()
     per_size = {}
