@@ -40,7 +40,8 @@ from ..tasks.basis import as_basis
 
 __all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
            "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer_inputs",
-           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior"]
+           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
+           "lowrank_precision"]
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
 PRIOR_RIDGE = 1e-3
@@ -79,6 +80,10 @@ class LaplacePosterior:
     n_pairs : float
         ``N``, the demonstrated pairs the posterior is conditioned on (``scaling / n_pairs`` is
         the likelihood's weight of one demonstrated pair).
+    precision_factors : (C_h (k, k), c_delta (p,), Z (m, d)), optional
+        The precision ``blockdiag(C_h, diag(c_delta)) + Z^T Z`` of a residual model's posterior
+        (:func:`lowrank_precision`; ``covariance`` is its inverse), which the requests use
+        instead of inverting ``covariance``; None: only ``covariance``.
 
     Attributes
     ----------
@@ -93,6 +98,7 @@ class LaplacePosterior:
     mdp: TabularMDP
     scaling: float = 1.0
     n_pairs: float = 1.0
+    precision_factors: tuple | None = dataclasses.field(default=None, repr=False)
 
     @property
     def n_primitives(self) -> int:
@@ -356,24 +362,128 @@ def _evaluate(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[n
 
 
 def _prior_terms(x, k, m, P, s, lam):
-    """Prior value (r,), gradient (r, d) and precision (r, d, d) at x (r, d) on the likelihood's scale ``s`` (r,)."""
+    """Prior value (r,) and gradient (r, d) at x (r, d) on the likelihood's scale ``s`` (r,); its precision,
+    ``blockdiag(P, 2 s lambda I)``, is :class:`_Curvature`'s."""
     r, d = x.shape
     dh = x[:, :k] - m
     val = 0.5 * np.einsum("rk,kl,rl->r", dh, P, dh)
     grad = np.zeros((r, d))
     grad[:, :k] = dh @ P
-    prec = np.zeros((r, d, d))
-    prec[:, :k, :k] = P
     if d > k:
         val = val + s * lam * np.sum(x[:, k:] ** 2, axis=1)
         grad[:, k:] = 2.0 * (s * lam)[:, None] * x[:, k:]
-        idx = np.arange(k, d)
-        prec[:, idx, idx] = 2.0 * (s * lam)[:, None]
-    return val, grad, prec
+    return val, grad
+
+
+def lowrank_precision(P: NDArray[np.float64], c_delta: NDArray[np.float64], Z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The dense precision ``blockdiag(P, diag(c_delta)) + Z^T Z`` (d, d) of its factors (for checks and small d)."""
+    k = P.shape[0]
+    C = Z.T @ Z
+    C[:k, :k] += P
+    idx = np.arange(k, C.shape[0])
+    C[idx, idx] += c_delta
+    return C
+
+
+def _block_inverse(Ch, cd, V):
+    """``blockdiag(Ch, diag(cd))^-1 V`` for a batch: Ch (a, k, k), cd (a, p), V (a, k + p, q)."""
+    k = Ch.shape[1]
+    return np.concatenate([np.linalg.solve(Ch, V[:, :k]), V[:, k:] / cd[:, :, None]], axis=1)
+
+
+def lowrank_solve(Ch: NDArray[np.float64], cd: NDArray[np.float64], Z: NDArray[np.float64],
+                  b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(blockdiag(Ch, diag(cd)) + Z^T Z)^-1 b`` by the Woodbury identity, for a batch: never a (d, d) solve.
+
+    ``C^-1 b - C^-1 Z^T (I + Z C^-1 Z^T)^-1 Z C^-1 b``, ``C = blockdiag(Ch, diag(cd))``: solves of
+    size k and m only (the residual model's posterior: d = k + p, its ridge block diagonal, Z the
+    m live rows of the scaled residuals' Jacobian, m << p).
+
+    Parameters
+    ----------
+    Ch : ndarray, shape (a, k, k)
+    cd : ndarray, shape (a, p)
+        Positive.
+    Z : ndarray, shape (a, m, d)
+    b : ndarray, shape (a, d) or (a, d, q)
+
+    Returns
+    -------
+    ndarray, the shape of ``b``
+    """
+    B = b[..., None] if b.ndim == 2 else b
+    Y = _block_inverse(Ch, cd, np.swapaxes(Z, 1, 2))  # C^-1 Z^T (a, d, m)
+    K = np.eye(Z.shape[1]) + Z @ Y
+    u = _block_inverse(Ch, cd, B)
+    out = u - Y @ np.linalg.solve(K, Z @ u)
+    return out[..., 0] if b.ndim == 2 else out
+
+
+class _Curvature:
+    """The precision ``Lambda = s G + blockdiag(P, 2 s lambda I)`` of a batch of tasks, dense (``G`` (r, d, d))
+    or low rank (``G = 2 Z^T Z``, ``Z`` (r, m, d) the live rows of the residuals' Jacobian; the residual
+    model under policy matching): its products, its solves, and its damped solves (module docstring)."""
+
+    def __init__(self, G, s, P, lam, k, lowrank):
+        self.G, self.s, self.P, self.lam, self.k, self.lowrank = G, s, P, lam, k, lowrank
+
+    def _factors(self, a, mu=None):
+        """``(C_h, c_delta, Z)`` of the tasks ``a``, damped by ``mu`` (a,): ``Lambda + mu diag(Lambda)``."""
+        k, s = self.k, self.s[a]
+        Z = np.sqrt(2.0 * s)[:, None, None] * self.G[a]
+        Ch = np.broadcast_to(self.P, (len(a), k, k)).copy()
+        cd = np.broadcast_to((2.0 * s * self.lam)[:, None], (len(a), Z.shape[2] - k)).copy()
+        if mu is not None:
+            diag = np.einsum("rmd,rmd->rd", Z, Z)
+            diag[:, :k] += np.diagonal(self.P)
+            diag[:, k:] += cd
+            Ch[:, np.arange(k), np.arange(k)] += mu[:, None] * diag[:, :k]
+            cd = cd + mu[:, None] * diag[:, k:]
+        return Ch, cd, Z
+
+    def _dense(self, a):
+        s, d = self.s[a], self.G.shape[-1]
+        Lam = s[:, None, None] * self.G[a]
+        Lam[:, :self.k, :self.k] += self.P
+        if d > self.k:
+            idx = np.arange(self.k, d)
+            Lam[:, idx, idx] += 2.0 * (s * self.lam)[:, None]
+        return Lam
+
+    def solve(self, a, g, mu=None):
+        """``(Lambda + mu diag(Lambda))^-1 g`` (r, d) for the tasks ``a`` (mu None: undamped)."""
+        if self.lowrank:
+            return lowrank_solve(*self._factors(a, mu), g)
+        Lam = self._dense(a)
+        if mu is not None:
+            diag = np.einsum("rdd->rd", Lam)
+            Lam = Lam + mu[:, None, None] * np.einsum("rd,de->rde", diag, np.eye(Lam.shape[1]))
+        return np.linalg.solve(Lam, g[:, :, None])[:, :, 0]
+
+    def apply(self, a, v):
+        """``Lambda v`` (r, d) for the tasks ``a``."""
+        if not self.lowrank:
+            return np.einsum("rde,re->rd", self._dense(a), v)
+        Ch, cd, Z = self._factors(a)
+        out = np.einsum("rmd,rm->rd", Z, np.einsum("rmd,rd->rm", Z, v))
+        out[:, :self.k] += v[:, :self.k] @ self.P.T
+        out[:, self.k:] += cd * v[:, self.k:]
+        return out
+
+    def covariance(self, i):
+        """``Lambda^-1`` (d, d) of task ``i``, and its precision factors (low rank) or None."""
+        a = np.array([i])
+        if self.lowrank:
+            Ch, cd, Z = self._factors(a)
+            C = lowrank_solve(Ch, cd, Z, np.eye(Z.shape[2])[None])[0]
+            return 0.5 * (C + C.T), (Ch[0], cd[0], Z[0])
+        Lam = self._dense(a)[0]
+        C = np.linalg.inv(0.5 * (Lam + Lam.T))
+        return 0.5 * (C + C.T), None
 
 
 def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64], NDArray[np.float64]],
-                       start: NDArray[np.float64] | None = None) -> list[LaplacePosterior]:
+                       start: NDArray[np.float64] | None = None, lowrank: bool | None = None) -> list[LaplacePosterior]:
     """Each new task's Laplace posterior: MAP by damped Newton steps, covariance the inverse curvature there.
 
     Parameters
@@ -384,6 +494,12 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     start : ndarray, shape (n, d), optional
         Another start (e.g. the transfer's values): each task starts from whichever of it and
         the prior mean (zero residual) has the lower posterior objective.
+    lowrank : bool, optional
+        Carry the residual model's curvature as its ridge block plus the live rows of the
+        residuals' Jacobian, ``G = 2 Z^T Z`` with ``Z`` (m, k + p) and m the demonstrated rows
+        (reverse-mode Jacobians, Woodbury solves of size m; no (k + p, k + p) solve), instead of
+        dense. The same results to round-off. Default: for a residual model under a least-squares
+        objective (policy matching), where it applies.
 
     Returns
     -------
@@ -395,10 +511,16 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     n = problem.n_tasks
     lam = problem.residual_penalty if problem.residual else 0.0
     d = k + (D.shape[0] if problem.residual else 0)
+    applies = problem.residual and problem.objective.least_squares
+    if lowrank is None:
+        lowrank = applies
+    elif lowrank and not applies:
+        raise ValidationError("lowrank needs a residual model (a finite residual_penalty) and a least-squares objective")
+    evaluate = _evaluate_lowrank if lowrank else _evaluate
     tasks = np.arange(n)
     x = np.zeros((n, d))
     x[:, :k] = m
-    loss, grad, G, pis = _evaluate(problem, x, tasks, True)
+    loss, grad, G, pis = evaluate(problem, x, tasks, True)
     # the likelihood's scaling: policy matching's noise level at the prior mean's policy
     if problem.objective.least_squares:
         mus = [problem.statistics(int(t))[1] for t in tasks]
@@ -407,8 +529,10 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         s = likelihood_scaling("mce", problem.n_pairs)
     if start is not None:
         x1 = np.asarray(start, dtype=np.float64)
-        l1, g1, G1, _ = _evaluate(problem, x1, tasks, True)
+        l1, g1, G1, _ = evaluate(problem, x1, tasks, True)
         better = s * l1 + _prior_terms(x1, k, m, P, s, lam)[0] < s * loss + _prior_terms(x, k, m, P, s, lam)[0]
+        G = _pad_rows(G, G1) if lowrank else G
+        G1 = _pad_rows(G1, G) if lowrank else G1
         x[better], loss[better], grad[better], G[better] = x1[better], l1[better], g1[better], G1[better]
     f = s * loss + _prior_terms(x, k, m, P, s, lam)[0]
     # Levenberg-Marquardt steps: (Lambda + mu diag(Lambda)) dx = -g, mu per task, shrunk after a
@@ -419,37 +543,95 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         a = np.flatnonzero(active)
         if a.size == 0:
             break
-        _, pg, pp = _prior_terms(x[a], k, m, P, s[a], lam)
+        curv = _Curvature(G, s, P, lam, k, lowrank)
+        _, pg = _prior_terms(x[a], k, m, P, s[a], lam)
         g = s[a, None] * grad[a] + pg
-        Lam = s[a, None, None] * G[a] + pp
-        dec = np.einsum("rd,rd->r", g, np.linalg.solve(Lam, g[:, :, None])[:, :, 0])
+        dec = np.einsum("rd,rd->r", g, curv.solve(a, g))
         done = (dec <= MAP_TOL) | (mu[a] > MAP_MAX_DAMPING)
         active[a[done]] = False
-        a, g, Lam = a[~done], g[~done], Lam[~done]
+        a, g = a[~done], g[~done]
         if a.size == 0:
             break
-        diag = np.einsum("rdd->rd", Lam)
-        damped = Lam + mu[a, None, None] * np.einsum("rd,de->rde", diag, np.eye(Lam.shape[1]))
-        step = -np.linalg.solve(damped, g[:, :, None])[:, :, 0]
-        predicted = -(np.einsum("rd,rd->r", g, step) + 0.5 * np.einsum("rd,rde,re->r", step, Lam, step))
+        step = -curv.solve(a, g, mu[a])
+        predicted = -(np.einsum("rd,rd->r", g, step) + 0.5 * np.einsum("rd,rd->r", step, curv.apply(a, step)))
         xt = x[a] + step
         # the trial point's curvature with its loss: one linearisation per step, kept if the step is
-        lt, gt, Gt, _ = _evaluate(problem, xt, a, True)
+        lt, gt, Gt, _ = evaluate(problem, xt, a, True)
         ft = s[a] * lt + _prior_terms(xt, k, m, P, s[a], lam)[0]
         ok = np.isfinite(ft) & (f[a] - ft >= 1e-4 * predicted)
         acc = a[ok]
+        if lowrank:
+            G, Gt = _pad_rows(G, Gt), _pad_rows(Gt, G)
         x[acc], f[acc] = xt[ok], ft[ok]
         loss[acc], grad[acc], G[acc] = lt[ok], gt[ok], Gt[ok]
         mu[acc] /= 3.0
         mu[a[~ok]] *= 10.0
-    _, _, pp = _prior_terms(x, k, m, P, s, lam)
-    Lam = s[:, None, None] * G + pp
+    curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
-        C = np.linalg.inv(0.5 * (Lam[i] + Lam[i].T))
-        out.append(LaplacePosterior(x[i].copy(), 0.5 * (C + C.T), D, problem.features[i], problem.mdps[i], float(s[i]),
-                                   float(problem.n_pairs[i])))
+        C, factors = curv.covariance(i)
+        out.append(LaplacePosterior(x[i].copy(), C, D, problem.features[i], problem.mdps[i], float(s[i]),
+                                    float(problem.n_pairs[i]), factors))
     return out
+
+
+def _pad_rows(Z, other):
+    """``Z`` (r, m, d) with zero rows appended up to ``other``'s m (a no-op when it has as many)."""
+    extra = other.shape[1] - Z.shape[1]
+    if extra <= 0:
+        return Z
+    return np.concatenate([Z, np.zeros((Z.shape[0], extra, Z.shape[2]))], axis=1)
+
+
+def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[np.intp], curvature: bool = True):
+    """:func:`_evaluate` of a residual model under a least-squares objective with the curvature as its factor:
+    loss (r,), gradient (r, d), ``Z`` (r, m, d) the live rows of the residuals' Jacobian in x (``G = 2 Z^T Z``;
+    zero rows pad the tasks with fewer), and each task's policy at x.
+
+    The Jacobian with respect to the reward weights ``w`` comes from the objective's
+    ``residual_jacobian`` (reverse mode: one adjoint right-hand side per demonstrated row), then
+    ``[J D, J]`` on its live rows only: no (S*A, k + p) tangent and no (d, d) product.
+    """
+    r, d = x.shape
+    D = problem.dictionary
+    k = D.shape[1]
+    loss, grad = np.empty(r), np.empty((r, d))
+    factors: list = [None] * r
+    pis: list = [None] * r
+    where = {int(t): j for j, t in enumerate(tasks)}
+    W = x[:, :k] @ D.T + x[:, k:]  # (r, p)
+    for sub, gtasks, glocal in problem.groups():
+        sel = np.array([j for j, t in enumerate(gtasks) if int(t) in where], dtype=np.intp)
+        if sel.size == 0:
+            continue
+        S, A = sub.mdp.n_states, sub.mdp.n_actions
+        ts = gtasks[sel]
+        shared = _shared(problem, ts)
+        batches = [sel] if shared else [sel[i:i + 1] for i in range(sel.size)]
+        for part in batches:
+            pos = np.array([where[int(gtasks[j])] for j in part], dtype=np.intp)
+            feats = problem.features[int(gtasks[part[0]])]
+            F = np.eye(S * A) if feats is None else np.asarray(feats, dtype=np.float64)
+            R = (W[pos] @ F.T).reshape(len(pos), S, A)
+            lo, res, J = sub.residual_jacobian(R, glocal[part], F)
+            loss[pos] = lo
+            for j, q in enumerate(pos):
+                live = np.flatnonzero(np.any(J[j] != 0.0, axis=1))
+                Jl = J[j][live]
+                Z = np.concatenate([Jl @ D, Jl], axis=1)
+                grad[q] = 2.0 * Z.T @ res[j][live]
+                factors[q] = Z
+            mu = sub.mu[glocal[part]]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pi = sub.pi_hat[glocal[part]] + res.reshape(len(pos), S, A) / np.sqrt(mu)[:, :, None]
+            pi = np.where(mu[:, :, None] > 0, pi, 1.0 / A)
+            for q, p_ in zip(pos, pi):
+                pis[q] = p_
+    m = max(1, max(z.shape[0] for z in factors))
+    Z = np.zeros((r, m, d))
+    for q, z in enumerate(factors):
+        Z[q, :z.shape[0]] = z
+    return loss, grad, Z, pis
 
 
 def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> TransferProblem:
