@@ -871,11 +871,10 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     """An unfitted, quiet clone of ``learner`` with fixed ``k`` and ``lambda`` (and ``params`` set).
 
     ``clone(learner).set_params(n_primitives=k, residual_penalty=lam, verbose=False,
-    callback=None, transfer_prior="none", **params)`` (a candidate's transfers are the search's
-    scores: they fit no prior) (:func:`~factirl_opt.learners.estimator.clone`).
+    callback=None, **params)`` (:func:`~factirl_opt.learners.estimator.clone`).
     """
     return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "verbose": False, "callback": None,
-                                        "transfer_prior": "none", **params})
+                                        **params})
 
 
 def _reward_dimension(learner: Any, mdp: Any, n_tasks: int) -> int:

@@ -47,11 +47,7 @@ from ..objectives import Objective
 
 if TYPE_CHECKING:  # the type of ``client``; distributed is imported only with backend="dask"
     from distributed import Client
-from .transfer import (
-    TRANSFER_PRIORS, TransferFit, fit_prior_scale, run_transfer, transfer_coefficients, transfer_prior_weights,
-    transfer_tasks,
-)
-from .posterior import coefficient_prior
+from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer_inputs
 from .active import request_starts
 from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
@@ -222,15 +218,15 @@ class FactIRL(Estimator):
         ``solver`` (it states the model; ``transfer`` runs it) and dictionary, and a
         ``d_solver`` that needs only gradients; fits of the residual model (a finite
         ``residual_penalty``, and such candidates of ``"auto"``) alternate.
-    transfer_prior : {"none", "fitted"}, default="none"
-        What ``transfer`` fits: ``"none"``, the maximum-likelihood coefficients (one
-        demonstration is matched exactly only by unbounded ones, so such a task runs to
-        ``max_iter``); ``"fitted"``, the maximum a posteriori coefficients under the Gaussian
-        fitted to the training coefficients, ``J_i(h) + scale / N_i * 1/2 (h - m)^T P (h - m)``
-        (``N_i`` demonstrated pairs; :mod:`factirl_opt.learners.transfer`), a finite optimum
-        that every task reaches; ``fit`` then chooses ``transfer_prior_scale_`` by transferring
-        up to 20 training tasks from their first demonstration
-        (:func:`~factirl_opt.learners.transfer.fit_prior_scale`).
+    transfer_stol : float, default=0.0
+        The saturation rule of ``transfer`` (:mod:`factirl_opt.learners.transfer`): each new
+        task also stops when its loss decreases over a step by at most ``transfer_stol`` times
+        its decrease since the start, where the loss stops paying for coefficients that grow
+        (one demonstration is matched exactly only by unbounded ones, so the unregularised
+        transfer of such a task runs to ``transfer_max_iter``). 0 turns it off (the
+        maximum-likelihood transfer); ``1e-3`` (:data:`~factirl_opt.learners.transfer.TRANSFER_STOL`)
+        stops every transfer of the "which learner when" benchmark by its own rule at no worse
+        a deviation (results/transfer/README.md). Not read by the flat model's transfer.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -278,9 +274,6 @@ class FactIRL(Estimator):
     residuals_ : ndarray, shape (n, p)
         The tasks' residuals ``delta_i`` (zeros for ``residual_penalty=np.inf``); ``rewards_``
         include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
-    transfer_prior_scale_ : float
-        With ``transfer_prior="fitted"``: the prior's scale fitted by ``fit`` (0: no prior, for
-        fewer than 3 training tasks or the flat model).
     transfer_residuals_ : ndarray, shape (n_new, p)
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     validation_ : list of dict
@@ -313,7 +306,7 @@ class FactIRL(Estimator):
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
         "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
         "n_primitives_": "count", "residual_penalty_": "penalty", "cv_results_": "cv-results",
-        "validation_": "validation", "transfer_prior_scale_": "penalty",
+        "validation_": "validation",
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -343,7 +336,7 @@ class FactIRL(Estimator):
                  callback: Callable | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
                  flat_solver: str | solvers.StepSolver = FLAT_SOLVER, sharing_search: SharingSearch | None = None,
-                 scheme: str = "alternating", transfer_prior: str = "none") -> None:
+                 scheme: str = "alternating", transfer_stol: float = 0.0) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -371,7 +364,7 @@ class FactIRL(Estimator):
         self.flat_solver = flat_solver
         self.sharing_search = sharing_search
         self.scheme = scheme
-        self.transfer_prior = transfer_prior
+        self.transfer_stol = transfer_stol
 
     @property
     def validation_(self) -> list[dict]:
@@ -535,16 +528,7 @@ class FactIRL(Estimator):
             raise_interrupted(exc, "FactIRL.fit")
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
-        self.__dict__.pop("transfer_prior_scale_", None)
-        if self._transfer_prior() == "fitted":  # the prior's scale, on held-out training tasks
-            self.transfer_prior_scale_ = fit_prior_scale(self, mdp, demos_per_task)[0]
         return self
-
-    def _transfer_prior(self):
-        if self.transfer_prior not in TRANSFER_PRIORS:
-            raise ValidationError(f"transfer_prior must be one of {', '.join(map(repr, TRANSFER_PRIORS))}; "
-                                  f"got {self.transfer_prior!r}")
-        return self.transfer_prior
 
     def _fit_auto(self, mdp, demos_per_task, flat_rewards):
         """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
@@ -579,7 +563,7 @@ class FactIRL(Estimator):
             raise_interrupted(exc, "FactIRL.fit")
         table = cv_results(found)
         model = fixed_learner(self, found.n_primitives, found.residual_penalty, verbose=self.verbose,
-                              callback=self.callback, transfer_prior=self._transfer_prior())
+                              callback=self.callback)
         try:
             model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
         except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
@@ -703,14 +687,11 @@ class FactIRL(Estimator):
         if lam == 0.0:  # the flat model: fitted as the flat learner fits
             flat = (resolve_step_solver(self.flat_solver, None, self.objective, "flat_solver"),
                     check_int(self.flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
-        prior = None
-        scale = getattr(self, "transfer_prior_scale_", 0.0) if self._transfer_prior() == "fitted" else 0.0
-        if scale > 0.0:  # the MAP under the training coefficients' prior (transfer_prior_scale_ fitted by fit)
-            prior = (*coefficient_prior(self.coefficients_), transfer_prior_weights(tasks, scale))
+        stol = check_tol(self.transfer_stol, "transfer_stol")
         try:
             with Execution.of(self).evaluate(obj) as obj:
                 res = run_transfer(obj, D, step_solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=self.callback,
-                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol, prior=prior)
+                                   verbose=self.verbose, residual_penalty=lam, flat=flat, gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
             keep_transfer_inputs(self, mdp, demos_per_task, features)

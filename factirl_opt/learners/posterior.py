@@ -26,14 +26,15 @@ away from the saturated region where one demonstration is matched by unbounded c
 from __future__ import annotations
 
 import dataclasses
+import warnings
 import weakref
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_array, check_int
-from ..exceptions import NotFittedError, ValidationError
+from .._validation import as_rng, check_array, check_int, check_tol
+from ..exceptions import ConvergenceWarning, NotFittedError, ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
@@ -41,7 +42,8 @@ from ..tasks.basis import as_basis
 __all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
            "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer_inputs",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
-           "lowrank_precision"]
+           "lowrank_precision", "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
+           "PRIOR_HELD_OUT"]
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
 PRIOR_RIDGE = 1e-3
@@ -721,3 +723,112 @@ def cached_transfer_posterior(model: Any) -> list[LaplacePosterior] | None:
 def set_transfer_posterior(model: Any, posteriors: list[LaplacePosterior] | None) -> None:
     """Give ``model`` these posteriors as its ``transfer_posterior_`` (``load_model``)."""
     _TRANSFERS[model] = {"posterior": posteriors}
+
+
+#: the prior scales :func:`fit_prior_scale` tries (``c_i = scale / N_i``, :mod:`factirl_opt.learners.transfer`)
+PRIOR_SCALES = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+#: held-out training tasks :func:`fit_prior_scale` transfers at most (evenly spaced over the tasks)
+PRIOR_HELD_OUT = 20
+
+
+def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`~factirl_opt.learners.posterior.coefficient_prior` of the training coefficients (n, k) without
+    each task of ``rows`` (r,) in turn: means (r, k) and precisions (r, k, k). Needs n >= 3."""
+    H = check_array(coefficients, "coefficients", ndim=2)
+    rows = np.asarray(rows, dtype=np.intp)
+    pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
+    return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
+        np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
+
+
+def _take(seq, idx):
+    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
+
+
+def choose_prior_scale(scores: dict, rule: str = "min") -> float:
+    """The scale of :func:`fit_prior_scale`'s ``scores`` ``{scale: per-task deviations (r,)}``: the lowest mean
+    (``"min"``; ties to the larger scale), or the largest scale whose mean is within one standard error of the
+    lowest (``"1se"``, the paired differences' standard error over the held-out tasks); 0.0 for no scores."""
+    if not scores:
+        return 0.0
+    means = {s: float(np.mean(v)) for s, v in scores.items()}
+    best = min(means, key=lambda s: (means[s], -s))
+    if rule == "min":
+        return float(best)
+    if rule != "1se":
+        raise ValidationError(f"rule must be 'min' or '1se'; got {rule!r}")
+    ok = []
+    for s, v in scores.items():
+        diff = np.asarray(v) - np.asarray(scores[best])
+        se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
+        if means[s] - means[best] <= se:
+            ok.append(s)
+    return float(max(ok))
+
+
+def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = PRIOR_SCALES,
+                    n_held_out: int = PRIOR_HELD_OUT, solver: Any = None, rule: str = "min") -> tuple[float, dict]:
+    """The scale of the transfer's prior (:mod:`factirl_opt.learners.transfer`) that transfers the training
+    tasks best, held out one at a time.
+
+    Up to ``n_held_out`` training tasks (evenly spaced over them) are transferred from their first
+    demonstration, each with the prior fitted to the other training tasks' coefficients
+    (:func:`leave_one_out_priors`), at every ``scale`` of ``scales``; the score of a scale is the
+    mean deviation (:func:`factirl_opt.deviation`) of the transferred rewards from the tasks' own
+    fitted ``rewards_`` (all their demonstrations); :func:`choose_prior_scale` (``rule``) takes the scale.
+
+    Parameters
+    ----------
+    model : FactIRL
+        Fitted on ``mdp`` and ``demos_per_task`` (its ``dictionary_``, ``coefficients_``,
+        ``rewards_``, ``residual_penalty_``; its ``beta``, ``objective``, ``planner``, ``solver``,
+        ``transfer_max_iter``, ``tol`` and ``gtol`` as its ``transfer`` reads them).
+    mdp, demos_per_task
+        The training tasks, as given to ``fit``.
+    scales : tuple of float
+    n_held_out : int
+    solver : solvers.StepSolver, optional
+        The transfer's step solver (default: the model's H-step solver).
+
+    Returns
+    -------
+    scale : float
+        0.0 where no prior applies (fewer than 3 training tasks, or the flat model).
+    scores : dict
+        ``{scale: each held-out task's deviation (r,)}``.
+    """
+    from ..evaluation import deviation
+    from .fitting import resolve_step_solver, task_objective
+    from .solver_settings import estimator_solvers
+    from .transfer import run_transfer, transfer_prior_weights, transfer_tasks
+
+    H = np.asarray(model.coefficients_, dtype=np.float64)
+    lam = float(getattr(model, "residual_penalty_", np.inf))
+    n, k = H.shape
+    if n < 3 or lam == 0.0:
+        return 0.0, {}
+    idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
+    per_task_mdp = isinstance(mdp, (list, tuple))
+    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
+    feats = model.features if isinstance(model.features, (list, tuple)) else None
+    sub_F = None if feats is None else _take(feats, idx)
+    first = [demos_per_task[i][:1] for i in idx]
+    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
+    obj = task_objective(tasks, model.beta, model.objective, model.planner)
+    if solver is None:
+        name, options = estimator_solvers(model)[:2]
+        solver = resolve_step_solver(name, options, model.objective, "solver")
+    M, P = leave_one_out_priors(H, idx)
+    refs = _take(model.rewards_, idx)
+    mdps = sub_mdp if per_task_mdp else mdp
+    max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
+    scores = {}
+    for scale in scales:
+        c = transfer_prior_weights(tasks, scale)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            res = run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=check_tol(model.tol),
+                               gtol=check_tol(model.gtol, "gtol"), residual_penalty=lam, prior=(M, P, c))
+        scores[float(scale)] = np.atleast_1d(np.asarray(deviation(mdps, refs, res.rewards, planner=model.planner),
+                                                            dtype=np.float64))
+    return choose_prior_scale(scores, rule), scores

@@ -9,15 +9,21 @@ test task from its one demonstration and from 3 (2 more drawn from seed (seed, 7
 variant:
 
 - ``none``: today's maximum-likelihood transfer;
-- ``fitted``: the MAP under the training coefficients' prior, ``transfer_prior_scale_`` fitted
-  by :func:`fit_prior_scale` (``FactIRL(transfer_prior="fitted")``);
+- ``fitted``: the MAP under the training coefficients' prior, its scale fitted by
+  :func:`fit_prior_scale` (``run_transfer(prior=...)``);
 - ``fitted-1se``: the largest scale whose held-out score is within one standard error of the best;
-- ``saturation=T``: the maximum-likelihood transfer stopped by the saturation rule ``stol=T``;
+- ``saturation=T``: the maximum-likelihood transfer stopped by the saturation rule,
+  ``FactIRL(transfer_stol=T)``;
 - ``fitted+saturation=0.001``: the fitted MAP, stopped by the saturation rule too;
 - ``posterior``: the posterior's mean (``transfer_posterior_``, the Laplace MAP).
 
 Records per (learner, variant, demonstrations): each test task's deviation, the statuses, the
 tasks that reached max_iter, the transfer's CPU time (time.process_time).
+
+The records in points/ were computed by this script at commit ef1aec5, where the MAP was
+``FactIRL(transfer_prior="fitted")`` with ``transfer_prior_scale_`` set, and the saturation rule
+``run_transfer(stol=T)`` bound into ``FactIRL.transfer``; this version runs the same arithmetic
+through the plain functions and ``FactIRL(transfer_stol=T)``.
 """
 import json
 import re
@@ -31,16 +37,28 @@ import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, MaxIterWarning
 from factirl_opt.lab.experiments import PRESETS, make_ground_truth
 from factirl_opt.lab.experiments.learner_solvers import factorial_options
-import functools
-
-from factirl_opt.learners import factirl as factirl_module, transfer as tr
-from factirl_opt.learners.posterior import coefficient_prior
+from factirl_opt.learners.fitting import resolve_step_solver, task_objective
+from factirl_opt.learners.posterior import choose_prior_scale, coefficient_prior, fit_prior_scale
+from factirl_opt.learners.solver_settings import estimator_solvers
+from factirl_opt.learners.transfer import run_transfer, transfer_prior_weights, transfer_tasks
 
 ADAPTIVE_CHOICE = {  # results/which-learner/default/README.md, the grid's shared choices
     ("sharing-grid", 20, 0): (4, 1.0), ("sharing-grid", 20, 1): (5, np.inf), ("sharing-grid", 20, 2): (6, 1.0),
     ("sharing-grid", 100, 0): (5, np.inf), ("sharing-grid", 100, 1): (5, np.inf), ("sharing-grid", 100, 2): (6, np.inf),
 }
 SATURATION = (1e-2, 1e-3, 1e-4)
+
+
+def map_transfer(model, mdp, demos, features, scale, stol):
+    """The MAP transfer of ``model`` (fitted) under its training coefficients' prior at ``scale``, as
+    ``FactIRL.transfer`` sets the problem up (the model's solver, budgets and residual penalty)."""
+    tasks, D = transfer_tasks(mdp, demos, features, model)
+    obj = task_objective(tasks, model.beta, model.objective, model.planner)
+    name, options = estimator_solvers(model)[:2]
+    solver = resolve_step_solver(name, options, model.objective, "solver")
+    prior = (*coefficient_prior(model.coefficients_), transfer_prior_weights(tasks, scale))
+    return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=model.transfer_max_iter, tol=model.tol,
+                        gtol=model.gtol, residual_penalty=model.residual_penalty_, prior=prior, stol=stol)
 
 
 def more_demos(gt, preset, seed, n_more):
@@ -89,9 +107,9 @@ def main(argv):
             m.fit(mdp, demos, flat_rewards=flat.rewards_)
         fit_cpu = time.process_time() - t0
         t0 = time.process_time()
-        scale, scores = tr.fit_prior_scale(m, mdp, demos, rule="min")
+        scale, scores = fit_prior_scale(m, mdp, demos, rule="min")
         scale_cpu = time.process_time() - t0
-        se_scale = tr.choose_prior_scale(scores, "1se")
+        se_scale = choose_prior_scale(scores, "1se")
         entry = {"k": int(m.n_primitives_), "lambda": float(m.residual_penalty_), "fit_cpu": fit_cpu,
                  "scale_cpu": scale_cpu, "scale": scale, "scale_1se": se_scale,
                  "held_out": {str(s): list(map(float, v)) for s, v in scores.items()}, "variants": {}}
@@ -99,27 +117,29 @@ def main(argv):
         variants += [(f"saturation={t:g}", None, t) for t in SATURATION] + [("fitted+saturation=0.001", scale, 1e-3)]
         for t, dem in demo_sets.items():
             for vname, sc, stol in variants:
-                m.transfer_prior = "fitted" if sc else "none"
-                m.transfer_prior_scale_ = sc or 0.0
-                factirl_module.run_transfer = functools.partial(tr.run_transfer, stol=stol)  # the saturation variant
                 t0 = time.process_time()
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
-                    m.transfer(test_mdp, dem, features=Fte)
+                    if sc:
+                        res = map_transfer(m, test_mdp, dem, Fte, sc, stol)
+                        rewards, status, reason, coef = res.rewards, res.status, res.reason, res.coefficients
+                    else:
+                        m.set_params(transfer_stol=stol)
+                        m.transfer(test_mdp, dem, features=Fte)
+                        rewards, status, reason = m.transfer_rewards_, m.transfer_status_, m.transfer_stop_reason_
+                        coef = m.transfer_coefficients_
                 cpu = time.process_time() - t0
-                dev = np.asarray(fo.deviation(test_mdp, gt.rewards("test"), m.transfer_rewards_, planner=preset.planner))
+                dev = np.asarray(fo.deviation(test_mdp, gt.rewards("test"), rewards, planner=preset.planner))
+                hit = re.search(r"(\d+) at max_iter", reason)
                 entry["variants"][f"{vname}@{t}"] = {
-                    "deviation": dev.tolist(), "mean": float(dev.mean()), "cpu": cpu, "status": m.transfer_status_,
-                    "reason": m.transfer_stop_reason_,
+                    "deviation": dev.tolist(), "mean": float(dev.mean()), "cpu": cpu, "status": status, "reason": reason,
                     "max_iter_warnings": sum(isinstance(w.message, MaxIterWarning) for w in caught),
-                    "max_iter_tasks": int(re.search(r"(\d+) at max_iter", m.transfer_stop_reason_).group(1))
-                    if re.search(r"(\d+) at max_iter", m.transfer_stop_reason_) else 0,
+                    "max_iter_tasks": int(hit.group(1)) if hit else 0,
                     "other_warnings": [str(w.message)[:200] for w in caught if not isinstance(w.message, MaxIterWarning)],
-                    "max_abs_coefficient": float(np.abs(m.transfer_coefficients_).max())}
-                print(name, vname, t, f"{dev.mean():.3f}", m.transfer_status_, f"{cpu:.2f}s", flush=True)
+                    "max_abs_coefficient": float(np.abs(coef).max())}
+                print(name, vname, t, f"{dev.mean():.3f}", status, f"{cpu:.2f}s", flush=True)
             # the posterior's mean, from the ML transfer
-            m.transfer_prior, m.transfer_prior_scale_ = "none", 0.0
-            factirl_module.run_transfer = tr.run_transfer
+            m.set_params(transfer_stol=0.0)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 m.transfer(test_mdp, dem, features=Fte)

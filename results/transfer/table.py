@@ -1,0 +1,47 @@
+"""The tables of results/transfer/README.md from the records of points.py: ``python results/transfer/table.py [DIR]``."""
+import glob
+import json
+import sys
+
+import numpy as np
+
+DIR = sys.argv[1] if len(sys.argv) > 1 else "results/transfer/points"
+BASE = "none"
+
+
+def main():
+    recs = [json.load(open(f)) for f in sorted(glob.glob(f"{DIR}/*.json"))]
+    rows, variants = [], None
+    for r in recs:
+        for name, e in r["learners"].items():
+            for t in (1, 3):
+                v = {k.split("@")[0]: x for k, x in e["variants"].items() if k.endswith(f"@{t}")}
+                variants = variants or list(v)
+                rows.append(((r["preset"], r["n_tasks"], r["seed"], name, t), e, v))
+    print("| variant | demos | points no worse (<= today's mean + 1e-9) | mean ratio to today | mean deviation | tasks no worse | max_iter tasks | runs with MaxIterWarning | CPU ratio to today |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for t in (1, 3):
+        sel = [(key, e, v) for key, e, v in rows if key[4] == t]
+        for name in variants:
+            ok = [v[name]["mean"] <= v[BASE]["mean"] + 1e-9 for _, _, v in sel]
+            ratio = [v[name]["mean"] / v[BASE]["mean"] for _, _, v in sel]
+            tasks = np.concatenate([np.asarray(v[name]["deviation"]) <= np.asarray(v[BASE]["deviation"]) + 1e-9
+                                    for _, _, v in sel])
+            mi = sum(v[name].get("max_iter_tasks", 0) for _, _, v in sel)
+            nt = sum(len(v[name]["deviation"]) for _, _, v in sel)
+            warn = sum(bool(v[name].get("max_iter_warnings", 0)) for _, _, v in sel)
+            cpu = sum(v[name]["cpu"] for _, _, v in sel) / sum(v[BASE]["cpu"] for _, _, v in sel)
+            mean = np.mean([v[name]["mean"] for _, _, v in sel])
+            print(f"| {name} | {t} | {sum(ok)}/{len(ok)} | {np.mean(ratio):.3f} | {mean:.3f} | {tasks.mean():.2f} | "
+                  f"{mi}/{nt} | {warn}/{len(sel)} | {cpu:.2f} |")
+    print()
+    print("| point | learner | (k, lambda) | demos | " + " | ".join(variants) + " | scale (1se) |")
+    print("|---|---|---|---|" + "---|" * (len(variants) + 1))
+    for key, e, v in rows:
+        lam = "inf" if e["lambda"] == float("inf") else f"{e['lambda']:g}"
+        print(f"| {key[0]} {key[1]} s{key[2]} | {key[3]} | ({e['k']}, {lam}) | {key[4]} | "
+              + " | ".join(f"{v[n]['mean']:.3f}" for n in variants) + f" | {e['scale']:g} ({e['scale_1se']:g}) |")
+
+
+if __name__ == "__main__":
+    main()
