@@ -8,7 +8,7 @@ from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.posterior import (
     MAP_TOL, LaplacePosterior, TransferProblem, coefficient_prior, demonstration_curvature, laplace_posteriors,
-    likelihood_scaling, lowrank_precision, lowrank_solve,
+    likelihood_scaling, lowrank_solve,
 )
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
 from factirl_opt.objectives.mce import MCEObjective, soft_values
@@ -222,7 +222,8 @@ def test_lowrank_solve_is_the_dense_solve(rng):
     cd = rng.uniform(0.1, 2.0, size=(a, p))
     Z = rng.normal(size=(a, m, k + p))
     b = rng.normal(size=(a, k + p))
-    dense = np.array([lowrank_precision(Ch[i], cd[i], Z[i]) for i in range(a)])
+    dense = np.array([Z[i].T @ Z[i] + np.block([[Ch[i], np.zeros((k, p))], [np.zeros((p, k)), np.diag(cd[i])]])
+                      for i in range(a)])
     np.testing.assert_allclose(lowrank_solve(Ch, cd, Z, b), np.linalg.solve(dense, b[..., None])[..., 0], rtol=1e-10)
     B = rng.normal(size=(a, k + p, 3))
     np.testing.assert_allclose(lowrank_solve(Ch, cd, Z, B), np.linalg.solve(dense, B), rtol=1e-10)
@@ -254,15 +255,16 @@ def test_lowrank_posterior_matches_the_dense_one(grid3, rng, tabular):
         for a, b in zip(low, dense):
             np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8, atol=1e-10)
             np.testing.assert_allclose(a.covariance, b.covariance, rtol=1e-8, atol=1e-10)
-            assert a.scaling == pytest.approx(b.scaling, rel=1e-12) and b.precision_factors is None
-            np.testing.assert_allclose(lowrank_precision(*a.precision_factors) @ a.covariance, np.eye(a.mean.size),
-                                       atol=1e-8)
-            assert a.precision_factors[2].shape[0] < (a.mean.size if tabular else 3 * S * A)  # only demonstrated rows
-    assert laplace_posteriors(problem, prior)[0].precision_factors is not None  # the default where it applies
+            assert a.scaling == pytest.approx(b.scaling, rel=1e-12)
+    default = laplace_posteriors(problem, prior)  # low rank where it applies
+    np.testing.assert_allclose(default[0].covariance, laplace_posteriors(problem, prior, lowrank=True)[0].covariance,
+                               rtol=1e-10)
 
 
 def test_lowrank_needs_a_residual_least_squares_problem(grid3, rng):
     problem, _ = _problem(grid3, "mce", rng, k=2, lam=1.0)
+    prior = coefficient_prior(rng.normal(size=(5, 2)))
     with pytest.raises(ValidationError, match="lowrank"):
-        laplace_posteriors(problem, coefficient_prior(rng.normal(size=(5, 2))), lowrank=True)
-    assert laplace_posteriors(problem, coefficient_prior(rng.normal(size=(5, 2))))[0].precision_factors is None
+        laplace_posteriors(problem, prior, lowrank=True)
+    np.testing.assert_allclose(laplace_posteriors(problem, prior)[0].covariance,  # dense where it does not apply
+                               laplace_posteriors(problem, prior, lowrank=False)[0].covariance, rtol=1e-8)

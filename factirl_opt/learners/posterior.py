@@ -42,7 +42,7 @@ from ..tasks.basis import as_basis
 __all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
            "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer_inputs",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
-           "lowrank_precision", "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
+           "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
            "PRIOR_HELD_OUT"]
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
@@ -82,10 +82,6 @@ class LaplacePosterior:
     n_pairs : float
         ``N``, the demonstrated pairs the posterior is conditioned on (``scaling / n_pairs`` is
         the likelihood's weight of one demonstrated pair).
-    precision_factors : (C_h (k, k), c_delta (p,), Z (m, d)), optional
-        The precision ``blockdiag(C_h, diag(c_delta)) + Z^T Z`` of a residual model's posterior
-        (:func:`lowrank_precision`; ``covariance`` is its inverse), which the requests use
-        instead of inverting ``covariance``; None: only ``covariance``.
 
     Attributes
     ----------
@@ -100,7 +96,6 @@ class LaplacePosterior:
     mdp: TabularMDP
     scaling: float = 1.0
     n_pairs: float = 1.0
-    precision_factors: tuple | None = dataclasses.field(default=None, repr=False)
 
     @property
     def n_primitives(self) -> int:
@@ -377,16 +372,6 @@ def _prior_terms(x, k, m, P, s, lam):
     return val, grad
 
 
-def lowrank_precision(P: NDArray[np.float64], c_delta: NDArray[np.float64], Z: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The dense precision ``blockdiag(P, diag(c_delta)) + Z^T Z`` (d, d) of its factors (for checks and small d)."""
-    k = P.shape[0]
-    C = Z.T @ Z
-    C[:k, :k] += P
-    idx = np.arange(k, C.shape[0])
-    C[idx, idx] += c_delta
-    return C
-
-
 def _block_inverse(Ch, cd, V):
     """``blockdiag(Ch, diag(cd))^-1 V`` for a batch: Ch (a, k, k), cd (a, p), V (a, k + p, q)."""
     k = Ch.shape[1]
@@ -473,15 +458,14 @@ class _Curvature:
         return out
 
     def covariance(self, i):
-        """``Lambda^-1`` (d, d) of task ``i``, and its precision factors (low rank) or None."""
+        """``Lambda^-1`` (d, d) of task ``i``."""
         a = np.array([i])
         if self.lowrank:
-            Ch, cd, Z = self._factors(a)
-            C = lowrank_solve(Ch, cd, Z, np.eye(Z.shape[2])[None])[0]
-            return 0.5 * (C + C.T), (Ch[0], cd[0], Z[0])
-        Lam = self._dense(a)[0]
-        C = np.linalg.inv(0.5 * (Lam + Lam.T))
-        return 0.5 * (C + C.T), None
+            C = lowrank_solve(*self._factors(a), np.eye(self.G.shape[2])[None])[0]
+        else:
+            Lam = self._dense(a)[0]
+            C = np.linalg.inv(0.5 * (Lam + Lam.T))
+        return 0.5 * (C + C.T)
 
 
 def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64], NDArray[np.float64]],
@@ -571,9 +555,8 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
-        C, factors = curv.covariance(i)
-        out.append(LaplacePosterior(x[i].copy(), C, D, problem.features[i], problem.mdps[i], float(s[i]),
-                                    float(problem.n_pairs[i]), factors))
+        out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
+                                    float(problem.n_pairs[i])))
     return out
 
 
