@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import cholesky
 from scipy.special import ndtr
 
 from .._validation import check_int
@@ -161,16 +162,18 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
     if known is not None:
         occ = np.where(known[None, :], 0.0, occ)
     Vf = V.reshape(S * r, d)
-    K = (Vf @ post.covariance @ Vf.T).reshape(S, r, S, r)
+    K = Vf @ post.covariance @ Vf.T
     gains = np.empty(len(candidates))
     for c in range(len(candidates)):
         states = np.flatnonzero(occ[c] > 0)
+        rows = (states[:, None] * r + np.arange(r)).ravel()
         w = np.repeat(np.sqrt(occ[c, states]), r)
-        M = K[states][:, :, states].reshape(w.size, w.size)
+        M = K[np.ix_(rows, rows)]
         M *= w[:, None]
-        M *= w[None, :]
-        M[np.diag_indices_from(M)] += 1.0
-        gains[c] = 2.0 * np.sum(np.log(np.diagonal(np.linalg.cholesky(M))))
+        M *= w
+        M.flat[::rows.size + 1] += 1.0
+        U = cholesky(M, overwrite_a=True, check_finite=False)
+        gains[c] = 2.0 * np.sum(np.log(np.diagonal(U)))
     return gains
 
 
