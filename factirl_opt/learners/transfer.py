@@ -302,7 +302,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     stol : float, default=0.0
         The saturation rule (:func:`solvers.has_saturated`): a task also stops when its loss
         decreases over a step by at most ``stol`` times its decrease since the start; 0 turns
-        it off. Not read by the flat model.
+        it off. With ``flat``, the flat learner's fit of each task stops by it too.
 
     Returns
     -------
@@ -312,7 +312,7 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
         return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
-                                  gtol)
+                                  gtol, stol)
     if np.isfinite(residual_penalty):
         return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
                                       float(residual_penalty), gtol, prior, stol)
@@ -352,7 +352,7 @@ def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback,
     return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0, prior)
 
 
-def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol):
+def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol, stol=0.0):
     """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
     task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
     ev0 = objective.n_evaluations
@@ -366,7 +366,7 @@ def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback
     with translate_solver_errors():
         try:
             res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)",
-                              gtol=gtol)
+                              gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)

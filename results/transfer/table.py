@@ -1,4 +1,10 @@
-"""The tables of results/transfer/README.md from the records of points.py: ``python results/transfer/table.py [DIR]``."""
+"""The tables of results/transfer/README.md from the records of points.py: ``python results/transfer/table.py [DIR]``.
+
+A point is (benchmark, training tasks, seed, learner); the adaptive learner's rows where it chose
+the factorial model (the same k and lambda) are left out (their transfers are the factorial's).
+"No worse": the point's mean test deviation at most today's (``none``); "tasks no worse": the
+fraction of test tasks whose deviation is at most today's.
+"""
 import glob
 import json
 import sys
@@ -13,7 +19,10 @@ def main():
     recs = [json.load(open(f)) for f in sorted(glob.glob(f"{DIR}/*.json"))]
     rows, variants = [], None
     for r in recs:
+        fact = r["learners"]["factorial"]
         for name, e in r["learners"].items():
+            if name != "factorial" and (e["k"], e["lambda"]) == (fact["k"], fact["lambda"]):
+                continue  # the adaptive learner chose the factorial model: the same transfers
             for t in (1, 3):
                 v = {k.split("@")[0]: x for k, x in e["variants"].items() if k.endswith(f"@{t}")}
                 variants = variants or list(v)
