@@ -294,3 +294,39 @@ def test_factirl_request_starts_passes_criterion_and_demonstrated_through(fitted
         model.request_starts(mdp, test.demos, criterion="entropy")
     with pytest.raises(ValidationError, match="demonstrated must be one of count, skip; got 'once'"):
         model.request_starts(mdp, test.demos, demonstrated="once")
+
+
+@pytest.fixture(scope="module")
+def residual_fitted():
+    mdp = fo.GridWorld(size=3, p_success=0.8, gamma=0.9)
+    train = synthetic_tasks(mdp, 10, 4, 6, n_primitives=2, rng=5)
+    test = synthetic_tasks(mdp, 2, 1, 6, dictionary=train.dictionary, rng=6)
+    models = {}
+    for objective in ("policy-matching", "mce"):
+        model = fo.FactIRL(n_primitives=2, objective=objective, residual_penalty=0.5, max_iter=5, transfer_max_iter=20,
+                           rng=0).fit(mdp, train.demos)
+        model.transfer(mdp, test.demos)
+        models[objective] = model
+    return mdp, test, models
+
+
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+@pytest.mark.parametrize("known", [False, True])
+def test_information_gains_over_the_rows_match_the_parameters_determinants(residual_fitted, objective, known):
+    # a residual model (d = k + S*A): the gains over the visited rows, as log det(Lambda + H_s) - log det(Lambda)
+    mdp, test, models = residual_fitted
+    model = models[objective]
+    cands = np.arange(mdp.n_states)
+    for i, post in enumerate(model.transfer_posterior_):
+        assert post.mean.size == 2 + mdp.n_states * mdp.n_actions
+        mask = demonstrated_states(mdp, test.demos[i], i) if known else None
+        gains = information_gains(post, objective, model.beta, cands, 4, known=mask)
+        pl, info, pi = state_information(post, objective, model.beta)
+        if known:
+            info = np.where(mask[:, None, None], 0.0, info)
+        occ = start_occupancy(pl, pi, cands, 4)
+        Lam = np.linalg.inv(post.covariance)
+        H = np.einsum("cy,yde->cde", occ, info)
+        dense = np.linalg.slogdet(Lam[None] + H)[1] - np.linalg.slogdet(Lam)[1]
+        np.testing.assert_allclose(gains, dense, rtol=1e-8, atol=1e-9)

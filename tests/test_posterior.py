@@ -8,7 +8,7 @@ from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.posterior import (
     MAP_TOL, LaplacePosterior, TransferProblem, coefficient_prior, demonstration_curvature, laplace_posteriors,
-    likelihood_scaling,
+    likelihood_scaling, lowrank_solve,
 )
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
 from factirl_opt.objectives.mce import MCEObjective, soft_values
@@ -231,3 +231,58 @@ def test_posterior_of_a_degenerate_covariance_samples(grid3, rng):
     assert x[:, 0].std() > 0.5
     with pytest.raises(ValidationError, match="n"):
         post.sample(0, 0)
+
+
+def test_lowrank_solve_is_the_dense_solve(rng):
+    a, k, p, m = 3, 2, 7, 4
+    A = rng.normal(size=(a, k, k))
+    Ch = A @ np.swapaxes(A, 1, 2) + np.eye(k)
+    cd = rng.uniform(0.1, 2.0, size=(a, p))
+    Z = rng.normal(size=(a, m, k + p))
+    b = rng.normal(size=(a, k + p))
+    dense = np.array([Z[i].T @ Z[i] + np.block([[Ch[i], np.zeros((k, p))], [np.zeros((p, k)), np.diag(cd[i])]])
+                      for i in range(a)])
+    np.testing.assert_allclose(lowrank_solve(Ch, cd, Z, b), np.linalg.solve(dense, b[..., None])[..., 0], rtol=1e-10)
+    B = rng.normal(size=(a, k + p, 3))
+    np.testing.assert_allclose(lowrank_solve(Ch, cd, Z, B), np.linalg.solve(dense, B), rtol=1e-10)
+
+
+def _demonstrated_problem(mdp, rng, n=3, k=2, lam=0.7, features=None):
+    """A residual model's transfer problem of n tasks with a few demonstrated states each (the live rows)."""
+    S, A = mdp.n_states, mdp.n_actions
+    p = S * A if features is None else features.shape[1]
+    D = rng.normal(size=(p, k))
+    mu = rng.uniform(size=(n, S)) * (rng.uniform(size=(n, S)) < 0.4)
+    mu[:, 0] += 0.1
+    mu /= mu.sum(axis=1, keepdims=True)
+    pi = rng.dirichlet(np.ones(A), size=(n, S))
+    obj = PolicyMatchingObjective(mdp, mu, pi, BETA)
+    return TransferProblem(obj, [mdp] * n, [features] * n, D, lam, rng.uniform(5, 20, n)), D
+
+
+@pytest.mark.parametrize("tabular", [True, False])
+def test_lowrank_posterior_matches_the_dense_one(grid3, rng, tabular):
+    S, A = grid3.n_states, grid3.n_actions
+    features = None if tabular else rng.normal(size=(S * A, 5))
+    problem, D = _demonstrated_problem(grid3, rng, features=features)
+    prior = coefficient_prior(rng.normal(size=(8, 2)))
+    start = rng.normal(scale=0.3, size=(problem.n_tasks, 2 + problem.dictionary.shape[0]))
+    for st in (None, start):
+        low = laplace_posteriors(problem, prior, st, lowrank=True)
+        dense = laplace_posteriors(problem, prior, st, lowrank=False)
+        for a, b in zip(low, dense):
+            np.testing.assert_allclose(a.mean, b.mean, rtol=1e-8, atol=1e-10)
+            np.testing.assert_allclose(a.covariance, b.covariance, rtol=1e-8, atol=1e-10)
+            assert a.scaling == pytest.approx(b.scaling, rel=1e-12)
+    default = laplace_posteriors(problem, prior)  # low rank where it applies
+    np.testing.assert_allclose(default[0].covariance, laplace_posteriors(problem, prior, lowrank=True)[0].covariance,
+                               rtol=1e-10)
+
+
+def test_lowrank_needs_a_residual_least_squares_problem(grid3, rng):
+    problem, _ = _problem(grid3, "mce", rng, k=2, lam=1.0)
+    prior = coefficient_prior(rng.normal(size=(5, 2)))
+    with pytest.raises(ValidationError, match="lowrank"):
+        laplace_posteriors(problem, prior, lowrank=True)
+    np.testing.assert_allclose(laplace_posteriors(problem, prior)[0].covariance,  # dense where it does not apply
+                               laplace_posteriors(problem, prior, lowrank=False)[0].covariance, rtol=1e-8)

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import cholesky
 from scipy.special import ndtr
 
 from .._validation import check_int
@@ -36,7 +37,7 @@ from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
 from .posterior import LaplacePosterior, coefficient_prior, has_prior, laplace_posteriors, transfer_inputs, transfer_problem
 
-__all__ = ["request_starts", "information_gains", "value_variance_reductions", "state_information", "start_occupancy",
+__all__ = ["request_starts", "information_gains", "information_rows", "value_variance_reductions", "state_information", "start_occupancy",
            "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",
            "demonstrated_states", "regret_terms", "linearised_regret", "regret_reductions"]
 
@@ -120,14 +121,79 @@ def _demonstration_curvature(post: LaplacePosterior, objective: str, beta: float
     return 0.5 * (Lam + Lam.T), np.einsum("cy,yde->cde", occ, info)
 
 
+def information_rows(post: LaplacePosterior, objective: str, beta: float) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
+    """The planner, rows ``V`` (S, A, d) with ``I(y) = sum_a V[y, a] V[y, a]^T`` (:func:`state_information`'s
+    per-state information as a sum of outer products) and the model's policy (S, A)."""
+    pl, pi, dQ = model_policy(post, objective, beta)
+    E = dQ - np.einsum("sa,sad->sd", pi, dQ)[:, None, :]
+    weight = pi if objective == "mce" else pi * pi
+    per_pair = post.scaling / post.n_pairs * (1.0 if objective == "mce" else 2.0)
+    return pl, np.sqrt(per_pair * beta * beta * weight)[:, :, None] * E, pi
+
+
+def _row_space(post: LaplacePosterior) -> bool:
+    """Whether the gains are cheaper over the demonstrated rows (S*A) than over the parameters (d):
+    a residual model's posterior, d = k + p."""
+    S, A = post.mdp.n_states, post.mdp.n_actions
+    return 2 * post.mean.shape[0] > S * A
+
+
 def information_gains(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],
                       length: int, policy: str = "boltzmann", known: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """``log det(Lambda + H_s) - log det(Lambda)`` (c,) of a ``length``-step demonstration from each candidate start,
     the episode's expected visits under :func:`demonstrator_policy` (``policy``); states where ``known`` (S,) is
-    true add no information (:func:`demonstrated_states`)."""
-    Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
-    base = np.linalg.slogdet(Lam)[1]
-    return np.linalg.slogdet(Lam[None] + H)[1] - base
+    true add no information (:func:`demonstrated_states`).
+
+    With ``H_s = V^T O_s V`` (:func:`information_rows`, ``O_s`` the expected visits on each
+    state's A rows) the gain is also ``log det(I + O_s^1/2 V Sigma V^T O_s^1/2)`` over the rows
+    of the states the episode can visit (Sylvester's identity): for a residual model's posterior
+    (d = k + p parameters, more than half the S*A rows) the gains are computed so, from one
+    (S*A, S*A) product ``V Sigma V^T`` per task and one Cholesky factorisation per candidate of its
+    visited rows, instead of a (d, d) determinant per candidate; the same gains to round-off.
+    """
+    if not _row_space(post):
+        Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
+        base = np.linalg.slogdet(Lam)[1]
+        return np.linalg.slogdet(Lam[None] + H)[1] - base
+    pl, V, pi = information_rows(post, objective, beta)
+    V = _drop_null_row(V, pi, objective)
+    S, r, d = V.shape
+    occ = start_occupancy(pl, demonstrator_policy(pi, policy), candidates, length)
+    if known is not None:
+        occ = np.where(known[None, :], 0.0, occ)
+    Vf = V.reshape(S * r, d)
+    K = Vf @ post.covariance @ Vf.T
+    gains = np.empty(len(candidates))
+    for c in range(len(candidates)):
+        states = np.flatnonzero(occ[c] > 0)
+        rows = (states[:, None] * r + np.arange(r)).ravel()
+        w = np.repeat(np.sqrt(occ[c, states]), r)
+        M = K[np.ix_(rows, rows)]
+        M *= w[:, None]
+        M *= w
+        M.flat[::rows.size + 1] += 1.0
+        U = cholesky(M, overwrite_a=True, check_finite=False)
+        gains[c] = 2.0 * np.sum(np.log(np.diagonal(U)))
+    return gains
+
+
+def _drop_null_row(V: NDArray[np.float64], pi: NDArray[np.float64], objective: str) -> NDArray[np.float64]:
+    """Each state's A rows (S, A, d) as A - 1 rows (S, A - 1, d) with the same sum of outer products.
+
+    The centred tangents satisfy ``sum_a pi(a|y) E(y, a) = 0``, so ``u^T V[y] = 0`` with ``u_a =
+    pi_a / sqrt(weight_a)`` (1 for policy matching, ``sqrt(pi_a)`` for MCE): the Householder
+    reflection taking ``u / |u|`` to the first axis leaves that row zero (to round-off), and the
+    other A - 1 rows carry ``V[y]^T V[y]``.
+    """
+    S, A, _ = V.shape
+    u = np.ones((S, A)) if objective != "mce" else np.sqrt(pi)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    v = u.copy()
+    v[:, 0] -= 1.0
+    vv = np.einsum("sa,sa->s", v, v)
+    scale = np.where(vv > 0, 2.0 / np.where(vv > 0, vv, 1.0), 0.0)
+    HV = V - (scale[:, None] * v)[:, :, None] * np.einsum("sa,sad->sd", v, V)[:, None, :]
+    return HV[:, 1:]
 
 
 def value_variance_reductions(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp],

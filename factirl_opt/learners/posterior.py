@@ -26,13 +26,14 @@ away from the saturated region where one demonstration is matched by unbounded c
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_array, check_int
-from ..exceptions import NotFittedError, ValidationError
+from .._validation import as_rng, check_array, check_int, check_tol
+from ..exceptions import ConvergenceWarning, NotFittedError, ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
@@ -40,7 +41,9 @@ from ..tasks.basis import as_basis
 __all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
            "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer",
            "TransferState", "tasks_problem", "has_prior",
-           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior"]
+           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
+           "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
+           "PRIOR_HELD_OUT"]
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
 PRIOR_RIDGE = 1e-3
@@ -356,24 +359,117 @@ def _evaluate(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[n
 
 
 def _prior_terms(x, k, m, P, s, lam):
-    """Prior value (r,), gradient (r, d) and precision (r, d, d) at x (r, d) on the likelihood's scale ``s`` (r,)."""
+    """Prior value (r,) and gradient (r, d) at x (r, d) on the likelihood's scale ``s`` (r,); its precision,
+    ``blockdiag(P, 2 s lambda I)``, is :class:`_Curvature`'s."""
     r, d = x.shape
     dh = x[:, :k] - m
     val = 0.5 * np.einsum("rk,kl,rl->r", dh, P, dh)
     grad = np.zeros((r, d))
     grad[:, :k] = dh @ P
-    prec = np.zeros((r, d, d))
-    prec[:, :k, :k] = P
     if d > k:
         val = val + s * lam * np.sum(x[:, k:] ** 2, axis=1)
         grad[:, k:] = 2.0 * (s * lam)[:, None] * x[:, k:]
-        idx = np.arange(k, d)
-        prec[:, idx, idx] = 2.0 * (s * lam)[:, None]
-    return val, grad, prec
+    return val, grad
+
+
+def _block_inverse(Ch, cd, V):
+    """``blockdiag(Ch, diag(cd))^-1 V`` for a batch: Ch (a, k, k), cd (a, p), V (a, k + p, q)."""
+    k = Ch.shape[1]
+    return np.concatenate([np.linalg.solve(Ch, V[:, :k]), V[:, k:] / cd[:, :, None]], axis=1)
+
+
+def lowrank_solve(Ch: NDArray[np.float64], cd: NDArray[np.float64], Z: NDArray[np.float64],
+                  b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(blockdiag(Ch, diag(cd)) + Z^T Z)^-1 b`` by the Woodbury identity, for a batch: never a (d, d) solve.
+
+    ``C^-1 b - C^-1 Z^T (I + Z C^-1 Z^T)^-1 Z C^-1 b``, ``C = blockdiag(Ch, diag(cd))``: solves of
+    size k and m only (the residual model's posterior: d = k + p, its ridge block diagonal, Z the
+    m live rows of the scaled residuals' Jacobian, m << p).
+
+    Parameters
+    ----------
+    Ch : ndarray, shape (a, k, k)
+    cd : ndarray, shape (a, p)
+        Positive.
+    Z : ndarray, shape (a, m, d)
+    b : ndarray, shape (a, d) or (a, d, q)
+
+    Returns
+    -------
+    ndarray, the shape of ``b``
+    """
+    B = b[..., None] if b.ndim == 2 else b
+    Y = _block_inverse(Ch, cd, np.swapaxes(Z, 1, 2))  # C^-1 Z^T (a, d, m)
+    K = np.eye(Z.shape[1]) + Z @ Y
+    u = _block_inverse(Ch, cd, B)
+    out = u - Y @ np.linalg.solve(K, Z @ u)
+    return out[..., 0] if b.ndim == 2 else out
+
+
+class _Curvature:
+    """The precision ``Lambda = s G + blockdiag(P, 2 s lambda I)`` of a batch of tasks, dense (``G`` (r, d, d))
+    or low rank (``G = 2 Z^T Z``, ``Z`` (r, m, d) the live rows of the residuals' Jacobian; the residual
+    model under policy matching): its products, its solves, and its damped solves (module docstring)."""
+
+    def __init__(self, G, s, P, lam, k, lowrank):
+        self.G, self.s, self.P, self.lam, self.k, self.lowrank = G, s, P, lam, k, lowrank
+
+    def _factors(self, a, mu=None):
+        """``(C_h, c_delta, Z)`` of the tasks ``a``, damped by ``mu`` (a,): ``Lambda + mu diag(Lambda)``."""
+        k, s = self.k, self.s[a]
+        Z = np.sqrt(2.0 * s)[:, None, None] * self.G[a]
+        Ch = np.broadcast_to(self.P, (len(a), k, k)).copy()
+        cd = np.broadcast_to((2.0 * s * self.lam)[:, None], (len(a), Z.shape[2] - k)).copy()
+        if mu is not None:
+            diag = np.einsum("rmd,rmd->rd", Z, Z)
+            diag[:, :k] += np.diagonal(self.P)
+            diag[:, k:] += cd
+            Ch[:, np.arange(k), np.arange(k)] += mu[:, None] * diag[:, :k]
+            cd = cd + mu[:, None] * diag[:, k:]
+        return Ch, cd, Z
+
+    def _dense(self, a):
+        s, d = self.s[a], self.G.shape[-1]
+        Lam = s[:, None, None] * self.G[a]
+        Lam[:, :self.k, :self.k] += self.P
+        if d > self.k:
+            idx = np.arange(self.k, d)
+            Lam[:, idx, idx] += 2.0 * (s * self.lam)[:, None]
+        return Lam
+
+    def solve(self, a, g, mu=None):
+        """``(Lambda + mu diag(Lambda))^-1 g`` (r, d) for the tasks ``a`` (mu None: undamped)."""
+        if self.lowrank:
+            return lowrank_solve(*self._factors(a, mu), g)
+        Lam = self._dense(a)
+        if mu is not None:
+            diag = np.einsum("rdd->rd", Lam)
+            Lam = Lam + mu[:, None, None] * np.einsum("rd,de->rde", diag, np.eye(Lam.shape[1]))
+        return np.linalg.solve(Lam, g[:, :, None])[:, :, 0]
+
+    def apply(self, a, v):
+        """``Lambda v`` (r, d) for the tasks ``a``."""
+        if not self.lowrank:
+            return np.einsum("rde,re->rd", self._dense(a), v)
+        Ch, cd, Z = self._factors(a)
+        out = np.einsum("rmd,rm->rd", Z, np.einsum("rmd,rd->rm", Z, v))
+        out[:, :self.k] += v[:, :self.k] @ self.P.T
+        out[:, self.k:] += cd * v[:, self.k:]
+        return out
+
+    def covariance(self, i):
+        """``Lambda^-1`` (d, d) of task ``i``."""
+        a = np.array([i])
+        if self.lowrank:
+            C = lowrank_solve(*self._factors(a), np.eye(self.G.shape[2])[None])[0]
+        else:
+            Lam = self._dense(a)[0]
+            C = np.linalg.inv(0.5 * (Lam + Lam.T))
+        return 0.5 * (C + C.T)
 
 
 def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64], NDArray[np.float64]],
-                       start: NDArray[np.float64] | None = None) -> list[LaplacePosterior]:
+                       start: NDArray[np.float64] | None = None, lowrank: bool | None = None) -> list[LaplacePosterior]:
     """Each new task's Laplace posterior: MAP by damped Newton steps, covariance the inverse curvature there.
 
     Parameters
@@ -384,6 +480,12 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     start : ndarray, shape (n, d), optional
         Another start (e.g. the transfer's values): each task starts from whichever of it and
         the prior mean (zero residual) has the lower posterior objective.
+    lowrank : bool, optional
+        Carry the residual model's curvature as its ridge block plus the live rows of the
+        residuals' Jacobian, ``G = 2 Z^T Z`` with ``Z`` (m, k + p) and m the demonstrated rows
+        (reverse-mode Jacobians, Woodbury solves of size m; no (k + p, k + p) solve), instead of
+        dense. The same results to round-off. Default: for a residual model under a least-squares
+        objective (policy matching), where it applies.
 
     Returns
     -------
@@ -395,10 +497,16 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     n = problem.n_tasks
     lam = problem.residual_penalty if problem.residual else 0.0
     d = k + (D.shape[0] if problem.residual else 0)
+    applies = problem.residual and problem.objective.least_squares
+    if lowrank is None:
+        lowrank = applies
+    elif lowrank and not applies:
+        raise ValidationError("lowrank needs a residual model (a finite residual_penalty) and a least-squares objective")
+    evaluate = _evaluate_lowrank if lowrank else _evaluate
     tasks = np.arange(n)
     x = np.zeros((n, d))
     x[:, :k] = m
-    loss, grad, G, pis = _evaluate(problem, x, tasks, True)
+    loss, grad, G, pis = evaluate(problem, x, tasks, True)
     # the likelihood's scaling: policy matching's noise level at the prior mean's policy
     if problem.objective.least_squares:
         mus = [problem.statistics(int(t))[1] for t in tasks]
@@ -407,8 +515,10 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         s = likelihood_scaling("mce", problem.n_pairs)
     if start is not None:
         x1 = np.asarray(start, dtype=np.float64)
-        l1, g1, G1, _ = _evaluate(problem, x1, tasks, True)
+        l1, g1, G1, _ = evaluate(problem, x1, tasks, True)
         better = s * l1 + _prior_terms(x1, k, m, P, s, lam)[0] < s * loss + _prior_terms(x, k, m, P, s, lam)[0]
+        G = _pad_rows(G, G1) if lowrank else G
+        G1 = _pad_rows(G1, G) if lowrank else G1
         x[better], loss[better], grad[better], G[better] = x1[better], l1[better], g1[better], G1[better]
     f = s * loss + _prior_terms(x, k, m, P, s, lam)[0]
     # Levenberg-Marquardt steps: (Lambda + mu diag(Lambda)) dx = -g, mu per task, shrunk after a
@@ -419,37 +529,94 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         a = np.flatnonzero(active)
         if a.size == 0:
             break
-        _, pg, pp = _prior_terms(x[a], k, m, P, s[a], lam)
+        curv = _Curvature(G, s, P, lam, k, lowrank)
+        _, pg = _prior_terms(x[a], k, m, P, s[a], lam)
         g = s[a, None] * grad[a] + pg
-        Lam = s[a, None, None] * G[a] + pp
-        dec = np.einsum("rd,rd->r", g, np.linalg.solve(Lam, g[:, :, None])[:, :, 0])
+        dec = np.einsum("rd,rd->r", g, curv.solve(a, g))
         done = (dec <= MAP_TOL) | (mu[a] > MAP_MAX_DAMPING)
         active[a[done]] = False
-        a, g, Lam = a[~done], g[~done], Lam[~done]
+        a, g = a[~done], g[~done]
         if a.size == 0:
             break
-        diag = np.einsum("rdd->rd", Lam)
-        damped = Lam + mu[a, None, None] * np.einsum("rd,de->rde", diag, np.eye(Lam.shape[1]))
-        step = -np.linalg.solve(damped, g[:, :, None])[:, :, 0]
-        predicted = -(np.einsum("rd,rd->r", g, step) + 0.5 * np.einsum("rd,rde,re->r", step, Lam, step))
+        step = -curv.solve(a, g, mu[a])
+        predicted = -(np.einsum("rd,rd->r", g, step) + 0.5 * np.einsum("rd,rd->r", step, curv.apply(a, step)))
         xt = x[a] + step
         # the trial point's curvature with its loss: one linearisation per step, kept if the step is
-        lt, gt, Gt, _ = _evaluate(problem, xt, a, True)
+        lt, gt, Gt, _ = evaluate(problem, xt, a, True)
         ft = s[a] * lt + _prior_terms(xt, k, m, P, s[a], lam)[0]
         ok = np.isfinite(ft) & (f[a] - ft >= 1e-4 * predicted)
         acc = a[ok]
+        if lowrank:
+            G, Gt = _pad_rows(G, Gt), _pad_rows(Gt, G)
         x[acc], f[acc] = xt[ok], ft[ok]
         loss[acc], grad[acc], G[acc] = lt[ok], gt[ok], Gt[ok]
         mu[acc] /= 3.0
         mu[a[~ok]] *= 10.0
-    _, _, pp = _prior_terms(x, k, m, P, s, lam)
-    Lam = s[:, None, None] * G + pp
+    curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
-        C = np.linalg.inv(0.5 * (Lam[i] + Lam[i].T))
-        out.append(LaplacePosterior(x[i].copy(), 0.5 * (C + C.T), D, problem.features[i], problem.mdps[i], float(s[i]),
-                                   float(problem.n_pairs[i])))
+        out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
+                                    float(problem.n_pairs[i])))
     return out
+
+
+def _pad_rows(Z, other):
+    """``Z`` (r, m, d) with zero rows appended up to ``other``'s m (a no-op when it has as many)."""
+    extra = other.shape[1] - Z.shape[1]
+    if extra <= 0:
+        return Z
+    return np.concatenate([Z, np.zeros((Z.shape[0], extra, Z.shape[2]))], axis=1)
+
+
+def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[np.intp], curvature: bool = True):
+    """:func:`_evaluate` of a residual model under a least-squares objective with the curvature as its factor:
+    loss (r,), gradient (r, d), ``Z`` (r, m, d) the live rows of the residuals' Jacobian in x (``G = 2 Z^T Z``;
+    zero rows pad the tasks with fewer), and each task's policy at x.
+
+    The Jacobian with respect to the reward weights ``w`` comes from the objective's
+    ``residual_jacobian`` (reverse mode: one adjoint right-hand side per demonstrated row), then
+    ``[J D, J]`` on its live rows only: no (S*A, k + p) tangent and no (d, d) product.
+    """
+    r, d = x.shape
+    D = problem.dictionary
+    k = D.shape[1]
+    loss, grad = np.empty(r), np.empty((r, d))
+    factors: list = [None] * r
+    pis: list = [None] * r
+    where = {int(t): j for j, t in enumerate(tasks)}
+    W = x[:, :k] @ D.T + x[:, k:]  # (r, p)
+    for sub, gtasks, glocal in problem.groups():
+        sel = np.array([j for j, t in enumerate(gtasks) if int(t) in where], dtype=np.intp)
+        if sel.size == 0:
+            continue
+        S, A = sub.mdp.n_states, sub.mdp.n_actions
+        ts = gtasks[sel]
+        shared = _shared(problem, ts)
+        batches = [sel] if shared else [sel[i:i + 1] for i in range(sel.size)]
+        for part in batches:
+            pos = np.array([where[int(gtasks[j])] for j in part], dtype=np.intp)
+            feats = problem.features[int(gtasks[part[0]])]
+            F = np.eye(S * A) if feats is None else np.asarray(feats, dtype=np.float64)
+            R = (W[pos] @ F.T).reshape(len(pos), S, A)
+            lo, res, J = sub.residual_jacobian(R, glocal[part], F)
+            loss[pos] = lo
+            for j, q in enumerate(pos):
+                live = np.flatnonzero(np.any(J[j] != 0.0, axis=1))
+                Jl = J[j][live]
+                Z = np.concatenate([Jl @ D, Jl], axis=1)
+                grad[q] = 2.0 * Z.T @ res[j][live]
+                factors[q] = Z
+            mu = sub.mu[glocal[part]]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                pi = sub.pi_hat[glocal[part]] + res.reshape(len(pos), S, A) / np.sqrt(mu)[:, :, None]
+            pi = np.where(mu[:, :, None] > 0, pi, 1.0 / A)
+            for q, p_ in zip(pos, pi):
+                pis[q] = p_
+    m = max(1, max(z.shape[0] for z in factors))
+    Z = np.zeros((r, m, d))
+    for q, z in enumerate(factors):
+        Z[q, :z.shape[0]] = z
+    return loss, grad, Z, pis
 
 
 def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> TransferProblem:
@@ -572,3 +739,112 @@ def cached_transfer_posterior(model: Any) -> list[LaplacePosterior] | None:
 def set_transfer_posterior(model: Any, posteriors: list[LaplacePosterior] | None) -> None:
     """Give ``model`` these posteriors as its ``transfer_posterior_`` (``load_model``)."""
     model._transfer = TransferState(posterior=posteriors, built=True)
+
+
+#: the prior scales :func:`fit_prior_scale` tries (``c_i = scale / N_i``, :mod:`factirl_opt.learners.transfer`)
+PRIOR_SCALES = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+#: held-out training tasks :func:`fit_prior_scale` transfers at most (evenly spaced over the tasks)
+PRIOR_HELD_OUT = 20
+
+
+def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`~factirl_opt.learners.posterior.coefficient_prior` of the training coefficients (n, k) without
+    each task of ``rows`` (r,) in turn: means (r, k) and precisions (r, k, k). Needs n >= 3."""
+    H = check_array(coefficients, "coefficients", ndim=2)
+    rows = np.asarray(rows, dtype=np.intp)
+    pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
+    return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
+        np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
+
+
+def _take(seq, idx):
+    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
+
+
+def choose_prior_scale(scores: dict, rule: str = "min") -> float:
+    """The scale of :func:`fit_prior_scale`'s ``scores`` ``{scale: per-task deviations (r,)}``: the lowest mean
+    (``"min"``; ties to the larger scale), or the largest scale whose mean is within one standard error of the
+    lowest (``"1se"``, the paired differences' standard error over the held-out tasks); 0.0 for no scores."""
+    if not scores:
+        return 0.0
+    means = {s: float(np.mean(v)) for s, v in scores.items()}
+    best = min(means, key=lambda s: (means[s], -s))
+    if rule == "min":
+        return float(best)
+    if rule != "1se":
+        raise ValidationError(f"rule must be 'min' or '1se'; got {rule!r}")
+    ok = []
+    for s, v in scores.items():
+        diff = np.asarray(v) - np.asarray(scores[best])
+        se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
+        if means[s] - means[best] <= se:
+            ok.append(s)
+    return float(max(ok))
+
+
+def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = PRIOR_SCALES,
+                    n_held_out: int = PRIOR_HELD_OUT, solver: Any = None, rule: str = "min") -> tuple[float, dict]:
+    """The scale of the transfer's prior (:mod:`factirl_opt.learners.transfer`) that transfers the training
+    tasks best, held out one at a time.
+
+    Up to ``n_held_out`` training tasks (evenly spaced over them) are transferred from their first
+    demonstration, each with the prior fitted to the other training tasks' coefficients
+    (:func:`leave_one_out_priors`), at every ``scale`` of ``scales``; the score of a scale is the
+    mean deviation (:func:`factirl_opt.deviation`) of the transferred rewards from the tasks' own
+    fitted ``rewards_`` (all their demonstrations); :func:`choose_prior_scale` (``rule``) takes the scale.
+
+    Parameters
+    ----------
+    model : FactIRL
+        Fitted on ``mdp`` and ``demos_per_task`` (its ``dictionary_``, ``coefficients_``,
+        ``rewards_``, ``residual_penalty_``; its ``beta``, ``objective``, ``planner``, ``solver``,
+        ``transfer_max_iter``, ``tol`` and ``gtol`` as its ``transfer`` reads them).
+    mdp, demos_per_task
+        The training tasks, as given to ``fit``.
+    scales : tuple of float
+    n_held_out : int
+    solver : solvers.StepSolver, optional
+        The transfer's step solver (default: the model's H-step solver).
+
+    Returns
+    -------
+    scale : float
+        0.0 where no prior applies (fewer than 3 training tasks, or the flat model).
+    scores : dict
+        ``{scale: each held-out task's deviation (r,)}``.
+    """
+    from ..evaluation import deviation
+    from .fitting import resolve_step_solver, task_objective
+    from .solver_settings import estimator_solvers
+    from .transfer import run_transfer, transfer_prior_weights, transfer_tasks
+
+    H = np.asarray(model.coefficients_, dtype=np.float64)
+    lam = float(getattr(model, "residual_penalty_", np.inf))
+    n, k = H.shape
+    if n < 3 or lam == 0.0:
+        return 0.0, {}
+    idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
+    per_task_mdp = isinstance(mdp, (list, tuple))
+    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
+    feats = model.features if isinstance(model.features, (list, tuple)) else None
+    sub_F = None if feats is None else _take(feats, idx)
+    first = [demos_per_task[i][:1] for i in idx]
+    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
+    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
+    if solver is None:
+        name, options = estimator_solvers(model)[:2]
+        solver = resolve_step_solver(name, options, model.objective, "solver")
+    M, P = leave_one_out_priors(H, idx)
+    refs = _take(model.rewards_, idx)
+    mdps = sub_mdp if per_task_mdp else mdp
+    max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
+    scores = {}
+    for scale in scales:
+        c = transfer_prior_weights(tasks, scale)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            res = run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=check_tol(model.tol),
+                               gtol=check_tol(model.gtol, "gtol"), residual_penalty=lam, prior=(M, P, c))
+        scores[float(scale)] = np.atleast_1d(np.asarray(deviation(mdps, refs, res.rewards, planner=model._group("execution").planner),
+                                                            dtype=np.float64))
+    return choose_prior_scale(scores, rule), scores

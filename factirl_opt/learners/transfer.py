@@ -4,6 +4,27 @@ With ``D`` fixed, each new task's reward is ``R_i = Phi D h_i`` and only ``h_i``
 is fitted: a row-separable problem over the coefficients, the H-step of the factorial scheme
 run to convergence from ``h = 0`` (docs/maths.md §8). :func:`transfer_coefficients` validates
 and builds the objective; :func:`run_transfer` runs on pieces already built (``FactIRL.transfer``).
+
+**A prior on the coefficients.** One demonstration is matched exactly only by coefficients that
+grow without bound, so the maximum-likelihood transfer has no finite optimum there and runs to
+``max_iter``. With ``prior=(m, P, c)`` each new task's objective becomes
+
+    J_i(h_i) + c_i / 2 (h_i - m)^T P (h_i - m),      c_i = scale / N_i,
+
+the maximum a posteriori coefficients under the Gaussian ``N(m, P^-1)`` fitted to the training
+tasks' coefficients (:func:`factirl_opt.learners.posterior.coefficient_prior`), ``J_i`` read as
+a log-likelihood of the ``N_i`` demonstrated pairs scaled by ``N_i / scale`` (the MCE likelihood
+is ``N_i J_i`` exactly: ``scale = 1``; policy matching's is ``N_i J_i / (2 sigma^2)``). The
+optimum is finite. :func:`prior_problem` adds the term to a step problem (as ``k`` more
+residuals ``sqrt(c_i / 2) L^T (h_i - m)``, ``P = L L^T``, for the Gauss-Newton solvers);
+:func:`transfer_prior_weights` gives ``c_i``;
+:func:`~factirl_opt.learners.posterior.fit_prior_scale` fits ``scale`` on held-out training tasks.
+
+**The saturation rule.** ``stol > 0`` (:func:`solvers.has_saturated`) stops a task when its
+loss decreases over a step by at most ``stol`` times its decrease since the start: where
+the loss stops paying for the growth of the coefficients. Measured against the prior on the
+"which learner when" benchmark (results/transfer/README.md), it is the rule
+``FactIRL(transfer_stol=TRANSFER_STOL)`` applies.
 """
 
 from __future__ import annotations
@@ -29,7 +50,13 @@ from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
 
-__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks"]
+__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "prior_problem",
+           "transfer_prior_weights", "TRANSFER_STOL"]
+
+#: the saturation rule's tolerance of ``FactIRL(transfer_stol=...)`` that stops a transfer where its
+#: loss stops paying (module docstring; results/transfer/README.md); the default ``transfer_stol``
+#: is 0 (off)
+TRANSFER_STOL = 1e-3
 
 
 @dataclasses.dataclass
@@ -42,7 +69,7 @@ class TransferFit:
     rewards : ndarray, shape (n_new, S, A), or list of n_new arrays (S_i, A)
         A list when the new tasks' environments differ in size.
     loss : ndarray, shape (n_new,)
-        Per-task objective, without a solver's penalty.
+        Per-task objective, without a solver's penalty or the prior's term.
     loss_history : list of float
         Total objective (with the penalty) at the start and after each step.
     n_iter, n_evaluations : int
@@ -73,7 +100,9 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
                           base_features: ArrayLike | None = None, h_solver: Any = "armijo",
                           h_solver_options: dict | None = None, max_iter: int = 100, tol: float = 1e-5,
                           objective: Any = "policy-matching", planner: str = "auto", callback: Callable | None = None,
-                          verbose: bool = False, reward: str = "state-action", gtol: float = GTOL) -> TransferFit:
+                          verbose: bool = False, reward: str = "state-action", gtol: float = GTOL,
+                          prior: tuple[ArrayLike, ArrayLike] | None = None, prior_scale: float = 1.0,
+                          stol: float = 0.0) -> TransferFit:
     """Coefficients of new tasks with the dictionary fixed (section 4.2).
 
     Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-solver for
@@ -88,6 +117,11 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     demonstration its coefficients match exactly, where the loss falls toward 0 as they grow
     without bound (docs/maths.md §5); ``gtol=0`` turns it off.
 
+    ``prior=(mean (k,), precision (k, k))`` (:func:`~factirl_opt.learners.posterior.coefficient_prior`
+    of the training coefficients) fits the maximum a posteriori coefficients instead, with
+    ``c_i = prior_scale / N_i`` (module docstring): a finite optimum. ``stol > 0`` also stops
+    a task by the saturation rule (module docstring).
+
     Returns
     -------
     TransferFit
@@ -101,16 +135,138 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     tasks = task_set(mdp, demos_per_task, base_features, reward)
     D = check_features(dictionary, tasks.n_params, name="dictionary")
     max_iter, tol, gtol = check_int(max_iter, "max_iter", minimum=0), check_tol(tol), check_tol(gtol, "gtol")
+    stol = check_tol(stol, "stol")
     obj = task_objective(tasks, beta, objective, planner)
     solver = resolve_step_solver(h_solver, h_solver_options, objective, "h_solver")
+    weights = None
+    if prior is not None:
+        weights = (*_check_prior(prior, D.shape[1]), transfer_prior_weights(tasks, prior_scale))
     return run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=tol, callback=callback,
-                        verbose=verbose, gtol=gtol)
+                        verbose=verbose, gtol=gtol, prior=weights, stol=stol)
+
+
+def _check_prior(prior, k):
+    """``(mean (k,), precision (k, k))`` validated, the precision symmetric positive definite."""
+    if not isinstance(prior, tuple) or len(prior) != 2:
+        raise ValidationError(f"prior must be a (mean, precision) pair; got {type(prior).__name__}")
+    m = check_array(prior[0], "prior mean", ndim=1)
+    P = check_array(prior[1], "prior precision", ndim=2)
+    if m.shape != (k,) or P.shape != (k, k):
+        raise ValidationError(f"prior must be a mean ({k},) and a precision ({k}, {k}) for k = {k} primitives; got "
+                              f"{m.shape} and {P.shape}")
+    P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise ValidationError("the prior precision must be positive definite") from None
+    return m, P
+
+
+def transfer_prior_weights(tasks: TaskSet, scale: float) -> NDArray[np.float64]:
+    """``c_i = scale / N_i`` (n,): the prior's weight on each task's loss, ``N_i`` its demonstrated pairs
+    (module docstring); ``scale`` > 0."""
+    from ..tasks.trajectories import task_steps
+
+    scale = float(scale)
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValidationError(f"prior_scale must be a finite number > 0; got {scale!r}")
+    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdp is not None else list(tasks.mdps)
+    N = np.array([max(1, task_steps(mdps[i], tasks.demos_per_task[i], i).shape[0]) for i in range(tasks.n_tasks)],
+                 dtype=np.float64)
+    return scale / N
+
+
+def prior_problem(problem: solvers.StepProblem, mean: ArrayLike, precision: ArrayLike, weights: ArrayLike,
+                  k: int) -> solvers.StepProblem:
+    """``problem`` with ``c_i / 2 (h_i - m_i)^T P_i (h_i - m_i)`` added to row i's loss, ``h_i`` its first ``k`` parameters.
+
+    Parameters
+    ----------
+    problem : solvers.StepProblem
+        n rows; a declared ridge block (the residual model's ``delta_i``) stays the last
+        residuals, the prior's ``k`` residuals ``sqrt(c_i / 2) L_i^T (h_i - m_i)`` (``P_i = L_i
+        L_i^T``) coming before it, so the Gauss-Newton step still eliminates the block.
+    mean : array_like, shape (k,) or (n, k)
+    precision : array_like, shape (k, k) or (n, k, k)
+        Symmetric positive definite.
+    weights : array_like, shape (n,)
+        ``c_i`` >= 0 (:func:`transfer_prior_weights`).
+    k : int
+
+    Returns
+    -------
+    solvers.StepProblem
+    """
+    n = problem.n_rows
+    M = np.broadcast_to(np.asarray(mean, dtype=np.float64), (n, k))
+    L = np.linalg.cholesky(np.broadcast_to(np.asarray(precision, dtype=np.float64), (n, k, k)))
+    U = np.sqrt(0.5 * np.asarray(weights, dtype=np.float64))[:, None, None] * np.swapaxes(L, 1, 2)  # r = U (h - m)
+    q = problem.ridge_params
+
+    def prior_residual(x, rows):
+        return np.einsum("nij,nj->ni", U[rows], x[:, :k] - M[rows])
+
+    def insert(a, b):  # b's entries (rows) before the last q of a's (axis 1)
+        cut = a.shape[1] - q
+        return np.concatenate([a[:, :cut], b, a[:, cut:]], axis=1)
+
+    def loss_and_grad(x, rows):
+        loss, g = problem.loss_and_grad(x, rows)
+        r = prior_residual(x, rows)
+        g = g.copy()
+        g[:, :k] += 2.0 * np.einsum("nij,ni->nj", U[rows], r)
+        return loss + np.einsum("ni,ni->n", r, r), g
+
+    def residual_jacobian(x, rows):
+        loss, res, J = problem.residual_jacobian(x, rows)
+        r = prior_residual(x, rows)
+        Jp = np.zeros((len(rows), k, J.shape[2]))
+        Jp[:, :, :k] = U[rows]
+        return loss + np.einsum("ni,ni->n", r, r), insert(res, r), insert(J, Jp)
+
+    def linearize(x, rows):
+        lin = problem.linearize(x, rows)
+        r = prior_residual(x, rows)
+        m = lin.residual.shape[1] - q
+        Ur = U[rows]
+
+        def jvp(V):
+            return insert(lin.jvp(V), np.einsum("nij,nj->ni", Ur, V[:, :k]))
+
+        def vjp(W):
+            g = lin.vjp(np.concatenate([W[:, :m], W[:, m + k:]], axis=1))
+            g = g.copy()
+            g[:, :k] += np.einsum("nij,ni->nj", Ur, W[:, m:m + k])
+            return g
+
+        return solvers.Linearization(lin.loss + np.einsum("ni,ni->n", r, r), insert(lin.residual, r), jvp, vjp)
+
+    def hessian(x, rows):
+        Hs = problem.hessian(x, rows).copy()
+        Hs[:, :k, :k] += 2.0 * np.einsum("nji,njl->nil", U[rows], U[rows])
+        return Hs
+
+    return dataclasses.replace(
+        problem, loss_and_grad=loss_and_grad,
+        residual_jacobian=None if problem.residual_jacobian is None else residual_jacobian,
+        linearize=None if problem.linearize is None else linearize,
+        hessian=None if problem.hessian is None else hessian)
+
+
+def _prior_value(prior, x, k):
+    """``c_i / 2 (h_i - m_i)^T P_i (h_i - m_i)`` (n,) of ``prior=(m, P, c)`` at ``x`` (n, >= k); zeros without a prior."""
+    if prior is None:
+        return np.zeros(x.shape[0])
+    m, P, c = prior
+    n = x.shape[0]
+    e = x[:, :k] - np.broadcast_to(m, (n, k))
+    return 0.5 * np.asarray(c) * np.einsum("ni,nij,nj->n", e, np.broadcast_to(P, (n, k, k)), e)
 
 
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
                  verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None,
-                 gtol: float = 0.0) -> TransferFit:
+                 gtol: float = 0.0, prior: tuple | None = None, stol: float = 0.0) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters
@@ -140,6 +296,13 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     gtol : float, default=0.0
         The gradient rule's tolerance, per task (:func:`solvers.gradient_converged`); 0 turns
         it off. With ``flat``, the flat learner's ``gtol``.
+    prior : (mean (k,) or (n, k), precision (k, k) or (n, k, k), weights (n,)), optional
+        Fit the maximum a posteriori coefficients (:func:`prior_problem`, module docstring);
+        Not read by the flat model (its ``h_i`` are 0).
+    stol : float, default=0.0
+        The saturation rule (:func:`solvers.has_saturated`): a task also stops when its loss
+        decreases over a step by at most ``stol`` times its decrease since the start; 0 turns
+        it off. With ``flat``, the flat learner's fit of each task stops by it too.
 
     Returns
     -------
@@ -149,42 +312,47 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
         return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
-                                  gtol)
+                                  gtol, stol)
     if np.isfinite(residual_penalty):
         return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
-                                      float(residual_penalty), gtol)
+                                      float(residual_penalty), gtol, prior, stol)
     F = basis.compose(dictionary)
     problem = weights_problem(objective, F)
+    k = dictionary.shape[1]
+    if prior is not None:
+        problem = prior_problem(problem, *prior, k)
     ev0 = objective.n_evaluations
     x0 = solver.project(np.zeros((problem.n_rows, problem.n_params)))
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, x0, max_iter, "transfer", callback=report, tol=tol, gtol=gtol,
-                                   separable=True)
+                                   separable=True, stol=stol)
         except FitInterrupted as exc:
-            raise FitInterrupted(_transfer_fit(F, solver, exc.result, objective.n_evaluations - ev0),
+            raise FitInterrupted(_transfer_fit(F, solver, exc.result, objective.n_evaluations - ev0, prior, k),
                                  "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
-    return _transfer_fit(F, solver, res, objective.n_evaluations - ev0)
+    return _transfer_fit(F, solver, res, objective.n_evaluations - ev0, prior, k)
 
 
-def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam, gtol):
+def _run_residual_transfer(objective, D, solver, basis, max_iter, tol, callback, verbose, lam, gtol, prior=None, stol=0.0):
     """:func:`run_transfer` of the residual model: ``[h_i, delta_i]`` from zero, separable."""
     problem = residual_weights_problem(objective, basis, D, lam, DICTIONARY_NAMES)
     ev0 = objective.n_evaluations
     k = D.shape[1]
+    if prior is not None:
+        problem = prior_problem(problem, *prior, k)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "transfer") as report:
         try:
             res = run_keeping_best(solver, problem, np.zeros((problem.n_rows, problem.n_params)), max_iter, "transfer",
-                                   callback=report, tol=tol, gtol=gtol, separable=True)
+                                   callback=report, tol=tol, gtol=gtol, separable=True, stol=stol)
         except FitInterrupted as exc:
-            raise FitInterrupted(_residual_fit(objective, basis, D, k, lam, exc.result, objective.n_evaluations - ev0),
-                                 "transfer") from exc.__cause__
+            raise FitInterrupted(_residual_fit(objective, basis, D, k, lam, exc.result, objective.n_evaluations - ev0,
+                                               prior), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
-    return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0)
+    return _residual_fit(objective, basis, D, k, lam, res, objective.n_evaluations - ev0, prior)
 
 
-def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol):
+def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback, verbose, gtol, stol=0.0):
     """:func:`run_transfer` of the flat model (``lambda = 0``): the flat learner's fit of each new
     task (separable), returned as ``h_i = 0`` and ``delta_i = w_i``."""
     ev0 = objective.n_evaluations
@@ -198,17 +366,17 @@ def _run_flat_transfer(objective, D, basis, flat_solver, max_iter, tol, callback
     with translate_solver_errors():
         try:
             res = fit_weights(objective, basis, flat_solver, max_iter, tol, callback, verbose, what="transfer (flat model)",
-                              gtol=gtol)
+                              gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             raise FitInterrupted(as_transfer(exc.result), "transfer") from exc.__cause__
     warn_if_max_iter(res, "transfer", max_iter)
     return as_transfer(res)
 
 
-def _residual_fit(objective, basis, D, k, lam, res, n_evaluations):
+def _residual_fit(objective, basis, D, k, lam, res, n_evaluations, prior=None):
     H, Delta = res.coefficients[:, :k], res.coefficients[:, k:]
     rewards = basis.rewards(residual_weights(D, H, Delta), names=WEIGHT_NAMES)
-    loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta)
+    loss = res.loss - lam * np.einsum("np,np->n", Delta, Delta) - _prior_value(prior, res.coefficients, k)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
         status, reason = first_step_stall(res.loss_history, res.iterations) or (status, reason)
@@ -216,9 +384,9 @@ def _residual_fit(objective, basis, D, k, lam, res, n_evaluations):
                        Delta.copy())
 
 
-def _transfer_fit(F, solver, res, n_evaluations):
+def _transfer_fit(F, solver, res, n_evaluations, prior=None, k=0):
     rewards = F.rewards(res.coefficients)
-    loss = res.loss - solver.penalty(res.coefficients)
+    loss = res.loss - solver.penalty(res.coefficients) - _prior_value(prior, res.coefficients, k)
     status, reason = res.status, res.reason
     if status != INTERRUPTED:
         status, reason = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res)) or (status, reason)
@@ -272,3 +440,4 @@ def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> 
     if tasks.shared and D.shape[1] != k:
         raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
     return tasks, D
+
