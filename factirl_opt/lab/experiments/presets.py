@@ -524,7 +524,7 @@ PRESETS.update({
 
 #: one line per preset, for ``factirl-opt reproduce --help``
 PRESET_DESCRIPTIONS = {
-    "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (about 20 min on 2 cores)",
+    "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (49 min with --jobs 2 on 2 cores beside other jobs: results/manifest.json)",
     "fast": "the paper's section 4 with the factorial learner's faster solvers (FAST_SOLVERS; same world, sweeps, "
             "seeds and budgets; under 10 min on 2 cores)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (36-40 s on 2 cores)",

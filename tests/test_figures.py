@@ -1,0 +1,106 @@
+"""One truth per figure: the figures the README, the guide and the command line's help quote are
+those of the committed results they cite (each table cell and duration read back from its file)."""
+
+import csv
+import json
+import pathlib
+import re
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def _summary(path):
+    return list(csv.DictReader((ROOT / path).open()))
+
+
+def _mean(rows, learner, n_tasks, demos=None, column="deviation_mean", split="test"):
+    found = [float(r[column]) for r in rows if r["split"] == split and r["learner"] == learner
+             and int(r["n_tasks"]) == n_tasks and (demos is None or int(r["demos_per_task"]) == demos)]
+    assert len(found) == 1, (learner, n_tasks, demos, split, len(found))
+    return found[0]
+
+
+def _table(text, header_start):
+    """The rows of the markdown table whose header line starts with ``header_start``: lists of cells."""
+    lines = text[text.index(header_start):].splitlines()
+    rows = []
+    for line in lines[2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+def _numbers(cell):
+    """The numbers of a cell such as ``**5.23** / 5.23`` (a dash is None)."""
+    return [None if part.strip() == "-" else float(part.replace("*", "").strip()) for part in cell.split("/")]
+
+
+def test_the_headline_table_is_the_paper_presets_summary():
+    """The README's headline table: results/summary.csv at the paper's default point (100 tasks x 10 demos)."""
+    rows = _summary("results/summary.csv")
+    learners = ["flat", "factorial", "flat, PCA features", "flat, features from ex.", "flat, ground truth"]
+    table = _table(README[README.index("<!-- headline: start -->"):], "| | flat | factorial")
+    assert [r[0] for r in table] == ["train tasks", "test tasks (one demo)"]
+    for (label, *cells), split in zip(table, ("train", "test")):
+        for learner, cell in zip(learners, cells):
+            (value,) = _numbers(cell)
+            if value is not None:
+                assert value == round(_mean(rows, learner, 100, 10, split=split), 2), (split, learner, cell)
+
+
+#: the which-learner table's rows: (row label, preset directory, metric, learners' suffix, task counts)
+WHICH_LEARNER_ROWS = {
+    "paper grid, 5 training tasks": ("sharing-grid", "deviation_mean", "", (5,)),
+    "paper grid, 20 training tasks": ("sharing-grid", "deviation_mean", "", (20,)),
+    "paper grid, 100 training tasks": ("sharing-grid", "deviation_mean", "", (100,)),
+    "Objectworld, a map per task, 5 / 20 tasks": ("sharing-objectworld-per-task-quick", "deviation_mean", ", features", (5, 20)),
+    "Objectworld, one map, 5 / 20 tasks": ("sharing-objectworld-quick", "deviation_mean", ", features", (5, 20)),
+    "BabyAI GoToLocal, 10 / 30 layouts (success)": ("sharing-babyai", "success_rate_mean", ", features", (10, 30)),
+    "BabyAI GoToOpen, 10 layouts (success)": ("sharing-babyai-large", "success_rate_mean", ", features", (10,)),
+}
+
+
+def test_the_which_learner_table_is_the_benchmarks_summaries():
+    """The README's table of the which-learner benchmark: each cell the mean of its preset's committed
+    summary (results/which-learner/default/<preset>/summary.csv), flat, factorial and auto."""
+    table = _table(README, "| benchmark | flat | factorial (k = 5) | auto |")
+    assert {r[0] for r in table} == set(WHICH_LEARNER_ROWS)
+    for label, *cells in table:
+        preset, column, suffix, counts = WHICH_LEARNER_ROWS[label]
+        rows = _summary(f"results/which-learner/default/{preset}/summary.csv")
+        for learner, cell in zip(("flat", "factorial", "adaptive"), cells[:3]):
+            values = _numbers(cell)
+            assert len(values) == len(counts), (label, cell)
+            for n, value in zip(counts, values):
+                assert value == round(_mean(rows, learner + suffix, n, column=column), 2), (label, learner, n, cell)
+
+
+def test_the_auto_cost_example_is_its_committed_run():
+    """The README's cost of the default search on its ten-line grid: the CPU times and ratios of the
+    two committed auto-cost runs (results/which-learner/default/auto-cost)."""
+    runs = [json.loads((ROOT / "results/which-learner/default/auto-cost" / f).read_text())["seeds"]["0"]
+            for f in ("readme-evidence-race-pca.json", "readme-evidence.json")]
+    ratios = sorted(r["time_ratio"]["evidence"] for r in runs)
+    assert f"costs {ratios[0]:.1f}-{ratios[1]:.1f}x the fixed" in README
+    quoted = (f"{runs[0]['cpu_time_s']['evidence']:.1f} s against {runs[0]['cpu_time_s']['fixed']:.1f} s of CPU, and "
+              f"{runs[1]['cpu_time_s']['evidence']:.1f} s against {runs[1]['cpu_time_s']['fixed']:.1f} s in a second run")
+    assert quoted in " ".join(README.split())
+    chosen = runs[0]["chosen"]
+    assert (f"chooses k = {chosen['evidence']['n_primitives']}, lambda = {chosen['evidence']['residual_penalty']:g} and "
+            f"transfers at {chosen['evidence']['test_deviation']:.2f} against k = 5's {runs[0]['fixed_test_deviation']:.2f}"
+            in " ".join(README.split()))
+    assert (f"costs {runs[0]['time_ratio']['race']:.1f}x there for ({chosen['race']['n_primitives']}, "
+            f"{chosen['race']['residual_penalty']:g}), {chosen['race']['test_deviation']:.2f}" in " ".join(README.split()))
+
+
+def test_the_paper_presets_duration_is_its_manifests_everywhere():
+    """README, guide and the command line's preset description quote the committed run's wall time."""
+    from factirl_opt.lab.experiments.presets import PRESET_DESCRIPTIONS
+
+    minutes = round(json.loads((ROOT / "results/manifest.json").read_text())["wall_time_seconds"] / 60)
+    guide = (ROOT / "docs/guide.md").read_text()
+    for where, text in (("README", README), ("guide", guide), ("reproduce --list", PRESET_DESCRIPTIONS["paper"])):
+        quoted = re.findall(r"(\d+) min(?:utes)?\b", " ".join(text.split()).split("--preset paper", 1)[-1][:400])
+        assert quoted and int(quoted[0]) == minutes, (where, quoted, minutes)
