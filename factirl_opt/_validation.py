@@ -402,7 +402,7 @@ def check_fit_parameters(estimator: typing.Any) -> None:
 
     from .exceptions import UnknownSolverError
 
-    params = dict(estimator.get_params(deep=False))
+    params = dict(vars(estimator))  # the stored parameters (a subclass may take **kwargs: no signature read)
     for group in getattr(type(estimator), "param_groups", {}):
         params.update({f"{group}__{k}": v for k, v in estimator._group(group).get_params().items()})
     for name, minimum in _BUDGET_PARAMETERS.items():

@@ -199,11 +199,11 @@ def test_policy_messages_name_the_entry(grid3):
      r"^start__flat_max_iter must be an integer >= 0; got -1"),
     (lambda: dict(solver="nope"), fo.exceptions.UnknownSolverError, r"unknown solver 'nope'"),
     (lambda: dict(solver=fo.SolverSettings(flat_solver="nope"), start=fo.Start(init="random")),
-     fo.exceptions.UnknownSolverError, r"^SolverSettings.flat_solver: unknown solver 'nope'"),
+     fo.exceptions.UnknownSolverError, r"^unknown solver 'nope' for SolverSettings.flat_solver; available"),
     (lambda: dict(solver=fo.SolverSettings(flat_solver=3)), ValidationError,
      r"^flat_solver must be a registered solver name or a solvers.StepSolver; got 3"),
     (lambda: dict(solver=fo.SolverSettings(d_solver="nope")), fo.exceptions.UnknownSolverError,
-     r"^SolverSettings.d_solver: unknown solver 'nope'; available: .*armijo"),
+     r"^unknown solver 'nope' for SolverSettings.d_solver; available: .*armijo"),
     (lambda: dict(solver=fo.SolverSettings(d_solver="armijo", d_solver_options=[1])), ValidationError,
      r"^d_solver_options must be a dict"),
 ])

@@ -53,7 +53,7 @@ from ..planning import get_planner, plan
 from ..planning.engine import greedy_values
 from ..planning.successor_features import gpi_actions, improve_policies, library_values, policy_successor_features
 from ..tasks.basis import RewardBasis
-from ..tasks.task_set import per_task_features, reward_basis
+from ..tasks.task_set import features_per_task, per_task_features, reward_basis
 
 __all__ = ["GPIReport", "generalised_policy_improvement", "gpi_library", "LIBRARY_PARTS", "DEFAULT_PARTS",
            "successor_feature_cache",
@@ -166,17 +166,6 @@ def _same_matrix(a: Any, b: Any) -> bool:
     return a is b or (np.shape(a) == np.shape(b) and np.array_equal(np.asarray(a), np.asarray(b)))
 
 
-def _new_features(features: Any, n: int) -> list[Any]:
-    if features is None:
-        return [None] * n
-    if per_task_features(features):
-        feats = list(features)
-        if len(feats) != n:
-            raise ValidationError(f"features must be one matrix or one per new task ({n}); got {len(feats)}")
-        return feats
-    return [features] * n
-
-
 def _environment(model: Any, m: Any, f: Any, i: int, D: NDArray[np.float64], fitted: bool) -> _Environment:
     """The environment ``(m, f)`` of new task ``i``, checked to be one the model was fitted on."""
     check_mdp(m)
@@ -238,7 +227,7 @@ def _environments(model: Any, mdp: Any, features: Any, n: int, D: NDArray[np.flo
     mdps = list(mdp) if is_environment_sequence(mdp) else [mdp] * n
     if len(mdps) != n:
         raise ValidationError(f"mdp must be one MDP or one per new task ({n}); got {len(mdps)}")
-    feats = _new_features(features, n)
+    feats = features_per_task(features, n)
     envs: list[_Environment] = []
     index = np.empty(n, dtype=np.intp)
     seen: dict[tuple[int, int], int] = {}

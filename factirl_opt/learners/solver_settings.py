@@ -131,7 +131,8 @@ class SolverSettings(ParameterGroup):
                     with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
                         solvers.get_solver(name, **decode_options(getattr(self, field + "_options")))
                 except FactIRLError as exc:  # the same error, naming the field
-                    raise type(exc)(f"SolverSettings.{field}: {exc}") from exc
+                    head, sep, tail = str(exc).partition(";")
+                    raise type(exc)(f"{head} for SolverSettings.{field}{sep}{tail}") from exc
 
     @classmethod
     def of(cls, value: Any) -> SolverSettings:

@@ -170,7 +170,7 @@ def transfer_prior_weights(tasks: TaskSet, scale: float) -> NDArray[np.float64]:
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
         raise ValidationError(f"prior_scale must be a finite number > 0; got {scale!r}")
-    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdp is not None else list(tasks.mdps)
+    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdp is not None else list(tasks.mdps or ())
     N = np.array([max(1, task_steps(mdps[i], tasks.demos_per_task[i], i).shape[0]) for i in range(tasks.n_tasks)],
                  dtype=np.float64)
     return scale / N
@@ -266,7 +266,7 @@ def _prior_value(prior, x, k):
 def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solvers.StepSolver, *,
                  base_features: Any = None, max_iter: int = 100, tol: float = 1e-5, callback: Callable | None = None,
                  verbose: bool = False, residual_penalty: float = np.inf, flat: tuple | None = None,
-                 gtol: float = 0.0, prior: tuple | None = None, stol: float = 0.0) -> TransferFit:
+                 gtol: float = 0.0, prior: tuple[Any, Any, Any] | None = None, stol: float = 0.0) -> TransferFit:
     """:func:`transfer_coefficients` on pieces already built and validated.
 
     Parameters

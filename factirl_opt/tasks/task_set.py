@@ -40,7 +40,7 @@ from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis
 from .features import StateBroadcast, TaskFeatures
 
 __all__ = ["TaskSet", "task_set", "environment_tasks", "REWARDS", "reward_features", "reward_basis", "reward_dimension",
-           "per_task_features", "features_digest", "environment_signatures", "transfer_task_set",
+           "per_task_features", "features_per_task", "features_digest", "environment_signatures", "transfer_task_set",
            "parameter_matrix", "refuse_features_digest"]
 
 
@@ -128,6 +128,17 @@ def per_task_features(features: Any) -> bool:
         return features.ndim == 3
     return (isinstance(features, Sequence) and not isinstance(features, (str, bytes)) and len(features) > 0
             and np.ndim(features[0]) == 2)
+
+
+def features_per_task(features: Any, n: int) -> list[Any]:
+    """A public ``features`` parameter for ``n`` tasks as one entry per task: None (tabular) or the
+    one matrix repeated, or the per-task matrices (their count checked against ``n``)."""
+    if per_task_features(features):
+        feats = list(features)
+        if len(feats) != n:
+            raise ValidationError(f"features must be one matrix or one per new task ({n}); got {len(feats)}")
+        return feats
+    return [features] * n
 
 
 def _n_tasks(demos_per_task: Any) -> int | None:
