@@ -556,7 +556,7 @@ from factirl_opt.parallel import shards as parallel
 from where_state import Where
 
 restored = []
-shards = parallel.Shards([(Where, ()), (Where, ())])
+shards = parallel.Shards([(Where, ()), (Where, ())], serve_while_starting=True)
 kind = type(shards.handles[1]).__name__
 first = shards.call([(1, "pid", ())], on_restart=restored.append)[0]
 shards.call([(1, "give", (1,))], on_restart=restored.append)
@@ -566,7 +566,7 @@ while not shards.handles[1].done() and time.monotonic() < deadline:
 restore = lambda k: (restored.append(k), shards.handles[k].submit("give", (1,)), shards.handles[k].result())
 after = shards.call([(1, "pid", ())], on_restart=restore)[0]
 given = shards.call([(1, "give", (2,))], on_restart=restore)[0]
-later = parallel.Shards([(Where, ()), (Where, ())])
+later = parallel.Shards([(Where, ()), (Where, ())], serve_while_starting=True)
 print(json.dumps({"kind": kind, "first_here": first == os.getpid(), "after_here": after == os.getpid(),
                   "restored": restored, "given": given, "n_restarts": shards.n_restarts,
                   "later_kind": type(later.handles[1]).__name__}))

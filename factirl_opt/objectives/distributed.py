@@ -227,7 +227,7 @@ class ShardedObjective(ShardedBase):
         options = budget_options(objective)
         specs = [(ShardState, (type(objective), objective.mdp, objective.mu[rows], objective.pi_hat[rows],
                                objective.beta, name, options)) for rows in self.parts]
-        self.shards = Shards(specs, backend, client)
+        self.shards = Shards(specs, backend, client, serve_while_starting=True)  # every call passes on_restart
         self._token = 0
         self._problems: dict[int, tuple] = {}  # token -> (build, features id, shard_args) of the kept problems
         self._lins: dict[int, Any] = {}  # token -> k -> (method, args) linearising shard k again, or None

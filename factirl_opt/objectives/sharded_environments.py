@@ -115,7 +115,7 @@ class ShardedEnvironments(ShardedBase):
         specs = [(EnvironmentShardState, ([src.mdps[i] for i in tasks], [stats(i)[0] for i in tasks],
                                           [stats(i)[1] for i in tasks], beta, cls, planner, options))
                  for tasks in self.parts]
-        self.shards = Shards(specs, backend, client)
+        self.shards = Shards(specs, backend, client, serve_while_starting=True)  # every call passes on_restart
         self._token = 0
         self._lins: dict[int, tuple] = {}  # token -> (rewards, rows): linearised again on a rebuilt shard
 

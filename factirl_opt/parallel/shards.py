@@ -666,13 +666,17 @@ class StartingShard:
         return self.local.result()
 
     def close(self) -> None:
+        """Stop the shard: its process too, once its start has ended (waited for, so that no process of a
+        fit outlives it)."""
         with self._lock:
             self._closed = True
+        if self.local is not None:
+            self.local.close()
+        self._done.wait(SILENCE_SECONDS + POLL_SECONDS)
+        with self._lock:
             started, self.started = self.started, None
         if started is not None:
             started.close()
-        if self.local is not None:
-            self.local.close()
 
 
 def _lost_dask_worker(exc: BaseException) -> bool:
@@ -772,6 +776,11 @@ class Shards:
         ``"processes"``: shard 0 in this process, the others in processes of this machine;
         ``"dask"``: every shard in an actor on ``client``'s workers.
     client : dask.distributed.Client, optional
+    serve_while_starting : bool, default=False
+        Whether a process's first shard processes may be served in this process while they start
+        (:class:`StartingShard`): for callers whose every call passes ``on_restart`` (the sharded
+        objectives), which gives a shard handed over to its process what its calls need. Otherwise
+        the start waits for the fork server.
 
     Attributes
     ----------
@@ -784,8 +793,10 @@ class Shards:
         Shards rebuilt after their worker was lost.
     """
 
-    def __init__(self, specs: Sequence[tuple], backend: str = "processes", client: Any = None) -> None:
+    def __init__(self, specs: Sequence[tuple], backend: str = "processes", client: Any = None,
+                 serve_while_starting: bool = False) -> None:
         self.specs, self.backend, self.client = list(specs), check_backend(backend, client), client
+        self.serve_while_starting = serve_while_starting
         self.bytes_sent = self.bytes_setup = self.n_restarts = 0
         self.handles: list[Any] = [None] * len(self.specs)
         try:  # the driver's own shard last: it is built while the other shards' processes start
@@ -801,7 +812,7 @@ class Shards:
         self.bytes_setup += array_bytes(list(self.specs[k][1]))
         if self.backend == "dask":
             return DaskShard(self.specs[k], self.client, k)
-        if first and not _SERVER_READY[0]:  # the process's first shards: not waiting for the fork server
+        if first and self.serve_while_starting and not _SERVER_READY[0]:  # not waiting for the fork server
             return StartingShard(self.specs[k])
         return ProcessShard(self.specs[k])
 
@@ -816,7 +827,8 @@ class Shards:
             if h.error is not None and not isinstance(h.error, (ShardLost, OSError, EOFError)):
                 raise h.error  # the spec does not build: the error it gives, as from a shard process
             raise ShardLost(f"shard {k}'s process was lost while it started ({h.error})")  # rebuilt as a lost one
-        self.handles[k], h.started = h.started, None
+        with h._lock:
+            self.handles[k], h.started = h.started, None
         h.close()
         on_restart(k)
 
