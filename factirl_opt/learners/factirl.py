@@ -50,8 +50,10 @@ from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
-from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
-from .selection import SharingSearch
+from .selection.candidates import AUTO
+from .selection.results import check_cv_results, cv_results, rows_cv_results, validation_rows
+from .selection.search import fixed_learner, flat_start_rewards
+from .selection.sharing_search import SharingSearch
 from .._deprecation import warn_once
 from ..objectives.residuals import check_residual_penalty, residual_weights
 
@@ -68,7 +70,7 @@ FLAT_SOLVER = "armijo"
 
 
 def _is_auto(value: Any) -> bool:
-    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.adaptive`)."""
+    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.selection`)."""
     return isinstance(value, str) and value == AUTO
 
 
@@ -84,7 +86,7 @@ class FactIRL(Estimator):
     ----------
     n_primitives : int or "auto", default=5
         Number of primitive rewards k. ``"auto"``: chosen by validation over tasks
-        (:mod:`factirl_opt.learners.adaptive`), as ``residual_penalty="auto"``.
+        (:mod:`factirl_opt.learners.selection`), as ``residual_penalty="auto"``.
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
     features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
@@ -154,7 +156,7 @@ class FactIRL(Estimator):
         ``h = 0``, ``delta`` the weights): the same rewards as ``GradIRL`` with that solver and
         budget on the new tasks' features (why ``flat_solver`` there: "What residual_penalty
         runs" in :mod:`factirl_opt.learners.factorial`, the one place that states what each value
-        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.adaptive`).
+        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.selection`).
     dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
         Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
         paper's free dictionary; otherwise every primitive has unit norm and is nonnegative
@@ -236,10 +238,10 @@ class FactIRL(Estimator):
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
-        :func:`~factirl_opt.learners.adaptive.search_sharing`, one row per candidate
+        :func:`~factirl_opt.learners.selection.search.search_sharing`, one row per candidate
         ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
         ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
-        :func:`~factirl_opt.learners.adaptive.plot_validation` draws it.
+        :func:`~factirl_opt.learners.selection.results.plot_validation` draws it.
 
     Notes
     -----
@@ -315,7 +317,7 @@ class FactIRL(Estimator):
 
     @property
     def validation_(self) -> list[dict]:
-        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.adaptive.validation_rows`)."""
+        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.selection.results.validation_rows`)."""
         if "cv_results_" not in vars(self):
             raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
                                  "residual_penalty='auto'; the table is cv_results_ now)")
@@ -489,7 +491,7 @@ class FactIRL(Estimator):
 
     def _fit_auto(self, mdp, demos_per_task, flat_rewards):
         """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
-        (:func:`factirl_opt.learners.adaptive.search_sharing`), then the fit of the chosen pair on every task."""
+        (:func:`factirl_opt.learners.selection.search.search_sharing`), then the fit of the chosen pair on every task."""
         if not _is_auto(self.n_primitives):
             check_int(self.n_primitives, "n_primitives", minimum=1)
         check_residual_penalty(self.residual_penalty)

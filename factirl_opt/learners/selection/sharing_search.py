@@ -5,7 +5,8 @@ the folds over tasks (``cv``), the candidate grids, the route (how the candidate
 and which folds each is scored on), the held-out score and the choice rule are the search's
 parameters, and the results a ``cv_results_`` table in the manner of scikit-learn's
 ``GridSearchCV`` (a dict of equal-length arrays, one row per candidate, ready for
-``pandas.DataFrame``). The engine is :func:`factirl_opt.learners.adaptive.search_sharing`.
+``pandas.DataFrame``). The engine is :func:`factirl_opt.learners.selection.search.search_sharing`, the routes those of
+:mod:`~factirl_opt.learners.selection.routes`.
 
 A parameter object and not a separate estimator (``LassoCV`` / ``GridSearchCV``): the
 ``"auto"`` values are FactIRL's own parameters, one of them may be fixed while the other is
@@ -22,74 +23,17 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import ValidationError
-from .adaptive import (
-    DEFAULT_RULE, DEFAULT_SCORE, K_CANDIDATES, LAMBDA_CANDIDATES, N_FOLDS, N_TRANSFER_DEMOS, RACE_MARGIN, RULES,
-    SCORES, SHARE_LEVEL, SearchResult, cv_results, search_sharing, validation_rows,
-)
-from .estimator import Estimator
+from ...exceptions import ValidationError
+from ..estimator import Estimator
+from .candidates import K_CANDIDATES, LAMBDA_CANDIDATES
+from .folds import N_FOLDS
+from .results import SearchResult
+from .routes import DEFAULT_ROUTE, ROUTES, get_route, route_rule
+from .rules import RULES, SHARE_LEVEL
+from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES
+from .search import RACE_MARGIN, search_sharing
 
-__all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "ROUTE_RULES", "route_rule", "SHORT_MAX_ITER", "SCREEN_TRANSFER_MAX_ITER", "cv_results", "validation_rows"]
-
-#: outer iterations of each candidate fit on the ``"short"`` route
-SHORT_MAX_ITER = 10
-#: steps of each held-out task's transfer on the ``"short"`` and ``"pca"`` routes (the learner's
-#: ``transfer_max_iter`` elsewhere): the tempered held-out likelihood judges the transferred
-#: reward's direction, which the first steps set; from one demonstration the rest of a transfer
-#: mostly grows the reward's scale toward the saturated policy
-SCREEN_TRANSFER_MAX_ITER = 20
-
-#: the routes of a search: ``(search, candidate_max_iter, transfer_max_iter)`` of
-#: :func:`~factirl_opt.learners.adaptive.search_sharing`. ``"race"``: every candidate on the first
-#: fold, the contenders on the others, each fitted with the learner's ``max_iter`` (the default);
-#: ``"full"``: every candidate on every fold; ``"race-warm"``: the race, candidates warm-started
-#: along lambda; ``"short"``: the race with candidate fits of ``SHORT_MAX_ITER`` outer iterations
-#: and held-out transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"pca"``: every candidate on every
-#: fold, each its PCA start from the training tasks' flat rewards (no alternating fit), held-out
-#: transfers of ``SCREEN_TRANSFER_MAX_ITER`` steps; ``"evidence"``: k from Minka's evidence of the
-#: flat rewards' PCA (:mod:`~factirl_opt.learners.evidence`, no fit), then the ``"pca"`` route's cheap
-#: scores for that k, half and twice it (at lambda inf, 1 and 0), then k halved below the smallest
-#: and bisected around a shared choice, the flat model chosen unscored when no direction is
-#: shared or more than half the training tasks of a fold, a shared k confirmed by full fits of
-#: k - 1, k and k + 1 when a fold has many training tasks per primitive
-#: (:func:`~factirl_opt.learners.evidence.confirmation_primitives`).
-ROUTES: dict[str, tuple[str, int | None, int | None]] = {
-    "race": ("race", None, None), "full": ("full", None, None), "race-warm": ("race-warm", None, None),
-    "short": ("race", SHORT_MAX_ITER, SCREEN_TRANSFER_MAX_ITER), "pca": ("full", 0, SCREEN_TRANSFER_MAX_ITER),
-    "evidence": ("evidence", 0, SCREEN_TRANSFER_MAX_ITER),
-}
-#: the parameters of :class:`SharingSearch` a route does not read, with why: on that route a value
-#: other than the default is refused by name (a search never ignores a setting silently)
-ROUTE_UNREAD: dict[str, dict[str, str]] = {
-    "evidence": {"n_primitives_grid": "it reads its candidate k off the evidence of the flat rewards' PCA",
-                 "race_margin": "it scores every candidate on every fold"},
-    "full": {"race_margin": "it scores every candidate on every fold"},
-    "pca": {"race_margin": "it scores every candidate on every fold"},
-}
-
-#: the route ``SharingSearch()`` takes: the cheapest that meets the which-learner benchmark's quality
-#: (``results/which-learner/README.md``)
-DEFAULT_ROUTE = "evidence"
-#: the choice rule each route takes when ``SharingSearch(rule=None)`` (the rule it was benchmarked
-#: with); a route not listed takes ``adaptive.DEFAULT_RULE``
-ROUTE_RULES: dict[str, str] = {"evidence": "fewest-within-se"}
-
-
-def route_rule(route: str, rule: str | None = None) -> str:
-    """The choice rule a search on ``route`` takes: ``rule`` if given, else the route's own
-    (:data:`ROUTE_RULES`, else :data:`~factirl_opt.learners.adaptive.DEFAULT_RULE`).
-
-    Raises
-    ------
-    ValidationError
-        An unknown ``route`` or ``rule``.
-    """
-    if route not in ROUTES:
-        raise ValidationError(f"route must be one of {tuple(ROUTES)}; got {route!r}")
-    chosen = ROUTE_RULES.get(route, DEFAULT_RULE) if rule is None else rule
-    if chosen not in RULES:
-        raise ValidationError(f"rule must be one of {RULES} or None; got {rule!r}")
-    return chosen
+__all__ = ["SharingSearch"]
 
 
 def _is_default(value: Any, default: Any) -> bool:
@@ -115,21 +59,21 @@ class SharingSearch(Estimator):
         The folds over tasks: a number of folds (a permutation of the tasks drawn from the
         learner's ``rng``), a scikit-learn splitter (``split(X)``; its test indices), or an
         iterable of ``(train, test)`` pairs or of held-out index arrays
-        (:func:`~factirl_opt.learners.adaptive.task_folds`). Only an int is saved by ``save_model``.
+        (:func:`~factirl_opt.learners.selection.task_folds`). Only an int is saved by ``save_model``.
     n_primitives_grid : tuple of int, default=(1, 2, 4, 8, 16)
         Candidate k (those up to the reward directions the features span and the training tasks
         of a fold); then k is bisected around a chosen shared candidate. The ``"evidence"`` route
         reads its candidates off the flat rewards' evidence instead, and refuses another grid
-        (:data:`ROUTE_UNREAD`: every route refuses a setting it does not read).
+        (:data:`~factirl_opt.learners.selection.routes.ROUTE_UNREAD`: every route refuses a setting it does not read).
     residual_penalty_grid : tuple of float, default=(inf, 1.0, 0.01, 0.0)
         Candidate lambda, from the factorial model (inf) to the flat one (0).
     route : str, default="evidence"
-        :data:`ROUTES`: how candidates are fitted and on which folds they are scored.
+        :data:`~factirl_opt.learners.selection.routes.ROUTES`: how candidates are fitted and on which folds they are scored.
     score : str, default="likelihood"
-        The held-out score (:data:`~factirl_opt.learners.adaptive.SCORES`).
+        The held-out score (:data:`~factirl_opt.learners.selection.SCORES`).
     rule : str or None, default=None
-        The choice rule (:data:`~factirl_opt.learners.adaptive.RULES`); None: the route's own
-        (:func:`route_rule`: ``"fewest-within-se"`` on the ``"evidence"`` route,
+        The choice rule (:data:`~factirl_opt.learners.selection.RULES`); None: the route's own
+        (:func:`~factirl_opt.learners.selection.routes.route_rule`: ``"fewest-within-se"`` on the ``"evidence"`` route,
         ``"significant-gain"`` on the others), the one its benchmark figures were measured with.
     n_transfer_demos : int, default=1
         Demonstrations a held-out task is transferred from.
@@ -156,8 +100,7 @@ class SharingSearch(Estimator):
 
     def check(self) -> None:
         """Validate the parameters (``ValidationError`` naming the first bad one)."""
-        if self.route not in ROUTES:
-            raise ValidationError(f"route must be one of {tuple(ROUTES)}; got {self.route!r}")
+        route = get_route(self.route)
         if self.score not in SCORES:
             raise ValidationError(f"score must be one of {SCORES}; got {self.score!r}")
         if self.rule is not None and self.rule not in RULES:
@@ -174,10 +117,10 @@ class SharingSearch(Estimator):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < (1 if name == "share_level" else math.inf):
                 raise ValidationError(f"{name} must be a number >= 0{' and < 1' if name == 'share_level' else ''}; got {value!r}")
         defaults = {"n_primitives_grid": tuple(K_CANDIDATES), "race_margin": RACE_MARGIN, "cv": N_FOLDS}
-        for name, why in ROUTE_UNREAD.get(self.route, {}).items():
+        for name, why in route.unread.items():
             value = getattr(self, name)
             if not _is_default(value, defaults[name]):
-                readers = [r for r in ROUTES if name not in ROUTE_UNREAD.get(r, {})]
+                readers = [r for r in ROUTES if name not in ROUTES[r].unread]
                 raise ValidationError(f"{name}={value!r} is not read by the {self.route!r} route ({why}): leave it at "
                                       f"its default {defaults[name]!r}, or take a route that reads it: {readers}")
 
@@ -185,7 +128,7 @@ class SharingSearch(Estimator):
     def needs_flat_start(self) -> bool:
         """Whether the route's candidates are PCA starts of the flat rewards (no alternating fit),
         so that ``FactIRL.fit`` computes the flat rewards whatever its ``init``."""
-        return ROUTES[self.route][1] == 0
+        return get_route(self.route).candidate_max_iter == 0
 
     def search(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> SearchResult:
         """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values).
@@ -197,7 +140,7 @@ class SharingSearch(Estimator):
             As in ``FactIRL.fit``.
         flat_rewards : optional
             Every task's flat rewards, the PCA start of every candidate
-            (:func:`~factirl_opt.learners.adaptive.flat_start_rewards`).
+            (:func:`~factirl_opt.learners.selection.flat_start_rewards`).
 
         Returns
         -------
@@ -205,9 +148,7 @@ class SharingSearch(Estimator):
             Its :func:`cv_results` is the table ``FactIRL.cv_results_``.
         """
         self.check()
-        search, budget, transfer_budget = ROUTES[self.route]
-        return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=self.score, cv=self.cv,
+        return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=self.route, score=self.score, cv=self.cv,
                               k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
                               n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
-                              share_level=self.share_level, rule=route_rule(self.route, self.rule), candidate_max_iter=budget,
-                              transfer_max_iter=transfer_budget)
+                              share_level=self.share_level, rule=route_rule(self.route, self.rule))
