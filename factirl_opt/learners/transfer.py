@@ -49,6 +49,7 @@ from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
+from .solver_settings import SolverSettings, estimator_solvers, step_solver
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "prior_problem",
            "transfer_prior_weights", "TRANSFER_STOL"]
@@ -392,6 +393,21 @@ def _transfer_fit(F, solver, res, n_evaluations, prior=None, k=0):
         status, reason = first_step_stall(res.loss_history, res.iterations, held_by_constraint(solver, res)) or (status, reason)
     return TransferFit(res.coefficients, rewards, loss, res.loss_history, res.iterations, int(n_evaluations), status,
                        reason)
+
+
+def transfer_solver(model: Any, solver: Any = None, solver_options: dict | None = None) -> tuple[Any, dict | None]:
+    """The H-step ``(solver, options)`` of ``model.transfer``: the call's ``solver`` (a name with
+    ``solver_options``, or a SolverSettings' H-step solver and options), else the model's transfer solver."""
+    if solver is None:
+        if solver_options is not None:
+            raise ValidationError("solver_options given without solver")
+        return step_solver(SolverSettings.of(model.solver), "transfer", estimator_solvers(model)[:2])
+    if isinstance(solver, SolverSettings):
+        if solver_options is not None:
+            raise ValidationError(f"solver_options given with solver settings {solver.label()!r}: give the options "
+                                  "in the SolverSettings")
+        return solver.h_solver, solver.h_options or None
+    return solver, solver_options
 
 
 def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> tuple[TaskSet, NDArray[np.float64]]:
