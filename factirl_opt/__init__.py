@@ -188,7 +188,7 @@ _MOVED_MODULE_NAMES = {
         **{name: "learners.selection.scores" for name in ("held_out_nll", "held_out_occupancy_gap")},
         **{name: "learners.selection.folds" for name in ("task_mdp", "task_subset")},
         **{name: "learners.selection.rules" for name in ("choose_row", "DEFAULT_RULE")},
-        "sharing_candidates": "learners.selection.candidates"},
+        "sharing_candidates": "learners.selection.routes"},
 }
 install_module_aliases(__name__, _MOVED_MODULES, _MOVED_MODULE_NAMES)
 

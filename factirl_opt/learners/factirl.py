@@ -41,17 +41,15 @@ from ..tasks.task_set import task_set
 from ..interruption import loss_phrase, raise_interrupted, warn_interrupted
 from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
-from .start import FLAT_TOL, Start
-from .factorial_start import factorial_start, flat_solver
+from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
-from .selection.auto import fit_auto, is_auto
 from .selection.results import rows_cv_results, validation_rows
-from .selection.sharing_search import SharingSearch
+from .selection.sharing_search import SharingSearch, fit_auto, is_auto
 from .._deprecation import moved_names, warn_once
 from ..objectives.residuals import residual_weights
 
@@ -594,5 +592,5 @@ class FactIRL(Estimator):
         return report
 
 
-#: the start's constants moved with it (:mod:`~factirl_opt.learners.factorial_start`); resolved here for one release
-moved_names(__name__, dict.fromkeys(("INITS", "RANDOM_INIT_SCALE", "FLAT_SOLVER"), "factirl_opt.learners.factorial_start"))
+#: the start's constants moved with it (:mod:`~factirl_opt.learners.start`); resolved here for one release
+moved_names(__name__, dict.fromkeys(("INITS", "RANDOM_INIT_SCALE", "FLAT_SOLVER"), "factirl_opt.learners.start"))

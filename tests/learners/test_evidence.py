@@ -264,8 +264,8 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     assert tried[:3] == [8, 16, 20] and 2 in tried[3:-3] and tried[-3:] == [4, 5, 6]
     assert [r.get("confirmed", False) for r in found.rows[-3:]] == [True] * 3
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
-    assert ROUTES["evidence"].below(8, [8, 16, 32], 36) == 4 and ROUTES["evidence"].below(32, [8, 16, 32], 36) is None  # only down
-    assert ROUTES["evidence"].below(16, [8, 16, 32], 36) is None and ROUTES["evidence"].below(1, [1, 2], 5) is None
+    assert ROUTES["evidence"].below(8, [8, 16, 32], 36) == [4] and ROUTES["evidence"].below(32, [8, 16, 32], 36) == []  # only down
+    assert ROUTES["evidence"].below(16, [8, 16, 32], 36) == [] and ROUTES["evidence"].below(1, [1, 2], 5) == []
 
 
 def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatch):

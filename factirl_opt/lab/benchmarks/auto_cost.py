@@ -31,7 +31,7 @@ from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
 from ...learners.factirl import FLAT_TOL, FactIRL
-from ...learners.factorial_start import FLAT_SOLVER
+from ...learners.start import FLAT_SOLVER
 from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld

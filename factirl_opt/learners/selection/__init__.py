@@ -1,22 +1,18 @@
-"""Model selection: how much FactIRL shares, chosen from the training data (``n_primitives="auto"``,
-``residual_penalty="auto"``).
+"""How much to share, chosen from the training data: ``FactIRL(n_primitives="auto", residual_penalty="auto")``.
 
-- :mod:`~.folds`: the held-out tasks of each fold; :mod:`~.candidates`: the candidate pairs ``(k, lambda)``;
-- :mod:`~.scores`: held-out scores of a transferred reward (likelihood, occupancy);
-- :mod:`~.rules`: the choice rules over a scored table;
-- :mod:`~.results`: ``SearchResult``, the ``cv_results_`` table, its checks and plot;
-- :mod:`~.search`: the engine (:func:`search_sharing`, :func:`score_candidates`, :class:`SearchProgress`);
-- :mod:`~.evidence`: Minka's evidence for the rank of the flat start, the ``"evidence"`` route's screen;
-- :mod:`~.routes`: one small class per route, in one registry :data:`ROUTES` with one default :data:`DEFAULT_ROUTE`;
-- :mod:`~.sharing_search`: :class:`SharingSearch`, the search as FactIRL's parameter;
-- :mod:`~.auto`: FactIRL's fit with ``"auto"`` values (the search, then the chosen pair's fit).
+The number of primitives k and the residual penalty lambda (:mod:`factirl_opt.objectives.residuals`)
+are chosen by a validation that imitates the use of the learner: K-fold over tasks (:mod:`~.folds`),
+for each fold and candidate ``(k, lambda)`` (:mod:`~.routes`) a FactIRL fitted on the other folds'
+tasks, each held-out task transferred from its first demonstrations and scored on the others
+(:mod:`~.scores`); the choice (:mod:`~.rules`) keeps the flat model unless sharing's paired gain is
+significant. The engine is :mod:`~.search`, the table :mod:`~.results`, the ``"evidence"`` route's
+screen :mod:`~.evidence`, the search as FactIRL's parameter and its auto fit :mod:`~.sharing_search`.
 """
 
-from .candidates import AUTO, K_CANDIDATES, LAMBDA_CANDIDATES, max_primitives, sharing_candidates
 from .folds import N_FOLDS, take_tasks, task_folds, task_mdp, task_subset
 from .results import (CV_RESULTS_KEYS, ROW_KEYS, SearchResult, check_cv_results, cv_results, plot_validation,
                       rows_cv_results, score_rows, validation_rows)
-from .routes import (DEFAULT_ROUTE, ROUTE_RULES, ROUTE_UNREAD, ROUTES, SCREEN_TRANSFER_MAX_ITER, SHORT_MAX_ITER,
+from .routes import (AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, max_primitives, sharing_candidates, ROUTE_RULES, ROUTE_UNREAD, ROUTES, SCREEN_TRANSFER_MAX_ITER, SHORT_MAX_ITER,
                      EvidenceRoute, FullRoute, PCARoute, RaceRoute, RaceWarmRoute, Route, ShortRoute, get_route,
                      route_rule)
 from .rules import DEFAULT_RULE, RULES, SHARE_LEVEL, choose_row

@@ -5,7 +5,8 @@ how it proposes its candidates, whether it races them over the folds, whether a 
 warm-starts from its predecessor or a flat model takes another candidate's fit, the budgets of
 its candidate fits and held-out transfers, where it steps k after a shared choice, whether it
 confirms that choice by full fits, and the choice rule it was benchmarked with. The route names
-are the one vocabulary of the search; :data:`DEFAULT_ROUTE` is the one default.
+are the one vocabulary of the search; :data:`DEFAULT_ROUTE` is the one default. The candidate pairs of a
+learner's ``"auto"`` values (:func:`sharing_candidates`) are what the routes propose from.
 """
 
 from __future__ import annotations
@@ -13,15 +14,72 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
+import numpy as np
+
 from ...exceptions import ValidationError
-from .candidates import sharing_candidates
+from ...tasks.task_set import task_set
+from ..fitting import resolve_step_solver
+from ..solver_settings import estimator_solvers
 from .evidence import (confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence,
                        plausible_ranks)
 from .rules import DEFAULT_RULE, RULES
 
-__all__ = ["Route", "RaceRoute", "FullRoute", "RaceWarmRoute", "ShortRoute", "PCARoute", "EvidenceRoute", "ROUTES",
+__all__ = ["AUTO", "K_CANDIDATES", "LAMBDA_CANDIDATES", "sharing_candidates", "max_primitives", "Route", "RaceRoute", "FullRoute", "RaceWarmRoute", "ShortRoute", "PCARoute", "EvidenceRoute", "ROUTES",
            "DEFAULT_ROUTE", "ROUTE_RULES", "ROUTE_UNREAD", "route_rule", "get_route", "SHORT_MAX_ITER",
            "SCREEN_TRANSFER_MAX_ITER"]
+
+#: the value of ``n_primitives`` / ``residual_penalty`` that asks for validation
+AUTO = "auto"
+#: candidate numbers of primitives (those <= min(p, number of training tasks of a fold) are tried)
+K_CANDIDATES = (1, 2, 4, 8, 16)
+#: candidate residual penalties, from the factorial model (inf) to the flat one (0)
+LAMBDA_CANDIDATES = (np.inf, 1.0, 1e-2, 0.0)
+
+def _candidates(k_fixed: Any, lam_fixed: Any, k_max: int, constrained: bool, k_grid: Sequence[int] = K_CANDIDATES,
+                lam_grid: Sequence[float] = LAMBDA_CANDIDATES) -> list[tuple[int, float]]:
+    """The candidate pairs: k up to ``k_max``; lambda from inf to 0 (inf only for a constrained
+    H-solver, which the residual model does not take)."""
+    if k_fixed == AUTO:
+        ks = [int(k) for k in k_grid if k <= k_max] or [1]
+    else:
+        ks = [int(k_fixed)]
+    if lam_fixed == AUTO:
+        lams = [np.inf] if constrained else [float(lam) for lam in lam_grid]
+    else:
+        lams = [float(lam_fixed)]
+    out = []
+    for lam in lams:
+        for k in (ks[:1] if lam == 0.0 else ks):  # lambda = 0: the dictionary plays no part
+            out.append((k, lam))
+    return out
+
+
+
+def sharing_candidates(learner: Any, k_max: int, k_grid: Sequence[int] = K_CANDIDATES,
+                       lam_grid: Sequence[float] = LAMBDA_CANDIDATES) -> list[tuple[int, float]]:
+    """The candidate pairs ``(k, lambda)`` of ``learner``'s ``"auto"`` values, in the order scored.
+
+    k from ``k_grid`` up to ``k_max`` (or the learner's fixed k); lambda from ``lam_grid`` (or the
+    fixed one), np.inf only for a constrained H-solver (the residual model needs an
+    unconstrained one); ``lambda = 0`` once, with the smallest k (the dictionary plays no part).
+    """
+    h_name, h_options, _, _ = estimator_solvers(learner)
+    constrained = resolve_step_solver(h_name, h_options, learner.objective, "solver").constraint != "none"
+    return _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained, k_grid, lam_grid)
+
+
+def max_primitives(learner: Any, mdp: Any, n_tasks: int, folds: Sequence[np.ndarray]) -> int:
+    """The largest k a candidate may have: the reward directions the basis spans (its rank, at most
+    the reward dimension p), and the training tasks of the smallest fold's fit."""
+    return min(_basis_rank(learner, mdp, n_tasks), min(n_tasks - len(f) for f in folds))
+
+
+def _basis_rank(learner: Any, mdp: Any, n_tasks: int) -> int:
+    """The reward directions ``learner``'s features span on ``n_tasks`` tasks of ``mdp``
+    (:meth:`~factirl_opt.tasks.basis.RewardBasis.rank`, at most the reward dimension p; the
+    demonstrations play no part)."""
+    return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).basis.rank(n_tasks)
+
 
 #: outer iterations of each candidate fit on the ``"short"`` route
 SHORT_MAX_ITER = 10
@@ -70,12 +128,12 @@ class Route:
 
     def candidates(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
                    k_grid: Sequence[int], lam_grid: Sequence[float], n_train: int) -> list[tuple[int, float]]:
-        """The first candidates (:func:`~factirl_opt.learners.selection.candidates.sharing_candidates` of the grids)."""
+        """The first candidates (:func:`sharing_candidates` of the grids)."""
         return sharing_candidates(learner, k_max, k_grid, lam_grid)
 
-    def below(self, k: int, tried: Sequence[int], k_max: int) -> int | None:
-        """The k tried next below a shared choice of ``k`` before the bisection (None: none)."""
-        return None
+    def below(self, k: int, tried: Sequence[int], k_max: int) -> list[int]:
+        """The k tried next below a shared choice of ``k``, before the bisection ([]: none)."""
+        return []
 
     def confirmation(self, k: int, k_max: int, n_train: int) -> list[int]:
         """The k refitted in full around a shared choice of ``k``, their screen scores replaced ([]: none)."""
@@ -158,14 +216,14 @@ class EvidenceRoute(Route):
         flat = [c for c in sharing_candidates(learner, k_max, (1,), lams) if c[1] == 0.0]
         return shared + flat or sharing_candidates(learner, k_max, (1,), lams)[:1]
 
-    def below(self, k: int, tried: Sequence[int], k_max: int) -> int | None:
+    def below(self, k: int, tried: Sequence[int], k_max: int) -> list[int]:
         """Half of ``k`` (rounded up) when it is the smallest tried, if within ``[1, k_max]`` and not
-        tried; else None. Only down: the evidence of the flat rewards overestimates k with many
+        tried; else none. Only down: the evidence of the flat rewards overestimates k with many
         tasks, and the held-out score of PCA starts favours large k (on the README's grid a walk up
         from (10, 1) ended at (17, 1), 13.55 against 12.11; on the grid at 20 tasks, seed 0, at
         (12, 1), 12.58 against 11.96; ``results/which-learner/diagnostics/evidence/README.md``)."""
-        step = (k + 1) // 2 if k == min(tried) else None
-        return step if step is not None and step not in tried and 1 <= step <= k_max else None
+        step = (k + 1) // 2
+        return [step] if k == min(tried) and step not in tried and 1 <= step <= k_max else []
 
     def confirmation(self, k: int, k_max: int, n_train: int) -> list[int]:
         """:func:`~factirl_opt.learners.selection.evidence.confirmation_primitives`."""

@@ -1,40 +1,12 @@
-"""How much to share, chosen from the training data: ``FactIRL(n_primitives="auto", residual_penalty="auto")``.
+"""The engine of the sharing search: candidates fitted on each fold's training tasks, each held-out task
+transferred and scored (:func:`score_candidates`), on the folds its route says (:mod:`~.routes`), then
+chosen by a rule (:mod:`~.rules`) and k bisected around a shared choice (:func:`search_sharing`).
 
-The number of primitives k and the residual penalty lambda (:mod:`factirl_opt.objectives.residuals`) are
-chosen by a validation that imitates the use of the learner: learn a dictionary on some tasks,
-transfer it to a new task from a few demonstrations, and judge the transferred reward on what
-that task's expert does elsewhere.
-
-K-fold over tasks (:func:`search_sharing`): the tasks are split into ``n_folds`` folds; for each
-fold and each candidate ``(k, lambda)`` a FactIRL is fitted on the other folds' tasks, each
-held-out task is transferred from its first ``n_transfer_demos`` demonstrations, and scored on
-its remaining demonstrations by their negative log-likelihood per step under the learner's
-policy model with the transferred reward (policy matching: the Boltzmann policy of its Q*, eq. 7;
-MCE: the soft-optimal policy), the policy's inverse temperature profiled out per task
-(:func:`held_out_nll`: a reward's scale is not what transfer is judged on; ``score="fixed-beta"``
-keeps the learner's ``beta``, ``score="objective"`` scores by the learner's objective, which for
-policy matching is the squared policy difference; ``score="occupancy"`` compares where the
-transferred reward's optimal policy goes with where the expert went, :func:`held_out_occupancy_gap`).
-
-The choice (:func:`search_sharing`). The candidate of lowest mean score leads (ties: the earlier
-candidate, i.e. more sharing); it replaces the flat model (``lambda = 0``, each task learnt
-alone) only if its gain over it, paired over the held-out tasks, is significant: more than
-``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of the gains (a one-sided paired t-test; the
-standard-error rule of :func:`~factirl_opt.learners.intention_count.one_standard_error_choice`
-with the t quantile for a multiple). Sharing has to earn its place: where the candidates'
-held-out scores are within their noise, the learner keeps what each task's own demonstrations
-say. By default the folds are a race: every candidate is scored on the first fold, only those
-within ``RACE_MARGIN`` of the best there (and the flat model) on the others (``search``). When a
-shared candidate is chosen and k is ``"auto"``, k is then bisected around it at its lambda
-(:func:`search_sharing`): ``K_CANDIDATES`` doubles, and the true number of primitives rarely
-is a power of two.
-
-Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the
-flat learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is
-the same whichever tasks share the fit. A candidate then costs one alternating fit on
-``(K-1)/K`` of the tasks per fold and one transfer; ``lambda = 0`` (the flat model: the
-dictionary plays no part) is tried once, with the smallest k, and in a race takes the
-dictionary of another candidate instead of a fit of its own.
+Cost. The flat fit of the PCA start is computed once for all tasks and indexed by fold: the flat
+learner is separable over tasks (:mod:`solvers.separable`), so a task's flat reward is the same
+whichever tasks share the fit. A candidate then costs one alternating fit on ``(K-1)/K`` of the
+tasks per fold and one transfer; ``lambda = 0`` (the flat model: the dictionary plays no part) is
+tried once, with the smallest k, and may take the dictionary of another candidate.
 """
 
 from __future__ import annotations
@@ -55,10 +27,9 @@ from ...tasks.task_set import task_set
 from ..estimator import clone
 from ..gradirl import GradIRL
 from ..solver_settings import SolverSettings
-from .candidates import AUTO, K_CANDIDATES, LAMBDA_CANDIDATES, max_primitives
 from .folds import N_FOLDS, take_tasks, task_folds
 from .results import SearchResult, _with_reasons, score_rows
-from .routes import DEFAULT_ROUTE, ROUTES
+from .routes import AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, ROUTES, max_primitives
 from .rules import RULES, SHARE_LEVEL, _choice
 from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES, _fit_inputs, _score
 
@@ -120,14 +91,9 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     against 30.3x; the warm race 16-18x on ``tiny``, but its shortened fits moved the scores enough
     to change the choice on both seeds, to pairs that transferred worse.
 
-    The choice: the candidate of lowest ``score``, unless the flat model (``lambda = 0``) is a
-    candidate and the leader's mean gain over it, paired over the n held-out tasks, is at most
-    ``t_(n-1)(1 - SHARE_LEVEL)`` standard errors of that gain (not significant): then the flat
-    model.
-
-    Then, if k is ``"auto"`` and the choice shares (``lambda > 0``), a bisection of k at the
+    The choice: the ``rule`` (:mod:`~factirl_opt.learners.selection.rules`). Then, if k is ``"auto"`` and the choice shares (``lambda > 0``), a bisection of k at the
     chosen lambda: the midpoints between the chosen k and its nearest tried neighbours
-    (:func:`_between`; 8 between 4 and 16 gives 6 and 12) are scored on every fold and the choice
+    (:func:`bisection_midpoints`; 8 between 4 and 16 gives 6 and 12) are scored on every fold and the choice
     is made again over the whole table; while it moves to a midpoint, the step repeats around it.
     On the paper's grid with 100 tasks (seed 0) the race chose (8, 1) and transferred at 5.89,
     where k = 6 and k = 5 without residuals transfer at 5.06 and 4.87
@@ -147,19 +113,10 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         bisection, a route may confirm a shared choice (the ``"evidence"`` route: k - 1, k and
         k + 1 refitted with the learner's ``max_iter``, their screen scores replaced, and the rule
         chooses among them).
-    score : {"likelihood", "fixed-beta", "objective", "occupancy"}
-        The held-out score (:data:`SCORES`; module docstring).
-    cv : int, splitter or iterable, default=N_FOLDS
-        The folds over tasks (:func:`task_folds`; an int's permutation drawn from ``learner.rng``).
-    k_grid, lam_grid : sequences
-        Candidate numbers of primitives and residual penalties (:func:`sharing_candidates`).
-    n_transfer_demos : int, default=N_TRANSFER_DEMOS
-        Demonstrations a held-out task is transferred from; it is scored on the others.
-    race_margin : float, default=RACE_MARGIN
-    share_level : float, default=SHARE_LEVEL
-        Level of the one-sided paired t-tests of the choice rule.
-    rule : str or None
-        :data:`RULES`; None: the route's own.
+    score, cv, k_grid, lam_grid, n_transfer_demos, race_margin, share_level, rule
+        As ``SharingSearch``'s ``score``, ``cv`` (an int's permutation drawn from ``learner.rng``),
+        ``n_primitives_grid``, ``residual_penalty_grid``, ``n_transfer_demos``, ``race_margin``,
+        ``share_level`` and ``rule`` (None: the route's own).
     candidate_max_iter : int or None
         Outer iterations of each candidate fit (0: the candidate is its PCA start, from the
         training tasks' flat rewards); None: the route's (the learner's ``max_iter`` on the routes
@@ -230,26 +187,17 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
                     run(folds[1:], contenders, warm=warm, reuse=reuse)
             rows = score_rows(scores)
             best = choice(rows)
-            while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
-                k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-                beyond = route.below(k, [c[0] for c in scores if c[1] == lam], k_max)
-                if not beyond:  # the chosen k is inside the tried ones: the bisection below refines it
-                    break
-                run(folds, [(beyond, lam)], warm=False, reuse=False)
-                rows = score_rows(scores)
-                best = choice(rows)
-                if rows[best]["n_primitives"] == k:
-                    break
-            while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
-                k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
-                between = bisection_midpoints(k, [c[0] for c in scores if c[1] == lam], k_max)
-                if not between:
-                    break
-                run(folds, [(m, lam) for m in between], warm=False, reuse=False)
-                rows = score_rows(scores)
-                best = choice(rows)
-                if rows[best]["n_primitives"] == k:
-                    break
+            for step in (route.below, bisection_midpoints):  # the route's steps down, then the bisection
+                while learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
+                    k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
+                    more = step(k, [c[0] for c in scores if c[1] == lam], k_max)
+                    if not more:
+                        break
+                    run(folds, [(m, lam) for m in more], warm=False, reuse=False)
+                    rows = score_rows(scores)
+                    best = choice(rows)
+                    if rows[best]["n_primitives"] == k:
+                        break
             if learner.n_primitives == AUTO and rows[best]["residual_penalty"] != 0.0:
                 k, lam = rows[best]["n_primitives"], rows[best]["residual_penalty"]
                 trio = [(m, lam) for m in route.confirmation(k, k_max, n_train)]
