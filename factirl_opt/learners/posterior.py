@@ -11,7 +11,7 @@ and the task's demonstration loss ``J(x)`` (eq. 5 or the MCE likelihood), the po
   negative log-likelihood of the ``N`` demonstrated pairs), ``N / (2 sigma^2)`` for policy
   matching (``J`` is a sum of squares whose residuals have variance ``sigma^2 / N`` per
   component under the Boltzmann policy's multinomial draws);
-- ``(m, P^-1)`` a Gaussian fitted to the training tasks' coefficients (:func:`coefficient_prior`);
+- ``(m, P^-1)`` a Gaussian fitted to the training tasks' coefficients (:func:`~factirl_opt.learners.transfer.coefficient_prior`);
 - the residual's prior the transfer's own penalty, on the scale of the likelihood.
 
 :func:`laplace_posteriors` finds the maximum a posteriori ``x`` by damped Newton steps on this
@@ -26,27 +26,24 @@ away from the saturated region where one demonstration is matched by unbounded c
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_array, check_int, check_tol
-from ..exceptions import ConvergenceWarning, NotFittedError, ValidationError
+from .._deprecation import moved_names
+from .._validation import as_rng, check_array, check_int
+from ..exceptions import NotFittedError, ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
+from .transfer import coefficient_prior, transfer_tasks
 
-__all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
-           "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer",
+__all__ = ["LaplacePosterior", "likelihood_scaling", "laplace_posteriors",
+           "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "cached_transfer_posterior", "keep_transfer",
            "TransferState", "tasks_problem", "has_prior",
-           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
-           "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
-           "PRIOR_HELD_OUT"]
+           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve"]
 
-#: ridge added to the prior covariance of the coefficients, relative to its mean variance
-PRIOR_RIDGE = 1e-3
 #: damped Newton steps of the MAP at most, and the stopping rule on the Newton decrement
 #: ``g^T Lambda^-1 g`` (nats of log-posterior: the mean is then within ``sqrt(2 MAP_TOL)`` posterior
 #: standard deviations of the MAP along every direction)
@@ -171,29 +168,6 @@ def _cholesky(C):
     except np.linalg.LinAlgError:  # positive semidefinite to rounding: the symmetric square root
         vals, vecs = np.linalg.eigh(C)
         return vecs * np.sqrt(np.clip(vals, 0.0, None))
-
-
-def coefficient_prior(coefficients: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The Gaussian fitted to the training tasks' coefficients: mean (k,) and precision (k, k).
-
-    The covariance is the sample covariance (ddof 1) plus :data:`PRIOR_RIDGE` times its mean
-    variance on the diagonal, so that it stays invertible with fewer tasks than primitives.
-
-    Raises
-    ------
-    ValidationError
-        Fewer than 2 tasks, or non-finite coefficients.
-    """
-    H = check_array(coefficients, "coefficients", ndim=2)
-    n, k = H.shape
-    if n < 2:
-        raise ValidationError(f"the coefficients' prior is fitted to the training tasks' coefficients; got {n} task(s), "
-                              "need at least 2")
-    C = np.atleast_2d(np.cov(H, rowvar=False, ddof=1))
-    scale = float(np.trace(C)) / k
-    C = C + PRIOR_RIDGE * (scale if scale > 0 else 1.0) * np.eye(k)
-    P = np.linalg.inv(C)
-    return H.mean(axis=0), 0.5 * (P + P.T)
 
 
 def likelihood_scaling(objective_name: str, n_pairs: ArrayLike, mu: Any = None, pi: Any = None) -> NDArray[np.float64]:
@@ -476,7 +450,7 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     ----------
     problem : TransferProblem
     prior : (mean (k,), precision (k, k))
-        :func:`coefficient_prior` of the training tasks' coefficients.
+        :func:`~factirl_opt.learners.transfer.coefficient_prior` of the training tasks' coefficients.
     start : ndarray, shape (n, d), optional
         Another start (e.g. the transfer's values): each task starts from whichever of it and
         the prior mean (zero residual) has the lower posterior objective.
@@ -629,7 +603,6 @@ def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = 
     ValidationError
         As ``FactIRL.transfer`` does for these arguments.
     """
-    from .transfer import transfer_tasks
 
     if not hasattr(model, "dictionary_"):
         raise NotFittedError("this FactIRL has no dictionary_: call fit first")
@@ -741,110 +714,6 @@ def set_transfer_posterior(model: Any, posteriors: list[LaplacePosterior] | None
     model._transfer = TransferState(posterior=posteriors, built=True)
 
 
-#: the prior scales :func:`fit_prior_scale` tries (``c_i = scale / N_i``, :mod:`factirl_opt.learners.transfer`)
-PRIOR_SCALES = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
-#: held-out training tasks :func:`fit_prior_scale` transfers at most (evenly spaced over the tasks)
-PRIOR_HELD_OUT = 20
-
-
-def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`~factirl_opt.learners.posterior.coefficient_prior` of the training coefficients (n, k) without
-    each task of ``rows`` (r,) in turn: means (r, k) and precisions (r, k, k). Needs n >= 3."""
-    H = check_array(coefficients, "coefficients", ndim=2)
-    rows = np.asarray(rows, dtype=np.intp)
-    pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
-    return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
-        np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
-
-
-def _take(seq, idx):
-    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
-
-
-def choose_prior_scale(scores: dict, rule: str = "min") -> float:
-    """The scale of :func:`fit_prior_scale`'s ``scores`` ``{scale: per-task deviations (r,)}``: the lowest mean
-    (``"min"``; ties to the larger scale), or the largest scale whose mean is within one standard error of the
-    lowest (``"1se"``, the paired differences' standard error over the held-out tasks); 0.0 for no scores."""
-    if not scores:
-        return 0.0
-    means = {s: float(np.mean(v)) for s, v in scores.items()}
-    best = min(means, key=lambda s: (means[s], -s))
-    if rule == "min":
-        return float(best)
-    if rule != "1se":
-        raise ValidationError(f"rule must be 'min' or '1se'; got {rule!r}")
-    ok = []
-    for s, v in scores.items():
-        diff = np.asarray(v) - np.asarray(scores[best])
-        se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
-        if means[s] - means[best] <= se:
-            ok.append(s)
-    return float(max(ok))
-
-
-def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = PRIOR_SCALES,
-                    n_held_out: int = PRIOR_HELD_OUT, solver: Any = None, rule: str = "min") -> tuple[float, dict]:
-    """The scale of the transfer's prior (:mod:`factirl_opt.learners.transfer`) that transfers the training
-    tasks best, held out one at a time.
-
-    Up to ``n_held_out`` training tasks (evenly spaced over them) are transferred from their first
-    demonstration, each with the prior fitted to the other training tasks' coefficients
-    (:func:`leave_one_out_priors`), at every ``scale`` of ``scales``; the score of a scale is the
-    mean deviation (:func:`factirl_opt.deviation`) of the transferred rewards from the tasks' own
-    fitted ``rewards_`` (all their demonstrations); :func:`choose_prior_scale` (``rule``) takes the scale.
-
-    Parameters
-    ----------
-    model : FactIRL
-        Fitted on ``mdp`` and ``demos_per_task`` (its ``dictionary_``, ``coefficients_``,
-        ``rewards_``, ``residual_penalty_``; its ``beta``, ``objective``, ``planner``, ``solver``,
-        ``transfer_max_iter``, ``tol`` and ``gtol`` as its ``transfer`` reads them).
-    mdp, demos_per_task
-        The training tasks, as given to ``fit``.
-    scales : tuple of float
-    n_held_out : int
-    solver : solvers.StepSolver, optional
-        The transfer's step solver (default: the model's H-step solver).
-
-    Returns
-    -------
-    scale : float
-        0.0 where no prior applies (fewer than 3 training tasks, or the flat model).
-    scores : dict
-        ``{scale: each held-out task's deviation (r,)}``.
-    """
-    from ..evaluation import deviation
-    from .fitting import resolve_step_solver, task_objective
-    from .solver_settings import estimator_solvers
-    from .transfer import run_transfer, transfer_prior_weights, transfer_tasks
-
-    H = np.asarray(model.coefficients_, dtype=np.float64)
-    lam = float(getattr(model, "residual_penalty_", np.inf))
-    n, k = H.shape
-    if n < 3 or lam == 0.0:
-        return 0.0, {}
-    idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
-    per_task_mdp = isinstance(mdp, (list, tuple))
-    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
-    feats = model.features if isinstance(model.features, (list, tuple)) else None
-    sub_F = None if feats is None else _take(feats, idx)
-    first = [demos_per_task[i][:1] for i in idx]
-    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
-    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
-    if solver is None:
-        name, options = estimator_solvers(model)[:2]
-        solver = resolve_step_solver(name, options, model.objective, "solver")
-    M, P = leave_one_out_priors(H, idx)
-    refs = _take(model.rewards_, idx)
-    mdps = sub_mdp if per_task_mdp else mdp
-    max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
-    scores = {}
-    for scale in scales:
-        c = transfer_prior_weights(tasks, scale)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            res = run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=check_tol(model.tol),
-                               gtol=check_tol(model.gtol, "gtol"), residual_penalty=lam, prior=(M, P, c))
-        scores[float(scale)] = np.atleast_1d(np.asarray(deviation(mdps, refs, res.rewards, planner=model._group("execution").planner),
-                                                            dtype=np.float64))
-    return choose_prior_scale(scores, rule), scores
+#: the prior-scale fitting moved beside the transfer's prior (:mod:`~factirl_opt.learners.transfer`); resolved here for one release
+moved_names(__name__, dict.fromkeys(("fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
+                                     "PRIOR_HELD_OUT", "PRIOR_RIDGE"), "factirl_opt.learners.transfer"))
