@@ -36,7 +36,7 @@ blocks differ (docs/maths.md §8, §8a):
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -239,7 +239,7 @@ class _ResidualBlocks:
 def check_residual_solver(h_solver: solvers.StepSolver, value: Any) -> float:
     """The validated finite residual penalty ``lambda`` (``value``) or np.inf; a finite one refused with a
     constrained H-solver (the H-step moves each task's coefficients and residual together)."""
-    lam = check_residual_penalty(value, allow_auto=False)
+    lam = cast(float, check_residual_penalty(value, allow_auto=False))  # not "auto": refused there
     if np.isfinite(lam) and h_solver.constraint != "none":
         raise ValidationError(
             f"residual_penalty={lam!r} needs an unconstrained h_solver (the H-step moves each task's coefficients and "
