@@ -162,6 +162,7 @@ _MOVED_MODULES = {
     "minari_adapter": "adapters.minari", "minigrid": "adapters.minigrid", "synthetic": "datasets.synthetic",
     "objectworld": "datasets.objectworld", "objectworld_maps": "datasets.objectworld.maps",
     "experiments": "lab.experiments", "benchmarks": "lab.benchmarks", "cli": "lab.cli", "bench": "lab.bench",
+    "learners.adaptive": "learners.selection.search", "learners.evidence": "learners.selection.evidence",
 }
 
 #: names a former module path held that now live in another module (former path -> name -> module
@@ -180,6 +181,14 @@ _MOVED_MODULE_NAMES = {
         **{name: "datasets.babyai" for name in (
             "N_STREAMS", "SEED_RANGE", "SPLITS", "mission_rewards", "random_success_probability")},
         **{name: "lab.experiments.worlds" for name in ("babyai_world", "babyai_large_world")}},
+    "learners.adaptive": {
+        **{name: "learners.selection.results" for name in (
+            "CV_RESULTS_KEYS", "ROW_KEYS", "check_cv_results", "cv_results", "plot_validation", "rows_cv_results",
+            "validation_rows")},
+        **{name: "learners.selection.scores" for name in ("held_out_nll", "held_out_occupancy_gap")},
+        **{name: "learners.selection.folds" for name in ("task_mdp", "task_subset")},
+        **{name: "learners.selection.rules" for name in ("choose_row", "DEFAULT_RULE")},
+        "sharing_candidates": "learners.selection.routes"},
 }
 install_module_aliases(__name__, _MOVED_MODULES, _MOVED_MODULE_NAMES)
 

@@ -31,7 +31,7 @@ from typing import Any
 
 from .exceptions import DeprecatedNameWarning
 
-__all__ = ["moved_attribute", "install_module_aliases", "warn_once"]
+__all__ = ["moved_attribute", "install_module_aliases", "moved_names", "warn_once"]
 
 _warned: set[str] = set()
 _lock = threading.Lock()
@@ -142,6 +142,11 @@ def _add_former_names(module: ModuleType, former: str, names: Mapping[str, str])
             module.__getattr__ = getter  # type: ignore[method-assign]
         for name, home in names.items():
             getter.names.setdefault(name, (former, home))
+
+
+def moved_names(module: str, names: Mapping[str, str]) -> None:
+    """Let the imported ``module`` still resolve ``names`` that left it (name -> module holding it now), each with a one-time warning."""
+    _add_former_names(sys.modules[module], module, names)
 
 
 class _AliasLoader(importlib.abc.Loader):

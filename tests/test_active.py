@@ -58,7 +58,7 @@ def test_information_is_the_posteriors_curvature_per_pair(fitted, objective):
     model = models[objective]
     post = model.transfer_posterior_[0]
     _, info, _ = state_information(post, objective, model.beta)
-    from factirl_opt.learners.posterior import demonstration_curvature, transfer_problem
+    from factirl_opt.learners.transfer_likelihood import demonstration_curvature, transfer_problem
     problem = transfer_problem(model, mdp, test.demos)
     _, _, G = demonstration_curvature(problem, post.mean[None], [0])
     mu = problem.objective.mu[0]

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.learners import adaptive
+from factirl_opt.learners import selection
+from factirl_opt.learners.selection import routes, rules, scores, search
 from factirl_opt.learners.em import log_policies
 from factirl_opt.planning import get_planner
 from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
@@ -28,7 +29,7 @@ def data():
 
 def _table(model):
     """The rows of a model's ``cv_results_`` (the former validation table)."""
-    return adaptive.validation_rows(model.cv_results_)
+    return selection.validation_rows(model.cv_results_)
 
 
 #: the search of these tests' "auto" fits
@@ -53,18 +54,18 @@ def test_the_chosen_pair_is_the_best_of_the_table(auto):
     assert len(set(pairs)) == len(pairs)
     # k up to the 4 training tasks of a fold; lambda = 0 once (the dictionary plays no part there)
     grid = sorted((k, lam) for k in (1, 2, 4) for lam in (np.inf, 1.0, 1e-2))
-    assert sorted(p for p in pairs if p[1] > 0 and p[0] in adaptive.K_CANDIDATES) == grid
+    assert sorted(p for p in pairs if p[1] > 0 and p[0] in selection.K_CANDIDATES) == grid
     # and k = 3 only if the bisection of k ran, at the chosen lambda, around a chosen k of 2 or 4
-    assert [p for p in pairs if p[0] not in adaptive.K_CANDIDATES] in ([], [(3, auto.residual_penalty_)])
+    assert [p for p in pairs if p[0] not in selection.K_CANDIDATES] in ([], [(3, auto.residual_penalty_)])
     assert [p for p in pairs if p[1] == 0.0] == [(1, 0.0)]
     # the default search is a race: the candidates far behind on the first fold are not scored on the
     # others; the flat model always is (unless it is the only contender left: then it is the choice)
     assert [r["chosen"] for r in rows].count(True) == 1
     chosen = next(r for r in rows if r["chosen"])
-    assert rows.index(chosen) == adaptive.choose_row(rows)
+    assert rows.index(chosen) == selection.choose_row(rows)
     assert (auto.n_primitives_, auto.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
     lead = min(r["fold_scores"][0] for r in rows)
-    contenders = [r for r in rows if r["fold_scores"][0] <= lead + adaptive.RACE_MARGIN * abs(lead)
+    contenders = [r for r in rows if r["fold_scores"][0] <= lead + selection.RACE_MARGIN * abs(lead)
                   or r["residual_penalty"] == 0.0]
     for r in rows:
         assert len(r["fold_scores"]) in (1, 3) and r["score"] == pytest.approx(np.mean(r["fold_scores"]))
@@ -85,24 +86,24 @@ def _rows(flat, shared):
 def test_sharing_must_beat_the_flat_model_significantly():
     """A one-sided paired t-test at SHARE_LEVEL = 0.05 over the held-out tasks: with 4 tasks the
     mean gain must exceed t_3(0.95) = 2.353 standard errors."""
-    assert adaptive.SHARE_LEVEL == 0.05
+    assert selection.SHARE_LEVEL == 0.05
     flat = np.array([1.0, 2.0, 3.0, 4.0])
     # the paired gains 0.1, -0.2, 0.3, 0.2: mean 0.1 < their standard error 0.108: the flat model stays
-    assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])) == 1
+    assert rules._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])) == 1
     # gains 0.1, 0.3, 0.3, 0.3: mean 0.25, standard error 0.05: t = 5 > 2.353: the sharing candidate
-    assert adaptive._choice(_rows(flat, flat - [0.1, 0.3, 0.3, 0.3])) == 0
+    assert rules._choice(_rows(flat, flat - [0.1, 0.3, 0.3, 0.3])) == 0
     # gains 0.0, 0.3, 0.3, 0.3: mean 0.225, standard error 0.075: t = 3 > 2.353 > 1 ...
-    assert adaptive._choice(_rows(flat, flat - [0.0, 0.3, 0.3, 0.3])) == 0
+    assert rules._choice(_rows(flat, flat - [0.0, 0.3, 0.3, 0.3])) == 0
     # ... gains -0.1, 0.3, 0.3, 0.3: mean 0.2, standard error 0.1: t = 2, beyond one standard error
     # but not significant: the flat model stays
-    assert adaptive._choice(_rows(flat, flat - [-0.1, 0.3, 0.3, 0.3])) == 1
+    assert rules._choice(_rows(flat, flat - [-0.1, 0.3, 0.3, 0.3])) == 1
     # the flat model leads: it is the choice; without a flat row, the lowest mean wins
-    assert adaptive._choice(_rows(flat, flat + 0.5)) == 1
-    assert adaptive._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])[:1]) == 0
+    assert rules._choice(_rows(flat, flat + 0.5)) == 1
+    assert rules._choice(_rows(flat, flat - [0.1, -0.2, 0.3, 0.2])[:1]) == 0
     # a row scored on fewer folds (pruned in a race) is never chosen
     rows = _rows(flat, flat - 5.0)
     rows[1]["fold_scores"] = rows[1]["fold_scores"] * 2
-    assert adaptive.choose_row(rows) == 1
+    assert selection.choose_row(rows) == 1
 
 
 def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkeypatch):
@@ -118,16 +119,16 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
         for k, lam in candidates:
             progress.scores.setdefault((k, lam), []).extend(one(k, lam, held) for held in folds)
 
-    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
+    monkeypatch.setattr(search, "score_candidates", score_candidates)
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
-    k, lam, rows = adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])
+    k, lam, rows = selection.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])
     assert (k, lam) == (6, 1.0)
-    refined = [(r["n_primitives"], r["residual_penalty"]) for r in rows if r["n_primitives"] not in adaptive.K_CANDIDATES]
+    refined = [(r["n_primitives"], r["residual_penalty"]) for r in rows if r["n_primitives"] not in selection.K_CANDIDATES]
     assert refined == [(3, 1.0), (6, 1.0), (5, 1.0), (7, 1.0)]  # 4 -> {3, 6}; 6 -> {5, 7}; 6 stays: the end
     assert all(len(r["fold_scores"]) == 3 for r in rows if (r["n_primitives"], r["residual_penalty"]) in refined)
     # a fixed k is not refined
     learner = fo.FactIRL(rng=0, n_primitives=4, residual_penalty="auto")
-    assert adaptive.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])[:2] == (4, 1.0)
+    assert selection.choose_sharing(learner, mdp, [demos[i % 6] for i in range(30)])[:2] == (4, 1.0)
 
 
 def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch):
@@ -142,23 +143,23 @@ def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch)
             progress.scores.setdefault((k, lam), []).extend(
                 (1.0 + (k - 6) ** 2 / 100 + (2.0 if lam == 0.0 else 0.0)) + 0.01 * held for held in folds)
 
-    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
+    monkeypatch.setattr(search, "score_candidates", score_candidates)
     monkeypatch.setattr(_deprecation, "_warned", set())
     learner, tasks = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto"), [demos[i % 6] for i in range(30)]
     with pytest.warns(DeprecatedNameWarning, match="choose_sharing is deprecated: search_sharing"):
-        got = adaptive.choose_sharing(learner, mdp, tasks, search="full")
-    want = adaptive.search_sharing(learner, mdp, tasks, search="full").as_tuple()
+        got = selection.choose_sharing(learner, mdp, tasks, search="full")
+    want = selection.search_sharing(learner, mdp, tasks, search="full").as_tuple()
     assert got == want and got[:2] == (6, np.inf)
     assert SharingSearch(route="full").search(learner, mdp, tasks).as_tuple() == want  # the same search as a component
 
 
 def test_the_bisection_steps_between_tried_numbers_of_primitives():
-    assert adaptive.bisection_midpoints(8, [1, 2, 4, 8, 16], 67) == [6, 12]
-    assert adaptive.bisection_midpoints(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]
-    assert adaptive.bisection_midpoints(4, [1, 2, 4, 8], 5) == [3]          # 6 is beyond k_max
-    assert adaptive.bisection_midpoints(16, [1, 2, 4, 8, 16], 20) == [12]   # never beyond the tried range
-    assert adaptive.bisection_midpoints(1, [1, 2], 5) == []
-    assert adaptive.bisection_midpoints(5, [4, 5, 6], 9) == []
+    assert selection.bisection_midpoints(8, [1, 2, 4, 8, 16], 67) == [6, 12]
+    assert selection.bisection_midpoints(6, [1, 2, 4, 6, 8, 12, 16], 67) == [5, 7]
+    assert selection.bisection_midpoints(4, [1, 2, 4, 8], 5) == [3]          # 6 is beyond k_max
+    assert selection.bisection_midpoints(16, [1, 2, 4, 8, 16], 20) == [12]   # never beyond the tried range
+    assert selection.bisection_midpoints(1, [1, 2], 5) == []
+    assert selection.bisection_midpoints(5, [4, 5, 6], 9) == []
 
 
 def test_the_search_flat_start_takes_the_learner_saturation_rule(data):
@@ -166,8 +167,8 @@ def test_the_search_flat_start_takes_the_learner_saturation_rule(data):
     rule off: a saturation rule stops it earlier, with the weights GradIRL gives."""
     mdp, F, demos = data
     learner = fo.FactIRL(features=F, flat_max_iter=60)
-    plain = adaptive.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5)
-    saturated = adaptive.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5, 1e-2)
+    plain = selection.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5)
+    saturated = selection.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5, 1e-2)
     flat = fo.GradIRL(features=F, max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
     np.testing.assert_array_equal(saturated, flat.rewards_)
     assert not np.allclose(saturated, plain)
@@ -179,11 +180,11 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     the full search's winner stays in the race."""
     mdp, F, demos = data
     learner = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
-    flat = adaptive.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    flat = selection.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        k, lam, full = adaptive.choose_sharing(learner, mdp, demos, flat, search="full")
-        kr, lr, race = adaptive.choose_sharing(learner, mdp, demos, flat, search="race")
+        k, lam, full = selection.choose_sharing(learner, mdp, demos, flat, search="full")
+        kr, lr, race = selection.choose_sharing(learner, mdp, demos, flat, search="race")
     assert all(len(r["fold_scores"]) == 3 for r in full)
     by_pair = {(r["n_primitives"], r["residual_penalty"]): r for r in full}
     for r in race:  # lambda = 0 is not fitted in a race; its transfer, the flat learner's, needs no dictionary
@@ -191,8 +192,8 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
         assert r["fold_scores"] == other["fold_scores"][:len(r["fold_scores"])]
     assert sum(len(r["fold_scores"]) for r in race) < 3 * len(race)
     complete = [r for r in race if len(r["fold_scores"]) == 3]
-    assert (kr, lr) == (race[adaptive._choice(race)]["n_primitives"], race[adaptive._choice(race)]["residual_penalty"])
-    assert (k, lam) == (full[adaptive._choice(full)]["n_primitives"], full[adaptive._choice(full)]["residual_penalty"])
+    assert (kr, lr) == (race[rules._choice(race)]["n_primitives"], race[rules._choice(race)]["residual_penalty"])
+    assert (k, lam) == (full[rules._choice(full)]["n_primitives"], full[rules._choice(full)]["residual_penalty"])
     if all(any(r["fold_scores"] == by_pair[pair]["fold_scores"] for r in complete)
            for pair in by_pair if by_pair[pair]["score"] <= by_pair[k, lam]["score"] or pair[1] == 0.0):
         assert (kr, lr) == (k, lam)  # the full search's winner stayed in the race
@@ -201,12 +202,12 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     # scored as in the full search on the first fold
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        warm = adaptive.choose_sharing(learner, mdp, demos, flat, search="race-warm")[2]
+        warm = selection.choose_sharing(learner, mdp, demos, flat, search="race-warm")[2]
     for r in warm:
         if r["residual_penalty"] == np.inf:
             assert r["fold_scores"][0] == by_pair[r["n_primitives"], np.inf]["fold_scores"][0]
-    with pytest.raises(ValidationError, match=r"search must be one of \('full', 'race', 'race-warm'.*\); got 'grid'"):
-        adaptive.choose_sharing(learner, mdp, demos, flat, search="grid")
+    with pytest.raises(ValidationError, match=r"search must be one of \('race', 'full', 'race-warm', 'short', 'pca', 'evidence'\); got 'grid'"):
+        selection.choose_sharing(learner, mdp, demos, flat, search="grid")
 
 
 def test_the_final_fit_is_the_fixed_fit_of_the_chosen_pair(data, auto):
@@ -250,10 +251,10 @@ def test_validation_needs_two_tasks_and_a_demonstration_to_score(data):
 def test_plot_validation(auto):
     matplotlib = pytest.importorskip("matplotlib")
     matplotlib.use("Agg")
-    ax = adaptive.plot_validation(auto)
+    ax = selection.plot_validation(auto)
     assert len(ax.get_lines()) >= 3 and ax.get_xscale() == "log"
     with pytest.raises(ValidationError, match=r"has no cv_results_"):
-        adaptive.plot_validation(fo.FactIRL())
+        selection.plot_validation(fo.FactIRL())
 
 
 def test_the_choice_and_its_table_are_saved_and_checked(auto, tmp_path):
@@ -345,14 +346,14 @@ def test_held_out_likelihood_is_the_boltzmann_policys_at_its_best_temperature(da
             return -np.mean(np.log(pi[pairs[:, 0], pairs[:, 1]]))
 
     model = fo.FactIRL(beta=5.0)
-    assert adaptive.held_out_nll(mdp, demos[0], R, model, temper=False) == pytest.approx(nll(5.0), rel=1e-12)
+    assert selection.held_out_nll(mdp, demos[0], R, model, temper=False) == pytest.approx(nll(5.0), rel=1e-12)
     betas = np.exp(np.linspace(-6, 6, 4001))
     grid = min(nll(b) for b in betas)
-    tempered = adaptive.held_out_nll(mdp, demos[0], R, model)
+    tempered = selection.held_out_nll(mdp, demos[0], R, model)
     assert grid - 1e-6 <= tempered <= min(grid, nll(5.0), np.log(mdp.n_actions)) + 1e-9
     # the reward's scale does not matter (Q* is positively homogeneous), its direction does
-    assert adaptive.held_out_nll(mdp, demos[0], 7.0 * R, model) == pytest.approx(tempered, abs=1e-7)
-    assert adaptive.held_out_nll(mdp, demos[0], np.zeros_like(R), model) == pytest.approx(np.log(mdp.n_actions))
+    assert selection.held_out_nll(mdp, demos[0], 7.0 * R, model) == pytest.approx(tempered, abs=1e-7)
+    assert selection.held_out_nll(mdp, demos[0], np.zeros_like(R), model) == pytest.approx(np.log(mdp.n_actions))
 
 
 def test_held_out_likelihood_of_mce_is_the_soft_policys(data):
@@ -361,23 +362,23 @@ def test_held_out_likelihood_of_mce_is_the_soft_policys(data):
     model = fo.FactIRL(beta=2.0, objective="mce")
     log_pi = log_policies(get_planner(mdp), R[None], 2.0, "mce")[0]
     pairs = demos[1].reshape(-1, 2)
-    fixed = adaptive.held_out_nll(mdp, demos[1], R, model, temper=False)
+    fixed = selection.held_out_nll(mdp, demos[1], R, model, temper=False)
     assert fixed == pytest.approx(-np.mean(log_pi[pairs[:, 0], pairs[:, 1]]), rel=1e-12)
-    assert adaptive.held_out_nll(mdp, demos[1], R, model) <= min(fixed, np.log(mdp.n_actions)) + 1e-12
+    assert selection.held_out_nll(mdp, demos[1], R, model) <= min(fixed, np.log(mdp.n_actions)) + 1e-12
 
 
 def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data):
     mdp, F, demos = data
     learner = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto", residual_penalty="auto")
-    flat = adaptive.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    flat = selection.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        for score in adaptive.SCORES:
-            k, lam, table = adaptive.choose_sharing(learner, mdp, demos, flat, score=score)
-            chosen = table[adaptive._choice(table)]
+        for score in selection.SCORES:
+            k, lam, table = selection.choose_sharing(learner, mdp, demos, flat, score=score)
+            chosen = table[rules._choice(table)]
             assert (k, lam) == (chosen["n_primitives"], chosen["residual_penalty"]) and chosen["chosen"]
     with pytest.raises(ValidationError, match="score must be one of"):
-        adaptive.choose_sharing(learner, mdp, demos, flat, score="accuracy")
+        selection.choose_sharing(learner, mdp, demos, flat, score="accuracy")
 
 
 def test_occupancy_gap_is_zero_for_the_greedy_policys_own_paths_and_matches_enumeration():
@@ -398,7 +399,7 @@ def test_occupancy_gap_is_zero_for_the_greedy_policys_own_paths_and_matches_enum
             s = int(np.argmax(P[s, greedy[s]]))
         paths.append(path)
     demos = np.array(paths)
-    assert adaptive.held_out_occupancy_gap(det, demos, R) == pytest.approx(0.0, abs=1e-12)
+    assert selection.held_out_occupancy_gap(det, demos, R) == pytest.approx(0.0, abs=1e-12)
 
     mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
     episodes = [np.array([[0, 1], [1, 2], [4, 0]]), np.array([[8, 3], [5, 3]])]  # two lengths
@@ -413,7 +414,7 @@ def test_occupancy_gap_is_zero_for_the_greedy_policys_own_paths_and_matches_enum
             for x in range(9):
                 learnt[x, greedy[x]] += 0.9 ** t * d[x] / 2
             d = np.array([sum(d[x] * P[x, greedy[x], y] for x in range(9)) for y in range(9)])
-    gap = adaptive.held_out_occupancy_gap(mdp, episodes, R)
+    gap = selection.held_out_occupancy_gap(mdp, episodes, R)
     assert gap == pytest.approx(np.abs(expert - learnt).sum(), rel=1e-12)
     # the value of any reward under the two occupancies differs by at most max|r| times the gap
     r = rng.normal(size=(9, 4))
@@ -451,7 +452,7 @@ def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monk
     scored; interrupted before any candidate was fitted, it stays unfitted."""
     mdp, F, demos = data
     calls = []
-    score = adaptive._score
+    score = scores._score
 
     def interrupted(*args, **kw):
         calls.append(1)
@@ -459,7 +460,7 @@ def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monk
             raise KeyboardInterrupt
         return score(*args, **kw)
 
-    monkeypatch.setattr(adaptive, "_score", interrupted)
+    monkeypatch.setattr(search, "_score", interrupted)
     model = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto", sharing_search=RACE)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -476,7 +477,7 @@ def test_an_interrupted_search_keeps_the_best_candidate_fitted_so_far(data, monk
     assert model.transfer(mdp, [d[:1] for d in demos[:2]]).shape == (2, model.n_primitives_)
 
     calls.clear()
-    monkeypatch.setattr(adaptive, "_score", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    monkeypatch.setattr(search, "_score", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
     model = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto", sharing_search=RACE)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -496,7 +497,7 @@ def test_a_fixed_fit_after_an_auto_fit_drops_the_search(data):
         model.set_params(residual_penalty=np.inf).fit(mdp, demos)
     assert not hasattr(model, "cv_results_") and not hasattr(model, "validation_") and model.residual_penalty_ == np.inf
     with pytest.raises(ValidationError, match=r"has no cv_results_"):
-        adaptive.plot_validation(model)
+        selection.plot_validation(model)
 
 
 def test_flat_rewards_of_the_wrong_shape_are_refused_before_the_search(data):
@@ -521,10 +522,10 @@ def test_plot_validation_names_a_missing_key_of_an_edited_table(auto):
     edited.cv_results_ = dict(auto.cv_results_)
     del edited.cv_results_["std_test_score"]
     with pytest.raises(ValidationError, match=r"cv_results_ has no key 'std_test_score'"):
-        adaptive.plot_validation(edited)
+        selection.plot_validation(edited)
     edited.cv_results_ = dict(auto.cv_results_, mean_test_score=auto.cv_results_["mean_test_score"][:2])
     with pytest.raises(ValidationError, match=r"cv_results_\['mean_test_score'\] must have one entry per candidate"):
-        adaptive.plot_validation(edited)
+        selection.plot_validation(edited)
     # the deprecated table, set by hand, is checked as it is set
     rows = _table(auto)
     del rows[1]["score_std"]
@@ -542,10 +543,10 @@ def test_the_held_out_scores_refuse_non_finite_rewards(data, bad):
     R = np.zeros((mdp.n_states, mdp.n_actions))
     R[2, 1] = bad
     with pytest.raises(ValidationError, match=r"rewards must be finite; found .* at index \(2, 1\)"):
-        adaptive.held_out_nll(mdp, demos[0], R, fo.FactIRL())
+        selection.held_out_nll(mdp, demos[0], R, fo.FactIRL())
     with pytest.raises(ValidationError, match=r"rewards must be finite"):
-        adaptive.held_out_occupancy_gap(mdp, demos[0], R)
+        selection.held_out_occupancy_gap(mdp, demos[0], R)
     with pytest.raises(ValidationError, match=r"rewards must be one task's reward"):
-        adaptive.held_out_nll(mdp, demos[0], np.zeros((2, 9, 4)), fo.FactIRL())
+        selection.held_out_nll(mdp, demos[0], np.zeros((2, 9, 4)), fo.FactIRL())
     with pytest.raises(ValidationError, match=r"rewards must have shape \(S, A\)"):
-        adaptive.held_out_occupancy_gap(mdp, demos[0], np.zeros((9, 3)))
+        selection.held_out_occupancy_gap(mdp, demos[0], np.zeros((9, 3)))

@@ -6,10 +6,9 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import ValidationError
-from factirl_opt.learners.posterior import (
-    MAP_TOL, LaplacePosterior, TransferProblem, coefficient_prior, demonstration_curvature, laplace_posteriors,
-    likelihood_scaling, lowrank_solve,
-)
+from factirl_opt.learners.posterior import MAP_TOL, LaplacePosterior, laplace_posteriors, lowrank_solve
+from factirl_opt.learners.transfer_likelihood import TransferProblem, demonstration_curvature, likelihood_scaling
+from factirl_opt.learners.transfer import coefficient_prior
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
 from factirl_opt.objectives.mce import MCEObjective, soft_values
 from factirl_opt.objectives.policy_matching import PolicyMatchingObjective

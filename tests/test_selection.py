@@ -7,7 +7,8 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, PersistenceError, ValidationError
-from factirl_opt.learners import adaptive, clone
+from factirl_opt.learners import clone, selection
+from factirl_opt.learners.selection import routes, rules, scores, search
 from factirl_opt.learners.selection import ROUTES, SharingSearch
 
 
@@ -62,9 +63,9 @@ def test_the_folds_grids_and_route_are_the_searchs(data):
             yield np.arange(n // 2, n), np.arange(n // 2)
             yield np.arange(n // 2), np.arange(n // 2, n)
 
-    folds = adaptive.task_folds(8, Halves())
+    folds = selection.task_folds(8, Halves())
     assert [f.tolist() for f in folds] == [[0, 1, 2, 3], [4, 5, 6, 7]]
-    assert [len(f) for f in adaptive.task_folds(8, 3, rng=0)] == [3, 3, 2]
+    assert [len(f) for f in selection.task_folds(8, 3, rng=0)] == [3, 3, 2]
 
 
 def test_every_route_runs_and_the_pca_route_fits_no_candidate_beyond_its_start(data, monkeypatch):
@@ -84,7 +85,7 @@ def test_every_route_runs_and_the_pca_route_fits_no_candidate_beyond_its_start(d
     assert final[1] == 3 and model.n_iter_ == final[2]
     assert {"race", "full", "race-warm", "short", "pca"} <= set(ROUTES)
     short = _fit(_auto(F, route="short", n_primitives_grid=(1, 2), residual_penalty_grid=(np.inf, 0.0)), mdp, demos)
-    assert [r["chosen"] for r in adaptive.validation_rows(short.cv_results_)].count(True) == 1
+    assert [r["chosen"] for r in selection.validation_rows(short.cv_results_)].count(True) == 1
 
 
 def test_share_within_noise_takes_the_candidate_that_shares_most_within_noise():
@@ -97,17 +98,17 @@ def test_share_within_noise_takes_the_candidate_that_shares_most_within_noise():
             row(5, 1.0, base - 0.05),                               # the best mean
             row(2, np.inf, base + 1.0),                             # far behind
             row(1, 0.0, base + 2.0)]                                # the flat model, far behind
-    assert adaptive.choose_row(rows) == 1
-    assert adaptive.choose_row(rows, "share-within-noise") == 0
+    assert selection.choose_row(rows) == 1
+    assert selection.choose_row(rows, "share-within-noise") == 0
     # nothing within noise: the best stays
     rows[0] = row(5, np.inf, base + 0.5)
-    assert adaptive.choose_row(rows, "share-within-noise") == 1
+    assert selection.choose_row(rows, "share-within-noise") == 1
     # the flat model within noise of the best: kept under either rule
     rows[3] = row(1, 0.0, base + [-0.2, 0.2, -0.1, 0.1, 0.1])
-    assert adaptive.choose_row(rows) == adaptive.choose_row(rows, "share-within-noise") == 3
+    assert selection.choose_row(rows) == selection.choose_row(rows, "share-within-noise") == 3
     with pytest.raises(ValidationError, match=r"rule must be one of \('significant-gain', 'share-within-noise', "
                                               r"'fewest-within-se'\); got 'x'"):
-        adaptive.choose_row(rows, "x")
+        selection.choose_row(rows, "x")
 
 
 def test_fewest_within_se_takes_the_fewest_primitives_within_one_standard_error_at_the_leaders_penalty():
@@ -123,13 +124,13 @@ def test_fewest_within_se_takes_the_fewest_primitives_within_one_standard_error_
             row(3, np.inf, base + 0.1 + noise),   # 0.158 behind, 2.8 standard errors
             row(2, 1.0, base + noise - 0.02),     # within noise, at another penalty: not compared
             row(1, 0.0, base + 1.0)]              # the flat model, far behind
-    assert adaptive.choose_row(rows) == 0
-    assert adaptive.choose_row(rows, "fewest-within-se") == 2
-    assert adaptive.choose_row(rows, "share-within-noise") == 2
+    assert selection.choose_row(rows) == 0
+    assert selection.choose_row(rows, "fewest-within-se") == 2
+    assert selection.choose_row(rows, "share-within-noise") == 2
     rows[2] = row(5, np.inf, base + 0.06 + noise)  # 1.2 standard errors behind: the leader stays
-    assert adaptive.choose_row(rows, "fewest-within-se") == 0
+    assert selection.choose_row(rows, "fewest-within-se") == 0
     rows[5] = row(1, 0.0, base + noise)  # the flat model within noise of the leader: kept
-    assert adaptive.choose_row(rows, "fewest-within-se") == 5
+    assert selection.choose_row(rows, "fewest-within-se") == 5
 
 
 def test_each_route_takes_its_own_rule_unless_one_is_given():
@@ -137,7 +138,7 @@ def test_each_route_takes_its_own_rule_unless_one_is_given():
 
     assert SharingSearch().route == "evidence" and SharingSearch().rule is None
     assert route_rule("evidence") == ROUTE_RULES["evidence"] == "fewest-within-se"
-    assert route_rule("race") == route_rule("pca") == adaptive.DEFAULT_RULE == "significant-gain"
+    assert route_rule("race") == route_rule("pca") == selection.DEFAULT_RULE == "significant-gain"
     assert route_rule("evidence", "share-within-noise") == "share-within-noise"
     with pytest.raises(ValidationError, match=r"route must be one of .*; got 'x'"):
         route_rule("x")

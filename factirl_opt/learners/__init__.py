@@ -15,19 +15,19 @@
 - :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
   policies of new tasks by generalised policy improvement over the successor features of a library.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
-  values are chosen (:mod:`~factirl_opt.learners.adaptive`, the search's engine).
+  values are chosen (the model-selection package: folds, scores, rules, results, routes, the engine).
 
 Learners never know which step solver, objective or planner runs: they take them by name.
 """
 
-from .adaptive import plot_validation
 from .estimator import clone
 from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gpi import GPIReport
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .posterior import LaplacePosterior
-from .selection import SharingSearch
+from .selection.results import plot_validation
+from .selection.sharing_search import SharingSearch
 from .solver_settings import SolverSettings
 from .start import IntentionStart, Start
 from ..objectives.sharding import Execution

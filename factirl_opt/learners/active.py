@@ -35,7 +35,9 @@ from .._validation import check_int
 from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
-from .posterior import LaplacePosterior, coefficient_prior, has_prior, laplace_posteriors, transfer_inputs, transfer_problem
+from .posterior import LaplacePosterior, has_prior, laplace_posteriors, transfer_inputs
+from .transfer_likelihood import transfer_problem
+from .transfer import coefficient_prior
 
 __all__ = ["request_starts", "information_gains", "information_rows", "value_variance_reductions", "state_information", "start_occupancy",
            "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",

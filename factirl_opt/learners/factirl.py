@@ -21,12 +21,11 @@ from numpy.typing import ArrayLike, NDArray
 
 import solvers
 
-from .._validation import as_rng, check_array, check_bool, check_fit_parameters, check_int, check_tol
+from .._validation import as_rng, check_bool, check_fit_parameters, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
     check_dictionary_constraint,
-    check_dictionary_norms,
     constrained_dictionary_solver,
     constrained_start,
     normalise_dictionary,
@@ -35,47 +34,27 @@ from .dictionary import (
     shrink_coefficients,
 )
 from ..exceptions import FitInterrupted, ValidationError
-from .factorial import GTOL, FactorialFit, check_scheme, fit_factorial, run_factorial
+from .factorial import GTOL, FactorialFit, check_residual_solver, check_scheme, fit_factorial, run_factorial
 from .fitting import learner_entry, resolve_step_solver, task_objective, warn_if_stalled
 from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
-from .gradirl import fit_weights
-from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, warn_interrupted
+from ..interruption import loss_phrase, raise_interrupted, warn_interrupted
 from ..objectives.sharding import Execution
-from .solver_settings import SolverSettings, estimator_solvers, step_solver
-from .start import FLAT_TOL, Start
+from .solver_settings import SolverSettings, estimator_solvers
+from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
-from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_tasks
+from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
-from .adaptive import AUTO, check_cv_results, cv_results, fixed_learner, flat_start_rewards, rows_cv_results, validation_rows
-from .selection import SharingSearch
-from .._deprecation import warn_once
-from ..objectives.residuals import check_residual_penalty, residual_weights
+from .selection.results import rows_cv_results, validation_rows
+from .selection.sharing_search import SharingSearch, fit_auto, is_auto
+from .._deprecation import moved_names, warn_once
+from ..objectives.residuals import residual_weights
 
 __all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
            "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
-
-INITS = ("pca", "random")
-
-#: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
-RANDOM_INIT_SCALE = 0.3
-
-#: the flat learner of the PCA start: GradIRL's default solver
-FLAT_SOLVER = "armijo"
-
-
-def _is_auto(value: Any) -> bool:
-    """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.adaptive`)."""
-    return isinstance(value, str) and value == AUTO
-
-
-def _check_flat_rewards(tasks: Any, flat_rewards: Any) -> None:
-    """The shape check of ``fit``'s PCA start, made before a search splits ``flat_rewards`` over folds."""
-    tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)
-
 
 class FactIRL(Estimator):
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
@@ -84,7 +63,7 @@ class FactIRL(Estimator):
     ----------
     n_primitives : int or "auto", default=5
         Number of primitive rewards k. ``"auto"``: chosen by validation over tasks
-        (:mod:`factirl_opt.learners.adaptive`), as ``residual_penalty="auto"``.
+        (:mod:`factirl_opt.learners.selection`), as ``residual_penalty="auto"``.
     beta : float, default=5.0
         Boltzmann inverse temperature (eq. 7).
     features : array_like, shape (S*A, p) or (S, p), or sequence of n such, optional
@@ -154,7 +133,7 @@ class FactIRL(Estimator):
         ``h = 0``, ``delta`` the weights): the same rewards as ``GradIRL`` with that solver and
         budget on the new tasks' features (why ``flat_solver`` there: "What residual_penalty
         runs" in :mod:`factirl_opt.learners.factorial`, the one place that states what each value
-        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.adaptive`).
+        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.selection`).
     dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
         Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
         paper's free dictionary; otherwise every primitive has unit norm and is nonnegative
@@ -236,10 +215,10 @@ class FactIRL(Estimator):
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
-        :func:`~factirl_opt.learners.adaptive.search_sharing`, one row per candidate
+        :func:`~factirl_opt.learners.selection.search.search_sharing`, one row per candidate
         ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
         ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
-        :func:`~factirl_opt.learners.adaptive.plot_validation` draws it.
+        :func:`~factirl_opt.learners.selection.results.plot_validation` draws it.
 
     Notes
     -----
@@ -315,7 +294,7 @@ class FactIRL(Estimator):
 
     @property
     def validation_(self) -> list[dict]:
-        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.adaptive.validation_rows`)."""
+        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.selection.results.validation_rows`)."""
         if "cv_results_" not in vars(self):
             raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
                                  "residual_penalty='auto'; the table is cv_results_ now)")
@@ -326,87 +305,6 @@ class FactIRL(Estimator):
     @validation_.setter
     def validation_(self, rows: list[dict]) -> None:
         self.cv_results_ = rows_cv_results(rows, "validation_")
-
-    def _flat_start(self, n, basis, obj, rng):
-        """What the PCA start decomposes (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_points` of
-        the flat learner's weights on ``obj``) and its evaluations; the objective is reset after."""
-        flat_solver = resolve_step_solver(*self._flat_solver(), self.objective, "flat_solver")
-        start = self._group("start")
-        ev0 = obj.n_evaluations
-        try:
-            res = fit_weights(obj, basis, flat_solver, start.flat_max_iter, start.flat_tol, what="FactIRL.fit (flat start)",
-                              stol=start.flat_stol)
-        except FitInterrupted as exc:  # keep the PCA start of the flat fit as far as it got
-            D, H = self._pca(basis.start_points(exc.result.coefficients), basis, rng)
-            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
-            raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
-        warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
-        obj.reset()  # the factorial fit plans from scratch, as on a fresh objective
-        return basis.start_points(res.coefficients), obj.n_evaluations - ev0, res.coefficients
-
-    def _flat_solver(self) -> tuple[Any, dict | None]:
-        """The flat learner's ``(solver, options)``: the solver settings' ``flat_solver``, else ``"armijo"``."""
-        return step_solver(SolverSettings.of(self.solver), "flat", (FLAT_SOLVER, None))
-
-    def _pca(self, X, basis, rng):
-        """The PCA start (D, H) of the flat points X in the basis' metric
-        (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_dictionary`: the rewards' PCA mapped back
-        to feature space; with per-task features,
-        :func:`~factirl_opt.learners.dictionary.metric_pca_dictionary`)."""
-        return basis.start_dictionary(X, self.n_primitives, rng, pca_dictionary)
-
-    def _pca_init(self, n, basis, flat_rewards, rng, obj, lam):
-        """The PCA start ``(D, H, evaluations, W)``: ``W`` None, or with ``lam = 0`` (the flat model,
-        module :mod:`factirl_opt.learners.factorial`) the flat start's own weights (n, p), from which
-        :meth:`fit` starts the residuals ``delta_i = w_i - D h_i``: the fit begins at the flat model's
-        optimum instead of refitting it from ``delta = 0``."""
-        if flat_rewards is None:
-            X, evals, W = self._flat_start(n, basis, obj, rng)
-        else:
-            X, evals = basis.start_points_from_rewards(flat_rewards, n), 0
-            W = basis.weights_from_rewards(flat_rewards, n) if lam == 0 else None
-        try:
-            D, H = self._pca(X, basis, rng)
-        except KeyboardInterrupt as exc:
-            if isinstance(exc, FitInterrupted):
-                raise
-            # Ctrl-C in the PCA itself: redo it, and keep it as the start (not evaluated)
-            D, H = self._pca(X, basis, rng)
-            start = FactorialFit(D, H, np.full(n, np.nan), [], 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
-            raise FitInterrupted(start, "FactIRL.fit") from exc
-        if self._group("start").pca_shrink:
-            try:
-                H, _, calls = shrink_coefficients(lambda Hs: obj.loss_and_grad(basis.factorial_rewards(D, Hs))[0], H)
-            except FitInterrupted as exc:
-                Hs, _, _, loss = exc.result
-                history = [] if loss is None else [float(np.sum(loss))]
-                loss = np.full(n, np.nan) if loss is None else loss
-                start = FactorialFit(D, Hs, loss, history, 0, int(obj.n_evaluations), INTERRUPTED, INTERRUPTED)
-                raise FitInterrupted(start, "FactIRL.fit") from exc.__cause__
-            evals += calls
-            obj.reset()
-        return D, H, evals, W if lam == 0 else None
-
-    def _initial(self, n, basis, flat_rewards, rng, obj, lam=np.inf):
-        """``(D0, H0, evaluations, W)``: the start of the fit (``W``, the flat start's weights, None but
-        for a PCA start at ``lam = 0``: :meth:`_pca_init`)."""
-        k, p = self.n_primitives, basis.n_params
-        init = self._group("start").init
-        if isinstance(init, tuple):
-            if len(init) != 2:
-                raise ValidationError("init given as a tuple must be (D0, H0)")
-            D0, H0 = check_array(init[0], "init D0"), check_array(init[1], "init H0")
-            if D0.shape != (p, k) or H0.shape != (n, k):
-                raise ValidationError(f"init (D0, H0) must have shapes ({p}, {k}) and ({n}, {k}); got {D0.shape} and {H0.shape}")
-            check_dictionary_norms(D0, "init D0")
-            return D0.copy(), H0.copy(), 0, None
-        if isinstance(init, str) and init == "random":
-            D0 = rng.standard_normal((p, k))
-            D0 /= np.linalg.norm(D0, axis=0)
-            return D0, RANDOM_INIT_SCALE * rng.standard_normal((n, k)), 0, None
-        if isinstance(init, str) and init == "pca":
-            return self._pca_init(n, basis, flat_rewards, rng, obj, lam)
-        raise ValidationError(f"init must be one of {INITS} or a tuple (D0, H0); got {init!r}")
 
     def _check_params(self, tasks):
         """Validate the hyper-parameters against the task set; the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
@@ -449,8 +347,8 @@ class FactIRL(Estimator):
         """
         self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
-        if _is_auto(self.n_primitives) or _is_auto(self.residual_penalty):
-            return self._fit_auto(mdp, demos_per_task, flat_rewards)
+        if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
+            return fit_auto(self, mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         basis = tasks.basis
@@ -463,13 +361,13 @@ class FactIRL(Estimator):
             d_solver = constrained_dictionary_solver(d_solver, constraint, alpha, tasks.n_params,
                                                      check_int(self.n_primitives, "n_primitives", minimum=1),
                                                      len(tasks.demos_per_task))
-        lam = self._residual_penalty(h_solver, self.residual_penalty)
+        lam = check_residual_solver(h_solver, self.residual_penalty)
         scheme = check_scheme(self.scheme, h_solver, d_solver) if np.isinf(lam) else "alternating"
         execution, init = self._group("execution"), self._group("start").init
         obj = task_objective(tasks, self.beta, self.objective, execution.planner)
         try:
             with execution.evaluate(obj) as obj:
-                D, H, init_evals, W = self._initial(obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj, lam)
+                D, H, init_evals, W = factorial_start(self, obj.n_tasks, basis, flat_rewards, as_rng(self.rng), obj, lam)
                 if h_solver.constraint == "nonneg" and not isinstance(init, tuple):
                     D, H = orient_nonneg(D, H, init == "random")
                 if constraint is not None:
@@ -486,88 +384,6 @@ class FactIRL(Estimator):
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
-
-    def _fit_auto(self, mdp, demos_per_task, flat_rewards):
-        """``fit`` with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
-        (:func:`factirl_opt.learners.adaptive.search_sharing`), then the fit of the chosen pair on every task."""
-        if not _is_auto(self.n_primitives):
-            check_int(self.n_primitives, "n_primitives", minimum=1)
-        check_residual_penalty(self.residual_penalty)
-        start = self._group("start")
-        if isinstance(start.init, tuple):
-            raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
-                                  "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
-        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
-        if flat_rewards is not None:
-            _check_flat_rewards(tasks, flat_rewards)
-        for name in [a for a in vars(self) if a.endswith("_") and not a.startswith("_")]:
-            delattr(self, name)  # a failed validation leaves no fitted state of an earlier fit
-        search = SharingSearch() if self.sharing_search is None else self.sharing_search
-        if not isinstance(search, SharingSearch):
-            raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
-        if flat_rewards is None and (start.init == "pca" or search.needs_flat_start):
-            try:
-                flat_rewards = flat_start_rewards(self, mdp, demos_per_task, self._flat_solver(),
-                                                  check_tol(start.flat_tol, "flat_tol"),
-                                                  check_tol(start.flat_stol, "flat_stol"))
-            except FitInterrupted as exc:
-                warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
-                                 "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
-                raise_interrupted(exc, "FactIRL.fit")
-        try:
-            found = search.search(self, mdp, demos_per_task, flat_rewards)
-        except FitInterrupted as exc:
-            self._keep_search(exc.result, len(tasks.demos_per_task), exc.__cause__)
-            raise_interrupted(exc, "FactIRL.fit")
-        table = cv_results(found)
-        execution = self._group("execution")
-        model = fixed_learner(self, found.n_primitives, found.residual_penalty, execution=execution)
-        try:
-            model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
-        except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
-            if self._adopt(model):
-                self.cv_results_ = table
-            raise
-        self._adopt(model)
-        self.cv_results_ = table
-        return self
-
-    def _adopt(self, model):
-        """Take the fitted state of ``model`` (a fixed-value fit of the search), if it has one; whether it had."""
-        if not hasattr(model, "dictionary_"):
-            return False
-        for name, value in vars(model).items():
-            if name.endswith("_") and not name.startswith("_"):
-                setattr(self, name, value)
-        return True
-
-    def _keep_search(self, progress, n, cause):
-        """After an interrupt during the search: keep the best candidate's fit so far and the table so far, and warn."""
-        if progress.kept is None:
-            warn_interrupted("FactIRL.fit", "during the search of n_primitives or residual_penalty, before any "
-                             "candidate was fitted: the model stays unfitted", cause)
-            return
-        (k, lam), model, train = progress.kept
-        self._adopt(model)
-        self.status_ = self.stop_reason_ = INTERRUPTED
-        if progress.rows:
-            self.cv_results_ = cv_results(progress.result())
-            what = f"the fit of ({k}, {lam:g}), the best candidate scored so far"
-        else:
-            what = f"the fit of ({k}, {lam:g}), the last candidate fitted (none was scored yet)"
-        warn_interrupted("FactIRL.fit", f"during the search of n_primitives or residual_penalty: kept {what}, "
-                         f"fitted on {len(train)} of the {n} tasks (a fold's training tasks: rewards_ and "
-                         f"coefficients_ are theirs), and the validation table so far", cause)
-
-    @staticmethod
-    def _residual_penalty(h_solver, value):
-        """The validated finite ``lambda`` or np.inf; a finite one refused with a constrained H-solver."""
-        lam = check_residual_penalty(value, allow_auto=False)
-        if np.isfinite(lam) and h_solver.constraint != "none":
-            raise ValidationError(
-                f"residual_penalty={lam!r} needs an unconstrained h_solver (the H-step moves each task's coefficients and "
-                f"residual together); {h_solver.name!r} has constraint {h_solver.constraint!r}")
-        return lam
 
     def _store(self, tasks, fit, n_evaluations, lam=np.inf):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients
@@ -627,24 +443,16 @@ class FactIRL(Estimator):
             model or have another p, or the environments another number of actions.
         """
         tasks, D = transfer_tasks(mdp, demos_per_task, features, self)
-        if solver is None:
-            if solver_options is not None:
-                raise ValidationError("solver_options given without solver")
-            solver, solver_options = step_solver(SolverSettings.of(self.solver), "transfer", estimator_solvers(self)[:2])
-        elif isinstance(solver, SolverSettings):
-            if solver_options is not None:
-                raise ValidationError(f"solver_options given with solver settings {solver.label()!r}: give the options "
-                                      "in the SolverSettings")
-            solver, solver_options = solver.h_solver, solver.h_options or None
+        solver, solver_options = transfer_solver(self, solver, solver_options)
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
         execution = self._group("execution")
         obj = task_objective(tasks, self.beta, self.objective, execution.planner)
         h_solver = resolve_step_solver(solver, solver_options, self.objective, "solver")
-        lam = self._residual_penalty(h_solver, getattr(self, "residual_penalty_", self.residual_penalty))
+        lam = check_residual_solver(h_solver, getattr(self, "residual_penalty_", self.residual_penalty))
         flat = None
         if lam == 0.0:  # the flat model: fitted as the flat learner fits
-            flat = (resolve_step_solver(*self._flat_solver(), self.objective, "flat_solver"),
+            flat = (resolve_step_solver(*flat_solver(self), self.objective, "flat_solver"),
                     check_int(self._group("start").flat_max_iter, "flat_max_iter", minimum=0), FLAT_TOL)
         stol = check_tol(self.transfer_stol, "transfer_stol")
         try:
@@ -782,3 +590,7 @@ class FactIRL(Estimator):
         if report is None:
             raise AttributeError("gpi_report_: call gpi_policies first")
         return report
+
+
+#: the start's constants moved with it (:mod:`~factirl_opt.learners.start`); resolved here for one release
+moved_names(__name__, dict.fromkeys(("INITS", "RANDOM_INIT_SCALE", "FLAT_SOLVER"), "factirl_opt.learners.start"))

@@ -36,7 +36,7 @@ blocks differ (docs/maths.md §8, §8a):
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,7 +52,7 @@ from ..tasks.basis import DICTIONARY_NAMES
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, INTERRUPTIONS
 from ..objectives.problems import as_problem_basis, dictionary_problem, weights_problem
-from ..objectives.residuals import residual_dictionary_problem, residual_weights, residual_weights_problem
+from ..objectives.residuals import check_residual_penalty, residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL", "SCHEMES", "check_scheme"]
 
@@ -234,6 +234,17 @@ class _ResidualBlocks:
 
     def d_problem(self, H):
         return residual_dictionary_problem(self.objective, self.basis, H, self.Delta)
+
+
+def check_residual_solver(h_solver: solvers.StepSolver, value: Any) -> float:
+    """The validated finite residual penalty ``lambda`` (``value``) or np.inf; a finite one refused with a
+    constrained H-solver (the H-step moves each task's coefficients and residual together)."""
+    lam = cast(float, check_residual_penalty(value, allow_auto=False))  # not "auto": refused there
+    if np.isfinite(lam) and h_solver.constraint != "none":
+        raise ValidationError(
+            f"residual_penalty={lam!r} needs an unconstrained h_solver (the H-step moves each task's coefficients and "
+            f"residual together); {h_solver.name!r} has constraint {h_solver.constraint!r}")
+    return lam
 
 
 def check_scheme(scheme: Any, h_solver: solvers.StepSolver, d_solver: solvers.StepSolver,

@@ -7,11 +7,11 @@ and the task's demonstration loss ``J(x)`` (eq. 5 or the MCE likelihood), the po
 
     -log p(x | demos) = s J(x) + 1/2 (h - m)^T P (h - m) + s lambda ||delta||^2 + const,
 
-- ``s`` the likelihood's scaling (:func:`likelihood_scaling`): ``N`` for MCE (``J`` is the mean
+- ``s`` the likelihood's scaling (:func:`~factirl_opt.learners.transfer_likelihood.likelihood_scaling`): ``N`` for MCE (``J`` is the mean
   negative log-likelihood of the ``N`` demonstrated pairs), ``N / (2 sigma^2)`` for policy
   matching (``J`` is a sum of squares whose residuals have variance ``sigma^2 / N`` per
   component under the Boltzmann policy's multinomial draws);
-- ``(m, P^-1)`` a Gaussian fitted to the training tasks' coefficients (:func:`coefficient_prior`);
+- ``(m, P^-1)`` a Gaussian fitted to the training tasks' coefficients (:func:`~factirl_opt.learners.transfer.coefficient_prior`);
 - the residual's prior the transfer's own penalty, on the scale of the likelihood.
 
 :func:`laplace_posteriors` finds the maximum a posteriori ``x`` by damped Newton steps on this
@@ -26,27 +26,25 @@ away from the saturated region where one demonstration is matched by unbounded c
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import as_rng, check_array, check_int, check_tol
-from ..exceptions import ConvergenceWarning, NotFittedError, ValidationError
+from .._deprecation import moved_names
+from .._validation import as_rng, check_int
+from ..exceptions import ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
+from .transfer import coefficient_prior
+from .transfer_likelihood import (TransferProblem, _basis, _evaluate, _evaluate_lowrank, _pad_rows, likelihood_scaling,
+                                  tasks_problem, transfer_problem)
 
-__all__ = ["LaplacePosterior", "coefficient_prior", "likelihood_scaling", "laplace_posteriors",
-           "transfer_posterior", "transfer_problem", "demonstration_curvature", "TransferProblem", "PRIOR_RIDGE", "cached_transfer_posterior", "keep_transfer",
-           "TransferState", "tasks_problem", "has_prior",
-           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve",
-           "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
-           "PRIOR_HELD_OUT"]
+__all__ = ["LaplacePosterior", "laplace_posteriors", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
+           "TransferState", "has_prior",
+           "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve"]
 
-#: ridge added to the prior covariance of the coefficients, relative to its mean variance
-PRIOR_RIDGE = 1e-3
 #: damped Newton steps of the MAP at most, and the stopping rule on the Newton decrement
 #: ``g^T Lambda^-1 g`` (nats of log-posterior: the mean is then within ``sqrt(2 MAP_TOL)`` posterior
 #: standard deviations of the MAP along every direction)
@@ -57,8 +55,6 @@ MAP_TOL = 1e-3
 #: objective (a kink of the loss, where the greedy policy of ``Q*`` changes, or rounding)
 MAP_DAMPING = 1.0
 MAP_MAX_DAMPING = 1e3
-#: tasks whose feature tangents (r, S*A, d) are formed at once, at most this many bytes
-CHUNK_BYTES = 64 * 2**20
 
 
 @dataclasses.dataclass(eq=False)
@@ -78,7 +74,7 @@ class LaplacePosterior:
     mdp : TabularMDP
         The task's MDP, where sampled rewards are planned.
     scaling : float
-        The likelihood's scaling ``s`` (:func:`likelihood_scaling`).
+        The likelihood's scaling ``s`` (:func:`~factirl_opt.learners.transfer_likelihood.likelihood_scaling`).
     n_pairs : float
         ``N``, the demonstrated pairs the posterior is conditioned on (``scaling / n_pairs`` is
         the likelihood's weight of one demonstrated pair).
@@ -155,15 +151,6 @@ class LaplacePosterior:
         return _basis(self.features, self.dictionary, self.has_residual, self.mdp)
 
 
-def _basis(features, D, residual, mdp):
-    """``Phi [D, I]`` (S*A, d) of a task's features (None: tabular) on ``mdp`` (``Phi D`` without residual)."""
-    base = as_basis(features, mdp.n_states, mdp.n_actions)
-    B = base.compose(D).jacobian_features()
-    if residual:
-        B = np.concatenate([B, base.jacobian_features()], axis=1)
-    return np.ascontiguousarray(B)
-
-
 def _cholesky(C):
     C = 0.5 * (C + C.T)
     try:
@@ -171,191 +158,6 @@ def _cholesky(C):
     except np.linalg.LinAlgError:  # positive semidefinite to rounding: the symmetric square root
         vals, vecs = np.linalg.eigh(C)
         return vecs * np.sqrt(np.clip(vals, 0.0, None))
-
-
-def coefficient_prior(coefficients: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The Gaussian fitted to the training tasks' coefficients: mean (k,) and precision (k, k).
-
-    The covariance is the sample covariance (ddof 1) plus :data:`PRIOR_RIDGE` times its mean
-    variance on the diagonal, so that it stays invertible with fewer tasks than primitives.
-
-    Raises
-    ------
-    ValidationError
-        Fewer than 2 tasks, or non-finite coefficients.
-    """
-    H = check_array(coefficients, "coefficients", ndim=2)
-    n, k = H.shape
-    if n < 2:
-        raise ValidationError(f"the coefficients' prior is fitted to the training tasks' coefficients; got {n} task(s), "
-                              "need at least 2")
-    C = np.atleast_2d(np.cov(H, rowvar=False, ddof=1))
-    scale = float(np.trace(C)) / k
-    C = C + PRIOR_RIDGE * (scale if scale > 0 else 1.0) * np.eye(k)
-    P = np.linalg.inv(C)
-    return H.mean(axis=0), 0.5 * (P + P.T)
-
-
-def likelihood_scaling(objective_name: str, n_pairs: ArrayLike, mu: Any = None, pi: Any = None) -> NDArray[np.float64]:
-    """The scaling ``s`` that makes ``s J`` each task's negative log-likelihood (docs/maths.md §10).
-
-    Parameters
-    ----------
-    objective_name : str
-        ``"mce"``: ``s = N``; otherwise (policy matching) ``s = N / (2 sigma^2)`` with
-        ``sigma^2 = sum_s mu(s) (1 - ||pi(.|s)||^2) / (A - 1)``, the multinomial variance per
-        component of one visit's action indicator under the policy ``pi``, averaged over the
-        demonstrated states.
-    n_pairs : array_like, shape (n,)
-        ``N``: demonstrated (state, action) pairs of each task.
-    mu : sequence of n arrays (S_i,), optional
-        Demonstrated state frequencies (policy matching).
-    pi : sequence of n arrays (S_i, A), optional
-        The policy the noise level is evaluated at (policy matching).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-    """
-    N = np.asarray(n_pairs, dtype=np.float64)
-    if objective_name == "mce":
-        return N
-    sig = np.empty(len(N))
-    for i in range(len(N)):
-        p = np.asarray(pi[i])
-        A = p.shape[1]
-        sig[i] = float(np.sum(np.asarray(mu[i]) * (1.0 - np.sum(p * p, axis=1)))) / max(A - 1, 1)
-    return N / (2.0 * np.maximum(sig, 1e-12))
-
-
-@dataclasses.dataclass
-class TransferProblem:
-    """New tasks' objective and reward bases, as the posterior and the requests see them.
-
-    Attributes
-    ----------
-    objective : Objective or MultiEnvironmentObjective
-        Over the new tasks (not sharded).
-    mdps : list of n TabularMDP
-    features : list of n arrays (S_i*A, p) or None
-        Each task's dense base features (None: tabular).
-    dictionary : ndarray, shape (p, k)
-    residual_penalty : float
-        ``lambda``; np.inf: coefficients only.
-    n_pairs : ndarray, shape (n,)
-        Demonstrated pairs per task.
-    """
-
-    objective: Any
-    mdps: list
-    features: list
-    dictionary: NDArray[np.float64]
-    residual_penalty: float
-    n_pairs: NDArray[np.float64]
-
-    @property
-    def residual(self) -> bool:
-        return bool(np.isfinite(self.residual_penalty))
-
-    @property
-    def n_tasks(self) -> int:
-        return len(self.mdps)
-
-    def groups(self) -> list[tuple[Any, NDArray[np.intp], NDArray[np.intp]]]:
-        """``(objective, tasks, local rows)`` per MDP group (one group for a one-MDP objective)."""
-        return self.objective.environment_groups()
-
-    def basis(self, task: int) -> NDArray[np.float64]:
-        return _basis(self.features[task], self.dictionary, self.residual, self.mdps[task])
-
-    def statistics(self, task: int) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
-        """``(objective of the task's group, mu (S,), pi_hat (S, A))``."""
-        for sub, tasks, local in self.groups():
-            hit = np.flatnonzero(tasks == task)
-            if hit.size:
-                j = int(local[hit[0]])
-                return sub, sub.mu[j], sub.pi_hat[j]
-        raise ValidationError(f"task {task} is not one of the {self.n_tasks} new tasks")
-
-
-def _shared(problem, tasks):
-    """The one basis of these tasks when they share their features (None otherwise)."""
-    first = problem.features[tasks[0]]
-    return all(problem.features[t] is first for t in tasks)
-
-
-def demonstration_curvature(problem: TransferProblem, x: ArrayLike,
-                            tasks: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Each task's demonstration loss ``J`` (r,), its gradient in ``x`` (r, d) and its curvature ``G`` (r, d, d).
-
-    ``G`` is the Gauss-Newton matrix ``2 J_r^T J_r`` of policy matching (eq. 5 is ``||r||^2``), or
-    the Fisher information of MCE (the Gauss-Newton part of :meth:`MCEObjective.hessian`); both
-    equal the Hessian of ``J`` where the model's policy reproduces the demonstrations'
-    statistics exactly.
-
-    Parameters
-    ----------
-    problem : TransferProblem
-    x : array_like, shape (r, d)
-        ``[h, delta]`` of each task.
-    tasks : array_like of int, shape (r,), optional
-        Which tasks (default: all, r = n).
-    """
-    tasks = np.arange(problem.n_tasks) if tasks is None else np.asarray(tasks, dtype=np.intp)
-    X = np.asarray(x, dtype=np.float64)
-    k = problem.dictionary.shape[1]
-    d = k + (problem.dictionary.shape[0] if problem.residual else 0)
-    if X.shape != (len(tasks), d):
-        raise ValidationError(f"x must have shape (r, d) = ({len(tasks)}, {d}); got {X.shape}")
-    loss, grad, G, _ = _evaluate(problem, X, tasks, True)
-    return loss, grad, G
-
-
-def _evaluate(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[np.intp], curvature: bool):
-    """Loss (r,) and, if ``curvature``, the gradient in x (r, d), the curvature G (r, d, d) and each
-    task's policy at x (list of (S_i, A) arrays, policy matching only) of ``tasks`` at points ``x`` (r, d)."""
-    r, d = x.shape
-    loss, grad = np.empty(r), np.empty((r, d))
-    G = np.empty((r, d, d) if curvature else (0, d, d))
-    pis: list = [None] * r
-    where = {int(t): j for j, t in enumerate(tasks)}
-    for sub, gtasks, glocal in problem.groups():
-        sel = np.array([j for j, t in enumerate(gtasks) if int(t) in where], dtype=np.intp)
-        if sel.size == 0:
-            continue
-        mdp = sub.mdp
-        S, A = mdp.n_states, mdp.n_actions
-        size = max(1, CHUNK_BYTES // (8 * S * A * d)) if curvature else len(sel)
-        for lo in range(0, sel.size, size):
-            part = sel[lo:lo + size]
-            pos = np.array([where[int(gtasks[j])] for j in part], dtype=np.intp)
-            local = glocal[part]
-            ts = gtasks[part]
-            if _shared(problem, ts):
-                B = np.broadcast_to(problem.basis(int(ts[0])), (len(ts), S * A, d))
-            else:
-                B = np.stack([problem.basis(int(t)) for t in ts])
-            R = np.einsum("rmd,rd->rm", B, x[pos]).reshape(len(ts), S, A)
-            if sub.least_squares:  # eq. 5 is ||r||^2: loss, gradient 2 J_r^T r and curvature from one linearisation
-                lin = sub.linearize(R, local)
-                loss[pos] = lin.loss
-                if not curvature:
-                    continue
-                Jr = lin.jvp(np.ascontiguousarray(B).reshape(len(ts), S, A, d))
-                grad[pos] = 2.0 * np.einsum("rmd,rm->rd", Jr, lin.residual)
-                G[pos] = 2.0 * np.einsum("rmd,rme->rde", Jr, Jr)
-                mu = sub.mu[local]
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    pi = sub.pi_hat[local] + lin.residual.reshape(len(ts), S, A) / np.sqrt(mu)[:, :, None]
-                pi = np.where(mu[:, :, None] > 0, pi, 1.0 / A)
-                for j, p in zip(pos, pi):
-                    pis[j] = p
-                continue
-            lo_, y = sub.loss_and_grad(R, local)
-            loss[pos], grad[pos] = lo_, np.einsum("rmd,rm->rd", B, y.reshape(len(ts), S * A))
-            if curvature:
-                G[pos] = sub.hessian(R, local, np.ascontiguousarray(B), kind="gauss-newton")
-    return loss, grad, G, pis
 
 
 def _prior_terms(x, k, m, P, s, lam):
@@ -476,7 +278,7 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     ----------
     problem : TransferProblem
     prior : (mean (k,), precision (k, k))
-        :func:`coefficient_prior` of the training tasks' coefficients.
+        :func:`~factirl_opt.learners.transfer.coefficient_prior` of the training tasks' coefficients.
     start : ndarray, shape (n, d), optional
         Another start (e.g. the transfer's values): each task starts from whichever of it and
         the prior mean (zero residual) has the lower posterior objective.
@@ -558,98 +360,6 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
                                     float(problem.n_pairs[i])))
     return out
-
-
-def _pad_rows(Z, other):
-    """``Z`` (r, m, d) with zero rows appended up to ``other``'s m (a no-op when it has as many)."""
-    extra = other.shape[1] - Z.shape[1]
-    if extra <= 0:
-        return Z
-    return np.concatenate([Z, np.zeros((Z.shape[0], extra, Z.shape[2]))], axis=1)
-
-
-def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[np.intp], curvature: bool = True):
-    """:func:`_evaluate` of a residual model under a least-squares objective with the curvature as its factor:
-    loss (r,), gradient (r, d), ``Z`` (r, m, d) the live rows of the residuals' Jacobian in x (``G = 2 Z^T Z``;
-    zero rows pad the tasks with fewer), and each task's policy at x.
-
-    The Jacobian with respect to the reward weights ``w`` comes from the objective's
-    ``residual_jacobian`` (reverse mode: one adjoint right-hand side per demonstrated row), then
-    ``[J D, J]`` on its live rows only: no (S*A, k + p) tangent and no (d, d) product.
-    """
-    r, d = x.shape
-    D = problem.dictionary
-    k = D.shape[1]
-    loss, grad = np.empty(r), np.empty((r, d))
-    factors: list = [None] * r
-    pis: list = [None] * r
-    where = {int(t): j for j, t in enumerate(tasks)}
-    W = x[:, :k] @ D.T + x[:, k:]  # (r, p)
-    for sub, gtasks, glocal in problem.groups():
-        sel = np.array([j for j, t in enumerate(gtasks) if int(t) in where], dtype=np.intp)
-        if sel.size == 0:
-            continue
-        S, A = sub.mdp.n_states, sub.mdp.n_actions
-        ts = gtasks[sel]
-        shared = _shared(problem, ts)
-        batches = [sel] if shared else [sel[i:i + 1] for i in range(sel.size)]
-        for part in batches:
-            pos = np.array([where[int(gtasks[j])] for j in part], dtype=np.intp)
-            feats = problem.features[int(gtasks[part[0]])]
-            F = np.eye(S * A) if feats is None else np.asarray(feats, dtype=np.float64)
-            R = (W[pos] @ F.T).reshape(len(pos), S, A)
-            lo, res, J = sub.residual_jacobian(R, glocal[part], F)
-            loss[pos] = lo
-            for j, q in enumerate(pos):
-                live = np.flatnonzero(np.any(J[j] != 0.0, axis=1))
-                Jl = J[j][live]
-                Z = np.concatenate([Jl @ D, Jl], axis=1)
-                grad[q] = 2.0 * Z.T @ res[j][live]
-                factors[q] = Z
-            mu = sub.mu[glocal[part]]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                pi = sub.pi_hat[glocal[part]] + res.reshape(len(pos), S, A) / np.sqrt(mu)[:, :, None]
-            pi = np.where(mu[:, :, None] > 0, pi, 1.0 / A)
-            for q, p_ in zip(pos, pi):
-                pis[q] = p_
-    m = max(1, max(z.shape[0] for z in factors))
-    Z = np.zeros((r, m, d))
-    for q, z in enumerate(factors):
-        Z[q, :z.shape[0]] = z
-    return loss, grad, Z, pis
-
-
-def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> TransferProblem:
-    """The :class:`TransferProblem` of new tasks for a fitted :class:`FactIRL` (as ``transfer`` sets them up).
-
-    Raises
-    ------
-    NotFittedError
-        The model has no dictionary.
-    ValidationError
-        As ``FactIRL.transfer`` does for these arguments.
-    """
-    from .transfer import transfer_tasks
-
-    if not hasattr(model, "dictionary_"):
-        raise NotFittedError("this FactIRL has no dictionary_: call fit first")
-    return tasks_problem(model, *transfer_tasks(mdp, demos_per_task, features, model))
-
-
-def tasks_problem(model: Any, tasks: Any, D: Any) -> TransferProblem:
-    """The :class:`TransferProblem` of a transfer's task set ``tasks`` and dictionary ``D`` (p, k)."""
-    from ..tasks.trajectories import task_steps
-    from .fitting import task_objective
-
-    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
-    lam = float(getattr(model, "residual_penalty_", np.inf))
-    rows = np.arange(tasks.n_tasks)
-    one = tasks.mdp
-    mdps = list(tasks.mdps or []) if one is None else [one] * tasks.n_tasks
-    feats = tasks.basis.recorded_features(rows)
-    demos = tasks.demos_per_task
-    n_pairs = np.array([task_steps(mdps[i], demos[i], i).shape[0] for i in range(len(mdps))], dtype=np.float64)
-    return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, n_pairs)
 
 
 def transfer_posterior(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> list[LaplacePosterior] | None:
@@ -741,110 +451,8 @@ def set_transfer_posterior(model: Any, posteriors: list[LaplacePosterior] | None
     model._transfer = TransferState(posterior=posteriors, built=True)
 
 
-#: the prior scales :func:`fit_prior_scale` tries (``c_i = scale / N_i``, :mod:`factirl_opt.learners.transfer`)
-PRIOR_SCALES = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
-#: held-out training tasks :func:`fit_prior_scale` transfers at most (evenly spaced over the tasks)
-PRIOR_HELD_OUT = 20
-
-
-def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`~factirl_opt.learners.posterior.coefficient_prior` of the training coefficients (n, k) without
-    each task of ``rows`` (r,) in turn: means (r, k) and precisions (r, k, k). Needs n >= 3."""
-    H = check_array(coefficients, "coefficients", ndim=2)
-    rows = np.asarray(rows, dtype=np.intp)
-    pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
-    return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
-        np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
-
-
-def _take(seq, idx):
-    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
-
-
-def choose_prior_scale(scores: dict, rule: str = "min") -> float:
-    """The scale of :func:`fit_prior_scale`'s ``scores`` ``{scale: per-task deviations (r,)}``: the lowest mean
-    (``"min"``; ties to the larger scale), or the largest scale whose mean is within one standard error of the
-    lowest (``"1se"``, the paired differences' standard error over the held-out tasks); 0.0 for no scores."""
-    if not scores:
-        return 0.0
-    means = {s: float(np.mean(v)) for s, v in scores.items()}
-    best = min(means, key=lambda s: (means[s], -s))
-    if rule == "min":
-        return float(best)
-    if rule != "1se":
-        raise ValidationError(f"rule must be 'min' or '1se'; got {rule!r}")
-    ok = []
-    for s, v in scores.items():
-        diff = np.asarray(v) - np.asarray(scores[best])
-        se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
-        if means[s] - means[best] <= se:
-            ok.append(s)
-    return float(max(ok))
-
-
-def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = PRIOR_SCALES,
-                    n_held_out: int = PRIOR_HELD_OUT, solver: Any = None, rule: str = "min") -> tuple[float, dict]:
-    """The scale of the transfer's prior (:mod:`factirl_opt.learners.transfer`) that transfers the training
-    tasks best, held out one at a time.
-
-    Up to ``n_held_out`` training tasks (evenly spaced over them) are transferred from their first
-    demonstration, each with the prior fitted to the other training tasks' coefficients
-    (:func:`leave_one_out_priors`), at every ``scale`` of ``scales``; the score of a scale is the
-    mean deviation (:func:`factirl_opt.deviation`) of the transferred rewards from the tasks' own
-    fitted ``rewards_`` (all their demonstrations); :func:`choose_prior_scale` (``rule``) takes the scale.
-
-    Parameters
-    ----------
-    model : FactIRL
-        Fitted on ``mdp`` and ``demos_per_task`` (its ``dictionary_``, ``coefficients_``,
-        ``rewards_``, ``residual_penalty_``; its ``beta``, ``objective``, ``planner``, ``solver``,
-        ``transfer_max_iter``, ``tol`` and ``gtol`` as its ``transfer`` reads them).
-    mdp, demos_per_task
-        The training tasks, as given to ``fit``.
-    scales : tuple of float
-    n_held_out : int
-    solver : solvers.StepSolver, optional
-        The transfer's step solver (default: the model's H-step solver).
-
-    Returns
-    -------
-    scale : float
-        0.0 where no prior applies (fewer than 3 training tasks, or the flat model).
-    scores : dict
-        ``{scale: each held-out task's deviation (r,)}``.
-    """
-    from ..evaluation import deviation
-    from .fitting import resolve_step_solver, task_objective
-    from .solver_settings import estimator_solvers
-    from .transfer import run_transfer, transfer_prior_weights, transfer_tasks
-
-    H = np.asarray(model.coefficients_, dtype=np.float64)
-    lam = float(getattr(model, "residual_penalty_", np.inf))
-    n, k = H.shape
-    if n < 3 or lam == 0.0:
-        return 0.0, {}
-    idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
-    per_task_mdp = isinstance(mdp, (list, tuple))
-    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
-    feats = model.features if isinstance(model.features, (list, tuple)) else None
-    sub_F = None if feats is None else _take(feats, idx)
-    first = [demos_per_task[i][:1] for i in idx]
-    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
-    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
-    if solver is None:
-        name, options = estimator_solvers(model)[:2]
-        solver = resolve_step_solver(name, options, model.objective, "solver")
-    M, P = leave_one_out_priors(H, idx)
-    refs = _take(model.rewards_, idx)
-    mdps = sub_mdp if per_task_mdp else mdp
-    max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
-    scores = {}
-    for scale in scales:
-        c = transfer_prior_weights(tasks, scale)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            res = run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=check_tol(model.tol),
-                               gtol=check_tol(model.gtol, "gtol"), residual_penalty=lam, prior=(M, P, c))
-        scores[float(scale)] = np.atleast_1d(np.asarray(deviation(mdps, refs, res.rewards, planner=model._group("execution").planner),
-                                                            dtype=np.float64))
-    return choose_prior_scale(scores, rule), scores
+#: names that moved beside the transfer's prior (:mod:`~factirl_opt.learners.transfer`) and its likelihood
+#: (:mod:`~factirl_opt.learners.transfer_likelihood`), resolved here for one release
+moved_names(__name__, dict.fromkeys(("fit_prior_scale", "choose_prior_scale", "leave_one_out_priors", "PRIOR_SCALES",
+                                     "PRIOR_HELD_OUT", "PRIOR_RIDGE"), "factirl_opt.learners.transfer"))
+moved_names(__name__, dict.fromkeys(("demonstration_curvature", "CHUNK_BYTES"), "factirl_opt.learners.transfer_likelihood"))

@@ -12,13 +12,13 @@ grow without bound, so the maximum-likelihood transfer has no finite optimum the
     J_i(h_i) + c_i / 2 (h_i - m)^T P (h_i - m),      c_i = scale / N_i,
 
 the maximum a posteriori coefficients under the Gaussian ``N(m, P^-1)`` fitted to the training
-tasks' coefficients (:func:`factirl_opt.learners.posterior.coefficient_prior`), ``J_i`` read as
+tasks' coefficients (:func:`coefficient_prior`), ``J_i`` read as
 a log-likelihood of the ``N_i`` demonstrated pairs scaled by ``N_i / scale`` (the MCE likelihood
 is ``N_i J_i`` exactly: ``scale = 1``; policy matching's is ``N_i J_i / (2 sigma^2)``). The
 optimum is finite. :func:`prior_problem` adds the term to a step problem (as ``k`` more
 residuals ``sqrt(c_i / 2) L^T (h_i - m)``, ``P = L L^T``, for the Gauss-Newton solvers);
 :func:`transfer_prior_weights` gives ``c_i``;
-:func:`~factirl_opt.learners.posterior.fit_prior_scale` fits ``scale`` on held-out training tasks.
+:func:`fit_prior_scale` fits ``scale`` on held-out training tasks.
 
 **The saturation rule.** ``stol > 0`` (:func:`solvers.has_saturated`) stops a task when its
 loss decreases over a step by at most ``stol`` times its decrease since the start: where
@@ -30,6 +30,7 @@ the loss stops paying for the growth of the coefficients. Measured against the p
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -39,7 +40,7 @@ import solvers
 
 from .._progress import fit_progress
 from .._validation import check_array, check_features, check_int, check_tol
-from ..exceptions import FitInterrupted, NotFittedError, ValidationError, translate_solver_errors
+from ..exceptions import ConvergenceWarning, FitInterrupted, NotFittedError, ValidationError, translate_solver_errors
 from .fitting import (
     GTOL, first_step_stall, held_by_constraint, learner_entry, resolve_step_solver, task_objective, warn_if_max_iter,
 )
@@ -49,9 +50,11 @@ from ..interruption import INTERRUPTED, run_keeping_best
 from ..objectives.problems import as_problem_basis, weights_problem
 from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
+from .solver_settings import SolverSettings, estimator_solvers, step_solver
 
 __all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "prior_problem",
-           "transfer_prior_weights", "TRANSFER_STOL"]
+           "transfer_prior_weights", "TRANSFER_STOL", "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors",
+           "PRIOR_SCALES", "PRIOR_HELD_OUT", "coefficient_prior", "PRIOR_RIDGE"]
 
 #: the saturation rule's tolerance of ``FactIRL(transfer_stol=...)`` that stops a transfer where its
 #: loss stops paying (module docstring; results/transfer/README.md); the default ``transfer_stol``
@@ -117,7 +120,7 @@ def transfer_coefficients(mdp: Any, demos_per_task: Any, dictionary: ArrayLike, 
     demonstration its coefficients match exactly, where the loss falls toward 0 as they grow
     without bound (docs/maths.md §5); ``gtol=0`` turns it off.
 
-    ``prior=(mean (k,), precision (k, k))`` (:func:`~factirl_opt.learners.posterior.coefficient_prior`
+    ``prior=(mean (k,), precision (k, k))`` (:func:`coefficient_prior`
     of the training coefficients) fits the maximum a posteriori coefficients instead, with
     ``c_i = prior_scale / N_i`` (module docstring): a finite optimum. ``stol > 0`` also stops
     a task by the saturation rule (module docstring).
@@ -394,6 +397,21 @@ def _transfer_fit(F, solver, res, n_evaluations, prior=None, k=0):
                        reason)
 
 
+def transfer_solver(model: Any, solver: Any = None, solver_options: dict | None = None) -> tuple[Any, dict | None]:
+    """The H-step ``(solver, options)`` of ``model.transfer``: the call's ``solver`` (a name with
+    ``solver_options``, or a SolverSettings' H-step solver and options), else the model's transfer solver."""
+    if solver is None:
+        if solver_options is not None:
+            raise ValidationError("solver_options given without solver")
+        return step_solver(SolverSettings.of(model.solver), "transfer", estimator_solvers(model)[:2])
+    if isinstance(solver, SolverSettings):
+        if solver_options is not None:
+            raise ValidationError(f"solver_options given with solver settings {solver.label()!r}: give the options "
+                                  "in the SolverSettings")
+        return solver.h_solver, solver.h_options or None
+    return solver, solver_options
+
+
 def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> tuple[TaskSet, NDArray[np.float64]]:
     """The new tasks of ``model.transfer`` as a :class:`~factirl_opt.tasks.task_set.TaskSet`, and the
     model's dictionary, both checked against what the model was fitted on.
@@ -441,3 +459,137 @@ def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> 
         raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
     return tasks, D
 
+
+#: ridge added to the prior covariance of the coefficients, relative to its mean variance
+PRIOR_RIDGE = 1e-3
+
+
+def coefficient_prior(coefficients: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The Gaussian fitted to the training tasks' coefficients: mean (k,) and precision (k, k).
+
+    The covariance is the sample covariance (ddof 1) plus :data:`PRIOR_RIDGE` times its mean
+    variance on the diagonal, so that it stays invertible with fewer tasks than primitives.
+
+    Raises
+    ------
+    ValidationError
+        Fewer than 2 tasks, or non-finite coefficients.
+    """
+    H = check_array(coefficients, "coefficients", ndim=2)
+    n, k = H.shape
+    if n < 2:
+        raise ValidationError(f"the coefficients' prior is fitted to the training tasks' coefficients; got {n} task(s), "
+                              "need at least 2")
+    C = np.atleast_2d(np.cov(H, rowvar=False, ddof=1))
+    scale = float(np.trace(C)) / k
+    C = C + PRIOR_RIDGE * (scale if scale > 0 else 1.0) * np.eye(k)
+    P = np.linalg.inv(C)
+    return H.mean(axis=0), 0.5 * (P + P.T)
+
+
+#: the prior scales :func:`fit_prior_scale` tries (``c_i = scale / N_i``, :mod:`factirl_opt.learners.transfer`)
+PRIOR_SCALES = (0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+#: held-out training tasks :func:`fit_prior_scale` transfers at most (evenly spaced over the tasks)
+PRIOR_HELD_OUT = 20
+
+
+def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`coefficient_prior` of the training coefficients (n, k) without
+    each task of ``rows`` (r,) in turn: means (r, k) and precisions (r, k, k). Needs n >= 3."""
+    H = check_array(coefficients, "coefficients", ndim=2)
+    rows = np.asarray(rows, dtype=np.intp)
+    pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
+    return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
+        np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
+
+
+def _take(seq, idx):
+    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
+
+
+def choose_prior_scale(scores: dict, rule: str = "min") -> float:
+    """The scale of :func:`fit_prior_scale`'s ``scores`` ``{scale: per-task deviations (r,)}``: the lowest mean
+    (``"min"``; ties to the larger scale), or the largest scale whose mean is within one standard error of the
+    lowest (``"1se"``, the paired differences' standard error over the held-out tasks); 0.0 for no scores."""
+    if not scores:
+        return 0.0
+    means = {s: float(np.mean(v)) for s, v in scores.items()}
+    best = min(means, key=lambda s: (means[s], -s))
+    if rule == "min":
+        return float(best)
+    if rule != "1se":
+        raise ValidationError(f"rule must be 'min' or '1se'; got {rule!r}")
+    ok = []
+    for s, v in scores.items():
+        diff = np.asarray(v) - np.asarray(scores[best])
+        se = float(np.std(diff, ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
+        if means[s] - means[best] <= se:
+            ok.append(s)
+    return float(max(ok))
+
+
+def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = PRIOR_SCALES,
+                    n_held_out: int = PRIOR_HELD_OUT, solver: Any = None, rule: str = "min") -> tuple[float, dict]:
+    """The scale of the transfer's prior (:mod:`factirl_opt.learners.transfer`) that transfers the training
+    tasks best, held out one at a time.
+
+    Up to ``n_held_out`` training tasks (evenly spaced over them) are transferred from their first
+    demonstration, each with the prior fitted to the other training tasks' coefficients
+    (:func:`leave_one_out_priors`), at every ``scale`` of ``scales``; the score of a scale is the
+    mean deviation (:func:`factirl_opt.deviation`) of the transferred rewards from the tasks' own
+    fitted ``rewards_`` (all their demonstrations); :func:`choose_prior_scale` (``rule``) takes the scale.
+
+    Parameters
+    ----------
+    model : FactIRL
+        Fitted on ``mdp`` and ``demos_per_task`` (its ``dictionary_``, ``coefficients_``,
+        ``rewards_``, ``residual_penalty_``; its ``beta``, ``objective``, ``planner``, ``solver``,
+        ``transfer_max_iter``, ``tol`` and ``gtol`` as its ``transfer`` reads them).
+    mdp, demos_per_task
+        The training tasks, as given to ``fit``.
+    scales : tuple of float
+    n_held_out : int
+    solver : solvers.StepSolver, optional
+        The transfer's step solver (default: the model's H-step solver).
+
+    Returns
+    -------
+    scale : float
+        0.0 where no prior applies (fewer than 3 training tasks, or the flat model).
+    scores : dict
+        ``{scale: each held-out task's deviation (r,)}``.
+    """
+    from ..evaluation import deviation
+    from .fitting import resolve_step_solver, task_objective
+    from .solver_settings import estimator_solvers
+
+    H = np.asarray(model.coefficients_, dtype=np.float64)
+    lam = float(getattr(model, "residual_penalty_", np.inf))
+    n, k = H.shape
+    if n < 3 or lam == 0.0:
+        return 0.0, {}
+    idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
+    per_task_mdp = isinstance(mdp, (list, tuple))
+    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
+    feats = model.features if isinstance(model.features, (list, tuple)) else None
+    sub_F = None if feats is None else _take(feats, idx)
+    first = [demos_per_task[i][:1] for i in idx]
+    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
+    obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
+    if solver is None:
+        name, options = estimator_solvers(model)[:2]
+        solver = resolve_step_solver(name, options, model.objective, "solver")
+    M, P = leave_one_out_priors(H, idx)
+    refs = _take(model.rewards_, idx)
+    mdps = sub_mdp if per_task_mdp else mdp
+    max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
+    scores = {}
+    for scale in scales:
+        c = transfer_prior_weights(tasks, scale)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            res = run_transfer(obj, D, solver, base_features=tasks.basis, max_iter=max_iter, tol=check_tol(model.tol),
+                               gtol=check_tol(model.gtol, "gtol"), residual_penalty=lam, prior=(M, P, c))
+        scores[float(scale)] = np.atleast_1d(np.asarray(deviation(mdps, refs, res.rewards, planner=model._group("execution").planner),
+                                                            dtype=np.float64))
+    return choose_prior_scale(scores, rule), scores

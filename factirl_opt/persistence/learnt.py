@@ -27,14 +27,14 @@ from .._validation import check_features, check_int, check_real
 from ..exceptions import PersistenceError, ValidationError
 from ..tasks.task_set import features_digest
 from ..mdp.tabular import SIGNATURE_KEYS
-from ..learners.adaptive import CV_RESULTS_KEYS, check_cv_results
+from ..learners.selection.results import CV_RESULTS_KEYS, check_cv_results
 from .archive import check_array
 
 __all__ = ["KINDS", "INTEGERS", "SIGNATURE_KEYS", "Kind", "is_array_kind", "array_axes", "learnt_attributes",
            "check_learnt", "decode_learnt", "features_sha256", "fitted_features_sha256", "check_features_digest", "check_task_features"]
 
 
-#: The keys of a row of a validation table (``FactIRL.validation_``, :mod:`factirl_opt.learners.adaptive`).
+#: The keys of a row of a validation table (``FactIRL.validation_``, :mod:`factirl_opt.learners.selection.results`).
 VALIDATION_KEYS = ("n_primitives", "residual_penalty", "score", "score_std", "fold_scores", "task_scores", "chosen")
 
 #: The kinds of learnt attributes that are not arrays, and what each holds.

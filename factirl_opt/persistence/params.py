@@ -18,7 +18,7 @@ from .._validation import check_int
 from ..exceptions import FactIRLError, PersistenceError
 from ..tasks.task_set import per_task_features
 from ..learners.solver_settings import SolverSettings
-from ..learners.selection import SharingSearch
+from ..learners.selection.sharing_search import SharingSearch
 from .archive import check_array, require, to_json
 
 __all__ = ["PARAM_KINDS", "ARRAY_KINDS", "param_kind", "encode_params", "decode_params", "encode_rng", "decode_rng"]

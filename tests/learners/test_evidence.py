@@ -7,8 +7,9 @@ import pytest
 
 import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
-from factirl_opt.learners import adaptive, evidence
-from factirl_opt.learners.evidence import (
+from factirl_opt.learners import selection
+from factirl_opt.learners.selection import evidence, routes, rules, scores, search
+from factirl_opt.learners.selection.evidence import (
     confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
     plausible_ranks,
 )
@@ -173,7 +174,7 @@ def _fit(model, mdp, demos):
 
 def _forced_rank(monkeypatch, rank):
     """The route with the evidence's k forced to ``rank``, and the (k, max_iter) of every candidate fit recorded."""
-    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(rank + 1), rank))
+    monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(rank + 1), rank))
     fits = []
     fit = fo.FactIRL.fit
 
@@ -187,7 +188,7 @@ def _forced_rank(monkeypatch, rank):
 
 def test_the_evidence_route_scores_its_k_half_and_twice_it_from_pca_starts(data, monkeypatch):
     mdp, F, _, demos = data
-    assert ROUTES["evidence"][0] == "evidence"
+    assert ROUTES["evidence"].name == "evidence"
     fits = _forced_rank(monkeypatch, 2)
     model = _fit(_auto(F), mdp, demos)  # lambda = 0.01 is not scored
     res = model.cv_results_
@@ -209,7 +210,7 @@ def test_little_shared_chooses_the_flat_model_without_a_fit(data, monkeypatch, t
     assert (model.n_primitives_, model.residual_penalty_) == (1, 0.0)
     assert len(fits) == 2  # the auto fit and the final fit: no candidate
     res = model.cv_results_
-    adaptive.check_cv_results(res)
+    selection.check_cv_results(res)
     assert res["params"] == [{"n_primitives": 1, "residual_penalty": 0.0}] and res["n_splits_scored"].tolist() == [0]
     assert np.isnan(res["mean_test_score"][0]) and res["chosen"].tolist() == [True]
     loaded = fo.load_model(fo.save_model(model, tmp_path / "flat.npz"))
@@ -236,8 +237,8 @@ def test_the_evidence_route_reads_k_from_the_data(data):
 def test_the_evidence_search_needs_the_flat_rewards(data):
     mdp, F, _, demos = data
     with pytest.raises(ValidationError, match=r"search='evidence' chooses k from the flat start's rewards: give flat_rewards"):
-        adaptive.search_sharing(_auto(F), mdp, demos, None, search="evidence")
-    assert "evidence" in adaptive.SEARCHES and evidence.__all__
+        selection.search_sharing(_auto(F), mdp, demos, None, search="evidence")
+    assert "evidence" in ROUTES and evidence.__all__
 
 
 def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data, monkeypatch):
@@ -252,19 +253,19 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
             base = 3.0 if lam == 0.0 else 1.0 + (k - 5.4) ** 2 / 100 + (0.0 if lam == np.inf else 0.5)
             progress.scores.setdefault((k, lam), []).extend(base + noise[held] for held in folds)
 
-    monkeypatch.setattr(adaptive, "score_candidates", score_candidates)
-    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(17), 16))
+    monkeypatch.setattr(search, "score_candidates", score_candidates)
+    monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(17), 16))
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
     many = [demos[i % 8] for i in range(60)]  # 40 training tasks a fold, p = 36 rewards
-    found = adaptive.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
+    found = selection.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
     assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
     tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
     # 40 training tasks a fold, 8 a primitive: 4, 5 and 6 confirmed last (their screen rows replaced)
     assert tried[:3] == [8, 16, 20] and 2 in tried[3:-3] and tried[-3:] == [4, 5, 6]
     assert [r.get("confirmed", False) for r in found.rows[-3:]] == [True] * 3
     assert all(len(r["fold_scores"]) == 3 for r in found.rows)
-    assert adaptive._beyond(8, [8, 16, 32], 36) == 4 and adaptive._beyond(32, [8, 16, 32], 36) is None  # only down
-    assert adaptive._beyond(16, [8, 16, 32], 36) is None and adaptive._beyond(1, [1, 2], 5) is None
+    assert ROUTES["evidence"].below(8, [8, 16, 32], 36) == [4] and ROUTES["evidence"].below(32, [8, 16, 32], 36) == []  # only down
+    assert ROUTES["evidence"].below(16, [8, 16, 32], 36) == [] and ROUTES["evidence"].below(1, [1, 2], 5) == []
 
 
 def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatch):
@@ -274,11 +275,11 @@ def test_the_default_search_is_the_evidence_route_with_its_rule(data, monkeypatc
     _forced_rank(monkeypatch, 2)
     default = fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=F, max_iter=3, rng=0)
     model = _fit(default, mdp, demos)
-    rows = adaptive.validation_rows(model.cv_results_)
+    rows = selection.validation_rows(model.cv_results_)
     assert sorted((r["n_primitives"], r["residual_penalty"]) for r in rows) == [
         (1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0), (2, np.inf)]
     chosen = next(r for r in rows if r["chosen"])
-    assert rows.index(chosen) == adaptive.choose_row(rows, "fewest-within-se")
+    assert rows.index(chosen) == selection.choose_row(rows, "fewest-within-se")
     assert (model.n_primitives_, model.residual_penalty_) == (chosen["n_primitives"], chosen["residual_penalty"])
 
 
@@ -307,13 +308,13 @@ def test_a_shared_k_with_many_tasks_per_primitive_is_confirmed_by_full_fits(data
     (scripted: best at 4 when fitted); with 30 (6 a primitive) the screen's choice stands."""
     mdp, _, _, demos = data
     scores, full = _scripted_scores(4.0)
-    monkeypatch.setattr(adaptive, "score_candidates", scores)
-    monkeypatch.setattr(adaptive, "flat_start_evidence", lambda *args, **kw: (np.zeros(9), 8))
+    monkeypatch.setattr(search, "score_candidates", scores)
+    monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(9), 8))
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
-    found = adaptive.search_sharing(learner, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+    found = selection.search_sharing(learner, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
                                     search="evidence", candidate_max_iter=0, rule="fewest-within-se")
-    table = adaptive.cv_results(found)
-    adaptive.check_cv_results(table)
+    table = selection.cv_results(found)
+    selection.check_cv_results(table)
     pairs = [(int(k), float(lam)) for k, lam in zip(table["param_n_primitives"], table["param_residual_penalty"])]
     assert len(set(pairs)) == len(pairs)  # a confirmed candidate's screen row is replaced, not repeated
     if confirmed:
@@ -328,6 +329,6 @@ def test_a_shared_k_with_many_tasks_per_primitive_is_confirmed_by_full_fits(data
     # a fixed k is not confirmed (nothing to choose), nor a flat choice
     fixed = fo.FactIRL(rng=0, n_primitives=5, residual_penalty="auto")
     full.clear()
-    adaptive.search_sharing(fixed, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+    selection.search_sharing(fixed, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
                             search="evidence", candidate_max_iter=0)
     assert full == []

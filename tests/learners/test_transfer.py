@@ -1,5 +1,5 @@
 """Transfer's prior and saturation rule (factirl_opt.learners.transfer) and the prior's fitted scale
-(factirl_opt.learners.posterior.fit_prior_scale)."""
+(factirl_opt.learners.transfer.fit_prior_scale)."""
 
 import warnings
 
@@ -9,10 +9,10 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.datasets.synthetic import synthetic_tasks
 from factirl_opt.exceptions import MaxIterWarning, ValidationError
-from factirl_opt.learners.posterior import (
-    PRIOR_SCALES, choose_prior_scale, coefficient_prior, fit_prior_scale, leave_one_out_priors,
+from factirl_opt.learners.transfer import (
+    PRIOR_SCALES, TRANSFER_STOL, choose_prior_scale, coefficient_prior, fit_prior_scale, leave_one_out_priors,
+    prior_problem, transfer_coefficients,
 )
-from factirl_opt.learners.transfer import TRANSFER_STOL, prior_problem, transfer_coefficients
 from factirl_opt.objectives.policy_matching import PolicyMatchingObjective
 from factirl_opt.objectives.residuals import residual_weights_problem
 from factirl_opt.tasks.basis import as_basis

@@ -30,9 +30,9 @@ from ...parallel import limit_blas_threads
 from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
-from ...learners import adaptive
-from ...learners.factirl import FLAT_SOLVER, FLAT_TOL, FactIRL
-from ...learners.selection import DEFAULT_ROUTE, ROUTES, SharingSearch
+from ...learners.factirl import FLAT_TOL, FactIRL
+from ...learners.start import FLAT_SOLVER
+from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
 from ...planning import CountingPlanner, get_planner
@@ -61,7 +61,7 @@ def add_arguments(parser):
     opt("--repeats", type=integer(1), help="fits of each learner per seed (the median is reported)")
     opt("--routes", "--searches", dest="routes", choices=list(ROUTES), nargs="+", metavar="NAME",
         help=f"search routes of the auto learner, of {', '.join(ROUTES)}")
-    opt("--rule", choices=adaptive.RULES, help="the choice rule of the auto learner (default: each route's own)")
+    opt("--rule", choices=RULES, help="the choice rule of the auto learner (default: each route's own)")
     opt("--blas-threads", type=integer(0), help="OpenBLAS threads (0: leave as is)")
     parser.add_argument("--readme", action="store_true",
                         help="the README's grid (30 tasks x 10 demonstrations, FactIRL's defaults, k = 5) instead of a preset's")
@@ -73,11 +73,11 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     """What ``FactIRL.fit`` does for ``"auto"`` values, with the search ``route`` and ``rule`` (None:
     the route's own, :func:`~factirl_opt.learners.selection.route_rule`): the
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
-    and its table (the rows of :func:`~factirl_opt.learners.adaptive.validation_rows`)."""
+    and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
-    flat = adaptive.flat_start_rewards(learner, mdp, demos, FLAT_SOLVER, FLAT_TOL)
+    flat = flat_start_rewards(learner, mdp, demos, FLAT_SOLVER, FLAT_TOL)
     found = learner.sharing_search.search(learner, mdp, demos, flat)
-    model = adaptive.fixed_learner(learner, found.n_primitives, found.residual_penalty)
+    model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)
     return model, found.rows
 

@@ -148,7 +148,7 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
     FactIRL it always did; solvers that do not apply to ``objective`` are replaced
     (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
     penalty by validation (``n_primitives="auto", residual_penalty="auto"``,
-    :mod:`factirl_opt.learners.adaptive`) instead of the preset's k without residuals, and its
+    :mod:`factirl_opt.learners.selection`) instead of the preset's k without residuals, and its
     flat model (``residual_penalty=0``) transfers as the line-up's flat learner does: with the
     preset's ``flat_features_solver`` (``features``: the row learns feature weights) or
     ``flat_solver`` (GradIRL's fallback for an objective a Gauss-Newton solver does not apply to).

@@ -49,7 +49,7 @@ runs start (the command line prints it and the manifest records it).
 Line-ups ``"sharing"`` (the grid) and ``"objectworld-sharing"`` (Objectworld, one map): "which
 learner when", the flat learner, the factorial learner with the preset's k, and the *adaptive*
 learner (``FactIRL(n_primitives="auto", residual_penalty="auto")``: k and the residual penalty
-chosen by validation, :mod:`factirl_opt.learners.adaptive`), each from the same flat start,
+chosen by validation, :mod:`factirl_opt.learners.selection`), each from the same flat start,
 train and test (``transfer`` from one demonstration): ``flat``, ``factorial``, ``adaptive`` on
 the grid; ``flat, features``, ``factorial, features``, ``adaptive, features`` on Objectworld.
 The same three on the worlds with a task per map and on BabyAI: ``"objectworld-per-task-sharing"``

@@ -22,9 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import gammaln
 
-from .._validation import check_array, check_int
-from ..exceptions import ValidationError
-from ..tasks.task_set import task_set
+from ..._validation import check_array, check_int
+from ...exceptions import ValidationError
+from ...tasks.task_set import task_set
 
 __all__ = ["CONFIRM_TASKS_PER_PRIMITIVE", "MIN_TASKS_PER_PRIMITIVE", "confirmation_primitives", "PLAUSIBLE_LOG_BAYES_FACTOR", "laplace_rank_evidence", "plausible_ranks", "pca_rank_evidence", "flat_start_points",
            "flat_start_evidence", "evidence_primitives", "evidence_penalties"]
@@ -177,7 +177,7 @@ def flat_start_points(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards:
     mdp, demos_per_task
         As in ``FactIRL.fit`` (the demonstrations play no part but their number of tasks).
     flat_rewards : sequence of arrays, shape (S_i, A) each
-        Every task's flat reward (:func:`~factirl_opt.learners.adaptive.flat_start_rewards`).
+        Every task's flat reward (:func:`~factirl_opt.learners.selection.search.flat_start_rewards`).
 
     Returns
     -------
