@@ -130,8 +130,10 @@ class SolverSettings(ParameterGroup):
                 try:
                     with translate_solver_errors():  # the library's exceptions: unknown names list the available ones
                         solvers.get_solver(name, **decode_options(getattr(self, field + "_options")))
-                except FactIRLError as exc:  # the same error, naming the field
-                    head, sep, tail = str(exc).partition(";")
+                except FactIRLError as exc:
+                    if step == "h":  # the estimators' solver=: the message names no field, as it always did
+                        raise
+                    head, sep, tail = str(exc).partition(";")  # the same error, naming the field
                     raise type(exc)(f"{head} for SolverSettings.{field}{sep}{tail}") from exc
 
     @classmethod
