@@ -77,8 +77,20 @@ class World:
 
 
 def _digest(demos):
+    """A digest of the demonstrations (arrays, or lists of episodes of different lengths)."""
     import hashlib
-    return hashlib.sha256(b"".join(np.ascontiguousarray(d).tobytes() for d in demos)).hexdigest()[:12]
+    h = hashlib.sha256()
+
+    def add(d):
+        try:
+            h.update(np.ascontiguousarray(d, dtype=np.int64).tobytes())
+        except ValueError:  # episodes of different lengths
+            for e in d:
+                add(e)
+
+    for d in demos:
+        add(d)
+    return h.hexdigest()[:12]
 
 
 def walled_maps_world(args):
@@ -86,15 +98,18 @@ def walled_maps_world(args):
     train = argparse.Namespace(size=args.size, n_tasks=args.n_tasks, n_demos=args.n_demos, length=args.length,
                                n_blocked=args.n_blocked, seed=args.seed, label="")
     preset, maps, mdps, R, demos = draw(train)
-    test = argparse.Namespace(**dict(vars(train), n_tasks=args.n_test, n_demos=1, seed=args.seed + 1000))
-    _, tmaps, tmdps, tR, tdemos = draw(test)
-    rewards = {"train": (mdps, R), "test": (tmdps, tR)}
+    rewards, transfer_args, transfer_kwargs = {"train": (mdps, R)}, (), {}
+    if args.n_test:
+        test = argparse.Namespace(**dict(vars(train), n_tasks=args.n_test, n_demos=1, seed=args.seed + 1000))
+        _, tmaps, tmdps, tR, tdemos = draw(test)
+        rewards["test"] = (tmdps, tR)
+        transfer_args, transfer_kwargs = (tmdps, tdemos), dict(features=list(tmaps.features))
 
     def score(split, learnt):
         m, true = rewards[split]
         return fo.deviation(m, true, np.asarray(learnt), planner=preset.planner), {}
 
-    return World((mdps, demos), (tmdps, tdemos), dict(features=list(tmaps.features)), list(maps.features),
+    return World((mdps, demos), transfer_args, transfer_kwargs, list(maps.features),
                  preset.n_primitives, preset.beta, score, _digest(demos))
 
 
