@@ -56,11 +56,41 @@ def table(rows, reference):
     return "\n".join(out)
 
 
+def acceptance(paths, reference):
+    """The acceptance criteria per setting and objective over the files (one per seed): CPU, train
+    and test deviation as ratios to the reference row of the same file, per seed, and the test
+    deviations' paired difference pooled over the seeds' test tasks."""
+    ref_label, ref_name = reference.split(":")
+    per = {}
+    for path in paths:
+        rows = load(path)
+        for (label, name, objective), r in rows.items():
+            ref = rows.get((ref_label, ref_name, objective))
+            if ref is None or (label, name) == (ref_label, ref_name) or "mean_test_deviation" not in r:
+                continue
+            per.setdefault((label, name, objective), []).append(
+                (r["seed"], min(r["cpus"]) / min(ref["cpus"]), r["mean_train_deviation"] / ref["mean_train_deviation"],
+                 r["mean_test_deviation"] / ref["mean_test_deviation"], np.subtract(r["test_deviations"], ref["test_deviations"])))
+    out = ["| code | setting | objective | seeds | CPU ratio per seed | train dev. ratio per seed | test dev. ratio per seed "
+           "| pooled paired test diff. (no higher on) |", "|" + "---|" * 8]
+    for (label, name, objective), v in sorted(per.items(), key=lambda kv: (kv[0][2], kv[0][1])):
+        v.sort(key=lambda t: t[0])
+        d = np.concatenate([t[4] for t in v])
+        out.append(f"| {label} | {name} | {objective} | {', '.join(str(t[0]) for t in v)} | "
+                   + " | ".join(", ".join(f"{t[i]:.2f}" for t in v) for i in (1, 2, 3))
+                   + f" | {d.mean():+.3f} +- {d.std(ddof=1) / np.sqrt(len(d)):.3f} ({int(np.sum(d <= 1e-9))}/{len(d)}) |")
+    return "\n".join(out)
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("files", nargs="+")
     parser.add_argument("--reference", default="HEAD:defaults", help="LABEL:CANDIDATE of the ratios' denominator")
+    parser.add_argument("--acceptance", action="store_true", help="one table over the files (seeds) instead")
     args = parser.parse_args()
+    if args.acceptance:
+        print(acceptance(args.files, args.reference))
+        return
     for path in args.files:
         print(f"### {path}\n")
         print(table(load(path), args.reference))
