@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-import factirl_opt.learners.factirl as factirl_module
+import factirl_opt.learners.start as start_module
 import factirl_opt.tasks.basis as basis_module
 from factirl_opt.learners.dictionary import feature_weights
 from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
@@ -96,7 +96,7 @@ def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     mdp, demos = data
     features = None if where == "pca_dictionary" else np.eye(36)[:, :30]
     model = fo.FactIRL(n_primitives=2, max_iter=3, flat_max_iter=5, features=features, rng=0)
-    interrupt_call(monkeypatch, factirl_module if where == "pca_dictionary" else basis_module, where, 1)
+    interrupt_call(monkeypatch, start_module if where == "pca_dictionary" else basis_module, where, 1)
     try:
         fit_interrupted(model.fit, mdp, demos)
     except KeyboardInterrupt:  # not FitInterrupted: nothing kept (caught, or pytest itself would stop)
