@@ -86,7 +86,7 @@ class IntentionStart(ParameterGroup):
     Parameters
     ----------
     init : {"agreement", "frequencies", "random"} or array_like, default="agreement"
-        The initial responsibilities (:func:`~factirl_opt.learners.em.initial_responsibilities`),
+        The initial responsibilities (``factirl_opt.learners.multi_intent_fit.start_responsibilities``),
         or an array of labels (n_episodes,) or responsibilities (n_episodes, K).
     n_init : int, default=1
         EM runs from different starts; the best by log-likelihood is kept.

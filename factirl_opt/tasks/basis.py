@@ -234,7 +234,7 @@ class RewardBasis(abc.ABC):
 
     def rank(self, n_tasks: int) -> int:
         """The reward directions the basis spans over ``n_tasks`` tasks: the rank of :meth:`gram`
-        (at most :attr:`n_params`), the most primitives a PCA start (:meth:`start_dictionary`)
+        (at most ``n_params``), the most primitives a PCA start (:meth:`start_dictionary`)
         can have. A sharing search caps its candidate k at it."""
         return int(_spanned(np.linalg.eigvalsh(self.gram(n_tasks))).sum())
 
