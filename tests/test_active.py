@@ -13,17 +13,23 @@ from factirl_opt.learners.active import (
 from factirl_opt.planning import get_planner, plan
 
 
-@pytest.fixture(scope="module")
-def fitted():
-    mdp = fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
-    train = synthetic_tasks(mdp, 12, 4, 8, n_primitives=2, rng=3)
-    test = synthetic_tasks(mdp, 3, 1, 8, dictionary=train.dictionary, rng=4)
+def _fit_both_objectives(size, n_train, n_test, length, rng, **params):
+    """A k = 2 FactIRL per objective fitted on ``n_train`` synthetic tasks of a grid, each transferred
+    to ``n_test`` one-demonstration tasks: ``(mdp, test tasks, {objective: model})``."""
+    mdp = fo.GridWorld(size=size, p_success=0.8, gamma=0.9)
+    train = synthetic_tasks(mdp, n_train, 4, length, n_primitives=2, rng=rng)
+    test = synthetic_tasks(mdp, n_test, 1, length, dictionary=train.dictionary, rng=rng + 1)
     models = {}
     for objective in ("policy-matching", "mce"):
-        model = fo.FactIRL(n_primitives=2, objective=objective, max_iter=5, rng=0).fit(mdp, train.demos)
+        model = fo.FactIRL(n_primitives=2, objective=objective, max_iter=5, rng=0, **params).fit(mdp, train.demos)
         model.transfer(mdp, test.demos)
         models[objective] = model
     return mdp, test, models
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    return _fit_both_objectives(4, 12, 3, 8, rng=3)
 
 
 def test_start_occupancy_counts_expected_visits(grid3):
@@ -298,16 +304,7 @@ def test_factirl_request_starts_passes_criterion_and_demonstrated_through(fitted
 
 @pytest.fixture(scope="module")
 def residual_fitted():
-    mdp = fo.GridWorld(size=3, p_success=0.8, gamma=0.9)
-    train = synthetic_tasks(mdp, 10, 4, 6, n_primitives=2, rng=5)
-    test = synthetic_tasks(mdp, 2, 1, 6, dictionary=train.dictionary, rng=6)
-    models = {}
-    for objective in ("policy-matching", "mce"):
-        model = fo.FactIRL(n_primitives=2, objective=objective, residual_penalty=0.5, max_iter=5, transfer_max_iter=20,
-                           rng=0).fit(mdp, train.demos)
-        model.transfer(mdp, test.demos)
-        models[objective] = model
-    return mdp, test, models
+    return _fit_both_objectives(3, 10, 2, 6, rng=5, residual_penalty=0.5, transfer_max_iter=20)
 
 
 @pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
