@@ -106,3 +106,15 @@ def five_dictionary_tasks(rng, grid3, k):
     H = fo.random_coefficients(5, k, rng=rng)
     R = fo.task_rewards(D, H, 9, 4)
     return grid3, R, fo.sample_demonstrations(grid3, R, 4, 6, rng)
+
+
+def transfer_tasks_on_a_grid(size, n_train, n_test, length, rng):
+    """Synthetic tasks of a k = 2 dictionary on a ``size`` x ``size`` grid: ``n_train`` tasks of 4
+    demonstrations and ``n_test`` new tasks of one, all of ``length`` steps, drawn with seeds ``rng``
+    and ``rng + 1``: ``(mdp, train, test)`` (``fo.datasets.synthetic_tasks``' results)."""
+    from factirl_opt.datasets.synthetic import synthetic_tasks
+
+    mdp = fo.GridWorld(size=size, p_success=0.8, gamma=0.9)
+    train = synthetic_tasks(mdp, n_train, 4, length, n_primitives=2, rng=rng)
+    test = synthetic_tasks(mdp, n_test, 1, length, dictionary=train.dictionary, rng=rng + 1)
+    return mdp, train, test

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.datasets.synthetic import synthetic_tasks
+from helpers import transfer_tasks_on_a_grid
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
     demonstrated_states, demonstrator_policy, information_gains, linearised_regret, model_policy, policy_entropy_starts,
@@ -16,9 +16,7 @@ from factirl_opt.planning import get_planner, plan
 def _fit_both_objectives(size, n_train, n_test, length, rng, **params):
     """A k = 2 FactIRL per objective fitted on ``n_train`` synthetic tasks of a grid, each transferred
     to ``n_test`` one-demonstration tasks: ``(mdp, test tasks, {objective: model})``."""
-    mdp = fo.GridWorld(size=size, p_success=0.8, gamma=0.9)
-    train = synthetic_tasks(mdp, n_train, 4, length, n_primitives=2, rng=rng)
-    test = synthetic_tasks(mdp, n_test, 1, length, dictionary=train.dictionary, rng=rng + 1)
+    mdp, train, test = transfer_tasks_on_a_grid(size, n_train, n_test, length, rng)
     models = {}
     for objective in ("policy-matching", "mce"):
         model = fo.FactIRL(n_primitives=2, objective=objective, max_iter=5, rng=0, **params).fit(mdp, train.demos)

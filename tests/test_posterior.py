@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.datasets.synthetic import synthetic_tasks
+from helpers import transfer_tasks_on_a_grid
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.posterior import MAP_TOL, LaplacePosterior, laplace_posteriors, lowrank_solve
 from factirl_opt.learners.transfer_likelihood import TransferProblem, demonstration_curvature, likelihood_scaling
@@ -135,10 +135,7 @@ def test_likelihood_scaling():
 
 @pytest.fixture(scope="module")
 def fitted():
-    mdp = fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
-    train = synthetic_tasks(mdp, 12, 4, 8, n_primitives=2, rng=3)
-    test = synthetic_tasks(mdp, 3, 1, 8, dictionary=train.dictionary, rng=4)
-    return mdp, train, test
+    return transfer_tasks_on_a_grid(4, 12, 3, 8, rng=3)
 
 
 @pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")  # a short fit: the posterior needs none converged

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import factirl_opt as fo
-from factirl_opt.datasets.synthetic import synthetic_tasks
+from helpers import transfer_tasks_on_a_grid
 from factirl_opt.exceptions import MaxIterWarning, ValidationError
 from factirl_opt.learners.transfer import (
     PRIOR_SCALES, TRANSFER_STOL, choose_prior_scale, coefficient_prior, fit_prior_scale, leave_one_out_priors,
@@ -20,10 +20,7 @@ from factirl_opt.tasks.basis import as_basis
 
 @pytest.fixture(scope="module")
 def tasks():
-    mdp = fo.GridWorld(size=4, p_success=0.8, gamma=0.9)
-    train = synthetic_tasks(mdp, 12, 4, 8, n_primitives=2, rng=3)
-    test = synthetic_tasks(mdp, 4, 1, 8, dictionary=train.dictionary, rng=4)
-    return mdp, train, test
+    return transfer_tasks_on_a_grid(4, 12, 4, 8, rng=3)
 
 
 def _residual_problem(mdp, rng, n=3, k=2, lam=0.5):
