@@ -289,3 +289,17 @@ def test_the_screen_routes_take_init_random(data):
                                 max_iter=3, rng=0, sharing_search=SharingSearch(route=route)), mdp, demos)
         assert model.start.init == "random" and np.all(np.isfinite(model.rewards_))
         assert np.all(np.isfinite(model.cv_results_["mean_test_score"][model.cv_results_["n_splits_scored"] > 0]))
+
+
+def test_an_unscored_candidate_names_the_fold_it_failed_on_in_a_race(low_rank_tasks):
+    """A race scores the contenders on the later folds in a second pass: the reason still names the
+    fold of the whole search (fold 1 here), not the pass's own count."""
+    mdp, feats, demos = low_rank_tasks
+    folds = [np.array([0, 1]), np.array([6, 7]), np.array([2, 3])]
+    search = SharingSearch(cv=folds, route="race", n_primitives_grid=(1, 3), residual_penalty_grid=(np.inf, 0.0))
+    model = _fit(fo.FactIRL(n_primitives="auto", residual_penalty="auto", features=feats, max_iter=2, rng=0,
+                            sharing_search=search), mdp, demos)
+    res = model.cv_results_  # (3, inf) leads on fold 0 and races on with the flat model
+    (row,) = np.flatnonzero(res["param_n_primitives"] == 3)
+    assert res["unscored_reason"][row].startswith("cannot be fitted on the training tasks of fold 1:")
+    assert res["n_splits_scored"][row] == 1

@@ -373,7 +373,8 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                     model.fit(sub_mdp, take_tasks(demos_per_task, train),
                               flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, train))
                 except ValidationError as exc:  # inputs were checked before the search: this candidate cannot be fitted here
-                    progress.unscored[k, lam] = f"cannot be fitted on the training tasks of fold {len(scores.get((k, lam), []))}: {exc}"
+                    fold = len(progress.scores.get((k, lam), []))  # folds are scored in order, across calls (a race's)
+                    progress.unscored[k, lam] = f"cannot be fitted on the training tasks of fold {fold}: {exc}"
                     continue
                 progress.fits[k, lam], progress.train_tasks[k, lam] = model, train
             fitted[k, lam] = model
