@@ -387,27 +387,19 @@ def check_fit_parameters(estimator: typing.Any) -> None:
     """Check, when ``fit`` starts, the parameters of ``estimator`` that only some paths of the fit read.
 
     Every iteration budget (``max_iter``, ``start__flat_max_iter``, ``transfer_max_iter``:
-    integers >= 0; ``inner_steps`` >= 1) and the step solver ``solver`` (a registered name, a
-    ``solvers.StepSolver`` or a ``SolverSettings``, whose fields are checked when it is made) the
-    estimator has, whether or not this fit's path reads it: a bad ``transfer_max_iter`` is
-    refused by ``fit``, not by a later ``transfer``; a bad flat budget by a fit with
-    ``init="random"``.
+    integers >= 0; ``inner_steps`` >= 1) the estimator has, whether or not this fit's path reads
+    it: a bad ``transfer_max_iter`` is refused by ``fit``, not by a later ``transfer``; a bad flat
+    budget by a fit with ``init="random"``. The step solvers need no check here: every fit reads
+    ``solver``, and a ``SolverSettings`` checks its fields when it is made.
 
     Raises
     ------
     ValidationError
         Naming the parameter and the value.
     """
-    import solvers
-
-    from .exceptions import UnknownSolverError
-
     params = dict(vars(estimator))  # the stored parameters (a subclass may take **kwargs: no signature read)
     for group in getattr(type(estimator), "param_groups", {}):
         params.update({f"{group}__{k}": v for k, v in estimator._group(group).get_params().items()})
     for name, minimum in _BUDGET_PARAMETERS.items():
         if name in params:
             check_int(params[name], name, minimum=minimum)
-    value = params.get("solver")
-    if isinstance(value, str) and value not in solvers.registered_solvers():
-        raise UnknownSolverError(f"solver: unknown solver {value!r}; available: {', '.join(solvers.available_solvers())}")
