@@ -37,6 +37,7 @@ from __future__ import annotations
 import abc
 import functools
 import hashlib
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -422,16 +423,12 @@ CHECKED_METHODS: dict[str, Callable[..., Any]] = {"rewards": _check_rewards, "pu
 
 def _checked(method: Callable[..., Any], check: Callable[..., Any]) -> Callable[..., Any]:
     """``method`` followed by ``check(self, result, *args)`` (the arguments bound by name)."""
-    import inspect
-
     signature = inspect.signature(method)
     n_args = len(inspect.signature(check).parameters) - 2  # what the check reads after (basis, result)
 
     @functools.wraps(method)
     def checked(self: RewardBasis, *args: Any, **kwargs: Any) -> Any:
         out = method(self, *args, **kwargs)
-        if not _CHECKS_ON:
-            return out
         try:
             bound = signature.bind(self, *args, **kwargs)
         except TypeError:
@@ -442,10 +439,6 @@ def _checked(method: Callable[..., Any], check: Callable[..., Any]) -> Callable[
 
     checked._checked_by_basis = True  # type: ignore[attr-defined]
     return checked
-
-
-#: whether the boundary checks run (always, outside the benchmark of their cost)
-_CHECKS_ON = True
 
 
 class ComposedBasis(RewardBasis):
