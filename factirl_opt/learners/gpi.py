@@ -52,7 +52,7 @@ from ..objectives.mce import soft_values
 from ..planning import get_planner, plan
 from ..planning.engine import greedy_values
 from ..planning.successor_features import gpi_actions, improve_policies, library_values, policy_successor_features
-from ..tasks.basis import RewardBasis
+from ..tasks.basis import RewardBasis, matrix_digest
 from ..tasks.task_set import features_per_task, per_task_features, reward_basis
 
 __all__ = ["GPIReport", "generalised_policy_improvement", "gpi_library", "LIBRARY_PARTS", "DEFAULT_PARTS",
@@ -257,9 +257,7 @@ def _model_state(model: Any) -> str:
     for name in ("dictionary_", "coefficients_", "residuals_"):
         value = model.__dict__.get(name)
         if value is not None:
-            arr = np.ascontiguousarray(value, dtype=np.float64)
-            h.update(repr(arr.shape).encode())
-            h.update(arr.tobytes())
+            h.update(matrix_digest(value).encode())
     return h.hexdigest()
 
 
