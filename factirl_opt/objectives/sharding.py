@@ -65,6 +65,10 @@ class Execution(ParameterGroup):
     verbose: bool = False
     callback: Any = None
 
+    def quiet(self) -> "Execution":
+        """These settings without progress bar or callback (the inner fits of a search or a start)."""
+        return dataclasses.replace(self, verbose=False, callback=None)
+
     def budget(self) -> contextlib.AbstractContextManager:
         """The planning budget of ``planner_options`` in force while the block is open."""
         return options_budget(self.planner_options)

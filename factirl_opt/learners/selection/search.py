@@ -391,7 +391,7 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     (:func:`~factirl_opt.learners.estimator.clone`), ``quiet`` the learner's execution without
     progress bars or callback.
     """
-    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
+    quiet = learner._group("execution").quiet()
     return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
@@ -401,10 +401,9 @@ def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: Any,
     and saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every
     task at once (separable: each task's rewards are those of its own fit)."""
     solver = solver if isinstance(solver, tuple) else (solver, None)
-    quiet = dataclasses.replace(learner._group("execution"), verbose=False, callback=None)
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner._group("start").flat_max_iter, tol=tol,
                    gtol=0.0, stol=stol, solver=SolverSettings(solver[0], solver[1]), objective=learner.objective,
-                   reward=learner.reward, execution=quiet)
+                   reward=learner.reward, execution=learner._group("execution").quiet())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
         return flat.fit(mdp, demos_per_task).rewards_
