@@ -35,6 +35,8 @@ __all__ = ["moved_attribute", "install_module_aliases", "moved_names", "warn_onc
 
 _warned: set[str] = set()
 _lock = threading.Lock()
+#: former module path -> the user's line (file, line number) whose import of it warned
+_module_warned_at: dict[str, tuple[str, int]] = {}
 
 
 def warn_once(key: str, message: str, stacklevel: int | None = 3) -> None:
@@ -78,6 +80,12 @@ def _user_frame() -> Any:
     while frame is not None and _internal(frame.f_code):
         frame = frame.f_back
     return frame
+
+
+def _user_line() -> tuple[str, int] | None:
+    """The file and line number of the user's line making the access in progress (None if none)."""
+    frame = _user_frame()
+    return None if frame is None else (frame.f_code.co_filename, frame.f_lineno)
 
 
 def _requested_module(name: str) -> str:
@@ -125,6 +133,10 @@ class _FormerNames:
         if name in self.names:
             former, home = self.names[name]
             value = getattr(importlib.import_module(home), name)
+            if _module_warned_at.get(former) == _user_line():  # one access (``from former import name``):
+                with _lock:                                    # the module's warning named it already
+                    _warned.add(f"name:{former}.{name}")
+                return value
             warn_once(f"name:{former}.{name}", f"{former}.{name} moved to {home}.{name}; the old path will be removed "
                                                "in the next release", stacklevel=None)
             return value
@@ -156,8 +168,15 @@ class _AliasLoader(importlib.abc.Loader):
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
         if _requested_module(spec.name) == spec.name:  # a former package imported for its former child: the child warns
-            warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}; the old path will be "
-                                             "removed in the next release", stacklevel=None)
+            left = {}
+            for name, home in self.former_names.items():
+                left.setdefault(home, []).append(name)
+            elsewhere = "".join(f" ({', '.join(names)}: now in {home})" for home, names in left.items())
+            warn_once(f"module:{spec.name}", f"the module {spec.name} moved to {self.target}{elsewhere}; the old path "
+                                             "will be removed in the next release", stacklevel=None)
+            line = _user_line()
+            if line is not None:
+                _module_warned_at[spec.name] = line
         module = importlib.import_module(self.target)
         if self.former_names:
             _add_former_names(module, spec.name, self.former_names)

@@ -148,8 +148,8 @@ def test_to_successors_through_its_former_path_in_a_fresh_process():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert res.stdout.splitlines() == [
-        "the module factirl_opt.successors moved to factirl_opt.mdp.successors; the old path will be removed in the "
-        "next release",
+        "the module factirl_opt.successors moved to factirl_opt.mdp.successors (from_successors, to_successors: now "
+        "in factirl_opt.mdp.tabular); the old path will be removed in the next release",
         "factirl_opt.successors.to_successors moved to factirl_opt.mdp.tabular.to_successors; the old path will be "
         "removed in the next release",
         "(4, 4, 2) True"]
@@ -163,6 +163,7 @@ def test_to_successors_through_its_former_path_in_a_fresh_process():
     "import factirl_opt.objectworld.world",  # a former package's child: the package is imported first
     "from factirl_opt.experiments.presets import PRESETS",
     "importlib.import_module('factirl_opt.gradirl')",
+    "from factirl_opt.successors import from_successors",  # a former module and a name that left it: one access
 ])
 def test_one_warning_per_deprecated_access_at_the_users_line(tmp_path, access):
     """A fresh process: the access warns once, at the line of the user's script that made it, and the
@@ -179,5 +180,7 @@ def test_one_warning_per_deprecated_access_at_the_users_line(tmp_path, access):
     assert len(caught) == 1, caught
     category, filename, lineno, message = caught[0]
     assert (category, filename, lineno) == ("DeprecatedNameWarning", str(script), 5), caught
+    if "from_successors" in access:
+        assert "from_successors, to_successors: now in factirl_opt.mdp.tabular" in message, message
     if "MissingSolverBackendError" in access:
         assert "renamed fo.exceptions.MissingSolverDependencyError" in message, message
