@@ -104,3 +104,16 @@ def test_the_paper_presets_duration_is_its_manifests_everywhere():
     for where, text in (("README", README), ("guide", guide), ("reproduce --list", PRESET_DESCRIPTIONS["paper"])):
         quoted = re.findall(r"(\d+) min(?:utes)?\b", " ".join(text.split()).split("--preset paper", 1)[-1][:400])
         assert quoted and int(quoted[0]) == minutes, (where, quoted, minutes)
+
+
+def test_every_committed_claim_that_does_not_hold_gives_its_reason():
+    """A "no" in a claims table carries its reason: the last column of every committed claims.md."""
+    tables = sorted(ROOT.joinpath("results").rglob("claims.md"))
+    assert len(tables) >= 20
+    for path in tables:
+        text = path.read_text()
+        assert "| holds | seeds | why not |" in text, path
+        for line in text.splitlines():
+            if "| **no** |" in line:
+                reason = line.rstrip().rstrip("|").rsplit("|", 1)[1].strip()
+                assert len(reason) > 20, (path, line)

@@ -1,5 +1,6 @@
 """The experiment runner's machinery: presets, ground truth, resume, --jobs invariance, dask."""
 
+import dataclasses
 import json
 import os
 
@@ -296,6 +297,32 @@ def test_claims_are_computed_from_the_rows(tiny_sweep):
     table = claims_markdown(claims)
     assert table.count("\n") == len(claims) + 2 and "| train: factorial beats flat |" in table
 
+
+
+def test_a_claim_that_does_not_hold_says_why():
+    from factirl_opt.lab.experiments.claims import claims_markdown, paired_reason
+
+    assert paired_reason("a", "b", [0.1, -0.2, 0.3], 1).startswith("a tie: a - b = +0.07 on average, within")
+    assert paired_reason("a", "b", [2.0, 3.0, 2.5], 0) == (
+        "reversed on every seed: a - b = +2.50 on average (paired s.d. 0.50)")
+    assert paired_reason("a", "b", [2.0], 0) == "reversed on every seed: a - b = +2.00 on average (one seed)"
+    assert paired_reason("a", "b", [-0.1, 3.0, 3.2], 1).startswith("mixed: lower on 1/3 seeds, a - b = +2.03")
+    rows = [dict(split="test", learner=name, n_tasks=n, demos_per_task=10, seed=s, deviation=value)
+            for s in range(3) for n in (5, 100)
+            for name, value in (("factorial", (20.0 if n == 5 else 4.0) + s), ("flat", 14.0 + 0.1 * s))]
+    preset = dataclasses.replace(PRESETS["tiny"], default_tasks=100, default_demos=10, tasks_sweep=(5, 100),
+                                 demos_sweep=(10,))
+    from factirl_opt.lab.experiments.claims import evaluate_claims
+    claims = {(c["claim"], c["point"]): c for c in evaluate_claims(rows, preset)}
+    holds = claims[("test: factorial beats flat from scratch", "100 tasks, 10 demos")]
+    fails = claims[("test: factorial beats flat (tasks sweep)", "5 tasks, 10 demos")]
+    assert holds["holds"] and holds["reason"] == ""
+    assert not fails["holds"] and fails["reason"].startswith("reversed on every seed: factorial - flat = +6.90 on average (paired s.d. 0.90)")
+    assert "less training data than at the default point (5 tasks x 10 demonstrations" in fails["reason"]
+    table = claims_markdown(list(claims.values()))
+    assert f"| **no** | 0/3 | {fails['reason']} |" in table and "| yes | 3/3 |  |" in table
+    with pytest.raises(ValidationError, match="does not hold and gives no reason"):
+        claims_markdown([dict(fails, reason="")])
 
 # --- progress ------------------------------------------------------------------------------
 
