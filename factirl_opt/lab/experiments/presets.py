@@ -49,7 +49,7 @@ Presets
     (:data:`OBJECTWORLD_FULL_SOLVERS`; the quick, tiny and sharing Objectworld presets keep
     the alternation and ``flat_stol = 0``).
 ``objectworld-quick``
-    The same at 16x16 in under a minute with ``--jobs 1``: 5 and 20 training tasks x 16
+    The same at 16x16 (the committed run: 3 min with ``--jobs 1``): 5 and 20 training tasks x 16
     demonstrations, 20 test tasks, 3 seeds, GradIRL 40 iterations, FactIRL 15 outer
     iterations, transfer 40 steps; the regression test's orderings.
 ``objectworld-tiny``
@@ -526,25 +526,27 @@ PRESETS.update({
 PRESET_DESCRIPTIONS = {
     "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (49 min with --jobs 2 on 2 cores beside other jobs: results/manifest.json)",
     "fast": "the paper's section 4 with the factorial learner's faster solvers (FAST_SOLVERS; same world, sweeps, "
-            "seeds and budgets; under 10 min on 2 cores)",
+            "seeds and budgets; 24 min with --jobs 2 on 2 cores beside other jobs: results/fast/manifest.json)",
     "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (36-40 s on 2 cores)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
     "objectworld": "ELIRL's multi-task Objectworld: 32x32, 100 training tasks x 32 demos of 16 steps, tasks sweep "
-                   "10-100, 100 test tasks, 3 seeds (about 15 min with --jobs 2)",
+                   "10-100, 100 test tasks, 3 seeds (57 min with --jobs 1 beside other jobs: "
+                   "results/objectworld/manifest.json)",
     "objectworld-quick": "Objectworld at 16x16: 20 training tasks x 16 demos, 20 test tasks, short budgets, 3 seeds "
-                         "(under a minute)",
+                         "(3 min with --jobs 1: results/objectworld-quick/manifest.json)",
     "objectworld-tiny": "an 8x8 Objectworld, a few tasks and iterations: seconds; tests the machinery",
     "objectworld-per-task": "ELIRL's benchmark as its script runs it: every task on its own 32x32 map, 100 training "
                             "tasks x 32 demos, tasks sweep 10-100, 100 test tasks on unseen maps, scored on own and "
-                            "fresh maps, 3 seeds",
+                            "fresh maps, 3 seeds (56 min with --jobs 2 beside other jobs: "
+                            "results/objectworld-per-task/manifest.json)",
     "objectworld-per-task-quick": "a map per task at 8x8: 20 training tasks x 16 demos, 20 test tasks, short budgets, "
-                                  "3 seeds (about a minute)",
+                                  "3 seeds",
     "babyai": "BabyAI-GoToLocal-v0: a layout per task, the bot's demonstrations, 10/30/100 training layouts, 100 test "
-              "layouts with one demonstration each, success rate in the environment, 3 seeds",
+              "layouts with one demonstration each, success rate in the environment, 3 seeds (16 min with --jobs 1: "
+              "results/babyai/manifest.json)",
     "babyai-large": "BabyAI-GoToOpen-v0 (about 1,250 states per layout): 10/30 training layouts x 2 demos, 30 test "
-                    "layouts, 1 seed",
-    "babyai-quick": "BabyAI-GoToLocal-v0: 12 training layouts x 3 demos, 10 test layouts, short budgets, 1 seed "
-                    "(under a minute)",
+                    "layouts, 1 seed (7 min with --jobs 1: results/babyai/large/manifest.json)",
+    "babyai-quick": "BabyAI-GoToLocal-v0: 12 training layouts x 3 demos, 10 test layouts, short budgets, 1 seed",
     "tiny": "a 5x5 grid, a few tasks and iterations, 2 seeds: seconds; tests the machinery, its scores mean nothing",
     "sharing-grid": "which learner when: flat, factorial (k = 5) and adaptive (k and residual penalty by validation) "
                     "on the paper's grid at 5, 20 and 100 training tasks x 10 demos, 100 test tasks, 3 seeds",
