@@ -43,6 +43,7 @@ from .learners import (
     Start,
     GradIRL,
     MultiIntentIRL,
+    PAPER_SETTINGS,
     SharingSearch,
     SolverSettings,
     adjusted_rand_index,
@@ -87,6 +88,7 @@ __all__ = [
     # estimators
     "GradIRL",
     "FactIRL",
+    "PAPER_SETTINGS",
     "MultiIntentIRL",
     "SolverSettings",
     "Execution",

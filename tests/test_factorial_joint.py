@@ -82,18 +82,36 @@ def test_factirl_scheme(data):
     mdp, _, demos = data
     kw = dict(n_primitives=K, max_iter=4, inner_steps=2, flat_max_iter=5, d_solver="lbfgs", rng=0)
     joint = fo.FactIRL(scheme="joint", **kw).fit(mdp, demos)
-    alt = fo.FactIRL(**kw).fit(mdp, demos)
-    assert fo.FactIRL().scheme == "alternating" and joint.get_params()["scheme"] == "joint"
+    alt = fo.FactIRL(scheme="alternating", **kw).fit(mdp, demos)
+    assert fo.FactIRL().scheme == "auto" and joint.get_params()["scheme"] == "joint"
+    assert (joint.scheme_, alt.scheme_) == ("joint", "alternating")
     assert joint.loss_history_[0] == alt.loss_history_[0]  # the same start
     assert joint.loss_history_[-1] < joint.loss_history_[0] and joint.n_iter_ == 4
     # the residual model alternates whatever the scheme
     res_joint = fo.FactIRL(scheme="joint", residual_penalty=1.0, **kw).fit(mdp, demos)
-    res_alt = fo.FactIRL(residual_penalty=1.0, **kw).fit(mdp, demos)
+    res_alt = fo.FactIRL(scheme="alternating", residual_penalty=1.0, **kw).fit(mdp, demos)
     np.testing.assert_array_equal(res_joint.rewards_, res_alt.rewards_)
+    assert res_joint.scheme_ == "alternating"
+
+
+def test_auto_scheme_is_joint_on_features_and_alternating_on_tables(data):
+    """The default ``scheme="auto"`` runs the fit of ``"joint"`` on features and of ``"alternating"`` on
+    tables (tabular or state rewards), and alternates wherever the joint scheme does not apply."""
+    mdp, _, demos = data
+    F = np.random.default_rng(3).standard_normal((mdp.n_states, 6))
+    kw = dict(n_primitives=K, max_iter=3, flat_max_iter=5, rng=0)
+    for fit_kw, scheme in ((dict(), "alternating"), (dict(reward="state"), "alternating"), (dict(features=F), "joint"),
+                           (dict(features=F, solver="gn-qp-clarabel-nonneg"), "alternating"),
+                           (dict(features=F, dictionary_constraint="nonneg"), "alternating"),
+                           (dict(features=F, residual_penalty=1.0), "alternating")):
+        auto = fo.FactIRL(**kw, **fit_kw).fit(mdp, demos)
+        same = fo.FactIRL(scheme=scheme, **kw, **fit_kw).fit(mdp, demos)
+        assert auto.scheme == "auto" and auto.scheme_ == scheme, fit_kw
+        np.testing.assert_array_equal(auto.rewards_, same.rewards_)
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    (dict(scheme="joined"), r"scheme must be one of 'alternating', 'joint'; got 'joined'"),
+    (dict(scheme="joined"), r"scheme must be one of 'auto', 'alternating', 'joint'; got 'joined'"),
     (dict(scheme=None), r"scheme must be one of .*; got None"),
     (dict(scheme="joint", solver="gn-qp-clarabel-nonneg"), r"H-solver 'gn-qp-clarabel-nonneg' with constraint 'nonneg'"),
     (dict(scheme="joint", d_solver="gn-cg"), r"D-solver 'gn-cg', which needs residuals or a Hessian"),
@@ -163,15 +181,15 @@ def test_flat_tol_stops_the_pca_start_earlier_and_is_checked(data):
 
 
 def test_flat_stol_stops_the_pca_start_by_saturation_as_gradirl_does_and_is_checked(data):
-    """flat_stol is the start's saturation rule, off by default: with it, the start's weights
+    """flat_stol is the start's saturation rule, GradIRL's default 1e-5: with it, the start's weights
     are those of GradIRL with the same tolerances and rules (gradient rule off), and the fit
     takes no more evaluations than without it."""
     mdp, _, demos = data
     kw = dict(n_primitives=K, max_iter=0, solver=fo.SolverSettings(flat_solver="lbfgs"), rng=0)
     start = dict(flat_max_iter=60, pca_shrink=False)
-    plain = fo.FactIRL(start=fo.Start(**start), **kw).fit(mdp, demos)
+    plain = fo.FactIRL(start=fo.Start(flat_stol=0.0, **start), **kw).fit(mdp, demos)
     saturating = fo.FactIRL(start=fo.Start(flat_stol=1e-2, **start), **kw).fit(mdp, demos)
-    assert fo.Start().flat_stol == 0.0 and saturating.get_params()["start__flat_stol"] == 1e-2
+    assert fo.Start().flat_stol == 1e-5 and saturating.get_params()["start__flat_stol"] == 1e-2
     assert saturating.n_evaluations_ < plain.n_evaluations_
     flat = fo.GradIRL(max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
     given = fo.FactIRL(start=fo.Start(flat_stol=1e-2, **start), **kw).fit(mdp, demos, flat_rewards=flat.rewards_)

@@ -10,6 +10,7 @@ import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 import solvers
 from factirl_opt.learners.gradirl import fit_weights
+from factirl_opt.learners.transfer import TRANSFER_STOL
 from factirl_opt.learners.fitting import make_objective
 from factirl_opt.tasks.task_set import reward_features
 from helpers import five_tasks_on_a_small_grid, quiet_fit, three_tasks_on_two_grids
@@ -208,8 +209,9 @@ def test_flat_tasks_that_match_their_demonstrations_stop_when_their_loss_saturat
 
 @pytest.mark.parametrize("solver", ["gn-qp-clarabel", "gn-qp-osqp", "gn-cg"])
 def test_transfer_from_one_demonstration_converges(matched, solver):
+    """The maximum-likelihood transfer (``transfer_stol=0``) stops every task by the gradient rule."""
     mdp, _, D, new = matched
-    model = fo.FactIRL(n_primitives=3, solver=solver)
+    model = fo.FactIRL(n_primitives=3, solver=solver, transfer_stol=0.0)
     model.dictionary_ = D
     with warnings.catch_warnings():
         warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
@@ -224,6 +226,24 @@ def test_transfer_from_one_demonstration_converges(matched, solver):
     model.gtol = 0.0  # FactIRL's gtol is its transfer's
     with pytest.warns(fo.exceptions.MaxIterWarning):
         model.transfer(mdp, new)
+
+
+@pytest.mark.parametrize("solver", ["armijo", "lbfgs", "gn-qp-clarabel"])
+def test_default_transfer_from_one_demonstration_stops_by_its_own_rules(matched, solver):
+    """FactIRL's default transfer (the saturation rule ``transfer_stol=TRANSFER_STOL`` beside the gradient
+    rule) stops every task before ``max_iter``, even without the gradient rule, where the
+    maximum-likelihood transfer of the same tasks runs to ``max_iter``."""
+    mdp, _, D, new = matched
+    model = fo.FactIRL(n_primitives=3, solver=solver, gtol=0.0)
+    model.dictionary_ = D
+    assert model.transfer_stol == TRANSFER_STOL
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fo.exceptions.ConvergenceWarning)
+        model.transfer(mdp, new)
+    assert model.transfer_status_ == "converged" and "max_iter" not in model.transfer_stop_reason_
+    assert "by saturation (decrease <= stol=0.001 x decrease since the start)" in model.transfer_stop_reason_
+    with pytest.warns(fo.exceptions.MaxIterWarning):
+        model.set_params(transfer_stol=0.0).transfer(mdp, new)
 
 
 @pytest.mark.parametrize("bad", [-1e-4, float("nan"), "1e-4"])

@@ -9,6 +9,8 @@ from helpers import central_difference, rel_err
 import factirl_opt as fo
 from factirl_opt.exceptions import ConvergenceWarning, ValidationError
 from factirl_opt.learners.fitting import make_objective, task_objective
+from factirl_opt.learners.start import FLAT_SOLVER
+from factirl_opt.learners.transfer import TRANSFER_STOL
 from factirl_opt.tasks.task_set import task_set
 from factirl_opt.tasks.task_set import reward_features
 from factirl_opt.objectives.problems import weights_problem
@@ -233,13 +235,14 @@ def test_residual_h_step_solves_each_task_alone_without_a_block_qp(shared, monke
         fitted.fit(mdp, demos)
     assert np.all(np.isfinite(fitted.residuals_)) and np.any(fitted.residuals_ != 0)
     with pytest.raises(AssertionError, match="block QP"):  # the fixed-k model's H-step does use it (unchanged)
-        fo.FactIRL(n_primitives=2, features=F, solver="gn-qp-osqp", max_iter=1, rng=0).fit(mdp, demos)
+        fo.FactIRL(n_primitives=2, features=F, solver="gn-qp-osqp", max_iter=1, rng=0, scheme="alternating").fit(mdp, demos)
 
 
 @pytest.mark.parametrize("flat_solver", ["armijo", "lbfgs"])
 def test_flat_model_transfers_as_the_flat_learner(shared, flat_solver):
     """lambda = 0: the dictionary plays no part, and transfer fits each new task as GradIRL does (the same
-    solver, budget and tolerance): the same rewards to the last bit, h = 0, delta = the flat weights."""
+    solver, budget, tolerance and saturation rule, the transfer's ``transfer_stol``): the same rewards to the
+    last bit, h = 0, delta = the flat weights."""
     mdp, F, demos = shared
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", fo.exceptions.ConvergenceWarning)
@@ -247,7 +250,8 @@ def test_flat_model_transfers_as_the_flat_learner(shared, flat_solver):
                            flat_solver=flat_solver, rng=0).fit(mdp, demos[:3])
         new = [d[:1] for d in demos[3:]]
         H = model.transfer(mdp, new)
-        flat = fo.GradIRL(features=F, max_iter=15, solver=flat_solver).fit(mdp, new)
+        flat = fo.GradIRL(features=F, max_iter=15, solver=flat_solver, stol=model.transfer_stol).fit(mdp, new)
+    assert model.transfer_stol == TRANSFER_STOL
     assert np.array_equal(H, np.zeros((2, 2)))
     assert np.array_equal(model.transfer_residuals_, flat.weights_)
     assert np.array_equal(np.asarray(model.transfer_rewards_), flat.rewards_)
@@ -284,7 +288,7 @@ def test_no_penalty_starts_at_the_flat_start(shared, given):
     """residual_penalty=0 is the flat model: with the PCA start, the fit begins at the flat start's own
     rewards (delta_i = w_i - D h_i), given as flat_rewards or fitted by the model, and never ends above it."""
     mdp, F, demos = shared
-    flat = fo.GradIRL(features=F, gtol=0.0, stol=0.0, max_iter=200).fit(mdp, demos)
+    flat = fo.GradIRL(features=F, gtol=0.0, max_iter=200, solver=FLAT_SOLVER).fit(mdp, demos)  # the start's rules
     model = fo.FactIRL(n_primitives=2, features=F, residual_penalty=0.0, max_iter=5, flat_max_iter=200, rng=0)
     model.fit(mdp, demos, flat_rewards=flat.rewards_ if given else None)
     start = model.loss_history_[0]

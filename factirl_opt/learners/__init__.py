@@ -21,7 +21,7 @@ Learners never know which step solver, objective or planner runs: they take them
 """
 
 from .estimator import clone
-from .factirl import FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
+from .factirl import PAPER_SETTINGS, FactIRL, fit_factorial, pca_dictionary, transfer_coefficients
 from .gpi import GPIReport
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
@@ -35,6 +35,7 @@ from ..objectives.sharding import Execution
 __all__ = [
     "GradIRL",
     "FactIRL",
+    "PAPER_SETTINGS",
     "MultiIntentIRL",
     "SolverSettings",
     "Execution",

@@ -13,7 +13,8 @@ The plain functions stay importable from here.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -34,7 +35,7 @@ from .dictionary import (
     shrink_coefficients,
 )
 from ..exceptions import FitInterrupted, ValidationError
-from .factorial import GTOL, FactorialFit, check_residual_solver, check_scheme, fit_factorial, run_factorial
+from .factorial import GTOL, FactorialFit, check_residual_solver, fit_factorial, resolve_scheme, run_factorial
 from .fitting import learner_entry, resolve_step_solver, task_objective, warn_if_stalled
 from ..tasks.basis import RewardBasis
 from ..tasks.task_set import task_set
@@ -44,7 +45,7 @@ from .solver_settings import SolverSettings, estimator_solvers
 from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
-from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
+from .transfer import TRANSFER_STOL, TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
@@ -53,8 +54,29 @@ from .selection.sharing_search import SharingSearch, fit_auto, is_auto
 from .._deprecation import moved_names, warn_once
 from ..objectives.residuals import residual_weights
 
-__all__ = ["FactIRL", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit", "TransferFit",
-           "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
+__all__ = ["FactIRL", "PAPER_SETTINGS", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit",
+           "TransferFit", "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
+
+#: The paper's algorithm (Mangin & Oudeyer 2014, section 3.2) as FactIRL keyword arguments:
+#: ``FactIRL(n_primitives=5, **PAPER_SETTINGS)``. An Armijo flat start without saturation rule
+#: (``Start(flat_stol=0)``), the alternation of H- and D-steps, Armijo steps for the flat fit, H, D
+#: and the transfer, 5 steps per sub-problem, 100 outer iterations to a relative decrease of
+#: 1e-5 with no gradient rule (``gtol=0``: the paper's fixed budgets), and the maximum-likelihood
+#: transfer (``transfer_stol=0``). FactIRL's defaults were these (with ``gtol=1e-4``) until they
+#: were measured slower at no better quality (``results/defaults/README.md``); the reproduction
+#: presets pin them. ``Start`` keeps its other defaults (``pca_shrink=True``; the ``paper``
+#: preset's rows also set ``pca_shrink=False``): pass ``start=Start(flat_stol=0.0, ...)`` to
+#: change them, as another ``start`` replaces this one.
+PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType({
+    "solver": SolverSettings("armijo", d_solver="armijo", flat_solver="armijo"),
+    "start": Start(flat_stol=0.0),
+    "scheme": "alternating",
+    "inner_steps": 5,
+    "max_iter": 100,
+    "tol": 1e-5,
+    "gtol": 0.0,
+    "transfer_stol": 0.0,
+})
 
 class FactIRL(Estimator):
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
@@ -81,13 +103,17 @@ class FactIRL(Estimator):
     start : Start, optional
         Where the fit starts (:class:`~factirl_opt.Start`: ``init``, ``pca_shrink``,
         ``flat_max_iter``, ``flat_tol``, ``flat_stol``); None: ``Start()``, the PCA of the
-        flat learner's rewards, as the paper recommends, shrunk while the loss decreases.
+        flat learner's rewards, as the paper recommends, shrunk while the loss decreases; the
+        flat fit takes L-BFGS steps (the solver settings' ``flat_solver``) and stops by the
+        saturation rule ``flat_stol=1e-5``.
         ``flat_max_iter`` is also the budget of the flat model's ``transfer``
         (``residual_penalty=0``).
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
-    inner_steps : int, default=5
-        Fixed number of solver steps per sub-problem.
+    inner_steps : int, default=2
+        Fixed number of solver steps per sub-problem (per outer iteration of the joint scheme).
+        2 took 0.5-0.6x the CPU of the paper's 5 at test deviations within noise
+        (``results/defaults/README.md``).
     tol : float, default=1e-5
         Stop when the relative decrease of the total loss over an outer iteration is below tol
         (a rise is not convergence; the best point seen is kept); see :func:`fit_factorial` for
@@ -105,8 +131,9 @@ class FactIRL(Estimator):
         The step solvers (:class:`~factirl_opt.SolverSettings`: H-step, D-step, the flat
         learner's and the transfer's, with their options), or a solver name, the H-step solver
         (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``) with the others at
-        their defaults: the D-step and the flat learner ``"armijo"`` (the paper's), the
-        transfer the H-step's. A constrained H-step solver keeps its constraint in the
+        their defaults: the D-step and the flat learner ``"lbfgs"`` (the D-step ``"armijo"``
+        with a ``dictionary_constraint``; :data:`PAPER_SETTINGS` names the paper's Armijo
+        steps everywhere), the transfer the H-step's. A constrained H-step solver keeps its constraint in the
         initialisation and in transfer: for a nonnegative one the primitives of a "pca"
         initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one uses
         ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H objective and
@@ -144,26 +171,30 @@ class FactIRL(Estimator):
         and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
     dictionary_alpha : float, default=0.01
         The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
-    scheme : {"alternating", "joint"}, default="alternating"
+    scheme : {"auto", "alternating", "joint"}, default="auto"
         The outer scheme of ``fit`` (:func:`~factirl_opt.learners.factorial.fit_factorial`):
-        the paper's alternation of H- and D-steps, or ``inner_steps`` steps of ``d_solver``
+        ``"auto"`` chooses from the reward basis (:func:`~factirl_opt.learners.factorial.resolve_scheme`,
+        recorded in ``scheme_``): ``"joint"`` with ``features`` wherever it applies,
+        ``"alternating"`` on tables (``features=None``), where the joint scheme transferred worse
+        (``results/defaults/README.md``). Otherwise the paper's alternation of H- and D-steps, or
+        ``inner_steps`` steps of ``d_solver``
         on the dictionary and coefficients together per outer iteration, its memory kept
         across them (``"joint"``; with ``d_solver="lbfgs"``, a lower loss than the alternation
         in a fraction of its evaluations on Objectworld). ``"joint"`` needs an unconstrained
         ``solver`` (it states the model; ``transfer`` runs it) and dictionary, and a
         ``d_solver`` that needs only gradients; fits of the residual model (a finite
         ``residual_penalty``, and such candidates of ``"auto"``) alternate.
-    transfer_stol : float, default=0.0
+    transfer_stol : float, default=1e-3
         The saturation rule of ``transfer`` (:mod:`factirl_opt.learners.transfer`): each new
         task also stops when its loss decreases over a step by at most ``transfer_stol`` times
         its decrease since the start, where the loss stops paying for coefficients that grow
         (one demonstration is matched exactly only by unbounded ones, so the unregularised
-        transfer of such a task runs to ``transfer_max_iter``). 0 turns it off (the
-        maximum-likelihood transfer); ``1e-3`` (:data:`~factirl_opt.learners.transfer.TRANSFER_STOL`)
-        stops every transfer measured on the "which learner when" benchmark by its own rule, at
+        transfer of such a task runs to ``transfer_max_iter``). The default ``1e-3``
+        (:data:`~factirl_opt.learners.transfer.TRANSFER_STOL`) stopped every transfer measured
+        on the "which learner when" benchmark by its own rule (0 of 1,440 at ``max_iter``), at
         0.36x the CPU and a deviation 1.7% lower on average and at most 1.8% higher per point
-        (results/transfer/README.md). The flat model's transfer (``residual_penalty=0``) stops by
-        it too.
+        (results/transfer/README.md). 0 turns it off: the maximum-likelihood (unregularised)
+        transfer. The flat model's transfer (``residual_penalty=0``) stops by it too.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -185,6 +216,9 @@ class FactIRL(Estimator):
         Batched planning evaluations used by ``fit`` (including the flat learner of the PCA init).
     n_iter_ : int
         Outer iterations of ``fit``.
+    scheme_ : str
+        The outer scheme ``fit`` ran, ``"alternating"`` or ``"joint"`` (``scheme`` resolved;
+        the residual model's fits alternate).
     status_ : str
         ``"converged"``, ``"max_iter"``, ``"stalled"`` (with a :class:`ConvergenceWarning`) or
         ``"interrupted"``.
@@ -237,7 +271,7 @@ class FactIRL(Estimator):
     #: finite float array (same name, same length; S, A of the MDP, p parameters), a string a kind.
     learnt_attributes: ClassVar[dict[str, tuple[str, ...] | str]] = {
         "dictionary_": ("p", "k"), "coefficients_": ("n", "k"), "rewards_": ("n", "S", "A"), "loss_": ("n",),
-        "loss_history_": "history", "n_evaluations_": "count", "n_iter_": "count", "status_": "text",
+        "loss_history_": "history", "n_evaluations_": "count", "n_iter_": "count", "scheme_": "text", "status_": "text",
         "stop_reason_": "text", "mdp_signature_": "mdp-signature", "features_sha256_": "features-digest",
         "transfer_coefficients_": ("n_new", "k"), "transfer_rewards_": ("n_new", "S", "A"), "transfer_loss_": ("n_new",),
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
@@ -256,8 +290,10 @@ class FactIRL(Estimator):
         **EXECUTION_RENAMED,
     }
     param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution}
-    #: The D-step solver when the solver settings name none.
-    default_d_solver: ClassVar[str] = "armijo"
+    #: The D-step solver when the solver settings name none (:attr:`default_d_solver`), and with a
+    #: ``dictionary_constraint``, whose projected/proximal steps are Armijo's.
+    unconstrained_d_solver: ClassVar[str] = "lbfgs"
+    constrained_d_solver: ClassVar[str] = "armijo"
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
         "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver",
@@ -267,13 +303,14 @@ class FactIRL(Estimator):
     @renamed_params
     def __init__(self, n_primitives: int | Literal["auto"] = 5, beta: float = 5.0, *,
                  features: ArrayLike | Sequence[ArrayLike] | RewardBasis | None = None, reward: str = "state-action",
-                 start: Start | None = None, max_iter: int = 100, inner_steps: int = 5, tol: float = 1e-5,
+                 start: Start | None = None, max_iter: int = 100, inner_steps: int = 2, tol: float = 1e-5,
                  gtol: float = GTOL, transfer_max_iter: int = 100,
                  solver: str | solvers.StepSolver | SolverSettings = "armijo",
                  objective: str | type[Objective] = "policy-matching", rng: np.random.Generator | int | None = None,
                  execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 sharing_search: SharingSearch | None = None, scheme: str = "alternating", transfer_stol: float = 0.0) -> None:
+                 sharing_search: SharingSearch | None = None, scheme: str = "auto",
+                 transfer_stol: float = TRANSFER_STOL) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -291,6 +328,12 @@ class FactIRL(Estimator):
         self.sharing_search = sharing_search
         self.scheme = scheme
         self.transfer_stol = transfer_stol
+
+    @property
+    def default_d_solver(self) -> str:
+        """The D-step solver when the solver settings name none: ``"lbfgs"``, or ``"armijo"`` with a
+        ``dictionary_constraint`` (its projected/proximal steps are Armijo's)."""
+        return self.unconstrained_d_solver if self.dictionary_constraint is None else self.constrained_d_solver
 
     @property
     def validation_(self) -> list[dict]:
@@ -362,7 +405,7 @@ class FactIRL(Estimator):
                                                      check_int(self.n_primitives, "n_primitives", minimum=1),
                                                      len(tasks.demos_per_task))
         lam = check_residual_solver(h_solver, self.residual_penalty)
-        scheme = check_scheme(self.scheme, h_solver, d_solver) if np.isinf(lam) else "alternating"
+        scheme = resolve_scheme(self.scheme, basis, h_solver, d_solver) if np.isinf(lam) else "alternating"
         execution, init = self._group("execution"), self._group("start").init
         obj = task_objective(tasks, self.beta, self.objective, execution.planner)
         try:
@@ -378,10 +421,12 @@ class FactIRL(Estimator):
                                     residual_penalty=lam, residuals=Delta, scheme=scheme)
         except FitInterrupted as exc:
             self._store(tasks, exc.result, int(obj.n_evaluations), lam)
+            self.scheme_ = scheme
             kept = "the start" if self.n_iter_ == 0 else f"the best of {self.n_iter_} outer iterations"
             warn_interrupted("FactIRL.fit", f"kept {kept} ({loss_phrase(self.loss_)})", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
+        self.scheme_ = scheme
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
         return self
 

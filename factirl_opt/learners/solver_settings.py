@@ -74,13 +74,15 @@ class SolverSettings(ParameterGroup):
     h_solver_options : dict, str or None
         Its options: a dict, or its JSON (None or ``""``: none).
     d_solver : str, solvers.StepSolver or None
-        D-step solver; None or ``""``: the estimator's default D-step (FactIRL's ``"armijo"``,
-        MultiIntentIRL's H-step solver). GradIRL has no D-step.
+        D-step solver; None or ``""``: the estimator's default D-step (FactIRL's ``"lbfgs"``, or
+        ``"armijo"`` with a ``dictionary_constraint``; MultiIntentIRL's H-step solver). GradIRL
+        has no D-step.
     d_solver_options : dict, str or None
         Its options; only with a named ``d_solver``.
     flat_solver : str, solvers.StepSolver or None
         FactIRL's flat learner (the ``"pca"`` start's flat fit and the flat model's transfer,
-        ``residual_penalty=0``); None or ``""``: ``"armijo"``, GradIRL's default.
+        ``residual_penalty=0``); None or ``""``: ``"lbfgs"``
+        (:data:`~factirl_opt.learners.start.FLAT_SOLVER`).
     flat_solver_options : dict, str or None
         Its options; only with a named ``flat_solver``.
     transfer_solver : str, solvers.StepSolver or None
@@ -212,8 +214,8 @@ def estimator_solvers(estimator: Any, d_step: bool = True) -> tuple[Any, dict | 
     """An estimator's H- and D-step solvers as ``(solver, solver_options, d_solver, d_solver_options)``.
 
     From its ``solver`` parameter (:meth:`SolverSettings.of`); a D-step solver not named is the
-    estimator's default (its class's ``default_d_solver``: ``"armijo"`` for FactIRL, None for
-    MultiIntentIRL, whose None means the H-step solver).
+    estimator's default (its ``default_d_solver``: ``"lbfgs"`` for FactIRL, ``"armijo"`` with a
+    dictionary constraint; None for MultiIntentIRL, whose None means the H-step solver).
 
     Parameters
     ----------

@@ -23,7 +23,7 @@ from ..interruption import INTERRUPTED
 from .dictionary import check_dictionary_norms, pca_dictionary, shrink_coefficients
 from .factorial import FactorialFit
 from .fitting import resolve_step_solver, warn_if_stalled
-from .gradirl import fit_weights
+from .gradirl import STOL, fit_weights
 from .solver_settings import SolverSettings, step_solver
 
 __all__ = ["Start", "IntentionStart", "FLAT_TOL", "INITS", "RANDOM_INIT_SCALE", "FLAT_SOLVER", "factorial_start", "flat_solver",
@@ -66,17 +66,19 @@ class Start(ParameterGroup):
         decrease of its loss over an iteration is at most ``flat_tol`` (>= 0); on Objectworld
         with a map per task 1e-3 took 30% fewer evaluations for the start
         (``results/fit-speed/README.md``). The flat model's ``transfer`` keeps 1e-5.
-    flat_stol : float, default=0.0
+    flat_stol : float, default=1e-5
         The flat fit's saturation rule: each task also stops when the decrease of its loss over
         an iteration is at most ``flat_stol`` times its decrease since the start
-        (:func:`solvers.stopping.has_saturated`, GradIRL's ``stol``); 0 turns it off.
+        (:func:`solvers.stopping.has_saturated`; GradIRL's ``stol`` and its default,
+        :data:`~factirl_opt.learners.gradirl.STOL`); 0 turns it off (the paper's flat fit,
+        :data:`~factirl_opt.learners.factirl.PAPER_SETTINGS`).
     """
 
     init: Any = "pca"
     pca_shrink: bool = True
     flat_max_iter: int = 100
     flat_tol: float = FLAT_TOL
-    flat_stol: float = 0.0
+    flat_stol: float = STOL
 
 
 @dataclasses.dataclass(frozen=True, repr=False)
@@ -101,8 +103,10 @@ INITS = ("pca", "random")
 #: standard deviation of the coefficients of the "random" initialisation (unit-norm primitives)
 RANDOM_INIT_SCALE = 0.3
 
-#: the flat learner of the PCA start: GradIRL's default solver
-FLAT_SOLVER = "armijo"
+#: the flat learner of FactIRL's PCA start when the solver settings name none: L-BFGS, with the
+#: saturation rule ``Start.flat_stol`` (GradIRL's default solver is Armijo, the paper's; the
+#: paper's flat start is one keyword away, :data:`~factirl_opt.learners.factirl.PAPER_SETTINGS`)
+FLAT_SOLVER = "lbfgs"
 
 
 def flat_start(learner: Any, n: int, basis: Any, obj: Any, rng: Any) -> tuple[Any, int, Any]:
@@ -124,7 +128,7 @@ def flat_start(learner: Any, n: int, basis: Any, obj: Any, rng: Any) -> tuple[An
 
 
 def flat_solver(learner: Any) -> tuple[Any, dict | None]:
-    """The flat learner's ``(solver, options)``: the solver settings' ``flat_solver``, else ``"armijo"``."""
+    """The flat learner's ``(solver, options)``: the solver settings' ``flat_solver``, else :data:`FLAT_SOLVER`."""
     return step_solver(SolverSettings.of(learner.solver), "flat", (FLAT_SOLVER, None))
 
 

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from factirl_opt import Execution, FactIRL, SolverSettings, Start
+from factirl_opt import PAPER_SETTINGS, Execution, FactIRL, SolverSettings, Start
 from factirl_opt.exceptions import UnknownSolverError, ValidationError
 from factirl_opt.lab.experiments import (
     LINEUPS, Learner, Lineup, PRESETS, Preset, RunSpec, WORLDS, learners as learners_mod, plan_runs, run_one,
@@ -104,10 +104,10 @@ def test_default_settings_build_the_same_factirl():
     assert spec.solvers == SolverSettings() == SolverSettings("armijo", None, None, None)
     assert spec.solvers.fields() == dict(h_solver="armijo", h_solver_options="", d_solver="", d_solver_options="")
     assert spec.solver_label() == "armijo" and spec.key(TINY) == f"n004-m05-seed0-armijo-{TINY.fingerprint()}"
-    assert factorial_options(TINY, spec.solvers) == dict(n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, solver="armijo",
-                                                 start=Start(flat_max_iter=10, pca_shrink=False), transfer_max_iter=10,
-                                                 objective="policy-matching", execution=Execution(planner="auto"),
-                                                 gtol=0.0, tol=1e-5)
+    assert factorial_options(TINY, spec.solvers) == dict(
+        n_primitives=5, beta=5.0, max_iter=5, inner_steps=2, solver=SolverSettings("armijo", d_solver="armijo", flat_solver="armijo"),
+        start=Start(flat_max_iter=10, pca_shrink=False, flat_stol=0.0), transfer_max_iter=10, objective="policy-matching",
+        execution=Execution(planner="auto"), gtol=0.0, tol=1e-5, scheme="alternating", transfer_stol=0.0)
     import inspect
 
     assert inspect.signature(FactIRL).parameters["tol"].default == TINY.fact_tol  # FactIRL's own default
@@ -121,12 +121,17 @@ def test_h_solver_options_reach_factirl(monkeypatch):
     monkeypatch.setattr(learners_mod, "FactIRL", RecordingFactIRL)
     rec = run_one(TINY, spec)
     assert [s["solver_options"] for s in RecordingFactIRL.seen] == [{"initial_step": 0.5}] * 2
-    assert all(s["d_solver"] == "" for s in RecordingFactIRL.seen)  # not named: FactIRL's default
+    assert all(s["d_solver"] == "armijo" for s in RecordingFactIRL.seen)  # not named: the paper's, pinned
     assert {r["h_solver"] for r in rec["rows"]} == {'armijo {"initial_step":0.5}'}
 
 
-def test_the_default_d_solver_is_never_passed():
-    assert factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)["solver"] == "armijo"  # a name: no D-step solver
+def test_a_run_naming_no_d_or_flat_solver_pins_the_papers():
+    """Whatever FactIRL's defaults, a preset's FactIRL takes the paper's D-step and flat-start solvers
+    where the run names none (the committed tables were made with them), and the run's where it does."""
+    assert factorial_options(TINY, plan_runs(TINY, [0])[0].solvers)["solver"] == SolverSettings(
+        "armijo", d_solver=PAPER_SETTINGS["solver"].d_solver, flat_solver=PAPER_SETTINGS["solver"].flat_solver)
+    named = factorial_options(TINY, SolverSettings("armijo", d_solver="lbfgs"))["solver"]
+    assert (named.d_solver, named.flat_solver) == ("lbfgs", "armijo")
     assert SolverSettings().learner_kwargs() == {"solver": "armijo"}
 
 
@@ -375,7 +380,7 @@ def test_fact_scheme_reaches_the_factirl_fits_it_applies_to(monkeypatch):
     assert all(np.isfinite(r["deviation"]) for r in rec["rows"])
     # a constrained H-step solver, or a D-step solver needing residuals: the alternation
     for settings in (SolverSettings("gn-qp-clarabel-nonneg", d_solver="lbfgs"), SolverSettings("armijo", d_solver="gn-cg")):
-        assert "scheme" not in factorial_options(preset, settings)
+        assert factorial_options(preset, settings)["scheme"] == "alternating"  # pinned: FactIRL's default is "auto"
         assert factorial_scheme(preset, settings)[0] == "alternating"
     # ... except where the objective replaces it (MCE: gn-cg becomes L-BFGS)
     assert factorial_options(preset, SolverSettings("armijo", d_solver="gn-cg"), "mce")["scheme"] == "joint"
@@ -384,11 +389,11 @@ def test_fact_scheme_reaches_the_factirl_fits_it_applies_to(monkeypatch):
     assert [s.split(": scheme")[0] for s in plan.substitutions] == [
         f"train: {n}" for n in ("factorial", "factorial, features", "factorial, features, random init")]
     assert all(f"scheme 'joint' replaced by 'alternating' ({why}" in s for s in plan.substitutions)
-    assert "scheme" not in factorial_options(TINY, SolverSettings())  # the alternation: FactIRL as it always was
+    assert factorial_options(TINY, SolverSettings())["scheme"] == "alternating"  # the paper's alternation, pinned
     # FactIRL's own flat start takes the preset's saturation rule where the preset sets one
     assert factorial_options(dataclasses.replace(preset, flat_stol=1e-5), SolverSettings())["start"].flat_stol == 1e-5
-    assert factorial_options(TINY, SolverSettings())["start"].flat_stol == Start().flat_stol == 0.0
-    with pytest.raises(ValidationError, match="preset 'x': fact_scheme must be one of alternating, joint; got 'both'"):
+    assert factorial_options(TINY, SolverSettings())["start"].flat_stol == TINY.flat_stol == 0.0 != Start().flat_stol
+    with pytest.raises(ValidationError, match="preset 'x': fact_scheme must be one of auto, alternating, joint; got 'both'"):
         Preset(name="x", fact_scheme="both")
 
 

@@ -30,8 +30,8 @@ from ...parallel import limit_blas_threads
 from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
-from ...learners.factirl import FLAT_TOL, FactIRL
-from ...learners.start import FLAT_SOLVER
+from ...learners.factirl import FactIRL
+from ...learners.start import flat_solver
 from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
@@ -75,7 +75,8 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
     and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
-    flat = flat_start_rewards(learner, mdp, demos, FLAT_SOLVER, FLAT_TOL)
+    start = learner._group("start")
+    flat = flat_start_rewards(learner, mdp, demos, flat_solver(learner), start.flat_tol, start.flat_stol)
     found = learner.sharing_search.search(learner, mdp, demos, flat)
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)

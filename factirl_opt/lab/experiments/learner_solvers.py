@@ -15,6 +15,7 @@ from typing import Any
 import solvers
 
 from ...exceptions import ValidationError
+from ...learners.factirl import PAPER_SETTINGS
 from ...learners.factorial import check_scheme
 from ...learners.gradirl import check_solver_applies
 from ...learners.selection import DEFAULT_ROUTE, SharingSearch
@@ -39,8 +40,11 @@ SOLVER_ROLES = ("flat", "flat features", "factorial")
 #: FactIRL's default outer scheme (the paper's), which every FactIRL takes where the preset's does not apply
 ALTERNATING = "alternating"
 
-#: FactIRL's D-step solver when the settings name none (its ``d_solver`` default)
-_FACTIRL_D_SOLVER = "armijo"
+#: the paper's D-step and flat-start solvers (:data:`~factirl_opt.learners.factirl.PAPER_SETTINGS`),
+#: which a run's FactIRL takes where its settings name none: the presets' committed tables were
+#: made with them, when they were FactIRL's defaults
+_PAPER_D_SOLVER = PAPER_SETTINGS["solver"].d_solver
+_PAPER_FLAT_SOLVER = PAPER_SETTINGS["solver"].flat_solver
 
 
 def _applies(name: str, options: dict, objective: str) -> bool:
@@ -112,7 +116,7 @@ def factorial_scheme(preset: Any, settings: SolverSettings, objective: str = DEF
     used = factorial_solvers(settings, objective)[0]
     try:
         check_scheme(scheme, solvers.get_solver(used.h_solver, **used.h_options),
-                     solvers.get_solver(used.d_solver or _FACTIRL_D_SOLVER, **used.d_options))
+                     solvers.get_solver(used.d_solver or _PAPER_D_SOLVER, **used.d_options))
     except ValidationError as exc:
         return ALTERNATING, f"scheme {scheme!r} replaced by {ALTERNATING!r} ({exc})"
     return scheme, None
@@ -142,11 +146,12 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
                       adaptive: bool = False, features: bool = False, init: str = "pca") -> dict[str, Any]:
     """Keyword arguments of every FactIRL of a run: the preset's budgets and scheme, the run's solver settings.
 
-    Solver options and the D-step solver are passed only when the run names them
-    (:meth:`SolverSettings.learner_kwargs`), and the scheme only when it is not the
-    alternation (:func:`factorial_scheme`), so a run with the defaults builds exactly the
-    FactIRL it always did; solvers that do not apply to ``objective`` are replaced
-    (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
+    Every setting a preset relies on is pinned, whatever FactIRL's defaults: the preset's
+    scheme (:func:`factorial_scheme`), ``inner_steps``, budgets, ``flat_stol`` and
+    ``transfer_stol``, and where the run names no D-step or flat-start solver the paper's
+    (``"armijo"``, :data:`~factirl_opt.learners.factirl.PAPER_SETTINGS`): a preset builds the
+    FactIRL its committed tables were made with. Solvers that do not apply to ``objective`` are
+    replaced (:func:`factorial_solvers`). ``adaptive``: the row's learner chooses k and the residual
     penalty by validation (``n_primitives="auto", residual_penalty="auto"``,
     :mod:`factirl_opt.learners.selection`) instead of the preset's k without residuals, and its
     flat model (``residual_penalty=0``) transfers as the line-up's flat learner does: with the
@@ -154,21 +159,22 @@ def factorial_options(preset: Any, settings: SolverSettings, objective: str = DE
     ``flat_solver`` (GradIRL's fallback for an objective a Gauss-Newton solver does not apply to).
     ``init``: the start's (:class:`~factirl_opt.Start`).
     """
-    start = dict(init=init, pca_shrink=preset.pca_shrink, flat_max_iter=preset.flat_max_iter)
-    if preset.flat_stol:  # FactIRL's own flat start (fits without the flat row's rewards) as the preset's flat fits
-        start["flat_stol"] = preset.flat_stol
+    # FactIRL's own flat start (fits without the flat row's rewards) stops as the preset's flat fits
+    start = dict(init=init, pca_shrink=preset.pca_shrink, flat_max_iter=preset.flat_max_iter, flat_stol=preset.flat_stol)
     kw = dict(n_primitives="auto" if adaptive else preset.n_primitives, beta=preset.beta, max_iter=preset.fact_max_iter,
               gtol=preset.fact_gtol, tol=preset.fact_tol, inner_steps=preset.inner_steps,
               transfer_max_iter=preset.transfer_max_iter, objective=objective, start=Start(**start),
-              execution=Execution(planner=preset.planner))
+              execution=Execution(planner=preset.planner), transfer_stol=preset.transfer_stol)
     solver_settings = factorial_solvers(settings, objective)[0]
     if adaptive:
         kw["residual_penalty"] = "auto"
         solver_settings = solver_settings.set_params(flat_solver=_flat_solver(preset, features, objective)[0])
         if preset.sharing_route != DEFAULT_ROUTE:  # the default search: FactIRL's own, as before the routes existed
             kw["sharing_search"] = SharingSearch(route=preset.sharing_route)
-    kw.update(solver_settings.learner_kwargs())
-    scheme = factorial_scheme(preset, settings, objective)[0]
-    if scheme != ALTERNATING:
-        kw["scheme"] = scheme
+    if not solver_settings.d_solver:
+        solver_settings = solver_settings.set_params(d_solver=_PAPER_D_SOLVER)
+    if not solver_settings.flat_solver:
+        solver_settings = solver_settings.set_params(flat_solver=_PAPER_FLAT_SOLVER)
+    kw["solver"] = solver_settings
+    kw["scheme"] = factorial_scheme(preset, settings, objective)[0]
     return kw

@@ -98,6 +98,7 @@ from ...planning import available_planners
 from ...learners.factorial import SCHEMES
 from ...learners.selection import DEFAULT_ROUTE
 from ...learners.solver_settings import SolverSettings
+from ...learners.transfer import TRANSFER_STOL
 from ...datasets.synthetic import COEFFICIENT_KINDS
 
 __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "SHARING_PRESETS", "get_preset"]
@@ -106,7 +107,7 @@ __all__ = ["Preset", "PRESETS", "PRESET_DESCRIPTIONS", "LATER_FIELDS", "SHARING_
 #: (and so its runs' keys) only when they differ from these
 LATER_FIELDS = {"world": "grid", "lineup": "paper", "planner": "auto", "n_outer_colours": 2, "object_density": 0.05,
                 "fact_gtol": 0.0, "fact_tol": 1e-5, "flat_gtol": 0.0, "flat_stol": 0.0, "flat_solver": "armijo", "flat_features_solver": "armijo",
-                "pca_shrink": False, "sharing_route": "race", "fact_scheme": "alternating"}
+                "pca_shrink": False, "sharing_route": "race", "fact_scheme": "alternating", "transfer_stol": 0.0}
 #: the fields of :class:`~factirl_opt.SolverSettings`, flattened into :meth:`Preset.to_dict`: part of
 #: each run's key, not of the fingerprint
 SOLVER_FIELDS = ("h_solver", "h_solver_options", "d_solver", "d_solver_options")
@@ -210,6 +211,12 @@ class Preset:
         D-step solver on the dictionary and coefficients together. A FactIRL the joint scheme
         does not apply to (a constrained H-step solver, a D-step solver needing residuals, the
         residual model's fits) alternates (:func:`.learner_solvers.factorial_scheme`).
+    transfer_stol : float
+        The saturation rule of FactIRL's ``transfer`` (``FactIRL(transfer_stol=...)``): 0, the
+        maximum-likelihood transfer the committed tables of the paper's and the other
+        reproduction presets were made with, except in the "which learner when" presets
+        (:data:`SHARING_PRESETS`), which take FactIRL's default,
+        :data:`~factirl_opt.learners.transfer.TRANSFER_STOL`.
     solvers : SolverSettings
         The factorial learner's H-step and D-step solvers when a sweep names none
         (:class:`factirl_opt.SolverSettings`; default: Armijo H-steps, FactIRL's default
@@ -253,6 +260,7 @@ class Preset:
     pca_shrink: bool = False
     sharing_route: str = "race"
     fact_scheme: str = "alternating"
+    transfer_stol: float = 0.0
     solvers: SolverSettings = SolverSettings()
 
     def __post_init__(self) -> None:
@@ -274,6 +282,7 @@ class Preset:
         object.__setattr__(self, "fact_tol", check_real(self.fact_tol, where + "fact_tol", low=0.0))
         object.__setattr__(self, "flat_gtol", check_real(self.flat_gtol, where + "flat_gtol", low=0.0))
         object.__setattr__(self, "flat_stol", check_real(self.flat_stol, where + "flat_stol", low=0.0))
+        object.__setattr__(self, "transfer_stol", check_real(self.transfer_stol, where + "transfer_stol", low=0.0))
         object.__setattr__(self, "beta", check_real(self.beta, where + "beta", low=0.0, low_open=True))
         object.__setattr__(self, "pca_shrink", check_bool(self.pca_shrink, where + "pca_shrink"))
         from .learners import LINEUPS
@@ -499,6 +508,9 @@ PRESETS = {
 #: the search route of the sharing presets' adaptive learner: FactIRL's default (the other presets
 #: keep the race their committed tables were made with)
 _SHARING_ROUTE = DEFAULT_ROUTE
+#: what the sharing presets change: the route, and every FactIRL transfer with FactIRL's default
+#: saturation rule (``transfer_stol``, :data:`~factirl_opt.learners.transfer.TRANSFER_STOL`)
+_SHARING: dict[str, Any] = dict(sharing_route=_SHARING_ROUTE, transfer_stol=TRANSFER_STOL)
 #: "which learner when": flat, factorial (the preset's k) and the adaptive learner
 #: (k and the residual penalty chosen by validation), 3 seeds, on the paper's grid at 5, 20 and
 #: 100 training tasks, on both quick Objectworld presets, on BabyAI GoToLocal and GoToOpen
@@ -506,19 +518,19 @@ SHARING_PRESETS = ("sharing-grid", "sharing-objectworld-quick", "sharing-objectw
                    "sharing-babyai-large")
 PRESETS.update({
     "sharing-grid": Preset(name="sharing-grid", lineup="sharing", demos_sweep=(10,), tasks_sweep=(5, 20, 100),
-                           sharing_route=_SHARING_ROUTE),
+                           **_SHARING),
     "sharing-objectworld-quick": dataclasses.replace(PRESETS["objectworld-quick"], name="sharing-objectworld-quick",
-                                                     lineup="objectworld-sharing", sharing_route=_SHARING_ROUTE),
+                                                     lineup="objectworld-sharing", **_SHARING),
     "sharing-objectworld-per-task-quick": dataclasses.replace(PRESETS["objectworld-per-task-quick"],
                                                               name="sharing-objectworld-per-task-quick",
                                                               lineup="objectworld-per-task-sharing",
-                                                              sharing_route=_SHARING_ROUTE),
+                                                              **_SHARING),
     "sharing-babyai": dataclasses.replace(PRESETS["babyai"], name="sharing-babyai", lineup="babyai-sharing",
-                                          tasks_sweep=(10, 30), default_tasks=30, sharing_route=_SHARING_ROUTE),
+                                          tasks_sweep=(10, 30), default_tasks=30, **_SHARING),
     "sharing-babyai-large": dataclasses.replace(PRESETS["babyai-large"], name="sharing-babyai-large",
                                                 lineup="babyai-sharing", tasks_sweep=(10,), default_tasks=10, n_seeds=3,
-                                                sharing_route=_SHARING_ROUTE),
-    "sharing-tiny": dataclasses.replace(PRESETS["tiny"], name="sharing-tiny", lineup="sharing", sharing_route=_SHARING_ROUTE),
+                                                **_SHARING),
+    "sharing-tiny": dataclasses.replace(PRESETS["tiny"], name="sharing-tiny", lineup="sharing", **_SHARING),
 })
 
 
