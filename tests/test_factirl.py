@@ -8,6 +8,7 @@ import pytest
 import factirl_opt as fo
 from helpers import five_dictionary_tasks
 from factirl_opt.exceptions import NotFittedError, UnknownSolverError, ValidationError
+from factirl_opt.learners.start import FLAT_SOLVER
 
 K = 2
 
@@ -42,7 +43,8 @@ def test_fit_shapes_and_history(data, init):
 
 def test_pca_init_counts_the_flat_fit_and_reuses_flat_rewards(data):
     mdp, _, demos = data
-    flat = fo.GradIRL(max_iter=10).fit(mdp, demos)
+    start = fo.Start()  # the start's flat fit: FLAT_SOLVER, its tol and saturation rule, no gradient rule
+    flat = fo.GradIRL(max_iter=10, solver=FLAT_SOLVER, tol=start.flat_tol, stol=start.flat_stol, gtol=0.0).fit(mdp, demos)
     own = fo.FactIRL(n_primitives=K, max_iter=3, flat_max_iter=10).fit(mdp, demos)
     given = fo.FactIRL(n_primitives=K, max_iter=3).fit(mdp, demos, flat_rewards=flat.rewards_)
     np.testing.assert_allclose(own.rewards_, given.rewards_, rtol=1e-12, atol=1e-14)

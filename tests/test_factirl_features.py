@@ -59,7 +59,7 @@ def test_identity_features_reproduce_the_tabular_route(grid3, tasks, rng):
     np.testing.assert_allclose(feat[0], tab[0], rtol=1e-12)
     np.testing.assert_allclose(feat[1], tab[1], rtol=1e-10, atol=1e-14)
     a = fo.FactIRL(n_primitives=K, init="random", rng=0, max_iter=4).fit(grid3, tasks.demos)
-    b = fo.FactIRL(n_primitives=K, init="random", rng=0, max_iter=4, features=np.eye(36)).fit(grid3, tasks.demos)
+    b = fo.FactIRL(n_primitives=K, init="random", rng=0, max_iter=4, features=np.eye(36), scheme=a.scheme_).fit(grid3, tasks.demos)
     np.testing.assert_allclose(b.rewards_, a.rewards_, rtol=1e-9, atol=1e-12)
 
 
@@ -73,7 +73,8 @@ def test_pca_init_on_features_is_the_pca_of_the_rewards_they_give(grid3, tasks, 
     np.testing.assert_allclose(model.rewards_.reshape(5, -1), H @ D.T, atol=1e-9)
     assert model.dictionary_.shape == (6, K)
     tab = fo.FactIRL(n_primitives=K, max_iter=3).fit(grid3, tasks.demos, flat_rewards=flat.rewards_)
-    eye = fo.FactIRL(n_primitives=K, features=np.eye(36), max_iter=3).fit(grid3, tasks.demos, flat_rewards=flat.rewards_)
+    eye = fo.FactIRL(n_primitives=K, features=np.eye(36), max_iter=3, scheme=tab.scheme_).fit(grid3, tasks.demos,
+                                                                                        flat_rewards=flat.rewards_)
     # the same fit to rounding (the identity's products round otherwise than no product: 1.6e-12 measured)
     np.testing.assert_allclose(eye.rewards_, tab.rewards_, rtol=1e-9, atol=1e-11)
 
@@ -184,10 +185,12 @@ def test_functions_match_the_estimator(grid3, tasks):
     D0 = rng.standard_normal((36, K))
     D0 /= np.linalg.norm(D0, axis=0)
     H0 = 0.3 * rng.standard_normal((5, K))
-    fit = fo.fit_factorial(grid3, tasks.demos, D0, H0, max_iter=4)
+    # the functions keep the paper's defaults: given the estimator's, the same fit and transfer
+    fit = fo.fit_factorial(grid3, tasks.demos, D0, H0, max_iter=4, d_solver=model.default_d_solver,
+                           inner_steps=model.inner_steps, scheme=model.scheme_)
     np.testing.assert_array_equal(fit.dictionary, model.dictionary_)
     np.testing.assert_array_equal(fit.coefficients, model.coefficients_)
-    tr = fo.transfer_coefficients(grid3, tasks.demos[:2], model.dictionary_, max_iter=5)
+    tr = fo.transfer_coefficients(grid3, tasks.demos[:2], model.dictionary_, max_iter=5, stol=model.transfer_stol)
     np.testing.assert_array_equal(tr.coefficients, model.transfer(grid3, tasks.demos[:2], max_iter=5))
 
 

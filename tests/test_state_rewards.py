@@ -82,7 +82,7 @@ def test_factirl_state_rewards_equal_the_kron_feature_fit(data, init):
     mdp, demos = data
     kw = dict(n_primitives=K, init=init, max_iter=6, flat_max_iter=10, rng=0)
     state = fo.FactIRL(reward="state", **kw).fit(mdp, demos)
-    kron = fo.FactIRL(features=KRON, **kw).fit(mdp, demos)
+    kron = fo.FactIRL(features=KRON, scheme=state.scheme_, **kw).fit(mdp, demos)  # "auto": joint on features
     assert state.dictionary_.shape == (S, K) and state.rewards_.shape == (4, S, A)
     assert state.features_sha256_ is None
     np.testing.assert_allclose(state.rewards_, kron.rewards_, rtol=1e-8, atol=1e-10)

@@ -35,6 +35,7 @@ from ...learners.start import flat_solver
 from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
+from ...objectives.sharding import Execution
 from ...planning import CountingPlanner, get_planner
 from ...tasks.features import task_rewards
 from ...tasks.demonstrations import sample_demonstrations
@@ -111,7 +112,7 @@ def _timed(fn):
 def run(args):
     s = resolve_settings(args, DEFAULTS, QUICK)
     if s["readme"]:
-        kw = {"n_primitives": 5}
+        kw = {"n_primitives": 5, "execution": Execution()}  # FactIRL's defaults
     else:
         preset = PRESETS[s["preset"]]
         kw = factorial_options(preset, SolverSettings())
