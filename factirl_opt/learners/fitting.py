@@ -29,7 +29,7 @@ from .._validation import check_beta
 from ..tasks.demonstrations import empirical_statistics
 from ..exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, translate_solver_errors
 from ..objectives import Objective, get_objective
-from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
+from ..objectives.environments import MultiEnvironmentObjective
 from ..planning.cache import isolated_planning
 from ..tasks.task_set import TaskSet, features_digest, refuse_features_digest
 
@@ -232,9 +232,10 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
 
 def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matching",
                    planner: Any = "auto") -> Objective | MultiEnvironmentObjective:
-    """The named objective bound to the empirical statistics of a task set's demonstrations.
+    """The named objective bound to the empirical statistics of a task set's demonstrations
+    (:meth:`~factirl_opt.tasks.task_set.TaskSet.statistics`, parsed once by the task set).
 
-    One environment: :func:`make_objective` on its MDP. Several: a
+    One environment: :func:`statistics_objective` on its MDP. Several: a
     :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` (one objective per
     distinct MDP, docs/maths.md §7), whose errors name the task.
 
@@ -245,8 +246,7 @@ def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matchin
     beta, objective, planner
         As in :func:`make_objective`.
     """
+    mu, pi_hat = tasks.statistics()
     if tasks.mdp is not None:
-        return make_objective(tasks.mdp, tasks.demos_per_task, beta, objective, planner)
-    return multi_environment_objective(tasks.mdps or [], tasks.demos_per_task, beta, objective, planner)
-
-
+        return statistics_objective(tasks.mdp, mu, pi_hat, beta, objective, planner)
+    return MultiEnvironmentObjective(tasks.mdps or [], mu, pi_hat, beta, objective, planner)

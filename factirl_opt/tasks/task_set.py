@@ -35,7 +35,8 @@ from .._validation import check_features, check_mdp
 from ..exceptions import ValidationError
 from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
-from .demonstrations import empirical_statistics
+from .demonstrations import environment_demonstrations, environment_statistics, step_statistics
+from .trajectories import TaskDemonstrations, parse_demonstrations
 from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, check_basis, matrix_digest
 from .features import StateBroadcast, TaskFeatures
 
@@ -218,7 +219,8 @@ class TaskSet:
     Attributes
     ----------
     demos_per_task : list of n task demonstrations
-        As given (parsed when the objective is bound to them).
+        As given; parsed once, when first read (:attr:`demonstrations`), and kept with their
+        statistics (:meth:`statistics`) for every use after (objective, held-out scores, posterior).
     basis : RewardBasis
         What the rewards are linear in: ``R_i = Phi_i w_i`` (:mod:`factirl_opt.tasks.basis`;
         tabular rewards are a basis too).
@@ -229,6 +231,8 @@ class TaskSet:
     digest : str or None
         :func:`features_digest` of the features a model records (``features_sha256_``): of
         the one shared matrix given, None for tabular or state rewards and per-task features.
+    parsed : list of n TaskDemonstrations or None
+        The demonstrations parsed (None until :attr:`demonstrations` is first read).
     """
 
     demos_per_task: Any
@@ -236,6 +240,7 @@ class TaskSet:
     mdp: TabularMDP | None
     mdps: list[TabularMDP] | None
     digest: str | None
+    parsed: list[TaskDemonstrations] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def shared(self) -> bool:
@@ -256,9 +261,24 @@ class TaskSet:
         """Rewards ``R_i = Phi_i w_i`` of weights (n, p): (n, S, A), or a list of (S_i, A) arrays."""
         return self.basis.rewards(weights)
 
+    @property
+    def demonstrations(self) -> list[TaskDemonstrations]:
+        """Each task's demonstrations, validated on its own MDP (errors name the task, episode and step):
+        parsed on first use, then kept."""
+        if self.parsed is None:
+            parsed = (parse_demonstrations(self.demos_per_task, self.mdp.n_states, self.mdp.n_actions) if self.mdp is not None
+                      else environment_demonstrations(self.mdps or [], self.demos_per_task))
+            object.__setattr__(self, "parsed", parsed)
+        return self.parsed  # type: ignore[return-value]
+
+    @property
+    def n_pairs(self) -> NDArray[np.float64]:
+        """``N_i`` (n,), the demonstrated (state, action) pairs of each task."""
+        return np.array([len(task.steps) for task in self.demonstrations], dtype=np.float64)
+
     def subset(self, rows: Any) -> TaskSet:
-        """The task set of tasks ``rows`` only (in that order): their demonstrations, MDPs and basis
-        rows (validation folds, held-out tasks).
+        """The task set of tasks ``rows`` only (in that order): their demonstrations (parsed ones
+        too), MDPs and basis rows (validation folds, held-out tasks).
 
         Raises
         ------
@@ -270,30 +290,25 @@ class TaskSet:
             raise ValidationError(f"rows must be a nonempty list of task indices in [0, {self.n_tasks}); got {np.asarray(rows).tolist()}")
         demos = [self.demos_per_task[int(i)] for i in idx]
         mdps = None if self.mdps is None else [self.mdps[int(i)] for i in idx]
-        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest)
+        parsed = None if self.parsed is None else [self.parsed[int(i)] for i in idx]
+        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest, parsed)
 
-    def with_demonstrations(self, demos_per_task: Any) -> TaskSet:
-        """The same tasks (environments and basis) with other demonstrations, one entry per task
-        (e.g. a held-out part of each task's episodes, to score a model on).
-
-        Raises
-        ------
-        ValidationError
-            For a number of entries other than the tasks'.
-        """
-        n = _n_tasks(demos_per_task)
-        if n != self.n_tasks:
-            raise ValidationError(f"demos_per_task must hold one entry per task ({self.n_tasks}); got "
-                                  f"{type(demos_per_task).__name__ if n is None else n}")
-        return dataclasses.replace(self, demos_per_task=demos_per_task)
+    def episodes(self, start: int, stop: int | None = None) -> TaskSet:
+        """The same tasks (environments and basis) with episodes ``start:stop`` of each task's
+        demonstrations only (e.g. the first to transfer a held-out task from, the others to score it on)."""
+        demos = [task[start:stop] for task in self.demos_per_task]
+        return TaskSet(demos, self.basis, self.mdp, self.mdps, self.digest,
+                       [task.episode_range(start, stop) for task in self.demonstrations])
 
     def statistics(self) -> tuple[Any, Any]:
         """The empirical statistics ``(mu_hat, pi_hat)`` of the demonstrations (eq. 5): stacked
-        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A)."""
-        if self.mdp is not None:
-            return empirical_statistics(self.mdp, self.demos_per_task)
-        pairs = [empirical_statistics(m, [d]) for m, d in zip(self.mdps or [], self.demos_per_task)]
-        return [mu[0] for mu, _ in pairs], [pi[0] for _, pi in pairs]
+        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A);
+        computed once."""
+        if "_statistics" not in self.__dict__:  # a cache beside the fields (the dataclass is frozen)
+            self.__dict__["_statistics"] = (
+                step_statistics(self.demonstrations, self.mdp.n_states, self.mdp.n_actions) if self.mdp is not None
+                else environment_statistics(self.mdps or [], self.demonstrations))
+        return self.__dict__["_statistics"]
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""
