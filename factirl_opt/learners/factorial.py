@@ -51,7 +51,7 @@ from .fitting import GTOL, first_step_stall, learner_entry, resolve_step_solver,
 from ..tasks.basis import DICTIONARY_NAMES
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, INTERRUPTIONS
-from ..objectives.problems import as_problem_basis, dictionary_problem, weights_problem
+from ..objectives.problems import dictionary_problem, weights_problem
 from ..objectives.residuals import check_residual_penalty, residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL", "SCHEMES", "check_scheme"]
@@ -490,10 +490,9 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
         Resolved and checked (:func:`factirl_opt.learners.fitting.resolve_step_solver`); used in their
         alternating form.
     base_features : RewardBasis
-        The fit's basis ``Phi_i`` (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`; a
-        :class:`~factirl_opt.tasks.basis.TaskBasis` with a
-        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`). The older
-        forms (None for tabular, a validated matrix) are read on the objective's MDP.
+        The fit's basis ``Phi_i``, as its task set built it (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`;
+        a :class:`~factirl_opt.tasks.basis.TaskBasis` with a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
     residual_penalty : float, default=np.inf
@@ -514,7 +513,7 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     joint = check_scheme(scheme, h_solver, d_solver, residual_penalty) == "joint"
     ev0 = objective.n_evaluations
     h, d = h_solver.for_alternating(), (d_solver if joint else d_solver.for_alternating())
-    basis = as_problem_basis(objective, base_features)
+    basis = base_features
     blocks: _FactorialBlocks | _ResidualBlocks
     if np.isfinite(residual_penalty):
         p = dictionary.shape[0]

@@ -19,11 +19,11 @@ from .._validation import check_fit_parameters, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
-    GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
-    task_objective, warn_if_max_iter, warn_if_stalled,
+    GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, learner_tasks, make_objective,
+    resolve_step_solver, task_objective, warn_if_max_iter, warn_if_stalled,
 )
 from ..tasks.basis import RewardBasis
-from ..tasks.task_set import task_set
+from ..tasks.task_set import TaskSet
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from ..objectives.sharding import Execution
 from ..objectives.problems import weights_problem
@@ -250,7 +250,10 @@ class GradIRL(Estimator):
         self
         """
         check_fit_parameters(self)
-        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
+        return self._fit_tasks(learner_tasks(self, mdp, demos_per_task))
+
+    def _fit_tasks(self, tasks: TaskSet) -> GradIRL:
+        """:meth:`fit` on a task set (FactIRL's sharing search fits its flat start so, once for every fold)."""
         loop = (check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol"),
                 check_tol(self.stol, "stol"))
         objective = task_objective(tasks, self.beta, self.objective, self._group("execution").planner)
