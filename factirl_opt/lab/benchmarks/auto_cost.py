@@ -32,6 +32,7 @@ from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
 from ...learners.factirl import FLAT_TOL, FactIRL
 from ...learners.start import FLAT_SOLVER
+from ...learners.fitting import learner_tasks
 from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
@@ -75,7 +76,7 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
     and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
-    flat = flat_start_rewards(learner, mdp, demos, FLAT_SOLVER, FLAT_TOL)
+    flat = flat_start_rewards(learner, learner_tasks(learner, mdp, demos), FLAT_SOLVER, FLAT_TOL)
     found = learner.sharing_search.search(learner, mdp, demos, flat)
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)

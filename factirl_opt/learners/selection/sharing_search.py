@@ -28,8 +28,8 @@ from ..._validation import check_int, check_tol
 from ...exceptions import FitInterrupted, ValidationError
 from ...interruption import INTERRUPTED, raise_interrupted, warn_interrupted
 from ...objectives.residuals import check_residual_penalty
-from ...tasks.task_set import task_set
 from ..estimator import Estimator
+from ..fitting import learner_tasks
 from ..start import flat_solver
 from .folds import N_FOLDS
 from .results import SearchResult, cv_results
@@ -152,8 +152,12 @@ class SharingSearch(Estimator):
         SearchResult
             Its :func:`cv_results` is the table ``FactIRL.cv_results_``.
         """
+        return self._search_tasks(learner, learner_tasks(learner, mdp, demos_per_task), flat_rewards)
+
+    def _search_tasks(self, learner: Any, tasks: Any, flat_rewards: Any = None) -> SearchResult:
+        """:meth:`search` on the task set ``FactIRL.fit`` built (:func:`~factirl_opt.learners.fitting.learner_tasks`)."""
         self.check()
-        return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=self.route, score=self.score, cv=self.cv,
+        return search_sharing(learner, tasks, flat_rewards, search=self.route, score=self.score, cv=self.cv,
                               k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
                               n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
                               share_level=self.share_level, rule=route_rule(self.route, self.rule))
@@ -180,7 +184,7 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
     if isinstance(start.init, tuple):
         raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                               "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
+    tasks = learner_tasks(learner, mdp, demos_per_task)
     if flat_rewards is not None:
         check_flat_rewards(tasks, flat_rewards)
     for name in [a for a in vars(learner) if a.endswith("_") and not a.startswith("_")]:
@@ -190,7 +194,7 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
         raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
     if flat_rewards is None and (start.init == "pca" or search.needs_flat_start):
         try:
-            flat_rewards = flat_start_rewards(learner, mdp, demos_per_task, flat_solver(learner),
+            flat_rewards = flat_start_rewards(learner, tasks, flat_solver(learner),
                                               check_tol(start.flat_tol, "flat_tol"),
                                               check_tol(start.flat_stol, "flat_stol"))
         except FitInterrupted as exc:
@@ -198,15 +202,15 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
                              "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
     try:
-        found = search.search(learner, mdp, demos_per_task, flat_rewards)
+        found = search._search_tasks(learner, tasks, flat_rewards)
     except FitInterrupted as exc:
-        keep_search(learner, exc.result, len(tasks.demos_per_task), exc.__cause__)
+        keep_search(learner, exc.result, tasks.n_tasks, exc.__cause__)
         raise_interrupted(exc, "FactIRL.fit")
     table = cv_results(found)
     execution = learner._group("execution")
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty, execution=execution)
     try:
-        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        model._fit_tasks(tasks, flat_rewards)
     except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
         if adopt(learner, model):
             learner.cv_results_ = table
