@@ -234,17 +234,18 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
         refuse_features_digest(expected, actual, np.shape(features), what)
 
 
-def learner_tasks(learner: Any, mdp: Any, demos_per_task: Any) -> TaskSet:
+def learner_tasks(learner: Any, mdp: Any, demos_per_task: Any, parsed: Any = None) -> TaskSet:
     """The tasks of ``learner.fit(mdp, demos_per_task)`` with the learner's ``features`` and
-    ``reward`` (:func:`~factirl_opt.tasks.task_set.task_set`): what a public ``fit`` builds once and
-    hands to the private fit (``_fit_tasks``), the sharing search and its candidates."""
-    return task_set(mdp, demos_per_task, learner.features, learner.reward)
+    ``reward`` (:func:`~factirl_opt.tasks.task_set.task_set`; ``parsed``: the demonstrations as the
+    learner parsed them): what a public ``fit`` builds once and hands to the private fit
+    (``_fit_tasks``), the sharing search and its candidates."""
+    return task_set(mdp, demos_per_task, learner.features, learner.reward, parsed=parsed)
 
 
 def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matching",
                    planner: Any = "auto") -> Objective | MultiEnvironmentObjective:
     """The named objective bound to the empirical statistics of a task set's demonstrations
-    (:meth:`~factirl_opt.tasks.task_set.TaskSet.statistics`, parsed once by the task set).
+    (``tasks.mu_hat``, ``tasks.pi_hat``, of the demonstrations it parsed once).
 
     One environment: :func:`statistics_objective` on its MDP. Several: a
     :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` (one objective per
@@ -257,7 +258,6 @@ def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matchin
     beta, objective, planner
         As in :func:`make_objective`.
     """
-    mu, pi_hat = tasks.statistics()
     if tasks.mdp is not None:
-        return statistics_objective(tasks.mdp, mu, pi_hat, beta, objective, planner)
-    return MultiEnvironmentObjective(tasks.mdps or [], mu, pi_hat, beta, objective, planner)
+        return statistics_objective(tasks.mdp, tasks.mu_hat, tasks.pi_hat, beta, objective, planner)
+    return MultiEnvironmentObjective(tasks.mdps or [], tasks.mu_hat, tasks.pi_hat, beta, objective, planner)

@@ -214,13 +214,12 @@ def environment_signatures(mdps: Sequence[TabularMDP]) -> list[dict]:
 
 @dataclasses.dataclass(frozen=True)
 class TaskSet:
-    """The tasks of one fit or transfer, validated (built by :func:`task_set`).
+    """The tasks of one fit or transfer, validated, their demonstrations parsed once (built by :func:`task_set`).
 
     Attributes
     ----------
     demos_per_task : list of n task demonstrations
-        As given; parsed once, when first read (:attr:`demonstrations`), and kept with their
-        statistics (:meth:`statistics`) for every use after (objective, held-out scores, posterior).
+        As given.
     basis : RewardBasis
         What the rewards are linear in: ``R_i = Phi_i w_i`` (:mod:`factirl_opt.tasks.basis`;
         tabular rewards are a basis too).
@@ -231,8 +230,12 @@ class TaskSet:
     digest : str or None
         :func:`features_digest` of the features a model records (``features_sha256_``): of
         the one shared matrix given, None for tabular or state rewards and per-task features.
-    parsed : list of n TaskDemonstrations or None
-        The demonstrations parsed (None until :attr:`demonstrations` is first read).
+    demonstrations : list of n TaskDemonstrations
+        Each task's demonstrations, validated on its own MDP (errors name the task, episode and
+        step): parsed when the task set is made, unless given parsed.
+    mu_hat, pi_hat : ndarray (n, S) and (n, S, A), or lists of n arrays (S_i,) and (S_i, A)
+        Their empirical statistics (eq. 5), stacked on one environment: what every objective,
+        held-out score and posterior of these tasks is bound to.
     """
 
     demos_per_task: Any
@@ -240,7 +243,20 @@ class TaskSet:
     mdp: TabularMDP | None
     mdps: list[TabularMDP] | None
     digest: str | None
-    parsed: list[TaskDemonstrations] | None = dataclasses.field(default=None, repr=False, compare=False)
+    demonstrations: list[TaskDemonstrations] = dataclasses.field(default=None, repr=False,  # type: ignore[assignment]
+                                                                  compare=False)
+    mu_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
+    pi_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        one, parsed = self.mdp, self.demonstrations
+        if parsed is None:
+            parsed = (parse_demonstrations(self.demos_per_task, one.n_states, one.n_actions) if one is not None
+                      else environment_demonstrations(self.mdps or [], self.demos_per_task))
+        stats = step_statistics(parsed, one.n_states, one.n_actions) if one is not None else environment_statistics(
+            self.mdps or [], parsed)
+        for name, value in zip(("demonstrations", "mu_hat", "pi_hat"), (parsed, *stats)):
+            object.__setattr__(self, name, value)  # frozen: set once, here
 
     @property
     def shared(self) -> bool:
@@ -262,23 +278,13 @@ class TaskSet:
         return self.basis.rewards(weights)
 
     @property
-    def demonstrations(self) -> list[TaskDemonstrations]:
-        """Each task's demonstrations, validated on its own MDP (errors name the task, episode and step):
-        parsed on first use, then kept."""
-        if self.parsed is None:
-            parsed = (parse_demonstrations(self.demos_per_task, self.mdp.n_states, self.mdp.n_actions) if self.mdp is not None
-                      else environment_demonstrations(self.mdps or [], self.demos_per_task))
-            object.__setattr__(self, "parsed", parsed)
-        return self.parsed  # type: ignore[return-value]
-
-    @property
     def n_pairs(self) -> NDArray[np.float64]:
         """``N_i`` (n,), the demonstrated (state, action) pairs of each task."""
         return np.array([len(task.steps) for task in self.demonstrations], dtype=np.float64)
 
     def subset(self, rows: Any) -> TaskSet:
-        """The task set of tasks ``rows`` only (in that order): their demonstrations (parsed ones
-        too), MDPs and basis rows (validation folds, held-out tasks).
+        """The task set of tasks ``rows`` only (in that order): their demonstrations, MDPs and basis
+        rows (validation folds, held-out tasks).
 
         Raises
         ------
@@ -290,8 +296,7 @@ class TaskSet:
             raise ValidationError(f"rows must be a nonempty list of task indices in [0, {self.n_tasks}); got {np.asarray(rows).tolist()}")
         demos = [self.demos_per_task[int(i)] for i in idx]
         mdps = None if self.mdps is None else [self.mdps[int(i)] for i in idx]
-        parsed = None if self.parsed is None else [self.parsed[int(i)] for i in idx]
-        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest, parsed)
+        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest, [self.demonstrations[int(i)] for i in idx])
 
     def episodes(self, start: int, stop: int | None = None) -> TaskSet:
         """The same tasks (environments and basis) with episodes ``start:stop`` of each task's
@@ -302,13 +307,8 @@ class TaskSet:
 
     def statistics(self) -> tuple[Any, Any]:
         """The empirical statistics ``(mu_hat, pi_hat)`` of the demonstrations (eq. 5): stacked
-        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A);
-        computed once."""
-        if "_statistics" not in self.__dict__:  # a cache beside the fields (the dataclass is frozen)
-            self.__dict__["_statistics"] = (
-                step_statistics(self.demonstrations, self.mdp.n_states, self.mdp.n_actions) if self.mdp is not None
-                else environment_statistics(self.mdps or [], self.demonstrations))
-        return self.__dict__["_statistics"]
+        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A)."""
+        return self.mu_hat, self.pi_hat
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""
@@ -318,7 +318,7 @@ class TaskSet:
 
 
 def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = "state-action",
-             min_columns: int = 1) -> TaskSet:
+             min_columns: int = 1, parsed: list[TaskDemonstrations] | None = None) -> TaskSet:
     """The tasks of a fit from ``(mdp or mdps, demos, features, reward)``, validated once.
 
     Parameters
@@ -335,6 +335,8 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
         ``"state"``: one free reward per state of one MDP (no features).
     min_columns : int, default=1
         Smallest accepted p.
+    parsed : list of n TaskDemonstrations, optional
+        The demonstrations already parsed by the caller (who named them in its own messages).
 
     Returns
     -------
@@ -352,12 +354,12 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
     if one is not None:
         check_mdp(one)
         basis = reward_basis(one, features, reward, min_columns)
-        return TaskSet(demos_per_task, basis, one, None, basis.digest())
-    return environment_tasks(mdp, demos_per_task, features, reward, min_columns)
+        return TaskSet(demos_per_task, basis, one, None, basis.digest(), parsed)
+    return environment_tasks(mdp, demos_per_task, features, reward, min_columns, parsed)
 
 
 def environment_tasks(mdp: Any, demos_per_task: Any, features: Any, reward: str = "state-action",
-                      min_columns: int = 1) -> TaskSet:
+                      min_columns: int = 1, parsed: list[TaskDemonstrations] | None = None) -> TaskSet:
     """The tasks as several environments, whatever their MDPs: :func:`task_set`'s second layout.
 
     For a transfer to new environments, whose tasks are planned on their own maps even when
@@ -368,7 +370,7 @@ def environment_tasks(mdp: Any, demos_per_task: Any, features: Any, reward: str 
         raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
     mdps = check_environments(mdp, n)
     basis, digest = _task_features(mdps, features, reward, min_columns)
-    return TaskSet(demos_per_task, basis, None, mdps, digest)
+    return TaskSet(demos_per_task, basis, None, mdps, digest, parsed)
 
 
 

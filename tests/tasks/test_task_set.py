@@ -110,15 +110,14 @@ def test_a_row_subset_keeps_the_tasks_of_its_rows(grids, demos):
 def test_episodes_and_the_statistics_of_a_task_set_parsed_once(grids, demos, monkeypatch):
     g3, g4 = grids
     tasks = task_set(g3, demos)
-    assert tasks.parsed is None  # parsed when first read
     mu, pi = tasks.statistics()
+    assert mu is tasks.mu_hat and pi is tasks.pi_hat and len(tasks.demonstrations) == 2
     mu0, pi0 = fo.empirical_statistics(g3, demos)
     np.testing.assert_array_equal(mu, mu0)
     np.testing.assert_array_equal(pi, pi0)
     np.testing.assert_array_equal(tasks.n_pairs, [8.0, 8.0])
     import factirl_opt.tasks.trajectories as trajectories
     monkeypatch.setattr(trajectories, "_parse_task", None)  # nothing below parses the demonstrations again
-    assert tasks.statistics() is tasks.statistics()
     first, rest = tasks.episodes(0, 1), tasks.subset([1, 0]).episodes(1)
     assert first.basis is tasks.basis and first.mdp is g3 and rest.demos_per_task[0] is not demos[1]
     np.testing.assert_array_equal(rest.demos_per_task[0], demos[1][1:])
@@ -133,4 +132,4 @@ def test_episodes_and_the_statistics_of_a_task_set_parsed_once(grids, demos, mon
     np.testing.assert_array_equal(mus[1], fo.empirical_statistics(g4, [d4[0]])[0][0])
     np.testing.assert_array_equal(envs.episodes(1).statistics()[1][1], fo.empirical_statistics(g4, [d4[0][1:]])[1][0])
     with pytest.raises(ValidationError, match="task 1, episode 0, step 0: state 9 is out of range"):
-        task_set([g3, g3], [demos[0], np.full((1, 2, 2), 9)], np.ones((9, 2))).statistics()
+        task_set([g3, g3], [demos[0], np.full((1, 2, 2), 9)], np.ones((9, 2)))  # parsed as it is made
