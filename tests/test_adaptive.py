@@ -151,7 +151,7 @@ def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch)
         got = selection.choose_sharing(learner, mdp, tasks, search="full")
     want = selection.search_sharing(learner, learner_tasks(learner, mdp, tasks), search="full").as_tuple()
     assert got == want and got[:2] == (6, np.inf)
-    assert SharingSearch(route="full").search(learner, mdp, tasks).as_tuple() == want  # the same search as a component
+    assert SharingSearch(route="full").search(learner, learner_tasks(learner, mdp, tasks)).as_tuple() == want  # as a component
 
 
 def test_the_bisection_steps_between_tried_numbers_of_primitives():

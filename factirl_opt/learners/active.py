@@ -321,12 +321,8 @@ def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.
     """Which states (S,) one task's demonstrations visit (a greedy expert's action there is already known)."""
     from ..tasks.trajectories import task_steps
 
-    return _visited(mdp, task_steps(mdp, task_demos, task))
-
-
-def _visited(mdp: Any, steps: NDArray[np.int64]) -> NDArray[np.bool_]:
     known = np.zeros(mdp.n_states, dtype=bool)
-    known[steps[:, 0]] = True
+    known[task_steps(mdp, task_demos, task)[:, 0]] = True
     return known
 
 
@@ -383,7 +379,7 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
-        known = _visited(post.mdp, tasks.demonstrations[i].steps) if demonstrated == "skip" else None
+        known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
         gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]),
                                      policy, known)
         order = np.argsort(-gains, kind="stable")

@@ -44,8 +44,7 @@ from .solver_settings import SolverSettings, estimator_solvers
 from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
-from .transfer import (TransferFit, run_transfer, transfer_coefficients, transfer_dictionary, transfer_solver,
-                       transfer_tasks)
+from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_dictionary, transfer_solver, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
@@ -439,8 +438,7 @@ class FactIRL(Estimator):
 
     def _transfer_tasks(self, tasks: TaskSet, D: Any = None, max_iter: int | None = None, solver: Any = None,
                         solver_options: dict | None = None, inputs: tuple | None = None) -> NDArray[np.float64]:
-        """:meth:`transfer` of new tasks as a task set on this model's basis (``inputs``: the public call's
-        arguments, which :meth:`request_starts` recognises); ``D`` the checked dictionary, if it is already."""
+        """:meth:`transfer` of a task set on this model's basis (``inputs``: the call's, for :meth:`request_starts`)."""
         D = transfer_dictionary(self, tasks) if D is None else D
         solver, solver_options = transfer_solver(self, solver, solver_options)
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)

@@ -513,14 +513,13 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     joint = check_scheme(scheme, h_solver, d_solver, residual_penalty) == "joint"
     ev0 = objective.n_evaluations
     h, d = h_solver.for_alternating(), (d_solver if joint else d_solver.for_alternating())
-    basis = base_features
     blocks: _FactorialBlocks | _ResidualBlocks
     if np.isfinite(residual_penalty):
         p = dictionary.shape[0]
         Delta = np.zeros((coefficients.shape[0], p)) if residuals is None else np.array(residuals, dtype=np.float64)
-        blocks, H0 = _ResidualBlocks(objective, basis, h, d, Delta, float(residual_penalty)), coefficients
+        blocks, H0 = _ResidualBlocks(objective, base_features, h, d, Delta, float(residual_penalty)), coefficients
     else:
-        blocks, H0 = _FactorialBlocks(objective, basis, h, d), h.project(coefficients)
+        blocks, H0 = _FactorialBlocks(objective, base_features, h, d), h.project(coefficients)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
         try:
             out = _alternate(objective, blocks, dictionary, H0, d, max_iter, inner_steps, tol, gtol, report, ev0, joint)

@@ -2,20 +2,17 @@
 
 One home for each piece the flat and the factorial learners both use:
 
-- :func:`learner_tasks`: the task set of an estimator's ``fit``, built once by its public
-  entry point (the private fits below it take that task set, or rows of it);
-- :func:`make_objective`: demonstrations parsed into the empirical statistics of eq. (5) and
-  bound to a registered objective (docs/maths.md §5-6);
+- :func:`learner_tasks`: the task set a public ``fit`` builds once (what runs below takes it, or rows of it);
+- :func:`make_objective`: demonstrations parsed into the statistics of eq. (5), bound to an objective (§5-6);
 - :func:`resolve_step_solver`: a step solver by name or instance, refused before any work when
   it cannot apply to the objective (:func:`check_solver_applies`);
 - :func:`first_step_stall`: the rule that calls a fit "stalled" when its first iteration left
   the total loss unchanged, and :func:`warn_if_stalled`, its warning;
 - :func:`features_digest`: a SHA-256 of the base features a model was fitted with, checked
   before the features are used again (``FactIRL.transfer``);
-- :func:`task_objective`: the objective of a :class:`~factirl_opt.tasks.task_set.TaskSet`, on
-  the statistics it parsed (one MDP, or a
-  :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` over several;
-  docs/maths.md §7-8).
+- :func:`task_objective`: the objective of a :class:`~factirl_opt.tasks.task_set.TaskSet`'s statistics (one
+  MDP, or a :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` over
+  several; docs/maths.md §7-8).
 """
 
 from __future__ import annotations
@@ -235,10 +232,7 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
 
 
 def learner_tasks(learner: Any, mdp: Any, demos_per_task: Any, parsed: Any = None) -> TaskSet:
-    """The tasks of ``learner.fit(mdp, demos_per_task)`` with the learner's ``features`` and
-    ``reward`` (:func:`~factirl_opt.tasks.task_set.task_set`; ``parsed``: the demonstrations as the
-    learner parsed them): what a public ``fit`` builds once and hands to the private fit
-    (``_fit_tasks``), the sharing search and its candidates."""
+    """The task set a public ``fit`` builds once: :func:`~factirl_opt.tasks.task_set.task_set` with its ``features``, ``reward``."""
     return task_set(mdp, demos_per_task, learner.features, learner.reward, parsed=parsed)
 
 

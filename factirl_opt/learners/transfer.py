@@ -52,7 +52,7 @@ from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
 from .solver_settings import SolverSettings, estimator_solvers, step_solver
 
-__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "prior_problem",
+__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "transfer_dictionary", "prior_problem",
            "transfer_prior_weights", "TRANSFER_STOL", "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors",
            "PRIOR_SCALES", "PRIOR_HELD_OUT", "coefficient_prior", "PRIOR_RIDGE"]
 
@@ -305,15 +305,14 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     -------
     TransferFit
     """
-    basis = base_features
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
-        return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
-                                  gtol, stol)
+        return _run_flat_transfer(objective, dictionary, base_features, flat_solver, flat_max_iter, flat_tol, callback,
+                                  verbose, gtol, stol)
     if np.isfinite(residual_penalty):
-        return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
+        return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
                                       float(residual_penalty), gtol, prior, stol)
-    F = basis.compose(dictionary)
+    F = base_features.compose(dictionary)
     problem = weights_problem(objective, F)
     k = dictionary.shape[1]
     if prior is not None:
@@ -446,13 +445,8 @@ def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> 
 
 
 def transfer_dictionary(model: Any, tasks: TaskSet) -> NDArray[np.float64]:
-    """``model.dictionary_`` (p, k) checked against the new tasks' basis (:func:`transfer_tasks`).
-
-    Raises
-    ------
-    ValidationError
-        A dictionary with another p than the tasks' basis or another number of primitives than the model's.
-    """
+    """``model.dictionary_`` (p, k), checked against the new tasks' basis (a ValidationError for another p, or
+    another k than the model's)."""
     k = getattr(model, "n_primitives_", model.n_primitives)
     D = check_array(model.dictionary_, "dictionary_", ndim=2)
     if D.shape[0] != tasks.n_params:
@@ -562,8 +556,6 @@ def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = P
         ``{scale: each held-out task's deviation (r,)}``.
     """
     from ..evaluation import deviation
-    from .fitting import resolve_step_solver, task_objective
-    from .solver_settings import estimator_solvers
 
     H = np.asarray(model.coefficients_, dtype=np.float64)
     lam = float(getattr(model, "residual_penalty_", np.inf))

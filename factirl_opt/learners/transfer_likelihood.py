@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..exceptions import NotFittedError, ValidationError
+from ..exceptions import ValidationError
 from ..tasks.basis import as_basis
 from .transfer import transfer_tasks
 
@@ -264,9 +264,6 @@ def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = 
     ValidationError
         As ``FactIRL.transfer`` does for these arguments.
     """
-
-    if not hasattr(model, "dictionary_"):
-        raise NotFittedError("this FactIRL has no dictionary_: call fit first")
     return tasks_problem(model, *transfer_tasks(mdp, demos_per_task, features, model))
 
 

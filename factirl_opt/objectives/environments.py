@@ -328,10 +328,6 @@ def multi_environment_objective(mdps: TabularMDP | Sequence[TabularMDP], demos_p
         For a wrong number of MDPs, or a state or action out of range of its task's MDP
         (the message names the task, episode and step).
     """
-    if isinstance(demos_per_task, np.ndarray) and demos_per_task.ndim == 4:
-        demos_per_task = list(demos_per_task)
-    if not isinstance(demos_per_task, Sequence) or isinstance(demos_per_task, (str, bytes)):
-        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
-    envs = check_environments(mdps, len(demos_per_task))
-    mus, pis = environment_statistics(envs, environment_demonstrations(envs, demos_per_task))
+    envs, parsed = environment_demonstrations(mdps, demos_per_task)
+    mus, pis = environment_statistics(envs, parsed)
     return MultiEnvironmentObjective(envs, mus, pis, beta, objective, planner, planner_options)

@@ -258,14 +258,15 @@ def step_statistics(tasks: Sequence[TaskDemonstrations], S: int, A: int) -> tupl
     return mu_hat, pi_hat
 
 
-def environment_demonstrations(mdps: Sequence[TabularMDP], demos_per_task: typing.Any) -> list[TaskDemonstrations]:
-    """The demonstrations of tasks in several environments, each parsed on its own task's MDP
-    (errors name the task, episode and step); ``mdps`` one per task (:func:`~factirl_opt.mdp.environments.check_environments`)."""
+def environment_demonstrations(mdps: typing.Any, demos_per_task: typing.Any) -> tuple[list, list[TaskDemonstrations]]:
+    """The environments of n tasks (:func:`~factirl_opt.mdp.environments.check_environments`) and their
+    demonstrations, each parsed on its own task's MDP (errors name the task, episode and step)."""
     if isinstance(demos_per_task, np.ndarray) and demos_per_task.ndim == 4:
         demos_per_task = list(demos_per_task)
     if not isinstance(demos_per_task, Sequence) or isinstance(demos_per_task, (str, bytes)):
         raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
-    return [parse_task(mdp, demos, task=i) for i, (mdp, demos) in enumerate(zip(mdps, demos_per_task))]
+    envs = check_environments(mdps, len(demos_per_task))
+    return envs, [parse_task(mdp, demos, task=i) for i, (mdp, demos) in enumerate(zip(envs, demos_per_task))]
 
 
 def environment_statistics(mdps: Sequence[TabularMDP], tasks: Sequence[TaskDemonstrations]) -> tuple[list, list]:

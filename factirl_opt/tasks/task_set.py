@@ -231,11 +231,9 @@ class TaskSet:
         :func:`features_digest` of the features a model records (``features_sha256_``): of
         the one shared matrix given, None for tabular or state rewards and per-task features.
     demonstrations : list of n TaskDemonstrations
-        Each task's demonstrations, validated on its own MDP (errors name the task, episode and
-        step): parsed when the task set is made, unless given parsed.
+        Parsed on each task's MDP when the task set is made (errors name the task, episode and step).
     mu_hat, pi_hat : ndarray (n, S) and (n, S, A), or lists of n arrays (S_i,) and (S_i, A)
-        Their empirical statistics (eq. 5), stacked on one environment: what every objective,
-        held-out score and posterior of these tasks is bound to.
+        Their statistics (eq. 5), which every objective, held-out score and posterior of the tasks binds.
     """
 
     demos_per_task: Any
@@ -243,8 +241,7 @@ class TaskSet:
     mdp: TabularMDP | None
     mdps: list[TabularMDP] | None
     digest: str | None
-    demonstrations: list[TaskDemonstrations] = dataclasses.field(default=None, repr=False,  # type: ignore[assignment]
-                                                                  compare=False)
+    demonstrations: Any = dataclasses.field(default=None, repr=False, compare=False)  # list of TaskDemonstrations
     mu_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
     pi_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
 
@@ -252,9 +249,9 @@ class TaskSet:
         one, parsed = self.mdp, self.demonstrations
         if parsed is None:
             parsed = (parse_demonstrations(self.demos_per_task, one.n_states, one.n_actions) if one is not None
-                      else environment_demonstrations(self.mdps or [], self.demos_per_task))
-        stats = step_statistics(parsed, one.n_states, one.n_actions) if one is not None else environment_statistics(
-            self.mdps or [], parsed)
+                      else environment_demonstrations(self.mdps, self.demos_per_task)[1])
+        stats = (step_statistics(parsed, one.n_states, one.n_actions) if one is not None
+                 else environment_statistics(self.mdps, parsed))
         for name, value in zip(("demonstrations", "mu_hat", "pi_hat"), (parsed, *stats)):
             object.__setattr__(self, name, value)  # frozen: set once, here
 
@@ -304,11 +301,6 @@ class TaskSet:
         demos = [task[start:stop] for task in self.demos_per_task]
         return TaskSet(demos, self.basis, self.mdp, self.mdps, self.digest,
                        [task.episode_range(start, stop) for task in self.demonstrations])
-
-    def statistics(self) -> tuple[Any, Any]:
-        """The empirical statistics ``(mu_hat, pi_hat)`` of the demonstrations (eq. 5): stacked
-        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A)."""
-        return self.mu_hat, self.pi_hat
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""

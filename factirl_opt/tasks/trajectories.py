@@ -447,19 +447,8 @@ def parse_episodes(episodes: typing.Any, n_states: int | None = None, n_actions:
 
 
 def parse_task(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> TaskDemonstrations:
-    """One task's demonstrations, validated on its MDP.
-
-    Parameters
-    ----------
-    mdp : TabularMDP
-    task_demos : ndarray (m, L, 2), or list of episodes (see the module docstring)
-    task : int
-        Index used in error messages.
-
-    Returns
-    -------
-    TaskDemonstrations
-    """
+    """One task's demonstrations (an (m, L, 2) array or a list of episodes), validated on its MDP;
+    ``task`` is its index in error messages."""
     check_mdp(mdp)
     return _parse_task(task_demos, (mdp.n_states, mdp.n_actions), False, *_task_labels(task))
 

@@ -110,8 +110,8 @@ def test_a_row_subset_keeps_the_tasks_of_its_rows(grids, demos):
 def test_episodes_and_the_statistics_of_a_task_set_parsed_once(grids, demos, monkeypatch):
     g3, g4 = grids
     tasks = task_set(g3, demos)
-    mu, pi = tasks.statistics()
-    assert mu is tasks.mu_hat and pi is tasks.pi_hat and len(tasks.demonstrations) == 2
+    mu, pi = tasks.mu_hat, tasks.pi_hat
+    assert len(tasks.demonstrations) == 2
     mu0, pi0 = fo.empirical_statistics(g3, demos)
     np.testing.assert_array_equal(mu, mu0)
     np.testing.assert_array_equal(pi, pi0)
@@ -123,13 +123,13 @@ def test_episodes_and_the_statistics_of_a_task_set_parsed_once(grids, demos, mon
     np.testing.assert_array_equal(rest.demos_per_task[0], demos[1][1:])
     monkeypatch.undo()
     for part, want in ((first, [d[:1] for d in demos]), (rest, [demos[1][1:], demos[0][1:]])):
-        for got, ref in zip(part.statistics(), fo.empirical_statistics(g3, want)):
+        for got, ref in zip((part.mu_hat, part.pi_hat), fo.empirical_statistics(g3, want)):
             np.testing.assert_array_equal(got, ref)
     d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
     envs = task_set([g3, g4], [demos[0], d4[0]], [np.ones((9, 2)), np.ones((16, 2))])
-    mus, pis = envs.statistics()
+    mus, pis = envs.mu_hat, envs.pi_hat
     assert [m.shape for m in mus] == [(9,), (16,)] and [p.shape for p in pis] == [(9, 4), (16, 4)]
     np.testing.assert_array_equal(mus[1], fo.empirical_statistics(g4, [d4[0]])[0][0])
-    np.testing.assert_array_equal(envs.episodes(1).statistics()[1][1], fo.empirical_statistics(g4, [d4[0][1:]])[1][0])
+    np.testing.assert_array_equal(envs.episodes(1).pi_hat[1], fo.empirical_statistics(g4, [d4[0][1:]])[1][0])
     with pytest.raises(ValidationError, match="task 1, episode 0, step 0: state 9 is out of range"):
         task_set([g3, g3], [demos[0], np.full((1, 2, 2), 9)], np.ones((9, 2)))  # parsed as it is made

@@ -76,8 +76,9 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
     and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
-    flat = flat_start_rewards(learner, learner_tasks(learner, mdp, demos), FLAT_SOLVER, FLAT_TOL)
-    found = learner.sharing_search.search(learner, mdp, demos, flat)
+    tasks = learner_tasks(learner, mdp, demos)
+    flat = flat_start_rewards(learner, tasks, FLAT_SOLVER, FLAT_TOL)
+    found = learner.sharing_search.search(learner, tasks, flat)
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)
     return model, found.rows

@@ -173,8 +173,7 @@ def flat_start_points(tasks: TaskSet, flat_rewards: Any) -> NDArray[np.float64]:
     Parameters
     ----------
     tasks : TaskSet
-        As ``FactIRL.fit`` built them (:func:`~factirl_opt.learners.fitting.learner_tasks`: its
-        ``features`` and ``reward``; the demonstrations play no part but their number of tasks).
+        As ``FactIRL.fit`` builds them (its ``features`` and ``reward``; only the basis is read).
     flat_rewards : sequence of arrays, shape (S_i, A) each
         Every task's flat reward (:func:`~factirl_opt.learners.selection.search.flat_start_rewards`).
 

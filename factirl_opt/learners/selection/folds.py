@@ -19,35 +19,27 @@ __all__ = ["N_FOLDS", "task_folds"]
 N_FOLDS = 3
 
 
-def _take_tasks(seq: Any, idx: Sequence[int] | np.ndarray) -> Any:
-    """Tasks ``idx`` of a per-task sequence (a list, or an array with tasks on the leading axis)."""
+def _take_tasks(seq: Any, idx: Sequence[int] | np.ndarray) -> Any:  # the retired helpers of per-task inputs
     if isinstance(seq, np.ndarray):
         return seq[np.asarray(idx)]
     return [seq[i] for i in idx]
 
 
 def _task_subset(mdp: Any, features: Any, idx: Sequence[int] | np.ndarray) -> tuple[Any, Any]:
-    """The MDP(s) and features of tasks ``idx``: a shared MDP or feature matrix as it is, per-task ones indexed."""
     sub_mdp = mdp if isinstance(mdp, TabularMDP) else _take_tasks(mdp, idx)
     sub_features = _take_tasks(features, idx) if per_task_features(features) else features
     return sub_mdp, sub_features
 
 
 def _task_mdp(mdp: Any, i: int) -> Any:
-    """Task ``i``'s MDP: the shared one, or its own."""
     return mdp if isinstance(mdp, TabularMDP) else mdp[i]
 
 
-#: the former helpers of per-task inputs, retired: the tasks of a fold are ``TaskSet.subset(rows)``
-_RETIRED = {"take_tasks": _take_tasks, "task_subset": _task_subset, "task_mdp": _task_mdp}
-
-
 def __getattr__(name: str) -> Any:
-    if name in _RETIRED:
-        warn_once(f"name:selection.folds.{name}", f"{name} is deprecated: the tasks of a fold are a task set's rows, "
-                  "TaskSet.subset(rows) (factirl_opt.tasks.task_set)", stacklevel=None)
-        return _RETIRED[name]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if name not in ("take_tasks", "task_subset", "task_mdp"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    warn_once(f"name:selection.folds.{name}", f"{name} is deprecated: a fold's tasks are TaskSet.subset(rows)", stacklevel=None)
+    return globals()["_" + name]
 
 
 def task_folds(n_tasks: int, cv: Any = N_FOLDS, rng: Any = None) -> list[np.ndarray]:

@@ -181,12 +181,8 @@ def _validation(model: Any) -> list[dict]:
     return validation_rows(model.cv_results_)
 
 
-def _set_validation(model: Any, rows: list[dict]) -> None:
-    model.cv_results_ = rows_cv_results(rows, "validation_")
-
-
-#: ``FactIRL.validation_``, deprecated: reads the rows of ``cv_results_`` (:func:`validation_rows`), sets ``cv_results_``
-validation_attribute = property(_validation, _set_validation, doc=_validation.__doc__)
+validation_attribute = property(_validation, lambda model, rows: setattr(model, "cv_results_", rows_cv_results(rows)),
+                                doc=_validation.__doc__)
 
 
 def rows_cv_results(rows: Any, name: str = "validation_") -> dict[str, Any]:

@@ -173,16 +173,15 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
     model._transfer_tasks(held.episodes(0, t), max_iter=transfer_max_iter)
     rewards = model.transfer_rewards_
     rest = held.episodes(t)
-    mu, pi_hat = rest.statistics()
     out = np.empty(len(idx))
     for j in range(len(idx)):
         one = held.mdp if held.mdps is None else held.mdps[j]
+        R = _one_reward(one, rewards[j])
         if score == "occupancy":
-            out[j] = _occupancy_gap(one, rest.demonstrations[j].episodes(), _one_reward(one, rewards[j]),
-                                    model._group("execution").planner)
+            out[j] = _occupancy_gap(one, rest.demonstrations[j].episodes(), R, model._group("execution").planner)
         elif score == "objective":
             obj = task_objective(rest.subset([j]), model.beta, model.objective, model._group("execution").planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
-            out[j] = _statistics_nll(one, mu[j], pi_hat[j], _one_reward(one, rewards[j]), model, temper=score == "likelihood")
+            out[j] = _statistics_nll(one, rest.mu_hat[j], rest.pi_hat[j], R, model, temper=score == "likelihood")
     return out

@@ -102,8 +102,7 @@ def search_sharing(learner: Any, tasks: TaskSet, flat_rewards: Any = None, *,
     learner : FactIRL
         Its other hyper-parameters are used by every candidate fit.
     tasks : TaskSet
-        Every task, as ``FactIRL.fit`` built them (:func:`~factirl_opt.learners.fitting.learner_tasks`):
-        folds and held-out tasks are rows of it (:meth:`~factirl_opt.tasks.task_set.TaskSet.subset`).
+        Every task, as ``FactIRL.fit`` built them; folds and held-out tasks are rows of it (``tasks.subset``).
     flat_rewards : optional
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
