@@ -572,7 +572,7 @@ def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = P
         solver = resolve_step_solver(name, options, model.objective, "solver")
     M, P = leave_one_out_priors(H, idx)
     refs = [model.rewards_[i] for i in idx]
-    mdps = tasks.mdp if tasks.mdps is None else tasks.mdps
+    mdps: Any = tasks.mdp if tasks.mdps is None else tasks.mdps
     max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
     scores = {}
     for scale in scales:

@@ -18,8 +18,8 @@ branch at the call sites:
 Whatever the features, the fit's reward model is ``TaskSet.basis``: the code below the
 estimators never asks which kind it is. The objective is bound later by the learners
 (:func:`factirl_opt.learners.fitting.task_objective`), after their own hyper-parameters are
-checked: a TaskSet holds data only. :meth:`TaskSet.subset` gives the task set of some of its
-tasks (validation folds, transfer of a subset).
+checked: a TaskSet holds data only (its demonstrations parsed once, with their statistics).
+:meth:`TaskSet.subset` gives the task set of some of its tasks (validation folds, held-out tasks).
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ class TaskSet:
             parsed = (parse_demonstrations(self.demos_per_task, one.n_states, one.n_actions) if one is not None
                       else environment_demonstrations(self.mdps, self.demos_per_task)[1])
         stats = (step_statistics(parsed, one.n_states, one.n_actions) if one is not None
-                 else environment_statistics(self.mdps, parsed))
+                 else environment_statistics(self.mdps or [], parsed))
         for name, value in zip(("demonstrations", "mu_hat", "pi_hat"), (parsed, *stats)):
             object.__setattr__(self, name, value)  # frozen: set once, here
 
