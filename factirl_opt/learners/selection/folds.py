@@ -20,15 +20,12 @@ N_FOLDS = 3
 
 
 def _take_tasks(seq: Any, idx: Sequence[int] | np.ndarray) -> Any:  # the retired helpers of per-task inputs
-    if isinstance(seq, np.ndarray):
-        return seq[np.asarray(idx)]
-    return [seq[i] for i in idx]
+    return seq[np.asarray(idx)] if isinstance(seq, np.ndarray) else [seq[i] for i in idx]
 
 
 def _task_subset(mdp: Any, features: Any, idx: Sequence[int] | np.ndarray) -> tuple[Any, Any]:
-    sub_mdp = mdp if isinstance(mdp, TabularMDP) else _take_tasks(mdp, idx)
-    sub_features = _take_tasks(features, idx) if per_task_features(features) else features
-    return sub_mdp, sub_features
+    return (mdp if isinstance(mdp, TabularMDP) else _take_tasks(mdp, idx),
+            _take_tasks(features, idx) if per_task_features(features) else features)
 
 
 def _task_mdp(mdp: Any, i: int) -> Any:

@@ -25,7 +25,7 @@ from ..._validation import check_int
 from ...exceptions import ConvergenceWarning, FitInterrupted, ValidationError
 from ...tasks.task_set import TaskSet
 from ..estimator import clone
-from ..fitting import learner_tasks
+from ..fitting import learner_entry, learner_tasks
 from ..gradirl import GradIRL
 from ..solver_settings import SolverSettings
 from .folds import N_FOLDS, task_folds
@@ -67,6 +67,7 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     return search_sharing(learner, tasks, flat_rewards, search=search, score=score, **options).as_tuple()
 
 
+@learner_entry  # its candidates' fits and transfers plan with the caches of one fit (in FactIRL.fit: its own)
 def search_sharing(learner: Any, tasks: TaskSet, flat_rewards: Any = None, *,
                    search: str = DEFAULT_ROUTE, score: str = DEFAULT_SCORE, cv: Any = N_FOLDS,
                    k_grid: Sequence[int] = K_CANDIDATES, lam_grid: Sequence[float] = LAMBDA_CANDIDATES,
@@ -299,6 +300,7 @@ def bisection_midpoints(k: int, tried: Sequence[int], k_max: int) -> list[int]:
     return sorted(m for m in mids if m not in tried and 1 <= m <= k_max and m != k)
 
 
+@learner_entry
 def score_candidates(learner: Any, tasks: TaskSet, flat_rewards: Any, folds: Sequence[np.ndarray],
                      candidates: Sequence[tuple[int, float]], *, n_transfer_demos: int = N_TRANSFER_DEMOS,
                      score: str = DEFAULT_SCORE, warm: bool = False, reuse: bool = False,
@@ -389,6 +391,7 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
+@learner_entry
 def flat_start_rewards(learner: Any, tasks: TaskSet, solver: Any, tol: float, stol: float = 0.0) -> Any:
     """The flat learner of FactIRL's PCA start (its ``solver``, a name or ``(name, options)``, ``tol``
     and saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every
