@@ -188,7 +188,7 @@ _MOVED_MODULE_NAMES = {
             "CV_RESULTS_KEYS", "ROW_KEYS", "check_cv_results", "cv_results", "plot_validation", "rows_cv_results",
             "validation_rows")},
         **{name: "learners.selection.scores" for name in ("held_out_nll", "held_out_occupancy_gap")},
-        **{name: "learners.selection.folds" for name in ("task_mdp", "task_subset")},
+        **{name: "learners.selection.folds" for name in ("task_mdp", "task_subset", "take_tasks")},
         **{name: "learners.selection.rules" for name in ("choose_row", "DEFAULT_RULE")},
         "sharing_candidates": "learners.selection.routes"},
 }

@@ -12,6 +12,7 @@ import factirl_opt as fo
 from factirl_opt.learners import selection
 from factirl_opt.learners.selection import routes, rules, scores, search
 from factirl_opt.learners.em import log_policies
+from factirl_opt.learners.fitting import learner_tasks
 from factirl_opt.planning import get_planner
 from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
 
@@ -112,7 +113,7 @@ def test_the_number_of_primitives_is_bisected_around_the_chosen_one(data, monkey
     mdp, _, demos = data
     noise = np.random.default_rng(0).normal(scale=0.01, size=30)
 
-    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+    def score_candidates(learner, tasks, flat_rewards, folds, candidates, progress, **kw):
         def one(k, lam, held):
             base = 3.0 if lam == 0.0 else 1.0 + (k - 6) ** 2 / 100 + (0.0 if lam == 1.0 else 0.5)
             return base + noise[held]
@@ -138,7 +139,7 @@ def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch)
 
     mdp, _, demos = data
 
-    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+    def score_candidates(learner, tasks, flat_rewards, folds, candidates, progress, **kw):
         for k, lam in candidates:
             progress.scores.setdefault((k, lam), []).extend(
                 (1.0 + (k - 6) ** 2 / 100 + (2.0 if lam == 0.0 else 0.0)) + 0.01 * held for held in folds)
@@ -148,9 +149,9 @@ def test_choose_sharing_is_a_deprecated_wrapper_of_the_search(data, monkeypatch)
     learner, tasks = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto"), [demos[i % 6] for i in range(30)]
     with pytest.warns(DeprecatedNameWarning, match="choose_sharing is deprecated: search_sharing"):
         got = selection.choose_sharing(learner, mdp, tasks, search="full")
-    want = selection.search_sharing(learner, mdp, tasks, search="full").as_tuple()
+    want = selection.search_sharing(learner, learner_tasks(learner, mdp, tasks), search="full").as_tuple()
     assert got == want and got[:2] == (6, np.inf)
-    assert SharingSearch(route="full").search(learner, mdp, tasks).as_tuple() == want  # the same search as a component
+    assert SharingSearch(route="full").search(learner, learner_tasks(learner, mdp, tasks)).as_tuple() == want  # as a component
 
 
 def test_the_bisection_steps_between_tried_numbers_of_primitives():
@@ -167,8 +168,8 @@ def test_the_search_flat_start_takes_the_learner_saturation_rule(data):
     rule off: a saturation rule stops it earlier, with the weights GradIRL gives."""
     mdp, F, demos = data
     learner = fo.FactIRL(features=F, flat_max_iter=60)
-    plain = selection.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5)
-    saturated = selection.flat_start_rewards(learner, mdp, demos, "lbfgs", 1e-5, 1e-2)
+    plain = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), "lbfgs", 1e-5)
+    saturated = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), "lbfgs", 1e-5, 1e-2)
     flat = fo.GradIRL(features=F, max_iter=60, tol=1e-5, gtol=0.0, stol=1e-2, solver="lbfgs").fit(mdp, demos)
     np.testing.assert_array_equal(saturated, flat.rewards_)
     assert not np.allclose(saturated, plain)
@@ -180,7 +181,7 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     the full search's winner stays in the race."""
     mdp, F, demos = data
     learner = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
-    flat = selection.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    flat = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), "armijo", 1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         k, lam, full = selection.choose_sharing(learner, mdp, demos, flat, search="full")
@@ -370,7 +371,7 @@ def test_held_out_likelihood_of_mce_is_the_soft_policys(data):
 def test_either_score_chooses_from_its_table_and_an_unknown_one_is_refused(data):
     mdp, F, demos = data
     learner = fo.FactIRL(rng=0, max_iter=2, features=F, n_primitives="auto", residual_penalty="auto")
-    flat = selection.flat_start_rewards(learner, mdp, demos, "armijo", 1e-5)
+    flat = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), "armijo", 1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for score in selection.SCORES:

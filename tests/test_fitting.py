@@ -7,6 +7,7 @@ import pytest
 
 import factirl_opt as fo
 import factirl_opt.tasks.demonstrations as demonstrations_module
+import factirl_opt.tasks.task_set as task_set_module
 import solvers
 from factirl_opt.exceptions import ConvergenceWarning, MaxIterWarning, ValidationError
 from factirl_opt.learners.fitting import check_features_digest, first_step_stall
@@ -43,7 +44,8 @@ class Counts:
             self.solvers.append(solver)
             return resolve(solver, options)
 
-        monkeypatch.setattr(demonstrations_module, "parse_demonstrations", counted_parse)
+        for module in (demonstrations_module, task_set_module):  # empirical_statistics', and the task set's
+            monkeypatch.setattr(module, "parse_demonstrations", counted_parse)
         monkeypatch.setattr(Objective, "__init__", counted_init)
         monkeypatch.setattr(solvers, "resolve_solver", counted_resolve)
 

@@ -36,8 +36,8 @@ from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
 from .posterior import LaplacePosterior, has_prior, laplace_posteriors, transfer_inputs
-from .transfer_likelihood import transfer_problem
-from .transfer import coefficient_prior
+from .transfer_likelihood import tasks_problem
+from .transfer import coefficient_prior, transfer_tasks
 
 __all__ = ["request_starts", "information_gains", "information_rows", "value_variance_reductions", "state_information", "start_occupancy",
            "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",
@@ -297,18 +297,18 @@ def _episode_length(n_pairs: float, task_demos: Any) -> int:
 
 
 def _posteriors(model: Any, mdp: Any, demos_per_task: Any, features: Any) -> tuple[list, Any]:
-    """The posteriors of these tasks: the model's last transfer's when they are its tasks, else built here."""
+    """The posteriors and the task set of these tasks: the model's last transfer's when they are its tasks, else built here."""
     inputs = transfer_inputs(model)
-    problem = None
     if inputs is not None and inputs[0] is mdp and inputs[1] is demos_per_task and inputs[2] is features:
-        posts = model.transfer_posterior_
+        posts, tasks = model.transfer_posterior_, model._transfer.tasks
     else:
-        problem = transfer_problem(model, mdp, demos_per_task, features)
+        tasks, D = transfer_tasks(mdp, demos_per_task, features, model)
+        problem = tasks_problem(model, tasks, D)
         posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_)) if has_prior(model) else None
     if posts is None:
         raise ValidationError("request_starts needs the tasks' posterior, which is undefined for this model: it needs "
                               "at least 2 training tasks' coefficients_ and a residual_penalty_ other than 0")
-    return posts, problem
+    return posts, tasks
 
 
 CRITERIA = {"information": information_gains, "value": value_variance_reductions, "regret": regret_reductions}
@@ -373,13 +373,13 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         raise ValidationError(f"policy must be one of {', '.join(POLICIES)}; got {policy!r}")
     if demonstrated not in DEMONSTRATED:
         raise ValidationError(f"demonstrated must be one of {', '.join(DEMONSTRATED)}; got {demonstrated!r}")
-    posts, _ = _posteriors(model, mdp, demos_per_task, features)
+    posts, tasks = _posteriors(model, mdp, demos_per_task, features)
     n = len(posts)
     cands = _candidates(candidates, n, [p.mdp for p in posts])
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
-        known = demonstrated_states(post.mdp, demos_per_task[i], i) if demonstrated == "skip" else None
+        known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
         gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]),
                                      policy, known)
         order = np.argsort(-gains, kind="stable")

@@ -36,22 +36,23 @@ from .dictionary import (
 )
 from ..exceptions import FitInterrupted, ValidationError
 from .factorial import GTOL, FactorialFit, check_residual_solver, fit_factorial, resolve_scheme, run_factorial
-from .fitting import learner_entry, resolve_step_solver, task_objective, warn_if_stalled
+from .fitting import learner_entry, learner_tasks, resolve_step_solver, task_objective, warn_if_stalled
 from ..tasks.basis import RewardBasis
-from ..tasks.task_set import task_set
+from ..tasks.task_set import TaskSet
 from ..interruption import loss_phrase, raise_interrupted, warn_interrupted
 from ..objectives.sharding import Execution
 from .solver_settings import SolverSettings, estimator_solvers
 from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
-from .transfer import TRANSFER_STOL, TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
+from .transfer import (TRANSFER_STOL, TransferFit, run_transfer, transfer_coefficients, transfer_dictionary, transfer_solver,
+                       transfer_tasks)
 from .posterior import cached_transfer_posterior, keep_transfer
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
-from .selection.results import rows_cv_results, validation_rows
+from .selection.results import validation_attribute
 from .selection.sharing_search import SharingSearch, fit_auto, is_auto
-from .._deprecation import moved_names, warn_once
+from .._deprecation import moved_names
 from ..objectives.residuals import residual_weights
 
 __all__ = ["FactIRL", "PAPER_SETTINGS", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit",
@@ -335,19 +336,7 @@ class FactIRL(Estimator):
         ``dictionary_constraint`` (its projected/proximal steps are Armijo's)."""
         return self.unconstrained_d_solver if self.dictionary_constraint is None else self.constrained_d_solver
 
-    @property
-    def validation_(self) -> list[dict]:
-        """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.selection.results.validation_rows`)."""
-        if "cv_results_" not in vars(self):
-            raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
-                                 "residual_penalty='auto'; the table is cv_results_ now)")
-        warn_once("attr:FactIRL.validation_", "FactIRL.validation_ is deprecated: read cv_results_ (a dict of arrays, "
-                                              "one entry per candidate; pandas.DataFrame(model.cv_results_))", stacklevel=2)
-        return validation_rows(self.cv_results_)
-
-    @validation_.setter
-    def validation_(self, rows: list[dict]) -> None:
-        self.cv_results_ = rows_cv_results(rows, "validation_")
+    validation_ = validation_attribute  # deprecated: the rows of cv_results_
 
     def _check_params(self, tasks):
         """Validate the hyper-parameters against the task set; the loop's settings ``(max_iter, inner_steps, tol, gtol)``."""
@@ -392,8 +381,11 @@ class FactIRL(Estimator):
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
         if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
             return fit_auto(self, mdp, demos_per_task, flat_rewards)
+        return self._fit_tasks(learner_tasks(self, mdp, demos_per_task), flat_rewards)
+
+    def _fit_tasks(self, tasks: TaskSet, flat_rewards: Any = None) -> FactIRL:
+        """:meth:`fit` with a fixed k and lambda on a task set (the sharing search's candidates and final fit)."""
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
-        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         basis = tasks.basis
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
         h_name, h_options, d_name, d_options = estimator_solvers(self)
@@ -488,6 +480,12 @@ class FactIRL(Estimator):
             model or have another p, or the environments another number of actions.
         """
         tasks, D = transfer_tasks(mdp, demos_per_task, features, self)
+        return self._transfer_tasks(tasks, D, max_iter, solver, solver_options, (mdp, demos_per_task, features))
+
+    def _transfer_tasks(self, tasks: TaskSet, D: Any = None, max_iter: int | None = None, solver: Any = None,
+                        solver_options: dict | None = None, inputs: tuple | None = None) -> NDArray[np.float64]:
+        """:meth:`transfer` of a task set on this model's basis (``inputs``: the call's, for :meth:`request_starts`)."""
+        D = transfer_dictionary(self, tasks) if D is None else D
         solver, solver_options = transfer_solver(self, solver, solver_options)
         max_iter = check_int(self.transfer_max_iter if max_iter is None else max_iter, "max_iter", minimum=0)
         tol, gtol = check_tol(self.tol), check_tol(self.gtol, "gtol")
@@ -507,11 +505,11 @@ class FactIRL(Estimator):
                                    gtol=gtol, stol=stol)
         except FitInterrupted as exc:
             self._store_transfer(exc.result)
-            keep_transfer(self, (mdp, demos_per_task, features), tasks, D)
+            keep_transfer(self, inputs, tasks, D)
             warn_interrupted("FactIRL.transfer", "kept each new task's best coefficients seen", exc.__cause__)
             raise_interrupted(exc, "FactIRL.transfer")
         self._store_transfer(res)
-        keep_transfer(self, (mdp, demos_per_task, features), tasks, D)  # transfer_posterior_ is built from them when first read
+        keep_transfer(self, inputs, tasks, D)  # transfer_posterior_ is built from them when first read
         warn_if_stalled(res.status, res.n_iter, "FactIRL.transfer")
         return res.coefficients.copy()  # the caller's own array: editing it leaves transfer_coefficients_ alone
 

@@ -51,7 +51,7 @@ from .fitting import GTOL, first_step_stall, learner_entry, resolve_step_solver,
 from ..tasks.basis import DICTIONARY_NAMES, StateBasis, TabularBasis
 from ..tasks.task_set import task_set
 from ..interruption import INTERRUPTED, INTERRUPTIONS
-from ..objectives.problems import as_problem_basis, dictionary_problem, weights_problem
+from ..objectives.problems import dictionary_problem, weights_problem
 from ..objectives.residuals import check_residual_penalty, residual_dictionary_problem, residual_weights, residual_weights_problem
 
 __all__ = ["fit_factorial", "run_factorial", "FactorialFit", "GTOL", "SCHEMES", "check_scheme", "resolve_scheme"]
@@ -532,10 +532,9 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
         Resolved and checked (:func:`factirl_opt.learners.fitting.resolve_step_solver`); used in their
         alternating form.
     base_features : RewardBasis
-        The fit's basis ``Phi_i`` (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`; a
-        :class:`~factirl_opt.tasks.basis.TaskBasis` with a
-        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`). The older
-        forms (None for tabular, a validated matrix) are read on the objective's MDP.
+        The fit's basis ``Phi_i``, as its task set built it (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`;
+        a :class:`~factirl_opt.tasks.basis.TaskBasis` with a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
     max_iter, inner_steps, tol, gtol, callback, verbose
         As in :func:`fit_factorial`.
     residual_penalty : float, default=np.inf
@@ -556,14 +555,13 @@ def run_factorial(objective: Any, dictionary: NDArray[np.float64], coefficients:
     joint = resolve_scheme(scheme, base_features, h_solver, d_solver, residual_penalty) == "joint"
     ev0 = objective.n_evaluations
     h, d = h_solver.for_alternating(), (d_solver if joint else d_solver.for_alternating())
-    basis = as_problem_basis(objective, base_features)
     blocks: _FactorialBlocks | _ResidualBlocks
     if np.isfinite(residual_penalty):
         p = dictionary.shape[0]
         Delta = np.zeros((coefficients.shape[0], p)) if residuals is None else np.array(residuals, dtype=np.float64)
-        blocks, H0 = _ResidualBlocks(objective, basis, h, d, Delta, float(residual_penalty)), coefficients
+        blocks, H0 = _ResidualBlocks(objective, base_features, h, d, Delta, float(residual_penalty)), coefficients
     else:
-        blocks, H0 = _FactorialBlocks(objective, basis, h, d), h.project(coefficients)
+        blocks, H0 = _FactorialBlocks(objective, base_features, h, d), h.project(coefficients)
     with translate_solver_errors(), fit_progress(callback, verbose, max_iter, "FactIRL") as report:
         try:
             out = _alternate(objective, blocks, dictionary, H0, d, max_iter, inner_steps, tol, gtol, report, ev0, joint)

@@ -2,15 +2,15 @@
 
 One home for each piece the flat and the factorial learners both use:
 
-- :func:`make_objective`: the one place where demonstrations are parsed into the empirical
-  statistics of eq. (5) and bound to a registered objective (docs/maths.md §5-6);
+- :func:`learner_tasks`: the task set a public ``fit`` builds once (what runs below takes it, or rows of it);
+- :func:`make_objective`: demonstrations parsed into the statistics of eq. (5), bound to an objective (§5-6);
 - :func:`resolve_step_solver`: a step solver by name or instance, refused before any work when
   it cannot apply to the objective (:func:`check_solver_applies`);
 - :func:`first_step_stall`: the rule that calls a fit "stalled" when its first iteration left
   the total loss unchanged, and :func:`warn_if_stalled`, its warning;
 - :func:`features_digest`: a SHA-256 of the base features a model was fitted with, checked
   before the features are used again (``FactIRL.transfer``);
-- :func:`task_objective`: the objective of a :class:`~factirl_opt.tasks.task_set.TaskSet` (one
+- :func:`task_objective`: the objective of a :class:`~factirl_opt.tasks.task_set.TaskSet`'s statistics (one
   MDP, or a :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` over
   several; docs/maths.md §7-8).
 """
@@ -29,9 +29,9 @@ from .._validation import check_beta
 from ..tasks.demonstrations import empirical_statistics
 from ..exceptions import ConvergenceWarning, MaxIterWarning, ValidationError, translate_solver_errors
 from ..objectives import Objective, get_objective
-from ..objectives.environments import MultiEnvironmentObjective, multi_environment_objective
+from ..objectives.environments import MultiEnvironmentObjective
 from ..planning.cache import isolated_planning
-from ..tasks.task_set import TaskSet, features_digest, refuse_features_digest
+from ..tasks.task_set import TaskSet, features_digest, refuse_features_digest, task_set
 
 __all__ = [
     "make_objective",
@@ -45,6 +45,7 @@ __all__ = [
     "warn_if_max_iter",
     "check_features_digest",
     "task_objective",
+    "learner_tasks",
     "learner_entry",
     "GTOL",
 ]
@@ -230,11 +231,17 @@ def check_features_digest(expected: str | None, features: Any, what: str) -> Non
         refuse_features_digest(expected, actual, np.shape(features), what)
 
 
+def learner_tasks(learner: Any, mdp: Any, demos_per_task: Any, parsed: Any = None) -> TaskSet:
+    """The task set a public ``fit`` builds once: :func:`~factirl_opt.tasks.task_set.task_set` with its ``features``, ``reward``."""
+    return task_set(mdp, demos_per_task, learner.features, learner.reward, parsed=parsed)
+
+
 def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matching",
                    planner: Any = "auto") -> Objective | MultiEnvironmentObjective:
-    """The named objective bound to the empirical statistics of a task set's demonstrations.
+    """The named objective bound to the empirical statistics of a task set's demonstrations
+    (``tasks.mu_hat``, ``tasks.pi_hat``, of the demonstrations it parsed once).
 
-    One environment: :func:`make_objective` on its MDP. Several: a
+    One environment: :func:`statistics_objective` on its MDP. Several: a
     :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective` (one objective per
     distinct MDP, docs/maths.md §7), whose errors name the task.
 
@@ -246,7 +253,5 @@ def task_objective(tasks: TaskSet, beta: float, objective: Any = "policy-matchin
         As in :func:`make_objective`.
     """
     if tasks.mdp is not None:
-        return make_objective(tasks.mdp, tasks.demos_per_task, beta, objective, planner)
-    return multi_environment_objective(tasks.mdps or [], tasks.demos_per_task, beta, objective, planner)
-
-
+        return statistics_objective(tasks.mdp, tasks.mu_hat, tasks.pi_hat, beta, objective, planner)
+    return MultiEnvironmentObjective(tasks.mdps or [], tasks.mu_hat, tasks.pi_hat, beta, objective, planner)

@@ -19,11 +19,11 @@ from .._validation import check_fit_parameters, check_int, check_tol
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import FitInterrupted, translate_solver_errors
 from .fitting import (
-    GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, make_objective, resolve_step_solver,
-    task_objective, warn_if_max_iter, warn_if_stalled,
+    GTOL, check_solver_applies, first_step_stall, held_by_constraint, learner_entry, learner_tasks, make_objective,
+    resolve_step_solver, task_objective, warn_if_max_iter, warn_if_stalled,
 )
 from ..tasks.basis import RewardBasis
-from ..tasks.task_set import task_set
+from ..tasks.task_set import TaskSet
 from ..interruption import INTERRUPTED, loss_phrase, raise_interrupted, run_keeping_best, warn_interrupted
 from ..objectives.sharding import Execution
 from ..objectives.problems import weights_problem
@@ -250,26 +250,25 @@ class GradIRL(Estimator):
         self
         """
         check_fit_parameters(self)
-        tasks = task_set(mdp, demos_per_task, self.features, self.reward)
-        loop = (check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol), check_tol(self.gtol, "gtol"),
-                check_tol(self.stol, "stol"))
-        objective = task_objective(tasks, self.beta, self.objective, self._group("execution").planner)
-        return self._run(objective, tasks.basis, loop, lambda res, obj: self._store(tasks, res, obj))
+        return self._fit_tasks(learner_tasks(self, mdp, demos_per_task))
 
-    def _run(self, objective, basis, loop, store):
-        max_iter, tol, gtol, stol = loop
+    def _fit_tasks(self, tasks: TaskSet) -> GradIRL:
+        """:meth:`fit` on a task set (FactIRL's sharing search fits its flat start so, once for every fold)."""
+        max_iter, tol = check_int(self.max_iter, "max_iter", minimum=0), check_tol(self.tol)
+        gtol, stol = check_tol(self.gtol, "gtol"), check_tol(self.stol, "stol")
+        objective = task_objective(tasks, self.beta, self.objective, self._group("execution").planner)
         solver = resolve_step_solver(*estimator_solvers(self, d_step=False)[:2], self.objective, "solver")
         execution = self._group("execution")
         try:
             with execution.evaluate(objective) as objective:  # n_jobs=1: the objective itself
-                res = fit_weights(objective, basis, solver, max_iter, tol, execution.callback, execution.verbose,
+                res = fit_weights(objective, tasks.basis, solver, max_iter, tol, execution.callback, execution.verbose,
                                   "GradIRL.fit", gtol=gtol, stol=stol)
         except FitInterrupted as exc:
-            store(exc.result, objective)
+            self._store(tasks, exc.result, objective)
             warn_interrupted("GradIRL.fit", f"kept each task's best weights seen ({loss_phrase(self.loss_)}, "
                                             f"after {self.n_iter_} iterations)", exc.__cause__)
             raise_interrupted(exc, "GradIRL.fit")
-        store(res, objective)
+        self._store(tasks, res, objective)
         warn_if_stalled(res.status, res.iterations, "GradIRL.fit")
         warn_if_max_iter(res, "GradIRL.fit", max_iter)
         return self
@@ -277,11 +276,8 @@ class GradIRL(Estimator):
     def _store(self, tasks, res, objective):
         self.weights_ = res.coefficients
         self.rewards_ = tasks.rewards(res.coefficients)
-        self._store_run(res, objective)
         self.mdp_signature_ = tasks.signature()
         self.features_sha256_ = tasks.digest
-
-    def _store_run(self, res, objective):
         self.loss_ = res.loss
         self.loss_history_ = res.loss_history
         self.n_evaluations_ = int(objective.n_evaluations)

@@ -29,11 +29,11 @@ from scipy.optimize import linear_sum_assignment
 import solvers
 
 from .._progress import fit_progress
-from .._validation import as_rng, check_array, check_bool, check_fit_parameters, check_int
+from .._validation import as_rng, check_array, check_bool, check_fit_parameters, check_int, check_mdp
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from ..exceptions import NotFittedError, ValidationError
 from .factirl import FactIRL
-from .fitting import learner_entry
+from .fitting import learner_entry, learner_tasks
 from .intention_count import (SELECTIONS, best_candidate, bic_scores, check_candidates, fold_assignment,
                               free_parameters, held_out_scores, one_standard_error_choice)
 from .multi_intent_fit import EMSettings, best_of_runs, episode_log_likelihoods, episode_subset
@@ -42,8 +42,7 @@ from .solver_settings import SolverSettings, estimator_solvers
 from .start import IntentionStart
 
 from ..tasks.basis import RewardBasis
-from ..tasks.task_set import task_set
-from ..tasks.trajectories import parse_demonstrations, parse_episodes as parse_unlabeled
+from ..tasks.trajectories import TaskDemonstrations, parse_demonstrations, parse_episodes as parse_unlabeled
 
 __all__ = ["MultiIntentIRL", "adjusted_rand_index", "match_intentions", "INITS"]
 
@@ -279,9 +278,8 @@ class MultiIntentIRL(Estimator):
             an objective without a policy to score episodes; a bad ``init`` or hyper-parameter.
         """
         check_fit_parameters(self)
-        tasks = task_set(mdp, [episodes], self.features, self.reward)  # the episodes of one MDP, as one task
-        mdp = tasks.mdp
-        steps, lengths = parse_episodes(mdp, episodes)
+        steps, lengths = parse_episodes(check_mdp(mdp), episodes)
+        tasks = learner_tasks(self, mdp, [episodes], [TaskDemonstrations(steps, lengths, "list")])  # as one task
         init = self._check_init()
         execution = self._group("execution")
         n_init = check_int(self._group("start").n_init, "n_init", minimum=1)

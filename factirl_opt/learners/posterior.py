@@ -413,7 +413,7 @@ class TransferState:
     built: bool = False
 
 
-def keep_transfer(model: Any, inputs: tuple, tasks: Any, D: Any) -> None:
+def keep_transfer(model: Any, inputs: tuple | None, tasks: Any, D: Any) -> None:
     """Record on ``model`` the task set of its last transfer (its posterior is built from it when first read)."""
     model._transfer = TransferState(inputs, tasks, D)
 

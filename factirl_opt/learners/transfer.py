@@ -47,12 +47,12 @@ from .fitting import (
 from ..tasks.basis import DICTIONARY_NAMES, WEIGHT_NAMES
 from ..tasks.task_set import TaskSet, task_set, transfer_task_set
 from ..interruption import INTERRUPTED, run_keeping_best
-from ..objectives.problems import as_problem_basis, weights_problem
+from ..objectives.problems import weights_problem
 from ..objectives.residuals import residual_weights, residual_weights_problem
 from .gradirl import fit_weights
 from .solver_settings import SolverSettings, estimator_solvers, step_solver
 
-__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "prior_problem",
+__all__ = ["transfer_coefficients", "run_transfer", "TransferFit", "transfer_tasks", "transfer_dictionary", "prior_problem",
            "transfer_prior_weights", "TRANSFER_STOL", "fit_prior_scale", "choose_prior_scale", "leave_one_out_priors",
            "PRIOR_SCALES", "PRIOR_HELD_OUT", "coefficient_prior", "PRIOR_RIDGE"]
 
@@ -168,15 +168,10 @@ def _check_prior(prior, k):
 def transfer_prior_weights(tasks: TaskSet, scale: float) -> NDArray[np.float64]:
     """``c_i = scale / N_i`` (n,): the prior's weight on each task's loss, ``N_i`` its demonstrated pairs
     (module docstring); ``scale`` > 0."""
-    from ..tasks.trajectories import task_steps
-
     scale = float(scale)
     if not (np.isfinite(scale) and scale > 0):
         raise ValidationError(f"prior_scale must be a finite number > 0; got {scale!r}")
-    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdp is not None else list(tasks.mdps or ())
-    N = np.array([max(1, task_steps(mdps[i], tasks.demos_per_task[i], i).shape[0]) for i in range(tasks.n_tasks)],
-                 dtype=np.float64)
-    return scale / N
+    return scale / np.maximum(tasks.n_pairs, 1.0)
 
 
 def prior_problem(problem: solvers.StepProblem, mean: ArrayLike, precision: ArrayLike, weights: ArrayLike,
@@ -280,10 +275,9 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     solver : solvers.StepSolver
         Resolved and checked.
     base_features : RewardBasis
-        The new tasks' basis (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`; a per-task one
-        for new tasks in several environments, ``objective`` then a
-        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`). The older
-        forms (None for tabular, a validated matrix) are read on the objective's MDP.
+        The new tasks' basis, as their task set built it (:attr:`factirl_opt.tasks.task_set.TaskSet.basis`;
+        a per-task one for new tasks in several environments, ``objective`` then a
+        :class:`~factirl_opt.objectives.environments.MultiEnvironmentObjective`).
     max_iter, tol, callback, verbose
         As in :func:`transfer_coefficients`.
     residual_penalty : float, default=np.inf
@@ -311,15 +305,14 @@ def run_transfer(objective: Any, dictionary: NDArray[np.float64], solver: solver
     -------
     TransferFit
     """
-    basis = as_problem_basis(objective, base_features)
     if residual_penalty == 0.0 and flat is not None:
         flat_solver, flat_max_iter, flat_tol = flat
-        return _run_flat_transfer(objective, dictionary, basis, flat_solver, flat_max_iter, flat_tol, callback, verbose,
-                                  gtol, stol)
+        return _run_flat_transfer(objective, dictionary, base_features, flat_solver, flat_max_iter, flat_tol, callback,
+                                  verbose, gtol, stol)
     if np.isfinite(residual_penalty):
-        return _run_residual_transfer(objective, dictionary, solver, basis, max_iter, tol, callback, verbose,
+        return _run_residual_transfer(objective, dictionary, solver, base_features, max_iter, tol, callback, verbose,
                                       float(residual_penalty), gtol, prior, stol)
-    F = basis.compose(dictionary)
+    F = base_features.compose(dictionary)
     problem = weights_problem(objective, F)
     k = dictionary.shape[1]
     if prior is not None:
@@ -448,6 +441,13 @@ def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> 
     tasks = transfer_task_set(mdp, demos_per_task, features, model.features, reward=model.reward,
                               signature=getattr(model, "mdp_signature_", None), digest=getattr(model, "features_sha256_", None),
                               check_digest=hasattr(model, "features_sha256_"), min_columns=1 if isinstance(k, str) else k)
+    return tasks, transfer_dictionary(model, tasks)
+
+
+def transfer_dictionary(model: Any, tasks: TaskSet) -> NDArray[np.float64]:
+    """``model.dictionary_`` (p, k), checked against the new tasks' basis (a ValidationError for another p, or
+    another k than the model's)."""
+    k = getattr(model, "n_primitives_", model.n_primitives)
     D = check_array(model.dictionary_, "dictionary_", ndim=2)
     if D.shape[0] != tasks.n_params:
         if tasks.shared:
@@ -457,7 +457,7 @@ def transfer_tasks(mdp: Any, demos_per_task: Any, features: Any, model: Any) -> 
                               f"is over p = {D.shape[0]} features: give features with the columns of fit")
     if tasks.shared and D.shape[1] != k:
         raise ValidationError(f"dictionary_ has {D.shape[1]} primitives but n_primitives={k}")
-    return tasks, D
+    return D
 
 
 #: ridge added to the prior covariance of the coefficients, relative to its mean variance
@@ -501,10 +501,6 @@ def leave_one_out_priors(coefficients: ArrayLike, rows: ArrayLike) -> tuple[NDAr
     pairs = [coefficient_prior(np.delete(H, i, axis=0)) for i in rows]
     return np.array([m for m, _ in pairs]).reshape(len(rows), H.shape[1]), \
         np.array([P for _, P in pairs]).reshape(len(rows), H.shape[1], H.shape[1])
-
-
-def _take(seq, idx):
-    return [seq[i] for i in idx] if isinstance(seq, (list, tuple)) else np.asarray(seq)[idx]
 
 
 def choose_prior_scale(scores: dict, rule: str = "min") -> float:
@@ -560,8 +556,6 @@ def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = P
         ``{scale: each held-out task's deviation (r,)}``.
     """
     from ..evaluation import deviation
-    from .fitting import resolve_step_solver, task_objective
-    from .solver_settings import estimator_solvers
 
     H = np.asarray(model.coefficients_, dtype=np.float64)
     lam = float(getattr(model, "residual_penalty_", np.inf))
@@ -569,19 +563,16 @@ def fit_prior_scale(model: Any, mdp: Any, demos_per_task: Any, scales: tuple = P
     if n < 3 or lam == 0.0:
         return 0.0, {}
     idx = np.unique(np.round(np.linspace(0, n - 1, min(n, int(n_held_out)))).astype(np.intp))
-    per_task_mdp = isinstance(mdp, (list, tuple))
-    sub_mdp = _take(mdp, idx) if per_task_mdp else mdp
     feats = model.features if isinstance(model.features, (list, tuple)) else None
-    sub_F = None if feats is None else _take(feats, idx)
-    first = [demos_per_task[i][:1] for i in idx]
-    tasks, D = transfer_tasks(sub_mdp, first, sub_F, model)
+    tasks, D = transfer_tasks(mdp, demos_per_task, feats, model)
+    tasks = tasks.subset(idx).episodes(0, 1)  # each held-out task's first demonstration
     obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
     if solver is None:
         name, options = estimator_solvers(model)[:2]
         solver = resolve_step_solver(name, options, model.objective, "solver")
     M, P = leave_one_out_priors(H, idx)
-    refs = _take(model.rewards_, idx)
-    mdps = sub_mdp if per_task_mdp else mdp
+    refs = [model.rewards_[i] for i in idx]
+    mdps: Any = tasks.mdp if tasks.mdps is None else tasks.mdps
     max_iter = check_int(model.transfer_max_iter, "transfer_max_iter", minimum=0)
     scores = {}
     for scale in scales:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..exceptions import NotFittedError, ValidationError
+from ..exceptions import ValidationError
 from ..tasks.basis import as_basis
 from .transfer import transfer_tasks
 
@@ -264,23 +264,15 @@ def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = 
     ValidationError
         As ``FactIRL.transfer`` does for these arguments.
     """
-
-    if not hasattr(model, "dictionary_"):
-        raise NotFittedError("this FactIRL has no dictionary_: call fit first")
     return tasks_problem(model, *transfer_tasks(mdp, demos_per_task, features, model))
 
 
 def tasks_problem(model: Any, tasks: Any, D: Any) -> TransferProblem:
     """The :class:`TransferProblem` of a transfer's task set ``tasks`` and dictionary ``D`` (p, k)."""
-    from ..tasks.trajectories import task_steps
     from .fitting import task_objective
 
     obj = task_objective(tasks, model.beta, model.objective, model._group("execution").planner)
     lam = float(getattr(model, "residual_penalty_", np.inf))
-    rows = np.arange(tasks.n_tasks)
-    one = tasks.mdp
-    mdps = list(tasks.mdps or []) if one is None else [one] * tasks.n_tasks
-    feats = tasks.basis.recorded_features(rows)
-    demos = tasks.demos_per_task
-    n_pairs = np.array([task_steps(mdps[i], demos[i], i).shape[0] for i in range(len(mdps))], dtype=np.float64)
-    return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, n_pairs)
+    mdps = list(tasks.mdps or []) if tasks.mdp is None else [tasks.mdp] * tasks.n_tasks
+    feats = tasks.basis.recorded_features(np.arange(tasks.n_tasks))
+    return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, tasks.n_pairs)

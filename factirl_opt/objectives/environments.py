@@ -24,8 +24,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from solvers import Linearization
 
-from .._validation import check_beta, check_mdp, check_statistics
-from ..tasks.demonstrations import empirical_statistics, task_steps
+from .._validation import check_beta, check_statistics
+from ..tasks.demonstrations import environment_demonstrations, environment_statistics
 from ..exceptions import ValidationError
 from ..mdp.environments import check_environments, group_tasks
 from ..mdp.tabular import TabularMDP
@@ -328,19 +328,6 @@ def multi_environment_objective(mdps: TabularMDP | Sequence[TabularMDP], demos_p
         For a wrong number of MDPs, or a state or action out of range of its task's MDP
         (the message names the task, episode and step).
     """
-    if isinstance(demos_per_task, np.ndarray) and demos_per_task.ndim == 4:
-        demos_per_task = list(demos_per_task)
-    if not isinstance(demos_per_task, Sequence) or isinstance(demos_per_task, (str, bytes)):
-        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
-    envs = check_environments(mdps, len(demos_per_task))
-    for i, (mdp, demos) in enumerate(zip(envs, demos_per_task)):
-        task_steps(check_mdp(mdp), demos, task=i)  # bounds of the task's own MDP; names task i
-    group_mdps, task_group, _ = group_tasks(envs)
-    mus: list[Any] = [None] * len(envs)
-    pis: list[Any] = [None] * len(envs)
-    for g, mdp in enumerate(group_mdps):
-        tasks = np.flatnonzero(task_group == g)
-        mu, pi = empirical_statistics(mdp, [demos_per_task[int(t)] for t in tasks])
-        for j, t in enumerate(tasks):
-            mus[t], pis[t] = mu[j], pi[j]
+    envs, parsed = environment_demonstrations(mdps, demos_per_task)
+    mus, pis = environment_statistics(envs, parsed)
     return MultiEnvironmentObjective(envs, mus, pis, beta, objective, planner, planner_options)

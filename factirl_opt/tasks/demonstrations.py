@@ -20,18 +20,20 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._threads import blas_limited
 from .._validation import RNGLike, as_rng, check_bool, check_int, check_mdp, check_rewards, check_start
+from ..exceptions import ValidationError
 from ..planning import get_planner, plan
 from ..mdp.environments import (
     by_environment, check_environments, is_environment_sequence, one_for_all, per_task_values,
     check_task_rewards,
 )
-from .trajectories import parse_demonstrations, task_steps
+from .trajectories import TaskDemonstrations, parse_demonstrations, parse_task, task_steps
 
 from collections.abc import Sequence
 
 from ..mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
-__all__ = ["sample_demonstrations", "empirical_statistics", "task_steps"]
+__all__ = ["sample_demonstrations", "empirical_statistics", "task_steps", "step_statistics", "environment_demonstrations",
+           "environment_statistics"]
 
 #: Cache of :func:`row_cdfs`, owned by this module: MDP -> (cum, succ). Keys are held weakly,
 #: so an entry lives exactly as long as its MDP; nothing is stored on the MDP itself (which is
@@ -239,8 +241,11 @@ def empirical_statistics(mdp: TabularMDP, demos_per_task: typing.Any) -> tuple[N
         Rows of visited states sum to 1; rows of unvisited states are 0.
     """
     check_mdp(mdp)
-    S, A = mdp.n_states, mdp.n_actions
-    tasks = parse_demonstrations(demos_per_task, S, A)
+    return step_statistics(parse_demonstrations(demos_per_task, mdp.n_states, mdp.n_actions), mdp.n_states, mdp.n_actions)
+
+
+def step_statistics(tasks: Sequence[TaskDemonstrations], S: int, A: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`empirical_statistics` of demonstrations already parsed: ``mu_hat`` (n, S), ``pi_hat`` (n, S, A)."""
     n = len(tasks)
     counts = np.zeros((n, S * A))
     for i, task in enumerate(tasks):
@@ -251,3 +256,20 @@ def empirical_statistics(mdp: TabularMDP, demos_per_task: typing.Any) -> tuple[N
     mu_hat = visits / visits.sum(axis=1, keepdims=True)
     pi_hat = np.divide(per_pair, visits[:, :, None], out=np.zeros_like(per_pair), where=visits[:, :, None] > 0)
     return mu_hat, pi_hat
+
+
+def environment_demonstrations(mdps: typing.Any, demos_per_task: typing.Any) -> tuple[list, list[TaskDemonstrations]]:
+    """The environments of n tasks (:func:`~factirl_opt.mdp.environments.check_environments`) and their
+    demonstrations, each parsed on its own task's MDP (errors name the task, episode and step)."""
+    if isinstance(demos_per_task, np.ndarray) and demos_per_task.ndim == 4:
+        demos_per_task = list(demos_per_task)
+    if not isinstance(demos_per_task, Sequence) or isinstance(demos_per_task, (str, bytes)):
+        raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
+    envs = check_environments(mdps, len(demos_per_task))
+    return envs, [parse_task(mdp, demos, task=i) for i, (mdp, demos) in enumerate(zip(envs, demos_per_task))]
+
+
+def environment_statistics(mdps: Sequence[TabularMDP], tasks: Sequence[TaskDemonstrations]) -> tuple[list, list]:
+    """Each task's :func:`step_statistics` on its own MDP: lists of n arrays (S_i,) and (S_i, A)."""
+    pairs = [step_statistics([task], mdp.n_states, mdp.n_actions) for mdp, task in zip(mdps, tasks)]
+    return [mu[0] for mu, _ in pairs], [pi[0] for _, pi in pairs]

@@ -18,8 +18,8 @@ branch at the call sites:
 Whatever the features, the fit's reward model is ``TaskSet.basis``: the code below the
 estimators never asks which kind it is. The objective is bound later by the learners
 (:func:`factirl_opt.learners.fitting.task_objective`), after their own hyper-parameters are
-checked: a TaskSet holds data only. :meth:`TaskSet.subset` gives the task set of some of its
-tasks (validation folds, transfer of a subset).
+checked: a TaskSet holds data only (its demonstrations parsed once, with their statistics).
+:meth:`TaskSet.subset` gives the task set of some of its tasks (validation folds, held-out tasks).
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ from .._validation import check_features, check_mdp
 from ..exceptions import ValidationError
 from ..mdp.environments import check_environments
 from ..mdp.tabular import TabularMDP
-from .demonstrations import empirical_statistics
+from .demonstrations import environment_demonstrations, environment_statistics, step_statistics
+from .trajectories import TaskDemonstrations, parse_demonstrations
 from .basis import RewardBasis, SharedBasis, StateBasis, TabularBasis, TaskBasis, check_basis, matrix_digest
 from .features import StateBroadcast, TaskFeatures
 
@@ -213,12 +214,12 @@ def environment_signatures(mdps: Sequence[TabularMDP]) -> list[dict]:
 
 @dataclasses.dataclass(frozen=True)
 class TaskSet:
-    """The tasks of one fit or transfer, validated (built by :func:`task_set`).
+    """The tasks of one fit or transfer, validated, their demonstrations parsed once (built by :func:`task_set`).
 
     Attributes
     ----------
     demos_per_task : list of n task demonstrations
-        As given (parsed when the objective is bound to them).
+        As given.
     basis : RewardBasis
         What the rewards are linear in: ``R_i = Phi_i w_i`` (:mod:`factirl_opt.tasks.basis`;
         tabular rewards are a basis too).
@@ -229,6 +230,10 @@ class TaskSet:
     digest : str or None
         :func:`features_digest` of the features a model records (``features_sha256_``): of
         the one shared matrix given, None for tabular or state rewards and per-task features.
+    demonstrations : list of n TaskDemonstrations
+        Parsed on each task's MDP when the task set is made (errors name the task, episode and step).
+    mu_hat, pi_hat : ndarray (n, S) and (n, S, A), or lists of n arrays (S_i,) and (S_i, A)
+        Their statistics (eq. 5), which every objective, held-out score and posterior of the tasks binds.
     """
 
     demos_per_task: Any
@@ -236,6 +241,19 @@ class TaskSet:
     mdp: TabularMDP | None
     mdps: list[TabularMDP] | None
     digest: str | None
+    demonstrations: Any = dataclasses.field(default=None, repr=False, compare=False)  # list of TaskDemonstrations
+    mu_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
+    pi_hat: Any = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        one, parsed = self.mdp, self.demonstrations
+        if parsed is None:
+            parsed = (parse_demonstrations(self.demos_per_task, one.n_states, one.n_actions) if one is not None
+                      else environment_demonstrations(self.mdps, self.demos_per_task)[1])
+        stats = (step_statistics(parsed, one.n_states, one.n_actions) if one is not None
+                 else environment_statistics(self.mdps or [], parsed))
+        for name, value in zip(("demonstrations", "mu_hat", "pi_hat"), (parsed, *stats)):
+            object.__setattr__(self, name, value)  # frozen: set once, here
 
     @property
     def shared(self) -> bool:
@@ -256,6 +274,11 @@ class TaskSet:
         """Rewards ``R_i = Phi_i w_i`` of weights (n, p): (n, S, A), or a list of (S_i, A) arrays."""
         return self.basis.rewards(weights)
 
+    @property
+    def n_pairs(self) -> NDArray[np.float64]:
+        """``N_i`` (n,), the demonstrated (state, action) pairs of each task."""
+        return np.array([len(task.steps) for task in self.demonstrations], dtype=np.float64)
+
     def subset(self, rows: Any) -> TaskSet:
         """The task set of tasks ``rows`` only (in that order): their demonstrations, MDPs and basis
         rows (validation folds, held-out tasks).
@@ -270,30 +293,14 @@ class TaskSet:
             raise ValidationError(f"rows must be a nonempty list of task indices in [0, {self.n_tasks}); got {np.asarray(rows).tolist()}")
         demos = [self.demos_per_task[int(i)] for i in idx]
         mdps = None if self.mdps is None else [self.mdps[int(i)] for i in idx]
-        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest)
+        return TaskSet(demos, self.basis.subset(idx), self.mdp, mdps, self.digest, [self.demonstrations[int(i)] for i in idx])
 
-    def with_demonstrations(self, demos_per_task: Any) -> TaskSet:
-        """The same tasks (environments and basis) with other demonstrations, one entry per task
-        (e.g. a held-out part of each task's episodes, to score a model on).
-
-        Raises
-        ------
-        ValidationError
-            For a number of entries other than the tasks'.
-        """
-        n = _n_tasks(demos_per_task)
-        if n != self.n_tasks:
-            raise ValidationError(f"demos_per_task must hold one entry per task ({self.n_tasks}); got "
-                                  f"{type(demos_per_task).__name__ if n is None else n}")
-        return dataclasses.replace(self, demos_per_task=demos_per_task)
-
-    def statistics(self) -> tuple[Any, Any]:
-        """The empirical statistics ``(mu_hat, pi_hat)`` of the demonstrations (eq. 5): stacked
-        (n, S) and (n, S, A) on one environment, else lists of each task's (S_i,) and (S_i, A)."""
-        if self.mdp is not None:
-            return empirical_statistics(self.mdp, self.demos_per_task)
-        pairs = [empirical_statistics(m, [d]) for m, d in zip(self.mdps or [], self.demos_per_task)]
-        return [mu[0] for mu, _ in pairs], [pi[0] for _, pi in pairs]
+    def episodes(self, start: int, stop: int | None = None) -> TaskSet:
+        """The same tasks (environments and basis) with episodes ``start:stop`` of each task's
+        demonstrations only (e.g. the first to transfer a held-out task from, the others to score it on)."""
+        demos = [task[start:stop] for task in self.demos_per_task]
+        return TaskSet(demos, self.basis, self.mdp, self.mdps, self.digest,
+                       [task.episode_range(start, stop) for task in self.demonstrations])
 
     def signature(self) -> dict | list[dict]:
         """What a model records as ``mdp_signature_``: the MDP's signature, or one per task."""
@@ -303,7 +310,7 @@ class TaskSet:
 
 
 def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = "state-action",
-             min_columns: int = 1) -> TaskSet:
+             min_columns: int = 1, parsed: list[TaskDemonstrations] | None = None) -> TaskSet:
     """The tasks of a fit from ``(mdp or mdps, demos, features, reward)``, validated once.
 
     Parameters
@@ -320,6 +327,8 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
         ``"state"``: one free reward per state of one MDP (no features).
     min_columns : int, default=1
         Smallest accepted p.
+    parsed : list of n TaskDemonstrations, optional
+        The demonstrations already parsed by the caller (who named them in its own messages).
 
     Returns
     -------
@@ -337,12 +346,12 @@ def task_set(mdp: Any, demos_per_task: Any, features: Any = None, reward: str = 
     if one is not None:
         check_mdp(one)
         basis = reward_basis(one, features, reward, min_columns)
-        return TaskSet(demos_per_task, basis, one, None, basis.digest())
-    return environment_tasks(mdp, demos_per_task, features, reward, min_columns)
+        return TaskSet(demos_per_task, basis, one, None, basis.digest(), parsed)
+    return environment_tasks(mdp, demos_per_task, features, reward, min_columns, parsed)
 
 
 def environment_tasks(mdp: Any, demos_per_task: Any, features: Any, reward: str = "state-action",
-                      min_columns: int = 1) -> TaskSet:
+                      min_columns: int = 1, parsed: list[TaskDemonstrations] | None = None) -> TaskSet:
     """The tasks as several environments, whatever their MDPs: :func:`task_set`'s second layout.
 
     For a transfer to new environments, whose tasks are planned on their own maps even when
@@ -353,7 +362,7 @@ def environment_tasks(mdp: Any, demos_per_task: Any, features: Any, reward: str 
         raise ValidationError(f"demos_per_task must be a list with one entry per task; got {type(demos_per_task).__name__}")
     mdps = check_environments(mdp, n)
     basis, digest = _task_features(mdps, features, reward, min_columns)
-    return TaskSet(demos_per_task, basis, None, mdps, digest)
+    return TaskSet(demos_per_task, basis, None, mdps, digest, parsed)
 
 
 

@@ -55,7 +55,8 @@ from ..exceptions import PersistenceError, ValidationError
 
 from ..mdp.tabular import TabularMDP  # at run time too: typing.get_type_hints resolves the annotations
 
-__all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "parse_episodes", "task_steps", "TaskDemonstrations"]
+__all__ = ["demonstrations_from_trajectories", "parse_demonstrations", "parse_episodes", "parse_task", "task_steps",
+           "TaskDemonstrations"]
 
 _COLUMNS = ("state", "action")
 _OBS_KEYS = ("obs", "observations")
@@ -83,6 +84,12 @@ class TaskDemonstrations(typing.NamedTuple):
     def episodes(self) -> list[NDArray[np.int64]]:
         """The episodes as a list of int64 (L_j, 2) arrays (views of ``steps``)."""
         return np.split(self.steps, np.cumsum(self.lengths)[:-1])
+
+    def episode_range(self, start: int, stop: int | None = None) -> TaskDemonstrations:
+        """Episodes ``start:stop`` only (their steps a view of ``steps``), as a slice of the episodes given."""
+        bounds = np.concatenate([[0], np.cumsum(self.lengths)])
+        span = range(len(self.lengths))[start:stop]
+        return TaskDemonstrations(self.steps[bounds[span.start]:bounds[span.stop]], self.lengths[start:stop], self.form)
 
 
 # ----------------------------------------------------------------------------- values
@@ -439,22 +446,16 @@ def parse_episodes(episodes: typing.Any, n_states: int | None = None, n_actions:
     return _parse_task(episodes, (n_states, n_actions), False, name, lambda j: f"{name}[{j}]")
 
 
-def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArray[np.int64]:
-    """All (state, action) steps of one task's demonstrations, validated, as an (N, 2) array.
-
-    Parameters
-    ----------
-    mdp : TabularMDP
-    task_demos : ndarray (m, L, 2), or list of episodes (see the module docstring)
-    task : int
-        Index used in error messages.
-
-    Returns
-    -------
-    steps : ndarray of int64, shape (N, 2)
-    """
+def parse_task(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> TaskDemonstrations:
+    """One task's demonstrations (an (m, L, 2) array or a list of episodes), validated on its MDP;
+    ``task`` is its index in error messages."""
     check_mdp(mdp)
-    return _parse_task(task_demos, (mdp.n_states, mdp.n_actions), False, *_task_labels(task)).steps
+    return _parse_task(task_demos, (mdp.n_states, mdp.n_actions), False, *_task_labels(task))
+
+
+def task_steps(mdp: TabularMDP, task_demos: typing.Any, task: int = 0) -> NDArray[np.int64]:
+    """All (state, action) steps (N, 2) of one task's demonstrations, validated (:func:`parse_task`)."""
+    return parse_task(mdp, task_demos, task).steps
 
 
 def demonstrations_from_trajectories(trajectories_per_task: typing.Any,

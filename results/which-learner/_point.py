@@ -13,6 +13,7 @@ from factirl_opt.lab.experiments.learner_solvers import factorial_options
 from factirl_opt.lab.experiments.lineup import RunContext
 from factirl_opt.lab.experiments.runner import RunSpec
 from factirl_opt.learners import adaptive
+from factirl_opt.learners.fitting import learner_tasks
 
 
 def setup(argv=None):
@@ -34,8 +35,9 @@ def setup(argv=None):
                       stol=preset.flat_stol, solver=kw.get("flat_solver", "armijo"), planner=preset.planner).fit(mdp, demos)
     learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
     folds = adaptive.task_folds(n, 3, learner.rng)  # the folds of the search (SharingSearch(cv=3))
-    k_max = adaptive.max_primitives(learner, mdp, n, folds)
-    return types.SimpleNamespace(preset=preset, n=n, out_path=out_path, gt=gt, Ftr=Ftr, Fte=Fte, mdp=mdp, demos=demos,
+    tasks = learner_tasks(learner, mdp, demos)  # the task set the learner's fit builds
+    k_max = adaptive.max_primitives(tasks, folds)
+    return types.SimpleNamespace(preset=preset, n=n, out_path=out_path, gt=gt, Ftr=Ftr, Fte=Fte, mdp=mdp, demos=demos, tasks=tasks,
                                  test_demos=test_demos, flat=flat, learner=learner, folds=folds,
                                  cands=adaptive.sharing_candidates(learner, k_max))
 

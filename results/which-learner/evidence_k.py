@@ -48,7 +48,7 @@ for name in presets:
             P = setup([name, str(n), str(seed), os.devnull])
             t_setup = time.process_time() - t0
             t0 = time.process_time()
-            log_ev, k = flat_start_evidence(P.learner, P.mdp, P.demos, P.flat.rewards_)
+            log_ev, k = flat_start_evidence(P.tasks, P.flat.rewards_)
             t_ev = time.process_time() - t0
             v = committed.get((n, seed), {})
             winner = None if not v else (min if column == "deviation" else max)(

@@ -19,7 +19,7 @@ POINTS = [("sharing-grid", 5, 0), ("sharing-grid", 20, 0), ("sharing-grid", 20, 
           ("sharing-objectworld-per-task-quick", 20, 0)]
 for preset, n, seed in POINTS:
     P = setup([preset, str(n), str(seed), os.devnull])
-    Y = flat_start_points(P.learner, P.mdp, P.demos, P.flat.rewards_)
+    Y = flat_start_points(P.tasks, P.flat.rewards_)
     sd = Y.std(axis=0)
     keep = sd > 1e-12 * sd.max()
     print(preset, n, seed, Y.shape, "rows", pca_rank_evidence(Y)[1], "rows-centred", pca_rank_evidence(Y, center=True)[1],

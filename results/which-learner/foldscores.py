@@ -8,7 +8,7 @@ P = setup(sys.argv[1:5])
 out = {}
 for spec in sys.argv[5:]:
     k, lam = spec.split(","); c = (int(k), float(lam))
-    s = adaptive.score_candidates(P.learner, P.mdp, P.demos, P.flat.rewards_, P.folds, [c], n_transfer_demos=1,
+    s = adaptive.score_candidates(P.learner, P.tasks, P.flat.rewards_, P.folds, [c], n_transfer_demos=1,
                                   score="likelihood")[c]
     out[spec] = {"score": float(np.mean(np.concatenate(s))), "fold_scores": [float(np.mean(f)) for f in s],
                  "task_scores": [float(v) for v in np.concatenate(s)]}

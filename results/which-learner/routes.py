@@ -53,7 +53,7 @@ for route in routes:
         P.learner.set_params(rng=copy.deepcopy(rng0))
     learner = P.learner.set_params(sharing_search=SharingSearch(route=route))
     t0 = time.process_time()
-    found = learner.sharing_search.search(learner, P.mdp, P.demos, P.flat.rewards_)
+    found = learner.sharing_search.search(learner, P.tasks, P.flat.rewards_)
     t_search = time.process_time() - t0
     t_final, dev = fit_and_transfer(found.n_primitives, found.residual_penalty)
     out["routes"][route] = {"chosen": [found.n_primitives, found.residual_penalty], "search_cpu_s": t_search,

@@ -16,7 +16,7 @@ from factirl_opt.learners import adaptive  # noqa: E402
 from _point import setup, test_deviation  # noqa: E402
 
 P = setup(sys.argv[1:5])
-found = adaptive.search_sharing(P.learner, P.mdp, P.demos, P.flat.rewards_)
+found = adaptive.search_sharing(P.learner, P.tasks, P.flat.rewards_)
 table = found.rows
 flat = next(r for r in table if r["residual_penalty"] == 0.0)
 out = {"chosen": [found.n_primitives, found.residual_penalty], "table": table, "paired": []}

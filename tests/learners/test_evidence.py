@@ -13,7 +13,9 @@ from factirl_opt.learners.selection.evidence import (
     confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence, flat_start_points, laplace_rank_evidence, pca_rank_evidence,
     plausible_ranks,
 )
+from factirl_opt.learners.fitting import learner_tasks
 from factirl_opt.learners.selection import ROUTES, SharingSearch
+from factirl_opt.tasks.task_set import task_set
 
 
 def _low_rank(n, d, k, signal, rng):
@@ -150,15 +152,15 @@ def test_the_points_are_what_the_pca_start_decomposes(data):
     """Tabular rewards: the rewards themselves; features: W G^(1/2), whose Gram matrix is the rewards' own."""
     mdp, F, R, demos = data
     tabular = fo.FactIRL(n_primitives=2)
-    np.testing.assert_allclose(flat_start_points(tabular, mdp, demos, R), R.reshape(8, -1), atol=1e-12)
+    np.testing.assert_allclose(flat_start_points(learner_tasks(tabular, mdp, demos), R), R.reshape(8, -1), atol=1e-12)
     featured = fo.FactIRL(n_primitives=2, features=F)
-    Y = flat_start_points(featured, mdp, demos, R)
+    Y = flat_start_points(learner_tasks(featured, mdp, demos), R)
     rewards = R.reshape(8, -1)
     np.testing.assert_allclose(Y @ Y.T, rewards @ rewards.T, rtol=1e-8, atol=1e-8 * np.abs(rewards).max() ** 2)
-    log_ev, rank = flat_start_evidence(featured, mdp, demos, R)
+    log_ev, rank = flat_start_evidence(learner_tasks(featured, mdp, demos), R)
     assert rank == 2 and log_ev.shape == (min(8, Y.shape[1]),)  # two primitives, exactly
     with pytest.raises(ValidationError, match=r"flat_rewards must have shape \(n, S, A\) = \(8, 9, 4\); got \(3, 9, 4\)"):
-        flat_start_points(featured, mdp, demos, R[:3])
+        flat_start_points(learner_tasks(featured, mdp, demos), R[:3])
 
 
 def _auto(F, **search):
@@ -176,13 +178,13 @@ def _forced_rank(monkeypatch, rank):
     """The route with the evidence's k forced to ``rank``, and the (k, max_iter) of every candidate fit recorded."""
     monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(rank + 1), rank))
     fits = []
-    fit = fo.FactIRL.fit
+    fit = fo.FactIRL._fit_tasks  # the fit of a task set: the candidates' and the final one
 
     def counted(self, *args, **kw):
         fits.append((self.n_primitives, self.residual_penalty, self.max_iter))
         return fit(self, *args, **kw)
 
-    monkeypatch.setattr(fo.FactIRL, "fit", counted)
+    monkeypatch.setattr(fo.FactIRL, "_fit_tasks", counted)
     return fits
 
 
@@ -196,7 +198,7 @@ def test_the_evidence_route_scores_its_k_half_and_twice_it_from_pca_starts(data,
     assert sorted(map(tuple, (p.values() for p in res["params"]))) == [(1, 0.0), (1, 1.0), (1, np.inf), (2, 1.0),
                                                                        (2, np.inf)]
     assert np.all(res["n_splits_scored"] == 3) and np.all(np.isfinite(res["mean_test_score"]))
-    candidates = fits[1:-1]  # the auto fit itself first, the final fit last
+    candidates = fits[:-1]  # the final fit last
     assert candidates and all(max_iter == 0 for _, _, max_iter in candidates)  # PCA starts only, no bisection
     assert {k for k, _, _ in candidates} <= {1, 2}
     assert (model.n_primitives_, model.residual_penalty_) in {tuple(p.values()) for p in res["params"]}
@@ -208,7 +210,7 @@ def test_little_shared_chooses_the_flat_model_without_a_fit(data, monkeypatch, t
     fits = _forced_rank(monkeypatch, rank)
     model = _fit(_auto(F), mdp, demos)
     assert (model.n_primitives_, model.residual_penalty_) == (1, 0.0)
-    assert len(fits) == 2  # the auto fit and the final fit: no candidate
+    assert len(fits) == 1  # the final fit: no candidate
     res = model.cv_results_
     selection.check_cv_results(res)
     assert res["params"] == [{"n_primitives": 1, "residual_penalty": 0.0}] and res["n_splits_scored"].tolist() == [0]
@@ -227,7 +229,7 @@ def test_the_evidence_route_reads_k_from_the_data(data):
     is 2 and the candidates' k are 1 and 2 (4 is more than half the 5 training tasks of a fold), and
     the flat model."""
     mdp, F, R, demos = data
-    assert flat_start_evidence(fo.FactIRL(features=F), mdp, demos, R)[1] == 2
+    assert flat_start_evidence(task_set(mdp, demos, F), R)[1] == 2
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         model = _auto(F, residual_penalty_grid=(np.inf, 0.0)).fit(mdp, demos, flat_rewards=R)
@@ -237,7 +239,7 @@ def test_the_evidence_route_reads_k_from_the_data(data):
 def test_the_evidence_search_needs_the_flat_rewards(data):
     mdp, F, _, demos = data
     with pytest.raises(ValidationError, match=r"search='evidence' chooses k from the flat start's rewards: give flat_rewards"):
-        selection.search_sharing(_auto(F), mdp, demos, None, search="evidence")
+        selection.search_sharing(_auto(F), task_set(mdp, demos, F), None, search="evidence")
     assert "evidence" in ROUTES and evidence.__all__
 
 
@@ -248,7 +250,7 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     mdp, _, _, demos = data
     noise = np.random.default_rng(0).normal(scale=0.001, size=60)
 
-    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+    def score_candidates(learner, tasks, flat_rewards, folds, candidates, progress, **kw):
         for k, lam in candidates:
             base = 3.0 if lam == 0.0 else 1.0 + (k - 5.4) ** 2 / 100 + (0.0 if lam == np.inf else 0.5)
             progress.scores.setdefault((k, lam), []).extend(base + noise[held] for held in folds)
@@ -257,7 +259,7 @@ def test_a_choice_at_the_edge_of_the_evidences_ks_walks_on_then_is_bisected(data
     monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(17), 16))
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
     many = [demos[i % 8] for i in range(60)]  # 40 training tasks a fold, p = 36 rewards
-    found = selection.search_sharing(learner, mdp, many, np.zeros((60, 9, 4)), search="evidence")
+    found = selection.search_sharing(learner, task_set(mdp, many), np.zeros((60, 9, 4)), search="evidence")
     assert (found.n_primitives, found.residual_penalty) == (5, np.inf)
     tried = [r["n_primitives"] for r in found.rows if r["residual_penalty"] == np.inf]
     # 40 training tasks a fold, 8 a primitive: 4, 5 and 6 confirmed last (their screen rows replaced)
@@ -290,7 +292,7 @@ def _scripted_scores(full_best):
     noise = np.random.default_rng(0).normal(scale=0.001, size=60)
     full = []
 
-    def score_candidates(learner, mdp, demos_per_task, flat_rewards, folds, candidates, progress, **kw):
+    def score_candidates(learner, tasks, flat_rewards, folds, candidates, progress, **kw):
         for k, lam in candidates:
             best = 5.4 if kw["candidate_max_iter"] == 0 else full_best
             if kw["candidate_max_iter"] is None:
@@ -311,7 +313,7 @@ def test_a_shared_k_with_many_tasks_per_primitive_is_confirmed_by_full_fits(data
     monkeypatch.setattr(search, "score_candidates", scores)
     monkeypatch.setattr(routes, "flat_start_evidence", lambda *args, **kw: (np.zeros(9), 8))
     learner = fo.FactIRL(rng=0, n_primitives="auto", residual_penalty="auto")
-    found = selection.search_sharing(learner, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+    found = selection.search_sharing(learner, task_set(mdp, [demos[i % 8] for i in range(n_tasks)]), np.zeros((n_tasks, 9, 4)),
                                     search="evidence", candidate_max_iter=0, rule="fewest-within-se")
     table = selection.cv_results(found)
     selection.check_cv_results(table)
@@ -329,6 +331,6 @@ def test_a_shared_k_with_many_tasks_per_primitive_is_confirmed_by_full_fits(data
     # a fixed k is not confirmed (nothing to choose), nor a flat choice
     fixed = fo.FactIRL(rng=0, n_primitives=5, residual_penalty="auto")
     full.clear()
-    selection.search_sharing(fixed, mdp, [demos[i % 8] for i in range(n_tasks)], np.zeros((n_tasks, 9, 4)),
+    selection.search_sharing(fixed, task_set(mdp, [demos[i % 8] for i in range(n_tasks)]), np.zeros((n_tasks, 9, 4)),
                             search="evidence", candidate_max_iter=0)
     assert full == []

@@ -107,19 +107,29 @@ def test_a_row_subset_keeps_the_tasks_of_its_rows(grids, demos):
         tasks.subset([])
 
 
-def test_other_demonstrations_and_the_statistics_of_a_task_set(grids, demos):
+def test_episodes_and_the_statistics_of_a_task_set_parsed_once(grids, demos, monkeypatch):
     g3, g4 = grids
     tasks = task_set(g3, demos)
-    other = tasks.with_demonstrations([demos[1], demos[0]])
-    assert other.basis is tasks.basis and other.mdp is g3 and other.demos_per_task[0] is demos[1]
-    mu, pi = other.statistics()
-    mu0, pi0 = fo.empirical_statistics(g3, [demos[1], demos[0]])
+    mu, pi = tasks.mu_hat, tasks.pi_hat
+    assert len(tasks.demonstrations) == 2
+    mu0, pi0 = fo.empirical_statistics(g3, demos)
     np.testing.assert_array_equal(mu, mu0)
     np.testing.assert_array_equal(pi, pi0)
+    np.testing.assert_array_equal(tasks.n_pairs, [8.0, 8.0])
+    import factirl_opt.tasks.trajectories as trajectories
+    monkeypatch.setattr(trajectories, "_parse_task", None)  # nothing below parses the demonstrations again
+    first, rest = tasks.episodes(0, 1), tasks.subset([1, 0]).episodes(1)
+    assert first.basis is tasks.basis and first.mdp is g3 and rest.demos_per_task[0] is not demos[1]
+    np.testing.assert_array_equal(rest.demos_per_task[0], demos[1][1:])
+    monkeypatch.undo()
+    for part, want in ((first, [d[:1] for d in demos]), (rest, [demos[1][1:], demos[0][1:]])):
+        for got, ref in zip((part.mu_hat, part.pi_hat), fo.empirical_statistics(g3, want)):
+            np.testing.assert_array_equal(got, ref)
     d4 = fo.sample_demonstrations(g4, np.zeros((1, 16, 4)), 2, 4, rng=4)
     envs = task_set([g3, g4], [demos[0], d4[0]], [np.ones((9, 2)), np.ones((16, 2))])
-    mus, pis = envs.statistics()
+    mus, pis = envs.mu_hat, envs.pi_hat
     assert [m.shape for m in mus] == [(9,), (16,)] and [p.shape for p in pis] == [(9, 4), (16, 4)]
     np.testing.assert_array_equal(mus[1], fo.empirical_statistics(g4, [d4[0]])[0][0])
-    with pytest.raises(ValidationError, match="one entry per task"):
-        tasks.with_demonstrations([demos[0]])
+    np.testing.assert_array_equal(envs.episodes(1).pi_hat[1], fo.empirical_statistics(g4, [d4[0][1:]])[1][0])
+    with pytest.raises(ValidationError, match="task 1, episode 0, step 0: state 9 is out of range"):
+        task_set([g3, g3], [demos[0], np.full((1, 2, 2), 9)], np.ones((9, 2)))  # parsed as it is made

@@ -32,6 +32,7 @@ from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
 from ...learners.factirl import FactIRL
 from ...learners.start import flat_solver
+from ...learners.fitting import learner_tasks
 from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
@@ -77,8 +78,9 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
     start = learner._group("start")
-    flat = flat_start_rewards(learner, mdp, demos, flat_solver(learner), start.flat_tol, start.flat_stol)
-    found = learner.sharing_search.search(learner, mdp, demos, flat)
+    tasks = learner_tasks(learner, mdp, demos)
+    flat = flat_start_rewards(learner, tasks, flat_solver(learner), start.flat_tol, start.flat_stol)
+    found = learner.sharing_search.search(learner, tasks, flat)
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)
     return model, found.rows

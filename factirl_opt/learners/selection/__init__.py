@@ -9,7 +9,7 @@ significant. The engine is :mod:`~.search`, the table :mod:`~.results`, the ``"e
 screen :mod:`~.evidence`, the search as FactIRL's parameter and its auto fit :mod:`~.sharing_search`.
 """
 
-from .folds import N_FOLDS, take_tasks, task_folds, task_mdp, task_subset
+from .folds import N_FOLDS, task_folds
 from .results import (CV_RESULTS_KEYS, ROW_KEYS, SearchResult, check_cv_results, cv_results, plot_validation,
                       rows_cv_results, score_rows, validation_rows)
 from .routes import (AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, max_primitives, sharing_candidates, ROUTE_RULES, ROUTE_UNREAD, ROUTES, SCREEN_TRANSFER_MAX_ITER, SHORT_MAX_ITER,

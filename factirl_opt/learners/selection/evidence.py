@@ -24,7 +24,7 @@ from scipy.special import gammaln
 
 from ..._validation import check_array, check_int
 from ...exceptions import ValidationError
-from ...tasks.task_set import task_set
+from ...tasks.task_set import TaskSet
 
 __all__ = ["CONFIRM_TASKS_PER_PRIMITIVE", "MIN_TASKS_PER_PRIMITIVE", "confirmation_primitives", "PLAUSIBLE_LOG_BAYES_FACTOR", "laplace_rank_evidence", "plausible_ranks", "pca_rank_evidence", "flat_start_points",
            "flat_start_evidence", "evidence_primitives", "evidence_penalties"]
@@ -161,10 +161,10 @@ def pca_rank_evidence(X: ArrayLike, *, center: bool = False,
     return evidence, int(np.argmax(evidence))
 
 
-def flat_start_points(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> NDArray[np.float64]:
+def flat_start_points(tasks: TaskSet, flat_rewards: Any) -> NDArray[np.float64]:
     """The matrix FactIRL's PCA start decomposes, in the basis' metric: (n_tasks, d).
 
-    The flat rewards' least-squares weights in the learner's basis
+    The flat rewards' least-squares weights in the task set's basis
     (:meth:`~factirl_opt.tasks.basis.RewardBasis.start_points_from_rewards`), as the basis'
     :meth:`~factirl_opt.tasks.basis.RewardBasis.start_dictionary` hands them to the PCA: the
     rewards themselves for tabular rewards, ``W G^(1/2)`` in the features' mean Gram metric G
@@ -172,10 +172,8 @@ def flat_start_points(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards:
 
     Parameters
     ----------
-    learner : FactIRL
-        Its ``features`` and ``reward``.
-    mdp, demos_per_task
-        As in ``FactIRL.fit`` (the demonstrations play no part but their number of tasks).
+    tasks : TaskSet
+        As ``FactIRL.fit`` builds them (its ``features`` and ``reward``; only the basis is read).
     flat_rewards : sequence of arrays, shape (S_i, A) each
         Every task's flat reward (:func:`~factirl_opt.learners.selection.search.flat_start_rewards`).
 
@@ -188,7 +186,6 @@ def flat_start_points(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards:
     ValidationError
         ``flat_rewards`` not one (S_i, A) array per task.
     """
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
     points = tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)
     seen: list[NDArray[np.float64]] = []
 
@@ -200,14 +197,14 @@ def flat_start_points(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards:
     return seen[0]
 
 
-def flat_start_evidence(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any,
+def flat_start_evidence(tasks: TaskSet, flat_rewards: Any,
                         max_rank: int | None = None) -> tuple[NDArray[np.float64], int]:
     """:func:`pca_rank_evidence` (uncentred) of :func:`flat_start_points`: the evidence of every
     number of primitives of the PCA start, and the best one (0: no direction shared by the tasks).
 
     Parameters
     ----------
-    learner, mdp, demos_per_task, flat_rewards
+    tasks, flat_rewards
         As in :func:`flat_start_points`.
     max_rank : int or None
         The largest k scored (default: as many as the tasks and the reward dimension allow).
@@ -217,7 +214,7 @@ def flat_start_evidence(learner: Any, mdp: Any, demos_per_task: Any, flat_reward
     log_evidence : ndarray, shape (K + 1,)
     rank : int
     """
-    return pca_rank_evidence(flat_start_points(learner, mdp, demos_per_task, flat_rewards), max_rank=max_rank)
+    return pca_rank_evidence(flat_start_points(tasks, flat_rewards), max_rank=max_rank)
 
 
 #: the ``"evidence"`` route keeps the flat model, unscored, when a plausible k of the evidence

@@ -1,4 +1,4 @@
-"""The folds of the sharing search: held-out tasks per fold, and a task subset of per-task inputs."""
+"""The folds of the sharing search: the held-out tasks of each fold (a fold's tasks are rows of the search's task set)."""
 
 from __future__ import annotations
 
@@ -7,35 +7,36 @@ from typing import Any
 
 import numpy as np
 
+from ..._deprecation import warn_once
 from ..._validation import as_rng
 from ...exceptions import ValidationError
 from ...mdp.tabular import TabularMDP
 from ...tasks.task_set import per_task_features
 
-__all__ = ["N_FOLDS", "task_folds", "take_tasks", "task_subset", "task_mdp"]
+__all__ = ["N_FOLDS", "task_folds"]
 
 #: folds over tasks
 N_FOLDS = 3
 
 
-def take_tasks(seq: Any, idx: Sequence[int] | np.ndarray) -> Any:
-    """Tasks ``idx`` of a per-task sequence (a list, or an array with tasks on the leading axis)."""
-    if isinstance(seq, np.ndarray):
-        return seq[np.asarray(idx)]
-    return [seq[i] for i in idx]
+def _take_tasks(seq: Any, idx: Sequence[int] | np.ndarray) -> Any:  # the retired helpers of per-task inputs
+    return seq[np.asarray(idx)] if isinstance(seq, np.ndarray) else [seq[i] for i in idx]
 
 
-def task_subset(mdp: Any, features: Any, idx: Sequence[int] | np.ndarray) -> tuple[Any, Any]:
-    """The MDP(s) and features of tasks ``idx``: a shared MDP or feature matrix as it is, per-task ones indexed."""
-    sub_mdp = mdp if isinstance(mdp, TabularMDP) else take_tasks(mdp, idx)
-    sub_features = take_tasks(features, idx) if per_task_features(features) else features
-    return sub_mdp, sub_features
+def _task_subset(mdp: Any, features: Any, idx: Sequence[int] | np.ndarray) -> tuple[Any, Any]:
+    return (mdp if isinstance(mdp, TabularMDP) else _take_tasks(mdp, idx),
+            _take_tasks(features, idx) if per_task_features(features) else features)
 
 
-def task_mdp(mdp: Any, i: int) -> Any:
-    """Task ``i``'s MDP: the shared one, or its own."""
+def _task_mdp(mdp: Any, i: int) -> Any:
     return mdp if isinstance(mdp, TabularMDP) else mdp[i]
 
+
+def __getattr__(name: str) -> Any:
+    if name not in ("take_tasks", "task_subset", "task_mdp"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    warn_once(f"name:selection.folds.{name}", f"{name} is deprecated: a fold's tasks are TaskSet.subset(rows)", stacklevel=None)
+    return globals()["_" + name]
 
 
 def task_folds(n_tasks: int, cv: Any = N_FOLDS, rng: Any = None) -> list[np.ndarray]:

@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from ..._deprecation import warn_once
 from ...exceptions import ValidationError
 
 __all__ = ["SearchResult", "score_rows", "cv_results", "validation_rows", "rows_cv_results", "check_cv_results",
-           "CV_RESULTS_KEYS", "ROW_KEYS", "plot_validation"]
+           "CV_RESULTS_KEYS", "ROW_KEYS", "plot_validation", "validation_attribute"]
 
 
 @dataclasses.dataclass
@@ -168,6 +169,20 @@ def check_cv_results(results: Any, name: str = "cv_results_") -> None:
             raise ValidationError(f"{name}[{key!r}] must have one entry per candidate ({m}); got {value!r:.60}")
     if m == 0 or int(np.sum(np.asarray(results["chosen"], dtype=bool))) != 1:
         raise ValidationError(f"{name}['chosen'] must mark exactly one candidate; {int(np.sum(results['chosen']))} are")
+
+
+def _validation(model: Any) -> list[dict]:
+    """Deprecated: the rows of ``cv_results_`` (:func:`~factirl_opt.learners.selection.results.validation_rows`)."""
+    if "cv_results_" not in vars(model):
+        raise AttributeError("'FactIRL' object has no attribute 'validation_' (fit with n_primitives='auto' or "
+                             "residual_penalty='auto'; the table is cv_results_ now)")
+    warn_once("attr:FactIRL.validation_", "FactIRL.validation_ is deprecated: read cv_results_ (a dict of arrays, "
+                                          "one entry per candidate; pandas.DataFrame(model.cv_results_))", stacklevel=2)
+    return validation_rows(model.cv_results_)
+
+
+validation_attribute = property(_validation, lambda model, rows: setattr(model, "cv_results_", rows_cv_results(rows)),
+                                doc=_validation.__doc__)
 
 
 def rows_cv_results(rows: Any, name: str = "validation_") -> dict[str, Any]:

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ...exceptions import ValidationError
-from ...tasks.task_set import task_set
+from ...tasks.task_set import TaskSet
 from ..fitting import resolve_step_solver
 from ..solver_settings import estimator_solvers
 from .evidence import (confirmation_primitives, evidence_penalties, evidence_primitives, flat_start_evidence,
@@ -68,17 +68,11 @@ def sharing_candidates(learner: Any, k_max: int, k_grid: Sequence[int] = K_CANDI
     return _candidates(learner.n_primitives, learner.residual_penalty, k_max, constrained, k_grid, lam_grid)
 
 
-def max_primitives(learner: Any, mdp: Any, n_tasks: int, folds: Sequence[np.ndarray]) -> int:
-    """The largest k a candidate may have: the reward directions the basis spans (its rank, at most
-    the reward dimension p), and the training tasks of the smallest fold's fit."""
-    return min(_basis_rank(learner, mdp, n_tasks), min(n_tasks - len(f) for f in folds))
-
-
-def _basis_rank(learner: Any, mdp: Any, n_tasks: int) -> int:
-    """The reward directions ``learner``'s features span on ``n_tasks`` tasks of ``mdp``
-    (:meth:`~factirl_opt.tasks.basis.RewardBasis.rank`, at most the reward dimension p; the
-    demonstrations play no part)."""
-    return task_set(mdp, [None] * n_tasks, learner.features, learner.reward).basis.rank(n_tasks)
+def max_primitives(tasks: TaskSet, folds: Sequence[np.ndarray]) -> int:
+    """The largest k a candidate may have: the reward directions the task set's basis spans
+    (:meth:`~factirl_opt.tasks.basis.RewardBasis.rank`, at most the reward dimension p), and the
+    training tasks of the smallest fold's fit."""
+    return min(tasks.basis.rank(tasks.n_tasks), min(tasks.n_tasks - len(f) for f in folds))
 
 
 #: outer iterations of each candidate fit on the ``"short"`` route
@@ -126,7 +120,7 @@ class Route:
     rule: ClassVar[str] = DEFAULT_RULE
     unread: ClassVar[dict[str, str]] = {}
 
-    def candidates(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
+    def candidates(self, learner: Any, tasks: TaskSet, flat_rewards: Any, k_max: int,
                    k_grid: Sequence[int], lam_grid: Sequence[float], n_train: int) -> list[tuple[int, float]]:
         """The first candidates (:func:`sharing_candidates` of the grids)."""
         return sharing_candidates(learner, k_max, k_grid, lam_grid)
@@ -199,7 +193,7 @@ class EvidenceRoute(Route):
     unread = {"n_primitives_grid": "it reads its candidate k off the evidence of the flat rewards' PCA",
               "race_margin": _EVERY_FOLD}
 
-    def candidates(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, k_max: int,
+    def candidates(self, learner: Any, tasks: TaskSet, flat_rewards: Any, k_max: int,
                    k_grid: Sequence[int], lam_grid: Sequence[float], n_train: int) -> list[tuple[int, float]]:
         """k from the evidence of the flat start's PCA (:func:`~.evidence.flat_start_evidence`,
         :func:`~.evidence.evidence_primitives`) at the penalties of :func:`~.evidence.evidence_penalties`,
@@ -209,7 +203,7 @@ class EvidenceRoute(Route):
         if flat_rewards is None:
             raise ValidationError("search='evidence' chooses k from the flat start's rewards: give flat_rewards "
                                   "(FactIRL.fit computes them with init='pca')")
-        log_evidence, rank = flat_start_evidence(learner, mdp, demos_per_task, flat_rewards)
+        log_evidence, rank = flat_start_evidence(tasks, flat_rewards)
         ks = evidence_primitives(rank, k_max, n_train, largest_plausible=int(plausible_ranks(log_evidence)[-1]))
         lams = evidence_penalties(lam_grid)
         shared = [c for c in sharing_candidates(learner, k_max, ks, lams) if c[1] != 0.0] if ks else []

@@ -22,7 +22,8 @@ from scipy.special import log_softmax
 from ..._validation import check_rewards
 from ...exceptions import ValidationError
 from ...planning import get_planner, optimal_q
-from ...tasks.task_set import TaskSet, task_set
+from ...tasks.demonstrations import empirical_statistics
+from ...tasks.task_set import TaskSet
 from ...tasks.trajectories import parse_demonstrations
 from ..em import log_policies
 from ..fitting import task_objective
@@ -83,8 +84,13 @@ def held_out_nll(mdp: Any, demos: Any, rewards: ArrayLike, model: Any, temper: b
         ``rewards`` not finite, or not one task's reward of the MDP's shape.
     """
     R = _one_reward(mdp, rewards)
-    mu, pi_hat = task_set(mdp, [demos]).statistics()
-    weights = mu[0][:, None] * pi_hat[0]
+    mu, pi_hat = empirical_statistics(mdp, [demos])
+    return _statistics_nll(mdp, mu[0], pi_hat[0], R, model, temper)
+
+
+def _statistics_nll(mdp: Any, mu: Any, pi_hat: Any, R: np.ndarray, model: Any, temper: bool) -> float:
+    """:func:`held_out_nll` of a task's statistics ``mu`` (S,), ``pi_hat`` (S, A) and its reward ``R`` (S, A)."""
+    weights = mu[:, None] * pi_hat
     log_pi = log_policies(get_planner(mdp, model._group("execution").planner), R[None], model.beta, model.objective)[0]
     if not temper:
         return float(-np.sum(weights * log_pi))
@@ -133,7 +139,11 @@ def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: st
         ``rewards`` not finite, or not one task's reward of the MDP's shape.
     """
     R = _one_reward(mdp, rewards)
-    episodes = parse_demonstrations([demos], mdp.n_states, mdp.n_actions)[0].episodes()
+    return _occupancy_gap(mdp, parse_demonstrations([demos], mdp.n_states, mdp.n_actions)[0].episodes(), R, planner)
+
+
+def _occupancy_gap(mdp: Any, episodes: list, R: np.ndarray, planner: str) -> float:
+    """:func:`held_out_occupancy_gap` of parsed episodes (each (L_j, 2)) and a validated reward ``R`` (S, A)."""
     S, A, gamma = mdp.n_states, mdp.n_actions, mdp.gamma
     _, greedy = optimal_q(mdp, R[None], planner=planner)
     pi = np.zeros((S, A))
@@ -153,32 +163,25 @@ def held_out_occupancy_gap(mdp: Any, demos: Any, rewards: ArrayLike, planner: st
     return float(np.abs(learnt - expert).sum())
 
 
-def _fit_inputs(tasks: TaskSet, features: Any) -> tuple[Any, Any]:
-    """The ``(mdp, features)`` a FactIRL ``fit`` or ``transfer`` takes for a task set's tasks: on one
-    environment its MDP and ``features`` (a learner's own parameter for a fit, None for a
-    transfer: the model's own); else the tasks' MDPs and their rows of the basis."""
-    return (tasks.mdp, features) if tasks.shared else (tasks.mdps, tasks.basis)
-
-
 def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
            score: str = DEFAULT_SCORE, transfer_max_iter: int | None = None) -> np.ndarray:
     """Held-out score of tasks ``idx`` of ``tasks``: transfer from their first t demonstrations, then, on the
     others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not), the
     learner's objective (``"objective"``) or :func:`held_out_occupancy_gap` (``"occupancy"``);
     one value per task."""
-    demos = tasks.demos_per_task
     held = tasks.subset(idx)
-    sub_mdp, sub_features = _fit_inputs(held, None)
-    model.transfer(sub_mdp, [demos[i][:t] for i in idx], features=sub_features, max_iter=transfer_max_iter)
+    model._transfer_tasks(held.episodes(0, t), max_iter=transfer_max_iter)
     rewards = model.transfer_rewards_
+    rest = held.episodes(t)
     out = np.empty(len(idx))
-    for j, i in enumerate(idx):
-        one, rest = held.mdp if held.mdps is None else held.mdps[j], demos[i][t:]
+    for j in range(len(idx)):
+        one = held.mdp if held.mdps is None else held.mdps[j]
+        R = _one_reward(one, rewards[j])
         if score == "occupancy":
-            out[j] = held_out_occupancy_gap(one, rest, rewards[j], model._group("execution").planner)
+            out[j] = _occupancy_gap(one, rest.demonstrations[j].episodes(), R, model._group("execution").planner)
         elif score == "objective":
-            obj = task_objective(held.subset([j]).with_demonstrations([rest]), model.beta, model.objective, model._group("execution").planner)
+            obj = task_objective(rest.subset([j]), model.beta, model.objective, model._group("execution").planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]
         else:
-            out[j] = held_out_nll(one, rest, rewards[j], model, temper=score == "likelihood")
+            out[j] = _statistics_nll(one, rest.mu_hat[j], rest.pi_hat[j], R, model, temper=score == "likelihood")
     return out

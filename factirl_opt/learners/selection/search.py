@@ -23,15 +23,16 @@ import numpy as np
 from ..._deprecation import warn_once
 from ..._validation import check_int
 from ...exceptions import ConvergenceWarning, FitInterrupted, ValidationError
-from ...tasks.task_set import task_set
+from ...tasks.task_set import TaskSet
 from ..estimator import clone
+from ..fitting import learner_entry, learner_tasks
 from ..gradirl import GradIRL
 from ..solver_settings import SolverSettings
-from .folds import N_FOLDS, take_tasks, task_folds
+from .folds import N_FOLDS, task_folds
 from .results import SearchResult, _with_reasons, score_rows
 from .routes import AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, ROUTES, max_primitives
 from .rules import RULES, SHARE_LEVEL, _choice
-from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES, _fit_inputs, _score
+from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES, _score
 
 __all__ = ["RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "search_sharing", "SearchProgress", "score_candidates",
            "bisection_midpoints", "fixed_learner", "flat_start_rewards"]
@@ -54,10 +55,6 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _count(demos: Any) -> int:
-    return len(demos)
-
-
 def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None,
                    search: str = "race", score: str = DEFAULT_SCORE, **options: Any) -> tuple[int, float, list[dict]]:
     """Deprecated: ``search_sharing(...).as_tuple()``, the search's ``(k, lambda, rows)``
@@ -66,10 +63,12 @@ def choose_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     warn_once("adaptive.choose_sharing", "factirl_opt.learners.adaptive.choose_sharing is deprecated: "
                                          "search_sharing(...).as_tuple() gives its (k, lambda, rows); "
                                          "SharingSearch(route=..., score=...).search(...) is the search as a component")
-    return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=search, score=score, **options).as_tuple()
+    tasks = learner_tasks(learner, mdp, demos_per_task)
+    return search_sharing(learner, tasks, flat_rewards, search=search, score=score, **options).as_tuple()
 
 
-def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None, *,
+@learner_entry  # its candidates' fits and transfers plan with the caches of one fit (in FactIRL.fit: its own)
+def search_sharing(learner: Any, tasks: TaskSet, flat_rewards: Any = None, *,
                    search: str = DEFAULT_ROUTE, score: str = DEFAULT_SCORE, cv: Any = N_FOLDS,
                    k_grid: Sequence[int] = K_CANDIDATES, lam_grid: Sequence[float] = LAMBDA_CANDIDATES,
                    n_transfer_demos: int = N_TRANSFER_DEMOS, race_margin: float = RACE_MARGIN,
@@ -103,8 +102,8 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
     ----------
     learner : FactIRL
         Its other hyper-parameters are used by every candidate fit.
-    mdp, demos_per_task
-        As in ``FactIRL.fit``.
+    tasks : TaskSet
+        Every task, as ``FactIRL.fit`` built them; folds and held-out tasks are rows of it (``tasks.subset``).
     flat_rewards : optional
         The flat learner's rewards of every task (:func:`flat_start_rewards`), the PCA start of
         every candidate (``init="pca"``); None: each candidate fit runs its own flat fit.
@@ -149,28 +148,28 @@ def search_sharing(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: An
         check_int(candidate_max_iter, "candidate_max_iter", minimum=0)
     if transfer_max_iter is not None:
         check_int(transfer_max_iter, "transfer_max_iter", minimum=0)
-    n = _count(demos_per_task)
+    n = tasks.n_tasks
     if n < 2:
         raise ValidationError(f"choosing n_primitives or residual_penalty by validation needs at least 2 tasks; got {n}")
-    short = [i for i in range(n) if _count(demos_per_task[i]) <= t]
+    short = [i for i in range(n) if len(tasks.demos_per_task[i]) <= t]
     if short:
         raise ValidationError(f"choosing n_primitives or residual_penalty by validation transfers each held-out task from {t} "
                               f"demonstration(s) and scores it on the others: task {short[0]} has "
-                              f"{_count(demos_per_task[short[0]])}; give every task at least {t + 1}")
+                              f"{len(tasks.demos_per_task[short[0]])}; give every task at least {t + 1}")
     folds = task_folds(n, cv, learner.rng)
-    k_max = max_primitives(learner, mdp, n, folds)
+    k_max = max_primitives(tasks, folds)
     n_train = n - max(len(f) for f in folds)  # the fewest training tasks of a fold
     progress = SearchProgress()
     progress.folds, progress.n_tasks = folds, n
     scores = progress.scores
-    run = functools.partial(score_candidates, learner, mdp, demos_per_task, flat_rewards, n_transfer_demos=t,
+    run = functools.partial(score_candidates, learner, tasks, flat_rewards, n_transfer_demos=t,
                             score=score, candidate_max_iter=candidate_max_iter,
                             transfer_max_iter=transfer_max_iter, progress=progress)
     choice = functools.partial(_choice, share_level=share_level, rule=rule)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # budgets of the candidates: the final fit warns
-            candidates = route.candidates(learner, mdp, demos_per_task, flat_rewards, k_max, k_grid, lam_grid, n_train)
+            candidates = route.candidates(learner, tasks, flat_rewards, k_max, k_grid, lam_grid, n_train)
             first = folds[:1] if route.races and len(folds) > 1 else folds
             warm, reuse = route.warm, route.reuse
             if not route.score_alone and len(candidates) == 1:  # nothing to compare it with: chosen unscored
@@ -301,7 +300,8 @@ def bisection_midpoints(k: int, tried: Sequence[int], k_max: int) -> list[int]:
     return sorted(m for m in mids if m not in tried and 1 <= m <= k_max and m != k)
 
 
-def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any, folds: Sequence[np.ndarray],
+@learner_entry
+def score_candidates(learner: Any, tasks: TaskSet, flat_rewards: Any, folds: Sequence[np.ndarray],
                      candidates: Sequence[tuple[int, float]], *, n_transfer_demos: int = N_TRANSFER_DEMOS,
                      score: str = DEFAULT_SCORE, warm: bool = False, reuse: bool = False,
                      candidate_max_iter: int | None = None, transfer_max_iter: int | None = None,
@@ -314,7 +314,7 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     ----------
     learner : FactIRL
         Its other hyper-parameters are used by every candidate fit.
-    mdp, demos_per_task, flat_rewards
+    tasks, flat_rewards
         As in :func:`search_sharing` (every task's).
     folds : sequence of arrays of int
         The held-out tasks of each fold (:func:`task_folds`).
@@ -344,7 +344,6 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
         fold's training tasks raises a ValidationError (e.g. more primitives than that fold's
         features span) is scored no further; ``progress.unscored`` holds its reason.
     """
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
     n = tasks.n_tasks
     t = n_transfer_demos
     progress = SearchProgress() if progress is None else progress
@@ -352,7 +351,6 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
     scores: dict = {}
     for held in folds:
         train = np.setdiff1d(np.arange(n), held)
-        sub_mdp, sub_features = _fit_inputs(tasks.subset(train), learner.features)
         fitted: dict = {}
         for k, lam in [c for c in candidates if c not in progress.unscored]:
             before = [c for c in fitted if c[0] == k]
@@ -364,14 +362,12 @@ def score_candidates(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: 
                 start = start if warm else None
                 pca = {"start": dataclasses.replace(learner._group("start"), init="pca")} if budget == 0 else {}
                 model = fixed_learner(learner, k, lam, max_iter=budget, **pca)
-                model.features = sub_features
                 if start is not None:
                     model.start = model._group("start").set_params(init=(start.dictionary_, start.coefficients_))
                     model.max_iter = max(1, int(round(WARM_BUDGET * budget)))
                 progress.last = ((k, lam), model, train)
                 try:
-                    model.fit(sub_mdp, take_tasks(demos_per_task, train),
-                              flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, train))
+                    model._fit_tasks(tasks.subset(train), None if flat_rewards is None else [flat_rewards[i] for i in train])
                 except ValidationError as exc:  # inputs were checked before the search: this candidate cannot be fitted here
                     fold = len(progress.scores.get((k, lam), []))  # folds are scored in order, across calls (a race's)
                     progress.unscored[k, lam] = f"cannot be fitted on the training tasks of fold {fold}: {exc}"
@@ -395,15 +391,15 @@ def fixed_learner(learner: Any, k: int, lam: float, **params: Any) -> Any:
     return clone(learner).set_params(**{"n_primitives": k, "residual_penalty": lam, "execution": quiet, **params})
 
 
-def flat_start_rewards(learner: Any, mdp: Any, demos_per_task: Any, solver: Any, tol: float,
-                       stol: float = 0.0) -> Any:
+@learner_entry
+def flat_start_rewards(learner: Any, tasks: TaskSet, solver: Any, tol: float, stol: float = 0.0) -> Any:
     """The flat learner of FactIRL's PCA start (its ``solver``, a name or ``(name, options)``, ``tol``
     and saturation rule ``stol``, without the gradient rule, as FactIRL's own flat start) on every
-    task at once (separable: each task's rewards are those of its own fit)."""
+    task of ``tasks`` at once (separable: each task's rewards are those of its own fit)."""
     solver = solver if isinstance(solver, tuple) else (solver, None)
     flat = GradIRL(beta=learner.beta, features=learner.features, max_iter=learner._group("start").flat_max_iter, tol=tol,
                    gtol=0.0, stol=stol, solver=SolverSettings(solver[0], solver[1]), objective=learner.objective,
                    reward=learner.reward, execution=learner._group("execution").quiet())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # the PCA start's flat fit does not warn either
-        return flat.fit(mdp, demos_per_task).rewards_
+        return flat._fit_tasks(tasks).rewards_

@@ -28,8 +28,9 @@ from ..._validation import check_int, check_tol
 from ...exceptions import FitInterrupted, ValidationError
 from ...interruption import INTERRUPTED, raise_interrupted, warn_interrupted
 from ...objectives.residuals import check_residual_penalty
-from ...tasks.task_set import task_set
+from ...tasks.task_set import TaskSet
 from ..estimator import Estimator
+from ..fitting import learner_tasks
 from ..start import flat_solver
 from .folds import N_FOLDS
 from .results import SearchResult, cv_results
@@ -135,14 +136,14 @@ class SharingSearch(Estimator):
         so that ``FactIRL.fit`` computes the flat rewards whatever its ``init``."""
         return get_route(self.route).candidate_max_iter == 0
 
-    def search(self, learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> SearchResult:
+    def search(self, learner: Any, tasks: TaskSet, flat_rewards: Any = None) -> SearchResult:
         """Choose ``(k, lambda)`` for ``learner`` (a FactIRL with ``"auto"`` values).
 
         Parameters
         ----------
         learner : FactIRL
-        mdp, demos_per_task
-            As in ``FactIRL.fit``.
+        tasks : TaskSet
+            Every task, as ``FactIRL.fit`` builds them (:func:`~factirl_opt.learners.fitting.learner_tasks`).
         flat_rewards : optional
             Every task's flat rewards, the PCA start of every candidate
             (:func:`~factirl_opt.learners.selection.flat_start_rewards`).
@@ -153,7 +154,7 @@ class SharingSearch(Estimator):
             Its :func:`cv_results` is the table ``FactIRL.cv_results_``.
         """
         self.check()
-        return search_sharing(learner, mdp, demos_per_task, flat_rewards, search=self.route, score=self.score, cv=self.cv,
+        return search_sharing(learner, tasks, flat_rewards, search=self.route, score=self.score, cv=self.cv,
                               k_grid=tuple(self.n_primitives_grid), lam_grid=tuple(self.residual_penalty_grid),
                               n_transfer_demos=self.n_transfer_demos, race_margin=self.race_margin,
                               share_level=self.share_level, rule=route_rule(self.route, self.rule))
@@ -162,11 +163,6 @@ class SharingSearch(Estimator):
 def is_auto(value: Any) -> bool:
     """Whether a hyper-parameter asks for validation (:mod:`factirl_opt.learners.selection`)."""
     return isinstance(value, str) and value == AUTO
-
-
-def check_flat_rewards(tasks: Any, flat_rewards: Any) -> None:
-    """The shape check of ``fit``'s PCA start, made before a search splits ``flat_rewards`` over folds."""
-    tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)
 
 
 def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> Any:
@@ -180,9 +176,9 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
     if isinstance(start.init, tuple):
         raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                               "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
-    tasks = task_set(mdp, demos_per_task, learner.features, learner.reward)
+    tasks = learner_tasks(learner, mdp, demos_per_task)
     if flat_rewards is not None:
-        check_flat_rewards(tasks, flat_rewards)
+        tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)  # fit's check, before the folds split them
     for name in [a for a in vars(learner) if a.endswith("_") and not a.startswith("_")]:
         delattr(learner, name)  # a failed validation leaves no fitted state of an earlier fit
     search = SharingSearch() if learner.sharing_search is None else learner.sharing_search
@@ -190,7 +186,7 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
         raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
     if flat_rewards is None and (start.init == "pca" or search.needs_flat_start):
         try:
-            flat_rewards = flat_start_rewards(learner, mdp, demos_per_task, flat_solver(learner),
+            flat_rewards = flat_start_rewards(learner, tasks, flat_solver(learner),
                                               check_tol(start.flat_tol, "flat_tol"),
                                               check_tol(start.flat_stol, "flat_stol"))
         except FitInterrupted as exc:
@@ -198,15 +194,15 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
                              "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
             raise_interrupted(exc, "FactIRL.fit")
     try:
-        found = search.search(learner, mdp, demos_per_task, flat_rewards)
+        found = search.search(learner, tasks, flat_rewards)
     except FitInterrupted as exc:
-        keep_search(learner, exc.result, len(tasks.demos_per_task), exc.__cause__)
+        keep_search(learner, exc.result, tasks.n_tasks, exc.__cause__)
         raise_interrupted(exc, "FactIRL.fit")
     table = cv_results(found)
     execution = learner._group("execution")
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty, execution=execution)
     try:
-        model.fit(mdp, demos_per_task, flat_rewards=flat_rewards)
+        model._fit_tasks(tasks, flat_rewards)
     except KeyboardInterrupt:  # the final fit warned and kept its best point: so does this model, with the table
         if adopt(learner, model):
             learner.cv_results_ = table

@@ -13,7 +13,7 @@ out = {}
 for b in map(int, sys.argv[5:]):
     learner = P.learner
     t0 = time.process_time()
-    found = adaptive.search_sharing(learner, P.mdp, P.demos, P.flat.rewards_, search="evidence", candidate_max_iter=b,
+    found = adaptive.search_sharing(learner, P.tasks, P.flat.rewards_, search="evidence", candidate_max_iter=b,
                                     transfer_max_iter=20, rule="fewest-within-se")
     ts = time.process_time() - t0
     rows = [(r["n_primitives"], r["residual_penalty"], round(r["score"], 4)) for r in found.rows]

@@ -15,14 +15,14 @@ P = setup(sys.argv[1:5])
 budget = int(sys.argv[5])
 
 t0 = time.process_time()
-found = SharingSearch().search(P.learner, P.mdp, P.demos, P.flat.rewards_)
+found = SharingSearch().search(P.learner, P.tasks, P.flat.rewards_)
 t_search = time.process_time() - t0
 k, lam = found.n_primitives, found.residual_penalty
 out = {"screen": {"chosen": [k, lam], "cpu_s": t_search}}
 if lam != 0.0:
     trio = [(m, lam) for m in (k - 1, k, k + 1) if m >= 1]
     t0 = time.process_time()
-    scores = adaptive.score_candidates(P.learner, P.mdp, P.demos, P.flat.rewards_, found.folds, trio,
+    scores = adaptive.score_candidates(P.learner, P.tasks, P.flat.rewards_, found.folds, trio,
                                        candidate_max_iter=budget, transfer_max_iter=20)
     rows = adaptive.score_rows(scores)
     best = adaptive.choose_row(rows, "fewest-within-se")

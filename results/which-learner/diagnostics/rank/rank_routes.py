@@ -83,7 +83,7 @@ rng0 = copy.deepcopy(P.learner.rng)  # the state the search of a route run first
 S = clone(P.learner)
 S.set_params(rng=copy.deepcopy(rng0))
 folds = adaptive.task_folds(P.n, adaptive.N_FOLDS, S.rng)  # as search_sharing draws them
-k_max = adaptive.max_primitives(S, P.mdp, P.n, folds)
+k_max = adaptive.max_primitives(P.tasks, folds)
 scored_here = []
 
 
@@ -91,7 +91,7 @@ def score_exactly(cands):
     """Rows of the full route's scores for ``cands`` (pairs), scored on ``folds`` as the full route does."""
     todo = [c for c in cands if key(*c) not in exact]
     if todo:
-        scores = adaptive.score_candidates(S, P.mdp, P.demos, P.flat.rewards_, folds, todo)
+        scores = adaptive.score_candidates(S, P.tasks, P.flat.rewards_, folds, todo)
         for row in adaptive.score_rows(scores):
             exact[key(row["n_primitives"], row["residual_penalty"])] = row
             scored_here.append(key(row["n_primitives"], row["residual_penalty"]))
@@ -102,7 +102,7 @@ def score_exactly(cands):
 # check: the cheapest grid candidate of the full table scored again
 grid = adaptive.sharing_candidates(S, k_max)
 probe = grid[0]
-again = adaptive.score_rows(adaptive.score_candidates(S, P.mdp, P.demos, P.flat.rewards_, folds, [probe]))[0]
+again = adaptive.score_rows(adaptive.score_candidates(S, P.tasks, P.flat.rewards_, folds, [probe]))[0]
 check = {"candidate": list(probe), "max_abs_diff": float(np.max(np.abs(np.subtract(again["task_scores"],
                                                                                  exact[key(*probe)]["task_scores"]))))}
 print("check", check, flush=True)

@@ -31,7 +31,7 @@ for name, ridge, mode in (("before", "stack", "forward"), ("after", "eliminate",
                                    solver_options={**(P.learner.solver_options or {}), "ridge": ridge})
     with jacobian_mode(mode):
         t0 = time.process_time()
-        found = learner.sharing_search.search(learner, P.mdp, P.demos, P.flat.rewards_)
+        found = learner.sharing_search.search(learner, P.tasks, P.flat.rewards_)
         cpu = time.process_time() - t0
     out["runs"][name] = {"cpu_s": cpu, "chosen": [found.n_primitives, found.residual_penalty],
                          "scores": {f"{r['n_primitives']},{r['residual_penalty']}": r["score"] for r in found.rows}}
