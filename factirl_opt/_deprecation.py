@@ -168,7 +168,7 @@ class _AliasLoader(importlib.abc.Loader):
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
         if _requested_module(spec.name) == spec.name:  # a former package imported for its former child: the child warns
-            left = {}
+            left: dict[str, list[str]] = {}
             for name, home in self.former_names.items():
                 left.setdefault(home, []).append(name)
             elsewhere = "".join(f" ({', '.join(names)}: now in {home})" for home, names in left.items())

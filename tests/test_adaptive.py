@@ -13,6 +13,7 @@ from factirl_opt.learners import selection
 from factirl_opt.learners.selection import routes, rules, scores, search
 from factirl_opt.learners.em import log_policies
 from factirl_opt.learners.fitting import learner_tasks
+from factirl_opt.learners.start import FLAT_SOLVER
 from factirl_opt.planning import get_planner
 from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
 
@@ -181,7 +182,9 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
     the full search's winner stays in the race."""
     mdp, F, demos = data
     learner = fo.FactIRL(rng=0, max_iter=4, features=F, n_primitives="auto", residual_penalty="auto")
-    flat = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), "armijo", 1e-5)
+    start = fo.Start()  # the default flat start of the fixture's fit
+    flat = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), FLAT_SOLVER, start.flat_tol,
+                                        start.flat_stol)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         k, lam, full = selection.choose_sharing(learner, mdp, demos, flat, search="full")
@@ -212,9 +215,20 @@ def test_the_race_scores_its_contenders_as_the_full_search_does(data, auto):
 
 
 def test_the_final_fit_is_the_fixed_fit_of_the_chosen_pair(data, auto):
+    """From the search's flat start, the final fit is the fixed fit of the chosen pair; from its own
+    flat start, to the rounding by which the saturation rule may stop a flat fit one step apart
+    (the search plans its flat start on the fit's warm planning caches)."""
     mdp, F, demos = data
-    fixed = _fit(mdp, demos, features=F, n_primitives=auto.n_primitives_, residual_penalty=auto.residual_penalty_)
+    kw = dict(features=F, n_primitives=auto.n_primitives_, residual_penalty=auto.residual_penalty_)
+    start, learner = fo.Start(), fo.FactIRL(rng=0, max_iter=4, **kw)
+    flat = selection.flat_start_rewards(learner, learner_tasks(learner, mdp, demos), FLAT_SOLVER, start.flat_tol,
+                                        start.flat_stol)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        fixed = fo.FactIRL(rng=0, max_iter=4, sharing_search=RACE, **kw).fit(mdp, demos, flat_rewards=flat)
     np.testing.assert_allclose(auto.rewards_, fixed.rewards_, rtol=0, atol=1e-10)
+    own_start = _fit(mdp, demos, **kw)
+    np.testing.assert_allclose(auto.rewards_, own_start.rewards_, rtol=1e-6, atol=1e-8)
 
 
 def test_transfer_after_auto(data, auto):

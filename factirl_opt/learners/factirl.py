@@ -105,8 +105,8 @@ class FactIRL(Estimator):
         Where the fit starts (:class:`~factirl_opt.Start`: ``init``, ``pca_shrink``,
         ``flat_max_iter``, ``flat_tol``, ``flat_stol``); None: ``Start()``, the PCA of the
         flat learner's rewards, as the paper recommends, shrunk while the loss decreases; the
-        flat fit takes L-BFGS steps (the solver settings' ``flat_solver``) and stops by the
-        saturation rule ``flat_stol=1e-5``.
+        flat fit is GradIRL's default (Armijo steps, the solver settings' ``flat_solver``, and
+        the saturation rule ``flat_stol=1e-5``).
         ``flat_max_iter`` is also the budget of the flat model's ``transfer``
         (``residual_penalty=0``).
     max_iter : int, default=100
@@ -132,9 +132,8 @@ class FactIRL(Estimator):
         The step solvers (:class:`~factirl_opt.SolverSettings`: H-step, D-step, the flat
         learner's and the transfer's, with their options), or a solver name, the H-step solver
         (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``) with the others at
-        their defaults: the D-step and the flat learner ``"lbfgs"`` (the D-step ``"armijo"``
-        with a ``dictionary_constraint``; :data:`PAPER_SETTINGS` names the paper's Armijo
-        steps everywhere), the transfer the H-step's. A constrained H-step solver keeps its constraint in the
+        their defaults: the D-step ``"lbfgs"`` (``"armijo"`` with a ``dictionary_constraint``),
+        the flat learner ``"armijo"``, the transfer the H-step's. A constrained H-step solver keeps its constraint in the
         initialisation and in transfer: for a nonnegative one the primitives of a "pca"
         initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one uses
         ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H objective and

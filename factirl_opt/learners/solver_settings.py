@@ -81,7 +81,7 @@ class SolverSettings(ParameterGroup):
         Its options; only with a named ``d_solver``.
     flat_solver : str, solvers.StepSolver or None
         FactIRL's flat learner (the ``"pca"`` start's flat fit and the flat model's transfer,
-        ``residual_penalty=0``); None or ``""``: ``"lbfgs"``
+        ``residual_penalty=0``); None or ``""``: ``"armijo"``
         (:data:`~factirl_opt.learners.start.FLAT_SOLVER`).
     flat_solver_options : dict, str or None
         Its options; only with a named ``flat_solver``.

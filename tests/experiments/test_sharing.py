@@ -53,8 +53,9 @@ def test_adaptive_options_ask_for_validation_and_keep_the_rest():
     assert auto["n_primitives"] == "auto" and auto["residual_penalty"] == "auto"
     assert {k: v for k, v in auto.items() if k not in ("n_primitives", "residual_penalty", "solver")} == \
         {k: v for k, v in fixed.items() if k not in ("n_primitives", "solver")}
-    # its flat model transfers as the line-up's flat learner does
-    assert auto["solver"] == SolverSettings(flat_solver=preset.flat_solver) and fixed["solver"] == "armijo"
+    # its flat model transfers as the line-up's flat learner does; both pin the paper's D-step and flat start
+    assert auto["solver"] == SolverSettings(d_solver="armijo", flat_solver=preset.flat_solver)
+    assert fixed["solver"] == SolverSettings(d_solver="armijo", flat_solver="armijo")
     ow = PRESETS["sharing-objectworld-quick"]
     assert factorial_options(ow, SolverSettings(), adaptive=True, features=True)["solver"].flat_solver == ow.flat_features_solver
 

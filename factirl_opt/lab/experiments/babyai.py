@@ -42,6 +42,7 @@ import numpy as np
 from ...datasets.babyai import BabyAITasks
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
+from ..._deprecation import moved_names
 from .learner_names import ADAPTIVE_FEATURES, FACTORIAL_FEATURES, FACTORIAL_MCE_FEATURES, FLAT, FLAT_FEATURES, FLAT_MCE_FEATURES
 from .learner_solvers import factorial_options, flat_solver
 from .lineup import Fit, Learner, Lineup
@@ -140,3 +141,5 @@ SHARING_LINEUP = Lineup(
     ),
     worlds=("babyai", "babyai-large"),
 )
+
+moved_names(__name__, {"babyai_claims": "factirl_opt.lab.experiments.claims"})
