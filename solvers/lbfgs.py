@@ -81,6 +81,19 @@ class LBFGSState:
     n_resets: int = 0
 
 
+
+def _row_norms(a):
+    """Euclidean norms of the rows of ``a`` (n, p); rows whose squares overflow (entries beyond ~1e154,
+    e.g. the gradient of features far from order 1) are scaled by their largest entry first, so
+    that their norm is finite and no overflow is warned."""
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(a, axis=1)
+    big = np.isinf(norms) & np.all(np.isfinite(a), axis=1)
+    if big.any():
+        scale = np.max(np.abs(a[big]), axis=1)
+        norms[big] = scale * np.linalg.norm(a[big] / scale[:, None], axis=1)
+    return norms
+
 def lbfgs_direction(grad: NDArray[np.float64], s: NDArray[np.float64], y: NDArray[np.float64], rho: NDArray[np.float64], count: NDArray[np.intp]) -> NDArray[np.float64]:
     """The L-BFGS direction ``-H g`` of every row (two-loop recursion, batched).
 
@@ -196,7 +209,7 @@ class LBFGSSolver(StepSolver):
             state.count[reset] = 0
             state.n_resets += int(reset.sum())
         first = state.count == 0
-        gnorm = np.linalg.norm(state.grad, axis=1)
+        gnorm = _row_norms(state.grad)
         with np.errstate(divide="ignore"):
             length = np.minimum(1.0, self.initial_step / gnorm)
         known = np.isfinite(state.first_scale)

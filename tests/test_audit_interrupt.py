@@ -14,6 +14,7 @@ import factirl_opt as fo
 import factirl_opt.learners.start as start_module
 import factirl_opt.tasks.basis as basis_module
 from factirl_opt.learners.dictionary import feature_weights
+from factirl_opt.learners.start import FLAT_SOLVER
 from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
 
@@ -104,7 +105,9 @@ def test_an_interrupt_in_the_pca_keeps_the_pca_start(monkeypatch, data, where):
     assert model.stop_reason_ == "interrupted" and model.dictionary_.shape[1] == 2
     assert model.n_iter_ == 0 and np.all(np.isnan(model.loss_)) and model.loss_history_ == []
     monkeypatch.undo()  # the kept state is the PCA start of the whole flat fit (GradIRL's), before the shrinking
-    flat = fo.GradIRL(max_iter=5, features=features).fit(mdp, demos).rewards_.reshape(len(demos), -1)
+    start = fo.Start()  # the start's flat fit: FLAT_SOLVER, its tolerance and saturation rule, no gradient rule
+    flat = fo.GradIRL(max_iter=5, features=features, solver=FLAT_SOLVER, tol=start.flat_tol, stol=start.flat_stol,
+                      gtol=0.0).fit(mdp, demos).rewards_.reshape(len(demos), -1)
     D, H = fo.pca_dictionary(flat, 2, np.random.default_rng(0))
     np.testing.assert_allclose(model.dictionary_, D if features is None else feature_weights(features, D),
                                rtol=1e-12, atol=1e-12)

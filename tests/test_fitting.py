@@ -11,6 +11,7 @@ import factirl_opt.tasks.task_set as task_set_module
 import solvers
 from factirl_opt.exceptions import ConvergenceWarning, MaxIterWarning, ValidationError
 from factirl_opt.learners.fitting import check_features_digest, first_step_stall
+from factirl_opt.learners.start import FLAT_SOLVER
 from factirl_opt.tasks.task_set import features_digest, reward_features
 from factirl_opt.objectives import Objective
 from factirl_opt.tasks.features import StateBroadcast
@@ -56,8 +57,8 @@ def test_factirl_fit_parses_builds_and_resolves_once(monkeypatch, data, init):
     counts = Counts(monkeypatch)
     fo.FactIRL(n_primitives=K, init=init, solver="lbfgs", d_solver="armijo", max_iter=3, flat_max_iter=5).fit(mdp, demos)
     assert counts.parses == 1 and counts.objectives == 1
-    # one look-up per solver: the H- and D-solvers, and the flat learner's of the PCA start
-    assert sorted(counts.solvers) == sorted(["lbfgs", "armijo"] + (["armijo"] if init == "pca" else []))
+    # one look-up per solver: the H- and D-solvers, and the flat learner's of the PCA start (FLAT_SOLVER)
+    assert sorted(counts.solvers) == sorted(["lbfgs", "armijo"] + ([FLAT_SOLVER] if init == "pca" else []))
 
 
 def test_gradirl_fit_and_transfer_parse_build_and_resolve_once(monkeypatch, data):
@@ -74,7 +75,8 @@ def test_gradirl_fit_and_transfer_parse_build_and_resolve_once(monkeypatch, data
 def test_the_pca_start_shares_the_fits_objective_with_the_results_of_separate_ones(data):
     """One objective for the flat start and the factorial fit gives what separate objectives gave."""
     mdp, demos = data
-    flat = fo.GradIRL(max_iter=8).fit(mdp, demos)
+    start = fo.Start()  # the start's flat fit: FLAT_SOLVER, its tolerance and saturation rule, no gradient rule
+    flat = fo.GradIRL(max_iter=8, solver=FLAT_SOLVER, tol=start.flat_tol, stol=start.flat_stol, gtol=0.0).fit(mdp, demos)
     own = fo.FactIRL(n_primitives=K, max_iter=4, flat_max_iter=8).fit(mdp, demos)
     given = fo.FactIRL(n_primitives=K, max_iter=4).fit(mdp, demos, flat_rewards=flat.rewards_)
     np.testing.assert_array_equal(own.dictionary_, given.dictionary_)
@@ -199,4 +201,6 @@ def test_features_far_from_order_one_are_named_in_the_overflow(data):
     with pytest.raises(ValidationError, match=r"largest \|features\| = .*e\+200.*the features are far from order 1"):
         fo.GradIRL(features=Phi, max_iter=5).fit(mdp, demos)
     with pytest.raises(ValidationError, match=r"the features are far from order 1"):
-        fo.FactIRL(n_primitives=K, features=Phi, max_iter=2, flat_max_iter=5).fit(mdp, demos)
+        # the Armijo flat start overflows on them (an L-BFGS start's first step is scaled to the gradient)
+        fo.FactIRL(n_primitives=K, features=Phi, max_iter=2, flat_max_iter=5,
+                   solver=fo.SolverSettings(flat_solver="armijo")).fit(mdp, demos)

@@ -8,6 +8,7 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.exceptions import FitInterrupted, InterruptedFitWarning
 from factirl_opt.objectives import Objective
+from factirl_opt.learners.start import FLAT_SOLVER
 
 K = 2
 
@@ -107,7 +108,8 @@ def test_factirl_interrupted_at_its_start_keeps_the_start(monkeypatch, data):
 def test_factirl_interrupted_in_its_flat_start_keeps_the_pca_of_the_flat_fit(monkeypatch, data):
     mdp, demos = data
     Recorder(monkeypatch, 6)
-    flat = fo.GradIRL(max_iter=10)
+    start = fo.Start()  # the flat fit of FactIRL's start: its solver, tolerance and saturation rule, no gradient rule
+    flat = fo.GradIRL(max_iter=10, solver=FLAT_SOLVER, tol=start.flat_tol, stol=start.flat_stol, gtol=0.0)
     interrupted(flat.fit, mdp, demos)
     monkeypatch.undo()
     Recorder(monkeypatch, 6)

@@ -1,10 +1,11 @@
 #!/bin/sh
 # One seed (SEED, default 0) of the other benchmark worlds (WORLDS), the candidates C, one process
-# per world (run from the worktree root). Each world appends to its own JSON-lines file.
+# per world (run from the worktree root), labelled LABEL (default HEAD). Each world appends to its own JSON-lines file.
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 S=${SEED:-0}
 C=${C:-defaults joint-2-lbfgs-early joint-2-lbfgs joint-lbfgs preset}
-run() { PYTHONPATH=$PWD python results/defaults/defaults_study.py "$@" --seed $S --label HEAD --candidates $C; }
+L=${LABEL:-HEAD}
+run() { PYTHONPATH=$PWD python results/defaults/defaults_study.py "$@" --seed $S --label $L --candidates $C; }
 for w in ${WORLDS:-grid-20 grid-100x2 grid-100x10 objectworld babyai}; do
   case $w in
     grid-20) run grid --n-tasks 20 --n-demos 10 --out results/defaults/grid_20x10_seed$S.jsonl ;;

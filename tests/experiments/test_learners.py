@@ -594,3 +594,12 @@ def test_runs_ignore_the_max_iter_warnings_of_their_fixed_budgets():
 
         gt = grid_world(TINY, 4, 2, 0)
         GradIRL(max_iter=TINY.flat_max_iter).fit(gt.mdp, gt.demos("train"))
+
+
+def test_the_paper_preset_pins_the_papers_setting():
+    """The paper preset's FactIRL is fo.PAPER_SETTINGS (but for the preset's own start), whatever FactIRL's defaults."""
+    kw = factorial_options(PRESETS["paper"], SolverSettings())
+    for name in ("scheme", "inner_steps", "max_iter", "tol", "gtol", "transfer_stol", "solver"):
+        assert kw[name] == PAPER_SETTINGS[name], name
+    assert kw["start"].flat_stol == PAPER_SETTINGS["start"].flat_stol == 0.0
+    assert all(kw[name] != FactIRL().get_params()[name] for name in ("scheme", "inner_steps", "transfer_stol", "solver"))

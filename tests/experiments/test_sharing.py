@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from factirl_opt.exceptions import ValidationError
+from factirl_opt.learners.transfer import TRANSFER_STOL
 from factirl_opt.lab import bench
 from factirl_opt.lab.benchmarks.which_learner import benchmark_verdicts, sharing_table
 from factirl_opt.lab.experiments import PRESETS, get_lineup, make_ground_truth, run_one, run_sweep
@@ -53,9 +54,11 @@ def test_adaptive_options_ask_for_validation_and_keep_the_rest():
     assert auto["n_primitives"] == "auto" and auto["residual_penalty"] == "auto"
     assert {k: v for k, v in auto.items() if k not in ("n_primitives", "residual_penalty", "solver")} == \
         {k: v for k, v in fixed.items() if k not in ("n_primitives", "solver")}
-    # its flat model transfers as the line-up's flat learner does; both pin the paper's D-step and flat start
+    # its flat model transfers as the line-up's flat learner does
+    # (the D-step and the fixed learner's flat start: the paper's, pinned)
     assert auto["solver"] == SolverSettings(d_solver="armijo", flat_solver=preset.flat_solver)
     assert fixed["solver"] == SolverSettings(d_solver="armijo", flat_solver="armijo")
+    assert auto["transfer_stol"] == fixed["transfer_stol"] == TRANSFER_STOL  # the sharing presets' converged transfer
     ow = PRESETS["sharing-objectworld-quick"]
     assert factorial_options(ow, SolverSettings(), adaptive=True, features=True)["solver"].flat_solver == ow.flat_features_solver
 

@@ -94,8 +94,9 @@ def test_gn_fit_beats_armijo_per_evaluation(transfer_data):
     train = fo.sample_demonstrations(grid, R, 4, 8, np.random.default_rng(3))
     flat = fo.GradIRL(max_iter=20).fit(grid, train)
     fits = {
+        # the H-step solvers compared within the paper's alternation (its Armijo D-steps)
         name: fo.FactIRL(n_primitives=3, max_iter=4, inner_steps=3, tol=0.0, solver=fo.SolverSettings(name, d_solver="armijo"),
-                         scheme="alternating").fit(grid, train, flat_rewards=flat.rewards_)  # H-step solvers, the paper's D-step
+                         scheme="alternating").fit(grid, train, flat_rewards=flat.rewards_)
         for name in ("armijo", "gn-qp-osqp")
     }
     assert fits["gn-qp-osqp"].loss_.sum() < fits["armijo"].loss_.sum()

@@ -2,6 +2,8 @@
 the explicit inverse-Hessian update, the memory across runs, curvature-pair skipping, and the
 line search's safeguards."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -176,6 +178,21 @@ def test_steps_are_bounded():
         x_new, state, progressed = solver.update(problem, x, state)
         assert progressed and np.linalg.norm(x_new - x) <= 3.0 * max(1.0, np.linalg.norm(x)) * (1 + 1e-12)
         x = x_new
+
+
+def test_a_gradient_whose_squares_overflow_gives_a_first_step_of_initial_step_length():
+    """A row whose gradient entries are near 1e300 (its squares overflow float64) still gets the first
+    step of length ``initial_step`` along -g, without numpy's overflow warning; the other row is unchanged."""
+    scale = np.array([[1e300], [1.0]])
+    problem = solvers.StepProblem(lambda x, rows: (-np.sum(scale[rows] * x, axis=1), -scale[rows] * np.ones_like(x)),
+                                  lambda: 0, 2, 2)
+    solver = solvers.get_solver("lbfgs", initial_step=1.0)
+    x = np.zeros((2, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        x_new, _, progressed = solver.update(problem, x, solver.init_state(problem, x))
+    assert progressed
+    np.testing.assert_allclose(x_new, np.full((2, 2), 1 / np.sqrt(2)), rtol=1e-12)
 
 
 def test_zero_gradient_converges_without_evaluations():

@@ -37,7 +37,7 @@ GRADIENT_FALLBACK = "lbfgs"
 #: ``flat_features_solver`` (GradIRL on features), or the run's :class:`SolverSettings` (FactIRL)
 SOLVER_ROLES = ("flat", "flat features", "factorial")
 
-#: FactIRL's default outer scheme (the paper's), which every FactIRL takes where the preset's does not apply
+#: the paper's outer scheme, which every FactIRL of a run takes where the preset's does not apply
 ALTERNATING = "alternating"
 
 #: the paper's D-step and flat-start solvers (:data:`~factirl_opt.learners.factirl.PAPER_SETTINGS`),

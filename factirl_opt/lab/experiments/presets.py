@@ -219,8 +219,8 @@ class Preset:
         :data:`~factirl_opt.learners.transfer.TRANSFER_STOL`.
     solvers : SolverSettings
         The factorial learner's H-step and D-step solvers when a sweep names none
-        (:class:`factirl_opt.SolverSettings`; default: Armijo H-steps, FactIRL's default
-        D-step). Not part of the fingerprint: part of every run's key
+        (:class:`factirl_opt.SolverSettings`; default: Armijo H-steps and, as no D-step is
+        named, the paper's Armijo D-step, pinned by :func:`.learner_solvers.factorial_options`). Not part of the fingerprint: part of every run's key
         (:class:`.runner.RunSpec`), so a ``fast`` run and a ``paper`` run with the same
         ``--h-solver`` and ``--d-solver`` are the same run. :meth:`to_dict` flattens it into
         its four fields (:data:`SOLVER_FIELDS`).
