@@ -14,7 +14,6 @@ import gymnasium as gym  # noqa: E402
 from factirl_opt.exceptions import ValidationError  # noqa: E402
 from factirl_opt.datasets.babyai import mission_rewards, random_success_probability  # noqa: E402
 from factirl_opt.lab.experiments import babyai  # noqa: E402
-from factirl_opt.lab.experiments.claims import babyai_claims  # noqa: E402
 from factirl_opt.lab.experiments.worlds import babyai_world  # noqa: E402
 from factirl_opt.lab.experiments.babyai_figure import babyai_figure_data, plot_babyai_layout  # noqa: E402
 from factirl_opt.lab.experiments.presets import PRESETS  # noqa: E402
@@ -128,7 +127,7 @@ def test_quick_preset_end_to_end(tmp_path):
     assert "success_rate_mean" in summary[0]
     with open(tmp_path / "results.csv") as fh:
         assert next(csv.reader(fh))[-3:] == list(ENVIRONMENT_COLUMNS)
-    claims = babyai_claims(rows, PRESETS["babyai-quick"])
+    claims = babyai.babyai_claims(rows, PRESETS["babyai-quick"])
     assert len(claims) == 2 and all(c["seeds"].endswith("/1") for c in claims)
     again = run_sweep("babyai-quick", tmp_path, progress=False)  # resumed: nothing recomputed
     assert again["n_computed"] == 0

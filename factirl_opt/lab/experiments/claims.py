@@ -21,11 +21,11 @@ from .learner_names import (ADAPTIVE, ADAPTIVE_FEATURES, FACTORIAL, FACTORIAL_FE
                             FACTORIAL_MCE_FEATURES, FACTORIAL_MCE_FEATURES_RANDOM_INIT, FACTORIAL_RANDOM_INIT, FLAT, FLAT_FEATURES,
                             FLAT_FEATURES_FROM_EXAMPLES, FLAT_GROUND_TRUTH, FLAT_MCE, FLAT_MCE_FEATURES,
                             FLAT_PCA_FEATURES)
-from .babyai import LINEUP as BABYAI_LINEUP, SHARING_LINEUP as BABYAI_SHARING_LINEUP
+from .babyai import LINEUP as BABYAI_LINEUP, SHARING_LINEUP as BABYAI_SHARING_LINEUP, babyai_claims
 from .tables import read_results
 
 __all__ = ["CLAIMS_FILE", "CLAIMS", "evaluate_claims", "claims_markdown", "paired_reason", "write_claims", "paper_claims", "objectworld_claims",
-           "mce_claims", "per_task_claims", "babyai_claims", "sharing_claims", "SHARING_MARGINS", "sharing_verdicts"]
+           "mce_claims", "per_task_claims", "sharing_claims", "SHARING_MARGINS", "sharing_verdicts"]
 
 
 def _by_seed(rows, split, learner, n, m, column="deviation"):
@@ -202,28 +202,6 @@ def per_task_claims(rows: Sequence[dict], preset: Any) -> list[dict | None]:
                   for split in ("train", "test")]
 
 
-def babyai_claims(rows: Any, preset: Any) -> list[dict | None]:
-    """The BabyAI claims: on new layouts with one demonstration each, each factorial learner on
-    features reaches a higher success rate in the environment than its flat counterpart, at
-    every number of training layouts (``measured`` gives success rates)."""
-    out: list[dict | None] = []
-    m = preset.default_demos
-    for fact, flat in ((FACTORIAL_FEATURES, FLAT_FEATURES), (FACTORIAL_MCE_FEATURES, FLAT_MCE_FEATURES)):
-        for n in sorted(preset.tasks_sweep):
-            a, b = (_by_seed(rows, "test", name, n, m, "success_rate") for name in (fact, flat))
-            seeds = sorted(set(a) & set(b))
-            if not seeds:
-                continue
-            va, vb = np.array([a[s] for s in seeds]), np.array([b[s] for s in seeds])
-            holds, wins = bool(va.mean() > vb.mean()), int(np.sum(va > vb))
-            out.append(dict(claim=f"test: {fact} succeeds more often than {flat} (success rate in the environment)",
-                            source="BabyAI benchmark", point=f"{n} tasks, {m} demos",
-                            measured=f"success {fact}: {va.mean():.2f}; {flat}: {vb.mean():.2f}",
-                            holds=holds, seeds=f"{wins}/{len(seeds)}",
-                            reason="" if holds else paired_reason(fact, flat, va - vb, wins, better="higher")))
-    return out
-
-
 #: how far the adaptive learner may be from the better of flat and factorial and still count as
 #: "no worse": 10% of the better deviation; 0.05 of success rate
 SHARING_MARGINS = {"deviation": 0.10, "success_rate": 0.05}
@@ -344,7 +322,12 @@ def evaluate_claims(rows: Sequence[dict], preset: Any) -> list[dict]:
         _, claims = CLAIMS[preset.lineup]
     except KeyError:
         raise ValidationError(f"no claims for the line-up {preset.lineup!r}; claims exist for {', '.join(CLAIMS)}") from None
-    return [c for c in claims(rows, preset) if c is not None]
+    out = [c for c in claims(rows, preset) if c is not None]
+    for c in out:  # a line-up's claim may give its paired comparison instead of its reason
+        paired = c.pop("paired", None)
+        if "reason" not in c:
+            c["reason"] = "" if c["holds"] or paired is None else paired_reason(*paired)
+    return out
 
 
 def claims_markdown(claims: Sequence[dict]) -> str:
