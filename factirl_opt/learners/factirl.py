@@ -45,7 +45,8 @@ from .start import FLAT_TOL, Start, factorial_start, flat_solver
 from ..objectives import Objective
 
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
-from .posterior import cached_transfer_posterior, keep_transfer
+from .posterior import cached_transfer_posterior, keep_transfer, task_noise_levels
+from .dictionary_ensemble import check_posterior_settings, fit_posterior_terms
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
 from .selection.results import rows_cv_results, validation_rows
@@ -164,6 +165,23 @@ class FactIRL(Estimator):
         0.36x the CPU and a deviation 1.7% lower on average and at most 1.8% higher per point
         (results/transfer/README.md). The flat model's transfer (``residual_penalty=0``) stops by
         it too.
+    posterior_dictionaries : int, default=0
+        ``B`` dictionaries refitted in ``fit``, each with the fit's ``(k, lambda)`` on a resample
+        of the training tasks (``posterior_resampling``; :mod:`~factirl_opt.learners.dictionary_ensemble`),
+        so that ``transfer_posterior_``'s ``sample_rewards`` and ``sample_regrets`` marginalise
+        over the dictionary's own error as well as the coefficients' (docs/maths.md §10). It costs
+        ``B`` more fits, and each posterior ``B`` more posteriors. 0: the posterior is conditional
+        on ``dictionary_``.
+    posterior_resampling : {"bootstrap", "folds"}, default="bootstrap"
+        Each refitted dictionary's training tasks: ``n`` drawn with replacement (the bootstrap
+        over tasks), or all but one of ``B`` folds (the sharing search's kind of fit). Drawn from
+        ``rng``.
+    posterior_noise : {"multinomial", "misfit"}, default="multinomial"
+        The posterior's noise level under policy matching: the multinomial level of the model's
+        policy (docs/maths.md §10), or that level scaled by each new task's misfit at its MAP
+        relative to the training tasks' (``noise_levels_``): a demonstration the dictionary
+        explains worse than it explains its training tasks widens its posterior. ``"misfit"``
+        needs policy matching.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -213,6 +231,15 @@ class FactIRL(Estimator):
         include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
     transfer_residuals_ : ndarray, shape (n_new, p)
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
+    noise_levels_ : ndarray, shape (n,)
+        Policy matching only: each training task's noise level from its misfit at the fit,
+        ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.posterior.misfit_noise_levels`);
+        their median is the reference of ``posterior_noise="misfit"``.
+    dictionary_ensemble_ : ndarray, shape (B, p, k)
+        With ``posterior_dictionaries=B > 0``: the refitted dictionaries.
+    ensemble_prior_means_ : ndarray, shape (B, k)
+    ensemble_prior_precisions_ : ndarray, shape (B, k, k)
+        Their training coefficients' Gaussian priors (:func:`~factirl_opt.learners.transfer.coefficient_prior`).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
         :func:`~factirl_opt.learners.selection.search.search_sharing`, one row per candidate
@@ -243,7 +270,8 @@ class FactIRL(Estimator):
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
         "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
         "n_primitives_": "count", "residual_penalty_": "penalty", "cv_results_": "cv-results",
-        "validation_": "validation",
+        "validation_": "validation", "noise_levels_": ("n",), "dictionary_ensemble_": ("B", "p", "k"),
+        "ensemble_prior_means_": ("B", "k"), "ensemble_prior_precisions_": ("B", "k", "k"),
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -273,7 +301,9 @@ class FactIRL(Estimator):
                  objective: str | type[Objective] = "policy-matching", rng: np.random.Generator | int | None = None,
                  execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
-                 sharing_search: SharingSearch | None = None, scheme: str = "alternating", transfer_stol: float = 0.0) -> None:
+                 sharing_search: SharingSearch | None = None, scheme: str = "alternating", transfer_stol: float = 0.0,
+                 posterior_dictionaries: int = 0, posterior_resampling: str = "bootstrap",
+                 posterior_noise: str = "multinomial") -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -291,6 +321,9 @@ class FactIRL(Estimator):
         self.sharing_search = sharing_search
         self.scheme = scheme
         self.transfer_stol = transfer_stol
+        self.posterior_dictionaries = posterior_dictionaries
+        self.posterior_resampling = posterior_resampling
+        self.posterior_noise = posterior_noise
 
     @property
     def validation_(self) -> list[dict]:
@@ -347,8 +380,15 @@ class FactIRL(Estimator):
         """
         self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
+        check_posterior_settings(self)
         if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
-            return fit_auto(self, mdp, demos_per_task, flat_rewards)
+            B = self.posterior_dictionaries
+            self.posterior_dictionaries = 0  # the search's candidates and its final fit refit no ensemble of their own
+            try:
+                fit_auto(self, mdp, demos_per_task, flat_rewards)
+            finally:
+                self.posterior_dictionaries = B
+            return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         basis = tasks.basis
@@ -383,7 +423,9 @@ class FactIRL(Estimator):
             raise_interrupted(exc, "FactIRL.fit")
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
-        return self
+        if obj.least_squares:
+            self.noise_levels_ = task_noise_levels(tasks, fit.loss, self.n_primitives_)
+        return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
 
     def _store(self, tasks, fit, n_evaluations, lam=np.inf):
         self.dictionary_, self.coefficients_ = fit.dictionary, fit.coefficients

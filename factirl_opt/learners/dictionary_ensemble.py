@@ -1,0 +1,207 @@
+"""The dictionary's own error in the transfer posterior: dictionaries refitted on resampled training tasks.
+
+The Laplace posterior of a transferred task (:mod:`~factirl_opt.learners.posterior`) is
+conditional on the fitted dictionary ``D``: a new task whose true reward lies off the span of
+``D`` deviates whatever its coefficients, and that posterior cannot see it. A model fitted with
+``FactIRL(posterior_dictionaries=B)`` also refits ``B`` dictionaries, each with the fit's
+``(k, lambda)`` on a resample of the training tasks (:func:`resampled_tasks`):
+
+- ``"bootstrap"``: ``n`` tasks drawn with replacement from the ``n`` training tasks (the
+  bootstrap over tasks; an ensemble in the sense of Lakshminarayanan et al. 2017);
+- ``"folds"``: the tasks of all but one of ``B`` folds (:func:`~factirl_opt.learners.selection.folds.task_folds`),
+  the training fits of a ``B``-fold validation over tasks, as the sharing search fits them.
+
+Each refit gives a dictionary ``D_b`` and the Gaussian prior ``(m_b, P_b)`` of its own training
+coefficients (:func:`~factirl_opt.learners.transfer.coefficient_prior`). A new task's posterior
+under each of them (:func:`member_posteriors`) joins its own as ``LaplacePosterior.members``, and
+``sample_rewards`` / ``sample_regrets`` draw from the equal-weight mixture over the ``1 + B``
+dictionaries (docs/maths.md §10). The dictionaries differ by an invertible ``k x k`` transform
+as well as by their error (``D H = (D A)(A^-1 H)``); each member's prior lives in its own
+coordinates, and only rewards are mixed, so the transform does not matter.
+
+Cost: ``B`` fits of the model on ``n`` (bootstrap) or ``n (B - 1) / B`` (folds) tasks, the flat
+start of the PCA initialisation computed once on every task and indexed; then ``B`` more
+posteriors per ``transfer_posterior_``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import as_rng, check_int, check_tol
+from ..exceptions import ValidationError
+from .posterior import LaplacePosterior, laplace_posteriors
+from .selection.folds import take_tasks, task_folds, task_subset
+from .selection.search import fixed_learner, flat_start_rewards
+from .start import flat_solver
+from .transfer import coefficient_prior
+from .transfer_likelihood import TransferProblem
+
+__all__ = ["RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "member_posteriors",
+           "check_posterior_settings", "noise_reference", "fit_posterior_terms"]
+
+#: how ``FactIRL(posterior_resampling=...)`` resamples the training tasks of each refitted dictionary
+RESAMPLINGS = ("bootstrap", "folds")
+#: ``FactIRL(posterior_noise=...)``: the likelihood's multinomial noise level alone, or scaled by each task's misfit
+NOISE_MODELS = ("multinomial", "misfit")
+
+
+def check_posterior_settings(model: Any) -> tuple[int, str, str]:
+    """``(posterior_dictionaries, posterior_resampling, posterior_noise)`` of a FactIRL, validated.
+
+    Raises
+    ------
+    ValidationError
+        A negative or non-integer count, 1 dictionary with ``"folds"`` (a fold needs 2), an
+        unknown resampling or noise model, or ``"misfit"`` under an objective without a noise
+        level (MCE).
+    """
+    B = check_int(getattr(model, "posterior_dictionaries", 0), "posterior_dictionaries", minimum=0)
+    how = getattr(model, "posterior_resampling", "bootstrap")
+    if how not in RESAMPLINGS:
+        raise ValidationError(f"posterior_resampling must be one of {', '.join(RESAMPLINGS)}; got {how!r}")
+    if how == "folds" and B == 1:
+        raise ValidationError("posterior_resampling='folds' needs posterior_dictionaries >= 2 (one dictionary per fold "
+                              "left out); got 1")
+    noise = getattr(model, "posterior_noise", "multinomial")
+    if noise not in NOISE_MODELS:
+        raise ValidationError(f"posterior_noise must be one of {', '.join(NOISE_MODELS)}; got {noise!r}")
+    return B, how, noise
+
+
+def resampled_tasks(n_tasks: int, n_dictionaries: int, resampling: str = "bootstrap", rng: Any = None) -> list[NDArray[np.intp]]:
+    """The training tasks of each refitted dictionary.
+
+    Parameters
+    ----------
+    n_tasks : int
+        ``n``, the training tasks (at least 2).
+    n_dictionaries : int
+        ``B``.
+    resampling : {"bootstrap", "folds"}
+        ``n`` indices drawn with replacement per dictionary, or the complement of each of ``B``
+        folds of a random permutation (at most ``n`` folds).
+    rng : numpy.random.Generator or int or None
+
+    Returns
+    -------
+    list of B int arrays (sorted for ``"folds"``)
+    """
+    n = check_int(n_tasks, "n_tasks", minimum=2)
+    B = check_int(n_dictionaries, "n_dictionaries", minimum=1)
+    gen = as_rng(rng)
+    if resampling == "bootstrap":
+        return [gen.integers(0, n, n).astype(np.intp) for _ in range(B)]
+    if resampling == "folds":
+        if B < 2:
+            raise ValidationError(f"resampling='folds' needs at least 2 dictionaries; got {B}")
+        everything = np.arange(n)
+        return [np.setdiff1d(everything, held).astype(np.intp) for held in task_folds(n, B, gen)]
+    raise ValidationError(f"resampling must be one of {', '.join(RESAMPLINGS)}; got {resampling!r}")
+
+
+def dictionary_ensemble(model: Any, mdp: Any, demos_per_task: Any, n_dictionaries: int, resampling: str = "bootstrap", *,
+                        rng: Any = None, flat_rewards: Any = None) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                                            NDArray[np.float64]]:
+    """Refit ``model``'s ``(k, lambda)`` on resampled training tasks: the dictionaries and their coefficients' priors.
+
+    Parameters
+    ----------
+    model : FactIRL
+        Fitted (``n_primitives_``, ``residual_penalty_``); each refit is its clone with those
+        values fixed and no ensemble of its own.
+    mdp, demos_per_task
+        The training tasks of ``model.fit``.
+    n_dictionaries : int
+        ``B``.
+    resampling : {"bootstrap", "folds"}
+        :func:`resampled_tasks`.
+    rng : numpy.random.Generator or int or None
+        The resampling's.
+    flat_rewards : array_like, optional
+        The flat rewards of the PCA start on every task (as ``fit``'s); None: computed once here
+        when the start needs them, and indexed per refit.
+
+    Returns
+    -------
+    dictionaries : ndarray, shape (B, p, k)
+    prior_means : ndarray, shape (B, k)
+    prior_precisions : ndarray, shape (B, k, k)
+    """
+    n = len(demos_per_task)
+    subsets = resampled_tasks(n, n_dictionaries, resampling, rng)
+    start = model._group("start")
+    if flat_rewards is None and isinstance(start.init, str) and start.init == "pca":
+        flat_rewards = flat_start_rewards(model, mdp, demos_per_task, flat_solver(model), check_tol(start.flat_tol, "flat_tol"),
+                                          check_tol(start.flat_stol, "flat_stol"))
+    Ds, means, precisions = [], [], []
+    for idx in subsets:
+        member = fixed_learner(model, model.n_primitives_, model.residual_penalty_, posterior_dictionaries=0)
+        sub_mdp, sub_features = task_subset(mdp, model.features, idx)
+        member.set_params(features=sub_features)
+        member.fit(sub_mdp, take_tasks(demos_per_task, idx),
+                   flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, idx))
+        m, P = coefficient_prior(member.coefficients_)
+        Ds.append(member.dictionary_)
+        means.append(m)
+        precisions.append(P)
+    return np.stack(Ds), np.stack(means), np.stack(precisions)
+
+
+def fit_posterior_terms(model: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> Any:
+    """After ``FactIRL.fit``: the dictionary ensemble of ``posterior_dictionaries`` (:func:`dictionary_ensemble`,
+    drawn from the model's ``rng``), or none (an earlier fit's removed); returns ``model``.
+
+    The flat model (``residual_penalty_ = 0``) and a model of fewer than 2 tasks have no posterior,
+    hence no ensemble."""
+    for name in ("dictionary_ensemble_", "ensemble_prior_means_", "ensemble_prior_precisions_"):
+        model.__dict__.pop(name, None)
+    B, how, _ = check_posterior_settings(model)
+    if B == 0 or float(model.residual_penalty_) == 0.0 or len(demos_per_task) < 2:
+        return model
+    Ds, means, precisions = dictionary_ensemble(model, mdp, demos_per_task, B, how, rng=model.rng, flat_rewards=flat_rewards)
+    model.dictionary_ensemble_, model.ensemble_prior_means_, model.ensemble_prior_precisions_ = Ds, means, precisions
+    return model
+
+
+def noise_reference(model: Any) -> float | None:
+    """The training tasks' noise level the posterior scales each new task's by (``posterior_noise="misfit"``):
+    the median of ``noise_levels_``; None for the multinomial noise level alone."""
+    if getattr(model, "posterior_noise", "multinomial") != "misfit":
+        return None
+    levels = getattr(model, "noise_levels_", None)
+    if levels is None:
+        raise ValidationError("posterior_noise='misfit' needs noise_levels_, which this model's fit did not store "
+                              "(a policy-matching fit stores them): fit it again")
+    return float(np.median(levels))
+
+
+def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],
+                      reference: float | None = None) -> list[LaplacePosterior]:
+    """Attach to each of ``posts`` its posteriors under the model's ``dictionary_ensemble_`` (``members``); returns ``posts``.
+
+    Each member ``b`` is :func:`~factirl_opt.learners.posterior.laplace_posteriors` of the same
+    tasks with ``D_b`` and the prior ``(m_b, P_b)``, started from the better of its prior mean
+    and the least-squares coefficients of the conditional posterior's mean weights on ``D_b``
+    (the residual kept), with the same ``noise_reference``. A model without an ensemble leaves
+    ``posts`` as they are.
+    """
+    Ds = getattr(model, "dictionary_ensemble_", None)
+    if Ds is None or len(Ds) == 0 or not posts:
+        return posts
+    k = problem.dictionary.shape[1]
+    X = np.stack([p.mean for p in posts])
+    W = X[:, :k] @ problem.dictionary.T
+    members = []
+    for D, m, P in zip(Ds, model.ensemble_prior_means_, model.ensemble_prior_precisions_):
+        H = np.linalg.lstsq(D, W.T, rcond=None)[0].T
+        start = np.concatenate([H, X[:, k:]], axis=1)
+        members.append(laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (m, P), start,
+                                          noise_reference=reference))
+    for i, p in enumerate(posts):
+        p.members = tuple(mp[i] for mp in members)
+    return posts
