@@ -26,7 +26,6 @@ posteriors per ``transfer_posterior_``.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -34,15 +33,13 @@ from numpy.typing import NDArray
 
 from .._validation import as_rng, check_int, check_tol
 from ..exceptions import ValidationError
-from .posterior import LaplacePosterior, laplace_posteriors
 from .selection.folds import take_tasks, task_folds, task_subset
 from .selection.search import fixed_learner, flat_start_rewards
 from .start import flat_solver
 from .transfer import coefficient_prior
-from .transfer_likelihood import TransferProblem
 
-__all__ = ["RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "member_posteriors",
-           "check_posterior_settings", "noise_reference", "fit_posterior_terms"]
+__all__ = ["RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "check_posterior_settings",
+           "fit_posterior_terms"]
 
 #: how ``FactIRL(posterior_resampling=...)`` resamples the training tasks of each refitted dictionary
 RESAMPLINGS = ("bootstrap", "folds")
@@ -166,42 +163,3 @@ def fit_posterior_terms(model: Any, mdp: Any, demos_per_task: Any, flat_rewards:
     Ds, means, precisions = dictionary_ensemble(model, mdp, demos_per_task, B, how, rng=model.rng, flat_rewards=flat_rewards)
     model.dictionary_ensemble_, model.ensemble_prior_means_, model.ensemble_prior_precisions_ = Ds, means, precisions
     return model
-
-
-def noise_reference(model: Any) -> float | None:
-    """The training tasks' noise level the posterior scales each new task's by (``posterior_noise="misfit"``):
-    the median of ``noise_levels_``; None for the multinomial noise level alone."""
-    if getattr(model, "posterior_noise", "multinomial") != "misfit":
-        return None
-    levels = getattr(model, "noise_levels_", None)
-    if levels is None:
-        raise ValidationError("posterior_noise='misfit' needs noise_levels_, which this model's fit did not store "
-                              "(a policy-matching fit stores them): fit it again")
-    return float(np.median(levels))
-
-
-def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],
-                      reference: float | None = None) -> list[LaplacePosterior]:
-    """Attach to each of ``posts`` its posteriors under the model's ``dictionary_ensemble_`` (``members``); returns ``posts``.
-
-    Each member ``b`` is :func:`~factirl_opt.learners.posterior.laplace_posteriors` of the same
-    tasks with ``D_b`` and the prior ``(m_b, P_b)``, started from the better of its prior mean
-    and the least-squares coefficients of the conditional posterior's mean weights on ``D_b``
-    (the residual kept), with the same ``noise_reference``. A model without an ensemble leaves
-    ``posts`` as they are.
-    """
-    Ds = getattr(model, "dictionary_ensemble_", None)
-    if Ds is None or len(Ds) == 0 or not posts:
-        return posts
-    k = problem.dictionary.shape[1]
-    X = np.stack([p.mean for p in posts])
-    W = X[:, :k] @ problem.dictionary.T
-    members = []
-    for D, m, P in zip(Ds, model.ensemble_prior_means_, model.ensemble_prior_precisions_):
-        H = np.linalg.lstsq(D, W.T, rcond=None)[0].T
-        start = np.concatenate([H, X[:, k:]], axis=1)
-        members.append(laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (m, P), start,
-                                          noise_reference=reference))
-    for i, p in enumerate(posts):
-        p.members = tuple(mp[i] for mp in members)
-    return posts

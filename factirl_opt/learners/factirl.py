@@ -535,7 +535,7 @@ class FactIRL(Estimator):
 
     def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                        features: Any = None, criterion: str = "information", policy: str = "boltzmann",
-                       demonstrated: str = "count") -> list[NDArray[np.intp]]:
+                       demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
         """Start states to ask a demonstration from, per new task, most informative first.
 
         :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
@@ -562,6 +562,10 @@ class FactIRL(Estimator):
             How a requested demonstration's pairs in states the task's demonstrations already
             visit count: as the model's likelihood counts them, or not at all (``"skip"``: a
             deterministic expert repeats its known action there).
+        marginal : bool, default=False
+            Average the criterion over the posterior's dictionaries (its own and the
+            ``posterior_dictionaries`` refitted ones): the expected gain under the dictionary's
+            own uncertainty (docs/maths.md §10).
 
         Returns
         -------
@@ -574,7 +578,7 @@ class FactIRL(Estimator):
             :func:`~factirl_opt.learners.active.request_starts`).
         """
         return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
-                              criterion=criterion, policy=policy, demonstrated=demonstrated)
+                              criterion=criterion, policy=policy, demonstrated=demonstrated, marginal=marginal)
 
     def gpi_policies(self, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0, features: Any = None,
                      library: Any = None, start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:

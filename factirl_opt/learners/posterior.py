@@ -42,7 +42,7 @@ from .transfer_likelihood import (TransferProblem, _basis, _evaluate, _evaluate_
                                   tasks_problem, transfer_problem)
 
 __all__ = ["LaplacePosterior", "laplace_posteriors", "misfit_noise_levels", "task_noise_levels", "NOISE_RATIO_MIN", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
-           "TransferState", "has_prior",
+           "TransferState", "has_prior", "model_posteriors", "member_posteriors", "noise_reference",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve"]
 
 #: damped Newton steps of the MAP at most, and the stopping rule on the Newton decrement
@@ -500,11 +500,59 @@ def _posterior_of(model: Any, problem: TransferProblem) -> list[LaplacePosterior
     start = np.asarray(model.transfer_coefficients_, dtype=np.float64)
     if problem.residual:
         start = np.concatenate([start, np.asarray(model.transfer_residuals_, dtype=np.float64)], axis=1)
-    from .dictionary_ensemble import member_posteriors, noise_reference  # it builds on this module
+    return model_posteriors(model, problem, start)
 
+
+def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.float64] | None = None) -> list[LaplacePosterior]:
+    """The posteriors of ``problem``'s tasks under a fitted model's prior and settings (:func:`has_prior` holds).
+
+    :func:`laplace_posteriors` with the prior of ``coefficients_``, the noise reference of
+    ``posterior_noise`` and, for a model with a ``dictionary_ensemble_``, each task's posteriors
+    under the other dictionaries as its ``members``
+    (:func:`~factirl_opt.learners.dictionary_ensemble.member_posteriors`).
+    """
     reference = noise_reference(model)
     posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_), start, noise_reference=reference)
     return member_posteriors(model, problem, posts, reference)
+
+
+def noise_reference(model: Any) -> float | None:
+    """The training tasks' noise level the posterior scales each new task's by (``posterior_noise="misfit"``):
+    the median of ``noise_levels_``; None for the multinomial noise level alone."""
+    if getattr(model, "posterior_noise", "multinomial") != "misfit":
+        return None
+    levels = getattr(model, "noise_levels_", None)
+    if levels is None:
+        raise ValidationError("posterior_noise='misfit' needs noise_levels_, which this model's fit did not store "
+                              "(a policy-matching fit stores them): fit it again")
+    return float(np.median(levels))
+
+
+def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],
+                      reference: float | None = None) -> list[LaplacePosterior]:
+    """Attach to each of ``posts`` its posteriors under the model's ``dictionary_ensemble_`` (``members``); returns ``posts``.
+
+    Each member ``b`` is :func:`~factirl_opt.learners.posterior.laplace_posteriors` of the same
+    tasks with ``D_b`` and the prior ``(m_b, P_b)``, started from the better of its prior mean
+    and the least-squares coefficients of the conditional posterior's mean weights on ``D_b``
+    (the residual kept), with the same ``noise_reference``. A model without an ensemble leaves
+    ``posts`` as they are.
+    """
+    Ds = getattr(model, "dictionary_ensemble_", None)
+    if Ds is None or len(Ds) == 0 or not posts:
+        return posts
+    k = problem.dictionary.shape[1]
+    X = np.stack([p.mean for p in posts])
+    W = X[:, :k] @ problem.dictionary.T
+    members = []
+    for D, m, P in zip(Ds, model.ensemble_prior_means_, model.ensemble_prior_precisions_):
+        H = np.linalg.lstsq(D, W.T, rcond=None)[0].T
+        start = np.concatenate([H, X[:, k:]], axis=1)
+        members.append(laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (m, P), start,
+                                          noise_reference=reference))
+    for i, p in enumerate(posts):
+        p.members = tuple(mp[i] for mp in members)
+    return posts
 
 
 @dataclasses.dataclass(eq=False)
