@@ -140,3 +140,19 @@ def test_ensemble_and_noise_levels_persist(tasks, tmp_path):
     loaded.transfer(tasks[0], tasks[2].demos)
     np.testing.assert_array_equal(loaded.transfer_posterior_[0].sample_regrets(6, 2),
                                   model.transfer_posterior_[0].sample_regrets(6, 2))
+
+
+def test_saved_posterior_keeps_its_members(tasks, tmp_path):
+    from factirl_opt.persistence.posterior import posterior_arrays, posteriors_from_arrays
+
+    model = _fit(tasks, posterior_dictionaries=2)
+    posts = model.transfer_posterior_
+    loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
+    for a, b in zip(loaded.transfer_posterior_, posts):  # the posterior as saved, before any new transfer
+        assert len(a.members) == 2
+        np.testing.assert_array_equal(a.sample_regrets(8, 4), b.sample_regrets(8, 4))
+    spec, arrays = posterior_arrays(posts)
+    with pytest.raises(ValidationError, match="members"):
+        posteriors_from_arrays(spec, {**arrays, "members/mean": arrays["members/mean"][:, :1]})
+    with pytest.raises(ValidationError, match="incomplete"):
+        posteriors_from_arrays(spec, {k: v for k, v in arrays.items() if k != "members/scaling"})
