@@ -156,3 +156,11 @@ def test_saved_posterior_keeps_its_members(tasks, tmp_path):
         posteriors_from_arrays(spec, {**arrays, "members/mean": arrays["members/mean"][:, :1]})
     with pytest.raises(ValidationError, match="incomplete"):
         posteriors_from_arrays(spec, {k: v for k, v in arrays.items() if k != "members/scaling"})
+
+
+def test_a_given_start_is_resampled_with_its_tasks(tasks):
+    mdp, train, _ = tasks
+    start = fo.FactIRL(n_primitives=2, max_iter=3, rng=0).fit(mdp, train.demos)
+    model = fo.FactIRL(n_primitives=2, max_iter=3, rng=0, posterior_dictionaries=2,
+                       start=fo.Start(init=(start.dictionary_, start.coefficients_))).fit(mdp, train.demos)
+    assert model.dictionary_ensemble_.shape == (2, *model.dictionary_.shape)

@@ -26,6 +26,7 @@ posteriors per ``transfer_posterior_``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -140,6 +141,8 @@ def dictionary_ensemble(model: Any, mdp: Any, demos_per_task: Any, n_dictionarie
         member = fixed_learner(model, model.n_primitives_, model.residual_penalty_, posterior_dictionaries=0)
         sub_mdp, sub_features = task_subset(mdp, model.features, idx)
         member.set_params(features=sub_features)
+        if isinstance(start.init, tuple):  # a given start (D0, H0): the resampled tasks' rows of H0
+            member.set_params(start=dataclasses.replace(start, init=(start.init[0], np.asarray(start.init[1])[idx])))
         member.fit(sub_mdp, take_tasks(demos_per_task, idx),
                    flat_rewards=None if flat_rewards is None else take_tasks(flat_rewards, idx))
         m, P = coefficient_prior(member.coefficients_)
