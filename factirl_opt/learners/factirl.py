@@ -527,7 +527,11 @@ class FactIRL(Estimator):
         A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
         ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
         the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model (it pickles with it; ``save_model`` stores it). None when undefined (fewer than 2
+        the model (it pickles with it; ``save_model`` stores it). With ``posterior_dictionaries``,
+        each also carries the task's posteriors under the refitted dictionaries (``members``), over
+        which ``sample_rewards`` and ``sample_regrets`` marginalise (B more posteriors to build);
+        with ``posterior_noise="misfit"`` each covariance is at the task's misfit noise level.
+        None when undefined (fewer than 2
         training tasks' coefficients to fit the prior to, or the flat model); AttributeError
         before any transfer, and after a refit (the transfer's tasks belong to the former fit).
         """
