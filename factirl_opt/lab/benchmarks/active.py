@@ -66,7 +66,7 @@ STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-re
 REQUESTS = {"requested": {}, "requested-value": {"criterion": "value"}, "requested-regret": {"criterion": "regret"},
             "requested-value-skip": {"criterion": "value", "demonstrated": "skip"},
             "requested-marginal": {"marginal": True}, "requested-marginal-noise": {"marginal": True}}
-#: the model's posterior settings a strategy runs with (the others: the model's own, ``posterior_noise="multinomial"``)
+#: the model's posterior settings a strategy runs with, restored after it (the others: the model's own)
 POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior_noise": "misfit"}}
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
@@ -163,12 +163,15 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
     m_list, f_list = (mdps[:n] if isinstance(mdps, list) else mdps), _take(feats, n)
     out: dict[str, list] = {"deviation": [], "map_deviation": [], "starts": []}
     options = {**REQUESTS.get(strategy, {}), **request_options}
-    before = model.get_params(deep=False)
-    model.set_params(**{"posterior_noise": "multinomial", **POSTERIOR_SETTINGS.get(strategy, {})})
+    settings = POSTERIOR_SETTINGS.get(strategy, {})
+    before = {name: getattr(model, name) for name in settings}
+    if settings:
+        model.set_params(**settings)
     try:
         return _run_steps(model, gt, mdps, n, strategy, s, seed, rng, demos, L, m_list, f_list, out, options, policy)
     finally:
-        model.set_params(posterior_noise=before["posterior_noise"])
+        if settings:
+            model.set_params(**before)
 
 
 def _run_steps(model, gt, mdps, n, strategy, s, seed, rng, demos, L, m_list, f_list, out, options, policy):
