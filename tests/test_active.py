@@ -334,7 +334,7 @@ def test_marginal_requests_average_the_criterion_over_the_dictionaries(fitted):
     plain = models["policy-matching"]
     for a, b in zip(plain.request_starts(mdp, test.demos, S, marginal=True), plain.request_starts(mdp, test.demos, S)):
         np.testing.assert_array_equal(a, b)  # no ensemble: the conditional ranking
-    model = fo.FactIRL(n_primitives=2, max_iter=5, rng=0, posterior_dictionaries=2)
+    model = fo.FactIRL(n_primitives=2, max_iter=5, rng=0, posterior=fo.PosteriorSettings(n_dictionaries=2))
     model.fit(mdp, transfer_tasks_on_a_grid(4, 12, 3, 8, 3)[1].demos)
     model.transfer(mdp, test.demos)
     got = model.request_starts(mdp, test.demos, S, marginal=True)

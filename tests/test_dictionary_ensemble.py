@@ -43,11 +43,14 @@ def test_resampled_tasks_refuses(args, match):
         resampled_tasks(*args, rng=0)
 
 
-@pytest.mark.parametrize("params, match", [({"posterior_dictionaries": -1}, "posterior_dictionaries"),
-                                           ({"posterior_resampling": "jackknife"}, "posterior_resampling"),
-                                           ({"posterior_noise": "gaussian"}, "posterior_noise"),
-                                           ({"posterior_dictionaries": 1, "posterior_resampling": "folds"}, "folds"),
-                                           ({"posterior_noise": "misfit", "objective": "mce"}, "noise_levels_")])
+@pytest.mark.parametrize("params, match", [({"posterior": fo.PosteriorSettings(n_dictionaries=-1)}, "n_dictionaries"),
+                                           ({"posterior": fo.PosteriorSettings(resampling="jackknife")}, "resampling"),
+                                           ({"posterior": fo.PosteriorSettings(noise="gaussian")}, "noise"),
+                                           ({"posterior": fo.PosteriorSettings(n_dictionaries=1, resampling="folds")},
+                                            "folds"),
+                                           ({"posterior": "bootstrap"}, "PosteriorSettings"),
+                                           ({"posterior": fo.PosteriorSettings(noise="misfit"), "objective": "mce"},
+                                            "noise_levels_")])
 def test_fit_refuses_bad_posterior_settings(tasks, params, match):
     mdp, train, test = tasks
     model = fo.FactIRL(n_primitives=2, max_iter=2, rng=0, **params)
@@ -63,7 +66,7 @@ def test_fit_refuses_bad_posterior_settings(tasks, params, match):
 
 
 def test_fit_stores_the_ensemble_and_the_noise_levels(tasks):
-    model = _fit(tasks, posterior_dictionaries=3)
+    model = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=3))
     p, k = model.dictionary_.shape
     assert model.dictionary_ensemble_.shape == (3, p, k)
     assert model.ensemble_prior_means_.shape == (3, k) and model.ensemble_prior_precisions_.shape == (3, k, k)
@@ -71,12 +74,12 @@ def test_fit_stores_the_ensemble_and_the_noise_levels(tasks):
     posts = model.transfer_posterior_
     assert all(q.n_dictionaries == 4 and len(q.members) == 3 for q in posts)
     assert all(m.mean.shape == (k,) and m.dictionary is not q.dictionary for q in posts for m in q.members)
-    model.set_params(posterior_dictionaries=0).fit(tasks[0], tasks[1].demos)  # a refit without: no stale ensemble
+    model.set_params(posterior=fo.PosteriorSettings(n_dictionaries=0)).fit(tasks[0], tasks[1].demos)  # a refit without: no stale ensemble
     assert not hasattr(model, "dictionary_ensemble_")
 
 
 def test_marginal_sampling_mixes_the_dictionaries_and_is_reproducible(tasks):
-    a, b = _fit(tasks, posterior_dictionaries=2), _fit(tasks, posterior_dictionaries=2)
+    a, b = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2)), _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2))
     np.testing.assert_array_equal(a.dictionary_ensemble_, b.dictionary_ensemble_)  # same rng, same ensemble
     pa, pb = a.transfer_posterior_[0], b.transfer_posterior_[0]
     np.testing.assert_array_equal(pa.sample_regrets(9, 3), pb.sample_regrets(9, 3))
@@ -87,7 +90,7 @@ def test_marginal_sampling_mixes_the_dictionaries_and_is_reproducible(tasks):
     np.testing.assert_array_equal(R, np.concatenate(parts))
     np.testing.assert_array_equal(pa.sample_rewards(9, 3, marginal=False), pa.sample_rewards(9, 3, marginal=False))
     assert not np.array_equal(pa.sample_rewards(9, 3, marginal=False), R)
-    c = _fit(tasks, posterior_dictionaries=2, rng=1)
+    c = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2), rng=1)
     assert not np.array_equal(a.dictionary_ensemble_, c.dictionary_ensemble_)
 
 
@@ -104,7 +107,7 @@ def test_folds_ensemble_fits_on_all_but_one_fold(tasks):
 def test_misfit_noise_widens_a_badly_explained_task(tasks):
     model = _fit(tasks)
     base = model.transfer_posterior_
-    ref = noise_reference(model.set_params(posterior_noise="misfit"))
+    ref = noise_reference(model.set_params(posterior__noise="misfit"))
     assert ref == pytest.approx(float(np.median(model.noise_levels_)))
     model.transfer(tasks[0], tasks[2].demos)
     noisy = model.transfer_posterior_
@@ -117,26 +120,26 @@ def test_misfit_noise_widens_a_badly_explained_task(tasks):
 
 
 def test_noise_reference_needs_noise_levels(tasks):
-    model = _fit(tasks, posterior_noise="misfit")
+    model = _fit(tasks, posterior=fo.PosteriorSettings(noise="misfit"))
     del model.noise_levels_
     with pytest.raises(ValidationError, match="noise_levels_"):
         noise_reference(model)
-    assert noise_reference(model.set_params(posterior_noise="multinomial")) is None
+    assert noise_reference(model.set_params(posterior__noise="multinomial")) is None
 
 
 def test_auto_model_refits_its_chosen_pair(tasks):
     mdp, train, test = tasks
-    model = fo.FactIRL(n_primitives="auto", max_iter=2, rng=0, posterior_dictionaries=2).fit(mdp, train.demos)
-    assert model.posterior_dictionaries == 2  # restored after the search
+    model = fo.FactIRL(n_primitives="auto", max_iter=2, rng=0, posterior=fo.PosteriorSettings(n_dictionaries=2)).fit(mdp, train.demos)
+    assert model.posterior == fo.PosteriorSettings(n_dictionaries=2)  # restored after the search
     assert model.dictionary_ensemble_.shape == (2, *model.dictionary_.shape)
 
 
 def test_ensemble_and_noise_levels_persist(tasks, tmp_path):
-    model = _fit(tasks, posterior_dictionaries=2, posterior_noise="misfit")
+    model = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2, noise="misfit"))
     loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
     for name in ("dictionary_ensemble_", "ensemble_prior_means_", "ensemble_prior_precisions_", "noise_levels_"):
         np.testing.assert_array_equal(getattr(loaded, name), getattr(model, name))
-    assert loaded.posterior_dictionaries == 2 and loaded.posterior_noise == "misfit"
+    assert loaded.posterior == fo.PosteriorSettings(n_dictionaries=2, noise="misfit")
     loaded.transfer(tasks[0], tasks[2].demos)
     np.testing.assert_array_equal(loaded.transfer_posterior_[0].sample_regrets(6, 2),
                                   model.transfer_posterior_[0].sample_regrets(6, 2))
@@ -145,7 +148,7 @@ def test_ensemble_and_noise_levels_persist(tasks, tmp_path):
 def test_saved_posterior_keeps_its_members(tasks, tmp_path):
     from factirl_opt.persistence.posterior import posterior_arrays, posteriors_from_arrays
 
-    model = _fit(tasks, posterior_dictionaries=2)
+    model = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2))
     posts = model.transfer_posterior_
     loaded = fo.load_model(fo.save_model(model, tmp_path / "m.npz"))
     for a, b in zip(loaded.transfer_posterior_, posts):  # the posterior as saved, before any new transfer
@@ -161,6 +164,6 @@ def test_saved_posterior_keeps_its_members(tasks, tmp_path):
 def test_a_given_start_is_resampled_with_its_tasks(tasks):
     mdp, train, _ = tasks
     start = fo.FactIRL(n_primitives=2, max_iter=3, rng=0).fit(mdp, train.demos)
-    model = fo.FactIRL(n_primitives=2, max_iter=3, rng=0, posterior_dictionaries=2,
+    model = fo.FactIRL(n_primitives=2, max_iter=3, rng=0, posterior=fo.PosteriorSettings(n_dictionaries=2),
                        start=fo.Start(init=(start.dictionary_, start.coefficients_))).fit(mdp, train.demos)
     assert model.dictionary_ensemble_.shape == (2, *model.dictionary_.shape)

@@ -355,7 +355,7 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         (``"skip"``: a deterministic expert repeats its known action there, docs/maths.md §10).
     marginal : bool, default=False
         Rank by the criterion averaged over the posterior's dictionaries (its own and its
-        ``members``, a model fitted with ``posterior_dictionaries``): the expected gain when the
+        ``members``, a model fitted with ``posterior.n_dictionaries``): the expected gain when the
         dictionary itself is uncertain, ``mean_b crit_b(s)`` with ``crit_b`` the criterion of the
         task's posterior under dictionary ``b`` (docs/maths.md §10); ``1 + B`` times the ranking's
         cost. Without members the same ranking as False.

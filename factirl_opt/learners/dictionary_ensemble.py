@@ -3,7 +3,7 @@
 The Laplace posterior of a transferred task (:mod:`~factirl_opt.learners.posterior`) is
 conditional on the fitted dictionary ``D``: a new task whose true reward lies off the span of
 ``D`` deviates whatever its coefficients, and that posterior cannot see it. A model fitted with
-``FactIRL(posterior_dictionaries=B)`` also refits ``B`` dictionaries, each with the fit's
+``FactIRL(posterior=PosteriorSettings(n_dictionaries=B))`` also refits ``B`` dictionaries, each with the fit's
 ``(k, lambda)`` on a resample of the training tasks (:func:`resampled_tasks`):
 
 - ``"bootstrap"``: ``n`` tasks drawn with replacement from the ``n`` training tasks (the
@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._params import ParameterGroup
 from .._validation import as_rng, check_int, check_tol
 from ..exceptions import ValidationError
 from .selection.folds import take_tasks, task_folds, task_subset
@@ -39,17 +40,55 @@ from .selection.search import fixed_learner, flat_start_rewards
 from .start import flat_solver
 from .transfer import coefficient_prior
 
-__all__ = ["RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "check_posterior_settings",
+__all__ = ["PosteriorSettings", "posterior_settings", "RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "check_posterior_settings",
            "fit_posterior_terms"]
 
-#: how ``FactIRL(posterior_resampling=...)`` resamples the training tasks of each refitted dictionary
+#: how ``PosteriorSettings(resampling=...)`` resamples the training tasks of each refitted dictionary
 RESAMPLINGS = ("bootstrap", "folds")
-#: ``FactIRL(posterior_noise=...)``: the likelihood's multinomial noise level alone, or scaled by each task's misfit
+#: ``PosteriorSettings(noise=...)``: the likelihood's multinomial noise level alone, or scaled by each task's misfit
 NOISE_MODELS = ("multinomial", "misfit")
 
 
+@dataclasses.dataclass(frozen=True, repr=False)
+class PosteriorSettings(ParameterGroup):
+    """What :class:`~factirl_opt.FactIRL`'s ``transfer_posterior_`` includes besides the coefficients' uncertainty.
+
+    The ``posterior`` parameter of FactIRL (nested parameters ``posterior__n_dictionaries``...;
+    ``posterior=None`` is ``PosteriorSettings()``, the conditional posterior of docs/maths.md §10).
+
+    Parameters
+    ----------
+    n_dictionaries : int, default=0
+        ``B`` dictionaries refitted in ``fit``, each with the fit's ``(k, lambda)`` on a resample of
+        the training tasks (:func:`dictionary_ensemble`), so that ``sample_rewards`` and
+        ``sample_regrets`` marginalise over the dictionary's own error as well as the
+        coefficients'. It costs ``B`` more fits, and each posterior ``B`` more posteriors. 0: the
+        posterior is conditional on ``dictionary_``.
+    resampling : {"bootstrap", "folds"}, default="bootstrap"
+        Each refitted dictionary's training tasks: ``n`` drawn with replacement (the bootstrap
+        over tasks), or all but one of ``B`` folds (the sharing search's kind of fit); drawn from
+        the estimator's ``rng``.
+    noise : {"multinomial", "misfit"}, default="multinomial"
+        The posterior's noise level under policy matching: the multinomial level of the model's
+        policy, or that level scaled by each new task's misfit at its MAP relative to the
+        training tasks' (``noise_levels_``): a demonstration the dictionary explains worse than
+        it explains its training tasks widens its posterior. ``"misfit"`` needs policy matching.
+    """
+
+    n_dictionaries: int = 0
+    resampling: str = "bootstrap"
+    noise: str = "multinomial"
+
+
+def posterior_settings(model: Any) -> PosteriorSettings:
+    """The model's :class:`PosteriorSettings` (the default for a model without the parameter, e.g. one set up by hand)."""
+    if getattr(model, "posterior", None) is None:
+        return PosteriorSettings()
+    return model._group("posterior")
+
+
 def check_posterior_settings(model: Any) -> tuple[int, str, str]:
-    """``(posterior_dictionaries, posterior_resampling, posterior_noise)`` of a FactIRL, validated.
+    """``(n_dictionaries, resampling, noise)`` of a FactIRL's :class:`PosteriorSettings`, validated.
 
     Raises
     ------
@@ -58,16 +97,19 @@ def check_posterior_settings(model: Any) -> tuple[int, str, str]:
         unknown resampling or noise model, or ``"misfit"`` under an objective without a noise
         level (MCE).
     """
-    B = check_int(getattr(model, "posterior_dictionaries", 0), "posterior_dictionaries", minimum=0)
-    how = getattr(model, "posterior_resampling", "bootstrap")
+    settings = posterior_settings(model)
+    if not isinstance(settings, PosteriorSettings):
+        raise ValidationError(f"posterior must be a PosteriorSettings or None; got {type(settings).__name__}")
+    B = check_int(settings.n_dictionaries, "posterior.n_dictionaries", minimum=0)
+    how = settings.resampling
     if how not in RESAMPLINGS:
-        raise ValidationError(f"posterior_resampling must be one of {', '.join(RESAMPLINGS)}; got {how!r}")
+        raise ValidationError(f"posterior.resampling must be one of {', '.join(RESAMPLINGS)}; got {how!r}")
     if how == "folds" and B == 1:
-        raise ValidationError("posterior_resampling='folds' needs posterior_dictionaries >= 2 (one dictionary per fold "
+        raise ValidationError("posterior.resampling='folds' needs posterior.n_dictionaries >= 2 (one dictionary per fold "
                               "left out); got 1")
-    noise = getattr(model, "posterior_noise", "multinomial")
+    noise = settings.noise
     if noise not in NOISE_MODELS:
-        raise ValidationError(f"posterior_noise must be one of {', '.join(NOISE_MODELS)}; got {noise!r}")
+        raise ValidationError(f"posterior.noise must be one of {', '.join(NOISE_MODELS)}; got {noise!r}")
     return B, how, noise
 
 
@@ -138,7 +180,7 @@ def dictionary_ensemble(model: Any, mdp: Any, demos_per_task: Any, n_dictionarie
                                           check_tol(start.flat_stol, "flat_stol"))
     Ds, means, precisions = [], [], []
     for idx in subsets:
-        member = fixed_learner(model, model.n_primitives_, model.residual_penalty_, posterior_dictionaries=0)
+        member = fixed_learner(model, model.n_primitives_, model.residual_penalty_, posterior=None)
         sub_mdp, sub_features = task_subset(mdp, model.features, idx)
         member.set_params(features=sub_features)
         if isinstance(start.init, tuple):  # a given start (D0, H0): the resampled tasks' rows of H0
@@ -153,7 +195,7 @@ def dictionary_ensemble(model: Any, mdp: Any, demos_per_task: Any, n_dictionarie
 
 
 def fit_posterior_terms(model: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None) -> Any:
-    """After ``FactIRL.fit``: the dictionary ensemble of ``posterior_dictionaries`` (:func:`dictionary_ensemble`,
+    """After ``FactIRL.fit``: the dictionary ensemble of ``posterior.n_dictionaries`` (:func:`dictionary_ensemble`,
     drawn from the model's ``rng``), or none (an earlier fit's removed); returns ``model``.
 
     The flat model (``residual_penalty_ = 0``) and a model of fewer than 2 tasks have no posterior,

@@ -46,7 +46,7 @@ from ..objectives import Objective
 
 from .transfer import TransferFit, run_transfer, transfer_coefficients, transfer_solver, transfer_tasks
 from .posterior import cached_transfer_posterior, keep_transfer, task_noise_levels
-from .dictionary_ensemble import check_posterior_settings, fit_posterior_terms
+from .dictionary_ensemble import PosteriorSettings, check_posterior_settings, fit_posterior_terms
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
 from .selection.results import rows_cv_results, validation_rows
@@ -165,23 +165,13 @@ class FactIRL(Estimator):
         0.36x the CPU and a deviation 1.7% lower on average and at most 1.8% higher per point
         (results/transfer/README.md). The flat model's transfer (``residual_penalty=0``) stops by
         it too.
-    posterior_dictionaries : int, default=0
-        ``B`` dictionaries refitted in ``fit``, each with the fit's ``(k, lambda)`` on a resample
-        of the training tasks (``posterior_resampling``; :mod:`~factirl_opt.learners.dictionary_ensemble`),
-        so that ``transfer_posterior_``'s ``sample_rewards`` and ``sample_regrets`` marginalise
-        over the dictionary's own error as well as the coefficients' (docs/maths.md §10). It costs
-        ``B`` more fits, and each posterior ``B`` more posteriors. 0: the posterior is conditional
-        on ``dictionary_``.
-    posterior_resampling : {"bootstrap", "folds"}, default="bootstrap"
-        Each refitted dictionary's training tasks: ``n`` drawn with replacement (the bootstrap
-        over tasks), or all but one of ``B`` folds (the sharing search's kind of fit). Drawn from
-        ``rng``.
-    posterior_noise : {"multinomial", "misfit"}, default="multinomial"
-        The posterior's noise level under policy matching: the multinomial level of the model's
-        policy (docs/maths.md §10), or that level scaled by each new task's misfit at its MAP
-        relative to the training tasks' (``noise_levels_``): a demonstration the dictionary
-        explains worse than it explains its training tasks widens its posterior. ``"misfit"``
-        needs policy matching.
+    posterior : PosteriorSettings, optional
+        What ``transfer_posterior_`` includes besides the coefficients' uncertainty
+        (:class:`~factirl_opt.learners.dictionary_ensemble.PosteriorSettings`: ``n_dictionaries``
+        refitted on resampled training tasks, over which ``sample_rewards`` and ``sample_regrets``
+        marginalise, their ``resampling``, and the ``noise`` level, multinomial or scaled by each
+        task's misfit; docs/maths.md §10). None: ``PosteriorSettings()``, the posterior
+        conditional on ``dictionary_`` with the multinomial noise level.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -234,9 +224,9 @@ class FactIRL(Estimator):
     noise_levels_ : ndarray, shape (n,)
         Policy matching only: each training task's noise level from its misfit at the fit,
         ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.posterior.misfit_noise_levels`);
-        their median is the reference of ``posterior_noise="misfit"``.
+        their median is the reference of ``PosteriorSettings(noise="misfit")``.
     dictionary_ensemble_ : ndarray, shape (B, p, k)
-        With ``posterior_dictionaries=B > 0``: the refitted dictionaries.
+        With ``posterior=PosteriorSettings(n_dictionaries=B)``, B > 0: the refitted dictionaries.
     ensemble_prior_means_ : ndarray, shape (B, k)
     ensemble_prior_precisions_ : ndarray, shape (B, k, k)
         Their training coefficients' Gaussian priors (:func:`~factirl_opt.learners.transfer.coefficient_prior`).
@@ -283,12 +273,13 @@ class FactIRL(Estimator):
         **{name: f"start__{name}" for name in ("init", "pca_shrink", "flat_max_iter", "flat_tol", "flat_stol")},
         **EXECUTION_RENAMED,
     }
-    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution}
+    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution,
+                                               "posterior": PosteriorSettings}
     #: The D-step solver when the solver settings name none.
     default_d_solver: ClassVar[str] = "armijo"
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
-        "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver",
+        "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver", "posterior": "group",
         "objective": "objective", "rng": "rng", "sharing_search": "sharing-search", **EXECUTION_PARAM_KINDS,
     }
 
@@ -302,8 +293,7 @@ class FactIRL(Estimator):
                  execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
                  sharing_search: SharingSearch | None = None, scheme: str = "alternating", transfer_stol: float = 0.0,
-                 posterior_dictionaries: int = 0, posterior_resampling: str = "bootstrap",
-                 posterior_noise: str = "multinomial") -> None:
+                 posterior: PosteriorSettings | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -321,9 +311,7 @@ class FactIRL(Estimator):
         self.sharing_search = sharing_search
         self.scheme = scheme
         self.transfer_stol = transfer_stol
-        self.posterior_dictionaries = posterior_dictionaries
-        self.posterior_resampling = posterior_resampling
-        self.posterior_noise = posterior_noise
+        self.posterior = posterior
 
     @property
     def validation_(self) -> list[dict]:
@@ -382,12 +370,12 @@ class FactIRL(Estimator):
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
         check_posterior_settings(self)
         if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
-            B = self.posterior_dictionaries
-            self.posterior_dictionaries = 0  # the search's candidates and its final fit refit no ensemble of their own
+            settings = self.posterior
+            self.posterior = None  # the search's candidates and its final fit refit no ensemble of their own
             try:
                 fit_auto(self, mdp, demos_per_task, flat_rewards)
             finally:
-                self.posterior_dictionaries = B
+                self.posterior = settings
             return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
@@ -527,10 +515,10 @@ class FactIRL(Estimator):
         A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
         ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
         the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model (it pickles with it; ``save_model`` stores it). With ``posterior_dictionaries``,
+        the model (it pickles with it; ``save_model`` stores it). With ``posterior.n_dictionaries``,
         each also carries the task's posteriors under the refitted dictionaries (``members``), over
         which ``sample_rewards`` and ``sample_regrets`` marginalise (B more posteriors to build);
-        with ``posterior_noise="misfit"`` each covariance is at the task's misfit noise level.
+        with ``posterior.noise="misfit"`` each covariance is at the task's misfit noise level.
         None when undefined (fewer than 2
         training tasks' coefficients to fit the prior to, or the flat model); AttributeError
         before any transfer, and after a refit (the transfer's tasks belong to the former fit).
@@ -568,7 +556,7 @@ class FactIRL(Estimator):
             deterministic expert repeats its known action there).
         marginal : bool, default=False
             Average the criterion over the posterior's dictionaries (its own and the
-            ``posterior_dictionaries`` refitted ones): the expected gain under the dictionary's
+            ``posterior.n_dictionaries`` refitted ones): the expected gain under the dictionary's
             own uncertainty (docs/maths.md §10).
 
         Returns

@@ -80,7 +80,7 @@ class LaplacePosterior:
         the likelihood's weight of one demonstrated pair).
     members : tuple of LaplacePosterior, default=()
         The same task's posteriors under the other dictionaries of the model's dictionary
-        ensemble (``FactIRL(posterior_dictionaries=B)``, :mod:`~factirl_opt.learners.dictionary_ensemble`),
+        ensemble (``FactIRL(posterior=PosteriorSettings(n_dictionaries=B))``, :mod:`~factirl_opt.learners.dictionary_ensemble`),
         each in its own dictionary's coordinates. :meth:`sample_rewards` and
         :meth:`sample_regrets` marginalise over the ``1 + B`` dictionaries (an equal-weight
         mixture, docs/maths.md §10); ``mean`` and ``covariance`` stay this dictionary's
@@ -507,7 +507,7 @@ def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.flo
     """The posteriors of ``problem``'s tasks under a fitted model's prior and settings (:func:`has_prior` holds).
 
     :func:`laplace_posteriors` with the prior of ``coefficients_``, the noise reference of
-    ``posterior_noise`` and, for a model with a ``dictionary_ensemble_``, each task's posteriors
+    ``posterior.noise`` and, for a model with a ``dictionary_ensemble_``, each task's posteriors
     under the other dictionaries as its ``members``
     (:func:`~factirl_opt.learners.dictionary_ensemble.member_posteriors`).
     """
@@ -517,13 +517,14 @@ def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.flo
 
 
 def noise_reference(model: Any) -> float | None:
-    """The training tasks' noise level the posterior scales each new task's by (``posterior_noise="misfit"``):
+    """The training tasks' noise level the posterior scales each new task's by (``PosteriorSettings(noise="misfit")``):
     the median of ``noise_levels_``; None for the multinomial noise level alone."""
-    if getattr(model, "posterior_noise", "multinomial") != "misfit":
+    settings = getattr(model, "posterior", None)
+    if settings is None or getattr(settings, "noise", "multinomial") != "misfit":
         return None
     levels = getattr(model, "noise_levels_", None)
     if levels is None:
-        raise ValidationError("posterior_noise='misfit' needs noise_levels_, which this model's fit did not store "
+        raise ValidationError("posterior noise='misfit' needs noise_levels_, which this model's fit did not store "
                               "(a policy-matching fit stores them): fit it again")
     return float(np.median(levels))
 

@@ -11,11 +11,11 @@ below, over the test tasks: the coverage of the 90% regret bound (the 0.9 quanti
 of the posterior mean, and Spearman(expected regret, that deviation). The posterior mean (the
 MAP under the conditional posterior) is the same in every row, so is the deviation.
 
-Rows (the library's options, ``FactIRL(posterior_noise=..., posterior_dictionaries=B,
-posterior_resampling=...)``):
+Rows (the library's options, ``FactIRL(posterior=PosteriorSettings(noise=..., n_dictionaries=B,
+resampling=...))``):
 
 - ``conditional``: the default, conditional on the fitted dictionary;
-- ``noise``: ``posterior_noise="misfit"``;
+- ``noise``: ``noise="misfit"``;
 - ``bootstrap8`` / ``folds5``: the dictionary ensemble of 8 bootstrap refits / 5 fold refits;
 - ``...+noise``: both terms.
 
@@ -66,7 +66,7 @@ def main(seed, n_train=60, n_test=30, n_samples=200):
     out["median_train_noise_level"] = float(np.median(model.noise_levels_))
     rows = {}
     for noise in ("multinomial", "misfit"):
-        model.set_params(posterior_noise=noise)
+        model.set_params(posterior__noise=noise)
         rows["conditional" if noise == "multinomial" else "noise"] = calibration(model, gt, test, true, n_samples, seed)
     for name, (B, how) in ENSEMBLES.items():
         t = time.process_time()
@@ -74,7 +74,7 @@ def main(seed, n_train=60, n_test=30, n_samples=200):
         out[f"{name}_fit_cpu_s"] = time.process_time() - t
         model.dictionary_ensemble_, model.ensemble_prior_means_, model.ensemble_prior_precisions_ = ens
         for noise in ("multinomial", "misfit"):
-            model.set_params(posterior_noise=noise)
+            model.set_params(posterior__noise=noise)
             rows[name + ("" if noise == "multinomial" else "+noise")] = calibration(model, gt, test, true, n_samples, seed)
     out["rows"] = rows
     return out

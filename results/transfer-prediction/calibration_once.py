@@ -7,7 +7,7 @@ distinct demonstrated (state, action) pair once (a greedy expert repeats its act
 revisits, so the repeat tells nothing new; ``N`` the number of distinct pairs), built with
 ``laplace_posteriors`` on the task's distinct pairs as one-step episodes, started from the
 transfer's values: ``once`` (multinomial noise level), ``once+noise`` (with the misfit noise
-reference of ``posterior_noise="misfit"``), and ``bootstrap8+once+noise`` (the same, with
+reference of ``PosteriorSettings(noise="misfit")``), and ``bootstrap8+once+noise`` (the same, with
 the 8 bootstrap dictionaries as members). The posterior mean differs from calibration.py's
 (another likelihood), so each row's deviation is its own mean's.
 """
@@ -53,7 +53,7 @@ def main(seed, n_train=60, n_test=30, n_samples=200):
     prior = coefficient_prior(model.coefficients_)
     out = {"seed": seed, "n_train": n_train, "n_test": n_test, "n_samples": n_samples, "rows": {}}
     out["rows"]["once"] = scores(gt, true, laplace_posteriors(problem, prior, start), n_samples, seed)
-    ref = noise_reference(model.set_params(posterior_noise="misfit"))
+    ref = noise_reference(model.set_params(posterior__noise="misfit"))
     out["rows"]["once+noise"] = scores(gt, true, laplace_posteriors(problem, prior, start, noise_reference=ref), n_samples, seed)
     model.dictionary_ensemble_, model.ensemble_prior_means_, model.ensemble_prior_precisions_ = dictionary_ensemble(
         model, gt.mdp, gt.train_demos, 8, "bootstrap", rng=model.rng)

@@ -161,23 +161,25 @@ def test_active_benchmark_marginal_strategies_on_a_dictionary_ensemble(capsys):
 
 
 def test_active_benchmark_restores_the_models_posterior_noise(monkeypatch):
+    import factirl_opt as fo
     from factirl_opt.lab.benchmarks import active
 
     seen = []
 
     class Model(_StubModel):
-        posterior_noise = "multinomial"
+        posterior = None
 
         def set_params(self, **params):
+            if "posterior__noise" in params:
+                params = {"posterior": fo.PosteriorSettings(noise=params.pop("posterior__noise")), **params}
             vars(self).update(params)
 
     def fake(model, mdp, demos, n_requests, **kw):
-        seen.append((model.posterior_noise, kw.get("marginal")))
+        seen.append((model.posterior.noise, kw.get("marginal")))
         return [np.array([0]) for _ in demos]
 
     monkeypatch.setattr(active, "request_starts", fake)
     monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
-    import factirl_opt as fo
     mdp, model = fo.GridWorld(size=2), Model()
     active.strategy_run(model, _StubTruth(1, mdp), None, mdp, None, 1, "requested-marginal-noise", {"max_demos": 2}, 0)
-    assert seen == [("misfit", True)] and model.posterior_noise == "multinomial"
+    assert seen == [("misfit", True)] and model.posterior is None

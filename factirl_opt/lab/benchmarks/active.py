@@ -19,7 +19,7 @@ transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP
 - ``requested-marginal``: the information gain averaged over the posterior's dictionaries
   (``request_starts(marginal=True)``; a model fitted with ``--posterior-dictionaries`` B > 0,
   else the same as ``requested``);
-- ``requested-marginal-noise``: the same with ``posterior_noise="misfit"`` (each task's noise
+- ``requested-marginal-noise``: the same with ``posterior__noise="misfit"`` (each task's noise
   level scaled by its misfit). Not in the default line-up (``--strategies`` names them).
 
 Every demonstration is the greedy expert's of the task's true reward, ``demo_length`` steps from
@@ -50,6 +50,7 @@ from scipy.stats import spearmanr
 from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...learners.active import policy_entropy_starts, request_starts
+from ...learners.dictionary_ensemble import PosteriorSettings
 from ...learners.factirl import FactIRL
 from ...tasks.demonstrations import sample_demonstrations
 from ..arguments import integer, real
@@ -67,7 +68,7 @@ REQUESTS = {"requested": {}, "requested-value": {"criterion": "value"}, "request
             "requested-value-skip": {"criterion": "value", "demonstrated": "skip"},
             "requested-marginal": {"marginal": True}, "requested-marginal-noise": {"marginal": True}}
 #: the model's posterior settings a strategy runs with, restored after it (the others: the model's own)
-POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior_noise": "misfit"}}
+POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior__noise": "misfit"}}
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
             "max_demos": 8, "strategies": list(STRATEGIES[:6]), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
@@ -96,8 +97,8 @@ def add_arguments(parser):
     opt("--blas-threads", type=integer(1), help="BLAS threads")
     opt("--transfer-stol", type=real(0.0), help="FactIRL's transfer_stol (default: the library's)")
     opt("--posterior-dictionaries", type=integer(0),
-        help="FactIRL's posterior_dictionaries: refitted dictionaries the posterior marginalises over")
-    opt("--posterior-resampling", choices=("bootstrap", "folds"), help="FactIRL's posterior_resampling")
+        help="FactIRL's posterior.n_dictionaries: refitted dictionaries the posterior marginalises over")
+    opt("--posterior-resampling", choices=("bootstrap", "folds"), help="FactIRL's posterior.resampling")
     parser.add_argument("--quick", action="store_true", help="a small configuration for tests")
 
 
@@ -164,7 +165,7 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
     out: dict[str, list] = {"deviation": [], "map_deviation": [], "starts": []}
     options = {**REQUESTS.get(strategy, {}), **request_options}
     settings = POSTERIOR_SETTINGS.get(strategy, {})
-    before = {name: getattr(model, name) for name in settings}
+    before = {"posterior": model.posterior} if settings else {}
     if settings:
         model.set_params(**settings)
     try:
@@ -256,8 +257,8 @@ def run(args):
                 n = min(s["n_test"], len(gt.test_demos))
                 t = time.process_time()
                 extra = {} if s["transfer_stol"] is None else {"transfer_stol": s["transfer_stol"]}
-                model = FactIRL(rng=seed, features=train_feats, posterior_dictionaries=s["posterior_dictionaries"],
-                                posterior_resampling=s["posterior_resampling"], **extra,
+                posterior = PosteriorSettings(n_dictionaries=s["posterior_dictionaries"], resampling=s["posterior_resampling"])
+                model = FactIRL(rng=seed, features=train_feats, posterior=posterior, **extra,
                                 **factorial_options(preset, preset.solvers, "policy-matching",
                                                     features=train_feats is not None))
                 model.fit(train_mdps, gt.train_demos)
