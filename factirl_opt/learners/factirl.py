@@ -411,7 +411,7 @@ class FactIRL(Estimator):
             raise_interrupted(exc, "FactIRL.fit")
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
-        if obj.least_squares:
+        if getattr(obj, "least_squares", False):  # policy matching: eq. (5)'s misfit has a noise level
             self.noise_levels_ = task_noise_levels(tasks, fit.loss, self.n_primitives_)
         return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
 
