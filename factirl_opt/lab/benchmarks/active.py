@@ -20,7 +20,9 @@ transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP
   (``request_starts(marginal=True)``; a model fitted with ``--posterior-dictionaries`` B > 0,
   else the same as ``requested``);
 - ``requested-marginal-noise``: the same with ``posterior__noise="misfit"`` (each task's noise
-  level scaled by its misfit). Not in the default line-up (``--strategies`` names them).
+  level scaled by its misfit);
+- ``requested-noise``: ``requested`` with ``posterior__noise="misfit"`` (no marginalisation).
+  The last three are not in the default line-up (``--strategies`` names them).
 
 Every demonstration is the greedy expert's of the task's true reward, ``demo_length`` steps from
 the chosen start, its random transitions drawn from common random numbers: a generator seeded by
@@ -62,13 +64,13 @@ from . import add_option, resolve_settings
 __all__ = ["add_arguments", "run", "world", "strategy_run", "demonstration_rng", "STRATEGIES", "REQUESTS", "WORLDS", "DEFAULTS"]
 
 STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-regret", "requested-value-skip",
-              "requested-marginal", "requested-marginal-noise")
+              "requested-marginal", "requested-marginal-noise", "requested-noise")
 #: the requested strategies' options of ``request_starts`` (``"requested"``: its defaults)
 REQUESTS = {"requested": {}, "requested-value": {"criterion": "value"}, "requested-regret": {"criterion": "regret"},
             "requested-value-skip": {"criterion": "value", "demonstrated": "skip"},
-            "requested-marginal": {"marginal": True}, "requested-marginal-noise": {"marginal": True}}
+            "requested-marginal": {"marginal": True}, "requested-marginal-noise": {"marginal": True}, "requested-noise": {}}
 #: the model's posterior settings a strategy runs with, restored after it (the others: the model's own)
-POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior__noise": "misfit"}}
+POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior__noise": "misfit"}, "requested-noise": {"posterior__noise": "misfit"}}
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
             "max_demos": 8, "strategies": list(STRATEGIES[:6]), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
