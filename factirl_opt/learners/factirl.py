@@ -378,6 +378,7 @@ class FactIRL(Estimator):
                 self.posterior = settings
             return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
+        self.__dict__.pop("noise_levels_", None)  # an earlier fit's (set again below under a least-squares objective)
         tasks = task_set(mdp, demos_per_task, self.features, self.reward)
         basis = tasks.basis
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
