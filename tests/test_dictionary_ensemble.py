@@ -76,6 +76,8 @@ def test_fit_stores_the_ensemble_and_the_noise_levels(tasks):
     assert all(m.mean.shape == (k,) and m.dictionary is not q.dictionary for q in posts for m in q.members)
     model.set_params(posterior=fo.PosteriorSettings(n_dictionaries=0)).fit(tasks[0], tasks[1].demos)  # a refit without: no stale ensemble
     assert not hasattr(model, "dictionary_ensemble_")
+    model.set_params(objective="mce", max_iter=1).fit(tasks[0], tasks[1].demos)  # nor stale noise levels
+    assert not hasattr(model, "noise_levels_")
 
 
 def test_marginal_sampling_mixes_the_dictionaries_and_is_reproducible(tasks):
