@@ -325,3 +325,26 @@ def test_information_gains_over_the_rows_match_the_parameters_determinants(resid
         H = np.einsum("cy,yde->cde", occ, info)
         dense = np.linalg.slogdet(Lam[None] + H)[1] - np.linalg.slogdet(Lam)[1]
         np.testing.assert_allclose(gains, dense, rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
+def test_marginal_requests_average_the_criterion_over_the_dictionaries(fitted):
+    mdp, test, models = fitted
+    S = mdp.n_states
+    plain = models["policy-matching"]
+    for a, b in zip(plain.request_starts(mdp, test.demos, S, marginal=True), plain.request_starts(mdp, test.demos, S)):
+        np.testing.assert_array_equal(a, b)  # no ensemble: the conditional ranking
+    model = fo.FactIRL(n_primitives=2, max_iter=5, rng=0, posterior=fo.PosteriorSettings(n_dictionaries=2))
+    model.fit(mdp, transfer_tasks_on_a_grid(4, 12, 3, 8, 3)[1].demos)
+    model.transfer(mdp, test.demos)
+    got = model.request_starts(mdp, test.demos, S, marginal=True)
+    cands = np.arange(S)
+    for i, post in enumerate(model.transfer_posterior_):
+        assert len(post.members) == 2
+        L = len(test.demos[i][0])
+        gains = np.mean([information_gains(q, "policy-matching", model.beta, cands, L) for q in (post, *post.members)], axis=0)
+        np.testing.assert_array_equal(got[i], np.argsort(-gains, kind="stable"))
+    own = model.request_starts(mdp, test.demos, S)
+    assert any(not np.array_equal(g, o) for g, o in zip(got, own))
+    with pytest.raises(ValidationError, match="marginal"):
+        model.request_starts(mdp, test.demos, marginal="yes")

@@ -282,3 +282,51 @@ def test_lowrank_needs_a_residual_least_squares_problem(grid3, rng):
         laplace_posteriors(problem, prior, lowrank=True)
     np.testing.assert_allclose(laplace_posteriors(problem, prior)[0].covariance,  # dense where it does not apply
                                laplace_posteriors(problem, prior, lowrank=False)[0].covariance, rtol=1e-8)
+
+
+def test_marginal_posterior_of_one_dictionary_is_the_conditional_one(grid3, rng):
+    import dataclasses
+
+    problem, _ = _problem(grid3, "policy-matching", rng, k=2)
+    post = laplace_posteriors(problem, coefficient_prior(rng.normal(size=(5, 2))))[0]
+    assert post.n_dictionaries == 1 and post.members == ()
+    np.testing.assert_array_equal(post.sample_rewards(7, 3), post.sample_rewards(7, 3, marginal=False))
+    np.testing.assert_array_equal(post.sample_regrets(7, 3), post.sample_regrets(7, 3, marginal=False))
+    # members equal to the posterior itself: the mixture is the one Gaussian, drawn from one generator in turn
+    twin = dataclasses.replace(post, members=(dataclasses.replace(post), dataclasses.replace(post)))
+    assert twin.member_counts(7) == [3, 2, 2]
+    np.testing.assert_allclose(twin.sample_rewards(7, 3), post.sample_rewards(7, 3), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(twin.sample_regrets(7, 3), post.sample_regrets(7, 3), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValidationError, match="marginal"):
+        twin.sample_rewards(3, 0, marginal=1)
+
+
+def test_misfit_noise_levels_are_the_regression_estimate():
+    from factirl_opt.learners.posterior import misfit_noise_levels
+
+    got = misfit_noise_levels([0.1, 0.2, 0.3], [10, 20, 5], [4, 6, 1], 4, 2)
+    np.testing.assert_allclose(got, [10 * 0.1 / (4 * 3 - 2), 20 * 0.2 / (6 * 3 - 2), 5 * 0.3 / 1.0])  # dof floored at 1
+
+
+def test_noise_reference_scales_the_likelihood_by_the_misfit(grid3, rng):
+    from factirl_opt.learners.posterior import NOISE_RATIO_MIN, misfit_noise_levels
+
+    problem, _ = _problem(grid3, "policy-matching", rng, k=2)
+    problem.objective.pi_hat[:] = np.eye(grid3.n_actions)[rng.integers(grid3.n_actions, size=(1, grid3.n_states))]
+    prior = coefficient_prior(rng.normal(size=(5, 2)))
+    base = laplace_posteriors(problem, prior)[0]
+    loss = demonstration_curvature(problem, base.mean[None])[0]
+    level = misfit_noise_levels(loss, problem.n_pairs, [grid3.n_states], grid3.n_actions, 2)[0]
+    for reference in (level / 4.0, level * 4.0, level * 1e6):
+        post = laplace_posteriors(problem, prior, noise_reference=reference)[0]
+        np.testing.assert_array_equal(post.mean, base.mean)
+        ratio = max(level / reference, NOISE_RATIO_MIN)
+        assert post.scaling == pytest.approx(base.scaling / ratio)
+        G = demonstration_curvature(problem, base.mean[None])[2][0]
+        np.testing.assert_allclose(np.linalg.inv(post.covariance), post.scaling * G + prior[1], rtol=1e-6, atol=1e-8)
+    mce, _ = _problem(grid3, "mce", rng, k=2)
+    with pytest.raises(ValidationError, match="least-squares"):
+        laplace_posteriors(mce, prior, noise_reference=1.0)
+    for bad in (0.0, -1.0, np.nan):
+        with pytest.raises(ValidationError, match="noise_reference"):
+            laplace_posteriors(problem, prior, noise_reference=bad)

@@ -9,7 +9,8 @@
   and the choice of the number of intentions (:mod:`~factirl_opt.learners.intention_count`).
 - The grouped parameters: :class:`SolverSettings` (the step solvers a learner runs),
   :class:`Execution` (where and how a fit runs and is watched), :class:`Start` and
-  :class:`IntentionStart` (where a FactIRL or MultiIntentIRL fit starts; :mod:`~factirl_opt.learners.start`).
+  :class:`IntentionStart` (where a FactIRL or MultiIntentIRL fit starts; :mod:`~factirl_opt.learners.start`),
+  :class:`PosteriorSettings` (what FactIRL's transfer posterior includes; :mod:`~factirl_opt.learners.dictionary_ensemble`).
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
 - :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
@@ -30,6 +31,7 @@ from .selection.results import plot_validation
 from .selection.sharing_search import SharingSearch
 from .solver_settings import SolverSettings
 from .start import IntentionStart, Start
+from .dictionary_ensemble import PosteriorSettings
 from ..objectives.sharding import Execution
 
 __all__ = [
@@ -40,6 +42,7 @@ __all__ = [
     "SolverSettings",
     "Execution",
     "Start",
+    "PosteriorSettings",
     "IntentionStart",
     "SharingSearch",
     "clone",

@@ -31,13 +31,13 @@ from numpy.typing import NDArray
 from scipy.linalg import cholesky
 from scipy.special import ndtr
 
-from .._validation import check_int
+from .._validation import check_bool, check_int
 from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
-from .posterior import LaplacePosterior, has_prior, laplace_posteriors, transfer_inputs
+from .posterior import LaplacePosterior, has_prior, model_posteriors, transfer_inputs
 from .transfer_likelihood import tasks_problem
-from .transfer import coefficient_prior, transfer_tasks
+from .transfer import transfer_tasks
 
 __all__ = ["request_starts", "information_gains", "information_rows", "value_variance_reductions", "state_information", "start_occupancy",
            "policy_entropy_starts", "model_policy", "CRITERIA", "POLICIES", "demonstrator_policy", "DEMONSTRATED",
@@ -303,8 +303,7 @@ def _posteriors(model: Any, mdp: Any, demos_per_task: Any, features: Any) -> tup
         posts, tasks = model.transfer_posterior_, model._transfer.tasks
     else:
         tasks, D = transfer_tasks(mdp, demos_per_task, features, model)
-        problem = tasks_problem(model, tasks, D)
-        posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_)) if has_prior(model) else None
+        posts = model_posteriors(model, tasks_problem(model, tasks, D)) if has_prior(model) else None
     if posts is None:
         raise ValidationError("request_starts needs the tasks' posterior, which is undefined for this model: it needs "
                               "at least 2 training tasks' coefficients_ and a residual_penalty_ other than 0")
@@ -328,7 +327,7 @@ def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.
 
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                    features: Any = None, criterion: str = "information",
-                   policy: str = "boltzmann", demonstrated: str = "count") -> list[NDArray[np.intp]]:
+                   policy: str = "boltzmann", demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
     """Candidate start states per new task, best first, by expected information gain (module docstring).
 
     Parameters
@@ -354,6 +353,12 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         How the pairs of a requested demonstration in states the task's demonstrations already
         visit count: as the model's likelihood counts them (``"count"``), or not at all
         (``"skip"``: a deterministic expert repeats its known action there, docs/maths.md §10).
+    marginal : bool, default=False
+        Rank by the criterion averaged over the posterior's dictionaries (its own and its
+        ``members``, a model fitted with ``posterior.n_dictionaries``): the expected gain when the
+        dictionary itself is uncertain, ``mean_b crit_b(s)`` with ``crit_b`` the criterion of the
+        task's posterior under dictionary ``b`` (docs/maths.md §10); ``1 + B`` times the ranking's
+        cost. Without members the same ranking as False.
 
     Returns
     -------
@@ -367,6 +372,7 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         model whose posterior is undefined.
     """
     n_requests = check_int(n_requests, "n_requests", minimum=1)
+    marginal = check_bool(marginal, "marginal")
     if criterion not in CRITERIA:
         raise ValidationError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     if policy not in POLICIES:
@@ -380,8 +386,11 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     out = []
     for i, post in enumerate(posts):
         known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
-        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], _episode_length(post.n_pairs, demos_per_task[i]),
-                                     policy, known)
+        length = _episode_length(post.n_pairs, demos_per_task[i])
+        gains = CRITERIA[criterion](post, objective, model.beta, cands[i], length, policy, known)
+        if marginal and post.members:
+            gains = np.mean([gains] + [CRITERIA[criterion](m, objective, model.beta, cands[i], length, policy, known)
+                                       for m in post.members], axis=0)
         order = np.argsort(-gains, kind="stable")
         out.append(cands[i][order[:n_requests]])
     return out

@@ -47,7 +47,8 @@ from ..objectives import Objective
 
 from .transfer import (TRANSFER_STOL, TransferFit, run_transfer, transfer_coefficients, transfer_dictionary, transfer_solver,
                        transfer_tasks)
-from .posterior import cached_transfer_posterior, keep_transfer
+from .posterior import cached_transfer_posterior, keep_transfer, task_noise_levels
+from .dictionary_ensemble import PosteriorSettings, check_posterior_settings, fit_posterior_terms
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
 from .selection.results import validation_attribute
@@ -195,6 +196,13 @@ class FactIRL(Estimator):
         0.36x the CPU and a deviation 1.7% lower on average and at most 1.8% higher per point
         (results/transfer/README.md). 0 turns it off: the maximum-likelihood (unregularised)
         transfer. The flat model's transfer (``residual_penalty=0``) stops by it too.
+    posterior : PosteriorSettings, optional
+        What ``transfer_posterior_`` includes besides the coefficients' uncertainty
+        (:class:`~factirl_opt.learners.dictionary_ensemble.PosteriorSettings`: ``n_dictionaries``
+        refitted on resampled training tasks, over which ``sample_rewards`` and ``sample_regrets``
+        marginalise, their ``resampling``, and the ``noise`` level, multinomial or scaled by each
+        task's misfit; docs/maths.md §10). None: ``PosteriorSettings()``, the posterior
+        conditional on ``dictionary_`` with the multinomial noise level.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -247,6 +255,15 @@ class FactIRL(Estimator):
         include them, ``loss_`` is without their penalty, ``loss_history_`` with it.
     transfer_residuals_ : ndarray, shape (n_new, p)
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
+    noise_levels_ : ndarray, shape (n,)
+        Policy matching only: each training task's noise level from its misfit at the fit,
+        ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.posterior.misfit_noise_levels`);
+        their median is the reference of ``PosteriorSettings(noise="misfit")``.
+    dictionary_ensemble_ : ndarray, shape (B, p, k)
+        With ``posterior=PosteriorSettings(n_dictionaries=B)``, B > 0: the refitted dictionaries.
+    ensemble_prior_means_ : ndarray, shape (B, k)
+    ensemble_prior_precisions_ : ndarray, shape (B, k, k)
+        Their training coefficients' Gaussian priors (:func:`~factirl_opt.learners.transfer.coefficient_prior`).
     validation_ : list of dict
         With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
         :func:`~factirl_opt.learners.selection.search.search_sharing`, one row per candidate
@@ -277,7 +294,8 @@ class FactIRL(Estimator):
         "transfer_loss_history_": "history", "transfer_n_evaluations_": "count", "transfer_status_": "text",
         "transfer_stop_reason_": "text", "residuals_": ("n", "p"), "transfer_residuals_": ("n_new", "p"),
         "n_primitives_": "count", "residual_penalty_": "penalty", "cv_results_": "cv-results",
-        "validation_": "validation",
+        "validation_": "validation", "noise_levels_": ("n",), "dictionary_ensemble_": ("B", "p", "k"),
+        "ensemble_prior_means_": ("B", "k"), "ensemble_prior_precisions_": ("B", "k", "k"),
     }
 
     #: Old parameter names, still accepted with a DeprecatedNameWarning (factirl_opt.learners.estimator).
@@ -289,14 +307,15 @@ class FactIRL(Estimator):
         **{name: f"start__{name}" for name in ("init", "pca_shrink", "flat_max_iter", "flat_tol", "flat_stol")},
         **EXECUTION_RENAMED,
     }
-    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution}
+    param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution,
+                                               "posterior": PosteriorSettings}
     #: The D-step solver when the solver settings name none (:attr:`default_d_solver`), and with a
     #: ``dictionary_constraint``, whose projected/proximal steps are Armijo's.
     unconstrained_d_solver: ClassVar[str] = "lbfgs"
     constrained_d_solver: ClassVar[str] = "armijo"
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
-        "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver",
+        "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver", "posterior": "group",
         "objective": "objective", "rng": "rng", "sharing_search": "sharing-search", **EXECUTION_PARAM_KINDS,
     }
 
@@ -310,7 +329,7 @@ class FactIRL(Estimator):
                  execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
                  dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
                  sharing_search: SharingSearch | None = None, scheme: str = "auto",
-                 transfer_stol: float = TRANSFER_STOL) -> None:
+                 transfer_stol: float = TRANSFER_STOL, posterior: PosteriorSettings | None = None) -> None:
         self.n_primitives = n_primitives
         self.beta = beta
         self.features = features
@@ -328,6 +347,7 @@ class FactIRL(Estimator):
         self.sharing_search = sharing_search
         self.scheme = scheme
         self.transfer_stol = transfer_stol
+        self.posterior = posterior
 
     @property
     def default_d_solver(self) -> str:
@@ -378,13 +398,18 @@ class FactIRL(Estimator):
         """
         self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
+        check_posterior_settings(self)
         if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
-            return fit_auto(self, mdp, demos_per_task, flat_rewards)
-        return self._fit_tasks(learner_tasks(self, mdp, demos_per_task), flat_rewards)
+            fit_auto(self, mdp, demos_per_task, flat_rewards)  # its candidates and final fit refit no ensemble
+            return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
+        tasks = learner_tasks(self, mdp, demos_per_task)
+        self._fit_tasks(tasks, flat_rewards)
+        return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards, tasks)
 
     def _fit_tasks(self, tasks: TaskSet, flat_rewards: Any = None) -> FactIRL:
         """:meth:`fit` with a fixed k and lambda on a task set (the sharing search's candidates and final fit)."""
         self.__dict__.pop("cv_results_", None)  # a fixed fit: an earlier search's table does not describe it
+        self.__dict__.pop("noise_levels_", None)  # an earlier fit's (set again below under a least-squares objective)
         basis = tasks.basis
         max_iter, inner_steps, tol, gtol = self._check_params(tasks)
         h_name, h_options, d_name, d_options = estimator_solvers(self)
@@ -419,6 +444,8 @@ class FactIRL(Estimator):
         self._store(tasks, fit, int(fit.n_evaluations + init_evals), lam)
         self.scheme_ = scheme
         warn_if_stalled(fit.status, fit.n_iter, "FactIRL.fit")
+        if getattr(obj, "least_squares", False):  # policy matching: eq. (5)'s misfit has a noise level
+            self.noise_levels_ = task_noise_levels(tasks, fit.loss, self.n_primitives_)
         return self
 
     def _store(self, tasks, fit, n_evaluations, lam=np.inf):
@@ -527,7 +554,11 @@ class FactIRL(Estimator):
         A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
         ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
         the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model (it pickles with it; ``save_model`` stores it). None when undefined (fewer than 2
+        the model (it pickles with it; ``save_model`` stores it). With ``posterior.n_dictionaries``,
+        each also carries the task's posteriors under the refitted dictionaries (``members``), over
+        which ``sample_rewards`` and ``sample_regrets`` marginalise (B more posteriors to build);
+        with ``posterior.noise="misfit"`` each covariance is at the task's misfit noise level.
+        None when undefined (fewer than 2
         training tasks' coefficients to fit the prior to, or the flat model); AttributeError
         before any transfer, and after a refit (the transfer's tasks belong to the former fit).
         """
@@ -535,7 +566,7 @@ class FactIRL(Estimator):
 
     def request_starts(self, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                        features: Any = None, criterion: str = "information", policy: str = "boltzmann",
-                       demonstrated: str = "count") -> list[NDArray[np.intp]]:
+                       demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
         """Start states to ask a demonstration from, per new task, most informative first.
 
         :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
@@ -562,6 +593,10 @@ class FactIRL(Estimator):
             How a requested demonstration's pairs in states the task's demonstrations already
             visit count: as the model's likelihood counts them, or not at all (``"skip"``: a
             deterministic expert repeats its known action there).
+        marginal : bool, default=False
+            Average the criterion over the posterior's dictionaries (its own and the
+            ``posterior.n_dictionaries`` refitted ones): the expected gain under the dictionary's
+            own uncertainty (docs/maths.md §10).
 
         Returns
         -------
@@ -574,7 +609,7 @@ class FactIRL(Estimator):
             :func:`~factirl_opt.learners.active.request_starts`).
         """
         return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
-                              criterion=criterion, policy=policy, demonstrated=demonstrated)
+                              criterion=criterion, policy=policy, demonstrated=demonstrated, marginal=marginal)
 
     def gpi_policies(self, mdp: Any, coefficients: ArrayLike, *, improvement_steps: int = 0, features: Any = None,
                      library: Any = None, start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._deprecation import moved_names
-from .._validation import as_rng, check_int
+from .._validation import as_rng, check_bool, check_int
 from ..exceptions import ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
@@ -41,8 +41,8 @@ from .transfer import coefficient_prior
 from .transfer_likelihood import (TransferProblem, _basis, _evaluate, _evaluate_lowrank, _pad_rows, likelihood_scaling,
                                   tasks_problem, transfer_problem)
 
-__all__ = ["LaplacePosterior", "laplace_posteriors", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
-           "TransferState", "has_prior",
+__all__ = ["LaplacePosterior", "laplace_posteriors", "misfit_noise_levels", "task_noise_levels", "NOISE_RATIO_MIN", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
+           "TransferState", "has_prior", "model_posteriors", "member_posteriors", "noise_reference",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve"]
 
 #: damped Newton steps of the MAP at most, and the stopping rule on the Newton decrement
@@ -78,6 +78,13 @@ class LaplacePosterior:
     n_pairs : float
         ``N``, the demonstrated pairs the posterior is conditioned on (``scaling / n_pairs`` is
         the likelihood's weight of one demonstrated pair).
+    members : tuple of LaplacePosterior, default=()
+        The same task's posteriors under the other dictionaries of the model's dictionary
+        ensemble (``FactIRL(posterior=PosteriorSettings(n_dictionaries=B))``, :mod:`~factirl_opt.learners.dictionary_ensemble`),
+        each in its own dictionary's coordinates. :meth:`sample_rewards` and
+        :meth:`sample_regrets` marginalise over the ``1 + B`` dictionaries (an equal-weight
+        mixture, docs/maths.md §10); ``mean`` and ``covariance`` stay this dictionary's
+        (conditional) ones. Empty: the conditional posterior.
 
     Attributes
     ----------
@@ -92,6 +99,12 @@ class LaplacePosterior:
     mdp: TabularMDP
     scaling: float = 1.0
     n_pairs: float = 1.0
+    members: tuple = ()
+
+    @property
+    def n_dictionaries(self) -> int:
+        """The dictionaries the posterior marginalises over: its own, and one per member."""
+        return 1 + len(self.members)
 
     @property
     def n_primitives(self) -> int:
@@ -125,19 +138,50 @@ class LaplacePosterior:
         z = as_rng(rng).standard_normal((n, self.mean.shape[0]))
         return self.mean + z @ L.T
 
-    def sample_rewards(self, n: int, rng: Any = None) -> NDArray[np.float64]:
-        """``n`` rewards (n, S, A) drawn from the posterior, in the layout of one task of ``transfer_rewards_``."""
-        return self.rewards(self.sample(n, rng))
+    def member_counts(self, n: int) -> list[int]:
+        """How many of ``n`` marginal draws each dictionary gives: ``n`` split evenly over the
+        ``1 + len(members)`` dictionaries, the remainder to the first ones (stratified)."""
+        n = check_int(n, "n", minimum=1)
+        base, extra = divmod(n, self.n_dictionaries)
+        return [base + (j < extra) for j in range(self.n_dictionaries)]
 
-    def sample_regrets(self, n: int, rng: Any = None, planner: str = "auto") -> NDArray[np.float64]:
+    def sample_rewards(self, n: int, rng: Any = None, *, marginal: bool = True) -> NDArray[np.float64]:
+        """``n`` rewards (n, S, A) drawn from the posterior, in the layout of one task of ``transfer_rewards_``.
+
+        Parameters
+        ----------
+        n : int
+        rng : numpy.random.Generator or int or None
+        marginal : bool, default=True
+            Marginalise over the dictionary ensemble (``members``): ``R = Phi (D_b h + delta)``
+            with ``b`` the dictionary and ``[h, delta] ~ N(x_b, Lambda_b^-1)`` its posterior,
+            :meth:`member_counts` draws from each ``b`` in turn (own dictionary first), one
+            generator for all. False: this dictionary's (conditional) posterior only. Without
+            members both are the same draws.
+
+        Returns
+        -------
+        ndarray, shape (n, S, A)
+        """
+        check_bool(marginal, "marginal")
+        if not marginal or not self.members:
+            return self.rewards(self.sample(n, rng))
+        gen = as_rng(rng)
+        posts = (self, *self.members)
+        return np.concatenate([posts[b].rewards(posts[b].sample(c, gen))
+                               for b, c in enumerate(self.member_counts(n)) if c > 0])
+
+    def sample_regrets(self, n: int, rng: Any = None, planner: str = "auto", *, marginal: bool = True) -> NDArray[np.float64]:
         """Regret (n,) of acting greedily on the mean reward, under ``n`` rewards drawn from the posterior.
 
-        For each sampled reward ``R_j``: ``mean_s V*_{R_j}(s) - mean_s V^{pi_m}_{R_j}(s)`` with
-        ``pi_m`` greedy on the ``Q*`` of the mean reward, the units of :func:`factirl_opt.deviation`
-        (``deviation(mdp, R_j, mean_rewards())``). The samples are planned as one batch. Its
-        mean is the posterior expected regret, its 0.9 quantile the 90% upper bound.
+        For each sampled reward ``R_j`` (:meth:`sample_rewards`, marginal over the dictionary
+        ensemble unless ``marginal=False``): ``mean_s V*_{R_j}(s) - mean_s V^{pi_m}_{R_j}(s)`` with
+        ``pi_m`` greedy on the ``Q*`` of this posterior's mean reward (the one ``transfer_posterior_``
+        acts on), the units of :func:`factirl_opt.deviation` (``deviation(mdp, R_j, mean_rewards())``).
+        The samples are planned as one batch. Its mean is the posterior expected regret, its 0.9
+        quantile the 90% upper bound.
         """
-        R = self.sample_rewards(n, rng)
+        R = self.sample_rewards(n, rng, marginal=marginal)
         pl = get_planner(self.mdp, planner)
         best = plan(pl, R).V.mean(axis=1)
         pol = plan(pl, self.mean_rewards()[None]).policy
@@ -270,8 +314,56 @@ class _Curvature:
         return 0.5 * (C + C.T)
 
 
+#: the smallest ratio of a new task's noise level to the training tasks' (:func:`laplace_posteriors`'s
+#: ``noise_reference``): a demonstration its MAP matches exactly does not make the likelihood infinitely sharp
+NOISE_RATIO_MIN = 0.01
+
+
+def misfit_noise_levels(loss: ArrayLike, n_pairs: ArrayLike, n_visited: ArrayLike, n_actions: ArrayLike,
+                        n_params: int) -> NDArray[np.float64]:
+    """Each task's noise level from its misfit, as ``s^2 = RSS / (n - d)`` in regression (docs/maths.md §10).
+
+    ``shat_i^2 = N_i J_i / max(n_i (A - 1) - d, 1)``: eq. (5)'s ``J_i = ||r_i||^2`` at the fit,
+    whose residuals ``r = sqrt(mu) (pi - pi_hat)`` have variance ``sigma^2 / N_i`` per component
+    (so ``N_i J_i`` is the residual sum of squares on the scale of one visit), over the
+    ``n_i (A - 1)`` non-degenerate components of the ``n_i`` demonstrated states less the ``d``
+    fitted parameters.
+
+    Parameters
+    ----------
+    loss : array_like, shape (n,)
+        ``J_i`` (policy matching's eq. 5) at each task's fitted rewards.
+    n_pairs : array_like, shape (n,)
+        ``N_i``, the task's demonstrated (state, action) pairs.
+    n_visited : array_like, shape (n,)
+        ``n_i``, the distinct states its demonstrations visit.
+    n_actions : int or array_like, shape (n,)
+    n_params : int
+        ``d``, the parameters fitted per task (``k``).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    J, N = np.asarray(loss, dtype=np.float64), np.asarray(n_pairs, dtype=np.float64)
+    dof = np.maximum(np.asarray(n_visited, dtype=np.float64) * (np.asarray(n_actions, dtype=np.float64) - 1) - n_params, 1.0)
+    return N * J / dof
+
+
+def task_noise_levels(tasks: Any, loss: ArrayLike, n_params: int) -> NDArray[np.float64]:
+    """:func:`misfit_noise_levels` of a fitted task set (``FactIRL.noise_levels_``): ``loss`` (n,) its per-task eq. (5)."""
+    from ..tasks.trajectories import task_steps
+
+    one = tasks.mdp
+    mdps = [one] * tasks.n_tasks if one is not None else list(tasks.mdps)
+    steps = [task_steps(mdps[i], d, i) for i, d in enumerate(tasks.demos_per_task)]
+    return misfit_noise_levels(loss, [len(st) for st in steps], [np.unique(st[:, 0]).size for st in steps],
+                               [m.n_actions for m in mdps], n_params)
+
+
 def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64], NDArray[np.float64]],
-                       start: NDArray[np.float64] | None = None, lowrank: bool | None = None) -> list[LaplacePosterior]:
+                       start: NDArray[np.float64] | None = None, lowrank: bool | None = None,
+                       noise_reference: float | None = None) -> list[LaplacePosterior]:
     """Each new task's Laplace posterior: MAP by damped Newton steps, covariance the inverse curvature there.
 
     Parameters
@@ -288,6 +380,14 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         (reverse-mode Jacobians, Woodbury solves of size m; no (k + p, k + p) solve), instead of
         dense. The same results to round-off. Default: for a residual model under a least-squares
         objective (policy matching), where it applies.
+    noise_reference : float, optional
+        The training tasks' noise level (the median of ``FactIRL.noise_levels_``). Given, each
+        task's noise level is scaled by its own misfit at the MAP (policy matching only):
+        ``sigma_i^2 <- sigma_i^2 rho_i`` with ``rho_i = max(shat_i^2 / noise_reference, NOISE_RATIO_MIN)``
+        and ``shat_i^2`` its :func:`misfit_noise_levels` (``d = k``), i.e. ``s_i <- s_i / rho_i``,
+        and the covariance is formed at that scale (the mean stays the MAP at the multinomial
+        scale): a demonstration the dictionary explains worse than it explains the training
+        tasks widens its posterior. None: the multinomial noise level alone.
 
     Returns
     -------
@@ -297,6 +397,12 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     D = problem.dictionary
     k = D.shape[1]
     n = problem.n_tasks
+    if noise_reference is not None:
+        if not problem.objective.least_squares:
+            raise ValidationError("noise_reference scales a least-squares likelihood (policy matching); this objective "
+                                  "has no noise level to scale")
+        if not (np.isfinite(noise_reference) and noise_reference > 0):
+            raise ValidationError(f"noise_reference must be a finite positive float; got {noise_reference!r}")
     lam = problem.residual_penalty if problem.residual else 0.0
     d = k + (D.shape[0] if problem.residual else 0)
     applies = problem.residual and problem.objective.least_squares
@@ -354,12 +460,21 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         loss[acc], grad[acc], G[acc] = lt[ok], gt[ok], Gt[ok]
         mu[acc] /= 3.0
         mu[a[~ok]] *= 10.0
+    if noise_reference is not None:
+        s = s / _noise_ratios(problem, loss, k, float(noise_reference))
     curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
         out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
                                     float(problem.n_pairs[i])))
     return out
+
+
+def _noise_ratios(problem, loss, k, reference):
+    """``rho_i`` (n,) of :func:`laplace_posteriors`'s ``noise_reference``: each task's misfit level at ``loss`` over the reference."""
+    visited = [int(np.count_nonzero(problem.statistics(t)[1] > 0)) for t in range(problem.n_tasks)]
+    levels = misfit_noise_levels(loss, problem.n_pairs, visited, [m.n_actions for m in problem.mdps], k)
+    return np.maximum(levels / reference, NOISE_RATIO_MIN)
 
 
 def transfer_posterior(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> list[LaplacePosterior] | None:
@@ -385,7 +500,60 @@ def _posterior_of(model: Any, problem: TransferProblem) -> list[LaplacePosterior
     start = np.asarray(model.transfer_coefficients_, dtype=np.float64)
     if problem.residual:
         start = np.concatenate([start, np.asarray(model.transfer_residuals_, dtype=np.float64)], axis=1)
-    return laplace_posteriors(problem, coefficient_prior(model.coefficients_), start)
+    return model_posteriors(model, problem, start)
+
+
+def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.float64] | None = None) -> list[LaplacePosterior]:
+    """The posteriors of ``problem``'s tasks under a fitted model's prior and settings (:func:`has_prior` holds).
+
+    :func:`laplace_posteriors` with the prior of ``coefficients_``, the noise reference of
+    ``posterior.noise`` and, for a model with a ``dictionary_ensemble_``, each task's posteriors
+    under the other dictionaries as its ``members``
+    (:func:`~factirl_opt.learners.dictionary_ensemble.member_posteriors`).
+    """
+    reference = noise_reference(model)
+    posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_), start, noise_reference=reference)
+    return member_posteriors(model, problem, posts, reference)
+
+
+def noise_reference(model: Any) -> float | None:
+    """The training tasks' noise level the posterior scales each new task's by (``PosteriorSettings(noise="misfit")``):
+    the median of ``noise_levels_``; None for the multinomial noise level alone."""
+    settings = getattr(model, "posterior", None)
+    if settings is None or getattr(settings, "noise", "multinomial") != "misfit":
+        return None
+    levels = getattr(model, "noise_levels_", None)
+    if levels is None:
+        raise ValidationError("posterior noise='misfit' needs noise_levels_, which this model's fit did not store "
+                              "(a policy-matching fit stores them): fit it again")
+    return float(np.median(levels))
+
+
+def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],
+                      reference: float | None = None) -> list[LaplacePosterior]:
+    """Attach to each of ``posts`` its posteriors under the model's ``dictionary_ensemble_`` (``members``); returns ``posts``.
+
+    Each member ``b`` is :func:`~factirl_opt.learners.posterior.laplace_posteriors` of the same
+    tasks with ``D_b`` and the prior ``(m_b, P_b)``, started from the better of its prior mean
+    and the least-squares coefficients of the conditional posterior's mean weights on ``D_b``
+    (the residual kept), with the same ``noise_reference``. A model without an ensemble leaves
+    ``posts`` as they are.
+    """
+    Ds = getattr(model, "dictionary_ensemble_", None)
+    if Ds is None or len(Ds) == 0 or not posts:
+        return posts
+    k = problem.dictionary.shape[1]
+    X = np.stack([p.mean for p in posts])
+    W = X[:, :k] @ problem.dictionary.T
+    members = []
+    for D, m, P in zip(Ds, model.ensemble_prior_means_, model.ensemble_prior_precisions_):
+        H = np.linalg.lstsq(D, W.T, rcond=None)[0].T
+        start = np.concatenate([H, X[:, k:]], axis=1)
+        members.append(laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (m, P), start,
+                                          noise_reference=reference))
+    for i, p in enumerate(posts):
+        p.members = tuple(mp[i] for mp in members)
+    return posts
 
 
 @dataclasses.dataclass(eq=False)

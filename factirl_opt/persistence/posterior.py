@@ -63,7 +63,7 @@ def load_transfer_posterior(model: Any, header: dict, contents: dict[str, np.nda
         posts = posteriors_from_arrays(spec, members)
     except ValidationError as exc:
         raise PersistenceError(f"{label} is malformed: {exc}") from None
-    for post in posts:
+    for post in [q for p in posts for q in (p, *p.members)]:
         if not (np.all(np.isfinite(post.mean)) and np.all(np.isfinite(post.covariance))):
             raise PersistenceError(f"{label} is malformed: the transfer posterior holds non-finite values")
     set_transfer_posterior(model, posts)
@@ -98,7 +98,17 @@ def posterior_arrays(posteriors: list[LaplacePosterior]) -> tuple[dict, dict[str
         tabular.append(F is None)
         if F is not None:
             arrays[f"features/{j}"] = F
-    return {"n_tasks": len(posteriors), "gammas": gammas, "tabular": tabular}, arrays
+    spec = {"n_tasks": len(posteriors), "gammas": gammas, "tabular": tabular}
+    B = len(posteriors[0].members)
+    if B:  # the dictionary ensemble's posteriors: the same B dictionaries for every task (member_posteriors)
+        if any(len(p.members) != B for p in posteriors):
+            raise ValidationError("the posteriors' members must be as many for every task to be saved")
+        arrays["members/dictionaries"] = np.stack([m.dictionary for m in posteriors[0].members])
+        arrays["members/mean"] = np.stack([np.stack([m.mean for m in p.members]) for p in posteriors])
+        arrays["members/covariance"] = np.stack([np.stack([m.covariance for m in p.members]) for p in posteriors])
+        arrays["members/scaling"] = np.array([[m.scaling for m in p.members] for p in posteriors])
+        spec["n_members"] = B
+    return spec, arrays
 
 
 def posteriors_from_arrays(spec: dict, arrays: dict[str, NDArray[Any]]) -> list[LaplacePosterior]:
@@ -124,5 +134,22 @@ def posteriors_from_arrays(spec: dict, arrays: dict[str, NDArray[Any]]) -> list[
         raise ValidationError(f"the posteriors' arrays are incomplete or malformed: {exc}") from None
     if mean.shape[0] != n or cov.shape != (n, mean.shape[1], mean.shape[1]) or mi.shape != (n,) or fi.shape != (n,):
         raise ValidationError(f"the posteriors' arrays do not describe {n} tasks: mean {mean.shape}, covariance {cov.shape}")
-    return [LaplacePosterior(mean[i], cov[i], D, feats[int(fi[i])], mdps[int(mi[i])], float(scaling[i]),
-                             float(n_pairs[i])) for i in range(n)]
+    posts = [LaplacePosterior(mean[i], cov[i], D, feats[int(fi[i])], mdps[int(mi[i])], float(scaling[i]),
+                              float(n_pairs[i])) for i in range(n)]
+    B = int(spec.get("n_members", 0))
+    if B:
+        try:
+            Ds = np.asarray(arrays["members/dictionaries"], dtype=np.float64)
+            m_mean = np.asarray(arrays["members/mean"], dtype=np.float64)
+            m_cov = np.asarray(arrays["members/covariance"], dtype=np.float64)
+            m_scaling = np.asarray(arrays["members/scaling"], dtype=np.float64)
+        except KeyError as exc:
+            raise ValidationError(f"the posteriors' arrays are incomplete or malformed: {exc}") from None
+        d = mean.shape[1]
+        if Ds.shape != (B, *D.shape) or m_mean.shape != (n, B, d) or m_cov.shape != (n, B, d, d) or m_scaling.shape != (n, B):
+            raise ValidationError(f"the posteriors' members do not describe {n} tasks x {B} dictionaries: dictionaries "
+                                  f"{Ds.shape}, mean {m_mean.shape}, covariance {m_cov.shape}, scaling {m_scaling.shape}")
+        for i, p in enumerate(posts):
+            p.members = tuple(LaplacePosterior(m_mean[i, b], m_cov[i, b], Ds[b], p.features, p.mdp, float(m_scaling[i, b]),
+                                               p.n_pairs) for b in range(B))
+    return posts

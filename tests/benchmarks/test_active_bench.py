@@ -149,3 +149,37 @@ def test_active_benchmark_random_starts_come_from_start_rng(monkeypatch):
                                            **kw)["starts"]
     assert run() == run()
     assert run(start_rng=np.random.default_rng(7)) == run(start_rng=np.random.default_rng(7)) != run()
+
+
+def test_active_benchmark_marginal_strategies_on_a_dictionary_ensemble(capsys):
+    out = run_bench(capsys, ["active", "--quick", "--max-demos", "2", "--posterior-dictionaries", "2", "--transfer-stol", "1e-3",
+                             "--strategies", "requested", "requested-marginal", "requested-marginal-noise", "--cost-repeats", "1"])
+    assert out["settings"]["posterior_dictionaries"] == 2 and out["settings"]["transfer_stol"] == 1e-3
+    strategies = out["worlds"]["grid"]["0"]["strategies"]
+    assert set(strategies) == {"requested", "requested-marginal", "requested-marginal-noise"}
+    assert all(np.all(np.isfinite(st["deviation"])) for st in strategies.values())
+
+
+def test_active_benchmark_restores_the_models_posterior_noise(monkeypatch):
+    import factirl_opt as fo
+    from factirl_opt.lab.benchmarks import active
+
+    seen = []
+
+    class Model(_StubModel):
+        posterior = None
+
+        def set_params(self, **params):
+            if "posterior__noise" in params:
+                params = {"posterior": fo.PosteriorSettings(noise=params.pop("posterior__noise")), **params}
+            vars(self).update(params)
+
+    def fake(model, mdp, demos, n_requests, **kw):
+        seen.append((model.posterior.noise, kw.get("marginal")))
+        return [np.array([0]) for _ in demos]
+
+    monkeypatch.setattr(active, "request_starts", fake)
+    monkeypatch.setattr(active, "_deviations", lambda *a: (np.zeros(1), np.zeros(1)))
+    mdp, model = fo.GridWorld(size=2), Model()
+    active.strategy_run(model, _StubTruth(1, mdp), None, mdp, None, 1, "requested-marginal-noise", {"max_demos": 2}, 0)
+    assert seen == [("misfit", True)] and model.posterior is None

@@ -15,7 +15,14 @@ transferred rewards, ``transfer_rewards_``, and of the posterior's mean, the MAP
   information (``demonstrated="skip"``: a greedy expert repeats its action there);
 - ``random``: a uniformly random state;
 - ``entropy``: the state where the model's policy at the posterior mean has the highest
-  entropy (Lopes, Melo & Montesano 2009).
+  entropy (Lopes, Melo & Montesano 2009);
+- ``requested-marginal``: the information gain averaged over the posterior's dictionaries
+  (``request_starts(marginal=True)``; a model fitted with ``--posterior-dictionaries`` B > 0,
+  else the same as ``requested``);
+- ``requested-marginal-noise``: the same with ``posterior__noise="misfit"`` (each task's noise
+  level scaled by its misfit);
+- ``requested-noise``: ``requested`` with ``posterior__noise="misfit"`` (no marginalisation).
+  The last three are not in the default line-up (``--strategies`` names them).
 
 Every demonstration is the greedy expert's of the task's true reward, ``demo_length`` steps from
 the chosen start, its random transitions drawn from common random numbers: a generator seeded by
@@ -45,9 +52,10 @@ from scipy.stats import spearmanr
 from ...parallel import limit_blas_threads
 from ...evaluation import deviation
 from ...learners.active import policy_entropy_starts, request_starts
+from ...learners.dictionary_ensemble import PosteriorSettings
 from ...learners.factirl import FactIRL
 from ...tasks.demonstrations import sample_demonstrations
-from ..arguments import integer
+from ..arguments import integer, real
 from ..experiments.learner_solvers import factorial_options
 from ..experiments.presets import PRESETS
 from ..experiments.worlds import make_ground_truth
@@ -55,14 +63,18 @@ from . import add_option, resolve_settings
 
 __all__ = ["add_arguments", "run", "world", "strategy_run", "demonstration_rng", "STRATEGIES", "REQUESTS", "WORLDS", "DEFAULTS"]
 
-STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-regret", "requested-value-skip")
+STRATEGIES = ("requested", "requested-value", "random", "entropy", "requested-regret", "requested-value-skip",
+              "requested-marginal", "requested-marginal-noise", "requested-noise")
 #: the requested strategies' options of ``request_starts`` (``"requested"``: its defaults)
 REQUESTS = {"requested": {}, "requested-value": {"criterion": "value"}, "requested-regret": {"criterion": "regret"},
-            "requested-value-skip": {"criterion": "value", "demonstrated": "skip"}}
+            "requested-value-skip": {"criterion": "value", "demonstrated": "skip"},
+            "requested-marginal": {"marginal": True}, "requested-marginal-noise": {"marginal": True}, "requested-noise": {}}
+#: the model's posterior settings a strategy runs with, restored after it (the others: the model's own)
+POSTERIOR_SETTINGS = {"requested-marginal-noise": {"posterior__noise": "misfit"}, "requested-noise": {"posterior__noise": "misfit"}}
 WORLDS = ("grid", "objectworld-per-task-quick")
 DEFAULTS = {"worlds": list(WORLDS), "seeds": [0, 1, 2], "grid_preset": "fast", "n_train": 100, "n_test": 30,
-            "max_demos": 8, "strategies": list(STRATEGIES), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
-            "blas_threads": 1}
+            "max_demos": 8, "strategies": list(STRATEGIES[:6]), "calibration": False, "n_samples": 200, "cost_tasks": 10, "cost_repeats": 3,
+            "blas_threads": 1, "transfer_stol": None, "posterior_dictionaries": 0, "posterior_resampling": "bootstrap"}
 QUICK = {"worlds": ["grid"], "seeds": [0], "grid_preset": "tiny", "n_train": 6, "n_test": 3, "max_demos": 2,
          "n_samples": 20, "cost_tasks": 2, "cost_repeats": 1}
 
@@ -85,6 +97,10 @@ def add_arguments(parser):
     opt("--cost-tasks", type=integer(1), help="test tasks whose request cost is measured, one at a time")
     opt("--cost-repeats", type=integer(1), help="repeats of the request-cost measurement (median per task)")
     opt("--blas-threads", type=integer(1), help="BLAS threads")
+    opt("--transfer-stol", type=real(0.0), help="FactIRL's transfer_stol (default: the library's)")
+    opt("--posterior-dictionaries", type=integer(0),
+        help="FactIRL's posterior.n_dictionaries: refitted dictionaries the posterior marginalises over")
+    opt("--posterior-resampling", choices=("bootstrap", "folds"), help="FactIRL's posterior.resampling")
     parser.add_argument("--quick", action="store_true", help="a small configuration for tests")
 
 
@@ -150,6 +166,18 @@ def strategy_run(model, gt, preset, mdps, feats, n, strategy, s, seed, *, policy
     m_list, f_list = (mdps[:n] if isinstance(mdps, list) else mdps), _take(feats, n)
     out: dict[str, list] = {"deviation": [], "map_deviation": [], "starts": []}
     options = {**REQUESTS.get(strategy, {}), **request_options}
+    settings = POSTERIOR_SETTINGS.get(strategy, {})
+    before = {"posterior": model.posterior} if settings else {}
+    if settings:
+        model.set_params(**settings)
+    try:
+        return _run_steps(model, gt, mdps, n, strategy, s, seed, rng, demos, L, m_list, f_list, out, options, policy)
+    finally:
+        if settings:
+            model.set_params(**before)
+
+
+def _run_steps(model, gt, mdps, n, strategy, s, seed, rng, demos, L, m_list, f_list, out, options, policy):
     for step in range(1, s["max_demos"] + 1):
         model.transfer(m_list, demos, features=f_list)
         posts = model.transfer_posterior_
@@ -230,9 +258,10 @@ def run(args):
                 preset, gt, train_mdps, train_feats, test_mdps, test_feats = world(name, s, seed)
                 n = min(s["n_test"], len(gt.test_demos))
                 t = time.process_time()
-                model = FactIRL(rng=seed, features=train_feats,
-                                **factorial_options(preset, preset.solvers, "policy-matching",
-                                                    features=train_feats is not None))
+                extra = {} if s["transfer_stol"] is None else {"transfer_stol": s["transfer_stol"]}
+                posterior = PosteriorSettings(n_dictionaries=s["posterior_dictionaries"], resampling=s["posterior_resampling"])
+                options = factorial_options(preset, preset.solvers, "policy-matching", features=train_feats is not None)
+                model = FactIRL(rng=seed, features=train_feats, posterior=posterior, **{**options, **extra})
                 model.fit(train_mdps, gt.train_demos)
                 row: dict[str, Any] = {"fit_cpu_s": time.process_time() - t, "n_test": n,
                                        "n_train": len(gt.train_demos), "k": model.n_primitives_}
