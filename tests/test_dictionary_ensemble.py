@@ -7,7 +7,7 @@ import factirl_opt as fo
 from helpers import transfer_tasks_on_a_grid
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble, resampled_tasks
-from factirl_opt.learners.posterior import noise_reference
+from factirl_opt.learners.noise_levels import noise_reference
 
 pytestmark = pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")  # short fits
 

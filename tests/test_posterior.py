@@ -302,14 +302,14 @@ def test_marginal_posterior_of_one_dictionary_is_the_conditional_one(grid3, rng)
 
 
 def test_misfit_noise_levels_are_the_regression_estimate():
-    from factirl_opt.learners.posterior import misfit_noise_levels
+    from factirl_opt.learners.noise_levels import misfit_noise_levels
 
     got = misfit_noise_levels([0.1, 0.2, 0.3], [10, 20, 5], [4, 6, 1], 4, 2)
     np.testing.assert_allclose(got, [10 * 0.1 / (4 * 3 - 2), 20 * 0.2 / (6 * 3 - 2), 5 * 0.3 / 1.0])  # dof floored at 1
 
 
 def test_noise_reference_scales_the_likelihood_by_the_misfit(grid3, rng):
-    from factirl_opt.learners.posterior import NOISE_RATIO_MIN, misfit_noise_levels
+    from factirl_opt.learners.noise_levels import NOISE_RATIO_MIN, misfit_noise_levels
 
     problem, _ = _problem(grid3, "policy-matching", rng, k=2)
     problem.objective.pi_hat[:] = np.eye(grid3.n_actions)[rng.integers(grid3.n_actions, size=(1, grid3.n_states))]

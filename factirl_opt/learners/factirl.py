@@ -47,7 +47,8 @@ from ..objectives import Objective
 
 from .transfer import (TRANSFER_STOL, TransferFit, run_transfer, transfer_coefficients, transfer_dictionary, transfer_solver,
                        transfer_tasks)
-from .posterior import cached_transfer_posterior, keep_transfer, task_noise_levels
+from .posterior import cached_transfer_posterior, keep_transfer
+from .noise_levels import task_noise_levels
 from .dictionary_ensemble import PosteriorSettings, check_posterior_settings, fit_posterior_terms
 from .active import request_starts
 from .gpi import GPIReport, generalised_policy_improvement
@@ -257,7 +258,7 @@ class FactIRL(Estimator):
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     noise_levels_ : ndarray, shape (n,)
         Policy matching only: each training task's noise level from its misfit at the fit,
-        ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.posterior.misfit_noise_levels`);
+        ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.noise_levels.misfit_noise_levels`);
         their median is the reference of ``PosteriorSettings(noise="misfit")``.
     dictionary_ensemble_ : ndarray, shape (B, p, k)
         With ``posterior=PosteriorSettings(n_dictionaries=B)``, B > 0: the refitted dictionaries.

@@ -37,12 +37,13 @@ from ..exceptions import ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
 from ..tasks.basis import as_basis
+from .noise_levels import noise_ratios, noise_reference
 from .transfer import coefficient_prior
 from .transfer_likelihood import (TransferProblem, _basis, _evaluate, _evaluate_lowrank, _pad_rows, likelihood_scaling,
                                   tasks_problem, transfer_problem)
 
-__all__ = ["LaplacePosterior", "laplace_posteriors", "misfit_noise_levels", "task_noise_levels", "NOISE_RATIO_MIN", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
-           "TransferState", "has_prior", "model_posteriors", "member_posteriors", "noise_reference",
+__all__ = ["LaplacePosterior", "laplace_posteriors", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
+           "TransferState", "has_prior", "model_posteriors", "member_posteriors",
            "set_transfer_posterior", "transfer_inputs", "has_transfer_posterior", "lowrank_solve"]
 
 #: damped Newton steps of the MAP at most, and the stopping rule on the Newton decrement
@@ -314,53 +315,6 @@ class _Curvature:
         return 0.5 * (C + C.T)
 
 
-#: the smallest ratio of a new task's noise level to the training tasks' (:func:`laplace_posteriors`'s
-#: ``noise_reference``): a demonstration its MAP matches exactly does not make the likelihood infinitely sharp
-NOISE_RATIO_MIN = 0.01
-
-
-def misfit_noise_levels(loss: ArrayLike, n_pairs: ArrayLike, n_visited: ArrayLike, n_actions: ArrayLike,
-                        n_params: int) -> NDArray[np.float64]:
-    """Each task's noise level from its misfit, as ``s^2 = RSS / (n - d)`` in regression (docs/maths.md §10).
-
-    ``shat_i^2 = N_i J_i / max(n_i (A - 1) - d, 1)``: eq. (5)'s ``J_i = ||r_i||^2`` at the fit,
-    whose residuals ``r = sqrt(mu) (pi - pi_hat)`` have variance ``sigma^2 / N_i`` per component
-    (so ``N_i J_i`` is the residual sum of squares on the scale of one visit), over the
-    ``n_i (A - 1)`` non-degenerate components of the ``n_i`` demonstrated states less the ``d``
-    fitted parameters.
-
-    Parameters
-    ----------
-    loss : array_like, shape (n,)
-        ``J_i`` (policy matching's eq. 5) at each task's fitted rewards.
-    n_pairs : array_like, shape (n,)
-        ``N_i``, the task's demonstrated (state, action) pairs.
-    n_visited : array_like, shape (n,)
-        ``n_i``, the distinct states its demonstrations visit.
-    n_actions : int or array_like, shape (n,)
-    n_params : int
-        ``d``, the parameters fitted per task (``k``).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-    """
-    J, N = np.asarray(loss, dtype=np.float64), np.asarray(n_pairs, dtype=np.float64)
-    dof = np.maximum(np.asarray(n_visited, dtype=np.float64) * (np.asarray(n_actions, dtype=np.float64) - 1) - n_params, 1.0)
-    return N * J / dof
-
-
-def task_noise_levels(tasks: Any, loss: ArrayLike, n_params: int) -> NDArray[np.float64]:
-    """:func:`misfit_noise_levels` of a fitted task set (``FactIRL.noise_levels_``): ``loss`` (n,) its per-task eq. (5)."""
-    from ..tasks.trajectories import task_steps
-
-    one = tasks.mdp
-    mdps = [one] * tasks.n_tasks if one is not None else list(tasks.mdps)
-    steps = [task_steps(mdps[i], d, i) for i, d in enumerate(tasks.demos_per_task)]
-    return misfit_noise_levels(loss, [len(st) for st in steps], [np.unique(st[:, 0]).size for st in steps],
-                               [m.n_actions for m in mdps], n_params)
-
-
 def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64], NDArray[np.float64]],
                        start: NDArray[np.float64] | None = None, lowrank: bool | None = None,
                        noise_reference: float | None = None) -> list[LaplacePosterior]:
@@ -384,7 +338,7 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         The training tasks' noise level (the median of ``FactIRL.noise_levels_``). Given, each
         task's noise level is scaled by its own misfit at the MAP (policy matching only):
         ``sigma_i^2 <- sigma_i^2 rho_i`` with ``rho_i = max(shat_i^2 / noise_reference, NOISE_RATIO_MIN)``
-        and ``shat_i^2`` its :func:`misfit_noise_levels` (``d = k``), i.e. ``s_i <- s_i / rho_i``,
+        and ``shat_i^2`` its :func:`~factirl_opt.learners.noise_levels.misfit_noise_levels` (``d = k``), i.e. ``s_i <- s_i / rho_i``,
         and the covariance is formed at that scale (the mean stays the MAP at the multinomial
         scale): a demonstration the dictionary explains worse than it explains the training
         tasks widens its posterior. None: the multinomial noise level alone.
@@ -461,20 +415,13 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         mu[acc] /= 3.0
         mu[a[~ok]] *= 10.0
     if noise_reference is not None:
-        s = s / _noise_ratios(problem, loss, k, float(noise_reference))
+        s = s / noise_ratios(problem, loss, k, float(noise_reference))
     curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
         out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
                                     float(problem.n_pairs[i])))
     return out
-
-
-def _noise_ratios(problem, loss, k, reference):
-    """``rho_i`` (n,) of :func:`laplace_posteriors`'s ``noise_reference``: each task's misfit level at ``loss`` over the reference."""
-    visited = [int(np.count_nonzero(problem.statistics(t)[1] > 0)) for t in range(problem.n_tasks)]
-    levels = misfit_noise_levels(loss, problem.n_pairs, visited, [m.n_actions for m in problem.mdps], k)
-    return np.maximum(levels / reference, NOISE_RATIO_MIN)
 
 
 def transfer_posterior(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> list[LaplacePosterior] | None:
@@ -514,19 +461,6 @@ def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.flo
     reference = noise_reference(model)
     posts = laplace_posteriors(problem, coefficient_prior(model.coefficients_), start, noise_reference=reference)
     return member_posteriors(model, problem, posts, reference)
-
-
-def noise_reference(model: Any) -> float | None:
-    """The training tasks' noise level the posterior scales each new task's by (``PosteriorSettings(noise="misfit")``):
-    the median of ``noise_levels_``; None for the multinomial noise level alone."""
-    settings = getattr(model, "posterior", None)
-    if settings is None or getattr(settings, "noise", "multinomial") != "misfit":
-        return None
-    levels = getattr(model, "noise_levels_", None)
-    if levels is None:
-        raise ValidationError("posterior noise='misfit' needs noise_levels_, which this model's fit did not store "
-                              "(a policy-matching fit stores them): fit it again")
-    return float(np.median(levels))
 
 
 def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],

@@ -23,7 +23,8 @@ from factirl_opt.lab.experiments.learner_solvers import factorial_options
 from factirl_opt.lab.experiments.presets import PRESETS
 from factirl_opt.lab.experiments.worlds import make_ground_truth
 from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble
-from factirl_opt.learners.posterior import member_posteriors, noise_reference, laplace_posteriors
+from factirl_opt.learners.noise_levels import noise_reference
+from factirl_opt.learners.posterior import member_posteriors, laplace_posteriors
 from factirl_opt.learners.transfer import coefficient_prior
 from factirl_opt.learners.transfer_likelihood import transfer_problem
 

@@ -22,7 +22,7 @@ from factirl_opt.lab.experiments.learner_solvers import factorial_options
 from factirl_opt.lab.experiments.presets import PRESETS
 from factirl_opt.lab.experiments.worlds import make_ground_truth
 from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble
-from factirl_opt.learners.posterior import misfit_noise_levels
+from factirl_opt.learners.noise_levels import misfit_noise_levels
 from factirl_opt.learners.transfer_likelihood import demonstration_curvature, transfer_problem
 
 
