@@ -60,26 +60,14 @@ from ..objectives.residuals import residual_weights
 __all__ = ["FactIRL", "PAPER_SETTINGS", "pca_dictionary", "fit_factorial", "transfer_coefficients", "FactorialFit",
            "TransferFit", "shrink_coefficients", "normalise_dictionary", "GTOL", "PCA_MAX_HALVINGS"]
 
-#: The paper's algorithm (Mangin & Oudeyer 2014, section 3.2) as FactIRL keyword arguments:
-#: ``FactIRL(n_primitives=5, **PAPER_SETTINGS)``. An Armijo flat start without saturation rule
-#: (``Start(flat_stol=0)``), the alternation of H- and D-steps, Armijo steps for the flat fit, H, D
-#: and the transfer, 5 steps per sub-problem, 100 outer iterations to a relative decrease of
-#: 1e-5 with no gradient rule (``gtol=0``: the paper's fixed budgets), and the maximum-likelihood
-#: transfer (``transfer_stol=0``). FactIRL's defaults were these (with ``gtol=1e-4``) until they
-#: were measured slower at no better quality (``results/defaults/README.md``); the reproduction
-#: presets pin them. ``Start`` keeps its other defaults (``pca_shrink=True``; the ``paper``
-#: preset's rows also set ``pca_shrink=False``): pass ``start=Start(flat_stol=0.0, ...)`` to
-#: change them, as another ``start`` replaces this one.
-PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType({
-    "solver": SolverSettings("armijo", d_solver="armijo", flat_solver="armijo"),
-    "start": Start(flat_stol=0.0),
-    "scheme": "alternating",
-    "inner_steps": 5,
-    "max_iter": 100,
-    "tol": 1e-5,
-    "gtol": 0.0,
-    "transfer_stol": 0.0,
-})
+#: The paper's algorithm (section 3.2) as FactIRL keyword arguments, ``FactIRL(5, **PAPER_SETTINGS)``:
+#: Armijo steps everywhere, an unsaturated flat start, the alternation, 5 steps per sub-problem,
+#: fixed budgets (``gtol=0``), the maximum-likelihood transfer; FactIRL's defaults until the
+#: defaults study (``results/defaults/README.md``), pinned by the reproduction presets (whose
+#: ``paper`` rows also set ``pca_shrink=False``: pass your own ``start`` to change the start).
+PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType(dict(
+    solver=SolverSettings("armijo", d_solver="armijo", flat_solver="armijo"), start=Start(flat_stol=0.0),
+    scheme="alternating", inner_steps=5, max_iter=100, tol=1e-5, gtol=0.0, transfer_stol=0.0))
 
 class FactIRL(Estimator):
     """Factorial learner: shared dictionary ``D`` and per-task coefficients ``H`` (eqs. 10-12).
@@ -100,23 +88,18 @@ class FactIRL(Estimator):
         :class:`~factirl_opt.tasks.basis.RewardBasis` (another kind of features), taken as it is.
     reward : {"state-action", "state"}, default="state-action"
         Without features: ``"state"`` learns primitives of the states only, ``D`` of shape
-        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (no feature
-        matrix is formed; the fit of ``features=np.kron(np.eye(S), np.ones((A, 1)))``,
-        docs/maths.md §7). Refused together with ``features``.
+        (S, k) and ``R_i(s, a) = (D h_i)(s)``, at the cost of the tabular fit (docs/maths.md §7).
+        Refused together with ``features``.
     start : Start, optional
         Where the fit starts (:class:`~factirl_opt.Start`: ``init``, ``pca_shrink``,
         ``flat_max_iter``, ``flat_tol``, ``flat_stol``); None: ``Start()``, the PCA of the
-        flat learner's rewards, as the paper recommends, shrunk while the loss decreases; the
-        flat fit is GradIRL's default (Armijo steps, the solver settings' ``flat_solver``, and
-        the saturation rule ``flat_stol=1e-5``).
-        ``flat_max_iter`` is also the budget of the flat model's ``transfer``
-        (``residual_penalty=0``).
+        flat learner's rewards (GradIRL's default fit: the solver settings' ``flat_solver``, the
+        saturation rule ``flat_stol``), shrunk while the loss decreases. ``flat_max_iter`` is also
+        the budget of the flat model's ``transfer`` (``residual_penalty=0``).
     max_iter : int, default=100
         Maximum outer iterations (one H-step and one D-step each).
     inner_steps : int, default=2
         Fixed number of solver steps per sub-problem (per outer iteration of the joint scheme).
-        2 took 0.5-0.6x the CPU of the paper's 5 at test deviations within noise
-        (``results/defaults/README.md``).
     tol : float, default=1e-5
         Stop when the relative decrease of the total loss over an outer iteration is below tol
         (a rise is not convergence; the best point seen is kept); see :func:`fit_factorial` for
@@ -135,11 +118,9 @@ class FactIRL(Estimator):
         learner's and the transfer's, with their options), or a solver name, the H-step solver
         (any name of ``solvers.available_solvers()``, e.g. ``"gn-qp-osqp"``) with the others at
         their defaults: the D-step ``"lbfgs"`` (``"armijo"`` with a ``dictionary_constraint``),
-        the flat learner ``"armijo"``, the transfer the H-step's. A constrained H-step solver keeps its constraint in the
-        initialisation and in transfer: for a nonnegative one the primitives of a "pca"
-        initialisation are sign-flipped so their coefficients sum to >= 0 (a "random" one uses
-        ``|H|``), then H0 is projected; a sparse one's L1 penalty is part of the H objective and
-        of ``loss_history_``, and its fits keep unit-norm primitives.
+        the flat learner ``"armijo"``, the transfer the H-step's. A constrained H-step solver keeps
+        its constraint in the start (projected) and in transfer; a sparse one's L1 penalty is part
+        of the H objective and of ``loss_history_`` (the guide's page on solvers).
     objective : str, default="policy-matching"
         Per-task loss (``factirl_opt.available_objectives()``).
     rng : numpy.random.Generator or int or None
@@ -156,13 +137,10 @@ class FactIRL(Estimator):
         0 lets every task's weights free (the flat model, reparametrised), values between
         share as much as the penalty makes worth it. The residuals are fitted in ``fit`` (the
         H-step moves ``[h_i, delta_i]`` together, from ``delta = 0``) and in ``transfer``. A
-        finite value needs an unconstrained ``h_solver``. With 0 the dictionary plays no part,
-        and ``transfer`` fits each new task as the flat learner does (``flat_solver`` for
-        ``flat_max_iter`` iterations from zero weights, :func:`~factirl_opt.learners.gradirl.fit_weights`;
-        ``h = 0``, ``delta`` the weights): the same rewards as ``GradIRL`` with that solver and
-        budget on the new tasks' features (why ``flat_solver`` there: "What residual_penalty
-        runs" in :mod:`factirl_opt.learners.factorial`, the one place that states what each value
-        runs). ``"auto"``: chosen by validation over tasks (:mod:`factirl_opt.learners.selection`).
+        finite value needs an unconstrained ``h_solver``. With 0 the dictionary plays no part and
+        ``transfer`` fits each new task as the flat learner does ("What residual_penalty runs" in
+        :mod:`factirl_opt.learners.factorial`). ``"auto"``: chosen by validation over tasks
+        (:mod:`factirl_opt.learners.selection`).
     dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
         Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
         paper's free dictionary; otherwise every primitive has unit norm and is nonnegative
@@ -177,33 +155,23 @@ class FactIRL(Estimator):
         The outer scheme of ``fit`` (:func:`~factirl_opt.learners.factorial.fit_factorial`):
         ``"auto"`` chooses from the reward basis (:func:`~factirl_opt.learners.factorial.resolve_scheme`,
         recorded in ``scheme_``): ``"joint"`` with ``features`` wherever it applies,
-        ``"alternating"`` on tables (``features=None``), where the joint scheme transferred worse
-        (``results/defaults/README.md``). Otherwise the paper's alternation of H- and D-steps, or
-        ``inner_steps`` steps of ``d_solver``
-        on the dictionary and coefficients together per outer iteration, its memory kept
-        across them (``"joint"``; with ``d_solver="lbfgs"``, a lower loss than the alternation
-        in a fraction of its evaluations on Objectworld). ``"joint"`` needs an unconstrained
-        ``solver`` (it states the model; ``transfer`` runs it) and dictionary, and a
-        ``d_solver`` that needs only gradients; fits of the residual model (a finite
-        ``residual_penalty``, and such candidates of ``"auto"``) alternate.
+        ``"alternating"`` on tables. Otherwise the paper's alternation of H- and D-steps, or
+        ``inner_steps`` steps of ``d_solver`` on the dictionary and coefficients together per
+        outer iteration, its memory kept across them (``"joint"``: it needs an unconstrained
+        ``solver`` and dictionary, and a ``d_solver`` that needs only gradients; the residual
+        model's fits alternate).
     transfer_stol : float, default=1e-3
-        The saturation rule of ``transfer`` (:mod:`factirl_opt.learners.transfer`): each new
-        task also stops when its loss decreases over a step by at most ``transfer_stol`` times
-        its decrease since the start, where the loss stops paying for coefficients that grow
-        (one demonstration is matched exactly only by unbounded ones, so the unregularised
-        transfer of such a task runs to ``transfer_max_iter``). The default ``1e-3``
-        (:data:`~factirl_opt.learners.transfer.TRANSFER_STOL`) stopped every transfer measured
-        on the "which learner when" benchmark by its own rule (0 of 1,440 at ``max_iter``), at
-        0.36x the CPU and a deviation 1.7% lower on average and at most 1.8% higher per point
-        (results/transfer/README.md). 0 turns it off: the maximum-likelihood (unregularised)
-        transfer. The flat model's transfer (``residual_penalty=0``) stops by it too.
+        The saturation rule of ``transfer`` (:data:`~factirl_opt.learners.transfer.TRANSFER_STOL`):
+        each new task also stops when a step decreases its loss by at most ``transfer_stol``
+        times its decrease since the start, where the loss stops paying for coefficients that
+        grow (one demonstration is matched exactly only by unbounded ones;
+        results/transfer/README.md). 0: the maximum-likelihood transfer. The flat model's
+        transfer (``residual_penalty=0``) stops by it too.
     posterior : PosteriorSettings, optional
         What ``transfer_posterior_`` includes besides the coefficients' uncertainty
-        (:class:`~factirl_opt.learners.dictionary_ensemble.PosteriorSettings`: ``n_dictionaries``
-        refitted on resampled training tasks, over which ``sample_rewards`` and ``sample_regrets``
-        marginalise, their ``resampling``, and the ``noise`` level, multinomial or scaled by each
-        task's misfit; docs/maths.md §10). None: ``PosteriorSettings()``, the posterior
-        conditional on ``dictionary_`` with the multinomial noise level.
+        (:class:`~factirl_opt.learners.dictionary_ensemble.PosteriorSettings`: dictionaries refitted
+        on resampled tasks, and the misfit noise level; docs/maths.md §10). None: the posterior
+        conditional on ``dictionary_``, at the multinomial noise level.
 
     Only ``n_primitives`` and ``beta`` may be given by position; the others are keyword-only.
     ``get_params``, ``set_params``, :func:`~factirl_opt.learners.estimator.clone` and the ``repr`` come
@@ -235,13 +203,10 @@ class FactIRL(Estimator):
         Which stopping rule ended ``fit`` and its values (see :func:`fit_factorial`);
         ``"interrupted"`` after Ctrl-C.
     mdp_signature_ : dict or list of dict
-        Signature of the MDP of ``fit``; ``transfer`` without ``features`` refuses another
-        MDP. Fitted on a sequence of MDPs (not all the same object): one signature per task,
-        and ``transfer`` checks only the number of actions and the feature dimension p.
+        Signature of the MDP of ``fit`` (one per task on several), which ``transfer`` without
+        ``features`` checks (on several MDPs: the number of actions and p only).
     features_sha256_ : str or None
-        SHA-256 of the validated features (S*A, p) of ``fit`` (None without features and with
-        per-task features); ``transfer`` without ``features`` refuses model features that
-        differ from them.
+        SHA-256 of the shared features of ``fit``, which ``transfer`` without ``features`` checks.
     transfer_coefficients_, transfer_rewards_, transfer_loss_, transfer_loss_history_,
     transfer_n_evaluations_, transfer_status_, transfer_stop_reason_
         The same records for the last ``transfer`` call (``transfer_loss_`` is the loss per new
@@ -257,31 +222,23 @@ class FactIRL(Estimator):
     transfer_residuals_ : ndarray, shape (n_new, p)
         The new tasks' residuals of the last ``transfer`` (zeros without residuals).
     noise_levels_ : ndarray, shape (n,)
-        Policy matching only: each training task's noise level from its misfit at the fit,
-        ``N_i J_i / max(n_i (A - 1) - k, 1)`` (:func:`~factirl_opt.learners.noise_levels.misfit_noise_levels`);
-        their median is the reference of ``PosteriorSettings(noise="misfit")``.
-    dictionary_ensemble_ : ndarray, shape (B, p, k)
-        With ``posterior=PosteriorSettings(n_dictionaries=B)``, B > 0: the refitted dictionaries.
-    ensemble_prior_means_ : ndarray, shape (B, k)
-    ensemble_prior_precisions_ : ndarray, shape (B, k, k)
-        Their training coefficients' Gaussian priors (:func:`~factirl_opt.learners.transfer.coefficient_prior`).
-    validation_ : list of dict
-        With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the validation table of
-        :func:`~factirl_opt.learners.selection.search.search_sharing`, one row per candidate
-        ``(n_primitives, residual_penalty)`` with its mean held-out ``score`` (lower is better),
-        ``score_std``, ``fold_scores``, ``task_scores`` and ``chosen`` (exactly one row);
-        :func:`~factirl_opt.learners.selection.results.plot_validation` draws it.
+        Policy matching only: each training task's noise level from its misfit
+        (:func:`~factirl_opt.learners.noise_levels.misfit_noise_levels`).
+    dictionary_ensemble_, ensemble_prior_means_, ensemble_prior_precisions_ : ndarray, shapes (B, p, k), (B, k), (B, k, k)
+        With ``posterior=PosteriorSettings(n_dictionaries=B > 0)``: the refitted dictionaries and
+        their coefficients' priors (:func:`~factirl_opt.learners.transfer.coefficient_prior`).
+    cv_results_ : dict of arrays
+        With ``n_primitives="auto"`` or ``residual_penalty="auto"`` only: the search's table, one
+        entry per candidate (:mod:`factirl_opt.learners.selection.results`; ``validation_``, its
+        rows, is deprecated).
 
     Notes
     -----
-    A KeyboardInterrupt (Ctrl-C) during ``fit`` or ``transfer`` keeps the best point seen so
-    far as the fitted state (status and stop reason ``"interrupted"``), warns with
-    :class:`factirl_opt.exceptions.InterruptedFitWarning`, and propagates (as
-    :class:`factirl_opt.exceptions.FitInterrupted`, a KeyboardInterrupt). In the
-    alternating loop the best point is the best of the start and the completed outer
-    iterations; during the flat fit of the PCA start (or its PCA) it is that start, the PCA of
-    the flat rewards learnt so far (``loss_`` NaN: not evaluated); in ``transfer``, each new task's
-    best coefficients seen.
+    A KeyboardInterrupt (Ctrl-C) during ``fit`` or ``transfer`` keeps the best point seen so far
+    as the fitted state (status ``"interrupted"``: the best of the start and the completed outer
+    iterations, the PCA of the flat rewards learnt so far during the start, each new task's best
+    coefficients in ``transfer``), warns (:class:`factirl_opt.exceptions.InterruptedFitWarning`)
+    and propagates (:class:`factirl_opt.exceptions.FitInterrupted`, a KeyboardInterrupt).
     """
 
     #: The learnt attributes and their kinds, from which ``save_model`` derives what to store and
@@ -470,14 +427,14 @@ class FactIRL(Estimator):
         """Fit the coefficients of new tasks with the dictionary fixed (section 4.2).
 
         Starts from ``h = 0`` (projected onto the solver's feasible set) and runs the H-step
-        solver for up to ``max_iter`` steps (:func:`transfer_coefficients`).
+        solver for up to ``max_iter`` steps, each task stopping by its own rules
+        (:func:`transfer_coefficients`).
 
         Parameters
         ----------
         mdp : TabularMDP or sequence of n_new TabularMDP
-            The MDP of ``fit`` (checked against ``mdp_signature_`` for a model fitted on one
-            MDP, when no ``features`` are given), or the new tasks' own environments (one MDP
-            per new task, or one shared), with the number of actions of ``fit``.
+            The MDP of ``fit`` (checked against ``mdp_signature_`` without ``features``), or the
+            new tasks' own environments (one per task, or one shared).
         demos_per_task : list of n_new task demonstrations
         features : array_like or sequence of n_new array_like, optional
             The new environments' features, over the p features of ``fit``: one shared
@@ -502,9 +459,8 @@ class FactIRL(Estimator):
         Raises
         ------
         ValidationError
-            When the model's features differ from those of ``fit`` (``features_sha256_``),
-            ``dictionary_`` does not fit the MDP, ``features`` are missing for a per-task
-            model or have another p, or the environments another number of actions.
+            Features other than those of ``fit``, or missing for a per-task model; a dictionary,
+            p or number of actions that does not fit.
         """
         tasks, D = transfer_tasks(mdp, demos_per_task, features, self)
         return self._transfer_tasks(tasks, D, max_iter, solver, solver_options, (mdp, demos_per_task, features))
@@ -552,16 +508,11 @@ class FactIRL(Estimator):
     def transfer_posterior_(self) -> list | None:
         """Each new task's Laplace posterior over its coefficients (and residual) after ``transfer``.
 
-        A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (``mean``,
-        ``covariance``, ``sample_rewards``, ``sample_regrets``; docs/maths.md §10), built from
-        the last transfer's tasks when first read (it costs about one transfer) and kept beside
-        the model (it pickles with it; ``save_model`` stores it). With ``posterior.n_dictionaries``,
-        each also carries the task's posteriors under the refitted dictionaries (``members``), over
-        which ``sample_rewards`` and ``sample_regrets`` marginalise (B more posteriors to build);
-        with ``posterior.noise="misfit"`` each covariance is at the task's misfit noise level.
-        None when undefined (fewer than 2
-        training tasks' coefficients to fit the prior to, or the flat model); AttributeError
-        before any transfer, and after a refit (the transfer's tasks belong to the former fit).
+        A list of n_new :class:`~factirl_opt.learners.posterior.LaplacePosterior` (docs/maths.md
+        §10), built from the last transfer's tasks when first read (about one transfer's cost;
+        each refitted dictionary of ``posterior`` adds one, as a member the samples marginalise
+        over) and kept with the model (pickled, saved). None when undefined (fewer than 2 training
+        tasks, or the flat model); AttributeError before any transfer and after a refit.
         """
         return cached_transfer_posterior(self)
 
@@ -570,9 +521,9 @@ class FactIRL(Estimator):
                        demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
         """Start states to ask a demonstration from, per new task, most informative first.
 
-        :func:`factirl_opt.learners.active.request_starts` on the posterior of these tasks (the
-        tasks of the last ``transfer`` when it was given the same objects, else built here):
-        candidates ranked by what a demonstration from each is expected to bring, by default the
+        :func:`factirl_opt.learners.active.request_starts` (its parameters, criteria and errors)
+        on the posterior of these tasks: the last ``transfer``'s when it was given the same
+        objects, else built here. By default the candidates are ranked by the expected
         information gain about the coefficients (D-optimal on the Laplace covariance).
 
         Parameters
@@ -584,30 +535,14 @@ class FactIRL(Estimator):
         candidates : array_like of int, or sequence of n_new of them, optional
             Start states to rank (default: every state).
         criterion : {"information", "value", "regret"}, default="information"
-            The expected information gain about the coefficients, the expected reduction of the
-            posterior variance of the state values, or the expected reduction of the linearised
-            regret of acting on the posterior mean (docs/maths.md §10).
         policy : {"boltzmann", "greedy"}, default="boltzmann"
-            The policy a requested demonstration is assumed to follow: the model's Boltzmann
-            (or soft-optimal) policy at the posterior mean, or its greedy policy.
         demonstrated : {"count", "skip"}, default="count"
-            How a requested demonstration's pairs in states the task's demonstrations already
-            visit count: as the model's likelihood counts them, or not at all (``"skip"``: a
-            deterministic expert repeats its known action there).
         marginal : bool, default=False
-            Average the criterion over the posterior's dictionaries (its own and the
-            ``posterior.n_dictionaries`` refitted ones): the expected gain under the dictionary's
-            own uncertainty (docs/maths.md §10).
+            Average the criterion over the posterior's dictionaries (``posterior.n_dictionaries``).
 
         Returns
         -------
         list of n_new int arrays, each (n_requests,)
-
-        Raises
-        ------
-        ValidationError
-            For an unknown ``criterion``, ``policy`` or ``demonstrated`` (and as
-            :func:`~factirl_opt.learners.active.request_starts`).
         """
         return request_starts(self, mdp, demos_per_task, n_requests, candidates, features=features,
                               criterion=criterion, policy=policy, demonstrated=demonstrated, marginal=marginal)
@@ -616,13 +551,12 @@ class FactIRL(Estimator):
                      library: Any = None, start: Any = None, evaluate: bool = True) -> NDArray[np.intp]:
         """Greedy policies of new tasks without planning: GPI over the successor features of a library.
 
-        :func:`~factirl_opt.learners.gpi.generalised_policy_improvement`: for each task ``h``,
-        ``pi(s) = argmax_a max_l psi_l(s, a) h`` over the library's policies (the optimal
-        policies of the primitives, of their negatives and of the training tasks; greedy, or
-        soft-optimal for ``objective="mce"``), whose successor features are computed once per
-        environment and cached on the model (``save_model`` keeps them). At least as good as
-        every library policy on each task (Barreto et al. 2017, Theorem 1); ``gpi_report_``
-        holds the values.
+        :func:`~factirl_opt.learners.gpi.generalised_policy_improvement` (its parameters and errors):
+        for each task ``h``, ``pi(s) = argmax_a max_l psi_l(s, a) h`` over the library's policies
+        (by default those of the primitives, of their negatives and of the training tasks), whose
+        successor features are computed once per environment and cached on the model. At least as
+        good as every library policy on each task (Barreto et al. 2017, Theorem 1);
+        ``gpi_report_`` holds the values.
 
         Parameters
         ----------
@@ -631,30 +565,18 @@ class FactIRL(Estimator):
         coefficients : array_like, shape (n, k) or (k,)
             The new tasks' coefficients (e.g. from :meth:`transfer`).
         improvement_steps : int, default=0
-            Exact policy-improvement steps after GPI (one policy evaluation per task each).
+            Exact policy-improvement steps after GPI.
         features : array_like or sequence of n array_like, optional
-            Fitted with one feature matrix per task: each new task's, the matrix of the fitted
-            task whose environment (map) it is on. Otherwise None.
+            With one feature matrix per task: each new task's (its map's).
         library : str or sequence of {"primitives", "negatives", "tasks", "other-tasks"}, optional
-            The library's parts (:mod:`factirl_opt.learners.gpi`); default ``("primitives",
-            "negatives", "tasks")``, without ``"tasks"`` for a dictionary set by hand.
-            ``"other-tasks"``: on a model fitted on a map per task, every other training task
-            carried to the new task's map.
         start : None, int or array_like (S,) or (n, S), optional
             Start distribution of the reported values (default uniform, as eq. 13).
         evaluate : bool, default=True
-            Evaluate the policies exactly for ``gpi_report_`` (one policy evaluation per task).
+            Evaluate the policies exactly for ``gpi_report_``.
 
         Returns
         -------
         policies : ndarray of intp, shape (n, S) (or (S,) for coefficients (k,))
-
-        Raises
-        ------
-        NotFittedError
-            No ``dictionary_``.
-        ValidationError
-            Coefficients not (n, k); an environment the model was not fitted on; an unknown part.
         """
         policies, self._gpi_report = generalised_policy_improvement(
             self, mdp, coefficients, features=features, improvement_steps=improvement_steps, library=library, start=start,
