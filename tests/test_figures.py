@@ -117,3 +117,54 @@ def test_every_committed_claim_that_does_not_hold_gives_its_reason():
             if "| **no** |" in line:
                 reason = line.rstrip().rstrip("|").rsplit("|", 1)[1].strip()
                 assert len(reason) > 20, (path, line)
+
+
+def _time_v(name):
+    """Wall and CPU seconds of a ``/usr/bin/time -v`` record in results/setup."""
+    text = (ROOT / "results/setup" / name).read_text()
+    h_m_s = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", text).group(1).split(":")
+    wall = sum(float(x) * 60 ** i for i, x in enumerate(reversed(h_m_s)))
+    cpu = sum(float(re.search(rf"{kind} time \(seconds\): ([\d.]+)", text).group(1)) for kind in ("User", "System"))
+    return wall, cpu
+
+
+def _duration(seconds):
+    """How the docs write a duration: ``27 s`` under a minute, ``3 min 27 s`` above."""
+    seconds = round(seconds)
+    return f"{seconds} s" if seconds < 60 else f"{seconds // 60} min {seconds % 60} s"
+
+
+def test_the_set_up_commands_times_are_their_committed_measurements():
+    """The README's and the development page's times of the two set-up commands: results/setup."""
+    development = " ".join((ROOT / "docs/development.md").read_text().split())
+    readme = " ".join(README.split())
+    quick_wall, quick_cpu = _time_v("quick.time.txt")
+    tests_wall, _ = _time_v("tests.time.txt")
+    n_tests = int(re.search(r"(\d+) passed", (ROOT / "results/setup/tests-summary.txt").read_text()).group(1))
+    for text in (readme, development):
+        assert f"took {_duration(quick_wall)} of wall time ({_duration(quick_cpu)} of CPU time" in text
+        assert f"took {_duration(tests_wall)} of wall time ({n_tests:,} tests" in text
+
+
+def test_every_duration_the_command_line_quotes_is_a_committed_runs():
+    """``factirl-opt reproduce --help``: a preset's duration cites the manifest of the run that took it."""
+    from factirl_opt.lab.experiments.presets import PRESET_DESCRIPTIONS
+
+    cited = 0
+    for name, text in PRESET_DESCRIPTIONS.items():
+        pattern = r"(\d+) (min|s) (?:of wall time )?with --jobs (\d+)[^():]*: (results/\S*manifest\.json)"
+        for match in re.finditer(pattern, text):
+            value, unit, jobs, path = match.groups()
+            manifest = json.loads((ROOT / path).read_text())
+            expected = manifest["wall_time_seconds"] / (60 if unit == "min" else 1)
+            assert int(value) == round(expected) and int(jobs) == manifest["jobs"], (name, match.group(0))
+            cited += 1
+        bare = re.sub(pattern, "", text)
+        assert not re.search(r"\d+(?:-\d+)? ?(?:s|min|minutes?|seconds?)\b", bare), (name, bare)  # no uncited duration
+    assert cited >= 7
+
+
+def test_the_guides_quick_reproduction_time_is_its_committed_run():
+    guide = " ".join((ROOT / "docs/guide.md").read_text().split())
+    seconds = round(json.loads((ROOT / "results/setup/quick-manifest.json").read_text())["wall_time_seconds"])
+    assert f"its runs took {seconds} s of wall time in a fresh virtualenv, `results/setup/quick-manifest.json`" in guide
