@@ -39,6 +39,17 @@ from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble
 ENSEMBLES = {"bootstrap8": (8, "bootstrap"), "folds5": (5, "folds")}
 
 
+def draw(seed, n_train=60, n_test=30):
+    """The issue's draw (the paper's grid, ``n_train`` training tasks x 10 demonstrations, ``n_test``
+    one-demonstration test tasks) and the fast preset's FactIRL with the converged transfer, unfitted:
+    ``(gt, test, true, model)``. The scripts of this folder share it."""
+    preset = PRESETS["fast"]
+    gt = make_ground_truth(preset, n_train, 10, seed)
+    test, true = gt.test_demos[:n_test], np.asarray(gt.test_rewards[:n_test])
+    options = factorial_options(preset, preset.solvers, "policy-matching")
+    return gt, test, true, fo.FactIRL(rng=seed, **{**options, "transfer_stol": 1e-3})
+
+
 def calibration(model, gt, test, true, n_samples, seed):
     model.transfer(gt.mdp, test)
     t = time.process_time()
@@ -53,11 +64,8 @@ def calibration(model, gt, test, true, n_samples, seed):
 
 
 def main(seed, n_train=60, n_test=30, n_samples=200):
-    preset = PRESETS["fast"]
-    gt = make_ground_truth(preset, n_train, 10, seed)
-    test, true = gt.test_demos[:n_test], np.asarray(gt.test_rewards[:n_test])
+    gt, test, true, model = draw(seed, n_train, n_test)
     t = time.process_time()
-    model = fo.FactIRL(rng=seed, transfer_stol=1e-3, **factorial_options(preset, preset.solvers, "policy-matching"))
     model.fit(gt.mdp, gt.train_demos)
     out = {"seed": seed, "n_train": n_train, "n_test": n_test, "n_samples": n_samples, "fit_cpu_s": time.process_time() - t}
     t = time.process_time()

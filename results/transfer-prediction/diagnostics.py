@@ -18,19 +18,14 @@ import numpy as np
 from scipy.stats import spearmanr
 
 import factirl_opt as fo
-from factirl_opt.lab.experiments.learner_solvers import factorial_options
-from factirl_opt.lab.experiments.presets import PRESETS
-from factirl_opt.lab.experiments.worlds import make_ground_truth
+from calibration import draw  # this folder's shared draw
 from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble
 from factirl_opt.learners.noise_levels import misfit_noise_levels
 from factirl_opt.learners.transfer_likelihood import demonstration_curvature, transfer_problem
 
 
 def main(seed, n_train=60, n_test=30):
-    preset = PRESETS["fast"]
-    gt = make_ground_truth(preset, n_train, 10, seed)
-    test, true = gt.test_demos[:n_test], np.asarray(gt.test_rewards[:n_test])
-    model = fo.FactIRL(rng=seed, transfer_stol=1e-3, **factorial_options(preset, preset.solvers, "policy-matching"))
+    gt, test, true, model = draw(seed, n_train, n_test)
     model.fit(gt.mdp, gt.train_demos)
     model.transfer(gt.mdp, test)
     posts = model.transfer_posterior_
