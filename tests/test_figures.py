@@ -168,3 +168,38 @@ def test_the_guides_quick_reproduction_time_is_its_committed_run():
     guide = " ".join((ROOT / "docs/guide.md").read_text().split())
     seconds = round(json.loads((ROOT / "results/setup/quick-manifest.json").read_text())["wall_time_seconds"])
     assert f"its runs took {seconds} s of wall time in a fresh virtualenv, `results/setup/quick-manifest.json`" in guide
+
+
+def test_the_which_learner_costs_and_the_fixed_k_example_are_the_benchmarks():
+    """The README's cost of the default search over the benchmark (route_table.py on its records) and
+    its example of a fixed k that transfers better (one Objectworld map, 20 tasks, seed 0)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(ROOT / "results/which-learner/route_table.py"),
+                          str(ROOT / "results/which-learner/default")], capture_output=True, text=True, check=True).stdout
+    median, top = re.search(r"CPU-time ratio median ([\d.]+)x, max ([\d.]+)x", out).groups()
+    whole_median, whole_top = re.search(r"flat start on both sides: median ([\d.]+)x, max ([\d.]+)x", out).groups()
+    readme = " ".join(README.split())
+    assert (f"costs a median {median}x the factorial fit's CPU time and at most {top}x ({whole_median}x and "
+            f"{whole_top}x counting the flat start both fits pay)") in readme
+    rows = [r for r in _summary("results/which-learner/default/sharing-objectworld-quick/results.csv")
+            if r["split"] == "test" and r["seed"] == "0" and r["n_tasks"] == "20"]
+    dev = {r["learner"]: float(r["deviation"]) for r in rows}
+    assert f"k = 5 at {dev['factorial, features']:.2f} against {dev['adaptive, features']:.2f}" in readme
+
+
+def test_the_defaults_figures_are_the_acceptance_draws():
+    """The README's figures of the defaults: e87d706's default call against the final defaults
+    (``armijo-stol-start``) on the acceptance draw, results/defaults/walled_maps_switch_seed*.jsonl."""
+    rows = [json.loads(line) for path in sorted((ROOT / "results/defaults").glob("walled_maps_switch_seed*.jsonl"))
+            for line in path.read_text().splitlines()]
+    ref = {(r["seed"], r["objective"]): r for r in rows if r["label"] == "e87d706"}
+    now = [(r, ref[r["seed"], r["objective"]]) for r in rows if r["candidate"] == "armijo-stol-start"]
+    assert len(now) == 6
+    cpu = sorted(r["cpu_s"] / e["cpu_s"] for r, e in now)
+    test = max(r["mean_test_deviation"] / e["mean_test_deviation"] for r, e in now)
+    worse_train = sum(r["mean_train_deviation"] > 1.05 * e["mean_train_deviation"] for r, e in now)
+    readme = " ".join(README.split())
+    assert (f"on per-task maps {cpu[0]:.2f}-{cpu[-1]:.2f}x the CPU of the paper's algorithm, test deviations within "
+            f"{round(100 * (test - 1))}%, a higher train deviation on {worse_train} of 6 draws") in readme
