@@ -38,7 +38,7 @@ def transferred_model(seed):
     demonstrations, each of its test tasks transferred from its one demonstration; and the ground truth."""
     preset = PRESETS["fast"]
     gt = make_ground_truth(preset, 100, 10, seed)
-    model = fo.FactIRL(init="pca", rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
+    model = fo.FactIRL(rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
     model.fit(gt.mdp, gt.train_demos)
     model.transfer(gt.mdp, gt.test_demos)
     return gt, model

@@ -39,7 +39,7 @@ def calibration(model, gt, n_samples, seed):
 def main(seed, n_samples=200):
     preset = PRESETS["fast"]
     gt = make_ground_truth(preset, 100, 10, seed)
-    model = fo.FactIRL(init="pca", rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
+    model = fo.FactIRL(rng=seed, **factorial_options(preset, preset.solvers, "policy-matching"))
     model.fit(gt.mdp, gt.train_demos)
     out = {"seed": seed, "learnt": calibration(model, gt, n_samples, seed)}
     # the true dictionary and training coefficients, drawn from the same streams as make_ground_truth

@@ -23,7 +23,7 @@ def main(name, seed, draws):
     preset, gt, train_mdps, train_feats, mdps, feats = world(name, s, seed)
     n = min(s["n_test"], len(gt.test_demos))
     with limit_blas_threads(1):
-        model = FactIRL(init="pca", rng=seed, features=train_feats,
+        model = FactIRL(rng=seed, features=train_feats,
                         **factorial_options(preset, preset.solvers, "policy-matching", features=train_feats is not None))
         model.fit(train_mdps, gt.train_demos)
         for d in draws:

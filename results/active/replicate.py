@@ -24,7 +24,7 @@ def main(name, seed, variants):
     s = dict(DEFAULTS)
     preset, gt, train_mdps, train_feats, mdps, feats = world(name, s, seed)
     n = min(s["n_test"], len(gt.test_demos))
-    model = FactIRL(init="pca", rng=seed, features=train_feats,
+    model = FactIRL(rng=seed, features=train_feats,
                     **factorial_options(preset, preset.solvers, "policy-matching", features=train_feats is not None))
     model.fit(train_mdps, gt.train_demos)
     for v in variants:

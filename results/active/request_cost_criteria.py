@@ -25,7 +25,7 @@ from factirl_opt.learners.factirl import FactIRL
 def main(name, seed, n_tasks=10):
     s = dict(DEFAULTS)
     preset, gt, train_mdps, train_feats, mdps, feats = world(name, s, seed)
-    model = FactIRL(init="pca", rng=seed, features=train_feats,
+    model = FactIRL(rng=seed, features=train_feats,
                     **factorial_options(preset, preset.solvers, "policy-matching", features=train_feats is not None))
     model.fit(train_mdps, gt.train_demos)
     times = {"transfer": np.zeros(n_tasks), "posterior": np.zeros(n_tasks), **{c: np.zeros(n_tasks) for c in CRITERIA}}

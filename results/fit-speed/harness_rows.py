@@ -89,13 +89,13 @@ for objective in args.objectives:
         record(f"{objective}: flat, features ({label})", flat, cpu, transfer=False)
         flat_rewards[label] = flat.rewards_
     for start, p in (("flat_stol 0", before), ("flat_stol 0", preset), ("flat_stol preset", preset)):
-        model = fo.FactIRL(init="pca", rng=np.random.default_rng(args.seed + 1), features=features,
+        model = fo.FactIRL(rng=np.random.default_rng(args.seed + 1), features=features,
                            **factorial_options(p, p.solvers, objective))
         cpu = timed_fit(model, mdps, gt.train_demos, flat_rewards=flat_rewards[start])
         record(f"{objective}: factorial, features, {model.scheme} (from {start})", model, cpu, transfer=True)
     for p in (before, preset):
-        model = fo.FactIRL(init="random", rng=np.random.default_rng(args.seed + 2), features=features,
-                           **factorial_options(p, p.solvers, objective))
+        model = fo.FactIRL(rng=np.random.default_rng(args.seed + 2), features=features,
+                           **factorial_options(p, p.solvers, objective, init="random"))
         cpu = timed_fit(model, mdps, gt.train_demos)
         record(f"{objective}: factorial, features, random init, {model.scheme}", model, cpu, transfer=True)
 print(json.dumps(dict(preset=preset.name, settings=vars(args), fits=out), indent=1))

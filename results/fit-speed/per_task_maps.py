@@ -71,7 +71,7 @@ for _ in range(args.repeats):
     for config in configs:
         for objective in args.objectives:
             kw = options(objective, config)
-            model = fo.FactIRL(init="pca", rng=np.random.default_rng(args.seed + 1), features=list(maps.features), **kw)
+            model = fo.FactIRL(rng=np.random.default_rng(args.seed + 1), features=list(maps.features), **kw)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 c0 = time.process_time()

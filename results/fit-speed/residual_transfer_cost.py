@@ -52,7 +52,7 @@ def objectworld_point(preset_name="sharing-objectworld-quick", n=20):
     held = np.sort(np.random.default_rng(0).permutation(n)[: n // 3])
     train = np.setdiff1d(np.arange(n), held)
     kw = factorial_options(preset, preset.solvers, features=True)
-    model = fo.FactIRL(init="pca", rng=0, features=gt.features, **{**kw, "residual_penalty": 1.0})
+    model = fo.FactIRL(rng=0, features=gt.features, **{**kw, "residual_penalty": 1.0})
     model.fit(gt.mdps("train"), [gt.train_demos[i] for i in train])
     about = {"point": f"{preset_name}, {n} tasks, seed 0", "train_tasks": train.tolist(),
              "held_out_tasks": held.tolist(), "p": int(np.shape(gt.features)[1]), "solver": model.solver}

@@ -36,11 +36,11 @@ for stol in (0.0, 1e-5):
 for stol in (0.0, 1e-5):
     for scheme in ("alternating", "joint"):
         p = dataclasses.replace(preset, fact_scheme=scheme)
-        m = fo.FactIRL(init="pca", rng=np.random.default_rng(1), features=feats, **factorial_options(p, p.solvers))
+        m = fo.FactIRL(rng=np.random.default_rng(1), features=feats, **factorial_options(p, p.solvers))
         c = timed(m, gt.mdp, gt.train_demos, flat_rewards=flats[stol])
         print(which, "pca from stol", stol, scheme, round(c, 1), m.n_evaluations_, m.n_iter_, "%.4g" % float(np.sum(m.loss_)), round(dev(m.rewards_), 3), m.status_, m.stop_reason_[:80], flush=True)
 for scheme in ("alternating", "joint"):
     p = dataclasses.replace(preset, fact_scheme=scheme)
-    m = fo.FactIRL(init="random", rng=np.random.default_rng(2), features=feats, **factorial_options(p, p.solvers))
+    m = fo.FactIRL(rng=np.random.default_rng(2), features=feats, **factorial_options(p, p.solvers, init="random"))
     c = timed(m, gt.mdp, gt.train_demos)
     print(which, "random", scheme, round(c, 1), m.n_evaluations_, m.n_iter_, "%.4g" % float(np.sum(m.loss_)), round(dev(m.rewards_), 3), m.status_, m.stop_reason_[:80], flush=True)

@@ -66,7 +66,7 @@ out["flat, features (test)"] = dict(mean_deviation=float(np.mean(flat_dev)), cpu
 print(json.dumps(out), flush=True)
 for scheme in args.schemes:
     p = dataclasses.replace(preset, fact_scheme=scheme)
-    model = fo.FactIRL(init="pca", rng=np.random.default_rng(args.seed + 1), features=features,
+    model = fo.FactIRL(rng=np.random.default_rng(args.seed + 1), features=features,
                        **factorial_options(p, p.solvers, objective))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -34,7 +34,7 @@ def main(name, seed, out_path):
     kw = factorial_options(preset, preset.solvers, adaptive=True, features=Ftr is not None)
     kw.update(n_primitives=1, residual_penalty=0.0)
     kw.pop("sharing_search", None)
-    model = fo.FactIRL(init="pca", rng=0, features=Ftr, **kw)
+    model = fo.FactIRL(rng=0, features=Ftr, **kw)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model.fit(gt.mdps("train"), gt.train_demos)

@@ -100,7 +100,7 @@ def main(argv):
     demo_sets = {1: gt.test_demos, 3: more_demos(gt, preset, seed, 2)}
     record = {"preset": argv[0], "n_tasks": n, "seed": seed, "learners": {}}
     for name, params in models.items():
-        m = fo.FactIRL(init="pca", rng=np.random.default_rng([seed, 3]), features=Ftr, **params)
+        m = fo.FactIRL(rng=np.random.default_rng([seed, 3]), features=Ftr, **params)
         t0 = time.process_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -33,7 +33,7 @@ def setup(argv=None):
     kw = factorial_options(preset, preset.solvers, adaptive=True, features=Ftr is not None)
     flat = fo.GradIRL(beta=preset.beta, features=Ftr, max_iter=preset.flat_max_iter, gtol=preset.flat_gtol,
                       stol=preset.flat_stol, solver=kw.get("flat_solver", "armijo"), planner=preset.planner).fit(mdp, demos)
-    learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
+    learner = fo.FactIRL(rng=ctx.rngs["pca"], features=Ftr, **kw)
     folds = adaptive.task_folds(n, 3, learner.rng)  # the folds of the search (SharingSearch(cv=3))
     tasks = learner_tasks(learner, mdp, demos)  # the task set the learner's fit builds
     k_max = adaptive.max_primitives(tasks, folds)

@@ -21,7 +21,7 @@ ctx = RunContext(gt, RunSpec(n, preset.default_demos, seed))
 kw = factorial_options(preset, preset.solvers, adaptive=True, features=True)
 flat = fo.GradIRL(beta=preset.beta, features=Ftr, max_iter=preset.flat_max_iter, solver=preset.flat_features_solver,
                   planner=preset.planner).fit(gt.mdps("train"), gt.train_demos)
-learner = fo.FactIRL(init="pca", rng=ctx.rngs["pca"], features=Ftr, **kw)
+learner = fo.FactIRL(rng=ctx.rngs["pca"], features=Ftr, **kw)
 k, lam, table = adaptive.choose_sharing(learner, gt.mdps("train"), gt.train_demos, flat.rewards_, search="full", score=(sys.argv[4] if len(sys.argv) > 4 else "likelihood"))
 out = []
 for row in table:
