@@ -203,3 +203,19 @@ def test_the_defaults_figures_are_the_acceptance_draws():
     readme = " ".join(README.split())
     assert (f"on per-task maps {cpu[0]:.2f}-{cpu[-1]:.2f}x the CPU of the paper's algorithm, test deviations within "
             f"{round(100 * (test - 1))}%, a higher train deviation on {worse_train} of 6 draws") in readme
+
+
+def test_the_guides_route_table_on_the_readme_grid_is_the_auto_cost_runs():
+    """The guide's table of routes, its README-grid column: the two committed auto-cost runs."""
+    runs = [json.loads((ROOT / "results/which-learner/default/auto-cost" / f).read_text())["seeds"]["0"]
+            for f in ("readme-evidence-race-pca.json", "readme-evidence.json")]
+    guide = (ROOT / "docs/guide.md").read_text()
+    rows = {r[0].strip("`").split('"')[1]: r for r in _table(guide, "| route | candidates | README grid")}
+    ratios = sorted(r["time_ratio"]["evidence"] for r in runs)
+    chosen, fixed = runs[0]["chosen"], runs[0]["fixed_test_deviation"]
+    assert rows["evidence"][2] == (f"{ratios[0]:.1f}-{ratios[1]:.1f}x, chose ({chosen['evidence']['n_primitives']}, "
+                                   f"{chosen['evidence']['residual_penalty']:g}): {chosen['evidence']['test_deviation']:.2f} "
+                                   f"(k = 5: {fixed:.2f})")
+    for route in ("race", "pca"):
+        assert rows[route][2] == (f"{runs[0]['time_ratio'][route]:.1f}x, chose ({chosen[route]['n_primitives']}, "
+                                  f"{chosen[route]['residual_penalty']:g}): {chosen[route]['test_deviation']:.2f}")
