@@ -36,7 +36,7 @@ def _fit(mdp, demos, **kw):
 def test_constrained_primitives_are_unit_feasible_and_the_history_counts_the_penalty(data, constraint):
     mdp, st = data
     alpha = 0.02
-    m = _fit(mdp, st.demos, dictionary_constraint=constraint, dictionary_alpha=alpha)
+    m = _fit(mdp, st.demos, dictionary_constraint=fo.DictionaryConstraint(constraint, alpha))
     D = m.dictionary_
     np.testing.assert_allclose(np.linalg.norm(D, axis=0), 1.0, atol=1e-12)
     if constraint.startswith("nonneg"):
@@ -100,18 +100,30 @@ def test_a_tuple_start_and_the_residual_model_keep_the_constraint(data):
 
 
 def test_constraint_parameters_travel_with_get_params_and_clone():
-    m = fo.FactIRL(3, dictionary_constraint="sparse", dictionary_alpha=0.5)
-    params = m.get_params()
-    assert params["dictionary_constraint"] == "sparse" and params["dictionary_alpha"] == 0.5
+    m = fo.FactIRL(3, dictionary_constraint=fo.DictionaryConstraint("sparse", alpha=0.5))
+    params = m.get_params(deep=True)
+    assert params["dictionary_constraint__kind"] == "sparse" and params["dictionary_constraint__alpha"] == 0.5
     c = clone(m)
-    assert c.dictionary_constraint == "sparse" and c.dictionary_alpha == 0.5
+    assert c.dictionary_constraint == fo.DictionaryConstraint("sparse", 0.5)
+    assert clone(m.set_params(dictionary_constraint__alpha=0.25)).get_params(deep=True)["dictionary_constraint__alpha"] == 0.25
+    named = fo.FactIRL(3, dictionary_constraint="nonneg")  # a kind's name: its default alpha
+    assert clone(named).dictionary_constraint == "nonneg" and named._group("dictionary_constraint").alpha == 0.01
+
+
+def test_the_former_dictionary_alpha_sets_the_groups_field_with_one_warning():
+    with pytest.warns(FutureWarning, match="'dictionary_alpha' is now the field 'alpha' of dictionary_constraint"):
+        m = fo.FactIRL(3, dictionary_constraint="sparse", dictionary_alpha=0.5)
+    assert m.dictionary_constraint == fo.DictionaryConstraint("sparse", 0.5) and m.dictionary_alpha == 0.5
+    with pytest.raises(ValidationError, match="either as one DictionaryConstraint"):
+        fo.FactIRL(3, dictionary_constraint=fo.DictionaryConstraint("sparse"), dictionary_alpha=0.5)
 
 
 @pytest.mark.parametrize("kw, fragment", [
     ({"dictionary_constraint": "positive"}, "dictionary_constraint must be None or one of"),
-    ({"dictionary_constraint": "sparse", "dictionary_alpha": 0.0}, "needs dictionary_alpha > 0"),
-    ({"dictionary_constraint": "nonneg", "dictionary_alpha": -1.0}, "dictionary_alpha"),
-    ({"dictionary_alpha": np.nan}, "dictionary_alpha"),
+    ({"dictionary_constraint": fo.DictionaryConstraint("sparse", 0.0)}, "needs alpha > 0"),
+    ({"dictionary_constraint": fo.DictionaryConstraint("nonneg", -1.0)}, r"dictionary_constraint\.alpha"),
+    ({"dictionary_constraint": fo.DictionaryConstraint(alpha=np.nan)}, r"dictionary_constraint\.alpha"),
+    ({"dictionary_constraint": 3}, "dictionary_constraint must be a DictionaryConstraint, None or one of"),
     ({"dictionary_constraint": "nonneg", "d_solver": "lbfgs"}, "d_solver must be 'armijo'"),
     ({"dictionary_constraint": "sparse", "d_solver": "armijo-nonneg"}, "d_solver must be 'armijo'"),
 ])
@@ -143,7 +155,9 @@ def test_dictionary_match_refuses_bad_shapes(learnt, true):
 
 def test_a_constrained_model_is_saved_and_loaded(data, tmp_path):
     mdp, st = data
-    m = _fit(mdp, st.demos, dictionary_constraint="nonneg-sparse", dictionary_alpha=0.03)
+    m = _fit(mdp, st.demos, dictionary_constraint=fo.DictionaryConstraint("nonneg-sparse", 0.03))
     loaded = fo.load_model(fo.save_model(m, tmp_path / "m.npz"))
-    assert (loaded.dictionary_constraint, loaded.dictionary_alpha) == ("nonneg-sparse", 0.03)
+    assert loaded.dictionary_constraint == fo.DictionaryConstraint("nonneg-sparse", 0.03)
+    named = _fit(mdp, st.demos, dictionary_constraint="nonneg")  # a kind's name is saved as its group
+    assert fo.load_model(fo.save_model(named, tmp_path / "n.npz")).dictionary_constraint == fo.DictionaryConstraint("nonneg")
     np.testing.assert_array_equal(loaded.dictionary_, m.dictionary_)

@@ -20,7 +20,7 @@ IDS = [cls.__name__ for cls, _ in ESTIMATORS]
 SHARED = {"features", "reward", "objective", "max_iter", "tol", "solver", "execution"}
 EXECUTION = {"n_jobs", "backend", "client", "planner", "planner_options", "verbose", "callback"}
 #: the constructor parameters at most (scikit-learn's largest estimators take 18 to 23)
-MOST_PARAMS = {"GradIRL": 12, "FactIRL": 21, "MultiIntentIRL": 18}
+MOST_PARAMS = {"GradIRL": 12, "FactIRL": 20, "MultiIntentIRL": 18}
 
 
 @pytest.fixture(autouse=True)

@@ -10,7 +10,8 @@
 - The grouped parameters: :class:`SolverSettings` (the step solvers a learner runs),
   :class:`Execution` (where and how a fit runs and is watched), :class:`Start` and
   :class:`IntentionStart` (where a FactIRL or MultiIntentIRL fit starts; :mod:`~factirl_opt.learners.start`),
-  :class:`PosteriorSettings` (what FactIRL's transfer posterior includes; :mod:`~factirl_opt.learners.dictionary_ensemble`).
+  :class:`PosteriorSettings` (what FactIRL's transfer posterior includes; :mod:`~factirl_opt.learners.dictionary_ensemble`),
+  :class:`DictionaryConstraint` (a constraint on FactIRL's primitives; :mod:`~factirl_opt.learners.dictionary`).
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
 - :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
@@ -32,6 +33,7 @@ from .selection.sharing_search import SharingSearch
 from .solver_settings import SolverSettings
 from .start import IntentionStart, Start
 from .dictionary_ensemble import PosteriorSettings
+from .dictionary import DictionaryConstraint
 from ..objectives.sharding import Execution
 
 __all__ = [
@@ -43,6 +45,7 @@ __all__ = [
     "Execution",
     "Start",
     "PosteriorSettings",
+    "DictionaryConstraint",
     "IntentionStart",
     "SharingSearch",
     "clone",

@@ -17,6 +17,7 @@ coefficients ``H`` (n, k), tasks on the leading axis, with rewards ``R_i = Phi D
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Callable
 
 import numpy as np
@@ -24,13 +25,14 @@ from numpy.typing import ArrayLike, NDArray
 
 import solvers
 
+from .._params import ParameterGroup
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import FitInterrupted, ValidationError, translate_solver_errors
 from ..interruption import INTERRUPTIONS
 from ..tasks.basis import TaskBasis, least_squares_weights
 from ..tasks.features import TaskFeatures
 
-__all__ = ["pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
+__all__ = ["DictionaryConstraint", "pca_dictionary", "metric_pca_dictionary", "task_feature_weights", "feature_weights", "shrink_coefficients", "orient_nonneg", "normalise_dictionary",
            "check_dictionary_norms", "PCA_MAX_HALVINGS", "DICTIONARY_CONSTRAINTS", "check_dictionary_constraint",
            "constrained_dictionary_solver", "constrained_start"]
 
@@ -280,20 +282,58 @@ def check_dictionary_norms(D: NDArray[np.float64], name: str = "dictionary") -> 
 DICTIONARY_CONSTRAINTS = ("nonneg", "sparse", "nonneg-sparse")
 
 
-def check_dictionary_constraint(constraint: Any, alpha: Any) -> tuple[str | None, float]:
-    """The validated ``(dictionary_constraint, dictionary_alpha)`` of a FactIRL.
+@dataclasses.dataclass(frozen=True, repr=False)
+class DictionaryConstraint(ParameterGroup):
+    """A constraint on the columns of FactIRL's dictionary, the primitives (docs/maths.md §8b).
+
+    ``FactIRL(dictionary_constraint=...)`` takes one, or the name of a ``kind`` (its ``alpha``
+    the default).
+
+    Parameters
+    ----------
+    kind : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
+        None: the paper's free dictionary. Otherwise every primitive has unit norm and is
+        nonnegative (``"nonneg"``), penalised by ``alpha * n * ||D||_1`` (``"sparse"``, n the
+        number of tasks), or both. The D-step is then projected/proximal Armijo descent
+        (:class:`solvers.ProximalArmijoSolver`), the start is moved onto the constraint
+        (:func:`constrained_start`), and ``loss_history_`` includes the penalty; the transfer is
+        unchanged (the dictionary is fixed).
+    alpha : float, default=0.01
+        The L1 weight per task of a sparse kind (> 0 there; ignored otherwise). Formerly
+        ``FactIRL(dictionary_alpha=...)``.
+    """
+
+    kind: str | None = None
+    alpha: float = 0.01
+
+    @classmethod
+    def of(cls, value: Any) -> DictionaryConstraint:
+        """The constraint a ``dictionary_constraint`` value names: a kind's name (or None) at the default ``alpha``."""
+        if isinstance(value, cls):
+            return value
+        if value is None or isinstance(value, str):
+            return cls(kind=value)
+        raise ValidationError(f"dictionary_constraint must be a DictionaryConstraint, None or one of "
+                              f"{DICTIONARY_CONSTRAINTS}; got {value!r:.80}")
+
+
+def check_dictionary_constraint(constraint: Any, alpha: Any = None) -> tuple[str | None, float]:
+    """The validated ``(kind, alpha)`` of a FactIRL's ``dictionary_constraint``
+    (a :class:`DictionaryConstraint`, a kind's name or None; ``alpha`` overrides the group's).
 
     Raises
     ------
     ValidationError
-        When the constraint is not None or one of :data:`DICTIONARY_CONSTRAINTS`, or ``alpha``
-        is not a finite number >= 0 (> 0 for a sparse constraint).
+        When the kind is not None or one of :data:`DICTIONARY_CONSTRAINTS`, or ``alpha`` is
+        not a finite number >= 0 (> 0 for a sparse kind).
     """
+    group = DictionaryConstraint.of(constraint)
+    constraint, alpha = group.kind, group.alpha if alpha is None else alpha
     if constraint is not None and not (isinstance(constraint, str) and constraint in DICTIONARY_CONSTRAINTS):
         raise ValidationError(f"dictionary_constraint must be None or one of {DICTIONARY_CONSTRAINTS}; got {constraint!r}")
-    alpha = check_real(alpha, "dictionary_alpha", 0.0, None)
+    alpha = check_real(alpha, "dictionary_constraint.alpha", 0.0, None)
     if constraint is not None and constraint.endswith("sparse") and not alpha > 0:
-        raise ValidationError(f"dictionary_constraint={constraint!r} needs dictionary_alpha > 0 (the L1 weight); got {alpha!r}")
+        raise ValidationError(f"dictionary_constraint={constraint!r} needs alpha > 0 (the L1 weight); got {alpha!r}")
     return constraint, float(alpha)
 
 

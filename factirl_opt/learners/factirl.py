@@ -26,6 +26,7 @@ from .._validation import as_rng, check_bool, check_fit_parameters, check_int, c
 from .estimator import EXECUTION_PARAM_KINDS, EXECUTION_RENAMED, Estimator, renamed_params
 from .dictionary import (
     PCA_MAX_HALVINGS,
+    DictionaryConstraint,
     check_dictionary_constraint,
     constrained_dictionary_solver,
     constrained_start,
@@ -141,16 +142,12 @@ class FactIRL(Estimator):
         ``transfer`` fits each new task as the flat learner does ("What residual_penalty runs" in
         :mod:`factirl_opt.learners.factorial`). ``"auto"``: chosen by validation over tasks
         (:mod:`factirl_opt.learners.selection`).
-    dictionary_constraint : {None, "nonneg", "sparse", "nonneg-sparse"}, default=None
-        Constrain the dictionary's columns (the primitives; docs/maths.md §8b): None is the
-        paper's free dictionary; otherwise every primitive has unit norm and is nonnegative
-        (``"nonneg"``), penalised by ``dictionary_alpha * n * ||D||_1`` (``"sparse"``, n the
-        number of tasks), or both. The D-step is then projected/proximal Armijo descent
-        (:class:`solvers.ProximalArmijoSolver`) with the options of ``d_solver``, which must be
-        ``"armijo"``; the start is moved onto the constraint (:func:`~factirl_opt.learners.dictionary.constrained_start`),
-        and ``loss_history_`` includes the penalty. Transfer is unchanged (the dictionary is fixed).
-    dictionary_alpha : float, default=0.01
-        The L1 weight per task of a sparse ``dictionary_constraint`` (> 0 there; ignored otherwise).
+    dictionary_constraint : DictionaryConstraint or {None, "nonneg", "sparse", "nonneg-sparse"}, optional
+        Constrain the dictionary's columns, the primitives (:class:`~factirl_opt.DictionaryConstraint`:
+        ``kind`` and the L1 weight ``alpha`` of a sparse kind; a kind's name takes the default
+        ``alpha``; docs/maths.md §8b). None: the paper's free dictionary. A constrained
+        dictionary takes projected/proximal Armijo D-steps, with the options of ``d_solver``,
+        which must be ``"armijo"``.
     scheme : {"auto", "alternating", "joint"}, default="auto"
         The outer scheme of ``fit`` (:func:`~factirl_opt.learners.factorial.fit_factorial`):
         ``"auto"`` chooses from the reward basis (:func:`~factirl_opt.learners.factorial.resolve_scheme`,
@@ -263,10 +260,11 @@ class FactIRL(Estimator):
         "solver_options": "solver__h_solver_options", "d_solver": "solver__d_solver",
         "d_solver_options": "solver__d_solver_options", "flat_solver": "solver__flat_solver",
         **{name: f"start__{name}" for name in ("init", "pca_shrink", "flat_max_iter", "flat_tol", "flat_stol")},
+        "dictionary_alpha": "dictionary_constraint__alpha",
         **EXECUTION_RENAMED,
     }
     param_groups: ClassVar[dict[str, type]] = {"solver": SolverSettings, "start": Start, "execution": Execution,
-                                               "posterior": PosteriorSettings}
+                                               "posterior": PosteriorSettings, "dictionary_constraint": DictionaryConstraint}
     #: The D-step solver when the solver settings name none (:attr:`default_d_solver`), and with a
     #: ``dictionary_constraint``, whose projected/proximal steps are Armijo's.
     unconstrained_d_solver: ClassVar[str] = "lbfgs"
@@ -274,6 +272,7 @@ class FactIRL(Estimator):
     #: How ``save_model`` stores the parameters that are not plain JSON (factirl_opt.persistence.params).
     param_kinds: ClassVar[dict[str, str]] = {
         "features": "features", "start": "group", "start__init": "dictionary-start", "solver": "solver", "posterior": "group",
+        "dictionary_constraint": "group",
         "objective": "objective", "rng": "rng", "sharing_search": "sharing-search", **EXECUTION_PARAM_KINDS,
     }
 
@@ -285,7 +284,7 @@ class FactIRL(Estimator):
                  solver: str | solvers.StepSolver | SolverSettings = "armijo",
                  objective: str | type[Objective] = "policy-matching", rng: np.random.Generator | int | None = None,
                  execution: Execution | None = None, residual_penalty: float | Literal["auto"] = np.inf,
-                 dictionary_constraint: str | None = None, dictionary_alpha: float = 0.01,
+                 dictionary_constraint: str | DictionaryConstraint | None = None,
                  sharing_search: SharingSearch | None = None, scheme: str = "auto",
                  transfer_stol: float = TRANSFER_STOL, posterior: PosteriorSettings | None = None) -> None:
         self.n_primitives = n_primitives
@@ -301,7 +300,6 @@ class FactIRL(Estimator):
         self.execution = execution
         self.residual_penalty = residual_penalty
         self.dictionary_constraint = dictionary_constraint
-        self.dictionary_alpha = dictionary_alpha
         self.sharing_search = sharing_search
         self.scheme = scheme
         self.transfer_stol = transfer_stol
@@ -311,7 +309,8 @@ class FactIRL(Estimator):
     def default_d_solver(self) -> str:
         """The D-step solver when the solver settings name none: ``"lbfgs"``, or ``"armijo"`` with a
         ``dictionary_constraint`` (its projected/proximal steps are Armijo's)."""
-        return self.unconstrained_d_solver if self.dictionary_constraint is None else self.constrained_d_solver
+        constrained = self._group("dictionary_constraint").kind is not None
+        return self.constrained_d_solver if constrained else self.unconstrained_d_solver
 
     validation_ = validation_attribute  # deprecated: the rows of cv_results_
 
@@ -325,7 +324,7 @@ class FactIRL(Estimator):
         check_tol(start.flat_tol, "flat_tol")
         check_tol(start.flat_stol, "flat_stol")
         check_bool(start.pca_shrink, "pca_shrink")
-        check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
+        check_dictionary_constraint(self.dictionary_constraint)
         return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
 
@@ -373,7 +372,7 @@ class FactIRL(Estimator):
         h_name, h_options, d_name, d_options = estimator_solvers(self)
         h_solver = resolve_step_solver(h_name, h_options, self.objective, "solver")
         d_solver = resolve_step_solver(d_name, d_options, self.objective, "d_solver")
-        constraint, alpha = check_dictionary_constraint(self.dictionary_constraint, self.dictionary_alpha)
+        constraint, alpha = check_dictionary_constraint(self.dictionary_constraint)
         if constraint is not None:
             d_solver = constrained_dictionary_solver(d_solver, constraint, alpha, tasks.n_params,
                                                      check_int(self.n_primitives, "n_primitives", minimum=1),

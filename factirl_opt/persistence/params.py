@@ -163,6 +163,8 @@ def encode_params(model: Any, name: str) -> tuple[dict, dict[str, np.ndarray], l
     for top, group in model.get_params(deep=False).items():
         pairs = [(top, group)]
         if param_kind(cls, top) == "group" and group is not None:  # its fields, each as its own kind
+            kind = cls.param_groups[top]
+            group = group if isinstance(group, kind) else kind.of(group)  # a group given by a name (a kind)
             pairs = [(f"{top}__{k}", v) for k, v in group.get_params().items()]
         for key, value in pairs:
             kind = param_kind(cls, key)

@@ -30,7 +30,7 @@ from ...parallel import limit_blas_threads
 from ...datasets.synthetic import synthetic_tasks
 from ...evaluation import deviation, dictionary_match
 from ...learners.start import Start
-from ...learners.dictionary import DICTIONARY_CONSTRAINTS
+from ...learners.dictionary import DICTIONARY_CONSTRAINTS, DictionaryConstraint
 from ...learners.factirl import FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import GridWorld
@@ -98,7 +98,7 @@ def _problem(s, mdp, kind, seed):
 def _variant(s, mdp, train, test, flat, D_true, variant, seed):
     fact = FactIRL(s["n_primitives"], s["beta"], start=Start(init="pca", pca_shrink=False), max_iter=s["max_iter"],
                    inner_steps=s["inner_steps"], gtol=0.0, transfer_max_iter=s["transfer_max_iter"], rng=seed,
-                   dictionary_constraint=None if variant == "none" else variant, dictionary_alpha=s["alpha"])
+                   dictionary_constraint=DictionaryConstraint(None if variant == "none" else variant, alpha=s["alpha"]))
     t0 = time.perf_counter()
     fact.fit(mdp, train.demos, flat_rewards=flat)
     elapsed = time.perf_counter() - t0
