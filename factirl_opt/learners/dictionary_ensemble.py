@@ -199,19 +199,17 @@ def tasks_ensemble(model: Any, tasks: Any, n_dictionaries: int, resampling: str 
     return np.stack(Ds), np.stack(means), np.stack(precisions)
 
 
-def fit_posterior_terms(model: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any = None, tasks: Any = None) -> Any:
-    """After ``FactIRL.fit``: the dictionary ensemble of ``posterior.n_dictionaries`` (:func:`dictionary_ensemble`,
-    drawn from the model's ``rng``), or none (an earlier fit's removed); returns ``model``.
+def fit_posterior_terms(model: Any, tasks: Any, flat_rewards: Any = None) -> Any:
+    """After ``FactIRL.fit`` on ``tasks`` (its task set): the dictionary ensemble of ``posterior.n_dictionaries``
+    (:func:`tasks_ensemble`, drawn from the model's ``rng``), or none (an earlier fit's removed); returns ``model``.
 
-    ``tasks``: the fit's task set, when the caller holds it (else built from ``mdp`` and
-    ``demos_per_task`` when an ensemble is asked for). The flat model (``residual_penalty_ = 0``)
-    and a model of fewer than 2 tasks have no posterior, hence no ensemble."""
+    The flat model (``residual_penalty_ = 0``) and a model of fewer than 2 tasks have no posterior,
+    hence no ensemble."""
     for name in ("dictionary_ensemble_", "ensemble_prior_means_", "ensemble_prior_precisions_"):
         model.__dict__.pop(name, None)
     B, how, _ = check_posterior_settings(model)
-    if B == 0 or float(model.residual_penalty_) == 0.0 or len(demos_per_task) < 2:
+    if B == 0 or float(model.residual_penalty_) == 0.0 or tasks.n_tasks < 2:
         return model
-    tasks = learner_tasks(model, mdp, demos_per_task) if tasks is None else tasks
     Ds, means, precisions = tasks_ensemble(model, tasks, B, how, rng=model.rng, flat_rewards=flat_rewards)
     model.dictionary_ensemble_, model.ensemble_prior_means_, model.ensemble_prior_precisions_ = Ds, means, precisions
     return model

@@ -356,12 +356,12 @@ class FactIRL(Estimator):
         self.__dict__.pop("_transfer", None)  # the last transfer's tasks and posterior belong to the former fit
         check_fit_parameters(self)  # every budget and solver, whether or not this fit's path reads it
         check_posterior_settings(self)
-        if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
-            fit_auto(self, mdp, demos_per_task, flat_rewards)  # its candidates and final fit refit no ensemble
-            return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards)
         tasks = learner_tasks(self, mdp, demos_per_task)
-        self._fit_tasks(tasks, flat_rewards)
-        return fit_posterior_terms(self, mdp, demos_per_task, flat_rewards, tasks)
+        if is_auto(self.n_primitives) or is_auto(self.residual_penalty):
+            fit_auto(self, tasks, flat_rewards)  # its candidates and final fit refit no ensemble
+        else:
+            self._fit_tasks(tasks, flat_rewards)
+        return fit_posterior_terms(self, tasks, flat_rewards)
 
     def _fit_tasks(self, tasks: TaskSet, flat_rewards: Any = None) -> FactIRL:
         """:meth:`fit` with a fixed k and lambda on a task set (the sharing search's candidates and final fit)."""

@@ -30,7 +30,6 @@ from ...interruption import INTERRUPTED, raise_interrupted, warn_interrupted
 from ...objectives.residuals import check_residual_penalty
 from ...tasks.task_set import TaskSet
 from ..estimator import Estimator
-from ..fitting import learner_tasks
 from ..start import flat_solver
 from .folds import N_FOLDS
 from .results import SearchResult, cv_results
@@ -165,10 +164,11 @@ def is_auto(value: Any) -> bool:
     return isinstance(value, str) and value == AUTO
 
 
-def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> Any:
+def fit_auto(learner: Any, tasks: TaskSet, flat_rewards: Any) -> Any:
     """``learner.fit`` (a FactIRL) with ``n_primitives`` and/or ``residual_penalty`` chosen by validation
     (its ``sharing_search``, :func:`~factirl_opt.learners.selection.search.search_sharing`), then the fit of
-    the chosen pair on every task; returns ``learner``, fitted, with ``cv_results_``."""
+    the chosen pair on every task of ``tasks`` (the task set ``fit`` built); returns ``learner``, fitted,
+    with ``cv_results_``."""
     if not is_auto(learner.n_primitives):
         check_int(learner.n_primitives, "n_primitives", minimum=1)
     check_residual_penalty(learner.residual_penalty)
@@ -176,7 +176,6 @@ def fit_auto(learner: Any, mdp: Any, demos_per_task: Any, flat_rewards: Any) -> 
     if isinstance(start.init, tuple):
         raise ValidationError("n_primitives='auto' or residual_penalty='auto' fits candidates on subsets of the tasks and "
                               "with other k: init must be 'pca' or 'random', not a (D0, H0) tuple")
-    tasks = learner_tasks(learner, mdp, demos_per_task)
     if flat_rewards is not None:
         tasks.basis.start_points_from_rewards(flat_rewards, tasks.n_tasks)  # fit's check, before the folds split them
     for name in [a for a in vars(learner) if a.endswith("_") and not a.startswith("_")]:
