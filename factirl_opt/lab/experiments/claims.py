@@ -66,11 +66,10 @@ def _less(rows, split, a, b, n, m, claim, source, column="deviation", cause=None
         return None
     wins = sum(da[s] < db[s] for s in seeds)
     ma, mb = np.mean([da[s] for s in seeds]), np.mean([db[s] for s in seeds])
-    holds = bool(ma < mb)
-    reason = "" if holds else paired_reason(a, b, [da[s] - db[s] for s in seeds], wins)
     return dict(claim=claim, source=source, point=f"{n} tasks, {m} demos",
                 measured=f"{a}: {_fmt(da[s] for s in seeds)}; {b}: {_fmt(db[s] for s in seeds)}",
-                holds=holds, seeds=f"{wins}/{len(seeds)}", reason=reason + (f"; {cause}" if reason and cause else ""))
+                holds=bool(ma < mb), seeds=f"{wins}/{len(seeds)}",
+                paired=(a, b, [da[s] - db[s] for s in seeds], wins, "lower"), cause=cause)
 
 
 def _decreasing(rows, split, learner, m, tasks, claim, source):
@@ -84,11 +83,9 @@ def _decreasing(rows, split, learner, m, tasks, claim, source):
     (n0, m0, d0), (n1, m1, d1) = means[0], means[-1]
     seeds = sorted(set(d0) & set(d1))
     wins = sum(d1[s] < d0[s] for s in seeds)
-    holds = bool(m1 < m0)
     return dict(claim=claim, source=source, point=f"{m} demos, {n0} -> {n1} tasks",
-                measured=", ".join(f"{n}: {v:.2f}" for n, v, _ in means), holds=holds,
-                seeds=f"{wins}/{len(seeds)}",
-                reason="" if holds else paired_reason(f"{n1} tasks", f"{n0} tasks", [d1[s] - d0[s] for s in seeds], wins))
+                measured=", ".join(f"{n}: {v:.2f}" for n, v, _ in means), holds=bool(m1 < m0),
+                seeds=f"{wins}/{len(seeds)}", paired=(f"{n1} tasks", f"{n0} tasks", [d1[s] - d0[s] for s in seeds], wins))
 
 
 def _scarce_data(preset, n, m):
@@ -323,10 +320,11 @@ def evaluate_claims(rows: Sequence[dict], preset: Any) -> list[dict]:
     except KeyError:
         raise ValidationError(f"no claims for the line-up {preset.lineup!r}; claims exist for {', '.join(CLAIMS)}") from None
     out = [c for c in claims(rows, preset) if c is not None]
-    for c in out:  # a line-up's claim may give its paired comparison instead of its reason
-        paired = c.pop("paired", None)
+    for c in out:  # a claim gives its reason, or its paired comparison (and a known cause) to read it from
+        paired, cause = c.pop("paired", None), c.pop("cause", None)
         if "reason" not in c:
-            c["reason"] = "" if c["holds"] or paired is None else paired_reason(*paired)
+            reason = "" if c["holds"] or paired is None else paired_reason(*paired)
+            c["reason"] = reason + (f"; {cause}" if reason and cause else "")
     return out
 
 
