@@ -317,9 +317,9 @@ class DictionaryConstraint(ParameterGroup):
                               f"{DICTIONARY_CONSTRAINTS}; got {value!r:.80}")
 
 
-def check_dictionary_constraint(constraint: Any, alpha: Any = None) -> tuple[str | None, float]:
+def check_dictionary_constraint(constraint: Any) -> tuple[str | None, float]:
     """The validated ``(kind, alpha)`` of a FactIRL's ``dictionary_constraint``
-    (a :class:`DictionaryConstraint`, a kind's name or None; ``alpha`` overrides the group's).
+    (a :class:`DictionaryConstraint`, a kind's name or None).
 
     Raises
     ------
@@ -328,7 +328,7 @@ def check_dictionary_constraint(constraint: Any, alpha: Any = None) -> tuple[str
         not a finite number >= 0 (> 0 for a sparse kind).
     """
     group = DictionaryConstraint.of(constraint)
-    constraint, alpha = group.kind, group.alpha if alpha is None else alpha
+    constraint, alpha = group.kind, group.alpha
     if constraint is not None and not (isinstance(constraint, str) and constraint in DICTIONARY_CONSTRAINTS):
         raise ValidationError(f"dictionary_constraint must be None or one of {DICTIONARY_CONSTRAINTS}; got {constraint!r}")
     alpha = check_real(alpha, "dictionary_constraint.alpha", 0.0, None)

@@ -324,7 +324,6 @@ class FactIRL(Estimator):
         check_tol(start.flat_tol, "flat_tol")
         check_tol(start.flat_stol, "flat_stol")
         check_bool(start.pca_shrink, "pca_shrink")
-        check_dictionary_constraint(self.dictionary_constraint)
         return (check_int(self.max_iter, "max_iter", minimum=0), check_int(self.inner_steps, "inner_steps", minimum=1),
                 check_tol(self.tol), check_tol(self.gtol, "gtol"))
 

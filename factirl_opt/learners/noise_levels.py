@@ -59,10 +59,8 @@ def misfit_noise_levels(loss: ArrayLike, n_pairs: ArrayLike, n_visited: ArrayLik
 
 def task_noise_levels(tasks: Any, loss: ArrayLike, n_params: int) -> NDArray[np.float64]:
     """:func:`misfit_noise_levels` of a fitted task set (``FactIRL.noise_levels_``): ``loss`` (n,) its per-task eq. (5)."""
-    mdps = [tasks.mdp] * tasks.n_tasks if tasks.mdp is not None else list(tasks.mdps)
-    steps = [parsed.steps for parsed in tasks.demonstrations]  # parsed once, when the task set was made
-    return misfit_noise_levels(loss, [len(st) for st in steps], [np.unique(st[:, 0]).size for st in steps],
-                               [m.n_actions for m in mdps], n_params)
+    visited = [np.unique(parsed.steps[:, 0]).size for parsed in tasks.demonstrations]  # parsed when the set was made
+    return misfit_noise_levels(loss, tasks.n_pairs, visited, tasks.basis.n_actions, n_params)
 
 
 def noise_reference(model: Any) -> float | None:
