@@ -2,18 +2,31 @@
 
 A point is (benchmark, training tasks, seed, learner); the adaptive learner's rows where it chose
 the factorial model (the same k and lambda) are left out (their transfers are the factorial's).
-"No worse": the point's mean test deviation at most today's (``none``); "tasks no worse": the
-fraction of test tasks whose deviation is at most today's.
+"No worse": the point's mean test deviation at most today's (``none``); "not significantly worse":
+a one-sided paired t-test over the point's test tasks (the same tasks and demonstrations) does not
+find the variant's mean deviation above today's at 5% (the sharing search's significance rule;
+an exact tie counts as not worse); "tasks no worse": the fraction of test tasks whose deviation is
+at most today's.
 """
 import glob
 import json
 import sys
 
 import numpy as np
+from scipy import stats
 
 DIR = sys.argv[1] if len(sys.argv) > 1 else "results/transfer/points"
 BASE = "none"
+ALPHA = 0.05  # the one-sided paired test's level
 MARGIN = 1.10  # the benchmark's "no worse" (factirl_opt.lab.experiments.claims.SHARING_MARGINS["deviation"])
+
+
+def not_significantly_worse(dev, base):
+    """Whether a one-sided paired t-test does not find ``dev``'s mean above ``base``'s at ``ALPHA``."""
+    d = np.asarray(dev) - np.asarray(base)
+    if not np.any(d):
+        return True
+    return stats.ttest_rel(dev, base, alternative="greater").pvalue > ALPHA
 
 
 def main():
@@ -28,13 +41,14 @@ def main():
                 v = {k.split("@")[0]: x for k, x in e["variants"].items() if k.endswith(f"@{t}")}
                 variants = variants or list(v)
                 rows.append(((r["preset"], r["n_tasks"], r["seed"], name, t), e, v))
-    print("| variant | demos | points no worse (<= today's mean) | within 10% of today's | mean ratio to today | mean deviation | tasks no worse | max_iter tasks | runs with MaxIterWarning | CPU ratio to today |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| variant | demos | points no worse (<= today's mean) | not significantly worse (paired, 5%) | within 10% of today's | mean ratio to today | mean deviation | tasks no worse | max_iter tasks | runs with MaxIterWarning | CPU ratio to today |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for t in (1, 3):
         sel = [(key, e, v) for key, e, v in rows if key[4] == t]
         for name in variants:
             ok = [v[name]["mean"] <= v[BASE]["mean"] + 1e-9 for _, _, v in sel]
             margin = [v[name]["mean"] <= MARGIN * v[BASE]["mean"] for _, _, v in sel]
+            paired = [not_significantly_worse(v[name]["deviation"], v[BASE]["deviation"]) for _, _, v in sel]
             ratio = [v[name]["mean"] / v[BASE]["mean"] for _, _, v in sel]
             tasks = np.concatenate([np.asarray(v[name]["deviation"]) <= np.asarray(v[BASE]["deviation"]) + 1e-9
                                     for _, _, v in sel])
@@ -43,7 +57,7 @@ def main():
             warn = sum(bool(v[name].get("max_iter_warnings", 0)) for _, _, v in sel)
             cpu = sum(v[name]["cpu"] for _, _, v in sel) / sum(v[BASE]["cpu"] for _, _, v in sel)
             mean = np.mean([v[name]["mean"] for _, _, v in sel])
-            print(f"| {name} | {t} | {sum(ok)}/{len(ok)} | {sum(margin)}/{len(ok)} | {np.mean(ratio):.3f} | {mean:.3f} | {tasks.mean():.2f} | "
+            print(f"| {name} | {t} | {sum(ok)}/{len(ok)} | {sum(paired)}/{len(ok)} | {sum(margin)}/{len(ok)} | {np.mean(ratio):.3f} | {mean:.3f} | {tasks.mean():.2f} | "
                   f"{mi}/{nt} | {warn}/{len(sel)} | {cpu:.2f} |")
     print()
     print("| point | learner | (k, lambda) | demos | " + " | ".join(variants) + " | scale (1se) |")
