@@ -219,3 +219,60 @@ def test_the_guides_route_table_on_the_readme_grid_is_the_auto_cost_runs():
     for route in ("race", "pca"):
         assert rows[route][2] == (f"{runs[0]['time_ratio'][route]:.1f}x, chose ({chosen[route]['n_primitives']}, "
                                   f"{chosen[route]['residual_penalty']:g}): {chosen[route]['test_deviation']:.2f}")
+
+
+# --- the user guide (docs/getting-started.md includes its first sections) and the README's prose ---
+
+GUIDE = (ROOT / "docs/guide.md").read_text()
+
+
+def _flat(text):
+    """The text with its line breaks and runs of spaces made single spaces (how phrases are matched)."""
+    return " ".join(text.split())
+
+
+def _json(path):
+    return json.loads((ROOT / path).read_text())
+
+
+def _agrees(quoted, value):
+    """Whether the number as the text writes it (``"0.0601"``, ``"416"``, ``"16.5"``) is ``value`` at the
+    text's rounding: as many decimals as the text shows."""
+    decimals = len(quoted.split(".")[1]) if "." in quoted else 0
+    return float(quoted) == round(value, decimals)
+
+
+def _quoted(text, pattern):
+    """The groups of the one place ``pattern`` (a regular expression) matches the whitespace-normalised text."""
+    found = re.findall(pattern, _flat(text))
+    assert len(found) == 1, (pattern, found)
+    return found[0]
+
+
+def test_the_guides_solver_table_and_figures_are_the_solvers_benchmark():
+    """"Choosing a solver": the transfer table, the QP's cost, the fit, nonneg and sparse figures of
+    ``bench solvers`` (results/solvers/bench.json)."""
+    bench = _json("results/solvers/bench.json")
+    transfer = bench["transfer"]["solvers"]
+    rows = {r[0].split("`")[1]: r[1:] for r in _table(GUIDE, "| transfer | loss per task | Q* evaluations")}
+    assert set(rows) == {"armijo", "gn-qp-osqp", "gn-qp-clarabel"}
+    for name, (loss, evaluations, wall, dev) in rows.items():
+        got = transfer[name]
+        assert _agrees(loss, got["final_loss_per_task"]) and int(evaluations) == got["q_evaluations"], (name, loss, evaluations)
+        assert _agrees(wall.removesuffix(" s"), got["wall_time_s"]) and _agrees(dev, got["mean_deviation"]), (name, wall, dev)
+    qp = [route["cvxpy_block_dpp_per_task_us"] for key, route in bench["subproblem_timing"]["routes"].items()
+          if key.startswith("none/")]
+    assert f"the unconstrained QP itself costs {round(min(qp))}-{round(max(qp))} us per task" in _flat(GUIDE)
+    fit = bench["fit"]["solvers"]
+    assert (f"The proximal form: loss {fit['gn-qp-clarabel']['final_loss']:.3f} vs {fit['armijo']['final_loss']:.3f} in "
+            f"{fit['gn-qp-clarabel']['q_evaluations']} vs {fit['armijo']['q_evaluations']} Q* evaluations") in _flat(GUIDE)
+    nonneg = bench["nonneg"]["solvers"]
+    assert nonneg["gn-qp-clarabel-nonneg"]["min_coefficient"] >= 0
+    ratio = nonneg["gn-qp-clarabel-nonneg"]["mean_deviation"] / nonneg["gn-qp-clarabel"]["mean_deviation"]
+    assert f"all coefficients >= 0 and {ratio:.2f}x the unconstrained deviation" in _flat(GUIDE)
+    zeros, alphas = _quoted(GUIDE, r"`gn-qp-osqp-sparse` gave ([\d, ]+) exact zeros of 250 for alpha ([\d.]+(?:, [\d.]+)*)\.")
+    sweep = {run["alpha"]: run["exact_zeros"] for run in bench["sparse"]["variants"]["gn-qp-osqp-sparse"]["sweep"]}
+    assert bench["sparse"]["setting"]["coefficients_total"] == 250
+    assert [int(z) for z in zeros.split(", ")] == [sweep[float(a)] for a in alphas.split(", ")]
+    gn, armijo = transfer["gn-qp-clarabel"]["q_evaluations"], transfer["armijo"]["q_evaluations"]
+    assert f"transfer in {gn} evaluations where Armijo takes {armijo} for policy matching" in _flat(GUIDE)
