@@ -276,3 +276,122 @@ def test_the_guides_solver_table_and_figures_are_the_solvers_benchmark():
     assert [int(z) for z in zeros.split(", ")] == [sweep[float(a)] for a in alphas.split(", ")]
     gn, armijo = transfer["gn-qp-clarabel"]["q_evaluations"], transfer["armijo"]["q_evaluations"]
     assert f"transfer in {gn} evaluations where Armijo takes {armijo} for policy matching" in _flat(GUIDE)
+
+
+def _claim(path, name, point):
+    """(holds, seeds) of the claim ``name`` at ``point`` in a committed claims.md: ``("yes", "3/3")``."""
+    for line in (ROOT / path).read_text().splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) > 5 and cells[0] == name and cells[2] == point:
+            return cells[4].strip("*"), cells[5]
+    raise AssertionError((path, name, point))
+
+
+def _cells(rows, column, split, learner, n_tasks=100, demos=10):
+    return [float(r[column]) for r in rows if r["split"] == split and r["learner"] == learner
+            and int(r["n_tasks"]) == n_tasks and int(r["demos_per_task"]) == demos]
+
+
+def test_the_guides_three_seed_mce_figures_are_the_fast_mce_run():
+    """"Choosing an objective", three seeds: results/fast-mce's summary, evaluations, wall times, claims
+    and manifest at the default point (100 tasks x 10 demos)."""
+    import statistics
+
+    text = _flat(GUIDE)
+    minutes, seconds = divmod(round(_json("results/fast-mce/manifest.json")["wall_time_seconds"]), 60)
+    assert f"--lineup paper+mce --jobs 2`, {minutes} min {seconds} s beside other jobs" in text
+    summary = _summary("results/fast-mce/summary.csv")
+    means = {(split, learner): _mean(summary, learner, 100, 10, split=split)
+             for split in ("train", "test") for learner in ("flat", "flat MCE", "factorial", "factorial MCE")}
+    quoted = (f"flat train {means['train', 'flat']:.2f} (policy matching) vs {means['train', 'flat MCE']:.2f} (MCE), "
+              f"factorial train {means['train', 'factorial']:.2f} vs {means['train', 'factorial MCE']:.2f}, flat test "
+              f"{means['test', 'flat']:.2f} vs {means['test', 'flat MCE']:.2f}, factorial transfer "
+              f"{means['test', 'factorial']:.2f} vs {means['test', 'factorial MCE']:.2f}")
+    assert quoted in text
+    for split in ("train", "test"):
+        assert _claim("results/fast-mce/claims.md", f"{split}: factorial MCE beats flat MCE", "100 tasks, 10 demos") == ("yes", "3/3")
+    fails = {point for point in ("100 tasks, 1 demos", "100 tasks, 2 demos", "5 tasks, 10 demos", "10 tasks, 10 demos",
+                                 "20 tasks, 10 demos", "50 tasks, 10 demos")
+             for sweep in ("demos", "tasks")
+             if point.endswith("10 demos") == (sweep == "tasks")
+             and _claim("results/fast-mce/claims.md", f"test: factorial MCE beats flat MCE ({sweep} sweep)", point)[0] == "no"}
+    assert fails == {"100 tasks, 1 demos", "100 tasks, 2 demos", "5 tasks, 10 demos", "10 tasks, 10 demos"}  # "1-2 demonstrations or 5-10 training tasks"
+    assert "fails where the policy-matching factorial learner fails (1-2 demonstrations or 5-10 training tasks)" in text
+    results, timings = _summary("results/fast-mce/results.csv"), _summary("results/fast-mce/timings.csv")
+    evaluations = {learner: statistics.mean(_cells(results, "n_evaluations", "train", learner)) for learner in ("flat", "flat MCE")}
+    wall = {learner: statistics.median(_cells(timings, "fit_time", "train", learner))
+            for learner in ("flat", "flat MCE", "factorial", "factorial MCE")}
+    assert (f"the flat MCE fit took {evaluations['flat MCE'] / evaluations['flat']:.1f}x the evaluations "
+            f"({evaluations['flat MCE']:.0f} vs {evaluations['flat']:.0f}) and {wall['flat MCE'] / wall['flat']:.1f}x the wall "
+            f"time ({wall['flat MCE']:.1f} s vs {wall['flat']:.1f} s per 100 tasks") in text
+    assert f"time ({wall['factorial MCE']:.1f} s vs {wall['factorial']:.1f} s, MCE with L-BFGS H-steps" in text
+
+
+def test_the_guides_objectworld_mce_figures_are_its_committed_runs():
+    """results/objectworld-mce's summary and claims, and the CPU ratio of results/mce-speed's three fits."""
+    import statistics
+
+    text = _flat(GUIDE)
+    rows = _summary("results/objectworld-mce/summary.csv")
+    dev = {(split, learner): _mean(rows, learner, 100, 32, split=split) for split in ("train", "test")
+           for learner in ("factorial MCE, features", "factorial, features", "flat MCE, features")}
+    assert (f"factorial on features train {dev['train', 'factorial MCE, features']:.2f} vs {dev['train', 'factorial, features']:.2f}, "
+            f"test transfer {dev['test', 'factorial MCE, features']:.2f} vs {dev['test', 'factorial, features']:.2f}") in text
+    holds, seeds = _claim("results/objectworld-mce/claims.md", "test: factorial MCE, features beats flat MCE, features",
+                          "100 tasks, 32 demos")
+    assert holds == "yes"
+    assert (f"factorial MCE beats flat MCE (test {dev['test', 'factorial MCE, features']:.2f} vs "
+            f"{dev['test', 'flat MCE, features']:.2f}, {seeds} seeds)") in text
+    fits = _json("results/mce-speed/final_30_tasks_repeats3.json")["fits"]
+    median = statistics.median(fits["mce"]["cpus_s"]) / statistics.median(fits["policy-matching"]["cpus_s"])
+    fastest = min(fits["mce"]["cpus_s"]) / min(fits["policy-matching"]["cpus_s"])
+    assert f"at {median:.2f}-{fastest:.2f}x the CPU time of policy matching" in text
+
+
+def test_the_guides_model_error_figures_are_the_robustness_run():
+    """"When the model is not given": the factorial learner's losses with estimated models,
+    results/robustness/summary.csv (M = 0: the demonstrations alone; 100000 exploration transitions)."""
+    rows = {(r["M"], r["learner"], r["split"]): float(r["deviation_mean"]) for r in _summary("results/robustness/summary.csv")}
+
+    def loss(m, split):
+        return round(100 * (rows[m, "factorial", split] / rows["true", "factorial", split] - 1))
+
+    assert loss("100000", "train") <= 0  # "nothing on its training tasks"
+    assert (f"loses {loss('0', 'train')}% on its training tasks ({rows['0', 'factorial', 'train']:.2f} against "
+            f"{rows['true', 'factorial', 'train']:.2f}) and {loss('0', 'test')}% on transfer with the model from the "
+            f"demonstrations alone; at 10^5, nothing on its training tasks and {loss('100000', 'test')}% on transfer") in _flat(GUIDE)
+    worst = {split: max(v for (m, learner, s), v in rows.items() if learner == "factorial" and s == split and m != "true")
+             for split in ("train", "test")}
+    times = {split: round(rows["true", "flat", split] / worst[split]) for split in ("train", "test")}
+    assert f"stays {times['train']}x (train) and {times['test']}x (transfer) better than the flat learner" in _flat(GUIDE)
+
+
+def test_the_guides_unlabeled_figures_are_the_unlabeled_run():
+    """"What to expect" of EM: results/unlabeled/tasks_8_seeds_100-104.json (the adjusted Rand indices'
+    ranges over the 5 seeds, the likelihood comparison) and the README's record of the start tried."""
+    rows = _json("results/unlabeled/tasks_8_seeds_100-104.json")["rows"]
+
+    def span(key):
+        values = [r["oracle_ari"] if key == "oracle" else r["learners"][key]["ari"] for r in rows]
+        return f"{min(values):.2f}-{max(values):.2f}"
+
+    text = _flat(GUIDE)
+    assert f"adjusted Rand index of {span('em_shared')}, although the true rewards would assign" in text
+    assert f"tasks at {span('oracle')} (table in `results/unlabeled/`" in text
+    higher = sum(r["learners"]["em_shared"]["best_log_likelihood"] > r["learners"]["em_shared_true_start"]["best_log_likelihood"]
+                 for r in rows)
+    assert (f"the shared EM drifts to {span('em_shared_true_start')} while the default start, at {span('em_shared')}, "
+            f"reaches a higher likelihood on {higher} seeds of {len(rows)}") in text
+    assert f"the true one gives EM {span('em_true_dictionary')}" in text
+    assert f"from the same episodes only {span('em_labelled_dictionary')}" in text
+    readme = _flat((ROOT / "results/unlabeled/README.md").read_text())
+    fixed, clustered = _quoted(GUIDE, r"FactIRL's dictionary then gives EM ([\d.]+ and [\d.]+), and clustering its coefficients ([\d.]+)\)")
+    assert f"its dictionary held fixed in EM ({fixed.replace(' and', ',')})" in readme
+    assert f"its coefficients clustered (ARI {clustered})" in readme
+
+
+def test_the_guides_regret_bound_coverage_is_the_active_run():
+    """The transfer posterior's 90% bound: its coverage per seed on the paper grid, results/active/grid.json."""
+    coverage = [run["calibration"]["coverage_90"] for run in _json("results/active/grid.json")["worlds"]["grid"].values()]
+    assert len(coverage) == 3
+    assert f"a 90% upper bound, which covered {round(100 * min(coverage))}-{round(100 * max(coverage))}% of the paper grid's test tasks" in _flat(GUIDE)
