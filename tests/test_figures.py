@@ -395,3 +395,36 @@ def test_the_guides_regret_bound_coverage_is_the_active_run():
     coverage = [run["calibration"]["coverage_90"] for run in _json("results/active/grid.json")["worlds"]["grid"].values()]
     assert len(coverage) == 3
     assert f"a 90% upper bound, which covered {round(100 * min(coverage))}-{round(100 * max(coverage))}% of the paper grid's test tasks" in _flat(GUIDE)
+
+
+def test_the_guides_objective_table_is_its_committed_run():
+    """"Choosing an objective": the table and the trade-offs read from
+    results/objectives/objectives_table.json (policy matching against MCE, one seed)."""
+    runs = _json("results/objectives/objectives_table.json")["objectives"]
+    pm, mce = runs["policy-matching"], runs["mce"]
+    table = {r[0]: r[1:] for r in _table(GUIDE, "| | policy matching | MCE |")}
+    for label, key in (("flat, train tasks", "flat_train_deviation"), ("factorial, train tasks", "factorial_train_deviation"),
+                       ("flat, test tasks (one demonstration, from scratch)", "flat_test_deviation"),
+                       ("factorial, test tasks (transfer, dictionary fixed)", "factorial_test_deviation")):
+        assert all(_agrees(cell, run[key]) for cell, run in zip(table[label], (pm, mce))), (label, table[label])
+    for label, key in (("flat fit: planning evaluations / CPU time", "flat_fit"),
+                       ("factorial fit: planning evaluations / CPU time", "factorial_fit")):
+        for cell, run in zip(table[label], (pm, mce)):
+            evaluations, cpu = cell.removesuffix(" s").split(" / ")
+            assert int(evaluations) == run[key]["evaluations"] and _agrees(cpu, run[key]["cpu_s"]), (label, cell)
+    assert all(run["factorial_fit"]["stop_reason"].startswith("gradient norm") for run in (pm, mce))
+    ahead = [round(100 * (1 - mce[key] / pm[key])) for key in
+             ("flat_train_deviation", "factorial_train_deviation", "flat_test_deviation", "factorial_test_deviation")]
+    text = _flat(GUIDE)
+    assert f"({ahead[0]}% on flat train tasks, {ahead[1]}% factorial train, {ahead[2]}% flat test, {ahead[3]}% factorial transfer" in text
+    train = sorted(run["flat_train_deviation"] / run["factorial_train_deviation"] for run in (pm, mce))
+    test = [run["flat_test_deviation"] / run["factorial_test_deviation"] for run in (pm, mce)]
+    assert (f"on training tasks ({train[0]:.1f}-{train[1]:.1f}x) and on new tasks from one demonstration "
+            f"({test[0]:.1f}x and {test[1]:.1f}x)") in text
+    per_evaluation = (mce["flat_fit"]["cpu_s"] / mce["flat_fit"]["evaluations"]) / (pm["flat_fit"]["cpu_s"] / pm["flat_fit"]["evaluations"])
+    assert (f"an evaluation of the flat fit cost {per_evaluation:.1f}x policy matching's CPU time "
+            f"({mce['flat_fit']['cpu_s']:.1f} s for {mce['flat_fit']['evaluations']} against {pm['flat_fit']['cpu_s']:.1f} s "
+            f"for {pm['flat_fit']['evaluations']})") in text
+    assert (f"The factorial MCE fit stopped after {mce['factorial_fit']['evaluations']} evaluations and policy matching's "
+            f"after {pm['factorial_fit']['evaluations']}, and it took {mce['factorial_fit']['cpu_s'] / pm['factorial_fit']['cpu_s']:.1f}x "
+            f"the CPU time ({mce['factorial_fit']['cpu_s']:.1f} s vs {pm['factorial_fit']['cpu_s']:.1f} s") in text
