@@ -428,3 +428,136 @@ def test_the_guides_objective_table_is_its_committed_run():
     assert (f"The factorial MCE fit stopped after {mce['factorial_fit']['evaluations']} evaluations and policy matching's "
             f"after {pm['factorial_fit']['evaluations']}, and it took {mce['factorial_fit']['cpu_s'] / pm['factorial_fit']['cpu_s']:.1f}x "
             f"the CPU time ({mce['factorial_fit']['cpu_s']:.1f} s vs {pm['factorial_fit']['cpu_s']:.1f} s") in text
+
+
+def _route_table(out):
+    """(pairs no worse, pairs, median CPU ratio, max ratio) of route_table.py's summary of a which-learner run."""
+    import subprocess
+    import sys
+
+    text = subprocess.run([sys.executable, str(ROOT / "results/which-learner/route_table.py"), str(ROOT / out)],
+                          capture_output=True, text=True, check=True).stdout
+    return re.search(r"no worse on (\d+) of (\d+) pairs; CPU-time ratio median ([\d.]+)x, max ([\d.]+)x", text).groups()
+
+
+def _race_pairs():
+    """The race's (the former default route's) 30 run records, results/which-learner/runs/<preset>/*.json:
+    (preset, n_tasks, seed, no worse, wall-time ratio of the adaptive training fit over the factorial one)."""
+    margins = {"deviation": 0.10, "success_rate": 0.05}  # the benchmark's (claims.SHARING_MARGINS)
+    for path in sorted((ROOT / "results/which-learner/runs").glob("*/*.json")):
+        rec = json.loads(path.read_text())
+        wall = {t["learner"].split(",")[0]: t["fit_time"] for t in rec["timings"] if t["split"] == "train"}
+        test = [r for r in rec["rows"] if r["split"] == "test"]
+        column = "success_rate" if "success_rate" in test[0] else "deviation"
+        score = {r["learner"].split(",")[0]: r[column] for r in test}
+        if column == "deviation":
+            ok = score["adaptive"] <= (1 + margins[column]) * min(score["flat"], score["factorial"])
+        else:
+            ok = score["adaptive"] >= max(score["flat"], score["factorial"]) - margins[column]
+        yield rec["preset"]["name"], rec["spec"]["n_tasks"], rec["spec"]["seed"], ok, wall["adaptive"] / wall["factorial"]
+
+
+def test_the_guides_route_table_is_the_routes_committed_runs():
+    """The guide's table of search routes beyond its README-grid column: the tiny grid's auto-cost runs,
+    the routes' whole-benchmark runs (route_table.py; the race's wall times) and the earlier routes'
+    table (results/which-learner/README.md)."""
+    import statistics
+
+    rows = {r[0].strip("`").split('"')[1]: r for r in _table(GUIDE, "| route | candidates | README grid")}
+    tiny = _json("results/which-learner/default/auto-cost/tiny-evidence-race.json")["seeds"]
+    for route in ("evidence", "race"):
+        assert rows[route][3] == f"{tiny['0']['time_ratio'][route]:.1f}x / {tiny['1']['time_ratio'][route]:.1f}x", route
+    earlier = {r[0]: r for r in _table((ROOT / "results/which-learner/README.md").read_text(), "| point (seed 0) | factorial")}
+    assert rows["pca"][3] == earlier["`tiny`, seeds 0 / 1 (`auto-cost`)"][3].removeprefix("(1, 0), ") + " (2026-11-27)"
+    assert rows["short"][3] == earlier["`tiny`, seeds 0 / 1 (`auto-cost`)"][4].removeprefix("(1, 0), ") + " (2026-11-27)"
+    k, lam, dev, cost = re.match(r"\((\d+), (\d+)\) ([\d.]+), ([\d.]+x)", earlier["README grid, 30 tasks (`--readme`)"][4]).groups()
+    assert rows["short"][2] == f"{cost}, chose ({k}, {lam}): {dev} (2026-11-27)"
+    for route, out in (("evidence", "results/which-learner/default"), ("pca", "results/which-learner/route-pca")):
+        no_worse, pairs, median, top = _route_table(out)
+        assert pairs == "30" and rows[route][4].startswith(f"median {median}x, at most {top}x; {no_worse} ("), (route, rows[route][4])
+    race = list(_race_pairs())
+    ratios = [ratio for *_, ratio in race]
+    no_worse = sum(ok for _, _, _, ok, _ in race)
+    assert len(race) == 30
+    assert rows["race"][4].startswith(f"median {statistics.median(ratios):.0f}x of wall time, "
+                                      f"{min(ratios):.0f}-{max(ratios):.0f}x; {no_worse} (")
+    assert {(p, n, s) for p, n, s, ok, _ in race if not ok} == {
+        ("sharing-grid", 100, 0), ("sharing-objectworld-quick", 20, 0), ("sharing-objectworld-quick", 20, 1),
+        ("sharing-babyai", 30, 1)}  # "the grid at 100 tasks, seed 0; one Objectworld map at 20 tasks, seeds 0 and 1; GoToLocal at 30 layouts, seed 1"
+    assert "the grid at 100 tasks, seed 0; one Objectworld map at 20 tasks, seeds 0 and 1; GoToLocal at 30 layouts, seed 1" in rows["race"][5]
+    evidence_no_worse = _route_table("results/which-learner/default")[0]
+    assert (f"It is the cheapest route that keeps {evidence_no_worse} of the benchmark's 30 pairs (the race keeps "
+            f"{no_worse}, at {statistics.median(ratios):.0f}x)") in _flat(GUIDE)
+    assert f"against the race's median {statistics.median(ratios):.0f}x (its wall time)" in _flat(README)
+
+
+def test_the_guides_rank_agreement_figures_are_the_rank_diagnostics():
+    """Why the evidence route: Spearman's rho of each route's scores (results/which-learner/diagnostics/rank's
+    table), its rule's cost on two seeds, the confirmation by full fits (evidence-budget) and the
+    removed leave-one-task-out route (diagnostics/routes/rank_approx_grid20_s2.json)."""
+    table = _table((ROOT / "results/which-learner/diagnostics/rank/README.md").read_text(), "| point | seed | route | n |")
+    by = {(r[1], r[2]): r for r in table}
+    seeds = ("0", "1", "2")
+    text = _flat(GUIDE)
+    assert (f"Spearman's rho between its scores and the candidates' test deviations is {by['0', 'evidence'][4]}, "
+            f"{by['1', 'evidence'][4]} and {by['2', 'evidence'][4]}, against {by['0', 'evidence'][5]}, {by['1', 'evidence'][5]} "
+            f"and {by['2', 'evidence'][5]} for the exact") in text
+    assert f"and {', '.join(by[s, 'race'][4] for s in seeds[:2])} and {by['2', 'race'][4]} for the race's" in text
+    sizes = [int(r[3]) for r in table if r[2] in ("evidence", "pca", "race", "full")]
+    assert f"one point, {min(sizes)}-{max(sizes)} candidates" in text
+    (chosen,), (best,) = {by[s, "evidence"][7] for s in ("0", "2")}, {by[s, "evidence"][9] for s in ("0", "2")}
+    assert (f"on two seeds ({chosen} instead of its best-scored {best}: {by['0', 'evidence'][8]} against "
+            f"{by['0', 'evidence'][10]}, {by['2', 'evidence'][8]} against {by['2', 'evidence'][10]}") in text
+    confirm = _json("results/which-learner/diagnostics/evidence-budget/confirm_full_grid100_s1.json")
+    scores = {(k, str(lam)): score for k, lam, score in confirm["confirm"]["rows"]}
+    worse = 100 * (confirm["test_deviation"]["6,inf"] / confirm["test_deviation"]["5,inf"] - 1)
+    assert f"the fitted (6, inf) transfers {worse:.1f}% worse than k = 5" in text
+    assert f"Fully fitted, the two tie ({scores[5, 'inf']:.4f} and {scores[6, 'inf']:.4f})" in text
+    budget = _flat((ROOT / "results/which-learner/diagnostics/evidence-budget/README.md").read_text())
+    (errors,) = re.findall(r"rank \(6, inf\) above \(5, inf\) by ([\d.]+) standard errors", budget)
+    assert f"PCA starts rank (6, inf) above (5, inf) by {errors} standard errors" in text
+    approx = _json("results/which-learner/diagnostics/routes/rank_approx_grid20_s2.json")["spearman"]
+    assert (f"(Spearman {approx['ij-damped/test_deviation']:.2f} with their test deviations on the grid at 20 tasks, "
+            f"against {approx['exact/test_deviation']:.2f} for exact 3-fold scores)") in text
+
+
+def test_the_guides_paper_settings_costs_are_the_which_learner_readme():
+    """The fixed fit's CPU with the paper's settings on the README grid and the confirmation's cost at
+    100 tasks: the figures results/which-learner/default/README.md records for the runs they replaced."""
+    record = _flat((ROOT / "results/which-learner/default/README.md").read_text())
+    before = [float(x) for x in re.search(r"before, [\d.]+ s against ([\d.]+) s and [\d.]+ s against ([\d.]+) s\)", record).groups()]
+    assert f"took 1.9-2.0 s of CPU against {min(before):.1f}-{max(before):.1f} s with the paper's settings" in _flat(GUIDE)
+    runs = [_json(f"results/which-learner/default/auto-cost/{f}")["seeds"]["0"]["cpu_time_s"]["fixed"]
+            for f in ("readme-evidence-race-pca.json", "readme-evidence.json")]
+    assert f"took {min(runs):.1f}-{max(runs):.1f} s of CPU against" in _flat(GUIDE)
+    now, then = re.search(r"the grid at 100 tasks ([\d.]+-[\d.]+x) in all \(([\d.]+-[\d.]+x) before it\)", record).groups()
+    assert f"(the grid at 100 tasks: {now} in all instead of {then})" in _flat(GUIDE)
+
+
+def test_the_readmes_sharing_verdicts_are_the_benchmarks_records():
+    """The README's which-learner table, its "auto no worse (seeds)" column, and its prose: the choices
+    and verdicts of the committed runs (route_table.py's pairs), and no transfer at max_iter."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("route_table", ROOT / "results/which-learner/route_table.py")
+    route_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(route_table)
+    pairs = list(route_table.pairs(ROOT / "results/which-learner/default"))
+    assert len(pairs) == 30
+    table = {r[0]: r[4] for r in _table(README, "| benchmark | flat | factorial (k = 5) | auto |")}
+    for label, (preset, _, _, counts) in WHICH_LEARNER_ROWS.items():
+        cells = table[label].split(" (beats both on ")[0].split(", ")
+        for n, cell in zip(counts, cells, strict=True):
+            points = [p for p in pairs if p["preset"] == preset and p["n_tasks"] == n]
+            assert cell == f"{sum(p['no_worse'] for p in points)}/{len(points)}", (label, n, cell)
+        if "beats both on" in table[label]:
+            (n,) = counts
+            beats = sum(p["score"]["adaptive"] < min(p["score"]["flat"], p["score"]["factorial"])
+                        for p in pairs if p["preset"] == preset and p["n_tasks"] == n)
+            assert table[label].endswith(f"(beats both on {beats})"), (label, beats)
+    assert {p["chosen"] for p in pairs if not (p["preset"] == "sharing-grid" and p["n_tasks"] in (20, 100))} == {(1, 0.0)}
+    assert "Outside the grid at 20 and 100 tasks auto keeps the flat model (k = 1, lambda = 0) on every seed" in _flat(README)
+    logs = [line for f in ("maxiter-sharing-grid.log", "maxiter-other-presets.log")
+            for line in (ROOT / "results/which-learner/default" / f).read_text().splitlines() if line.strip()]
+    assert logs and not [line for line in logs if "transfer" in line.lower() or not line.startswith("GradIRL.fit")]
+    assert "No transfer of the benchmark stops at `max_iter`." in _flat(README)
