@@ -561,3 +561,18 @@ def test_the_readmes_sharing_verdicts_are_the_benchmarks_records():
             for line in (ROOT / "results/which-learner/default" / f).read_text().splitlines() if line.strip()]
     assert logs and not [line for line in logs if "transfer" in line.lower() or not line.startswith("GradIRL.fit")]
     assert "No transfer of the benchmark stops at `max_iter`." in _flat(README)
+
+
+def test_the_guides_defaults_figures_are_the_defaults_study():
+    """The guide's CPU of the defaults against the paper's algorithm: the grid's per-seed ratios of
+    results/defaults/README.md ("The grid, beside the paper's setting") and the acceptance draws of
+    per-task maps (results/defaults/walled_maps_switch_seed*.jsonl, as the README's figure)."""
+    study = (ROOT / "results/defaults/README.md").read_text()
+    grid = _table(study[study.index("**The grid, beside the paper's setting in the same process**"):], "| objective | CPU ratio per seed")
+    ratios = [float(x) for row in grid for x in row[1].split(", ")]
+    rows = [json.loads(line) for path in sorted((ROOT / "results/defaults").glob("walled_maps_switch_seed*.jsonl"))
+            for line in path.read_text().splitlines()]
+    ref = {(r["seed"], r["objective"]): r["cpu_s"] for r in rows if r["label"] == "e87d706"}
+    maps = [r["cpu_s"] / ref[r["seed"], r["objective"]] for r in rows if r["candidate"] == "armijo-stol-start"]
+    assert (f"{min(ratios):.2f}-{max(ratios):.2f}x the CPU of the paper's algorithm on the paper's grid and "
+            f"{min(maps):.2f}-{max(maps):.2f}x on per-task maps") in _flat(GUIDE)
