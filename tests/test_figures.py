@@ -576,3 +576,30 @@ def test_the_guides_defaults_figures_are_the_defaults_study():
     maps = [r["cpu_s"] / ref[r["seed"], r["objective"]] for r in rows if r["candidate"] == "armijo-stol-start"]
     assert (f"{min(ratios):.2f}-{max(ratios):.2f}x the CPU of the paper's algorithm on the paper's grid and "
             f"{min(maps):.2f}-{max(maps):.2f}x on per-task maps") in _flat(GUIDE)
+
+
+def _magnitude(x):
+    """How the guide writes a relative difference: one significant digit, ``3e-14``."""
+    return f"{x:.0e}".replace("e-0", "e-")
+
+
+def test_the_guides_planner_agreement_is_its_committed_measurement():
+    """"What depends on the planner": results/planners/agreement.json, at the same rewards (the largest
+    difference over the worlds of each discount) and along a fit."""
+    run = _json("results/planners/agreement.json")
+    same = run["same_rewards"]
+    assert all(world["greedy_equal"] for world in same.values())
+    worst = {(gamma, kind): max(v[kind] for w, v in same.items() if w.endswith(f"gamma {gamma}"))
+             for gamma in ("0.9", "0.999") for kind in ("values", "losses, gradients and scores")}
+    text = _flat(GUIDE)
+    assert (f"`optimal_q` and `policy_evaluation` agree to {_magnitude(worst['0.9', 'values'])} relative at gamma = 0.9 and "
+            f"{_magnitude(worst['0.999', 'values'])} at gamma = 0.999, the losses, their gradients and the scores to "
+            f"{_magnitude(worst['0.9', 'losses, gradients and scores'])} at gamma = 0.9 and "
+            f"{_magnitude(worst['0.999', 'losses, gradients and scores'])} at gamma = 0.999") in text
+    fit = run["fit"]
+    gradirl, factirl = fit["gradirl_deviation"], fit["factirl_deviation"]
+    assert f"{gradirl[0]:.2f}" == f"{gradirl[1]:.2f}" and f"{factirl[0]:.2f}" != f"{factirl[1]:.2f}"
+    assert (f"a 100-iteration `GradIRL` fit differs by {_magnitude(fit['gradirl_rewards'])} relative between planners "
+            f"(its losses by {_magnitude(fit['gradirl_loss'])}, its mean deviation {gradirl[0]:.2f} with both), the paper's "
+            f"`FactIRL` fit started from it by {_magnitude(fit['factirl_rewards'])} (its losses by "
+            f"{_magnitude(fit['factirl_loss'])}, its mean deviation {factirl[0]:.2f} against {factirl[1]:.2f})") in text
