@@ -275,6 +275,7 @@ def test_the_guides_solver_table_and_figures_are_the_solvers_benchmark():
     assert bench["sparse"]["setting"]["coefficients_total"] == 250
     assert [int(z) for z in zeros.split(", ")] == [sweep[float(a)] for a in alphas.split(", ")]
     gn, armijo = transfer["gn-qp-clarabel"]["q_evaluations"], transfer["armijo"]["q_evaluations"]
+    assert f"({gn} evaluations for {transfer['gn-qp-clarabel']['iterations']} steps above)" in _flat(GUIDE)
     assert f"transfer in {gn} evaluations where Armijo takes {armijo} for policy matching" in _flat(GUIDE)
 
 
@@ -440,6 +441,16 @@ def _route_table(out):
     return re.search(r"no worse on (\d+) of (\d+) pairs; CPU-time ratio median ([\d.]+)x, max ([\d.]+)x", text).groups()
 
 
+def _route_pairs(out):
+    """route_table.py's pairs of a which-learner run directory (its preset, point, seed, scores, verdict, choice)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("route_table", ROOT / "results/which-learner/route_table.py")
+    route_table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(route_table)
+    return list(route_table.pairs(ROOT / out))
+
+
 def _race_pairs():
     """The race's (the former default route's) 30 run records, results/which-learner/runs/<preset>/*.json:
     (preset, n_tasks, seed, no worse, wall-time ratio of the adaptive training fit over the factorial one)."""
@@ -489,6 +500,10 @@ def test_the_guides_route_table_is_the_routes_committed_runs():
     assert (f"It is the cheapest route that keeps {evidence_no_worse} of the benchmark's 30 pairs (the race keeps "
             f"{no_worse}, at {statistics.median(ratios):.0f}x)") in _flat(GUIDE)
     assert f"against the race's median {statistics.median(ratios):.0f}x (its wall time)" in _flat(README)
+    assert f"the race fits every candidate and costs a median {statistics.median(ratios):.0f}x (its wall time)" in _flat(GUIDE)
+    assert {(p["preset"], p["n_tasks"], p["seed"]) for p in _route_pairs("results/which-learner/default") if not p["no_worse"]} == {
+        ("sharing-objectworld-quick", 20, 0)}
+    assert rows["evidence"][5] == "one Objectworld map at 20 tasks, seed 0 (flat kept)"
 
 
 def test_the_guides_rank_agreement_figures_are_the_rank_diagnostics():
@@ -508,6 +523,11 @@ def test_the_guides_rank_agreement_figures_are_the_rank_diagnostics():
     (chosen,), (best,) = {by[s, "evidence"][7] for s in ("0", "2")}, {by[s, "evidence"][9] for s in ("0", "2")}
     assert (f"on two seeds ({chosen} instead of its best-scored {best}: {by['0', 'evidence'][8]} against "
             f"{by['0', 'evidence'][10]}, {by['2', 'evidence'][8]} against {by['2', 'evidence'][10]}") in text
+    rank = _flat((ROOT / "results/which-learner/diagnostics/rank/README.md").read_text())
+    flat, factorial = (dict(zip(seeds, map(float, x.split(", ")))) for x in
+                       re.search(r"Flat: ([\d., ]+); factorial k = 5: ([\d., ]+)\.\)", rank).groups())
+    assert all(float(by[s, "evidence"][8]) <= 1.1 * min(flat[s], factorial[s]) for s in ("0", "2"))
+    assert "both within 10% of the better of flat and k = 5" in text
     confirm = _json("results/which-learner/diagnostics/evidence-budget/confirm_full_grid100_s1.json")
     scores = {(k, str(lam)): score for k, lam, score in confirm["confirm"]["rows"]}
     worse = 100 * (confirm["test_deviation"]["6,inf"] / confirm["test_deviation"]["5,inf"] - 1)
@@ -537,12 +557,7 @@ def test_the_guides_paper_settings_costs_are_the_which_learner_readme():
 def test_the_readmes_sharing_verdicts_are_the_benchmarks_records():
     """The README's which-learner table, its "auto no worse (seeds)" column, and its prose: the choices
     and verdicts of the committed runs (route_table.py's pairs), and no transfer at max_iter."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("route_table", ROOT / "results/which-learner/route_table.py")
-    route_table = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(route_table)
-    pairs = list(route_table.pairs(ROOT / "results/which-learner/default"))
+    pairs = _route_pairs("results/which-learner/default")
     assert len(pairs) == 30
     table = {r[0]: r[4] for r in _table(README, "| benchmark | flat | factorial (k = 5) | auto |")}
     for label, (preset, _, _, counts) in WHICH_LEARNER_ROWS.items():
