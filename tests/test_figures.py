@@ -643,3 +643,12 @@ def test_the_guides_parameter_counts_are_the_estimators():
     counts = {cls.__name__: len(inspect.signature(cls).parameters) for cls in (FactIRL, MultiIntentIRL, GradIRL)}
     assert (f"FactIRL takes {counts['FactIRL']} parameters, MultiIntentIRL {counts['MultiIntentIRL']} and GradIRL "
             f"{counts['GradIRL']}.") in _flat(GUIDE)
+
+
+def test_the_readmes_two_factorial_figures_at_100_tasks_are_its_tables():
+    """The README's note between its tables: the which-learner factorial cell and the headline's factorial
+    test deviation at 100 tasks, from their summaries."""
+    which = _mean(_summary("results/which-learner/default/sharing-grid/summary.csv"), "factorial", 100)
+    headline = _mean(_summary("results/summary.csv"), "factorial", 100, 10)
+    assert (f"The factorial column at 100 tasks ({which:.2f}) is the headline's learner ({headline:.2f})"
+            in _flat(README))
