@@ -276,6 +276,9 @@ def test_the_guides_solver_table_and_figures_are_the_solvers_benchmark():
     assert [int(z) for z in zeros.split(", ")] == [sweep[float(a)] for a in alphas.split(", ")]
     gn, armijo = transfer["gn-qp-clarabel"]["q_evaluations"], transfer["armijo"]["q_evaluations"]
     assert f"({gn} evaluations for {transfer['gn-qp-clarabel']['iterations']} steps above)" in _flat(GUIDE)
+    performance = _flat((ROOT / "docs/performance.md").read_text())
+    assert (f"the QP H-steps reach loss {transfer['gn-qp-clarabel']['final_loss_per_task']:.2g} per task in {gn} evaluations "
+            f"where 100 Armijo iterations reach {transfer['armijo']['final_loss_per_task']:.3f} in {armijo}") in performance
     assert f"transfer in {gn} evaluations where Armijo takes {armijo} for policy matching" in _flat(GUIDE)
 
 
