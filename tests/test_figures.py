@@ -539,7 +539,11 @@ def test_the_guides_rank_agreement_figures_are_the_rank_diagnostics():
     budget = _flat((ROOT / "results/which-learner/diagnostics/evidence-budget/README.md").read_text())
     (errors,) = re.findall(r"rank \(6, inf\) above \(5, inf\) by ([\d.]+) standard errors", budget)
     assert f"PCA starts rank (6, inf) above (5, inf) by {errors} standard errors" in text
-    approx = _json("results/which-learner/diagnostics/routes/rank_approx_grid20_s2.json")["spearman"]
+    record = _json("results/which-learner/diagnostics/routes/rank_approx_grid20_s2.json")
+    approx, cpu = record["spearman"], record["cpu_s"]
+    factorial = _json("results/which-learner/diagnostics/routes/routes_grid20_s2.json")["factorial"]["cpu_s"]
+    route = cpu["fit_cpu_s"] + cpu["ij-damped_step_cpu_s"] + cpu["ij-damped_transfer_cpu_s"]
+    assert f"at {route / factorial:.1f}x the factorial fit's CPU time (its fits, steps and held-out transfers)" in text
     assert (f"(Spearman {approx['ij-damped/test_deviation']:.2f} with their test deviations on the grid at 20 tasks, "
             f"against {approx['exact/test_deviation']:.2f} for exact 3-fold scores)") in text
 
