@@ -7,11 +7,14 @@ all measured in the same run on the same data (a random ground-truth dictionary 
 - ``transfer``: the dictionary fixed to the ground truth, ``--transfer-tasks`` new tasks with
   ``--transfer-demos`` demonstration(s) of ``--demo-length`` steps each; ``FactIRL.transfer``
   from ``h = 0`` with ``--armijo-iter`` Armijo iterations and ``--gn-iter`` steps of every
-  Gauss-Newton solver (``tol = 0``: fixed budgets). Per solver: final loss (total and mean per
+  Gauss-Newton solver (``tol = 0`` and the maximum-likelihood transfer, ``transfer_stol = 0``:
+  fixed budgets). Per solver: final loss (total and mean per
   task), batched Q* evaluations, wall time, mean deviation (eq. 13), QP fallbacks.
 - ``fit``: a full ``FactIRL.fit`` on ``--fit-tasks`` training tasks (``--fit-demos`` demos each),
   PCA initialisation from one shared flat (GradIRL) fit, ``--fit-iter`` outer iterations of
   ``--inner-steps`` steps, for Armijo and each Gauss-Newton H-step (the D-step is Armijo).
+  Every FactIRL of the benchmark is the paper's algorithm (``PAPER_SETTINGS``) with the H-step
+  solver compared, whatever FactIRL's defaults.
 - ``nonneg``: ground truth with nonnegative coefficients; transfer with the unconstrained and
   the nonneg variants: minimum learnt coefficient, mean deviation, loss.
 - ``sparse``: ground truth with nonnegative sparse coefficients; transfer with the sparse
@@ -39,12 +42,11 @@ import solvers
 from ...tasks.demonstrations import empirical_statistics
 from ...evaluation import deviation
 from ...learners.start import Start
-from ...learners.factirl import FactIRL
+from ...learners.factirl import PAPER_SETTINGS, FactIRL
 from ...learners.gradirl import GradIRL
 from ...mdp.tabular import GridWorld
 from ...objectives import PolicyMatchingObjective
 from ...objectives.problems import weights_problem
-from ...learners.solver_settings import SolverSettings
 from ...datasets.synthetic import random_dictionary, synthetic_tasks
 from ..arguments import integer, real
 from . import add_option, resolve_settings
@@ -118,9 +120,17 @@ def _gn_names(constraint="none"):
     return [n for n in names if n in solvers.available_solvers()]
 
 
+def _paper_settings(name, options=None):
+    """FactIRL's keyword arguments for the paper's algorithm (``PAPER_SETTINGS``: Armijo D-steps,
+    the alternation, the maximum-likelihood transfer) with the H-step solver ``name``, so that
+    every solver runs its fixed budget whatever FactIRL's defaults."""
+    solver = PAPER_SETTINGS["solver"].with_overrides(h_solver=name, h_solver_options=options or None)
+    return {**PAPER_SETTINGS, "solver": solver}
+
+
 def _transfer(mdp, D, demos, true_R, name, iters, beta, **options):
     """FactIRL.transfer with the dictionary fixed; returns the measurements and the coefficients."""
-    model = FactIRL(n_primitives=D.shape[1], beta=beta, tol=0.0, **SolverSettings(name, options or None).learner_kwargs())
+    model = FactIRL(n_primitives=D.shape[1], beta=beta, **{**_paper_settings(name, options), "tol": 0.0})
     model.dictionary_ = D
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", solvers.QPFallbackWarning)
@@ -195,12 +205,9 @@ def _part_fit(mdp, s, rng, D):
         model = FactIRL(
             n_primitives=s["n_primitives"],
             beta=s["beta"],
-            start=Start(init="pca"),
-            max_iter=s["fit_iter"],
-            inner_steps=s["inner_steps"],
-            tol=0.0,
             rng=0,
-            **SolverSettings(name).learner_kwargs(),
+            **{**_paper_settings(name), "start": Start(init="pca"), "max_iter": s["fit_iter"],
+               "inner_steps": s["inner_steps"], "tol": 0.0},
         )
         t0 = time.perf_counter()
         model.fit(mdp, demos, flat_rewards=flat.rewards_)
