@@ -9,6 +9,7 @@ from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
     demonstrated_states, demonstrator_policy, information_gains, linearised_regret, model_policy, policy_entropy_starts,
     regret_reductions, regret_terms, request_starts, start_occupancy, state_information, value_variance_reductions,
+    _visited_log_determinants,
 )
 from factirl_opt.planning import get_planner, plan
 
@@ -325,6 +326,26 @@ def test_information_gains_over_the_rows_match_the_parameters_determinants(resid
         H = np.einsum("cy,yde->cde", occ, info)
         dense = np.linalg.slogdet(Lam[None] + H)[1] - np.linalg.slogdet(Lam)[1]
         np.testing.assert_allclose(gains, dense, rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.parametrize("S, r, rank", [(6, 3, 18), (7, 2, 5), (5, 1, 5), (9, 3, 4)])
+def test_visited_log_determinants_match_the_dense_determinant_over_all_rows(S, r, rank):
+    # log det(I + O^1/2 K O^1/2) over all S*r rows, against the visited block's factorisation of
+    # K_vv + O^-1 (unvisited states, occupancies from 1e-250 to 20, full and low-rank K)
+    rng = np.random.default_rng(S * 100 + r * 10 + rank)
+    X = rng.standard_normal((S * r, rank)) * rng.uniform(0.1, 10.0, rank)
+    K = X @ X.T
+    occ = rng.uniform(0.0, 3.0, (12, S)) * (rng.uniform(size=(12, S)) < 0.7)
+    occ[0] = 0.0  # an episode that visits no state left: no information
+    occ[1] = 20.0
+    occ[2, :2] = [1e-250, 1e-12]
+    occ[3] = 0.0
+    occ[3, 1] = 2.5
+    w = np.sqrt(np.repeat(occ, r, axis=1))
+    dense = np.linalg.slogdet(np.eye(S * r) + w[:, :, None] * K[None] * w[:, None, :])[1]
+    got = _visited_log_determinants(K.reshape(S, r, S, r), occ)
+    np.testing.assert_allclose(got, dense, rtol=1e-11, atol=1e-12)
+    assert got[0] == 0.0 and np.all(got[1:] > 0.0)
 
 
 @pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
