@@ -1,6 +1,6 @@
 """The posterior and the requests of the README's ``"auto"`` model against one transfer, side by side in one process.
 
-``python results/transfer/posterior_cost.py OUT.json [REPEATS]``: the README's grid
+``python results/transfer/posterior_cost.py OUT.json [REPEATS] [BEFORE]``: the README's grid
 (:func:`factirl_opt.lab.benchmarks.auto_cost.readme_grid`, seed 0: 30 training tasks x 10
 demonstrations, 10 new tasks from one demonstration each), ``FactIRL(n_primitives="auto",
 residual_penalty="auto")`` fitted on it (its choice: k and lambda in the record), then, REPEATS
@@ -10,10 +10,19 @@ times (default 2), in this order, CPU time (time.process_time) of: ``transfer`` 
 (``laplace_posteriors(..., lowrank=False)``, as before), ``request_starts(n_requests=3)`` (the
 posterior cached), and ``information_gains`` of every task over its parameters' determinants (as
 before) for the ratio. The low-rank and dense posteriors, and the two gains, are compared (largest
-absolute differences in the record).
+absolute differences in the record). With BEFORE (a commit of this repository), also the requests
+and the gains of ``factirl_opt/learners/active.py`` as it was at that commit, loaded beside
+today's in the same process (``git show``), timed in the same repeat and compared: largest
+absolute and relative differences of the gains, and whether every task ranks every start the same.
+Run with one BLAS thread (``OPENBLAS_NUM_THREADS=1``): with two, OpenBLAS's threads wait by
+spinning, which counts as CPU time on a shared machine.
 """
+import importlib.util
 import json
+import pathlib
+import subprocess
 import sys
+import tempfile
 import time
 import warnings
 
@@ -41,14 +50,33 @@ def dense_gains(post, beta, length):
     return np.linalg.slogdet(Lam[None] + H)[1] - np.linalg.slogdet(Lam)[1]
 
 
-def main(out_path, repeats=2):
+def module_at(commit):
+    """``factirl_opt.learners.active`` as it was at ``commit``, loaded beside today's (its relative imports resolve to today's package)."""
+    root = pathlib.Path(__file__).resolve().parents[2]
+    source = subprocess.run(["git", "-C", str(root), "show", f"{commit}:factirl_opt/learners/active.py"],
+                            capture_output=True, text=True, check=True).stdout
+    path = pathlib.Path(tempfile.mkdtemp()) / "active_before.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location(f"factirl_opt.learners.active_at_{commit}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def same_ranking(gains, other):
+    return all(np.array_equal(np.argsort(-a, kind="stable"), np.argsort(-b, kind="stable")) for a, b in zip(gains, other))
+
+
+def main(out_path, repeats=2, commit=None):
+    old = module_at(commit) if commit else None
     g = readme_grid(0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         flat = fo.GradIRL(beta=5.0).fit(g.mdp, g.train_demos)
         model, fit_s = cpu(lambda: fo.FactIRL(n_primitives="auto", residual_penalty="auto", init="pca").fit(
             g.mdp, g.train_demos, flat_rewards=flat.rewards_))
-    record = {"k": int(model.n_primitives_), "lambda": float(model.residual_penalty_), "fit_cpu": fit_s, "runs": []}
+    record = {"k": int(model.n_primitives_), "lambda": float(model.residual_penalty_), "fit_cpu": fit_s, "before": commit,
+              "runs": []}
     for _ in range(repeats):
         run = {}
         with warnings.catch_warnings(record=True) as caught:
@@ -74,11 +102,24 @@ def main(out_path, repeats=2):
         _, run["request_starts"] = cpu(lambda: model.request_starts(g.mdp, g.test_demos, 3))
         gains, run["gains"] = cpu(lambda: [information_gains(p, "policy-matching", model.beta, np.arange(g.mdp.n_states), 10)
                                            for p in posts])
-        before, run["gains_dense"] = cpu(lambda: [dense_gains(p, model.beta, 10) for p in posts])
-        run["gains_max_diff"] = float(max(np.abs(a - b).max() for a, b in zip(gains, before)))
-        run["same_ranking"] = all(np.array_equal(np.argsort(-a, kind="stable"), np.argsort(-b, kind="stable"))
-                                  for a, b in zip(gains, before))
-        for key in ("posterior", "posterior_dense", "request_starts"):
+        dense, run["gains_dense"] = cpu(lambda: [dense_gains(p, model.beta, 10) for p in posts])
+        run["gains_max_diff"] = float(max(np.abs(a - b).max() for a, b in zip(gains, dense)))
+        run["gains_max"] = float(max(np.abs(b).max() for b in dense))
+        run["same_ranking"] = same_ranking(gains, dense)
+        keys = ["posterior", "posterior_dense", "request_starts"]
+        if old is not None:
+            starts = model.request_starts(g.mdp, g.test_demos, 3)
+            old_starts, run["request_starts_before"] = cpu(lambda: old.request_starts(model, g.mdp, g.test_demos, 3))
+            run["same_requests_as_before"] = all(np.array_equal(a, b) for a, b in zip(starts, old_starts))
+            was, run["gains_before"] = cpu(lambda: [old.information_gains(p, "policy-matching", model.beta,
+                                                                          np.arange(g.mdp.n_states), 10) for p in posts])
+            run["gains_max_diff_before"] = float(max(np.abs(a - b).max() for a, b in zip(gains, was)))
+            run["gains_max_rel_diff_before"] = float(max((np.abs(a - b) / np.abs(b)).max() for a, b in zip(gains, was)))
+            run["same_ranking_as_before"] = same_ranking(gains, was)
+            run["request_starts_over_before"] = run["request_starts"] / run["request_starts_before"]
+            run["gains_over_before"] = run["gains"] / run["gains_before"]
+            keys.append("request_starts_before")
+        for key in keys:
             run[f"{key}_over_transfer"] = run[key] / run["transfer"]
             run[f"{key}_over_saturation_transfer"] = run[key] / run["transfer_saturation"]
         print(json.dumps(run), flush=True)
@@ -89,4 +130,4 @@ def main(out_path, repeats=2):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 2)
+    main(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 2, sys.argv[3] if len(sys.argv) > 3 else None)
