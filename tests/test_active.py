@@ -348,6 +348,12 @@ def test_visited_log_determinants_match_the_dense_determinant_over_all_rows(S, r
     assert got[0] == 0.0 and np.all(got[1:] > 0.0)
 
 
+def test_visited_log_determinants_refuse_a_block_that_is_not_positive_definite():
+    K = -10.0 * np.eye(4).reshape(2, 2, 2, 2)
+    with pytest.raises(np.linalg.LinAlgError, match="visited block of candidate 0 is not positive definite"):
+        _visited_log_determinants(K, np.ones((1, 2)))
+
+
 @pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
 def test_marginal_requests_average_the_criterion_over_the_dictionaries(fitted):
     mdp, test, models = fitted
