@@ -178,13 +178,14 @@ def _visited_log_determinants(K: NDArray[np.float64], occ: NDArray[np.float64]) 
     """``log det(I + O_c^1/2 K O_c^1/2)`` (c,) of each candidate's expected visits, over the rows of the states it visits.
 
     With ``W = O_c^1/2`` restricted to the visited states' rows (``occ[c, y] > 0``, in practice
-    above the smallest normal double; the others add identity rows), ``I + W K W = W (O_c^-1 + K) W``: one upper Cholesky factorisation
-    ``U^T U = K_vv + O_c^-1`` of the visited block gives ``I + W K W = (U W)^T (U W)`` with ``U W``
-    triangular, so the log determinant is ``2 sum_i log(U_ii w_i)`` (no cancellation between large
-    terms). The block is copied by whole states (``r`` contiguous rows each) into buffers reused by
-    every candidate and factorised there in place, in Fortran order, its diagonal shifted by
-    ``1 / occ`` instead of the block scaled by ``w w^T``: the same ``n^3 / 3`` flops of the
-    factorisation, without allocations, Fortran-order copies and the scaling pass (docs/maths.md §10).
+    above the smallest normal double; the others add identity rows), ``I + W K W = W (O_c^-1 + K) W``:
+    one upper Cholesky factorisation ``U^T U = K_vv + O_c^-1`` of the visited block gives
+    ``I + W K W = (U W)^T (U W)`` with ``U W`` triangular, so the log determinant is
+    ``2 sum_i log(U_ii w_i)`` (no cancellation between large terms). The block is copied by whole
+    states (``r`` contiguous rows each) into buffers reused by every candidate and factorised there
+    in place, in Fortran order, its diagonal shifted by ``1 / occ`` instead of the block scaled by
+    ``w w^T``: the same ``n^3 / 3`` flops of the factorisation, without allocations, Fortran-order
+    copies and the scaling pass (docs/maths.md §10).
 
     Parameters
     ----------
