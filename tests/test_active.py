@@ -348,6 +348,36 @@ def test_visited_log_determinants_match_the_dense_determinant_over_all_rows(S, r
     assert got[0] == 0.0 and np.all(got[1:] > 0.0)
 
 
+def test_requests_and_the_posterior_run_with_blas_limited_as_the_transfer(fitted, monkeypatch):
+    # entry points like fit and transfer: under FACTIRL_BLAS_THREADS (1), whatever the process's count
+    from factirl_opt import _threads
+    from factirl_opt.learners import active, factirl
+
+    mdp, test, models = fitted
+    model = models["policy-matching"]
+    seen = []
+
+    def probe(post, *args):
+        seen.append([lib.num_threads for lib in _threads._blas_libraries()])
+        return np.zeros(len(args[2]))
+
+    def posterior_probe(est):
+        seen.append([lib.num_threads for lib in _threads._blas_libraries()])
+        return posts
+
+    posts = model.transfer_posterior_
+    monkeypatch.setenv("FACTIRL_BLAS_THREADS", "1")
+    monkeypatch.setitem(active.CRITERIA, "information", probe)
+    monkeypatch.setattr(factirl, "cached_transfer_posterior", posterior_probe)
+    with _threads.limit_blas_threads(2) as outside:
+        model.request_starts(mdp, test.demos)
+        assert model.transfer_posterior_ is posts
+        assert [lib.num_threads for lib in _threads._blas_libraries()] == outside
+    assert outside == [2] * len(outside)
+    # each task's gains, the posterior read by request_starts and the one read here
+    assert seen == [[1] * len(outside)] * (len(test.demos) + 2)
+
+
 def test_visited_log_determinants_refuse_a_block_that_is_not_positive_definite():
     K = -10.0 * np.eye(4).reshape(2, 2, 2, 2)
     with pytest.raises(np.linalg.LinAlgError, match="visited block of candidate 0 is not positive definite"):

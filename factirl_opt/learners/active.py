@@ -35,6 +35,7 @@ from .._validation import check_bool, check_int
 from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
+from .fitting import learner_entry
 from .posterior import LaplacePosterior, has_prior, model_posteriors, transfer_inputs
 from .transfer_likelihood import tasks_problem
 from .transfer import transfer_tasks
@@ -369,6 +370,7 @@ def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.
     return known
 
 
+@learner_entry
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                    features: Any = None, criterion: str = "information",
                    policy: str = "boltzmann", demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
