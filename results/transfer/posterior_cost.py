@@ -14,8 +14,12 @@ absolute differences in the record). With BEFORE (a commit of this repository), 
 and the gains of ``factirl_opt/learners/active.py`` as it was at that commit, loaded beside
 today's in the same process (``git show``), timed in the same repeat and compared: largest
 absolute and relative differences of the gains, and whether every task ranks every start the same.
-Run with one BLAS thread (``OPENBLAS_NUM_THREADS=1``): with two, OpenBLAS's threads wait by
-spinning, which counts as CPU time on a shared machine.
+The transfers, ``transfer_posterior_`` and the requests (today's and before's) run under the
+process's own BLAS threads, as a user's call does (the library's entry points limit them to
+``FACTIRL_BLAS_THREADS``); the references (the dense posterior, the gains' direct calls) under
+one thread. The committed record is of a run with one BLAS thread for the whole process
+(``OPENBLAS_NUM_THREADS=1``); ``posterior_cost_threads.json`` of one under the machine's
+default (two).
 """
 import importlib.util
 import json
@@ -33,12 +37,19 @@ from factirl_opt.lab.benchmarks.auto_cost import readme_grid
 from factirl_opt.learners.active import information_gains, start_occupancy, state_information
 from factirl_opt.learners.posterior import coefficient_prior, laplace_posteriors, transfer_problem
 from factirl_opt.learners.transfer import TRANSFER_STOL
+from factirl_opt.parallel import limit_blas_threads
 
 
 def cpu(fn):
     t0 = time.process_time()
     out = fn()
     return out, time.process_time() - t0
+
+
+def cpu1(fn):
+    """:func:`cpu` with BLAS limited to one thread: the references, which are not the library's entry points."""
+    with limit_blas_threads(1):
+        return cpu(fn)
 
 
 def dense_gains(post, beta, length):
@@ -93,16 +104,16 @@ def main(out_path, repeats=2, commit=None):
         posts, run["posterior"] = cpu(lambda: model.transfer_posterior_)
         problem = transfer_problem(model, g.mdp, g.test_demos)
         start = np.concatenate([model.transfer_coefficients_, model.transfer_residuals_], axis=1)
-        dense, run["posterior_dense"] = cpu(lambda: laplace_posteriors(problem, coefficient_prior(model.coefficients_),
+        dense, run["posterior_dense"] = cpu1(lambda: laplace_posteriors(problem, coefficient_prior(model.coefficients_),
                                                                       start, lowrank=False))
         run["posterior_mean_max_diff"] = float(max(np.abs(a.mean - b.mean).max() for a, b in zip(posts, dense)))
         run["posterior_covariance_max_diff"] = float(max(np.abs(a.covariance - b.covariance).max()
                                                          for a, b in zip(posts, dense)))
         run["covariance_max"] = float(max(np.abs(a.covariance).max() for a in dense))
         _, run["request_starts"] = cpu(lambda: model.request_starts(g.mdp, g.test_demos, 3))
-        gains, run["gains"] = cpu(lambda: [information_gains(p, "policy-matching", model.beta, np.arange(g.mdp.n_states), 10)
+        gains, run["gains"] = cpu1(lambda: [information_gains(p, "policy-matching", model.beta, np.arange(g.mdp.n_states), 10)
                                            for p in posts])
-        dense, run["gains_dense"] = cpu(lambda: [dense_gains(p, model.beta, 10) for p in posts])
+        dense, run["gains_dense"] = cpu1(lambda: [dense_gains(p, model.beta, 10) for p in posts])
         run["gains_max_diff"] = float(max(np.abs(a - b).max() for a, b in zip(gains, dense)))
         run["gains_max"] = float(max(np.abs(b).max() for b in dense))
         run["same_ranking"] = same_ranking(gains, dense)
@@ -111,7 +122,7 @@ def main(out_path, repeats=2, commit=None):
             starts = model.request_starts(g.mdp, g.test_demos, 3)
             old_starts, run["request_starts_before"] = cpu(lambda: old.request_starts(model, g.mdp, g.test_demos, 3))
             run["same_requests_as_before"] = all(np.array_equal(a, b) for a, b in zip(starts, old_starts))
-            was, run["gains_before"] = cpu(lambda: [old.information_gains(p, "policy-matching", model.beta,
+            was, run["gains_before"] = cpu1(lambda: [old.information_gains(p, "policy-matching", model.beta,
                                                                           np.arange(g.mdp.n_states), 10) for p in posts])
             run["gains_max_diff_before"] = float(max(np.abs(a - b).max() for a, b in zip(gains, was)))
             run["gains_max_rel_diff_before"] = float(max((np.abs(a - b) / np.abs(b)).max() for a, b in zip(gains, was)))
