@@ -180,9 +180,9 @@ def _visited_log_determinants(K: NDArray[np.float64], occ: NDArray[np.float64]) 
 
     With ``W = O_c^1/2`` restricted to the visited states' rows (``occ[c, y] > 0``, in practice
     above the smallest normal double; the others add identity rows), ``I + W K W = W (O_c^-1 + K) W``:
-    one upper Cholesky factorisation ``U^T U = K_vv + O_c^-1`` of the visited block gives
-    ``I + W K W = (U W)^T (U W)`` with ``U W`` triangular, so the log determinant is
-    ``2 sum_i log(U_ii w_i)`` (no cancellation between large terms). The block is copied by whole
+    one Cholesky factorisation ``L L^T = K_vv + O_c^-1`` of the visited block gives
+    ``I + W K W = (W L)(W L)^T`` with ``W L`` triangular, so the log determinant is
+    ``2 sum_i log(L_ii w_i)`` (no cancellation between large terms). The block is copied by whole
     states (``r`` contiguous rows each) into buffers reused by every candidate and factorised there
     in place, in Fortran order, its diagonal shifted by ``1 / occ`` instead of the block scaled by
     ``w w^T``: the same ``n^3 / 3`` flops of the factorisation, without allocations, Fortran-order
@@ -217,10 +217,10 @@ def _visited_log_determinants(K: NDArray[np.float64], occ: NDArray[np.float64]) 
         M = block.reshape(n, n)
         o = np.repeat(occ[c, states], r)
         M.flat[::n + 1] += 1.0 / o
-        U, info = dpotrf(M.T, lower=0, clean=0, overwrite_a=1)  # M symmetric: M.T is it, Fortran-ordered
+        L, info = dpotrf(M.T, lower=1, clean=0, overwrite_a=1)  # M symmetric: M.T is it, Fortran-ordered
         if info != 0:
             raise np.linalg.LinAlgError(f"the visited block of candidate {c} is not positive definite (dpotrf info {info})")
-        gains[c] = 2.0 * np.sum(np.log(np.diagonal(U) * np.sqrt(o)))
+        gains[c] = 2.0 * np.sum(np.log(np.diagonal(L) * np.sqrt(o)))
     return gains
 
 
