@@ -9,7 +9,7 @@ from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
     demonstrated_states, demonstrator_policy, information_gains, linearised_regret, model_policy, policy_entropy_starts,
     regret_reductions, regret_terms, request_starts, start_occupancy, state_information, value_variance_reductions,
-    _visited_log_determinants,
+    _best_starts, _gain_bounds, _visited_log_determinants,
 )
 from factirl_opt.planning import get_planner, plan
 
@@ -376,6 +376,56 @@ def test_requests_and_the_posterior_run_with_blas_limited_as_the_transfer(fitted
     assert outside == [2] * len(outside)
     # each task's gains, the posterior read by request_starts and the one read here
     assert seen == [[1] * len(outside)] * (len(test.demos) + 2)
+
+
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+@pytest.mark.parametrize("demonstrated", ["count", "skip"])
+def test_residual_requests_are_the_first_of_the_information_ranking(residual_fitted, objective, demonstrated):
+    # the requests of a residual posterior (its n best without every gain) against the full ranking
+    mdp, test, models = residual_fitted
+    model = models[objective]
+    for n in (1, 3, mdp.n_states):
+        starts = model.request_starts(mdp, test.demos, n, demonstrated=demonstrated)
+        for i, (post, s) in enumerate(zip(model.transfer_posterior_, starts)):
+            known = demonstrated_states(mdp, test.demos[i], i) if demonstrated == "skip" else None
+            gains = information_gains(post, objective, model.beta, np.arange(mdp.n_states), len(test.demos[i][0]),
+                                      known=known)
+            np.testing.assert_array_equal(s, np.argsort(-gains, kind="stable")[:n])
+
+
+def _random_visits(S, r, rank, n_candidates, seed):
+    """A PSD ``K`` (S, r, S, r) of the given rank and expected visits (c, S) with unvisited states and a wide range."""
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((S * r, rank)) * rng.uniform(0.1, 3.0, rank)
+    occ = rng.uniform(0.0, 2.0, (n_candidates, S)) ** 3 * (rng.uniform(size=(n_candidates, S)) < 0.8)
+    return (X @ X.T).reshape(S, r, S, r), occ
+
+
+@pytest.mark.parametrize("slack", [0.0, 0.05, 0.5, 5.0])
+def test_gain_bounds_enclose_the_gains_within_the_slack(slack):
+    K, occ = _random_visits(8, 3, 24, 30, seed=int(slack * 100))
+    gains = _visited_log_determinants(K, occ)
+    lower, upper = _gain_bounds(K, occ, slack)
+    assert np.all(lower <= gains + 1e-12) and np.all(gains <= upper + 1e-12)
+    assert np.all(upper - lower <= slack + 1e-12)
+    if slack == 0.0:
+        np.testing.assert_array_equal(lower, gains)
+    else:
+        assert np.any(lower < gains - 1e-9)  # a tail was left out (else the bounds would be untested)
+
+
+@pytest.mark.parametrize("n", [1, 3, 7, 40])
+@pytest.mark.parametrize("slack", [0.05, 0.5, 50.0])
+def test_best_starts_are_the_first_of_the_full_ranking(n, slack):
+    # one or two posteriors' (K, occ) (a marginal over two dictionaries); repeated candidates tie
+    terms = [_random_visits(9, 3, 20, 40, seed=1), _random_visits(9, 3, 27, 40, seed=2)]
+    for t in terms:
+        t[1][[5, 17, 30]] = t[1][11]
+    for used in (terms[:1], terms):
+        gains = np.mean([_visited_log_determinants(K, occ) for K, occ in used], axis=0)
+        full = np.argsort(-gains, kind="stable")[:n]
+        np.testing.assert_array_equal(_best_starts(used, n, slack), full)
 
 
 def test_visited_log_determinants_refuse_a_block_that_is_not_positive_definite():

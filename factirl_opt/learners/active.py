@@ -159,6 +159,13 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
         Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
         base = np.linalg.slogdet(Lam)[1]
         return np.linalg.slogdet(Lam[None] + H)[1] - base
+    return _visited_log_determinants(*_row_terms(post, objective, beta, candidates, length, policy, known))
+
+
+def _row_terms(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp], length: int,
+               policy: str, known: NDArray[np.bool_] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(K, occ)`` of :func:`information_gains` over the rows: ``V Sigma V^T`` (S, r, S, r) in blocks of the
+    ``r = A - 1`` rows of each state, symmetrised, and the candidates' expected visits (c, S), none where ``known``."""
     pl, V, pi = information_rows(post, objective, beta)
     V = _drop_null_row(V, pi, objective)
     S, r, d = V.shape
@@ -167,7 +174,7 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
         occ = np.where(known[None, :], 0.0, occ)
     Vf = V.reshape(S * r, d)
     K = Vf @ post.covariance @ Vf.T
-    return _visited_log_determinants((0.5 * (K + K.T)).reshape(S, r, S, r), occ)
+    return (0.5 * (K + K.T)).reshape(S, r, S, r), occ
 
 
 #: expected visits at or below this (the smallest normal double) count as none: such a state's rows
@@ -222,6 +229,52 @@ def _visited_log_determinants(K: NDArray[np.float64], occ: NDArray[np.float64]) 
             raise np.linalg.LinAlgError(f"the visited block of candidate {c} is not positive definite (dpotrf info {info})")
         gains[c] = 2.0 * np.sum(np.log(np.diagonal(L) * np.sqrt(o)))
     return gains
+
+
+#: the slack (nats) of the upper bounds of :func:`_gain_bounds` that :func:`_best_starts` uses
+_GAIN_BOUND_SLACK = 0.3
+
+
+def _gain_bounds(K: NDArray[np.float64], occ: NDArray[np.float64],
+                 slack: float = _GAIN_BOUND_SLACK) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Lower and upper bounds (c,), (c,) of :func:`_visited_log_determinants`, at most ``slack`` apart.
+
+    Each candidate's visited states split into a core and a tail, the tail the states of smallest
+    ``occ(y) tr(K_yy)`` whose sum ``tau`` is at most ``slack``. With ``A = W K W`` in that split,
+    ``log det(I + A) = log det(I + A_cc) + log det(I + A_tt - A_tc (I + A_cc)^-1 A_ct)``, and the
+    second term lies between 0 and ``log det(I + A_tt) <= tr A_tt = tau``: the bounds are the
+    core's log determinant and it plus ``tau``, at the cost of the core's factorisation.
+    """
+    trace = np.einsum("yiyi->y", K)
+    contrib = occ * trace
+    order = np.argsort(contrib, axis=1, kind="stable")
+    tail = np.cumsum(np.take_along_axis(contrib, order, axis=1), axis=1) <= slack
+    in_tail = np.zeros(occ.shape, dtype=bool)
+    np.put_along_axis(in_tail, order, tail, axis=1)
+    lower = _visited_log_determinants(K, np.where(in_tail, 0.0, occ))
+    return lower, lower + np.where(in_tail, contrib, 0.0).sum(axis=1)
+
+
+def _best_starts(terms: list[tuple[NDArray[np.float64], NDArray[np.float64]]], n: int,
+                 slack: float = _GAIN_BOUND_SLACK) -> NDArray[np.intp]:
+    """The positions (min(n, c),) of the ``n`` candidates of largest mean gain over ``terms``, best first, ties to
+    the earlier one: the first ``n`` of ``argsort(-gains, kind="stable")`` with ``gains`` the mean over the
+    ``(K, occ)`` of ``terms`` (:func:`_row_terms`) of :func:`_visited_log_determinants`, without every gain.
+
+    The gains' bounds (:func:`_gain_bounds`, averaged over ``terms``) leave out every candidate
+    whose upper bound is below the ``n``-th best lower bound (less a margin for round-off): its
+    gain is below the ``n``-th best gain, so it is not among the ``n`` best. The others' gains
+    are computed as :func:`_visited_log_determinants` computes them for every candidate: the same
+    starts, in the same order.
+    """
+    bounds = [_gain_bounds(K, occ, slack) for K, occ in terms]
+    lower = np.mean([b[0] for b in bounds], axis=0)
+    upper = np.mean([b[1] for b in bounds], axis=0)
+    nth = np.sort(lower)[-min(n, lower.size)]
+    keep = np.flatnonzero(upper >= nth - 1e-9 * max(1.0, abs(nth)))
+    gains = np.full(lower.size, -np.inf)
+    gains[keep] = np.mean([_visited_log_determinants(K, occ[keep]) for K, occ in terms], axis=0)
+    return np.argsort(-gains, kind="stable")[:n]
 
 
 def _drop_null_row(V: NDArray[np.float64], pi: NDArray[np.float64], objective: str) -> NDArray[np.float64]:
@@ -391,7 +444,10 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         The expected information gain about the coefficients (:func:`information_gains`,
         D-optimal), the expected reduction of the posterior variance of the state values
         (:func:`value_variance_reductions`), or the expected reduction of the linearised regret
-        of acting on the posterior mean (:func:`regret_reductions`).
+        of acting on the posterior mean (:func:`regret_reductions`). For a residual model's
+        posterior and fewer requests than candidates, the information gain of only the
+        candidates that bounds on the gains cannot exclude from the ``n_requests`` best is
+        computed (docs/maths.md §10): the same starts as the full ranking's first.
     policy : {"boltzmann", "greedy"}, default="boltzmann"
         The policy a demonstration from a start is assumed to follow (:func:`demonstrator_policy`):
         the model's stochastic policy at the posterior mean, or its greedy policy.
@@ -433,6 +489,12 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     for i, post in enumerate(posts):
         known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
         length = _episode_length(post.n_pairs, demos_per_task[i])
+        averaged = [post, *post.members] if marginal else [post]
+        if criterion == "information" and n_requests < cands[i].size and all(_row_space(q) for q in averaged):
+            # a residual posterior's gains over the rows: the n best without every gain (_best_starts)
+            terms = [_row_terms(q, objective, model.beta, cands[i], length, policy, known) for q in averaged]
+            out.append(cands[i][_best_starts(terms, n_requests)])
+            continue
         gains = CRITERIA[criterion](post, objective, model.beta, cands[i], length, policy, known)
         if marginal and post.members:
             gains = np.mean([gains] + [CRITERIA[criterion](m, objective, model.beta, cands[i], length, policy, known)
