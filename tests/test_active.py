@@ -9,6 +9,7 @@ from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.active import (
     demonstrated_states, demonstrator_policy, information_gains, linearised_regret, model_policy, policy_entropy_starts,
     regret_reductions, regret_terms, request_starts, start_occupancy, state_information, value_variance_reductions,
+    _best_starts, _gain_bounds, _visited_log_determinants,
 )
 from factirl_opt.planning import get_planner, plan
 
@@ -325,6 +326,112 @@ def test_information_gains_over_the_rows_match_the_parameters_determinants(resid
         H = np.einsum("cy,yde->cde", occ, info)
         dense = np.linalg.slogdet(Lam[None] + H)[1] - np.linalg.slogdet(Lam)[1]
         np.testing.assert_allclose(gains, dense, rtol=1e-8, atol=1e-9)
+
+
+@pytest.mark.parametrize("S, r, rank", [(6, 3, 18), (7, 2, 5), (5, 1, 5), (9, 3, 4)])
+def test_visited_log_determinants_match_the_dense_determinant_over_all_rows(S, r, rank):
+    # log det(I + O^1/2 K O^1/2) over all S*r rows, against the visited block's factorisation of
+    # K_vv + O^-1 (unvisited states, occupancies from 1e-250 to 20, full and low-rank K)
+    rng = np.random.default_rng(S * 100 + r * 10 + rank)
+    X = rng.standard_normal((S * r, rank)) * rng.uniform(0.1, 10.0, rank)
+    K = X @ X.T
+    occ = rng.uniform(0.0, 3.0, (12, S)) * (rng.uniform(size=(12, S)) < 0.7)
+    occ[0] = 0.0  # an episode that visits no state left: no information
+    occ[1] = 20.0
+    occ[2, :2] = [1e-250, 1e-12]
+    occ[3] = 0.0
+    occ[3, 1] = 2.5
+    w = np.sqrt(np.repeat(occ, r, axis=1))
+    dense = np.linalg.slogdet(np.eye(S * r) + w[:, :, None] * K[None] * w[:, None, :])[1]
+    got = _visited_log_determinants(K.reshape(S, r, S, r), occ)
+    np.testing.assert_allclose(got, dense, rtol=1e-11, atol=1e-12)
+    assert got[0] == 0.0 and np.all(got[1:] > 0.0)
+
+
+def test_requests_and_the_posterior_run_with_blas_limited_as_the_transfer(fitted, monkeypatch):
+    # entry points like fit and transfer: under FACTIRL_BLAS_THREADS (1), whatever the process's count
+    from factirl_opt import _threads
+    from factirl_opt.learners import active, factirl
+
+    mdp, test, models = fitted
+    model = models["policy-matching"]
+    seen = []
+
+    def probe(post, *args):
+        seen.append([lib.num_threads for lib in _threads._blas_libraries()])
+        return np.zeros(len(args[2]))
+
+    def posterior_probe(est):
+        seen.append([lib.num_threads for lib in _threads._blas_libraries()])
+        return posts
+
+    posts = model.transfer_posterior_
+    monkeypatch.setenv("FACTIRL_BLAS_THREADS", "1")
+    monkeypatch.setitem(active.CRITERIA, "information", probe)
+    monkeypatch.setattr(factirl, "cached_transfer_posterior", posterior_probe)
+    with _threads.limit_blas_threads(2) as outside:
+        model.request_starts(mdp, test.demos)
+        assert model.transfer_posterior_ is posts
+        assert [lib.num_threads for lib in _threads._blas_libraries()] == outside
+    assert outside == [2] * len(outside)
+    # each task's gains, the posterior read by request_starts and the one read here
+    assert seen == [[1] * len(outside)] * (len(test.demos) + 2)
+
+
+@pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")
+@pytest.mark.parametrize("objective", ["policy-matching", "mce"])
+@pytest.mark.parametrize("demonstrated", ["count", "skip"])
+def test_residual_requests_are_the_first_of_the_information_ranking(residual_fitted, objective, demonstrated):
+    # the requests of a residual posterior (its n best without every gain) against the full ranking
+    mdp, test, models = residual_fitted
+    model = models[objective]
+    for n in (1, 3, mdp.n_states):
+        starts = model.request_starts(mdp, test.demos, n, demonstrated=demonstrated)
+        for i, (post, s) in enumerate(zip(model.transfer_posterior_, starts)):
+            known = demonstrated_states(mdp, test.demos[i], i) if demonstrated == "skip" else None
+            gains = information_gains(post, objective, model.beta, np.arange(mdp.n_states), len(test.demos[i][0]),
+                                      known=known)
+            np.testing.assert_array_equal(s, np.argsort(-gains, kind="stable")[:n])
+
+
+def _random_visits(S, r, rank, n_candidates, seed):
+    """A PSD ``K`` (S, r, S, r) of the given rank and expected visits (c, S) with unvisited states and a wide range."""
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((S * r, rank)) * rng.uniform(0.1, 3.0, rank)
+    occ = rng.uniform(0.0, 2.0, (n_candidates, S)) ** 3 * (rng.uniform(size=(n_candidates, S)) < 0.8)
+    return (X @ X.T).reshape(S, r, S, r), occ
+
+
+@pytest.mark.parametrize("slack", [0.0, 0.05, 0.5, 5.0])
+def test_gain_bounds_enclose_the_gains_within_the_slack(slack):
+    K, occ = _random_visits(8, 3, 24, 30, seed=int(slack * 100))
+    gains = _visited_log_determinants(K, occ)
+    lower, upper = _gain_bounds(K, occ, slack)
+    assert np.all(lower <= gains + 1e-12) and np.all(gains <= upper + 1e-12)
+    assert np.all(upper - lower <= slack + 1e-12)
+    if slack == 0.0:
+        np.testing.assert_array_equal(lower, gains)
+    else:
+        assert np.any(lower < gains - 1e-9)  # a tail was left out (else the bounds would be untested)
+
+
+@pytest.mark.parametrize("n", [1, 3, 7, 40])
+@pytest.mark.parametrize("slack", [0.05, 0.5, 50.0])
+def test_best_starts_are_the_first_of_the_full_ranking(n, slack):
+    # one or two posteriors' (K, occ) (a marginal over two dictionaries); repeated candidates tie
+    terms = [_random_visits(9, 3, 20, 40, seed=1), _random_visits(9, 3, 27, 40, seed=2)]
+    for t in terms:
+        t[1][[5, 17, 30]] = t[1][11]
+    for used in (terms[:1], terms):
+        gains = np.mean([_visited_log_determinants(K, occ) for K, occ in used], axis=0)
+        full = np.argsort(-gains, kind="stable")[:n]
+        np.testing.assert_array_equal(_best_starts(used, n, slack), full)
+
+
+def test_visited_log_determinants_refuse_a_block_that_is_not_positive_definite():
+    K = -10.0 * np.eye(4).reshape(2, 2, 2, 2)
+    with pytest.raises(np.linalg.LinAlgError, match="visited block of candidate 0 is not positive definite"):
+        _visited_log_determinants(K, np.ones((1, 2)))
 
 
 @pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")

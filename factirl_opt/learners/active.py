@@ -28,13 +28,14 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import cholesky
+from scipy.linalg.lapack import dpotrf
 from scipy.special import ndtr
 
 from .._validation import check_bool, check_int
 from ..exceptions import ValidationError
 from ..objectives.mce import soft_values
 from ..planning import boltzmann_policy, get_planner, plan, tangent
+from .fitting import learner_entry
 from .posterior import LaplacePosterior, has_prior, model_posteriors, transfer_inputs
 from .transfer_likelihood import tasks_problem
 from .transfer import transfer_tasks
@@ -151,12 +152,20 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
     of the states the episode can visit (Sylvester's identity): for a residual model's posterior
     (d = k + p parameters, more than half the S*A rows) the gains are computed so, from one
     (S*A, S*A) product ``V Sigma V^T`` per task and one Cholesky factorisation per candidate of its
-    visited rows, instead of a (d, d) determinant per candidate; the same gains to round-off.
+    visited rows (of ``K_vv + O_s^-1``, in place), instead of a (d, d) determinant per candidate;
+    the same gains to round-off (docs/maths.md §10).
     """
     if not _row_space(post):
         Lam, H = _demonstration_curvature(post, objective, beta, candidates, length, policy, known)
         base = np.linalg.slogdet(Lam)[1]
         return np.linalg.slogdet(Lam[None] + H)[1] - base
+    return _visited_log_determinants(*_row_terms(post, objective, beta, candidates, length, policy, known))
+
+
+def _row_terms(post: LaplacePosterior, objective: str, beta: float, candidates: NDArray[np.intp], length: int,
+               policy: str, known: NDArray[np.bool_] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(K, occ)`` of :func:`information_gains` over the rows: ``V Sigma V^T`` (S, r, S, r) in blocks of the
+    ``r = A - 1`` rows of each state, symmetrised, and the candidates' expected visits (c, S), none where ``known``."""
     pl, V, pi = information_rows(post, objective, beta)
     V = _drop_null_row(V, pi, objective)
     S, r, d = V.shape
@@ -165,18 +174,107 @@ def information_gains(post: LaplacePosterior, objective: str, beta: float, candi
         occ = np.where(known[None, :], 0.0, occ)
     Vf = V.reshape(S * r, d)
     K = Vf @ post.covariance @ Vf.T
-    gains = np.empty(len(candidates))
-    for c in range(len(candidates)):
-        states = np.flatnonzero(occ[c] > 0)
-        rows = (states[:, None] * r + np.arange(r)).ravel()
-        w = np.repeat(np.sqrt(occ[c, states]), r)
-        M = K[np.ix_(rows, rows)]
-        M *= w[:, None]
-        M *= w
-        M.flat[::rows.size + 1] += 1.0
-        U = cholesky(M, overwrite_a=True, check_finite=False)
-        gains[c] = 2.0 * np.sum(np.log(np.diagonal(U)))
+    return (0.5 * (K + K.T)).reshape(S, r, S, r), occ
+
+
+#: expected visits at or below this (the smallest normal double) count as none: such a state's rows
+#: add at most ``occ tr(K_yy)`` to a gain, and ``1 / occ`` would overflow
+_OCC_MIN = float(np.finfo(np.float64).tiny)
+
+
+def _visited_log_determinants(K: NDArray[np.float64], occ: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``log det(I + O_c^1/2 K O_c^1/2)`` (c,) of each candidate's expected visits, over the rows of the states it visits.
+
+    With ``W = O_c^1/2`` restricted to the visited states' rows (``occ[c, y] > 0``, in practice
+    above the smallest normal double; the others add identity rows), ``I + W K W = W (O_c^-1 + K) W``:
+    one Cholesky factorisation ``L L^T = K_vv + O_c^-1`` of the visited block gives
+    ``I + W K W = (W L)(W L)^T`` with ``W L`` triangular, so the log determinant is
+    ``2 sum_i log(L_ii w_i)`` (no cancellation between large terms). The block is copied by whole
+    states (``r`` contiguous rows each) into buffers reused by every candidate and factorised there
+    in place, in Fortran order, its diagonal shifted by ``1 / occ`` instead of the block scaled by
+    ``w w^T``: the same ``n^3 / 3`` flops of the factorisation, without allocations, Fortran-order
+    copies and the scaling pass (docs/maths.md §10).
+
+    Parameters
+    ----------
+    K : ndarray, shape (S, r, S, r)
+        Symmetric positive semidefinite, in blocks of ``r`` rows per state (``V Sigma V^T`` of
+        :func:`information_gains`).
+    occ : ndarray, shape (c, S)
+        Expected visits of each candidate's episode, ``>= 0``.
+
+    Returns
+    -------
+    ndarray, shape (c,)
+    """
+    S, r = K.shape[:2]
+    live = occ > _OCC_MIN
+    most = int(live.sum(axis=1).max(initial=0))
+    rows_buffer, block_buffer = np.empty(most * r * S * r), np.empty((most * r) ** 2)  # reused by every candidate
+    gains = np.zeros(occ.shape[0])
+    for c in range(occ.shape[0]):
+        states = np.flatnonzero(live[c])
+        m, n = states.size, states.size * r
+        if n == 0:
+            continue
+        rows = rows_buffer[:n * S * r].reshape(m, r, S, r)
+        np.take(K, states, axis=0, out=rows, mode="clip")  # "clip": no bounds check, so no buffered copy
+        block = block_buffer[:n * n].reshape(m, r, m, r)
+        np.take(rows, states, axis=2, out=block, mode="clip")
+        M = block.reshape(n, n)
+        o = np.repeat(occ[c, states], r)
+        M.flat[::n + 1] += 1.0 / o
+        L, info = dpotrf(M.T, lower=1, clean=0, overwrite_a=1)  # M symmetric: M.T is it, Fortran-ordered
+        if info != 0:
+            raise np.linalg.LinAlgError(f"the visited block of candidate {c} is not positive definite (dpotrf info {info})")
+        gains[c] = 2.0 * np.sum(np.log(np.diagonal(L) * np.sqrt(o)))
     return gains
+
+
+#: the slack (nats) of the upper bounds of :func:`_gain_bounds` that :func:`_best_starts` uses
+_GAIN_BOUND_SLACK = 0.3
+
+
+def _gain_bounds(K: NDArray[np.float64], occ: NDArray[np.float64],
+                 slack: float = _GAIN_BOUND_SLACK) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Lower and upper bounds (c,), (c,) of :func:`_visited_log_determinants`, at most ``slack`` apart.
+
+    Each candidate's visited states split into a core and a tail, the tail the states of smallest
+    ``occ(y) tr(K_yy)`` whose sum ``tau`` is at most ``slack``. With ``A = W K W`` in that split,
+    ``log det(I + A) = log det(I + A_cc) + log det(I + A_tt - A_tc (I + A_cc)^-1 A_ct)``, and the
+    second term lies between 0 and ``log det(I + A_tt) <= tr A_tt = tau``: the bounds are the
+    core's log determinant and it plus ``tau``, at the cost of the core's factorisation.
+    """
+    trace = np.einsum("yiyi->y", K)
+    contrib = occ * trace
+    order = np.argsort(contrib, axis=1, kind="stable")
+    tail = np.cumsum(np.take_along_axis(contrib, order, axis=1), axis=1) <= slack
+    in_tail = np.zeros(occ.shape, dtype=bool)
+    np.put_along_axis(in_tail, order, tail, axis=1)
+    lower = _visited_log_determinants(K, np.where(in_tail, 0.0, occ))
+    return lower, lower + np.where(in_tail, contrib, 0.0).sum(axis=1)
+
+
+def _best_starts(terms: list[tuple[NDArray[np.float64], NDArray[np.float64]]], n: int,
+                 slack: float = _GAIN_BOUND_SLACK) -> NDArray[np.intp]:
+    """The positions (min(n, c),) of the ``n`` candidates of largest mean gain over ``terms``, best first, ties to
+    the earlier one: the first ``n`` of ``argsort(-gains, kind="stable")`` with ``gains`` the mean over the
+    ``(K, occ)`` of ``terms`` (:func:`_row_terms`) of :func:`_visited_log_determinants`, without every gain.
+
+    The gains' bounds (:func:`_gain_bounds`, averaged over ``terms``) leave out every candidate
+    whose upper bound is below the ``n``-th best lower bound (less a margin for round-off): its
+    gain is below the ``n``-th best gain, so it is not among the ``n`` best. The others' gains
+    are computed as :func:`_visited_log_determinants` computes them for every candidate: the same
+    starts, in the same order.
+    """
+    bounds = [_gain_bounds(K, occ, slack) for K, occ in terms]
+    lower = np.mean([b[0] for b in bounds], axis=0)
+    upper = np.mean([b[1] for b in bounds], axis=0)
+    nth = np.sort(lower)[-min(n, lower.size)]
+    keep = np.flatnonzero(upper >= nth - 1e-9 * max(1.0, abs(nth)))
+    gains = np.full(lower.size, -np.inf)
+    gains[keep] = np.mean([_visited_log_determinants(K, occ[keep]) for K, occ in terms], axis=0)
+    return np.argsort(-gains, kind="stable")[:n]
 
 
 def _drop_null_row(V: NDArray[np.float64], pi: NDArray[np.float64], objective: str) -> NDArray[np.float64]:
@@ -325,6 +423,7 @@ def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.
     return known
 
 
+@learner_entry
 def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 1, candidates: Any = None, *,
                    features: Any = None, criterion: str = "information",
                    policy: str = "boltzmann", demonstrated: str = "count", marginal: bool = False) -> list[NDArray[np.intp]]:
@@ -345,7 +444,10 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
         The expected information gain about the coefficients (:func:`information_gains`,
         D-optimal), the expected reduction of the posterior variance of the state values
         (:func:`value_variance_reductions`), or the expected reduction of the linearised regret
-        of acting on the posterior mean (:func:`regret_reductions`).
+        of acting on the posterior mean (:func:`regret_reductions`). For a residual model's
+        posterior and fewer requests than candidates, the information gain of only the
+        candidates that bounds on the gains cannot exclude from the ``n_requests`` best is
+        computed (docs/maths.md §10): the same starts as the full ranking's first.
     policy : {"boltzmann", "greedy"}, default="boltzmann"
         The policy a demonstration from a start is assumed to follow (:func:`demonstrator_policy`):
         the model's stochastic policy at the posterior mean, or its greedy policy.
@@ -387,6 +489,12 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     for i, post in enumerate(posts):
         known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
         length = _episode_length(post.n_pairs, demos_per_task[i])
+        averaged = [post, *post.members] if marginal else [post]
+        if criterion == "information" and n_requests < cands[i].size and all(_row_space(q) for q in averaged):
+            # a residual posterior's gains over the rows: the n best without every gain (_best_starts)
+            terms = [_row_terms(q, objective, model.beta, cands[i], length, policy, known) for q in averaged]
+            out.append(cands[i][_best_starts(terms, n_requests)])
+            continue
         gains = CRITERIA[criterion](post, objective, model.beta, cands[i], length, policy, known)
         if marginal and post.members:
             gains = np.mean([gains] + [CRITERIA[criterion](m, objective, model.beta, cands[i], length, policy, known)

@@ -503,6 +503,7 @@ class FactIRL(Estimator):
         self.transfer_stop_reason_ = res.reason
 
     @property
+    @learner_entry
     def transfer_posterior_(self) -> list | None:
         """Each new task's Laplace posterior over its coefficients (and residual) after ``transfer``.
 

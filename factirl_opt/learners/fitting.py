@@ -55,8 +55,8 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 def learner_entry(fn: F) -> F:
     """Decorator of the learners' entry points (``fit``, ``transfer``, ``fit_factorial``,
-    ``transfer_coefficients``): BLAS threads limited (:func:`factirl_opt._threads.blas_limited`)
-    and planning caches of the call's own (:func:`factirl_opt.planning.cache.isolated_planning`:
+    ``transfer_coefficients``, ``transfer_posterior_``, ``request_starts``): BLAS threads limited
+    (:func:`factirl_opt._threads.blas_limited`) and planning caches of the call's own (:func:`factirl_opt.planning.cache.isolated_planning`:
     the result does not depend on what the thread planned before)."""
     return isolated_planning(blas_limited(fn))
 
