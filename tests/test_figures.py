@@ -685,3 +685,13 @@ def test_the_guides_model_estimates_are_its_examples_output():
     assert uniform_ruled_out == 0  # "the uniform prior rules out none"
     assert (f"The demonstrations alone rule out {round(100 * ruled_out)}% of the held-out moves" in _flat(GUIDE)
             and f"bring the estimate within {gap:.2f} nats of the true model" in _flat(GUIDE))
+
+
+def test_the_guides_posterior_cost_is_the_committed_measurement():
+    """The posterior's cost the guide quotes: the range of `transfer_posterior_` over one default
+    transfer in the committed runs on the README's "auto" model (one BLAS thread and the machine's)."""
+    ratios = [run["posterior_over_saturation_transfer"]
+              for f in ("results/transfer/posterior_cost.json", "results/transfer/posterior_cost_threads.json")
+              for run in _json(f)["runs"]]
+    low, high = _quoted(GUIDE, r"built when first read \(([\d.]+)-([\d.]+)x one transfer's CPU")
+    assert _agrees(low, min(ratios)) and _agrees(high, max(ratios)), (low, high, ratios)
