@@ -193,6 +193,13 @@ class SparseLUPlanner(Planner):
             return np.moveaxis(out.reshape(self.S * self.A, n, k), 1, 0)
         return (self.P @ np.ascontiguousarray(V.T)).T.reshape(V.shape[0], self.S, self.A)
 
+    def q_from_values(self, R, V):
+        """``Q = R + gamma P V`` (:meth:`Planner.q_from_values`, the same values): the product
+        (S*A, n) scaled in place and added to ``R`` from that layout, without an (n, S, A) copy of it."""
+        X = self.P @ np.ascontiguousarray(V.T)
+        X *= self.gamma
+        return np.add(R, X.T.reshape(V.shape[0], self.S, self.A), out=np.empty(np.shape(R)))
+
     def pullback(self, G):
         return (self.PT @ np.ascontiguousarray(G.reshape(G.shape[0], self.S * self.A).T)).T
 

@@ -134,3 +134,16 @@ def _assert_assembly_is_the_product(planner, policy):
     np.testing.assert_array_equal(fast.indices, slow.indices)
     np.testing.assert_array_equal(fast.data, slow.data)
     return fast
+
+
+def test_q_from_values_is_the_backup_route_bit_for_bit(sparse_transitions):
+    # the sparse planner adds gamma P V to R from the product's own layout: the values of R + gamma P V
+    rng = np.random.default_rng(14)
+    mdp = fo.TabularMDP(sparse_transitions(rng, S=50, A=4), 0.95)
+    pl = planning.get_planner(mdp, "sparse-lu")
+    for n in (1, 7):
+        R = 10.0 * rng.standard_normal((n, mdp.n_states, mdp.n_actions))
+        V = 100.0 * rng.standard_normal((n, mdp.n_states))
+        Q = pl.q_from_values(R, V)
+        np.testing.assert_array_equal(Q, R + pl.gamma * pl.backup(V))
+        assert Q.flags.c_contiguous and Q.shape == R.shape
