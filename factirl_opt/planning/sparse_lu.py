@@ -32,8 +32,12 @@ FIXED_ORDER_MAX_DENSITY = 1.5
 #: greedy policies change in at most WARMUP_MAX_CHANGES states per task, after at most WARMUP_MAX_SWEEPS
 WARMUP_MAX_CHANGES = 4
 WARMUP_MAX_SWEEPS = 100
-#: the sparse planner returns the heap's free pages to the OS after this many bytes of new factorisations (per thread)
-TRIM_BYTES = 16 * 2**20
+#: the sparse planner returns the heap's free pages to the OS after this many bytes of new factorisations (per thread):
+#: at most about this much freed memory stays resident between two returns. Every return makes the pages that
+#: numpy's temporaries and the next factorisations write fault in again: at 16 MiB, 1.8 million page faults and
+#: 11% of the CPU of `bench mce`'s default MCE fit (30 tasks, S = 1024; 304 returns), at 64 MiB 1.0 million and
+#: 6%, for a peak resident size of 504 MB instead of 435 (``results/defaults/README.md`` §10)
+TRIM_BYTES = 64 * 2**20
 
 
 def greedy_actions(Q: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
