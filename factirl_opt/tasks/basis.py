@@ -689,6 +689,13 @@ class StateBasis(SharedBasis):
 
 
 
+def _same_bits(kept: NDArray[np.float64], x: Any) -> bool:
+    """Whether ``x`` is a float64 array of ``kept``'s shape and bits (a signed zero or a NaN's
+    payload counts: a product of the same bits is the same bits)."""
+    return (isinstance(x, np.ndarray) and x.dtype == np.float64 and x.shape == kept.shape
+            and np.array_equal(kept.view(np.int64), np.ascontiguousarray(x).view(np.int64)))
+
+
 class TaskBasis(RewardBasis):
     """One feature matrix per task, ``R_i = Phi_i w_i`` on task i's own environment (docs/maths.md §7).
 
@@ -725,11 +732,10 @@ class TaskBasis(RewardBasis):
     def _times(self, dictionary: NDArray[np.float64]) -> TaskFeatures:
         """``Phi_i D`` of every task (:meth:`TaskFeatures.times`), the last dictionary's kept."""
         last = self._last_times
-        D = np.asarray(dictionary)
-        if last is not None and last[0].shape == D.shape and np.array_equal(last[0], D):
+        if last is not None and _same_bits(last[0], dictionary):
             return last[1]
-        product = self.features.times(D)
-        self._last_times = (np.array(D, dtype=np.float64), product)
+        product = self.features.times(dictionary)
+        self._last_times = (np.array(dictionary, dtype=np.float64), product)
         return product
 
     def _pull_all(self, grads: Any) -> NDArray[np.float64]:
@@ -737,7 +743,7 @@ class TaskBasis(RewardBasis):
         if not isinstance(grads, np.ndarray):
             return self.features.pull(grads)
         last = self._last_pull
-        if last is not None and last[0].shape == grads.shape and np.array_equal(last[0], grads):
+        if last is not None and _same_bits(last[0], grads):
             return last[1].copy()
         G = self.features.pull(grads)
         self._last_pull = (np.array(grads, dtype=np.float64), G.copy())
