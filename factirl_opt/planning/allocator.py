@@ -23,7 +23,7 @@ than that free at the heap's top returns it to the OS, and the next temporaries 
 fault per 4 KiB. At 64 MiB, freed memory stays resident until the sparse planner's next
 :func:`release_free_memory` (``TRIM_BYTES`` of factorisations later). On ``bench mce``'s
 draw the two together took the default MCE fit from 1.8 to 1.0 million page faults and from
-3.9 to 2.0 s of system time; neither alone did (1.8 million each; ``results/defaults/README.md``
+3.9 to 2.0-2.3 s of system time; neither alone did (1.8 million each; ``results/defaults/README.md``
 §11).
 """
 

@@ -36,7 +36,7 @@ WARMUP_MAX_SWEEPS = 100
 #: at most about this much freed memory stays resident between two returns. Every return makes the pages that
 #: numpy's temporaries and the next factorisations write fault in again: at 16 MiB, 1.8 million page faults and
 #: 11% of the CPU of `bench mce`'s default MCE fit (30 tasks, S = 1024; 304 returns), at 64 MiB 1.0 million and
-#: 6%, for a peak resident size of 504 MB instead of 435 (``results/defaults/README.md`` §11)
+#: 7%, for a peak resident size of 490-509 MB instead of 435-440 (``results/defaults/README.md`` §11)
 TRIM_BYTES = 64 * 2**20
 
 
