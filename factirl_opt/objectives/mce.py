@@ -140,19 +140,25 @@ def soft_backup(planner, R, V, beta):
         lse = np.log(np.exp(z).sum(axis=2, keepdims=True))  # in [0, log A]: the max term is exp(0)
         return Q, (m + lse / beta)[:, :, 0], z - lse
     # over the short action axis by whole-array operations, action by action: the same values,
-    # bit for bit, as numpy's reductions along axis 2 (max; a sum of at most 7 terms is in order)
-    m = Q[:, :, 0].copy()
-    for a in range(1, Q.shape[2]):
-        np.maximum(m, Q[:, :, a], out=m)
-    z = Q - m[:, :, None]
+    # bit for bit, as numpy's reductions along axis 2 (max; a sum of at most 7 terms is in order),
+    # on an action-major copy (n, A, S) whose actions are contiguous rows (the same elementwise
+    # arithmetic as on (n, S, A), in fewer strided passes), log_pi copied back to (n, S, A)
+    A = Q.shape[2]
+    z = np.ascontiguousarray(Q.transpose(0, 2, 1))
+    m = z[:, 0].copy()
+    for a in range(1, A):
+        np.maximum(m, z[:, a], out=m)
+    z -= m[:, None, :]
     z *= beta
     e = np.exp(z)
-    total = e[:, :, 0].copy()
-    for a in range(1, Q.shape[2]):
-        total += e[:, :, a]
+    total = e[:, 0].copy()
+    for a in range(1, A):
+        total += e[:, a]
     lse = np.log(total)  # in [0, log A]: the max term is exp(0)
-    z -= lse[:, :, None]
-    return Q, m + lse / beta, z
+    z -= lse[:, None, :]
+    lse /= beta
+    lse += m  # m + lse / beta
+    return Q, lse, np.ascontiguousarray(z.transpose(0, 2, 1))
 
 
 def _scale(V):

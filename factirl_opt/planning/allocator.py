@@ -11,10 +11,20 @@ block carved from them stays unresident where SuperLU never writes.
 
 Process-wide effect. Both calls act on the C allocator of the whole process, not on the
 library's memory alone: inside :func:`mapped_allocations` every thread's ``malloc`` of 64 KiB or
-more is memory-mapped, and on exit glibc's mmap threshold is left at 32 MiB (the ceiling its
-own dynamic threshold reaches, where numpy's temporaries raise it anyway); ``malloc_trim``
-returns every free heap page of the process. Neither changes a computed value. Without glibc
-(macOS, Windows, musl) both do nothing.
+more is memory-mapped, and on exit glibc's mmap threshold is left at 32 MiB and its trim
+threshold at 64 MiB (the ceilings its own dynamic thresholds reach, where numpy's temporaries
+raise them anyway); ``malloc_trim`` returns every free heap page of the process. Neither changes
+a computed value. Without glibc (macOS, Windows, musl) both do nothing.
+
+The trim threshold. Setting the mmap threshold turns glibc's dynamic thresholds off, and the
+trim threshold stays where it was (128 KiB in a fresh process): every ``free`` that leaves more
+than that free at the heap's top returns it to the OS, and the next temporaries of a batch
+(numpy's arrays of 1.2 MB for 30 tasks at S = 1024, A = 5) fault their pages in again, one
+fault per 4 KiB. At 64 MiB, freed memory stays resident until the sparse planner's next
+:func:`release_free_memory` (``TRIM_BYTES`` of factorisations later). On ``bench mce``'s
+draw the two together took the default MCE fit from 1.8 to 1.0 million page faults and from
+3.9 to 2.0-2.3 s of system time; neither alone did (1.8 million each; ``results/defaults/README.md``
+§11).
 """
 
 from __future__ import annotations
@@ -28,7 +38,11 @@ from typing import Any
 
 __all__ = ["mapped_allocations", "release_free_memory"]
 
-_M_MMAP_THRESHOLD = -3  # glibc's mallopt parameter number
+_M_TRIM_THRESHOLD = -1  # glibc's mallopt parameter numbers
+_M_MMAP_THRESHOLD = -3
+#: what :func:`mapped_allocations` leaves glibc's mmap and trim thresholds at (glibc's dynamic ceilings)
+_MMAP_THRESHOLD_BYTES = 32 * 2**20
+_TRIM_THRESHOLD_BYTES = 64 * 2**20
 _GLIBC: list[Any] = []  # [the C library if it is glibc, else None], looked up once
 _LOOKUP_LOCK = threading.Lock()
 
@@ -49,7 +63,8 @@ def _glibc() -> Any:
 @contextlib.contextmanager
 def mapped_allocations() -> Iterator[None]:
     """glibc only: inside the ``with`` block, new allocations of 64 KiB or more are memory-mapped
-    (process-wide, see the module docstring); on exit the threshold is 32 MiB."""
+    (process-wide, see the module docstring); on exit the mmap threshold is 32 MiB and the trim
+    threshold 64 MiB."""
     lib = _glibc()
     if lib is None:
         yield
@@ -58,7 +73,8 @@ def mapped_allocations() -> Iterator[None]:
     try:
         yield
     finally:
-        lib.mallopt(_M_MMAP_THRESHOLD, 32 * 2**20)
+        lib.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES)
+        lib.mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD_BYTES)
 
 
 def release_free_memory() -> None:

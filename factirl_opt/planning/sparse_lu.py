@@ -32,8 +32,12 @@ FIXED_ORDER_MAX_DENSITY = 1.5
 #: greedy policies change in at most WARMUP_MAX_CHANGES states per task, after at most WARMUP_MAX_SWEEPS
 WARMUP_MAX_CHANGES = 4
 WARMUP_MAX_SWEEPS = 100
-#: the sparse planner returns the heap's free pages to the OS after this many bytes of new factorisations (per thread)
-TRIM_BYTES = 16 * 2**20
+#: the sparse planner returns the heap's free pages to the OS after this many bytes of new factorisations (per thread):
+#: at most about this much freed memory stays resident between two returns. Every return makes the pages that
+#: numpy's temporaries and the next factorisations write fault in again: at 16 MiB, 1.8 million page faults and
+#: 11% of the CPU of `bench mce`'s default MCE fit (30 tasks, S = 1024; 304 returns), at 64 MiB 1.0 million and
+#: 7%, for a peak resident size of 490-509 MB instead of 435-440 (``results/defaults/README.md`` §11)
+TRIM_BYTES = 64 * 2**20
 
 
 def greedy_actions(Q: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
@@ -89,12 +93,14 @@ class FactorSystem(PolicySystem):
 
     def _solve(self, B: NDArray[np.float64], transpose: bool) -> NDArray[np.float64]:
         q, qinv = self.planner.order, self.planner.inverse_order
-        Bq = B[:, q]
+        # B[:, q] as a C-contiguous array (the subscript's is not: its blocks were copied one by one),
+        # in C-contiguous blocks: a low-rank update's products (BLAS) round differently with the layout
+        Bq = np.take(B, q, axis=1)
         X = np.empty(Bq.shape)
         for j, solver in enumerate(self.solvers):
-            # C-contiguous blocks: B[:, q] of (n, S, k) is not, and a low-rank update's products
-            # (BLAS) round differently with the layout
             X[j] = solver.solve(np.ascontiguousarray(Bq[j]), transpose)
+        # the subscript's layout (Fortran order for (n, S)): the sums over the solutions downstream
+        # depend on it in their last bits, and so would a fit's results
         return X[:, qinv]
 
     def solve(self, B: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -192,6 +198,13 @@ class SparseLUPlanner(Planner):
             out = self.P @ np.moveaxis(V, 0, 1).reshape(self.S, n * k)
             return np.moveaxis(out.reshape(self.S * self.A, n, k), 1, 0)
         return (self.P @ np.ascontiguousarray(V.T)).T.reshape(V.shape[0], self.S, self.A)
+
+    def q_from_values(self, R, V):
+        """``Q = R + gamma P V`` (:meth:`Planner.q_from_values`, the same values): the product
+        (S*A, n) scaled in place and added to ``R`` from that layout, without an (n, S, A) copy of it."""
+        X = self.P @ np.ascontiguousarray(V.T)
+        X *= self.gamma
+        return np.add(R, X.T.reshape(V.shape[0], self.S, self.A), out=np.empty(np.shape(R)))
 
     def pullback(self, G):
         return (self.PT @ np.ascontiguousarray(G.reshape(G.shape[0], self.S * self.A).T)).T

@@ -29,7 +29,8 @@ Worlds (``SCENARIO``):
     rate of the learnt policies in the environment (``success_rate``) and the deviation.
 
 Prints one JSON line per fit as it ends (and appends it to ``--out``): CPU time of the fit
-(``time.process_time``; run with one BLAS thread), evaluations, outer iterations, status, final
+(``time.process_time``; run with one BLAS thread; its user and system parts, the minor page
+faults, and the process's peak resident size after it, from ``getrusage``), evaluations, outer iterations, status, final
 loss, mean train deviation (eq. 13), the transfer's CPU time, evaluations and the warnings it
 raised, the mean test deviation and the per-task test deviations (for paired comparisons).
 
@@ -41,6 +42,7 @@ import argparse
 import dataclasses
 import json
 import os
+import resource
 import sys
 import time
 import warnings
@@ -154,11 +156,15 @@ def fit_and_transfer(world, name, settings, objective, seed, n_test):
     model = fo.FactIRL(world.k, world.beta, features=world.features, objective=objective, rng=seed + 1, **kw)
     with warnings.catch_warnings(record=True) as fit_warnings:
         warnings.simplefilter("always")
+        r0 = resource.getrusage(resource.RUSAGE_SELF)
         c0 = time.process_time()
         model.fit(*world.fit_args)
         cpu = time.process_time() - c0
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
     train_dev, train_extra = world.score("train", model.rewards_)
     entry = dict(candidate=name, objective=objective, settings=kw, cpu_s=round(cpu, 3),
+                 user_s=round(r1.ru_utime - r0.ru_utime, 3), sys_s=round(r1.ru_stime - r0.ru_stime, 3),
+                 page_faults=r1.ru_minflt - r0.ru_minflt, process_peak_rss_mb=round(r1.ru_maxrss / 1024),
                  n_evaluations=int(model.n_evaluations_), n_iter=int(model.n_iter_), status=str(model.status_),
                  final_loss=float(np.sum(model.loss_)), mean_train_deviation=float(np.mean(train_dev)),
                  fit_warnings=sorted({type(w.message).__name__ for w in fit_warnings}),

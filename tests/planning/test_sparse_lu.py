@@ -134,3 +134,28 @@ def _assert_assembly_is_the_product(planner, policy):
     np.testing.assert_array_equal(fast.indices, slow.indices)
     np.testing.assert_array_equal(fast.data, slow.data)
     return fast
+
+
+def test_q_from_values_is_the_backup_route_bit_for_bit(sparse_transitions):
+    # the sparse planner adds gamma P V to R from the product's own layout: the values of R + gamma P V
+    rng = np.random.default_rng(14)
+    mdp = fo.TabularMDP(sparse_transitions(rng, S=50, A=4), 0.95)
+    pl = planning.get_planner(mdp, "sparse-lu")
+    for n in (1, 7):
+        R = 10.0 * rng.standard_normal((n, mdp.n_states, mdp.n_actions))
+        V = 100.0 * rng.standard_normal((n, mdp.n_states))
+        Q = pl.q_from_values(R, V)
+        np.testing.assert_array_equal(Q, R + pl.gamma * pl.backup(V))
+        assert Q.flags.c_contiguous and Q.shape == R.shape
+
+
+def test_solutions_keep_the_layout_of_the_permuting_subscript(sparse_transitions):
+    # a fit sums over these solutions (e.g. the MCE gradient's pull to features): the same values in
+    # another memory order change those sums in their last bits, and a long fit's results with them
+    rng = np.random.default_rng(15)
+    mdp = fo.TabularMDP(sparse_transitions(rng, S=40, A=3), 0.9)
+    pl = planning.get_planner(mdp, "sparse-lu")
+    system = pl.system(rng.dirichlet(np.ones(3), size=(4, mdp.n_states)))
+    for B in (rng.standard_normal((4, mdp.n_states)), rng.standard_normal((4, mdp.n_states, 2))):
+        for X in (system.solve(B), system.solve_transpose(B)):
+            assert X.strides == B[:, pl.inverse_order].strides

@@ -73,6 +73,34 @@ def test_the_dictionary_products_are_those_of_the_composed_basis(kind):
     np.testing.assert_allclose(basis.point_pull(Y) @ D, gH, rtol=1e-10, atol=1e-12)
 
 
+def test_a_per_task_basis_serves_its_last_products_again_only_for_equal_inputs():
+    import pickle
+
+    rng = np.random.default_rng(4)
+    features = TaskFeatures([rng.normal(size=(S, 4)), rng.normal(size=(S * A, 4))], [S, S], A)
+    basis = TaskBasis(features)
+    D, H, Y = rng.normal(size=(4, 2)), rng.normal(size=(2, 2)), rng.normal(size=(2, S, A))
+
+    def fresh(D, H, Y):  # a new basis: nothing kept
+        return TaskBasis(features).factorial_rewards(D, H), TaskBasis(features).factorial_gradients(Y, D, H)
+
+    for _ in range(2):  # the second time from what was kept: the same bits
+        R, (gH, gD) = basis.factorial_rewards(D, H), basis.factorial_gradients(Y, D, H)
+        R0, (gH0, gD0) = fresh(D, H, Y)
+        for got, want in ((R, R0), (gH, gH0), (gD, gD0)):
+            np.testing.assert_array_equal(got, want)
+    D[1, 0] += 1.0  # changed in place: what was kept is not served
+    Y[1, 2, 0] -= 1.0
+    R, (gH, gD) = basis.factorial_rewards(D, H), basis.factorial_gradients(Y, D, H)
+    R0, (gH0, gD0) = fresh(D, H, Y)
+    for got, want in ((R, R0), (gH, gH0), (gD, gD0)):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(basis.compose(D).rewards(H), R0)
+    copy = pickle.loads(pickle.dumps(basis))  # not pickled
+    assert copy._last_times is None and copy._last_pull is None
+    np.testing.assert_array_equal(copy.factorial_rewards(D, H), R0)
+
+
 def test_a_row_subset_and_the_digest():
     rng = np.random.default_rng(2)
     kinds = _kinds(rng)
