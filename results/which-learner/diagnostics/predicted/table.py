@@ -3,7 +3,8 @@
 Per record: Spearman's rho between each score's candidate means and the candidates' test deviations over every
 candidate (the flat model included: likelihood, deviation, oracle) and over the sharing candidates (lambda > 0,
 where the posterior's predicted regret is defined), the candidate each score ranks first with its test deviation,
-and the CPU cost of the deviation (and of the predicted regret) relative to the likelihood's.
+the CPU cost of the deviation (and of the predicted regret) relative to the likelihood's, and the rho within lambda = inf
+and within lambda = 1 (choosing k).
 """
 import glob
 import json
@@ -53,3 +54,11 @@ for d in records:
     print(f"| {point(d)} | {c['fit']:.1f} | {c['transfer']:.2f} | {c['likelihood']:.2f} | {c['deviation']:.2f} | "
           f"{c['reference']:.2f} | {c['predicted']:.2f} | {r['score']:.2f} | {r['transfers_and_score']:.2f} | "
           f"{r['search']:.3f} | {p['score']:.1f} | {p['transfers_and_score']:.2f} |")
+print()
+print("| point | seed | posterior | lambda | n | rho likelihood | rho deviation | rho predicted regret | rho oracle |")
+print("|---|---|---|---|---|---|---|---|---|")
+for d in records:
+    for lam in ("inf", "1"):
+        r = d["rho"][f"lambda={lam}"]
+        n = sum(1 for c in d["candidates"] if float(c.split(",")[1]) == float(lam))
+        print(f"| {point(d)} | {lam} | {n} | {f(r['likelihood'])} | {f(r['deviation'])} | {f(r['predicted'])} | {f(r['oracle'])} |")
