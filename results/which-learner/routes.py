@@ -1,4 +1,5 @@
-"""Search routes side by side on one which-learner point: python routes.py PRESET N SEED OUT.json [--same-folds] [ROUTE ...]
+"""Search routes side by side on one which-learner point:
+python routes.py PRESET N SEED OUT.json [--same-folds] [--score SCORE] [ROUTE ...]
 
 For the point's adaptive learner (``_point.setup``: the runner's line-up, its flat start and rng), each
 route of ``SharingSearch`` (default: every route of ``selection.ROUTES``) chooses ``(k, lambda)``; the
@@ -11,7 +12,9 @@ excluded on both sides).
 
 Each search draws its folds from the learner's rng, so without ``--same-folds`` the second route's
 folds are another permutation than the first's; with it, every route starts from the rng's state
-before the first route (the same folds and candidate starts as a route run first or alone).
+before the first route (the same folds and candidate starts as a route run first or alone). ``--score``: the
+held-out score of every route run (``SharingSearch(score=...)``; default: the search's default, recorded as
+``score``).
 """
 import copy
 import json
@@ -21,17 +24,21 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from factirl_opt.learners import adaptive  # noqa: E402
-from factirl_opt.learners.selection import ROUTES, SharingSearch  # noqa: E402
+from factirl_opt.learners.selection import DEFAULT_SCORE, ROUTES, SharingSearch  # noqa: E402
 from _point import setup  # noqa: E402
 
 import numpy as np  # noqa: E402
 import factirl_opt as fo  # noqa: E402
 
 P = setup(sys.argv[1:5])
-same_folds = "--same-folds" in sys.argv[5:]
-routes = [a for a in sys.argv[5:] if a != "--same-folds"] or list(ROUTES)
+rest = sys.argv[5:]
+same_folds = "--same-folds" in rest
+score = rest[rest.index("--score") + 1] if "--score" in rest else DEFAULT_SCORE
+routes = [a for i, a in enumerate(rest) if a not in ("--same-folds", "--score") and (i == 0 or rest[i - 1] != "--score")] \
+    or list(ROUTES)
 rng0 = copy.deepcopy(P.learner.rng)
-out = {"preset": P.preset.name, "n_tasks": P.n, "seed": int(sys.argv[3]), "same_folds": same_folds, "routes": {}}
+out = {"preset": P.preset.name, "n_tasks": P.n, "seed": int(sys.argv[3]), "same_folds": same_folds, "score": score,
+       "routes": {}}
 
 
 def fit_and_transfer(k, lam):
@@ -51,7 +58,7 @@ print("factorial", out["factorial"], flush=True)
 for route in routes:
     if same_folds:
         P.learner.set_params(rng=copy.deepcopy(rng0))
-    learner = P.learner.set_params(sharing_search=SharingSearch(route=route))
+    learner = P.learner.set_params(sharing_search=SharingSearch(route=route, score=score))
     t0 = time.process_time()
     found = learner.sharing_search.search(learner, P.tasks, P.flat.rewards_)
     t_search = time.process_time() - t0

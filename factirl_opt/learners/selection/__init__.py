@@ -16,9 +16,10 @@ from .routes import (AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, max_p
                      EvidenceRoute, FullRoute, PCARoute, RaceRoute, RaceWarmRoute, Route, ShortRoute, get_route,
                      route_rule)
 from .rules import DEFAULT_RULE, RULES, SHARE_LEVEL, choose_row
-from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES, held_out_nll, held_out_occupancy_gap
+from .scores import (DEFAULT_SCORE, N_TRANSFER_DEMOS, REFERENCE_SCORES, SCORES, held_out_deviation, held_out_nll,
+                     held_out_occupancy_gap, needs_reference)
 from .search import (RACE_MARGIN, WARM_BUDGET, SearchProgress, bisection_midpoints, choose_sharing, fixed_learner,
-                     flat_start_rewards, score_candidates, search_sharing)
+                     flat_start_rewards, reference_rewards, score_candidates, search_sharing)
 from .sharing_search import SharingSearch
 
 __all__ = ["SharingSearch", "ROUTES", "DEFAULT_ROUTE", "ROUTE_RULES", "route_rule", "SHORT_MAX_ITER",

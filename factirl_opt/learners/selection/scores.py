@@ -6,7 +6,10 @@ MCE: the soft-optimal policy), the policy's inverse temperature profiled out per
 (:func:`held_out_nll`: a reward's scale is not what transfer is judged on); ``"fixed-beta"``
 keeps the learner's ``beta``; ``"objective"`` scores by the learner's objective, which for policy
 matching is the squared policy difference; ``"occupancy"`` compares where the transferred reward's
-optimal policy goes with where the expert went (:func:`held_out_occupancy_gap`).
+optimal policy goes with where the expert went (:func:`held_out_occupancy_gap`); ``"deviation"``
+is the transferred reward's deviation (the benchmark's measure, :func:`factirl_opt.deviation`)
+under a reference reward of the task: the flat learner's reward of its scoring demonstrations,
+fitted once per search (:func:`held_out_deviation`).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from scipy.optimize import minimize_scalar
 from scipy.special import log_softmax
 
 from ..._validation import check_rewards
+from ...evaluation import deviation
 from ...exceptions import ValidationError
 from ...planning import get_planner, optimal_q
 from ...tasks.demonstrations import empirical_statistics
@@ -28,7 +32,8 @@ from ...tasks.trajectories import parse_demonstrations
 from ..em import log_policies
 from ..fitting import task_objective
 
-__all__ = ["N_TRANSFER_DEMOS", "SCORES", "DEFAULT_SCORE", "held_out_nll", "held_out_occupancy_gap"]
+__all__ = ["N_TRANSFER_DEMOS", "SCORES", "REFERENCE_SCORES", "DEFAULT_SCORE", "needs_reference", "held_out_nll",
+           "held_out_occupancy_gap", "held_out_deviation"]
 
 #: demonstrations a held-out task is transferred from (the one-demonstration use)
 N_TRANSFER_DEMOS = 1
@@ -36,10 +41,20 @@ N_TRANSFER_DEMOS = 1
 #: policy model with its inverse temperature fitted per task (:func:`held_out_nll`), the same
 #: with the learner's ``beta``, the learner's own objective, or the distance between the
 #: occupancies of the transferred reward's optimal policy and of the demonstrations
-#: (:func:`held_out_occupancy_gap`)
-SCORES = ("likelihood", "fixed-beta", "objective", "occupancy")
+#: (:func:`held_out_occupancy_gap`), or the transferred reward's deviation under a reference reward
+#: of the task (:func:`held_out_deviation`)
+SCORES = ("likelihood", "fixed-beta", "objective", "occupancy", "deviation")
+#: the scores that judge a transfer against a reference reward of each held-out task, which the
+#: search fits once (:func:`~factirl_opt.learners.selection.search.reference_rewards`)
+REFERENCE_SCORES = ("deviation",)
 #: the score ``FactIRL.fit`` uses
 DEFAULT_SCORE = "likelihood"
+
+
+def needs_reference(score: str) -> bool:
+    """Whether the held-out ``score`` (a name of :data:`SCORES`) judges a transfer against a
+    reference reward of each held-out task (:data:`REFERENCE_SCORES`)."""
+    return score in REFERENCE_SCORES
 
 
 def _one_reward(mdp: Any, rewards: ArrayLike) -> np.ndarray:
@@ -163,12 +178,61 @@ def _occupancy_gap(mdp: Any, episodes: list, R: np.ndarray, planner: str) -> flo
     return float(np.abs(learnt - expert).sum())
 
 
+def held_out_deviation(mdp: Any, reference: ArrayLike, rewards: ArrayLike, planner: str = "auto") -> float:
+    """The deviation of a transferred reward under a reference reward of the task, in units of the reference's range.
+
+    ``deviation(mdp, R_ref / (max R_ref - min R_ref), rewards)`` (:func:`factirl_opt.deviation`,
+    the which-learner benchmark's measure of a transfer with the true reward in place of
+    ``R_ref``): how much value, mean over the states, acting greedily on ``rewards`` loses
+    against the optimal policy of the reference. In the sharing search the reference of a
+    held-out task is the flat learner's reward of its scoring demonstrations (those the transfer
+    did not see; :func:`~factirl_opt.learners.selection.search.reference_rewards`): one fit per
+    task for every candidate, so the candidates are compared on the same stand-in for the true
+    reward, and in the benchmark's units rather than the likelihood's. The range makes the score
+    invariant to the reference's scale and offset (the flat learner's scale follows how
+    deterministic the demonstrations look), so every held-out task weighs alike; a constant
+    reference (every policy optimal) scores 0.
+
+    Parameters
+    ----------
+    mdp : TabularMDP
+    reference : array, shape (S, A) or (S,)
+        The task's reference reward.
+    rewards : array, shape (S, A) or (S,)
+        The transferred reward.
+    planner : str, default="auto"
+
+    Returns
+    -------
+    float
+        In ``[0, 1 / (1 - gamma)]``.
+
+    Raises
+    ------
+    ValidationError
+        ``reference`` or ``rewards`` not finite, or not one task's reward of the MDP's shape.
+    """
+    return _reference_deviation(mdp, _one_reward(mdp, reference), _one_reward(mdp, rewards), planner)
+
+
+def _reference_deviation(mdp: Any, ref: np.ndarray, R: np.ndarray, planner: str) -> float:
+    """:func:`held_out_deviation` of validated rewards ``ref`` and ``R`` (S, A)."""
+    spread = float(ref.max() - ref.min())
+    if spread == 0.0:
+        return 0.0
+    return float(deviation(mdp, ref / spread, R, planner=planner))
+
+
 def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
-           score: str = DEFAULT_SCORE, transfer_max_iter: int | None = None) -> np.ndarray:
+           score: str = DEFAULT_SCORE, transfer_max_iter: int | None = None, reference: Any = None) -> np.ndarray:
     """Held-out score of tasks ``idx`` of ``tasks``: transfer from their first t demonstrations, then, on the
     others, :func:`held_out_nll` (``score="likelihood"``: tempered; ``"fixed-beta"``: not), the
-    learner's objective (``"objective"``) or :func:`held_out_occupancy_gap` (``"occupancy"``);
-    one value per task."""
+    learner's objective (``"objective"``), :func:`held_out_occupancy_gap` (``"occupancy"``) or
+    :func:`held_out_deviation` under ``reference`` (``"deviation"``: the reference rewards of the
+    tasks ``idx``, in that order); one value per task."""
+    if needs_reference(score) and (reference is None or len(reference) != len(idx)):
+        raise ValidationError(f"score={score!r} needs a reference reward per held-out task ({len(idx)}); got "
+                              f"{'none' if reference is None else len(reference)}")
     held = tasks.subset(idx)
     model._transfer_tasks(held.episodes(0, t), max_iter=transfer_max_iter)
     rewards = model.transfer_rewards_
@@ -179,6 +243,8 @@ def _score(model: Any, tasks: TaskSet, idx: Sequence[int] | np.ndarray, t: int,
         R = _one_reward(one, rewards[j])
         if score == "occupancy":
             out[j] = _occupancy_gap(one, rest.demonstrations[j].episodes(), R, model._group("execution").planner)
+        elif score == "deviation":
+            out[j] = _reference_deviation(one, _one_reward(one, reference[j]), R, model._group("execution").planner)
         elif score == "objective":
             obj = task_objective(rest.subset([j]), model.beta, model.objective, model._group("execution").planner)
             out[j] = obj.loss_and_grad(np.asarray(rewards[j])[None])[0][0]

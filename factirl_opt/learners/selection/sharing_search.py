@@ -75,7 +75,11 @@ class SharingSearch(Estimator):
     route : str, default="evidence"
         :data:`~factirl_opt.learners.selection.routes.ROUTES`: how candidates are fitted and on which folds they are scored.
     score : str, default="likelihood"
-        The held-out score (:data:`~factirl_opt.learners.selection.SCORES`).
+        The held-out score (:data:`~factirl_opt.learners.selection.SCORES`). ``"deviation"``: each
+        held-out transfer's deviation (the benchmark's measure) under a reference reward of the
+        task, the flat learner's reward of the demonstrations the transfer did not see, fitted
+        once per search (:func:`~factirl_opt.learners.selection.held_out_deviation`); the other
+        scores judge how the transferred reward explains those demonstrations.
     rule : str or None, default=None
         The choice rule (:data:`~factirl_opt.learners.selection.RULES`); None: the route's own
         (:func:`~factirl_opt.learners.selection.routes.route_rule`: ``"fewest-within-se"`` on the ``"evidence"`` route,
