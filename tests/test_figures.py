@@ -101,6 +101,8 @@ def test_the_paper_presets_duration_is_its_manifests_everywhere():
 
     minutes = round(json.loads((ROOT / "results/manifest.json").read_text())["wall_time_seconds"] / 60)
     guide = (ROOT / "docs/guide.md").read_text()
+    results = (ROOT / "results/README.md").read_text()
+    assert f"--out results   # {minutes} min on 2 busy cores (manifest.json)" in results
     for where, text in (("README", README), ("guide", guide), ("reproduce --list", PRESET_DESCRIPTIONS["paper"])):
         quoted = re.findall(r"(\d+) min(?:utes)?\b", " ".join(text.split()).split("--preset paper", 1)[-1][:400])
         assert quoted and int(quoted[0]) == minutes, (where, quoted, minutes)
@@ -168,6 +170,9 @@ def test_the_guides_quick_reproduction_time_is_its_committed_run():
     guide = " ".join((ROOT / "docs/guide.md").read_text().split())
     seconds = round(json.loads((ROOT / "results/setup/quick-manifest.json").read_text())["wall_time_seconds"])
     assert f"its runs took {seconds} s of wall time in a fresh virtualenv, `results/setup/quick-manifest.json`" in guide
+    results = " ".join((ROOT / "results/README.md").read_text().split())
+    assert f"every learner and figure, {seconds} s (setup/quick-manifest.json)" in results
+    assert f"took {seconds} s of wall time for its runs in a fresh virtualenv" in results
 
 
 def test_the_which_learner_costs_and_the_fixed_k_example_are_the_benchmarks():
