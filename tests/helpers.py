@@ -118,3 +118,16 @@ def transfer_tasks_on_a_grid(size, n_train, n_test, length, rng):
     train = synthetic_tasks(mdp, n_train, 4, length, n_primitives=2, rng=rng)
     test = synthetic_tasks(mdp, n_test, 1, length, dictionary=train.dictionary, rng=rng + 1)
     return mdp, train, test
+
+
+def two_primitive_feature_tasks(n_tasks, n_demos, seed):
+    """``n_tasks`` tasks on a 3x3 grid whose state rewards mix 2 random primitives over 4 random
+    state features, ``n_demos`` demonstrations of 6 steps each, all drawn from ``seed``:
+    ``(mdp, F (9, 4), R (n_tasks, 9, 4), demos)``."""
+    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
+    rng = np.random.default_rng(seed)
+    F = rng.random((9, 4))
+    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(n_tasks, 2))
+    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(n_tasks, 9, 4)
+    return mdp, F, R, fo.sample_demonstrations(mdp, R, n_demos, 6, rng=rng)
+

@@ -16,17 +16,14 @@ from factirl_opt.learners.fitting import learner_tasks
 from factirl_opt.learners.start import flat_solver
 from factirl_opt.planning import get_planner
 from factirl_opt.exceptions import ConvergenceWarning, InterruptedFitWarning, ValidationError
+from helpers import two_primitive_feature_tasks
 
 
 @pytest.fixture(scope="module")
 def data():
     """Six tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(11)
-    F = rng.random((9, 4))
-    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(6, 2))
-    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(6, 9, 4)
-    return mdp, F, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+    mdp, F, _, demos = two_primitive_feature_tasks(6, 3, seed=11)
+    return mdp, F, demos
 
 
 def _table(model):

@@ -10,17 +10,14 @@ from factirl_opt.exceptions import ConvergenceWarning, PersistenceError, Validat
 from factirl_opt.learners import clone, selection
 from factirl_opt.learners.selection import routes, rules, scores, search
 from factirl_opt.learners.selection import ROUTES, SharingSearch
+from helpers import two_primitive_feature_tasks
 
 
 @pytest.fixture(scope="module")
 def data():
     """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(5)
-    F = rng.random((9, 4))
-    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(8, 2))
-    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(8, 9, 4)
-    return mdp, F, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+    mdp, F, _, demos = two_primitive_feature_tasks(8, 3, seed=5)
+    return mdp, F, demos
 
 
 def _auto(F, **search):

@@ -16,6 +16,7 @@ from factirl_opt.learners.selection.evidence import (
 from factirl_opt.learners.fitting import learner_tasks
 from factirl_opt.learners.selection import ROUTES, SharingSearch
 from factirl_opt.tasks.task_set import task_set
+from helpers import two_primitive_feature_tasks
 
 
 def _low_rank(n, d, k, signal, rng):
@@ -140,12 +141,7 @@ def test_plausible_ranks_are_within_the_bayes_factor_of_the_best():
 @pytest.fixture(scope="module")
 def data():  # 3 folds: 5 training tasks at least
     """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 3 demonstrations each."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(5)
-    F = rng.random((9, 4))
-    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(8, 2))
-    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(8, 9, 4)
-    return mdp, F, R, fo.sample_demonstrations(mdp, R, 3, 6, rng=rng)
+    return two_primitive_feature_tasks(8, 3, seed=5)
 
 
 def test_the_points_are_what_the_pca_start_decomposes(data):

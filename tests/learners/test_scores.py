@@ -11,17 +11,13 @@ from factirl_opt.learners import selection
 from factirl_opt.learners.fitting import learner_tasks
 from factirl_opt.learners.selection import scores, search
 from factirl_opt.learners.start import flat_solver
+from helpers import two_primitive_feature_tasks
 
 
 @pytest.fixture(scope="module")
 def two_primitives():
     """Eight tasks on a 3x3 grid from a 2-primitive dictionary on 4 state features, 4 demonstrations each."""
-    mdp = fo.GridWorld(size=3, p_success=0.7, gamma=0.9)
-    rng = np.random.default_rng(11)
-    F = rng.random((9, 4))
-    D, H = rng.normal(size=(4, 2)), 3.0 * rng.normal(size=(8, 2))
-    R = np.repeat((H @ D.T) @ F.T, 4, axis=1).reshape(8, 9, 4)
-    return mdp, F, R, fo.sample_demonstrations(mdp, R, 4, 6, rng=rng)
+    return two_primitive_feature_tasks(8, 4, seed=11)
 
 
 def _deviation_search(mdp, F, demos, **kw):
