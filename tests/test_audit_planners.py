@@ -9,6 +9,9 @@ discounts, an absorbing state in a sparse model, Objectworld, both objectives, a
 10x10 grid at gamma 0.999 on the rewards where the square bound is needed.
 """
 
+import importlib.util
+import pathlib
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -40,22 +43,24 @@ def tolerances(gamma):
     return 1e-13 / (1.0 - gamma), max(1e-13 / (1.0 - gamma), 1e-15 / (1.0 - gamma) ** 2)
 
 
-def relative(a, b):
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+def _agreement_script():
+    """results/planners/agreement.py, whose per-quantity evaluation this audit shares."""
+    path = pathlib.Path(__file__).resolve().parents[1] / "results/planners/agreement.py"
+    spec = importlib.util.spec_from_file_location("planner_agreement", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+AGREEMENT = _agreement_script()
+relative = AGREEMENT.relative
 
 
 def evaluations(mdp, R, R_other, demos, planner):
-    Q, greedy = fo.optimal_q(mdp, R, planner=planner)
-    mu, pi = fo.empirical_statistics(mdp, demos)
-    pm, pm_grad = fo.policy_matching_loss(mdp, R, mu, pi, beta=5.0, planner=planner)
-    mce, mce_grad = fo.mce_loss(mdp, R, mu, pi, beta=5.0, planner=planner)
-    return greedy, {
-        "Q": Q, "V": fo.policy_evaluation(mdp, R, greedy, planner=planner), "policy matching": pm,
-        "its gradient": pm_grad, "mce": mce, "mce gradient": mce_grad,
-        "deviation": fo.deviation(mdp, R, R_other, planner=planner),
-        "soft deviation": fo.soft_deviation(mdp, R, R_other, beta=5.0, planner=planner),
-    }
+    """The agreement script's quantities, and the soft deviation."""
+    greedy, quantities = AGREEMENT.evaluations(mdp, R, R_other, demos, planner)
+    quantities["soft deviation"] = fo.soft_deviation(mdp, R, R_other, beta=5.0, planner=planner)
+    return greedy, quantities
 
 
 def differences(mdp, rng):

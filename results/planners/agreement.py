@@ -48,42 +48,47 @@ def evaluations(mdp, R, R_other, demos, planner):
                     "deviation": fo.deviation(mdp, R, R_other, planner=planner)}
 
 
-out = {"same_rewards": {}, "fit": {}}
-for world, make in WORLDS.items():
-    mdp = make()
-    worst = {"values": 0.0, "losses, gradients and scores": 0.0, "greedy_equal": True, "by_quantity": {}}
-    for seed in range(3):
-        rng = np.random.default_rng(seed)
-        R = rng.normal(size=(3, mdp.n_states, mdp.n_actions))
-        demos = fo.sample_demonstrations(mdp, R, 3, 5, rng)
-        fo.planning.clear_caches(mdp)
-        greedy_dense, dense = evaluations(mdp, R, R[::-1] * 0.5, demos, "dense")
-        greedy_sparse, sparse = evaluations(mdp, R, R[::-1] * 0.5, demos, "sparse-lu")
-        for k in dense:
-            worst["by_quantity"][k] = max(worst["by_quantity"].get(k, 0.0), relative(sparse[k], dense[k]))
-        worst["greedy_equal"] &= bool(np.array_equal(greedy_dense, greedy_sparse))
-        worst["values"] = max(worst["values"], *(relative(sparse[k], dense[k]) for k in VALUES))
-        worst["losses, gradients and scores"] = max(worst["losses, gradients and scores"],
-                                                    *(relative(sparse[k], dense[k]) for k in LOSSES))
-    out["same_rewards"][world] = worst
+def main():
+    out = {"same_rewards": {}, "fit": {}}
+    for world, make in WORLDS.items():
+        mdp = make()
+        worst = {"values": 0.0, "losses, gradients and scores": 0.0, "greedy_equal": True, "by_quantity": {}}
+        for seed in range(3):
+            rng = np.random.default_rng(seed)
+            R = rng.normal(size=(3, mdp.n_states, mdp.n_actions))
+            demos = fo.sample_demonstrations(mdp, R, 3, 5, rng)
+            fo.planning.clear_caches(mdp)
+            greedy_dense, dense = evaluations(mdp, R, R[::-1] * 0.5, demos, "dense")
+            greedy_sparse, sparse = evaluations(mdp, R, R[::-1] * 0.5, demos, "sparse-lu")
+            for k in dense:
+                worst["by_quantity"][k] = max(worst["by_quantity"].get(k, 0.0), relative(sparse[k], dense[k]))
+            worst["greedy_equal"] &= bool(np.array_equal(greedy_dense, greedy_sparse))
+            worst["values"] = max(worst["values"], *(relative(sparse[k], dense[k]) for k in VALUES))
+            worst["losses, gradients and scores"] = max(worst["losses, gradients and scores"],
+                                                        *(relative(sparse[k], dense[k]) for k in LOSSES))
+        out["same_rewards"][world] = worst
 
-mdp = fo.GridWorld(size=10)
-tasks = fo.synthetic_tasks(mdp, 10, 10, 10, rng=7)
-fits = {}
-for planner in PLANNERS:
-    fo.planning.clear_caches(mdp)
-    execution = fo.Execution(planner=planner)
-    flat = fo.GradIRL(max_iter=100, stol=0.0, execution=execution).fit(mdp, tasks.demos)
-    fact = fo.FactIRL(n_primitives=5, rng=0, execution=execution, **fo.PAPER_SETTINGS).fit(
-        mdp, tasks.demos, flat_rewards=flat.rewards_)
-    fits[planner] = (flat, fact)
-(flat_d, fact_d), (flat_s, fact_s) = fits["dense"], fits["sparse-lu"]
-out["fit"] = {
-    "gradirl_rewards": relative(flat_s.rewards_, flat_d.rewards_),
-    "factirl_rewards": relative(fact_s.rewards_, fact_d.rewards_),
-    "gradirl_loss": relative(flat_s.loss_, flat_d.loss_),
-    "factirl_loss": relative(fact_s.loss_, fact_d.loss_),
-    "gradirl_deviation": [float(fo.deviation(mdp, tasks.rewards, f.rewards_).mean()) for f in (flat_d, flat_s)],
-    "factirl_deviation": [float(fo.deviation(mdp, tasks.rewards, f.rewards_).mean()) for f in (fact_d, fact_s)],
-}
-print(json.dumps(out, indent=1))
+    mdp = fo.GridWorld(size=10)
+    tasks = fo.synthetic_tasks(mdp, 10, 10, 10, rng=7)
+    fits = {}
+    for planner in PLANNERS:
+        fo.planning.clear_caches(mdp)
+        execution = fo.Execution(planner=planner)
+        flat = fo.GradIRL(max_iter=100, stol=0.0, execution=execution).fit(mdp, tasks.demos)
+        fact = fo.FactIRL(n_primitives=5, rng=0, execution=execution, **fo.PAPER_SETTINGS).fit(
+            mdp, tasks.demos, flat_rewards=flat.rewards_)
+        fits[planner] = (flat, fact)
+    (flat_d, fact_d), (flat_s, fact_s) = fits["dense"], fits["sparse-lu"]
+    out["fit"] = {
+        "gradirl_rewards": relative(flat_s.rewards_, flat_d.rewards_),
+        "factirl_rewards": relative(fact_s.rewards_, fact_d.rewards_),
+        "gradirl_loss": relative(flat_s.loss_, flat_d.loss_),
+        "factirl_loss": relative(fact_s.loss_, fact_d.loss_),
+        "gradirl_deviation": [float(fo.deviation(mdp, tasks.rewards, f.rewards_).mean()) for f in (flat_d, flat_s)],
+        "factirl_deviation": [float(fo.deviation(mdp, tasks.rewards, f.rewards_).mean()) for f in (fact_d, fact_s)],
+    }
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
