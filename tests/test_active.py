@@ -43,6 +43,18 @@ def test_start_occupancy_counts_expected_visits(grid3):
     np.testing.assert_allclose(start_occupancy(pl, pi, np.array([2]), 2)[0], np.eye(grid3.n_states)[2] + P_pi[2])
 
 
+@pytest.mark.parametrize("planner", ["dense", "sparse-lu"])
+@pytest.mark.parametrize("n_starts, length", [(1, 6), (9, 2), (9, 6)])  # the pullback per step; the explicit P_pi
+def test_start_occupancy_routes_are_the_matrix_powers(grid3, planner, n_starts, length):
+    pl = get_planner(grid3, planner)
+    pi = np.random.default_rng(0).dirichlet(np.ones(grid3.n_actions), size=grid3.n_states)
+    T = grid3.transitions if isinstance(grid3.transitions, np.ndarray) else grid3.transitions.toarray()
+    P_pi = np.einsum("sa,sat->st", pi, T.reshape(grid3.n_states, grid3.n_actions, grid3.n_states))
+    starts = np.arange(n_starts) % grid3.n_states
+    expected = sum(np.linalg.matrix_power(P_pi, t) for t in range(length))[starts]
+    np.testing.assert_allclose(start_occupancy(pl, pi, starts, length), expected, rtol=1e-12, atol=1e-14)
+
+
 @pytest.mark.parametrize("objective", ["policy-matching", "mce"])
 def test_request_starts_ranks_by_information_gain(fitted, objective):
     mdp, test, models = fitted

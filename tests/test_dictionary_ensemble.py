@@ -1,5 +1,8 @@
 """The dictionary ensemble and the misfit noise level of the transfer posterior (factirl_opt.learners.dictionary_ensemble)."""
 
+import copy
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -7,7 +10,10 @@ import factirl_opt as fo
 from helpers import transfer_tasks_on_a_grid
 from factirl_opt.exceptions import ValidationError
 from factirl_opt.learners.dictionary_ensemble import dictionary_ensemble, resampled_tasks
+from factirl_opt.learners import posterior as posterior_module
 from factirl_opt.learners.noise_levels import noise_reference
+from factirl_opt.learners.posterior import member_posteriors
+from factirl_opt.learners.transfer_likelihood import repeated_problem, transfer_problem
 
 pytestmark = pytest.mark.filterwarnings("ignore::factirl_opt.exceptions.MaxIterWarning")  # short fits
 
@@ -169,3 +175,43 @@ def test_a_given_start_is_resampled_with_its_tasks(tasks):
     model = fo.FactIRL(n_primitives=2, max_iter=3, rng=0, posterior=fo.PosteriorSettings(n_dictionaries=2),
                        start=fo.Start(init=(start.dictionary_, start.coefficients_))).fit(mdp, train.demos)
     assert model.dictionary_ensemble_.shape == (2, *model.dictionary_.shape)
+
+
+@pytest.mark.parametrize("params", [{}, {"posterior__noise": "misfit"}, {"residual_penalty": 0.5},
+                                    {"objective": "mce"}])
+@pytest.mark.parametrize("batch_rows", [64, 8, 16])
+def test_batched_members_are_the_members_one_at_a_time(tasks, params, batch_rows, monkeypatch):
+    # every (member, task) pair iterated in one problem, or whole members per batch, gives each
+    # member's posterior as its own laplace_posteriors call does
+    params = dict(params)
+    posterior = fo.PosteriorSettings(n_dictionaries=3, noise=params.pop("posterior__noise", "multinomial"))
+    model = _fit(tasks, posterior=posterior, **params)
+    monkeypatch.setattr(posterior_module, "MEMBER_BATCH_ROWS", batch_rows)
+    mdp, _, test = tasks
+    problem = transfer_problem(model, mdp, test.demos)
+    conditional = [copy.copy(q) for q in model.transfer_posterior_]
+    one, each = ([copy.copy(q) for q in conditional] for _ in range(2))
+    reference = noise_reference(model)
+    member_posteriors(model, problem, one, reference, batched=True)
+    member_posteriors(model, problem, each, reference, batched=False)
+    for q1, q2 in zip(one, each):
+        assert len(q1.members) == len(q2.members) == 3
+        for b, (m1, m2) in enumerate(zip(q1.members, q2.members)):
+            assert m1.dictionary is model.dictionary_ensemble_[b] or np.array_equal(m1.dictionary, model.dictionary_ensemble_[b])
+            np.testing.assert_allclose(m1.mean, m2.mean, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(m1.covariance, m2.covariance, rtol=1e-9, atol=1e-14)
+            assert m1.scaling == pytest.approx(m2.scaling, rel=1e-12)
+    # not vacuous: the members differ from one another and from the conditional posterior
+    means = np.array([[m.mean for m in q.members] for q in one])
+    assert not np.allclose(means[:, 0], means[:, 1]) and not np.allclose(means[:, 0], np.array([q.mean for q in conditional]))
+
+
+def test_batched_members_need_the_task_set(tasks):
+    model = _fit(tasks, posterior=fo.PosteriorSettings(n_dictionaries=2))
+    mdp, _, test = tasks
+    problem = transfer_problem(model, mdp, test.demos)
+    with pytest.raises(ValidationError, match="task set"):
+        repeated_problem(model, dataclasses.replace(problem, tasks=None), model.dictionary_ensemble_)
+    # a problem without it: the members one at a time
+    posts = member_posteriors(model, dataclasses.replace(problem, tasks=None), [copy.copy(q) for q in model.transfer_posterior_])
+    np.testing.assert_allclose(posts[0].members[1].mean, model.transfer_posterior_[0].members[1].mean, rtol=1e-9, atol=1e-12)

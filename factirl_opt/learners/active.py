@@ -81,12 +81,28 @@ def state_information(post: LaplacePosterior, objective: str, beta: float) -> tu
 
 
 def start_occupancy(planner: Any, pi: NDArray[np.float64], starts: NDArray[np.intp], length: int) -> NDArray[np.float64]:
-    """Expected visits ``occ[c, y]`` (c, S) of an ``length``-step episode from each start under policy pi (S, A)."""
-    S = pi.shape[0]
-    X = np.zeros((len(starts), S))
-    X[np.arange(len(starts)), starts] = 1.0
+    """Expected visits ``occ[c, y]`` (c, S) of an ``length``-step episode from each start under policy pi (S, A).
+
+    Each step propagates the candidates' state distributions ``X`` (c, S) by ``P_pi``: by the
+    planner's pullback of ``pi X`` (c, S*A rows), or, when the candidates' steps outweigh it
+    (``c (length - 1) (A - 1) > S A``) and ``P_pi`` is no larger than those rows, as ``X P_pi`` with
+    ``P_pi`` (S, S) the pullback of ``S`` rows once: the same visits to round-off.
+    """
+    S, A = pi.shape
+    c = len(starts)
+    X = np.zeros((c, S))
+    X[np.arange(c), starts] = 1.0
     occ = np.zeros_like(X)
-    P = np.broadcast_to(pi, (len(starts), *pi.shape))
+    if c * (length - 1) * (A - 1) > S * A and S <= c * A:
+        E = np.zeros((S, S, A))
+        E[np.arange(S), np.arange(S)] = pi
+        P_pi = planner.pullback(E)
+        for t in range(length):
+            occ += X
+            if t + 1 < length:
+                X = X @ P_pi
+        return occ
+    P = np.broadcast_to(pi, (c, *pi.shape))
     for t in range(length):
         occ += X
         if t + 1 < length:

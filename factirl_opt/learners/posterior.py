@@ -40,7 +40,7 @@ from ..tasks.basis import as_basis
 from .noise_levels import noise_ratios, noise_reference
 from .transfer import coefficient_prior
 from .transfer_likelihood import (TransferProblem, _basis, _evaluate, _evaluate_lowrank, _pad_rows, likelihood_scaling,
-                                  tasks_problem, transfer_problem)
+                                  repeated_problem, tasks_problem, transfer_problem)
 
 __all__ = ["LaplacePosterior", "laplace_posteriors", "transfer_posterior", "cached_transfer_posterior", "keep_transfer",
            "TransferState", "has_prior", "model_posteriors", "member_posteriors",
@@ -56,6 +56,10 @@ MAP_TOL = 1e-3
 #: objective (a kink of the loss, where the greedy policy of ``Q*`` changes, or rounding)
 MAP_DAMPING = 1.0
 MAP_MAX_DAMPING = 1e3
+#: (member, task) pairs of a dictionary ensemble's posteriors iterated together at most (:func:`member_posteriors`:
+#: whole members per batch, at least one); larger batches save the per-call overhead of few tasks but no
+#: planning, and cost more than they save beyond about this many
+MEMBER_BATCH_ROWS = 64
 
 
 @dataclasses.dataclass(eq=False)
@@ -206,13 +210,14 @@ def _cholesky(C):
 
 
 def _prior_terms(x, k, m, P, s, lam):
-    """Prior value (r,) and gradient (r, d) at x (r, d) on the likelihood's scale ``s`` (r,); its precision,
-    ``blockdiag(P, 2 s lambda I)``, is :class:`_Curvature`'s."""
+    """Prior value (r,) and gradient (r, d) at x (r, d) on the likelihood's scale ``s`` (r,), each row with its
+    own prior mean ``m`` (r, k) and precision ``P`` (r, k, k); its precision, ``blockdiag(P, 2 s lambda I)``,
+    is :class:`_Curvature`'s."""
     r, d = x.shape
     dh = x[:, :k] - m
-    val = 0.5 * np.einsum("rk,kl,rl->r", dh, P, dh)
+    val = 0.5 * np.einsum("rk,rkl,rl->r", dh, P, dh)
     grad = np.zeros((r, d))
-    grad[:, :k] = dh @ P
+    grad[:, :k] = np.einsum("rk,rkl->rl", dh, P)
     if d > k:
         val = val + s * lam * np.sum(x[:, k:] ** 2, axis=1)
         grad[:, k:] = 2.0 * (s * lam)[:, None] * x[:, k:]
@@ -256,7 +261,8 @@ def lowrank_solve(Ch: NDArray[np.float64], cd: NDArray[np.float64], Z: NDArray[n
 class _Curvature:
     """The precision ``Lambda = s G + blockdiag(P, 2 s lambda I)`` of a batch of tasks, dense (``G`` (r, d, d))
     or low rank (``G = 2 Z^T Z``, ``Z`` (r, m, d) the live rows of the residuals' Jacobian; the residual
-    model under policy matching): its products, its solves, and its damped solves (module docstring)."""
+    model under policy matching), each task with its own prior precision ``P`` (n, k, k): its products, its
+    solves, and its damped solves (module docstring)."""
 
     def __init__(self, G, s, P, lam, k, lowrank):
         self.G, self.s, self.P, self.lam, self.k, self.lowrank = G, s, P, lam, k, lowrank
@@ -265,11 +271,11 @@ class _Curvature:
         """``(C_h, c_delta, Z)`` of the tasks ``a``, damped by ``mu`` (a,): ``Lambda + mu diag(Lambda)``."""
         k, s = self.k, self.s[a]
         Z = np.sqrt(2.0 * s)[:, None, None] * self.G[a]
-        Ch = np.broadcast_to(self.P, (len(a), k, k)).copy()
+        Ch = self.P[a].copy()
         cd = np.broadcast_to((2.0 * s * self.lam)[:, None], (len(a), Z.shape[2] - k)).copy()
         if mu is not None:
             diag = np.einsum("rmd,rmd->rd", Z, Z)
-            diag[:, :k] += np.diagonal(self.P)
+            diag[:, :k] += np.diagonal(self.P[a], axis1=1, axis2=2)
             diag[:, k:] += cd
             Ch[:, np.arange(k), np.arange(k)] += mu[:, None] * diag[:, :k]
             cd = cd + mu[:, None] * diag[:, k:]
@@ -278,7 +284,7 @@ class _Curvature:
     def _dense(self, a):
         s, d = self.s[a], self.G.shape[-1]
         Lam = s[:, None, None] * self.G[a]
-        Lam[:, :self.k, :self.k] += self.P
+        Lam[:, :self.k, :self.k] += self.P[a]
         if d > self.k:
             idx = np.arange(self.k, d)
             Lam[:, idx, idx] += 2.0 * (s * self.lam)[:, None]
@@ -300,7 +306,7 @@ class _Curvature:
             return np.einsum("rde,re->rd", self._dense(a), v)
         Ch, cd, Z = self._factors(a)
         out = np.einsum("rmd,rm->rd", Z, np.einsum("rmd,rd->rm", Z, v))
-        out[:, :self.k] += v[:, :self.k] @ self.P.T
+        out[:, :self.k] += np.einsum("rkl,rl->rk", self.P[a], v[:, :self.k])
         out[:, self.k:] += cd * v[:, self.k:]
         return out
 
@@ -347,7 +353,14 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     -------
     list of n LaplacePosterior
     """
-    m, P = prior
+    m, P = (np.asarray(v, dtype=np.float64) for v in prior)
+    n = problem.n_tasks
+    return _laplace_rows(problem, np.broadcast_to(m, (n, *m.shape)), np.broadcast_to(P, (n, *P.shape)), start, lowrank,
+                         noise_reference)
+
+
+def _laplace_rows(problem, m, P, start=None, lowrank=None, noise_reference=None):
+    """:func:`laplace_posteriors` with a prior per task: means ``m`` (n, k), precisions ``P`` (n, k, k)."""
     D = problem.dictionary
     k = D.shape[1]
     n = problem.n_tasks
@@ -392,7 +405,7 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         if a.size == 0:
             break
         curv = _Curvature(G, s, P, lam, k, lowrank)
-        _, pg = _prior_terms(x[a], k, m, P, s[a], lam)
+        _, pg = _prior_terms(x[a], k, m[a], P[a], s[a], lam)
         g = s[a, None] * grad[a] + pg
         dec = np.einsum("rd,rd->r", g, curv.solve(a, g))
         done = (dec <= MAP_TOL) | (mu[a] > MAP_MAX_DAMPING)
@@ -405,7 +418,7 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
         xt = x[a] + step
         # the trial point's curvature with its loss: one linearisation per step, kept if the step is
         lt, gt, Gt, _ = evaluate(problem, xt, a, True)
-        ft = s[a] * lt + _prior_terms(xt, k, m, P, s[a], lam)[0]
+        ft = s[a] * lt + _prior_terms(xt, k, m[a], P[a], s[a], lam)[0]
         ok = np.isfinite(ft) & (f[a] - ft >= 1e-4 * predicted)
         acc = a[ok]
         if lowrank:
@@ -419,8 +432,8 @@ def laplace_posteriors(problem: TransferProblem, prior: tuple[NDArray[np.float64
     curv = _Curvature(G, s, P, lam, k, lowrank)
     out = []
     for i in range(n):
-        out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), D, problem.features[i], problem.mdps[i], float(s[i]),
-                                    float(problem.n_pairs[i])))
+        out.append(LaplacePosterior(x[i].copy(), curv.covariance(i), problem.dictionary_of(i), problem.features[i],
+                                    problem.mdps[i], float(s[i]), float(problem.n_pairs[i])))
     return out
 
 
@@ -464,7 +477,7 @@ def model_posteriors(model: Any, problem: TransferProblem, start: NDArray[np.flo
 
 
 def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplacePosterior],
-                      reference: float | None = None) -> list[LaplacePosterior]:
+                      reference: float | None = None, *, batched: bool = True) -> list[LaplacePosterior]:
     """Attach to each of ``posts`` its posteriors under the model's ``dictionary_ensemble_`` (``members``); returns ``posts``.
 
     Each member ``b`` is :func:`~factirl_opt.learners.posterior.laplace_posteriors` of the same
@@ -472,19 +485,40 @@ def member_posteriors(model: Any, problem: TransferProblem, posts: list[LaplaceP
     and the least-squares coefficients of the conditional posterior's mean weights on ``D_b``
     (the residual kept), with the same ``noise_reference``. A model without an ensemble leaves
     ``posts`` as they are.
+
+    Parameters
+    ----------
+    batched : bool, default=True
+        Run the ``B`` members' damped Newton iterations together, over the ``B n`` (member, task)
+        pairs of one problem (:func:`~factirl_opt.learners.transfer_likelihood.repeated_problem`:
+        one planner call per step for every member), each pair with its own prior, start,
+        damping and stopping: the same iterations as one member at a time (False), to round-off.
+        Used where ``problem`` has its task set (:func:`~factirl_opt.learners.transfer_likelihood.tasks_problem`).
     """
+    batched = check_bool(batched, "batched")
     Ds = getattr(model, "dictionary_ensemble_", None)
     if Ds is None or len(Ds) == 0 or not posts:
         return posts
     k = problem.dictionary.shape[1]
+    n = problem.n_tasks
     X = np.stack([p.mean for p in posts])
     W = X[:, :k] @ problem.dictionary.T
-    members = []
-    for D, m, P in zip(Ds, model.ensemble_prior_means_, model.ensemble_prior_precisions_):
-        H = np.linalg.lstsq(D, W.T, rcond=None)[0].T
-        start = np.concatenate([H, X[:, k:]], axis=1)
-        members.append(laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (m, P), start,
-                                          noise_reference=reference))
+    means, precisions = model.ensemble_prior_means_, model.ensemble_prior_precisions_
+    starts = [np.concatenate([np.linalg.lstsq(D, W.T, rcond=None)[0].T, X[:, k:]], axis=1) for D in Ds]
+    if batched and problem.tasks is not None:
+        members = []
+        size = max(1, MEMBER_BATCH_ROWS // n)
+        for lo in range(0, len(Ds), size):
+            group = range(lo, min(lo + size, len(Ds)))
+            stacked = repeated_problem(model, problem, [Ds[b] for b in group])
+            m = np.repeat(np.asarray([means[b] for b in group], dtype=np.float64), n, axis=0)
+            P = np.repeat(np.asarray([precisions[b] for b in group], dtype=np.float64), n, axis=0)
+            flat = _laplace_rows(stacked, m, P, np.concatenate([starts[b] for b in group]), noise_reference=reference)
+            members += [flat[j * n:(j + 1) * n] for j in range(len(group))]
+    else:
+        members = [laplace_posteriors(dataclasses.replace(problem, dictionary=np.asarray(D)), (mb, Pb), start,
+                                      noise_reference=reference)
+                   for D, mb, Pb, start in zip(Ds, means, precisions, starts)]
     for i, p in enumerate(posts):
         p.members = tuple(mp[i] for mp in members)
     return posts

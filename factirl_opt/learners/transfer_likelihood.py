@@ -18,7 +18,7 @@ from ..tasks.basis import as_basis
 from .transfer import transfer_tasks
 
 __all__ = ["TransferProblem", "likelihood_scaling", "demonstration_curvature", "transfer_problem", "tasks_problem",
-           "CHUNK_BYTES"]
+           "repeated_problem", "CHUNK_BYTES"]
 
 #: tasks whose feature tangents (r, S*A, d) are formed at once, at most this many bytes
 CHUNK_BYTES = 64 * 2**20
@@ -81,6 +81,12 @@ class TransferProblem:
         ``lambda``; np.inf: coefficients only.
     n_pairs : ndarray, shape (n,)
         Demonstrated pairs per task.
+    tasks : TaskSet or None
+        The task set the problem was built from (:func:`tasks_problem`), from which a problem over
+        repeated tasks is built (:func:`repeated_problem`); None for a problem set up by hand.
+    dictionaries : sequence of n arrays (p, k), or None
+        Each task's own dictionary (a problem over the tasks repeated once per dictionary of an
+        ensemble, :func:`repeated_problem`); None: ``dictionary`` for every task.
     """
 
     objective: Any
@@ -89,6 +95,8 @@ class TransferProblem:
     dictionary: NDArray[np.float64]
     residual_penalty: float
     n_pairs: NDArray[np.float64]
+    tasks: Any = None
+    dictionaries: Any = None
 
     @property
     def residual(self) -> bool:
@@ -102,8 +110,12 @@ class TransferProblem:
         """``(objective, tasks, local rows)`` per MDP group (one group for a one-MDP objective)."""
         return self.objective.environment_groups()
 
+    def dictionary_of(self, task: int) -> NDArray[np.float64]:
+        """The dictionary (p, k) of task ``task``."""
+        return self.dictionary if self.dictionaries is None else self.dictionaries[task]
+
     def basis(self, task: int) -> NDArray[np.float64]:
-        return _basis(self.features[task], self.dictionary, self.residual, self.mdps[task])
+        return _basis(self.features[task], self.dictionary_of(task), self.residual, self.mdps[task])
 
     def statistics(self, task: int) -> tuple[Any, NDArray[np.float64], NDArray[np.float64]]:
         """``(objective of the task's group, mu (S,), pi_hat (S, A))``."""
@@ -116,9 +128,22 @@ class TransferProblem:
 
 
 def _shared(problem, tasks):
-    """The one basis of these tasks when they share their features (None otherwise)."""
+    """Whether these tasks share their features (one object)."""
     first = problem.features[tasks[0]]
     return all(problem.features[t] is first for t in tasks)
+
+
+def _bases(problem, tasks, shape):
+    """``Phi_i [D_i, I]`` (r, S*A, d) of these tasks: one basis per distinct (features, dictionary) pair,
+    broadcast when they all share one."""
+    keys = [(id(problem.features[t]), id(problem.dictionary_of(int(t)))) for t in tasks]
+    first: dict = {}
+    for j, key in enumerate(keys):
+        first.setdefault(key, j)
+    if len(first) == 1:
+        return np.broadcast_to(problem.basis(int(tasks[0])), (len(tasks), *shape))
+    distinct = {key: problem.basis(int(tasks[j])) for key, j in first.items()}
+    return np.stack([distinct[key] for key in keys])
 
 
 def demonstration_curvature(problem: TransferProblem, x: ArrayLike,
@@ -168,10 +193,7 @@ def _evaluate(problem: TransferProblem, x: NDArray[np.float64], tasks: NDArray[n
             pos = np.array([where[int(gtasks[j])] for j in part], dtype=np.intp)
             local = glocal[part]
             ts = gtasks[part]
-            if _shared(problem, ts):
-                B = np.broadcast_to(problem.basis(int(ts[0])), (len(ts), S * A, d))
-            else:
-                B = np.stack([problem.basis(int(t)) for t in ts])
+            B = _bases(problem, ts, (S * A, d))
             R = np.einsum("rmd,rd->rm", B, x[pos]).reshape(len(ts), S, A)
             if sub.least_squares:  # eq. 5 is ||r||^2: loss, gradient 2 J_r^T r and curvature from one linearisation
                 lin = sub.linearize(R, local)
@@ -219,7 +241,11 @@ def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: N
     factors: list = [None] * r
     pis: list = [None] * r
     where = {int(t): j for j, t in enumerate(tasks)}
-    W = x[:, :k] @ D.T + x[:, k:]  # (r, p)
+    if problem.dictionaries is None:
+        W = x[:, :k] @ D.T + x[:, k:]  # (r, p)
+    else:
+        Ds = [problem.dictionary_of(int(t)) for t in tasks]
+        W = np.einsum("rpk,rk->rp", np.stack(Ds), x[:, :k]) + x[:, k:]
     for sub, gtasks, glocal in problem.groups():
         sel = np.array([j for j, t in enumerate(gtasks) if int(t) in where], dtype=np.intp)
         if sel.size == 0:
@@ -238,7 +264,7 @@ def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: N
             for j, q in enumerate(pos):
                 live = np.flatnonzero(np.any(J[j] != 0.0, axis=1))
                 Jl = J[j][live]
-                Z = np.concatenate([Jl @ D, Jl], axis=1)
+                Z = np.concatenate([Jl @ problem.dictionary_of(int(tasks[q])), Jl], axis=1)
                 grad[q] = 2.0 * Z.T @ res[j][live]
                 factors[q] = Z
             mu = sub.mu[glocal[part]]
@@ -252,6 +278,39 @@ def _evaluate_lowrank(problem: TransferProblem, x: NDArray[np.float64], tasks: N
     for q, z in enumerate(factors):
         Z[q, :z.shape[0]] = z
     return loss, grad, Z, pis
+
+
+def repeated_problem(model: Any, problem: TransferProblem, dictionaries: Any) -> TransferProblem:
+    """``problem``'s tasks repeated once per dictionary: task ``b n + i`` is task ``i`` under ``dictionaries[b]``.
+
+    Built from ``problem.tasks`` (:func:`tasks_problem`), so that each repeat has its own rows of
+    the objective (its own warm starts); the dictionary ensemble's posteriors are one problem
+    (one planner call per Newton step for every dictionary and task).
+
+    Parameters
+    ----------
+    model : FactIRL
+        The model ``problem`` was built for.
+    problem : TransferProblem
+        With its ``tasks``.
+    dictionaries : sequence of B arrays (p, k)
+
+    Returns
+    -------
+    TransferProblem
+        Of ``B n`` tasks, with ``dictionaries`` per task.
+
+    Raises
+    ------
+    ValidationError
+        ``problem`` has no task set.
+    """
+    if problem.tasks is None:
+        raise ValidationError("repeated_problem needs a TransferProblem built by tasks_problem (with its task set)")
+    n, B = problem.n_tasks, len(dictionaries)
+    out = tasks_problem(model, problem.tasks.subset(np.tile(np.arange(n), B)), problem.dictionary)
+    out.dictionaries = [np.asarray(D, dtype=np.float64) for D in dictionaries for _ in range(n)]
+    return out
 
 
 def transfer_problem(model: Any, mdp: Any, demos_per_task: Any, features: Any = None) -> TransferProblem:
@@ -275,4 +334,4 @@ def tasks_problem(model: Any, tasks: Any, D: Any) -> TransferProblem:
     lam = float(getattr(model, "residual_penalty_", np.inf))
     mdps = list(tasks.mdps or []) if tasks.mdp is None else [tasks.mdp] * tasks.n_tasks
     feats = tasks.basis.recorded_features(np.arange(tasks.n_tasks))
-    return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, tasks.n_pairs)
+    return TransferProblem(obj, mdps, feats, np.asarray(D, dtype=np.float64), lam, tasks.n_pairs, tasks)
