@@ -26,7 +26,7 @@ Presets
     on features. ``reproduce --preset fast --jobs 2`` is timed in the README next to the
     paper preset, and its results are committed under ``results/fast/``.
 ``quick``
-    Every learner and figure of the paper, the README's first command (its runs took 13 s of wall
+    Every learner and figure of the paper, the README's first command (its runs took 14 s of wall
     time with ``--jobs 1``, ``results/setup/quick-manifest.json``): an 8x8 grid (the paper's
     dynamics and k = 5 primitives), 3 points (3 and 10 demos at 40 tasks; 5 and 40 tasks at 10
     demos), 15 test tasks, 1 seed, and shorter budgets (GradIRL 50 iterations, FactIRL 30 outer
@@ -538,7 +538,7 @@ PRESET_DESCRIPTIONS = {
     "paper": "the paper's section 4: 10x10 grid, 9 sweep points, 100 test tasks, 3 seeds (49 min with --jobs 2 on 2 cores beside other jobs: results/manifest.json)",
     "fast": "the paper's section 4 with the factorial learner's faster solvers (FAST_SOLVERS; same world, sweeps, "
             "seeds and budgets; 24 min with --jobs 2 on 2 cores beside other jobs: results/fast/manifest.json)",
-    "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (13 s of wall time with --jobs 1 in a "
+    "quick": "every learner and figure: 8x8 grid, 40 tasks, short budgets, 1 seed (14 s of wall time with --jobs 1 in a "
              "fresh virtualenv: results/setup/quick-manifest.json)",
     "test": "the paper's world at one point (50 tasks x 10 demos), 1 seed: the regression tests' orderings",
     "objectworld": "ELIRL's multi-task Objectworld: 32x32, 100 training tasks x 32 demos of 16 steps, tasks sweep "
