@@ -51,11 +51,18 @@ def greedy_actions(Q: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np
     return best, top
 
 
+#: SuperLU's panel size (columns factorised together): 1, where SuperLU's default of 10 buys nothing on these
+#: matrices of a few nonzeros per column and costs more (results/defaults/README.md §13: the default
+#: fits' factorisations faster, the same accuracy; the factors differ from the default's at rounding level)
+PANEL_SIZE = 1
+
+
 def lu(MT: sp.csc_matrix, permc_spec: str) -> Any:
     """SuperLU of a CSC matrix ``M^T`` (diagonally dominant: diagonal pivots, see :class:`SparseLUPlanner`)."""
     try:
         with mapped_allocations():
-            return spla.splu(MT, permc_spec=permc_spec, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            return spla.splu(MT, permc_spec=permc_spec, diag_pivot_thresh=0.0, panel_size=PANEL_SIZE,
+                             options={"SymmetricMode": True})
     except RuntimeError as exc:  # singular: impossible for gamma < 1 and a stochastic P
         raise FactIRLError(f"sparse LU of I - gamma P_pi failed: {exc}") from None
 
