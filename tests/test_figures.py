@@ -723,3 +723,24 @@ def test_the_guides_posterior_cost_is_the_committed_measurement():
               for run in _json(f)["runs"]]
     low, high = _quoted(GUIDE, r"built when first read \(([\d.]+)-([\d.]+)x one transfer's CPU")
     assert _agrees(low, min(ratios)) and _agrees(high, max(ratios)), (low, high, ratios)
+
+
+def test_the_guides_deviation_score_figures_are_its_diagnostic():
+    """The guide's "Scoring by deviation": the rank agreements of the deviation score and of the held-out
+    likelihood, and the evidence route's choices on the grid under each score, from
+    results/which-learner/diagnostics/predicted/README.md (table.py's tables of its records)."""
+    record = (ROOT / "results/which-learner/diagnostics/predicted/README.md").read_text()
+    ranks = {(row[0], int(row[1])): (row[4], row[5]) for row in
+             _table(record, "| point | seed | posterior | n | rho likelihood | rho deviation |") if row[2] == "conditional"}
+    for point, text in (("objectworld-quick 20", "Spearman {dev} against {lik}"), ("grid 20", "({dev} against {lik}, seeds")):
+        dev = ", ".join(ranks[point, s][1] for s in range(3))
+        lik = ", ".join(ranks[point, s][0] for s in range(3))
+        assert text.format(dev=dev, lik=lik) in _flat(GUIDE), (point, dev, lik)
+    choices = {(row[2], int(row[1])): (row[4], row[5]) for row in
+               _table(record, "| point | seed | score | route | chosen (k, lambda) |")
+               if row[0] == "grid 20" and row[3] == "evidence"}
+    flat = ", ".join(choices["deviation", s][1] for s in range(3))
+    shared = ", ".join(choices["likelihood", s][0] for s in range(3))
+    shared_dev = ", ".join(choices["likelihood", s][1] for s in range(3))
+    assert f"keeps the flat model on every seed ({flat}, where the likelihood's evidence route takes {shared}: {shared_dev})" \
+        in _flat(GUIDE)
