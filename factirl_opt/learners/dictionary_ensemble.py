@@ -33,12 +33,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._params import ParameterGroup
-from .._validation import as_rng, check_int, check_tol
+from .._validation import as_rng, check_int
 from ..exceptions import ValidationError
 from .fitting import learner_tasks
 from .selection.folds import task_folds
-from .selection.search import fixed_learner, flat_start_rewards
-from .start import flat_solver
+from .selection.search import fixed_learner, own_flat_start_rewards
 from .transfer import coefficient_prior
 
 __all__ = ["PosteriorSettings", "posterior_settings", "RESAMPLINGS", "NOISE_MODELS", "resampled_tasks", "dictionary_ensemble", "tasks_ensemble", "check_posterior_settings",
@@ -184,8 +183,7 @@ def tasks_ensemble(model: Any, tasks: Any, n_dictionaries: int, resampling: str 
     subsets = resampled_tasks(tasks.n_tasks, n_dictionaries, resampling, rng)
     start = model._group("start")
     if flat_rewards is None and isinstance(start.init, str) and start.init == "pca":
-        flat_rewards = flat_start_rewards(model, tasks, flat_solver(model), check_tol(start.flat_tol, "flat_tol"),
-                                          check_tol(start.flat_stol, "flat_stol"))
+        flat_rewards = own_flat_start_rewards(model, tasks)
     Ds, means, precisions = [], [], []
     for idx in subsets:
         member = fixed_learner(model, model.n_primitives_, model.residual_penalty_, posterior=None)

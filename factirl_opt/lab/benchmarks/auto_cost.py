@@ -31,9 +31,9 @@ from ...datasets.synthetic import random_coefficients, random_dictionary
 from ...evaluation import deviation
 from ...exceptions import ConvergenceWarning
 from ...learners.factirl import FactIRL
-from ...learners.start import flat_solver
 from ...learners.fitting import learner_tasks
-from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner, flat_start_rewards
+from ...learners.selection import DEFAULT_ROUTE, ROUTES, RULES, SharingSearch, fixed_learner
+from ...learners.selection.search import own_flat_start_rewards
 from ...learners.solver_settings import SolverSettings
 from ...mdp import GridWorld
 from ...objectives.sharding import Execution
@@ -77,9 +77,8 @@ def fit_auto(learner, mdp, demos, route=DEFAULT_ROUTE, rule=None):
     flat start of every task, the choice of ``(k, lambda)``, the final fit; returns the fitted model
     and its table (the rows of :func:`~factirl_opt.learners.selection.results.validation_rows`)."""
     learner = learner.set_params(sharing_search=SharingSearch(route=route, rule=rule))
-    start = learner._group("start")
     tasks = learner_tasks(learner, mdp, demos)
-    flat = flat_start_rewards(learner, tasks, flat_solver(learner), start.flat_tol, start.flat_stol)
+    flat = own_flat_start_rewards(learner, tasks)
     found = learner.sharing_search.search(learner, tasks, flat)
     model = fixed_learner(learner, found.n_primitives, found.residual_penalty)
     model.fit(mdp, demos, flat_rewards=flat)

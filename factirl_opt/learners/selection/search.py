@@ -36,7 +36,7 @@ from .rules import RULES, SHARE_LEVEL, _choice
 from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES, _score, needs_reference
 
 __all__ = ["RACE_MARGIN", "WARM_BUDGET", "choose_sharing", "search_sharing", "SearchProgress", "score_candidates",
-           "bisection_midpoints", "fixed_learner", "flat_start_rewards", "reference_rewards"]
+           "bisection_midpoints", "fixed_learner", "flat_start_rewards", "own_flat_start_rewards", "reference_rewards"]
 
 #: a race keeps, after the first fold, the candidates whose score there is within this fraction of the best one's
 RACE_MARGIN = 0.1
@@ -416,12 +416,20 @@ def flat_start_rewards(learner: Any, tasks: TaskSet, solver: Any, tol: float, st
         return flat._fit_tasks(tasks).rewards_
 
 
+def own_flat_start_rewards(learner: Any, tasks: TaskSet) -> Any:
+    """:func:`flat_start_rewards` with the learner's own flat start: its flat solver
+    (:func:`~factirl_opt.learners.start.flat_solver`) and its start's ``flat_tol`` and ``flat_stol``,
+    checked."""
+    start = learner._group("start")
+    return flat_start_rewards(learner, tasks, flat_solver(learner), check_tol(start.flat_tol, "flat_tol"),
+                              check_tol(start.flat_stol, "flat_stol"))
+
+
 @learner_entry
 def reference_rewards(learner: Any, tasks: TaskSet, n_transfer_demos: int = N_TRANSFER_DEMOS) -> Any:
     """The reference reward of every task for ``score="deviation"``: the flat learner's reward of
     its scoring demonstrations (all but the first ``n_transfer_demos``, those a held-out transfer
-    does not see), as FactIRL's flat start fits it (:func:`flat_start_rewards` with the learner's
-    ``flat_solver``, ``flat_tol`` and ``flat_stol``).
+    does not see), as FactIRL's flat start fits it (:func:`own_flat_start_rewards`).
 
     The flat learner is separable over tasks, so one fit on every task gives each task the reward
     it would have alone: a search fits it once, whatever its folds and candidates. Its cost on
@@ -450,6 +458,4 @@ def reference_rewards(learner: Any, tasks: TaskSet, n_transfer_demos: int = N_TR
     if short:
         raise ValidationError(f"the reference reward of a task is fitted to its demonstrations after the first {t}: task "
                               f"{short[0]} has {len(tasks.demos_per_task[short[0]])}; give every task at least {t + 1}")
-    start = learner._group("start")
-    return flat_start_rewards(learner, tasks.episodes(t), flat_solver(learner), check_tol(start.flat_tol, "flat_tol"),
-                              check_tol(start.flat_stol, "flat_stol"))
+    return own_flat_start_rewards(learner, tasks.episodes(t))

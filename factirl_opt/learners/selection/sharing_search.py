@@ -24,19 +24,18 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import check_int, check_tol
+from ..._validation import check_int
 from ...exceptions import FitInterrupted, ValidationError
 from ...interruption import INTERRUPTED, raise_interrupted, warn_interrupted
 from ...objectives.residuals import check_residual_penalty
 from ...tasks.task_set import TaskSet
 from ..estimator import Estimator
-from ..start import flat_solver
 from .folds import N_FOLDS
 from .results import SearchResult, cv_results
 from .routes import AUTO, DEFAULT_ROUTE, K_CANDIDATES, LAMBDA_CANDIDATES, ROUTES, get_route, route_rule
 from .rules import RULES, SHARE_LEVEL
 from .scores import DEFAULT_SCORE, N_TRANSFER_DEMOS, SCORES
-from .search import RACE_MARGIN, fixed_learner, flat_start_rewards, search_sharing
+from .search import RACE_MARGIN, fixed_learner, own_flat_start_rewards, search_sharing
 
 __all__ = ["SharingSearch", "fit_auto", "is_auto"]
 
@@ -189,9 +188,7 @@ def fit_auto(learner: Any, tasks: TaskSet, flat_rewards: Any) -> Any:
         raise ValidationError(f"sharing_search must be a SharingSearch or None; got {type(search).__name__}")
     if flat_rewards is None and (start.init == "pca" or search.needs_flat_start):
         try:
-            flat_rewards = flat_start_rewards(learner, tasks, flat_solver(learner),
-                                              check_tol(start.flat_tol, "flat_tol"),
-                                              check_tol(start.flat_stol, "flat_stol"))
+            flat_rewards = own_flat_start_rewards(learner, tasks)
         except FitInterrupted as exc:
             warn_interrupted("FactIRL.fit", "in the flat fit that precedes the search of n_primitives or "
                              "residual_penalty, before any candidate: the model stays unfitted", exc.__cause__)
