@@ -434,8 +434,13 @@ def demonstrated_states(mdp: Any, task_demos: Any, task: int = 0) -> NDArray[np.
     """Which states (S,) one task's demonstrations visit (a greedy expert's action there is already known)."""
     from ..tasks.trajectories import task_steps
 
-    known = np.zeros(mdp.n_states, dtype=bool)
-    known[task_steps(mdp, task_demos, task)[:, 0]] = True
+    return _visited_states(mdp.n_states, task_steps(mdp, task_demos, task))
+
+
+def _visited_states(n_states: int, steps: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """The states (n_states,) of parsed demonstration steps (m, 2) of (state, action)."""
+    known = np.zeros(n_states, dtype=bool)
+    known[steps[:, 0]] = True
     return known
 
 
@@ -503,7 +508,7 @@ def request_starts(model: Any, mdp: Any, demos_per_task: Any, n_requests: int = 
     objective = model.objective if isinstance(model.objective, str) else getattr(model.objective, "name", "")
     out = []
     for i, post in enumerate(posts):
-        known = np.isin(np.arange(post.mdp.n_states), tasks.demonstrations[i].steps[:, 0]) if demonstrated == "skip" else None
+        known = _visited_states(post.mdp.n_states, tasks.demonstrations[i].steps) if demonstrated == "skip" else None
         length = _episode_length(post.n_pairs, demos_per_task[i])
         averaged = [post, *post.members] if marginal else [post]
         if criterion == "information" and n_requests < cands[i].size and all(_row_space(q) for q in averaged):

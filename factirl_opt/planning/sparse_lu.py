@@ -51,9 +51,10 @@ def greedy_actions(Q: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray[np
     return best, top
 
 
-#: SuperLU's panel size (columns factorised together): 1, where SuperLU's default of 10 buys nothing on these
-#: matrices of a few nonzeros per column and costs more (results/defaults/README.md §13: the default
-#: fits' factorisations faster, the same accuracy; the factors differ from the default's at rounding level)
+#: SuperLU's panel size (columns factorised together): 1 instead of SuperLU's default of 10, whose panels cost
+#: more than they save on these matrices of a few nonzeros per column (36% faster factorisations measured on
+#: ``bench mce``'s draw, results/defaults/README.md §11 and §13); the factors differ from the default's at
+#: rounding level, and the planners still agree to the audited tolerances (tests/test_audit_planners.py)
 PANEL_SIZE = 1
 
 
