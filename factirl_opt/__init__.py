@@ -50,6 +50,7 @@ from .learners import (
     SolverSettings,
     adjusted_rand_index,
     fit_factorial,
+    importance_posterior,
     match_intentions,
     pca_dictionary,
     transfer_coefficients,
@@ -102,6 +103,7 @@ __all__ = [
     "pca_dictionary",
     "fit_factorial",
     "transfer_coefficients",
+    "importance_posterior",
     # scores
     "score",
     "optimal_score",

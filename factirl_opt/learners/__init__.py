@@ -14,6 +14,9 @@
   :class:`DictionaryConstraint` (a constraint on FactIRL's primitives; :mod:`~factirl_opt.learners.dictionary`).
 - :class:`LaplacePosterior` (:mod:`~factirl_opt.learners.posterior`): a transferred task's
   posterior (``FactIRL.transfer_posterior_``); active requests in :mod:`~factirl_opt.learners.active`.
+- :func:`importance_posterior` and :class:`ParticlePosterior` (:mod:`~factirl_opt.learners.particle_posterior`):
+  the same tasks' posterior without the Gaussian approximation, the prior's draws weighted by the
+  demonstrations' likelihood (ranks new tasks by their regret; costs planning the draws).
 - :class:`GPIReport` (:mod:`~factirl_opt.learners.gpi`): what ``FactIRL.gpi_policies`` found,
   policies of new tasks by generalised policy improvement over the successor features of a library.
 - :class:`SharingSearch` (:mod:`~factirl_opt.learners.selection`): how ``FactIRL``'s ``"auto"``
@@ -28,6 +31,7 @@ from .gpi import GPIReport
 from .gradirl import GradIRL
 from .multi_intent import MultiIntentIRL, adjusted_rand_index, match_intentions
 from .posterior import LaplacePosterior
+from .particle_posterior import ParticlePosterior, importance_posterior
 from .selection.results import plot_validation
 from .selection.sharing_search import SharingSearch
 from .solver_settings import SolverSettings
@@ -56,5 +60,7 @@ __all__ = [
     "adjusted_rand_index",
     "match_intentions",
     "LaplacePosterior",
+    "ParticlePosterior",
+    "importance_posterior",
     "GPIReport",
 ]
