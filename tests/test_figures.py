@@ -2,9 +2,12 @@
 those of the committed results they cite (each table cell and duration read back from its file)."""
 
 import csv
+import inspect
 import json
 import pathlib
 import re
+
+import factirl_opt as fo
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -744,3 +747,22 @@ def test_the_guides_deviation_score_figures_are_its_diagnostic():
     shared_dev = ", ".join(choices["likelihood", s][1] for s in range(3))
     assert f"keeps the flat model on every seed ({flat}, where the likelihood's evidence route takes {shared}: {shared_dev})" \
         in _flat(GUIDE)
+
+
+def test_the_guides_importance_posterior_figures_are_the_ceiling_runs():
+    """The guide's "Which new tasks will transfer worst": Spearman ranges of importance_posterior (10,000 draws),
+    of transfer_posterior_ and of the exact posterior, and the cost, on 100 test tasks
+    (results/transfer-prediction/bayes_ceiling_seed*_test100.json)."""
+    runs = [_json(f"results/transfer-prediction/bayes_ceiling_seed{s}_test100.json") for s in (0, 1, 2, 1000)]
+    default = [next(r for r in run["library_importance"] if r["n_particles"] == 10_000) for run in runs]
+
+    def span(values):
+        return f"{min(values):.2f}-{max(values):.2f}"
+
+    text = _flat(GUIDE)
+    assert f"at a Spearman coefficient of {span([r['spearman'] for r in default])} with its default 10,000 draws" in text
+    assert f"against {span([run['library_conditional']['spearman'] for run in runs])} for `transfer_posterior_`" in text
+    assert f"reaches {span([run['exact_posterior']['spearman'] for run in runs])})" in text
+    cost = [r["cpu_in_transfers"] for r in default]
+    assert f"{min(cost):.0f}-{max(cost):.0f} transfers of those 100 tasks" in text
+    assert inspect.signature(fo.importance_posterior).parameters["n_particles"].default == 10_000
