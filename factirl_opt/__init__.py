@@ -50,7 +50,6 @@ from .learners import (
     SolverSettings,
     adjusted_rand_index,
     fit_factorial,
-    importance_posterior,
     match_intentions,
     pca_dictionary,
     transfer_coefficients,
@@ -103,7 +102,6 @@ __all__ = [
     "pca_dictionary",
     "fit_factorial",
     "transfer_coefficients",
-    "importance_posterior",
     # scores
     "score",
     "optimal_score",

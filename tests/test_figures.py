@@ -765,4 +765,4 @@ def test_the_guides_importance_posterior_figures_are_the_ceiling_runs():
     assert f"reaches {span([run['exact_posterior']['spearman'] for run in runs])})" in text
     cost = [r["cpu_in_transfers"] for r in default]
     assert f"{min(cost):.0f}-{max(cost):.0f} transfers of those 100 tasks" in text
-    assert inspect.signature(fo.importance_posterior).parameters["n_particles"].default == 10_000
+    assert inspect.signature(fo.learners.importance_posterior).parameters["n_particles"].default == 10_000

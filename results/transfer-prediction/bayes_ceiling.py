@@ -43,7 +43,7 @@ from calibration import draw  # this folder's shared draw
 from factirl_opt.planning import get_planner, plan
 
 CHUNK = 10_000  # directions planned per batch
-PARTICLES = (2_000, 10_000, 40_000)  # fo.importance_posterior's draws
+PARTICLES = (2_000, 10_000, 40_000)  # fo.learners.importance_posterior's draws
 
 
 def chi_mean(k):
@@ -52,20 +52,45 @@ def chi_mean(k):
 
 
 def direction_plans(planner, D3, U):
-    """Greedy policy (n, S) and mean optimal value (n,) of the rewards ``D u`` for each row ``u`` of U."""
-    policies, values = [], []
+    """Greedy policy (n, S), mean optimal value (n,) and ``Q*`` (n, S, A; float32) of the rewards ``D u``
+    for each row ``u`` of U."""
+    policies, values, Q = [], [], []
     for lo in range(0, len(U), CHUNK):
         res = plan(planner, np.einsum("sak,mk->msa", D3, U[lo:lo + CHUNK]))
         policies.append(res.policy.astype(np.int8))
         values.append(res.V.mean(axis=1))
-    return np.concatenate(policies), np.concatenate(values)
+        Q.append(res.Q.astype(np.float32))
+    return np.concatenate(policies), np.concatenate(values), np.concatenate(Q)
+
+
+def log_softmax_pairs(Q, s, a, scale):
+    """``sum_t log softmax(scale_j Q_j[s_t])[a_t]`` (n,) for each row ``j`` of Q (n, S, A)."""
+    z = scale[:, None, None] * Q[:, s, :].astype(np.float64)  # (n, L, A)
+    top = z.max(axis=2, keepdims=True)
+    lse = top[:, :, 0] + np.log(np.exp(z - top).sum(axis=2))
+    return (z[:, np.arange(len(s)), a] - lse).sum(axis=1)
+
+
+def learnt_world_greedy(model, planner, test, dev, acted, seed, n_particles):
+    """The draws of ``fo.learners.importance_posterior`` (learnt dictionary and prior) kept only when their greedy
+    policy takes every demonstrated action (the true expert's likelihood): Spearman of the mean regret."""
+    posts = fo.learners.importance_posterior(model, n_particles, rng=np.random.default_rng([seed, 777]), acted_rewards=acted)
+    pol = plan(planner, posts[0].rewards(posts[0].coefficients)).policy  # one MDP: the draws' greedy policies
+    expected, kept = [], []
+    for p, demo in zip(posts, test):
+        pairs = np.asarray(demo).reshape(-1, 2)
+        acc = np.all(pol[:, pairs[:, 0]] == pairs[:, 1], axis=1)
+        kept.append(int(acc.sum()))
+        expected.append(float(p.regrets[acc].mean()) if acc.any() else np.nan)
+    return {"n_particles": n_particles, "spearman": float(spearmanr(expected, dev, nan_policy="omit").correlation),
+            "tasks_without_draw": int(np.isnan(expected).sum()), "median_kept": float(np.median(kept))}
 
 
 def library_importance(model, mdp, dev, acted, seed, n_particles, transfer_cpu):
-    """``fo.importance_posterior`` (the learnt dictionary, the learnt prior, the model's own policy model)
+    """``fo.learners.importance_posterior`` (the learnt dictionary, the learnt prior, the model's own policy model)
     acting on the same rewards: Spearman, coverage of its 90% bound, effective sample sizes, cost."""
     t = time.process_time()
-    posts = fo.importance_posterior(model, n_particles, rng=np.random.default_rng([seed, 777]), acted_rewards=acted)
+    posts = fo.learners.importance_posterior(model, n_particles, rng=np.random.default_rng([seed, 777]), acted_rewards=acted)
     cpu = time.process_time() - t
     expected = [p.expected_regret() for p in posts]
     ess = [p.effective_sample_size for p in posts]
@@ -104,14 +129,15 @@ def main(seed, n_train=60, n_test=30, n_directions=200_000, n_samples=200):
     t = time.process_time()
     U = np.random.default_rng([seed, 4242]).standard_normal((n_directions, k))
     U /= np.linalg.norm(U, axis=1, keepdims=True)
-    pol, vbar = direction_plans(planner, D3, U)
-    own_pol, own_vbar = direction_plans(planner, D3, u_true)
+    pol, vbar, QU = direction_plans(planner, D3, U)
+    own_pol, own_vbar, _ = direction_plans(planner, D3, u_true)
+    r_prior = np.linalg.norm(np.random.default_rng([seed, 5]).standard_normal((n_directions, k)), axis=1)
     plan_cpu = time.process_time() - t
 
     learnt_policy = plan(planner, M).policy  # (n_test, S): the policies the model acts with
     Ek = chi_mean(k)
     r_draws = np.linalg.norm(np.random.default_rng([seed, 99]).standard_normal((2000, k)), axis=1)
-    exact, covered, n_acc, own_ok, dir_oracle, norm_oracle, check = [], [], [], [], [], [], []
+    exact, covered, n_acc, own_ok, dir_oracle, norm_oracle, check, boltzmann = [], [], [], [], [], [], [], []
     for i, demo in enumerate(test):
         pairs = np.asarray(demo).reshape(-1, 2)
         s, a = pairs[:, 0], pairs[:, 1]
@@ -121,6 +147,10 @@ def main(seed, n_train=60, n_test=30, n_directions=200_000, n_samples=200):
         c = np.array([fo.policy_evaluation(mdp, D3[:, :, j], learnt_policy[i]).mean() for j in range(k)])
         dev_u = vbar[acc] - U[acc] @ c  # deviation of the model's policy under each accepted direction
         n_acc.append(int(acc.sum()))
+        # the true world with a Boltzmann expert at the model's beta: w_j = r_j u_j, r_j from the prior
+        ll = log_softmax_pairs(QU, s, a, model.beta * r_prior)
+        wb = np.exp(ll - ll.max())
+        boltzmann.append(float(wb @ (r_prior * (vbar - U @ c)) / wb.sum()))
         own_dev_u = own_vbar[i] - u_true[i] @ c
         check.append(abs(r_true[i] * own_dev_u - dev[i]))
         dir_oracle.append(Ek * own_dev_u)
@@ -132,6 +162,7 @@ def main(seed, n_train=60, n_test=30, n_directions=200_000, n_samples=200):
         covered.append(float(dev[i] <= bound))
         norm_oracle.append(r_true[i] * dev_u.mean())
     importance = [library_importance(model, mdp, dev, M, seed, n, transfer_cpu) for n in PARTICLES]
+    greedy = learnt_world_greedy(model, planner, test, dev, M, seed, PARTICLES[-1])
     return {
         "seed": seed, "n_train": n_train, "n_test": n_test, "n_directions": n_directions,
         "fit_cpu_s": fit_cpu, "transfer_cpu_s": transfer_cpu, "direction_plans_cpu_s": plan_cpu,
@@ -143,9 +174,11 @@ def main(seed, n_train=60, n_test=30, n_directions=200_000, n_samples=200):
         "library_importance": importance,
         "exact_posterior": {"spearman": float(spearmanr(exact, dev, nan_policy="omit").correlation),
                             "coverage_90": float(np.nanmean(covered)), "tasks_without_direction": int(np.isnan(exact).sum())},
+        "true_world_boltzmann_expert": {"spearman": float(spearmanr(boltzmann, dev).correlation)},
+        "learnt_world_greedy_expert": greedy,
         "oracle_knows_direction": {"spearman": float(spearmanr(dir_oracle, dev).correlation)},
         "oracle_knows_norm": {"spearman": float(spearmanr(norm_oracle, dev, nan_policy="omit").correlation)},
-        "mean_deviation": float(dev.mean()), "mean_exact_expected_regret": float(np.mean(exact)),
+        "mean_deviation": float(dev.mean()), "mean_exact_expected_regret": float(np.nanmean(exact)),
     }
 
 

@@ -4,7 +4,7 @@ Usage: python results/transfer-prediction/ceiling_table.py [SUFFIX]   (SUFFIX: "
 
 Rows: the posterior; columns: Spearman(expected regret, true deviation) and coverage of the 90%
 bound on seeds 0, 1, 2 and the held-out draw 1000, the mean Spearman of seeds 0-2, and for
-``fo.importance_posterior`` its CPU in transfers of the same tasks and its median effective
+``fo.learners.importance_posterior`` its CPU in transfers of the same tasks and its median effective
 sample size.
 """
 

@@ -3,7 +3,7 @@
 Usage: OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python results/transfer-prediction/importance_ensemble.py SEED [N_DRAWS B]
 
 Prints JSON. On calibration.py's draw (60 training tasks, 30 test tasks from one demonstration,
-``transfer_stol=1e-3``), the posterior of ``fo.importance_posterior`` (docs/maths.md §10a) is
+``transfer_stol=1e-3``), the posterior of ``fo.learners.importance_posterior`` (docs/maths.md §10a) is
 formed under each of ``1 + B`` dictionaries: the model's own with its prior, and ``B = 4``
 bootstrap refits with theirs (``dictionary_ensemble``, as ``PosteriorSettings(n_dictionaries=B)``
 fits them). Each dictionary ``b`` contributes ``N_DRAWS = 5000`` draws ``h ~ N(m_b, P_b^-1)``,
@@ -11,7 +11,7 @@ rewards ``R = D_b h`` (tabular), and every draw is weighted by the likelihood of
 demonstration under the Boltzmann policy of its ``Q*`` at the model's ``beta``: pooled over the
 dictionaries, the weights of the mixture of their priors (equal prior mass, equal draws). Rows:
 
-- ``own``: the model's dictionary only (checked against ``fo.importance_posterior`` with the same
+- ``own``: the model's dictionary only (checked against ``fo.learners.importance_posterior`` with the same
   draws: ``own_matches_library``, the largest weight difference);
 - ``pooled``: the ``1 + B`` dictionaries (``mean_largest_dictionary_weight``: how much of a task's
   posterior mass its likeliest dictionary holds, averaged over the tasks);
@@ -79,12 +79,12 @@ def main(seed, n=5000, B=4):
     m0, P0 = coefficient_prior(model.coefficients_)
     planner = get_planner(mdp, "auto")
     members = [(model.dictionary_, m0, P0), *zip(Ds, ms, Ps)]
-    rng = np.random.default_rng([seed, 777])  # the own dictionary's draws first: those of fo.importance_posterior
+    rng = np.random.default_rng([seed, 777])  # the own dictionary's draws first: those of fo.learners.importance_posterior
     out = [member_draws(mdp, planner, D, m, P, n, rng, test, acted, model.beta) for D, m, P in members]
     ll = [o[0] for o in out]
     reg = [o[1] for o in out]
     own, w_own = summary(ll[0], reg[0], dev, n)
-    library = fo.importance_posterior(model, n, rng=np.random.default_rng([seed, 777]), acted_rewards=acted)
+    library = fo.learners.importance_posterior(model, n, rng=np.random.default_rng([seed, 777]), acted_rewards=acted)
     own["own_matches_library"] = float(max(np.abs(p.weights - w).max() for p, w in zip(library, w_own)))
     pooled, _ = summary(np.concatenate(ll, axis=1), np.concatenate(reg, axis=1), dev, n)
     only, _ = summary(np.concatenate(ll[1:], axis=1), np.concatenate(reg[1:], axis=1), dev, n)
