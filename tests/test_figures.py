@@ -762,7 +762,7 @@ def test_the_guides_importance_posterior_figures_are_the_ceiling_runs():
     text = _flat(GUIDE)
     assert f"at a Spearman coefficient of {span([r['spearman'] for r in default])} with its default 10,000 draws" in text
     assert f"against {span([run['library_conditional']['spearman'] for run in runs])} for `transfer_posterior_`" in text
-    assert f"reaches {span([run['exact_posterior']['spearman'] for run in runs])})" in text
+    assert f"reaches {span([run['exact_posterior']['spearman'] for run in runs])}," in text
     cost = [r["cpu_in_transfers"] for r in default]
     assert f"{min(cost):.0f}-{max(cost):.0f} transfers of those 100 tasks" in text
     assert inspect.signature(fo.learners.importance_posterior).parameters["n_particles"].default == 10_000

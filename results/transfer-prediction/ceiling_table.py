@@ -21,6 +21,8 @@ def rows(runs):
     for j, imp in enumerate(runs[0]["library_importance"]):
         entries = [r["library_importance"][j] for r in runs]
         yield f"`importance_posterior`, {imp['n_particles']:,} draws", entries, entries
+    yield "learnt world, the greedy expert's likelihood (40,000 draws kept or not)", [r["learnt_world_greedy_expert"] for r in runs], None
+    yield "true world, a Boltzmann expert at the model's beta", [r["true_world_boltzmann_expert"] for r in runs], None
     yield "exact posterior of the generating world", [r["exact_posterior"] for r in runs], None
     yield "oracle: knows the direction of w", [r["oracle_knows_direction"] for r in runs], None
     yield "oracle: knows the norm of w", [r["oracle_knows_norm"] for r in runs], None
