@@ -209,7 +209,7 @@ def importance_posterior(model: Any, n_particles: int = 10_000, rng: Any = None,
         mdp = problem.mdps[tasks[0]]
         S, A = mdp.n_states, mdp.n_actions
         unit = problem.basis(tasks[0]).T.reshape(-1, S, A)  # (k, S, A)
-        counts = np.stack([_counts(sub, problem, t) for t in tasks])  # (g, S*A)
+        counts = np.stack([_counts(problem, t) for t in tasks])  # (g, S*A)
         acted_g = [_acted(acted[t], t, S, A) for t in tasks]
         loglik = np.empty((len(tasks), n))
         best = np.empty(n)
@@ -232,7 +232,7 @@ def _acted(R, task, S, A):
     return R
 
 
-def _counts(sub, problem, task):
+def _counts(problem, task):
     """The task's demonstrated (state, action) counts (S*A,): ``N mu(s) pi_hat(a|s)``."""
     _, mu, pi_hat = problem.statistics(task)
     return (problem.n_pairs[task] * np.asarray(mu)[:, None] * np.asarray(pi_hat)).ravel()
