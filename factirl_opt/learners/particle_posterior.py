@@ -37,7 +37,6 @@ from numpy.typing import ArrayLike, NDArray
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import NotFittedError, ValidationError
 from ..planning import plan
-from .em import log_policies
 from .posterior import has_prior
 from .transfer import coefficient_prior
 from .transfer_likelihood import tasks_problem
@@ -215,9 +214,9 @@ def importance_posterior(model: Any, n_particles: int = 10_000, rng: Any = None,
         best = np.empty(n)
         for lo in range(0, n, PARTICLE_CHUNK):
             R = np.tensordot(H[lo:lo + PARTICLE_CHUNK], unit, axes=1)
-            log_pi = log_policies(sub.planner, R, sub.beta, type(sub))
+            log_pi, V = type(sub).log_policy_and_values(sub.planner, R, sub.beta)
             loglik[:, lo:lo + PARTICLE_CHUNK] = counts @ log_pi.reshape(len(R), -1).T
-            best[lo:lo + PARTICLE_CHUNK] = plan(sub.planner, R).V.mean(axis=1)
+            best[lo:lo + PARTICLE_CHUNK] = V.mean(axis=1)
         weights = particle_weights(loglik)
         for g, t in enumerate(tasks):
             c = _acted_policy_values(sub.planner, unit, acted_g[g])

@@ -22,7 +22,7 @@ from solvers import Linearization
 
 from .._validation import check_beta, check_mdp, check_statistics
 from ..exceptions import ValidationError
-from ..planning import get_planner
+from ..planning import get_planner, plan
 from ..planning.budget import check_planner_options, chunk_size, effective_budget, task_bytes
 from .contract import TaskObjective, limit_of
 
@@ -78,6 +78,15 @@ class Objective(TaskObjective):
             For an objective that models no policy (see :meth:`models_policy`).
         """
         raise ValidationError(f"the objective {cls.name!r} models no policy of the rewards (it defines no log_policy)")
+
+    @classmethod
+    def log_policy_and_values(cls, planner, rewards, beta):
+        """:meth:`log_policy` (n, S, A) and the optimal state values ``V*`` (n, S) of the same rewards.
+
+        By default the policy and a plan of the rewards of its own; an objective whose policy is
+        built on the optimal ``Q*`` gives both from one plan.
+        """
+        return cls.log_policy(planner, rewards, beta), plan(planner, rewards).V
 
     @classmethod
     def models_policy(cls):

@@ -209,7 +209,13 @@ class PolicyMatchingObjective(Objective):
     @classmethod
     def log_policy(cls, planner, rewards, beta):
         """``log pi = beta Q* - log sum_a exp(beta Q*)``, the Boltzmann policy of the optimal ``Q*`` (eq. 7), (n, S, A)."""
-        return log_softmax(beta * plan(planner, rewards).Q, axis=2)
+        return cls.log_policy_and_values(planner, rewards, beta)[0]
+
+    @classmethod
+    def log_policy_and_values(cls, planner, rewards, beta):
+        """:meth:`log_policy` and ``V*`` (n, S) from one plan of the rewards."""
+        optimal = plan(planner, rewards)
+        return log_softmax(beta * optimal.Q, axis=2), optimal.V
 
     def _forward(self, R, rows, warm):
         return forward_point(self.planner, R, self.mu[rows], self.pi_hat[rows], self.beta, warm)

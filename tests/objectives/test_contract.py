@@ -10,13 +10,14 @@ import pytest
 import factirl_opt as fo
 from factirl_opt.learners.fitting import task_objective
 from factirl_opt.learners.multi_intent_fit import WeightedObjective
-from factirl_opt.objectives import Objective
+from factirl_opt.objectives import Objective, get_objective
 from factirl_opt.objectives.contract import TaskObjective
 from factirl_opt.objectives.distributed import ShardedObjective
 from factirl_opt.objectives.environments import MultiEnvironmentObjective
 from factirl_opt.objectives.problems import weights_problem
 from factirl_opt.objectives.sharded_environments import ShardedEnvironments
 from factirl_opt.objectives.sharding import Execution
+from factirl_opt.planning import get_planner, plan
 from factirl_opt.tasks.task_set import task_set
 
 ROOT = pathlib.Path(__file__).resolve().parents[2] / "factirl_opt"
@@ -87,3 +88,16 @@ def test_the_former_per_task_builders_warn_and_build_the_same_problem(grid3):
         old = problems.task_dictionary_problem(obj, H, tasks.basis)
     new = problems.dictionary_problem(obj, H, tasks.basis)
     np.testing.assert_array_equal(old.loss_and_grad(D.reshape(1, -1), None)[1], new.loss_and_grad(D.reshape(1, -1), None)[1])
+
+
+@pytest.mark.parametrize("name", ["policy-matching", "mce"])
+def test_the_policy_and_optimal_values_of_one_call_are_those_of_two(grid3, name):
+    """``log_policy_and_values``: the objective's log-policy and ``V*`` of the same rewards, exactly as
+    ``log_policy`` and a plan of their own give them (policy matching from one plan)."""
+    cls = get_objective(name)
+    planner = get_planner(grid3)
+    R = np.random.default_rng(0).normal(size=(3, grid3.n_states, grid3.n_actions))
+    log_pi, V = cls.log_policy_and_values(planner, R, 2.0)
+    np.testing.assert_array_equal(log_pi, cls.log_policy(planner, R, 2.0))
+    np.testing.assert_array_equal(V, plan(planner, R).V)
+    assert V.shape == (3, grid3.n_states)
