@@ -30,6 +30,7 @@ from ._validation import check_array, check_beta, check_mdp, check_rewards, chec
 from .exceptions import FactIRLError, ValidationError
 from .objectives.mce import soft_values
 from .planning import Planner, get_planner, plan
+from .planning.engine import greedy_values
 from .mdp.environments import (
     by_environment, check_environments, is_environment_sequence, one_for_all, per_task_values,
     check_task_rewards,
@@ -66,9 +67,7 @@ def _pair(mdp, true_rewards, learnt_rewards):
 
 def _greedy_score(planner, Rt, Rl):
     """``mean_s V^{pi_l}_{R_true}(s)`` for ``pi_l`` greedy on ``Q*`` of the learnt rewards, (n,)."""
-    pol = plan(planner, Rl).policy
-    R_pi = np.take_along_axis(Rt, pol[:, :, None], axis=2)[:, :, 0]
-    return planner.system(pol).solve(R_pi).mean(axis=1)
+    return greedy_values(planner, Rt, plan(planner, Rl).policy)[0].mean(axis=1)
 
 
 @blas_limited

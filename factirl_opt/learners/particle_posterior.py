@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._validation import as_rng, check_array, check_int, check_real
 from ..exceptions import NotFittedError, ValidationError
 from ..planning import plan
+from ..planning.engine import greedy_values
 from .posterior import has_prior
 from .transfer import coefficient_prior
 from .transfer_likelihood import tasks_problem
@@ -141,11 +142,8 @@ def _groups(problem):
 
 def _acted_policy_values(planner, unit, acted):
     """``mean_s V^{pi}_{R(e_l)}(s)`` (k,) of the greedy policy ``pi`` of ``acted`` (S, A) for each primitive."""
-    pol = plan(planner, acted[None]).policy
-    k = unit.shape[0]
-    pols = np.repeat(pol, k, axis=0)
-    R_pi = np.take_along_axis(unit, pols[:, :, None], axis=2)[:, :, 0]
-    return planner.system(pols).solve(R_pi).mean(axis=1)
+    pols = np.repeat(plan(planner, acted[None]).policy, unit.shape[0], axis=0)
+    return greedy_values(planner, unit, pols)[0].mean(axis=1)
 
 
 def importance_posterior(model: Any, n_particles: int = 10_000, rng: Any = None, *,

@@ -36,6 +36,7 @@ from .._validation import as_rng, check_bool, check_int
 from ..exceptions import ValidationError
 from ..mdp.tabular import TabularMDP
 from ..planning import get_planner, plan
+from ..planning.engine import greedy_values
 from ..tasks.basis import as_basis
 from .noise_levels import noise_ratios, noise_reference
 from .transfer import coefficient_prior
@@ -189,10 +190,8 @@ class LaplacePosterior:
         R = self.sample_rewards(n, rng, marginal=marginal)
         pl = get_planner(self.mdp, planner)
         best = plan(pl, R).V.mean(axis=1)
-        pol = plan(pl, self.mean_rewards()[None]).policy
-        pols = np.repeat(pol, len(R), axis=0)
-        R_pi = np.take_along_axis(R, pols[:, :, None], axis=2)[:, :, 0]
-        acted = pl.system(pols).solve(R_pi).mean(axis=1)
+        pols = np.repeat(plan(pl, self.mean_rewards()[None]).policy, len(R), axis=0)
+        acted = greedy_values(pl, R, pols)[0].mean(axis=1)
         return np.maximum(best - acted, 0.0)
 
     def basis(self) -> NDArray[np.float64]:
